@@ -1,0 +1,28 @@
+#!/usr/bin/env bash
+# Set up everything this project needs in ./.venv (idempotent, safe to re-run).
+# - a Python >= 3.11 virtual environment with the package (editable) and its test peers;
+# - on Debian as root: libllvm19, which Mitsuba's CPU `llvm_ad_rgb` variant needs
+#   (without it the renders fall back to the slower `scalar_rgb` variant).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PY=${PYTHON:-python3}
+if [ ! -x .venv/bin/python ]; then
+    "$PY" -m venv .venv
+fi
+if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1 \
+        && ! ldconfig -p 2>/dev/null | grep -q 'libLLVM-19\|libLLVM.so.19'; then
+    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libllvm19) \
+        >/dev/null 2>&1 || echo "setup: could not install libllvm19; Mitsuba will use scalar_rgb" >&2
+fi
+stamp=.venv/.installed-$(sha1sum pyproject.toml | cut -c1-12)
+if [ ! -f "$stamp" ]; then
+    .venv/bin/python -m pip install -q --disable-pip-version-check --upgrade pip 2>/dev/null
+    if ! .venv/bin/python -m pip install -q --disable-pip-version-check -e ".[test]" \
+            >.venv/pip.log 2>&1; then
+        grep -v "is ignored: it is neither" .venv/pip.log | tail -30 >&2
+        exit 1
+    fi
+    .venv/bin/python -c "import resection, selfillum" 
+    rm -f .venv/.installed-*
+    touch "$stamp"
+fi
