@@ -8,6 +8,8 @@ top-left pixel, images indexed ``img[v, u]``.
 
 from .camera import Camera, effective_focal_length
 from .errors import DegenerateError, InputError, SolveError
+from .surface import SurfaceMap, SurfaceSample, vertex_values
+from .visibility import RayCaster, visible_faces
 
 __all__ = [
     "Camera",
@@ -15,4 +17,9 @@ __all__ = [
     "InputError",
     "DegenerateError",
     "SolveError",
+    "SurfaceMap",
+    "SurfaceSample",
+    "vertex_values",
+    "RayCaster",
+    "visible_faces",
 ]

@@ -1,0 +1,351 @@
+"""Image <-> model surface mapping through the face-index image.
+
+:class:`SurfaceMap` casts one Embree ray per pixel (the camera's line of sight through the
+pixel centre, lens distortion included) and records which face every pixel sees and where
+on it (barycentric coordinates). That is stored as a sparse face x pixel matrix, so that
+mapping one frame, or every frame of a run at once, onto the surface is one sparse product:
+
+* :meth:`SurfaceMap.to_surface`: image(s) -> per-face mean of the pixels that see the face,
+  the number of (finite) pixels used, and the faces not seen;
+* :meth:`SurfaceMap.to_image`: per-face values -> image, interpolated within faces (face
+  values -> vertex values -> barycentric interpolation at each pixel's hit point), pixels
+  that do not see the model left as a given background.
+
+Conventions (DESIGN.md): pixel centres at integer ``(u, v)``, images indexed ``img[v, u]``,
+model units of the mesh.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+import scipy.sparse as sp
+import trimesh
+
+from .camera import Camera
+from .errors import InputError
+from .visibility import RayCaster
+
+__all__ = ["SurfaceMap", "SurfaceSample", "vertex_values"]
+
+
+class SurfaceSample(NamedTuple):
+    """Result of :meth:`SurfaceMap.to_surface`.
+
+    Attributes
+    ----------
+    values : (F,) or (T, F) float64
+        Mean of the finite pixels seeing each face (NaN where none).
+    counts : (F,) or (T, F) int64
+        Number of finite pixels averaged. ``SurfaceMap.pixel_counts - counts`` is the
+        number of NaN pixels ignored.
+    unseen : (F,) or (T, F) bool
+        Faces with no finite pixel (``counts == 0``).
+    """
+
+    values: np.ndarray
+    counts: np.ndarray
+    unseen: np.ndarray
+
+
+def _face_geometry(mesh: trimesh.Trimesh):
+    tri = np.asarray(mesh.vertices, dtype=np.float64)[np.asarray(mesh.faces)]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    return tri.mean(axis=1), area
+
+
+def _vertex_matrix(mesh: trimesh.Trimesh, face_weight: np.ndarray, linear: bool) -> sp.csr_matrix:
+    """Sparse (V, F) matrix turning face values into vertex values.
+
+    Each vertex gets the area-weighted mean of the face values around it; with ``linear``
+    it is corrected by an area-weighted least-squares gradient fitted to the face centroids
+    (``f_v = mean + g . (x_v - c_mean)``), which makes the reconstruction exact for fields
+    linear in space wherever the centroids around a vertex span the needed directions.
+    Directions the centroids do not span (a vertex with one or two faces) get no gradient,
+    i.e. the plain mean.
+    """
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    verts = np.asarray(mesh.vertices, dtype=np.float64)
+    nv, nf = len(verts), len(faces)
+    cen, _ = _face_geometry(mesh)
+    vid = faces.ravel()  # incidence pairs (vertex, face)
+    fid = np.repeat(np.arange(nf), 3)
+    w = face_weight[fid]
+    W = np.bincount(vid, weights=w, minlength=nv)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        coef = w / W[vid]
+    if linear:
+        cbar = np.column_stack(
+            [np.bincount(vid, weights=w * cen[fid, k], minlength=nv) for k in range(3)]
+        )
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cbar /= W[:, None]
+        dc = cen[fid] - cbar[vid]  # (P, 3)
+        cov = np.zeros((nv, 3, 3))
+        np.add.at(cov, vid, w[:, None, None] * dc[:, :, None] * dc[:, None, :])
+        evals, evecs = np.linalg.eigh(cov)
+        scale = evals[:, -1:]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            inv = np.where(evals > 1e-9 * scale, 1.0 / evals, 0.0)
+        cinv = np.einsum("vij,vj,vkj->vik", evecs, inv, evecs)
+        lever = np.einsum("vi,vij->vj", verts - cbar, cinv)  # (x_v - cbar)^T C^+
+        coef = coef + w * np.einsum("pj,pj->p", lever[vid], dc)
+    coef = np.where(np.isfinite(coef) & (w > 0), coef, 0.0)
+    return sp.csr_matrix((coef, (vid, fid)), shape=(nv, nf))
+
+
+def vertex_values(
+    mesh: trimesh.Trimesh, face_values, *, interpolation: str = "linear"
+) -> np.ndarray:
+    """Per-vertex values from per-face values (see :meth:`SurfaceMap.to_image`).
+
+    Parameters
+    ----------
+    face_values : (F,) or (F, K) array_like
+        NaN faces are left out of the vertex values.
+    interpolation : {"linear", "mean"}
+        ``"mean"``: area-weighted mean of the faces around the vertex; ``"linear"``: that
+        mean corrected by an area-weighted least-squares gradient (exact for linear fields).
+
+    Returns
+    -------
+    (V,) or (V, K) float64, NaN for vertices whose faces are all NaN.
+    """
+    fv = np.asarray(face_values, dtype=np.float64)
+    nf = len(mesh.faces)
+    if fv.shape[0] != nf:
+        raise InputError(f"face_values: expected {nf} faces, got shape {fv.shape}")
+    if interpolation not in ("linear", "mean"):
+        raise InputError(f"interpolation must be 'linear' or 'mean', got {interpolation!r}")
+    _, area = _face_geometry(mesh)
+    return _apply_vertex(mesh, area, fv, interpolation == "linear", cache=None)
+
+
+def _apply_vertex(mesh, area, fv, linear, cache):
+    flat = fv.reshape(len(fv), -1)
+    finite = np.all(np.isfinite(flat), axis=1)
+    if finite.all() and cache is not None and linear in cache:
+        M = cache[linear]
+    else:
+        M = _vertex_matrix(mesh, area * finite, linear)
+        if finite.all() and cache is not None:
+            cache[linear] = M
+    out = M @ np.where(finite[:, None], flat, 0.0)
+    # vertices with no finite face around them
+    faces = np.asarray(mesh.faces)
+    has = np.bincount(faces[finite].ravel(), minlength=out.shape[0]) > 0
+    out[~has] = np.nan
+    return out.reshape((out.shape[0],) + fv.shape[1:])
+
+
+class SurfaceMap:
+    """Which face, and where on it, every pixel of a camera sees.
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh
+        Model surface (model units). Its face order indexes every per-face array.
+    camera : Camera
+        Calibrated camera with its pose; one ray per pixel centre through
+        :meth:`Camera.rays` (distortion included).
+    max_obliqueness_deg : float, optional
+        If given, pixels that see a face more obliquely than this (angle between the face
+        normal and the line of sight, degrees) or see its back are treated as background.
+        Default None keeps every hit.
+
+    Attributes
+    ----------
+    face_index : (H, W) int64
+        Face seen by each pixel, -1 for background.
+    barycentric : (H, W, 3) float64
+        Barycentric coordinates of the hit point on the face's vertices (NaN background).
+    depth : (H, W) float64
+        Distance from the perspective centre to the hit point, model units (NaN background).
+    matrix : scipy.sparse.csr_matrix, shape (F, H*W)
+        1 where pixel (flattened ``v * W + u``) sees face.
+    pixel_counts : (F,) int64
+        Pixels seeing each face (before removing NaN pixels of an image).
+    """
+
+    def __init__(
+        self,
+        mesh: trimesh.Trimesh,
+        camera: Camera,
+        *,
+        max_obliqueness_deg: float | None = None,
+        caster: RayCaster | None = None,
+    ):
+        if not isinstance(camera, Camera):
+            raise InputError(f"camera: expected a resection.Camera, got {type(camera).__name__}")
+        if not isinstance(mesh, trimesh.Trimesh):
+            raise InputError(f"mesh: expected a trimesh.Trimesh, got {type(mesh).__name__}")
+        self.mesh = mesh
+        self.camera = camera
+        H, W = camera.height, camera.width
+        self.shape = (H, W)
+        caster = RayCaster(mesh) if caster is None else caster
+        vv, uu = np.mgrid[0:H, 0:W]
+        uv = np.column_stack([uu.ravel(), vv.ravel()]).astype(np.float64)
+        origins, dirs = camera.rays(uv)
+        face, dist, bary = caster.first_hit(origins, dirs)
+        if max_obliqueness_deg is not None:
+            lim = float(max_obliqueness_deg)
+            if not (0.0 < lim <= 90.0):
+                raise InputError(
+                    f"max_obliqueness_deg must be in (0, 90], got {max_obliqueness_deg}"
+                )
+            n = np.asarray(mesh.face_normals, dtype=np.float64)
+            hit = face >= 0
+            cosang = -np.einsum("ij,ij->i", n[face[hit]], dirs[hit])
+            bad = np.flatnonzero(hit)[cosang < np.cos(np.radians(lim)) - 1e-12]
+            face[bad] = -1
+            dist[bad] = np.nan
+            bary[bad] = np.nan
+        self.face_index = face.reshape(H, W)
+        self.barycentric = bary.reshape(H, W, 3)
+        self.depth = dist.reshape(H, W)
+        self._hit = np.flatnonzero(face >= 0)  # flattened pixel indices on the model
+        nf = len(mesh.faces)
+        self.matrix = sp.csr_matrix(
+            (np.ones(self._hit.size), (face[self._hit], self._hit)), shape=(nf, H * W)
+        )
+        self.pixel_counts = np.bincount(face[self._hit], minlength=nf).astype(np.int64)
+        _, self._area = _face_geometry(mesh)
+        self._vcache: dict = {}
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def n_faces(self) -> int:
+        return len(self.mesh.faces)
+
+    @property
+    def mask(self) -> np.ndarray:
+        """(H, W) bool: pixels that see the model."""
+        return self.face_index >= 0
+
+    @property
+    def seen_faces(self) -> np.ndarray:
+        """(F,) bool: faces seen by at least one pixel."""
+        return self.pixel_counts > 0
+
+    @property
+    def points(self) -> np.ndarray:
+        """(H, W, 3) model coordinates of each pixel's hit point (NaN background)."""
+        out = np.full((self.shape[0] * self.shape[1], 3), np.nan)
+        f = self.face_index.ravel()[self._hit]
+        tri = np.asarray(self.mesh.vertices, dtype=np.float64)[np.asarray(self.mesh.faces)[f]]
+        b = self.barycentric.reshape(-1, 3)[self._hit]
+        out[self._hit] = np.einsum("pk,pkj->pj", b, tri)
+        return out.reshape(self.shape + (3,))
+
+    # ------------------------------------------------------------------ mapping
+    def _check_images(self, image, name: str = "image") -> tuple[np.ndarray, bool]:
+        arr = np.asarray(image)
+        H, W = self.shape
+        if arr.ndim == 2 and arr.shape == (H, W):
+            return arr[None], True
+        if arr.ndim == 3 and arr.shape[1:] == (H, W):
+            return arr, False
+        raise InputError(
+            f"{name}: shape {arr.shape} does not match the camera image (H, W) = ({H}, {W})"
+            " (or a stack (T, H, W))"
+        )
+
+    def to_surface(self, image) -> SurfaceSample:
+        """Average image pixels onto the faces they see.
+
+        Parameters
+        ----------
+        image : (H, W) or (T, H, W) array_like
+            One image or a stack of T frames of this camera. NaN pixels are ignored (and
+            not counted in ``counts``).
+
+        Returns
+        -------
+        SurfaceSample
+            ``(values, counts, unseen)``, each (F,) for one image or (T, F) for a stack.
+        """
+        arr, single = self._check_images(image)
+        if not np.issubdtype(arr.dtype, np.number) or np.issubdtype(arr.dtype, np.complexfloating):
+            raise InputError(f"image: expected real numbers, got dtype {arr.dtype}")
+        T = arr.shape[0]
+        X = arr.reshape(T, -1).T.astype(np.float64, copy=False)  # (P, T)
+        finite = np.isfinite(X)
+        rhs = np.hstack([np.where(finite, X, 0.0), finite.astype(np.float64)])
+        prod = self.matrix @ rhs  # one sparse product for all frames
+        sums, counts = prod[:, :T].T, np.rint(prod[:, T:].T).astype(np.int64)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            values = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
+        unseen = counts == 0
+        if single:
+            return SurfaceSample(values[0], counts[0], unseen[0])
+        return SurfaceSample(values, counts, unseen)
+
+    def vertex_values(self, face_values, interpolation: str = "linear") -> np.ndarray:
+        """Per-vertex values of per-face values (see :func:`vertex_values`)."""
+        fv = np.asarray(face_values, dtype=np.float64)
+        if interpolation not in ("linear", "mean"):
+            raise InputError(f"interpolation must be 'linear' or 'mean', got {interpolation!r}")
+        return _apply_vertex(self.mesh, self._area, fv, interpolation == "linear", self._vcache)
+
+    def to_image(self, face_values, background=None, *, interpolation: str = "linear"):
+        """Backproject per-face values into this camera's image.
+
+        Parameters
+        ----------
+        face_values : (F,) or (T, F) array_like
+            Value(s) per face. NaN faces are left out of the interpolation, and pixels on a
+            NaN face take the background.
+        background : None, float or (H, W) / (T, H, W) array_like
+            What pixels that do not see the model (or see a NaN face) get: NaN (default), a
+            constant, or the matching pixels of an image (e.g. the original camera image).
+        interpolation : {"linear", "mean", "nearest"}
+            ``"nearest"``: each pixel gets its face's value. Otherwise face values are
+            turned into vertex values (``"mean"``: area-weighted mean of the faces around a
+            vertex; ``"linear"``: that mean plus an area-weighted least-squares gradient
+            correction, exact for fields linear in space) and interpolated barycentrically
+            at the pixel's hit point.
+
+        Returns
+        -------
+        (H, W) or (T, H, W) float64
+        """
+        fv = np.asarray(face_values, dtype=np.float64)
+        nf = self.n_faces
+        if fv.ndim == 1 and fv.shape[0] == nf:
+            fv2, single = fv[None], True
+        elif fv.ndim == 2 and fv.shape[1] == nf:
+            fv2, single = fv, False
+        else:
+            raise InputError(
+                f"face_values: shape {fv.shape} does not match the mesh's {nf} faces "
+                "(expected (F,) or (T, F))"
+            )
+        if interpolation not in ("linear", "mean", "nearest"):
+            raise InputError(
+                f"interpolation must be 'linear', 'mean' or 'nearest', got {interpolation!r}"
+            )
+        T = fv2.shape[0]
+        H, W = self.shape
+        if background is None:
+            out = np.full((T, H * W), np.nan)
+        elif np.ndim(background) == 0:
+            out = np.full((T, H * W), float(background))
+        else:
+            bg, _ = self._check_images(background, "background")
+            out = np.broadcast_to(bg.reshape(bg.shape[0], -1), (T, H * W)).astype(np.float64)
+        hit = self._hit
+        f = self.face_index.ravel()[hit]
+        if interpolation == "nearest":
+            vals = fv2[:, f]
+        else:
+            vert = self.vertex_values(fv2.T, interpolation)  # (V, T)
+            corners = np.asarray(self.mesh.faces)[f]  # (P, 3)
+            b = self.barycentric.reshape(-1, 3)[hit]
+            vals = np.einsum("pk,pkt->tp", b, vert[corners])
+        good = np.isfinite(fv2[:, f])
+        rows, cols = np.nonzero(good)
+        out[rows, hit[cols]] = vals[rows, cols]
+        out = out.reshape(T, H, W)
+        return out[0] if single else out

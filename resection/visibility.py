@@ -1,0 +1,236 @@
+"""Which faces of a model surface a camera sees, with Embree ray casting.
+
+A face is *visible* from a camera when
+
+1. it faces the camera (its normal points towards the perspective centre),
+2. the angle between its normal and the line of sight is at most an obliqueness limit
+   (paint seen too obliquely is not measured reliably),
+3. its sample points project inside the image, and
+4. the ray from the perspective centre to its sample points hits that face first (no other
+   part of the model in between).
+
+Ray casting goes through Embree (``embreex``, the binding trimesh uses for
+``trimesh.ray.ray_pyembree``). Embree works in float32; hit distances and barycentric
+coordinates are recomputed here in float64 from the face Embree reports, so that they are
+exact to double precision for the face that was hit.
+
+Face winding gives the normal: counter-clockwise seen from outside, as trimesh.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+from embreex import rtcore_scene
+from embreex.mesh_construction import TriangleMesh
+
+from ._checks import as_points
+from .camera import Camera
+from .errors import InputError
+
+__all__ = ["RayCaster", "visible_faces", "face_sample_points"]
+
+
+class RayCaster:
+    """First-hit ray casting on a triangle mesh with Embree.
+
+    The scene is built once (float32, shifted and scaled to a box of about 100 units to use
+    the float32 range well, as trimesh does) and can be queried many times.
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh
+        The surface; its face order defines the face indices returned.
+    """
+
+    def __init__(self, mesh: trimesh.Trimesh):
+        if not isinstance(mesh, trimesh.Trimesh):
+            raise InputError(f"mesh: expected a trimesh.Trimesh, got {type(mesh).__name__}")
+        if len(mesh.faces) == 0:
+            raise InputError("mesh: has no faces")
+        vertices = np.asarray(mesh.vertices, dtype=np.float64)
+        if not np.all(np.isfinite(vertices)):
+            raise InputError("mesh: vertices contain NaN or infinite values")
+        self._vertices = vertices
+        self._faces = np.asarray(mesh.faces, dtype=np.int64)
+        self._origin = vertices.min(axis=0)
+        extent = float(np.linalg.norm(vertices.max(axis=0) - self._origin))
+        self._scale = 100.0 / extent if extent > 0 else 1.0
+        scaled = ((vertices - self._origin) * self._scale).astype(np.float32)
+        self._scene = rtcore_scene.EmbreeScene()
+        TriangleMesh(scene=self._scene, vertices=scaled,
+                     indices=self._faces.astype(np.int32))
+
+    @property
+    def n_faces(self) -> int:
+        return len(self._faces)
+
+    def first_hit(self, origins, directions):
+        """Cast rays and return the first face each one hits.
+
+        Parameters
+        ----------
+        origins, directions : (N, 3) array_like
+            Ray origins and directions in model coordinates (directions need not be unit;
+            rows with NaN are not cast and come back as misses).
+
+        Returns
+        -------
+        face : (N,) int64
+            Index of the face hit first, -1 for a miss.
+        distance : (N,) float64
+            Distance along the unit direction to the hit point (model units), NaN for a
+            miss; recomputed in float64 on the hit face's plane.
+        bary : (N, 3) float64
+            Barycentric coordinates of the hit point on the face's vertices ``(w0, w1, w2)``
+            (sum 1), NaN for a miss.
+        """
+        o = as_points(origins, 3, "ray origins", allow_nan=True)
+        d = as_points(directions, 3, "ray directions", allow_nan=True)
+        if o.shape != d.shape:
+            raise InputError(f"rays: origins {o.shape} and directions {d.shape} differ")
+        n = len(o)
+        face = np.full(n, -1, dtype=np.int64)
+        dist = np.full(n, np.nan)
+        bary = np.full((n, 3), np.nan)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            norm = np.linalg.norm(d, axis=1)
+            ok = np.isfinite(norm) & (norm > 0) & np.all(np.isfinite(o), axis=1)
+        if not np.any(ok):
+            return face, dist, bary
+        idx = np.flatnonzero(ok)
+        du = d[idx] / norm[idx, None]
+        so = ((o[idx] - self._origin) * self._scale).astype(np.float32)
+        hit = np.asarray(self._scene.run(so, du.astype(np.float32)), dtype=np.int64)
+        sel = hit >= 0
+        idx, hit, du = idx[sel], hit[sel], du[sel]
+        face[idx] = hit
+        t, b = _ray_triangle(o[idx], du, self._vertices[self._faces[hit]])
+        dist[idx] = t
+        bary[idx] = b
+        return face, dist, bary
+
+
+def _ray_triangle(o: np.ndarray, d: np.ndarray, tri: np.ndarray):
+    """Distance along unit ``d`` and barycentrics of the ray's crossing of each triangle's
+    plane (float64, vectorised). ``tri`` is (N, 3, 3)."""
+    v0, v1, v2 = tri[:, 0], tri[:, 1], tri[:, 2]
+    e1, e2 = v1 - v0, v2 - v0
+    n = np.cross(e1, e2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.einsum("ij,ij->i", n, v0 - o) / np.einsum("ij,ij->i", n, d)
+        p = o + t[:, None] * d - v0
+        nn = np.einsum("ij,ij->i", n, n)
+        w1 = np.einsum("ij,ij->i", np.cross(p, e2), n) / nn
+        w2 = np.einsum("ij,ij->i", np.cross(e1, p), n) / nn
+    return t, np.column_stack([1.0 - w1 - w2, w1, w2])
+
+
+def face_sample_points(mesh: trimesh.Trimesh, samples_per_face: int = 1) -> np.ndarray:
+    """Sample points inside every face at fixed barycentric positions.
+
+    Sample 0 is the centroid; samples 1-3 lean towards each vertex (barycentric weight 0.6
+    on it, 0.2 on the others) and samples 4-6 towards each edge (0.4, 0.4 on its ends, 0.2
+    on the opposite vertex), so that every sample is strictly inside the face.
+
+    Parameters
+    ----------
+    samples_per_face : int
+        1 to 7.
+
+    Returns
+    -------
+    (F, S, 3) array of model points.
+    """
+    s = int(samples_per_face)
+    if s < 1 or s > 7:
+        raise InputError(f"samples_per_face must be in 1..7, got {samples_per_face}")
+    third = 1.0 / 3.0
+    weights = [[third, third, third]]
+    for k in range(3):  # towards each vertex: 0.6 on it, 0.2 on the others
+        w = [0.2, 0.2, 0.2]
+        w[k] = 0.6
+        weights.append(w)
+    for k in range(3):  # towards each edge midpoint: 0.4, 0.4 on its ends, 0.2 on the other
+        w = [0.4, 0.4, 0.4]
+        w[k] = 0.2
+        weights.append(w)
+    W = np.asarray(weights[:s])  # (S, 3)
+    tri = np.asarray(mesh.vertices, dtype=np.float64)[np.asarray(mesh.faces)]  # (F, 3, 3)
+    return np.einsum("sk,fkj->fsj", W, tri)
+
+
+def visible_faces(
+    mesh: trimesh.Trimesh,
+    camera: Camera,
+    max_obliqueness_deg: float = 80.0,
+    samples_per_face: int = 1,
+    *,
+    require: str = "any",
+    in_image: bool = True,
+    caster: RayCaster | None = None,
+) -> np.ndarray:
+    """Faces of ``mesh`` that ``camera`` sees.
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh
+        Model surface, model units; normals from the face winding.
+    camera : Camera
+        Camera with its pose.
+    max_obliqueness_deg : float
+        Largest angle, in degrees, between a face normal and the direction from the face
+        centroid to the perspective centre (0 = seen head-on, 90 = edge-on).
+    samples_per_face : int
+        Number of sample points per face (1..7, see :func:`face_sample_points`) tested for
+        occlusion and for falling inside the image.
+    require : {"any", "all"}
+        A face is visible when any (partially seen) or all (fully seen) of its samples are
+        unoccluded and inside the image.
+    in_image : bool
+        Also require the samples to project inside the image (with distortion).
+    caster : RayCaster, optional
+        A prebuilt ray caster for ``mesh`` (saves rebuilding the Embree scene).
+
+    Returns
+    -------
+    (F,) bool ndarray
+    """
+    if not isinstance(camera, Camera):
+        raise InputError(f"camera: expected a resection.Camera, got {type(camera).__name__}")
+    lim = float(max_obliqueness_deg)
+    if not (0.0 < lim <= 90.0):
+        raise InputError(f"max_obliqueness_deg must be in (0, 90], got {max_obliqueness_deg}")
+    if require not in ("any", "all"):
+        raise InputError(f"require must be 'any' or 'all', got {require!r}")
+    caster = RayCaster(mesh) if caster is None else caster
+    tri = np.asarray(mesh.vertices, dtype=np.float64)[np.asarray(mesh.faces)]
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    nlen = np.linalg.norm(normal, axis=1)
+    C = camera.center
+    to_cam = C - tri.mean(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cosang = np.einsum("ij,ij->i", normal, to_cam) / (nlen * np.linalg.norm(to_cam, axis=1))
+    facing = cosang >= np.cos(np.radians(lim)) - 1e-12
+    facing &= cosang > 0
+    cand = np.flatnonzero(facing)
+    vis = np.zeros(len(tri), dtype=bool)
+    if cand.size == 0:
+        return vis
+    pts = face_sample_points(mesh, samples_per_face)[cand]  # (M, S, 3)
+    m, s = pts.shape[:2]
+    flat = pts.reshape(-1, 3)
+    d = flat - C
+    target = np.linalg.norm(d, axis=1)
+    face_hit, dist, _ = caster.first_hit(np.broadcast_to(C, d.shape), d)
+    own = np.repeat(cand, s)
+    # the ray reaches the sample on its own face, or on a face at the same distance
+    # (coplanar duplicate / edge): nothing lies in front of it
+    tol = 1e-6 * target
+    ok = (face_hit == own) | ((face_hit >= 0) & (dist >= target - tol))
+    if in_image:
+        uv = camera.project(flat)
+        ok &= camera.in_image(uv)
+    ok = ok.reshape(m, s)
+    vis[cand] = ok.any(axis=1) if require == "any" else ok.all(axis=1)
+    return vis
