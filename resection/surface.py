@@ -79,8 +79,7 @@ def _vertex_matrix(mesh: trimesh.Trimesh, face_weight: np.ndarray, linear: bool)
         cbar = np.column_stack(
             [np.bincount(vid, weights=w * cen[fid, k], minlength=nv) for k in range(3)]
         )
-        with np.errstate(invalid="ignore", divide="ignore"):
-            cbar /= W[:, None]
+        cbar = np.where(W[:, None] > 0, cbar / np.where(W > 0, W, 1.0)[:, None], 0.0)
         dc = cen[fid] - cbar[vid]  # (P, 3)
         cov = np.zeros((nv, 3, 3))
         np.add.at(cov, vid, w[:, None, None] * dc[:, :, None] * dc[:, None, :])
@@ -123,20 +122,27 @@ def vertex_values(
 
 
 def _apply_vertex(mesh, area, fv, linear, cache):
+    """Vertex values of (F,) or (F, K) face values; columns are handled in groups sharing
+    the same set of NaN faces (each group gets its own reconstruction matrix)."""
     flat = fv.reshape(len(fv), -1)
-    finite = np.all(np.isfinite(flat), axis=1)
-    if finite.all() and cache is not None and linear in cache:
-        M = cache[linear]
-    else:
-        M = _vertex_matrix(mesh, area * finite, linear)
-        if finite.all() and cache is not None:
-            cache[linear] = M
-    out = M @ np.where(finite[:, None], flat, 0.0)
-    # vertices with no finite face around them
+    finite = np.isfinite(flat)
     faces = np.asarray(mesh.faces)
-    has = np.bincount(faces[finite].ravel(), minlength=out.shape[0]) > 0
-    out[~has] = np.nan
-    return out.reshape((out.shape[0],) + fv.shape[1:])
+    nv = len(mesh.vertices)
+    out = np.empty((nv, flat.shape[1]))
+    patterns, group = np.unique(finite.T, axis=0, return_inverse=True)
+    for g, pattern in enumerate(patterns):  # loop over distinct NaN patterns, not faces
+        cols = np.flatnonzero(group.ravel() == g)
+        if pattern.all() and cache is not None and linear in cache:
+            M = cache[linear]
+        else:
+            M = _vertex_matrix(mesh, area * pattern, linear)
+            if pattern.all() and cache is not None:
+                cache[linear] = M
+        res = M @ np.where(pattern[:, None], flat[:, cols], 0.0)
+        has = np.bincount(faces[pattern].ravel(), minlength=nv) > 0
+        res[~has] = np.nan  # vertices with no finite face around them
+        out[:, cols] = res
+    return out.reshape((nv,) + fv.shape[1:])
 
 
 class SurfaceMap:

@@ -1,0 +1,257 @@
+"""SurfaceMap: face-index image against closed-form ray/plane geometry (rays from OpenCV's
+undistortPoints, not from Camera.rays), to_surface / to_image round trips, errors."""
+
+import cv2
+import numpy as np
+import pytest
+import trimesh
+
+from resection import Camera, InputError, SurfaceMap
+
+N = 16  # grid cells per side
+H, W = 120, 160
+
+
+def grid_plane(n=N, half=1.0):
+    """Plane z = 0 over [-half, half]^2: cell (i, j) of size h, split along a -> c."""
+    xs = np.linspace(-half, half, n + 1)
+    X, Y = np.meshgrid(xs, xs)
+    V = np.column_stack([X.ravel(), Y.ravel(), np.zeros(X.size)])
+    idx = np.arange(V.shape[0]).reshape(n + 1, n + 1)
+    a, b = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel()
+    c, d = idx[1:, 1:].ravel(), idx[1:, :-1].ravel()
+    F = np.vstack([np.column_stack([a, b, c]), np.column_stack([a, c, d])])
+    return trimesh.Trimesh(V, F, process=False)
+
+
+def camera(dist=(-0.12, 0.03, 0.001, -0.0005, 0.0)):
+    K = [[150.0, 0.0, 79.5], [0.0, 152.0, 59.5], [0.0, 0.0, 1.0]]
+    return Camera.look_at([0.25, -0.3, 2.2], [0.05, 0.0, 0.0], [0, 1, 0], K=K, width=W,
+                          height=H, dist=list(dist))
+
+
+def reference_hits(cam, n=N, half=1.0):
+    """Closed-form plane hits of every pixel, rays through OpenCV's undistortPoints."""
+    vv, uu = np.mgrid[0:H, 0:W]
+    uv = np.column_stack([uu.ravel(), vv.ravel()]).astype(np.float64)
+    K, dist, _, _ = cam.to_opencv()
+    xy = cv2.undistortPoints(uv[:, None, :], K, dist,
+                             criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200,
+                                       1e-15)).reshape(-1, 2)
+    d = np.column_stack([xy, np.ones(len(xy))]) @ np.asarray(cam.R)  # R^T d_cam
+    C = cam.center
+    s = -C[2] / d[:, 2]
+    P = C + s[:, None] * d
+    h = 2.0 * half / n
+    gx, gy = (P[:, 0] + half) / h, (P[:, 1] + half) / h
+    inside = (s > 0) & (gx > 0) & (gx < n) & (gy > 0) & (gy < n)
+    i, j = np.floor(gy).astype(int), np.floor(gx).astype(int)
+    fx, fy = gx - j, gy - i
+    lower = fx > fy  # triangle (a, b, c) holds the points below the diagonal a -> c
+    face = np.where(lower, i * n + j, n * n + i * n + j)
+    face[~inside] = -1
+    # distance to the nearest cell edge or diagonal, in cells
+    edge = np.minimum.reduce([fx, 1 - fx, fy, 1 - fy, np.abs(fx - fy) / np.sqrt(2)])
+    return face.reshape(H, W), P.reshape(H, W, 3), edge.reshape(H, W)
+
+
+@pytest.fixture(scope="module")
+def plane_map():
+    mesh = grid_plane()
+    cam = camera()
+    return mesh, cam, SurfaceMap(mesh, cam), reference_hits(cam)
+
+
+def test_face_index_matches_closed_form(plane_map):
+    mesh, cam, sm, (face, P, edge) = plane_map
+    clear = edge > 1e-4  # float32 Embree may pick either face exactly on an edge
+    assert (face >= 0).sum() > 0.3 * H * W and (face < 0).sum() > 0.1 * H * W
+    np.testing.assert_array_equal(sm.face_index[clear], face[clear])
+    assert np.mean(sm.face_index == face) > 0.999
+    # hit points from the barycentrics agree with the closed-form plane hits
+    on = face >= 0
+    np.testing.assert_allclose(sm.points[on], P[on], atol=1e-9)
+    np.testing.assert_allclose(sm.barycentric[on].sum(axis=1), 1.0, atol=1e-12)
+    assert np.all(sm.barycentric[on] > -1e-6)
+    np.testing.assert_allclose(sm.depth[on], np.linalg.norm(P[on] - cam.center, axis=1),
+                               rtol=1e-12)
+    assert np.all(np.isnan(sm.barycentric[~sm.mask]))
+    # sparse matrix: one entry per model pixel
+    assert sm.matrix.shape == (len(mesh.faces), H * W)
+    assert sm.matrix.nnz == sm.mask.sum()
+    np.testing.assert_array_equal(sm.pixel_counts, np.bincount(sm.face_index[sm.mask],
+                                                               minlength=len(mesh.faces)))
+
+
+def test_face_index_against_projected_centroids():
+    """Without distortion: each face centroid, projected with OpenCV, lands on a pixel that
+    sees that face (faces several pixels across)."""
+    mesh = grid_plane(n=8)
+    cam = camera(dist=(0, 0, 0, 0, 0))
+    sm = SurfaceMap(mesh, cam)
+    K, dist, rvec, tvec = cam.to_opencv()
+    uv, _ = cv2.projectPoints(mesh.triangles_center, rvec, tvec, K, dist)
+    uv = uv.reshape(-1, 2)
+    iu, iv = np.rint(uv[:, 0]).astype(int), np.rint(uv[:, 1]).astype(int)
+    ins = (iu >= 0) & (iu < W) & (iv >= 0) & (iv < H)
+    assert ins.sum() > 60
+    np.testing.assert_array_equal(sm.face_index[iv[ins], iu[ins]], np.flatnonzero(ins))
+
+
+def linear(P):
+    return 2.0 * P[..., 0] - 3.0 * P[..., 1] + 0.5 * P[..., 2] + 10.0
+
+
+def test_to_image_reproduces_linear_field(plane_map):
+    mesh, cam, sm, (face, P, _) = plane_map
+    img = sm.to_image(linear(mesh.triangles_center))
+    # vertices with fewer than 3 faces (grid corners) cannot carry a gradient: skip their faces
+    nfaces = np.bincount(mesh.faces.ravel())
+    good_face = (nfaces[mesh.faces] >= 3).all(axis=1)
+    sel = sm.mask & good_face[np.maximum(sm.face_index, 0)]
+    assert sel.sum() > 0.95 * sm.mask.sum()
+    ref = linear(P)
+    np.testing.assert_allclose(img[sel], ref[sel], rtol=1e-6)
+    assert np.all(np.isnan(img[~sm.mask]))
+
+
+def test_to_image_linear_field_on_corner():
+    """A 90-degree corner (two grids sharing an edge): crease vertices see faces on both
+    planes and the linear field is reproduced there too; hit points from trimesh's own ray
+    intersector."""
+    a = grid_plane(n=8)
+    b = grid_plane(n=8)
+    v = b.vertices.copy()
+    b = trimesh.Trimesh(np.column_stack([np.full(len(v), -1.0), v[:, 1], v[:, 0] + 1.0]),
+                        b.faces[:, ::-1], process=False)
+    mesh = trimesh.util.concatenate([a, b])
+    mesh.merge_vertices()
+    mesh = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+    cam = Camera.look_at([1.2, -0.4, 1.8], [-0.6, 0.0, 0.3], [0, 0, 1],
+                         K=[[120.0, 0, 79.5], [0, 120.0, 59.5], [0, 0, 1]], width=W, height=H,
+                         dist=[-0.05, 0, 0, 0, 0])
+    sm = SurfaceMap(mesh, cam)
+    assert np.any(sm.mask & (sm.face_index >= len(a.faces)))  # both planes seen
+    img = sm.to_image(linear(mesh.triangles_center))
+    # grid corners (1-2 faces) and the two ends of the crease (3 faces whose centroids
+    # span only a plane) cannot carry a 3-D gradient: skip their faces
+    nfaces = np.bincount(mesh.faces.ravel())
+    vx = mesh.vertices
+    crease_end = np.isclose(vx[:, 0], -1) & np.isclose(vx[:, 2], 0) & np.isclose(abs(vx[:, 1]), 1)
+    bad_vertex = (nfaces < 3) | crease_end
+    good_face = ~bad_vertex[mesh.faces].any(axis=1)
+    sel = sm.mask & good_face[np.maximum(sm.face_index, 0)]
+    assert sel.sum() > 0.9 * sm.mask.sum()
+    iv, iu = np.nonzero(sel)
+    o, d = cam.rays(np.column_stack([iu, iv]))
+    loc, iray, _ = mesh.ray.intersects_location(o, d, multiple_hits=False)
+    assert len(iray) == len(o)
+    ref = np.full(len(o), np.nan)
+    ref[iray] = linear(loc)
+    np.testing.assert_allclose(img[sel], ref, rtol=1e-6)
+
+
+def test_to_surface_exact_for_per_face_constant_image(plane_map):
+    mesh, cam, sm, (face, P, edge) = plane_map
+    rng = np.random.default_rng(1)
+    g = rng.normal(size=len(mesh.faces))
+    img = np.where(face >= 0, g[np.maximum(face, 0)], 7.0)
+    clear_faces = np.ones(len(mesh.faces), bool)
+    # faces touched by an ambiguous edge pixel are excluded from the exact comparison
+    amb = (face >= 0) & (edge <= 1e-4)
+    clear_faces[face[amb]] = False
+    img[amb] = np.nan
+    res = sm.to_surface(img)
+    ref_counts = np.bincount(face[(face >= 0) & ~amb], minlength=len(mesh.faces))
+    cf = clear_faces & (ref_counts > 0)
+    np.testing.assert_allclose(res.values[cf], g[cf], rtol=1e-12)
+    np.testing.assert_array_equal(res.counts[cf], ref_counts[cf])
+    np.testing.assert_array_equal(res.unseen, res.counts == 0)
+    np.testing.assert_array_equal(res.unseen[clear_faces], ref_counts[clear_faces] == 0)
+    assert np.all(np.isnan(res.values[res.unseen]))
+
+
+def test_round_trip_linear_field(plane_map):
+    """image of a linear field -> faces -> image: faces get the field at the mean hit point
+    of their pixels (within the pixel footprint of the centroid value), and back."""
+    mesh, cam, sm, (face, P, _) = plane_map
+    img = np.where(face >= 0, linear(P), np.nan)
+    res = sm.to_surface(img)
+    seen = ~res.unseen
+    mean_pt = np.stack([np.bincount(sm.face_index[sm.mask], weights=P[sm.mask][:, k],
+                                    minlength=len(mesh.faces)) for k in range(3)], axis=1)
+    mean_pt = mean_pt[seen] / res.counts[seen, None]
+    np.testing.assert_allclose(res.values[seen], linear(mean_pt), rtol=1e-12)
+    # faces seen by many pixels: the mean is close to the centroid value
+    many = res.counts >= 30
+    assert many.sum() > 30
+    np.testing.assert_allclose(res.values[many], linear(mesh.triangles_center[many]),
+                               atol=0.05)
+    back = sm.to_image(res.values)
+    err = np.abs(back - img)[sm.mask]
+    assert np.median(err) < 0.01 and np.percentile(err, 99) < 0.1
+    assert np.isnan(back[~sm.mask]).all()
+
+
+def test_nan_pixels_ignored_and_counted(plane_map):
+    mesh, cam, sm, _ = plane_map
+    img = np.ones((H, W))
+    f0 = np.argmax(sm.pixel_counts)
+    pix = np.argwhere(sm.face_index == f0)
+    img[pix[0, 0], pix[0, 1]] = np.nan
+    img[pix[1, 0], pix[1, 1]] = 100.0
+    res = sm.to_surface(img)
+    n = sm.pixel_counts[f0]
+    assert res.counts[f0] == n - 1
+    assert res.values[f0] == pytest.approx((n - 2 + 100.0) / (n - 1))
+    # all pixels NaN -> unseen
+    img[sm.face_index == f0] = np.nan
+    res = sm.to_surface(img)
+    assert res.unseen[f0] and np.isnan(res.values[f0]) and res.counts[f0] == 0
+
+
+def test_stack_is_frame_by_frame(plane_map):
+    mesh, cam, sm, _ = plane_map
+    rng = np.random.default_rng(2)
+    stack = rng.normal(size=(4, H, W))
+    stack[1, 10:20, 30:90] = np.nan
+    res = sm.to_surface(stack)
+    assert res.values.shape == (4, len(mesh.faces))
+    for k in range(4):
+        one = sm.to_surface(stack[k])
+        np.testing.assert_allclose(res.values[k], one.values, rtol=1e-12)
+        np.testing.assert_array_equal(res.counts[k], one.counts)
+    imgs = sm.to_image(res.values)
+    assert imgs.shape == (4, H, W)
+    np.testing.assert_allclose(imgs[2], sm.to_image(res.values[2]), rtol=1e-12)
+
+
+def test_background_preserved(plane_map):
+    mesh, cam, sm, _ = plane_map
+    rng = np.random.default_rng(3)
+    bg = rng.normal(size=(H, W))
+    fv = np.full(len(mesh.faces), 5.0)
+    fv[:10] = np.nan
+    out = sm.to_image(fv, background=bg)
+    off = ~sm.mask
+    np.testing.assert_array_equal(out[off], bg[off])
+    nanface = sm.mask & (sm.face_index < 10)
+    np.testing.assert_array_equal(out[nanface], bg[nanface])
+    on = sm.mask & ~nanface
+    np.testing.assert_allclose(out[on], 5.0, rtol=1e-12)
+    out = sm.to_image(fv, background=-1.0)
+    assert np.all(out[off] == -1.0)
+    near = sm.to_image(np.arange(len(mesh.faces), dtype=float), interpolation="nearest")
+    np.testing.assert_array_equal(near[sm.mask], sm.face_index[sm.mask])
+
+
+def test_shape_errors(plane_map):
+    mesh, cam, sm, _ = plane_map
+    with pytest.raises(InputError, match=r"\(120, 161\).*\(120, 160\)|\(120, 160\).*\(120, 161\)"):
+        sm.to_surface(np.zeros((120, 161)))
+    with pytest.raises(InputError, match="background"):
+        sm.to_image(np.zeros(len(mesh.faces)), background=np.zeros((10, 10)))
+    with pytest.raises(InputError, match=str(len(mesh.faces))):
+        sm.to_image(np.zeros(len(mesh.faces) + 1))
+    with pytest.raises(InputError, match="camera"):
+        SurfaceMap(mesh, "not a camera")
