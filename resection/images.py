@@ -1,0 +1,162 @@
+"""Reading and writing single-channel images (TIFF, PNG, NPY).
+
+Images are 2-D ``float32`` arrays in memory, indexed ``img[v, u]`` (row = v down,
+column = u right, the centre of the top-left pixel at ``(0, 0)``). Integer files keep their
+counts: an 8-bit pixel of 255 reads as 255.0, a 16-bit pixel of 4095 as 4095.0. Use
+:func:`image_info` to learn the file's bit depth (e.g. to mask saturated pixels).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .errors import InputError
+
+__all__ = ["read_image", "write_image", "image_info", "saturation_level"]
+
+_TIFF = {".tif", ".tiff"}
+_PNG = {".png"}
+_NPY = {".npy"}
+_KNOWN = _TIFF | _PNG | _NPY
+
+
+def _suffix(path: Path) -> str:
+    suf = path.suffix.lower()
+    if suf not in _KNOWN:
+        raise InputError(
+            f"{path}: unknown image extension {suf!r} (expected one of {sorted(_KNOWN)})"
+        )
+    return suf
+
+
+def _read_raw(path: str | os.PathLike) -> np.ndarray:
+    path = Path(path)
+    suf = _suffix(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such image file")
+    if path.is_dir():
+        raise IsADirectoryError(f"{path}: is a directory, not an image")
+    try:
+        if suf in _TIFF:
+            import tifffile
+
+            arr = tifffile.imread(path)
+        elif suf in _PNG:
+            import imageio.v3 as iio
+
+            arr = iio.imread(path)
+        else:
+            arr = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, TypeError) as exc:
+        raise InputError(f"{path}: cannot read image ({exc})") from None
+    arr = np.asarray(arr)
+    if arr.ndim == 3 and arr.shape[-1] in (3, 4) and suf in _PNG:
+        raise InputError(
+            f"{path}: colour image with {arr.shape[-1]} channels; expected a single-channel "
+            "(grey) image"
+        )
+    if arr.ndim == 3 and arr.shape[0] == 1:
+        arr = arr[0]
+    if arr.ndim != 2:
+        raise InputError(f"{path}: expected a 2-D single-channel image, got shape {arr.shape}")
+    if arr.dtype.kind not in "uif" and arr.dtype != np.bool_:
+        raise InputError(f"{path}: unsupported pixel type {arr.dtype}")
+    return arr
+
+
+def read_image(path: str | os.PathLike) -> np.ndarray:
+    """Read a single-channel image as a 2-D ``float32`` array.
+
+    Parameters
+    ----------
+    path : path-like
+        ``.tif``/``.tiff`` (8/16/32-bit integer or float, via tifffile), ``.png`` (8/16-bit,
+        via imageio) or ``.npy`` (any numeric 2-D array).
+
+    Returns
+    -------
+    (H, W) float32 ndarray
+        Pixel values in the file's own units (counts for integer files).
+
+    Raises
+    ------
+    FileNotFoundError
+        The file does not exist.
+    InputError
+        Unknown extension, unreadable file, colour or multi-page image.
+    """
+    return _read_raw(path).astype(np.float32)
+
+
+def image_info(path: str | os.PathLike) -> dict:
+    """Shape, file dtype and saturation level (max of the integer type, or None for float)."""
+    arr = _read_raw(path)
+    return {"shape": arr.shape, "dtype": str(arr.dtype), "saturation": saturation_level(arr.dtype)}
+
+
+def saturation_level(dtype) -> float | None:
+    """The largest value of an integer pixel type (the saturated count), None for floats."""
+    dtype = np.dtype(dtype)
+    if dtype.kind in "ui":
+        return float(np.iinfo(dtype).max)
+    return None
+
+
+def write_image(path: str | os.PathLike, array, *, dtype=None) -> None:
+    """Write a 2-D image.
+
+    Parameters
+    ----------
+    path : path-like
+        ``.tif``/``.tiff``, ``.png`` or ``.npy``.
+    array : (H, W) array_like
+        The image. NaN is allowed in float TIFF/NPY files only.
+    dtype : numpy dtype, optional
+        Pixel type on disk (e.g. ``np.uint16``); default: the array's own type (PNG: uint8 if
+        the values fit in 0..255, otherwise uint16). Values are rounded and must fit the type.
+    """
+    path = Path(path)
+    suf = _suffix(path)
+    arr = np.asarray(array)
+    if arr.ndim != 2:
+        raise InputError(f"{path}: can only write 2-D images, got shape {arr.shape}")
+    if arr.dtype.kind not in "uifb":
+        raise InputError(f"{path}: unsupported pixel type {arr.dtype}")
+    if suf in _PNG and dtype is None:
+        if arr.dtype in (np.uint8, np.uint16):
+            dtype = arr.dtype
+        else:
+            finite = arr[np.isfinite(arr)] if arr.dtype.kind == "f" else arr
+            dtype = np.uint8 if finite.size and finite.min() >= 0 and finite.max() <= 255 \
+                else np.uint16
+    if dtype is not None:
+        dtype = np.dtype(dtype)
+        if suf in _PNG and dtype not in (np.uint8, np.uint16):
+            raise InputError(f"{path}: PNG holds only uint8 or uint16 pixels, not {dtype}")
+        if dtype.kind in "ui":
+            if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
+                raise InputError(f"{path}: NaN or infinite pixels cannot be written as {dtype}")
+            info = np.iinfo(dtype)
+            if arr.size and (arr.min() < info.min or arr.max() > info.max):
+                raise InputError(
+                    f"{path}: values {arr.min()}..{arr.max()} do not fit in {dtype}"
+                )
+            arr = np.rint(arr).astype(dtype) if arr.dtype.kind == "f" else arr.astype(dtype)
+        else:
+            arr = arr.astype(dtype)
+    parent = path.parent
+    if not parent.exists():
+        raise FileNotFoundError(f"{parent}: output directory does not exist")
+    if suf in _TIFF:
+        import tifffile
+
+        tifffile.imwrite(path, arr)
+    elif suf in _PNG:
+        import imageio.v3 as iio
+
+        iio.imwrite(path, arr)
+    else:
+        np.save(path, arr, allow_pickle=False)

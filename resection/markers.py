@@ -1,0 +1,629 @@
+"""Detection of circular markers with sub-pixel accuracy.
+
+Markers are disks 3 to 10 pixels across, darker or brighter than the model around them.
+:func:`detect_markers` works in four steps:
+
+1. **Merit image**: correlation (FFT) of the image with a zero-mean template of the
+   marker's diameter: a top-hat (uniform disk) or a cone, minus the mean of a surrounding
+   ring. For the top-hat the merit is the marker's contrast (inner mean minus ring mean).
+2. **Threshold**: by default ``k`` times the merit's noise, the image noise being estimated
+   robustly (median absolute deviation of neighbour differences, insensitive to markers
+   and smooth backgrounds).
+3. **Local maxima** of the merit above the threshold (``scipy.ndimage.maximum_filter``).
+4. **Sub-pixel refinement**, all candidates at once: a weighted centroid, then a
+   Levenberg-Marquardt fit of a pixel-integrated, Gaussian-blurred disk model (centre,
+   radius, contrast, local background) on a window around each candidate. Candidates cut by
+   the border, doubles and failed fits are rejected.
+
+NaN, infinite and saturated pixels (and a user mask) are masked: excluded from the noise
+estimate and from the fit, counted in :attr:`Candidates.n_masked`.
+
+Conventions: pixel ``(u, v)`` = (column, row), the centre of the top-left pixel at (0, 0),
+``img[v, u]``. Candidate CSV files: ``u,v,diameter,depth,merit,snr`` (+ ``id`` once matched).
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy import ndimage
+from scipy.signal import fftconvolve
+from scipy.spatial import cKDTree
+
+from . import _diskmodel
+from .errors import InputError
+
+__all__ = [
+    "Candidates",
+    "detect_markers",
+    "refine_markers",
+    "marker_template",
+    "estimate_noise",
+    "position_crb",
+    "read_candidates",
+    "write_candidates",
+]
+
+_FIELDS = ("u", "v", "diameter", "depth", "merit", "snr")
+
+
+@dataclass(frozen=True)
+class Candidates:
+    """Marker candidates found in one image (arrays of equal length N).
+
+    Attributes
+    ----------
+    u, v : (N,) float arrays
+        Sub-pixel centre, pixels.
+    diameter : (N,) float array
+        Fitted diameter, pixels (blur-dependent; the position does not depend on it).
+    depth : (N,) float array
+        Fitted contrast against the local background, image units, positive for the
+        requested polarity.
+    merit : (N,) float array
+        Template correlation at the candidate.
+    snr : (N,) float array
+        ``depth / noise``.
+    n_masked : int
+        Masked pixels in the searched image (NaN, infinite, saturated, user mask).
+    noise : float
+        Robust noise standard deviation of the image, image units.
+    threshold : float
+        Merit threshold used.
+    polarity : str
+    """
+
+    u: np.ndarray
+    v: np.ndarray
+    diameter: np.ndarray
+    depth: np.ndarray
+    merit: np.ndarray
+    snr: np.ndarray
+    n_masked: int = 0
+    noise: float = float("nan")
+    threshold: float = float("nan")
+    polarity: str = "dark"
+    n_rejected: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        n = None
+        for name in _FIELDS:
+            a = np.asarray(getattr(self, name), dtype=float).ravel()
+            if n is None:
+                n = a.size
+            elif a.size != n:
+                raise InputError(f"candidates: field {name!r} has {a.size} values, expected {n}")
+            object.__setattr__(self, name, a)
+
+    def __len__(self) -> int:
+        return self.u.size
+
+    @property
+    def uv(self) -> np.ndarray:
+        """(N, 2) array of ``(u, v)``."""
+        return np.column_stack([self.u, self.v])
+
+    def subset(self, index) -> Candidates:
+        """Candidates selected by a boolean mask or integer index."""
+        kw = {f: getattr(self, f)[index] for f in _FIELDS}
+        return Candidates(**kw, n_masked=self.n_masked, noise=self.noise,
+                          threshold=self.threshold, polarity=self.polarity,
+                          n_rejected=dict(self.n_rejected))
+
+    @classmethod
+    def from_uv(cls, uv, diameter=np.nan) -> Candidates:
+        """Candidates from bare positions (other fields NaN, diameter as given)."""
+        uv = np.asarray(uv, dtype=float).reshape(-1, 2)
+        n = len(uv)
+        nan = np.full(n, np.nan)
+        return cls(uv[:, 0], uv[:, 1], np.broadcast_to(diameter, (n,)).astype(float),
+                   nan, nan, nan)
+
+
+# ----------------------------------------------------------------------------- helpers
+def _as_image(image) -> np.ndarray:
+    try:
+        img = np.asarray(image)
+    except Exception as exc:  # pragma: no cover - exotic objects
+        raise InputError(f"image: not an array ({exc})") from None
+    if img.dtype == np.bool_ or img.dtype.kind not in "uif":
+        raise InputError(f"image: expected a numeric image, got dtype {img.dtype}")
+    if img.ndim != 2:
+        raise InputError(f"image: expected a 2-D single-channel array, got shape {img.shape}")
+    if min(img.shape) < 3:
+        raise InputError(f"image: too small ({img.shape})")
+    return img
+
+
+def _check_diameter(diameter) -> float:
+    try:
+        d = float(diameter)
+    except (TypeError, ValueError):
+        raise InputError(f"diameter: expected a number of pixels, got {diameter!r}") from None
+    if not np.isfinite(d) or d < 1.0 or d > 200.0:
+        raise InputError(f"diameter: must be between 1 and 200 pixels, got {diameter!r}")
+    return d
+
+
+def _bad_pixels(img: np.ndarray, mask, saturation) -> np.ndarray:
+    bad = np.zeros(img.shape, bool)
+    if img.dtype.kind == "f":
+        bad |= ~np.isfinite(img)
+    if saturation is None and img.dtype.kind in "ui":
+        saturation = np.iinfo(img.dtype).max
+    if saturation is not None:
+        with np.errstate(invalid="ignore"):
+            bad |= img >= saturation
+    if mask is not None:
+        m = np.asarray(mask)
+        if m.shape != img.shape:
+            raise InputError(f"mask: shape {m.shape} differs from the image's {img.shape}")
+        bad |= m.astype(bool)
+    return bad
+
+
+def estimate_noise(image, mask=None) -> float:
+    """Robust noise standard deviation of an image, image units.
+
+    The median absolute deviation of the differences between horizontal and vertical
+    neighbours, divided by ``sqrt(2)``: insensitive to smooth backgrounds and to a few
+    markers or defects. Masked (``True``), NaN and infinite pixels are left out.
+    """
+    img = np.asarray(image, dtype=float)
+    bad = ~np.isfinite(img)
+    if mask is not None:
+        bad |= np.asarray(mask, bool)
+    parts = []
+    for axis in (0, 1):
+        d = np.diff(img, axis=axis)
+        ok = ~(np.take(bad, range(1, img.shape[axis]), axis=axis)
+               | np.take(bad, range(0, img.shape[axis] - 1), axis=axis))
+        parts.append(d[ok])
+    d = np.concatenate(parts)
+    if d.size < 10:
+        raise InputError("image: too few valid pixels to estimate the noise")
+    mad = np.median(np.abs(d - np.median(d)))
+    sigma = 1.4826 * mad / np.sqrt(2.0)
+    if sigma == 0:  # quantised, noiseless images: fall back on the standard deviation
+        sigma = np.std(d) / np.sqrt(2.0)
+    return float(sigma)
+
+
+def marker_template(diameter: float, kind: str = "tophat") -> np.ndarray:
+    """Zero-mean correlation template for a marker of ``diameter`` pixels.
+
+    The inner part (a pixel-integrated disk for ``"tophat"``, a cone ``1 - r/R`` for
+    ``"cone"``) is normalised to sum 1, the surrounding ring (from ``R + 1`` to
+    ``R + 1 + max(2, R)``) to sum -1, so a constant or linear background gives 0 and, for
+    the top-hat, a marker of contrast ``c`` gives about ``c``.
+    """
+    d = _check_diameter(diameter)
+    if kind not in ("tophat", "cone"):
+        raise InputError(f"template: expected 'tophat' or 'cone', got {kind!r}")
+    R = d / 2.0
+    r_out0 = R + 1.0
+    r_out1 = r_out0 + max(2.0, R)
+    half = int(np.ceil(r_out1 + 0.5))
+    ar = np.arange(-half, half + 1, dtype=float)
+    if kind == "tophat":
+        inner = _diskmodel.windows([0.0], [0.0], [R], 0.3, ar, ar)[0]
+    else:
+        rr = np.hypot(ar[None, :], ar[:, None])
+        inner = np.clip(1.0 - rr / (R + 0.5), 0.0, None)
+    rr = np.hypot(ar[None, :], ar[:, None])
+    ring = ((rr >= r_out0) & (rr <= r_out1)).astype(float)
+    return inner / inner.sum() - ring / ring.sum()
+
+
+def _parse_roi(roi, shape) -> tuple[int, int, int, int]:
+    H, W = shape
+    if roi is None:
+        return 0, 0, W - 1, H - 1
+    try:
+        u0, v0, u1, v1 = (int(round(float(x))) for x in roi)
+    except (TypeError, ValueError):
+        raise InputError(f"roi: expected (u_min, v_min, u_max, v_max), got {roi!r}") from None
+    u0, v0 = max(u0, 0), max(v0, 0)
+    u1, v1 = min(u1, W - 1), min(v1, H - 1)
+    if u1 - u0 < 2 or v1 - v0 < 2:
+        raise InputError(f"roi: {roi!r} leaves no usable part of the {W}x{H} image")
+    return u0, v0, u1, v1
+
+
+def _extract(img: np.ndarray, bad: np.ndarray, iu, iv, half: int):
+    """Stacked windows (n, 2h+1, 2h+1) around integer centres; outside = bad."""
+    H, W = img.shape
+    ar = np.arange(-half, half + 1)
+    rows = iv[:, None] + ar[None, :]
+    cols = iu[:, None] + ar[None, :]
+    rin = (rows >= 0) & (rows < H)
+    cin = (cols >= 0) & (cols < W)
+    rc = np.clip(rows, 0, H - 1)
+    cc = np.clip(cols, 0, W - 1)
+    win = img[rc[:, :, None], cc[:, None, :]]
+    wbad = bad[rc[:, :, None], cc[:, None, :]] | ~(rin[:, :, None] & cin[:, None, :])
+    return win, wbad, cols.astype(float), rows.astype(float)
+
+
+# ----------------------------------------------------------------------------- refinement
+def refine_markers(
+    signal: np.ndarray,
+    uv0,
+    diameter: float,
+    *,
+    bad: np.ndarray | None = None,
+    blur: float = 0.6,
+    iterations: int = 30,
+    half: int | None = None,
+) -> dict:
+    """Sub-pixel centres of bright blobs by a least-squares disk fit, all at once.
+
+    Parameters
+    ----------
+    signal : (H, W) float array
+        Image with markers brighter than the background (negate dark markers).
+    uv0 : (n, 2) array
+        Starting centres, pixels (within about a radius of the truth).
+    diameter : float
+        Expected diameter, pixels (starting radius).
+    bad : (H, W) bool array, optional
+        Pixels to leave out of the fit.
+    blur : float
+        PSF standard deviation assumed by the model, pixels. A wrong value biases the
+        fitted diameter, not the centre.
+    iterations : int
+        Levenberg-Marquardt iterations.
+    half : int, optional
+        Half-size of the fitted window (default ``ceil(R + 3 blur + 2)``).
+
+    Returns
+    -------
+    dict of (n,) arrays: ``u, v, radius, depth, background, rms, ok, masked_fraction``.
+    """
+    uv0 = np.asarray(uv0, float).reshape(-1, 2)
+    n = len(uv0)
+    R0 = diameter / 2.0
+    if bad is None:
+        bad = ~np.isfinite(signal)
+    if half is None:
+        half = int(np.ceil(R0 + 3.0 * blur + 2.0))
+    iu = np.rint(uv0[:, 0]).astype(int)
+    iv = np.rint(uv0[:, 1]).astype(int)
+    win, wbad, gu, gv = _extract(signal, bad, iu, iv, half)
+    win = np.where(wbad, 0.0, win)
+    ar = np.arange(-half, half + 1)
+    rr = np.hypot(ar[None, :], ar[:, None])
+    w = (~wbad & (rr <= half + 0.5)[None]).astype(float)
+    # local background from the window's outer ring, weighted centroid inside
+    ring = (rr > R0 + 1.5)[None] & ~wbad
+    ringcount = ring.sum(axis=(1, 2))
+    bg0 = np.where(
+        ringcount > 0,
+        np.nanmedian(np.where(ring, win, np.nan).reshape(n, -1), axis=1)
+        if n else np.zeros(0),
+        0.0,
+    ) if n else np.zeros(0)
+    inner = (rr <= R0 + 1.0)[None] & ~wbad
+    wc = np.clip(win - bg0[:, None, None], 0, None) * inner
+    sw = wc.sum(axis=(1, 2))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cu = np.where(sw > 0, (wc * gu[:, None, :]).sum(axis=(1, 2)) / sw, iu)
+        cv = np.where(sw > 0, (wc * gv[:, :, None]).sum(axis=(1, 2)) / sw, iv)
+    amp0 = np.clip((win * inner).sum(axis=(1, 2)) / np.maximum(inner.sum(axis=(1, 2)), 1) - bg0,
+                   1e-12, None)
+    # parameters: x, y, R, a, b
+    p = np.column_stack([cu, cv, np.full(n, R0), amp0 * 1.2, bg0])
+    nodes = _diskmodel.default_nodes(max(R0 * 1.5, 1.0), max(blur, 0.3))
+    rmin = 0.3
+
+    def residual(idx, p, jac=False):
+        out = _diskmodel.windows(p[:, 0], p[:, 1], p[:, 2], blur, gu[idx], gv[idx], nodes,
+                                 jacobian=jac)
+        M = out[0] if jac else out
+        model = p[:, 3, None, None] * M + p[:, 4, None, None]
+        r = (win[idx] - model) * w[idx]
+        if not jac:
+            return r
+        dx, dy, dR = out[1]
+        a = p[:, 3, None, None]
+        J = np.stack([a * dx, a * dy, a * dR, M, np.ones_like(M)], axis=-1) * w[idx][..., None]
+        return r, J.reshape(len(idx), -1, 5)
+
+    all_idx = np.arange(n)
+    lam = np.full(n, 1e-3)
+    cost = (residual(all_idx, p) ** 2).sum(axis=(1, 2))
+    active = np.ones(n, bool)
+    eye = np.eye(5)
+    for _ in range(iterations):
+        idx = np.flatnonzero(active)
+        if idx.size == 0:
+            break
+        pa = p[idx]
+        r, J = residual(idx, pa, True)
+        rv = r.reshape(idx.size, -1)
+        JT = np.swapaxes(J, 1, 2)
+        A = JT @ J
+        g = (JT @ rv[..., None])[..., 0]
+        diag = np.diagonal(A, axis1=1, axis2=2)
+        Ad = A + lam[idx, None, None] * (diag[:, None, :] * eye[None] + 1e-12 * eye)
+        try:
+            step = np.linalg.solve(Ad, g[..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            step = np.zeros_like(g)
+            for k in range(idx.size):  # only on the rare singular batch
+                step[k] = np.linalg.lstsq(Ad[k], g[k], rcond=None)[0]
+        pt = pa + step
+        pt[:, 2] = np.clip(pt[:, 2], rmin, 3.0 * R0 + 2.0)
+        ct = (residual(idx, pt) ** 2).sum(axis=(1, 2))
+        better = ct < cost[idx]
+        p[idx] = np.where(better[:, None], pt, pa)
+        cost[idx] = np.where(better, ct, cost[idx])
+        lam[idx] = np.clip(np.where(better, lam[idx] * 0.3, lam[idx] * 10.0), 1e-9, 1e9)
+        small = np.abs(step[:, :2]).max(axis=1) < 1e-5
+        active[idx] = ~((better & small) | (lam[idx] >= 1e9) | ~np.isfinite(ct))
+    npix = np.maximum(w.sum(axis=(1, 2)) - 5, 1)
+    disk = rr <= R0 + 0.5
+    masked_fraction = (wbad & disk[None]).sum(axis=(1, 2)) / disk.sum()
+    ok = (
+        np.all(np.isfinite(p), axis=1)
+        & (p[:, 3] > 0)
+        & (np.hypot(p[:, 0] - uv0[:, 0], p[:, 1] - uv0[:, 1]) <= R0 + 1.5)
+        & (p[:, 2] > rmin * 1.01)
+        & (p[:, 2] < 3.0 * R0 + 1.9)
+    )
+    return {
+        "u": p[:, 0], "v": p[:, 1], "radius": p[:, 2], "depth": p[:, 3],
+        "background": p[:, 4], "rms": np.sqrt(cost / npix), "ok": ok,
+        "masked_fraction": masked_fraction,
+    }
+
+
+# ----------------------------------------------------------------------------- detection
+def detect_markers(
+    image,
+    diameter: float,
+    polarity: str = "dark",
+    template: str = "tophat",
+    roi=None,
+    threshold: float | None = None,
+    mask=None,
+    *,
+    k_sigma: float = 5.0,
+    blur: float = 0.6,
+    saturation: float | None = None,
+    max_masked: float = 0.3,
+    min_separation: float | None = None,
+    max_candidates: int = 20000,
+) -> Candidates:
+    """Find circular markers and locate them to sub-pixel accuracy.
+
+    Parameters
+    ----------
+    image : (H, W) array_like
+        8/16-bit integer or float image, ``img[v, u]``.
+    diameter : float
+        Marker diameter, pixels (1 to 200; markers are typically 3 to 10).
+    polarity : {"dark", "bright"}
+        Markers darker or brighter than their surroundings.
+    template : {"tophat", "cone"}
+        Correlation template (see :func:`marker_template`).
+    roi : (u_min, v_min, u_max, v_max), optional
+        Inclusive pixel bounds of the searched region; markers cut by its border are
+        rejected like those cut by the image's.
+    threshold : float, optional
+        Merit threshold, image units (for the top-hat: the contrast). Default:
+        ``k_sigma`` times the merit's noise, from :func:`estimate_noise`.
+    mask : (H, W) bool array, optional
+        True where pixels must be ignored (added to NaN, infinite and saturated ones).
+    k_sigma : float
+        Automatic threshold in noise standard deviations of the merit.
+    blur : float
+        PSF standard deviation of the fitted model, pixels.
+    saturation : float, optional
+        Pixels ``>=`` this value are masked. Default: the integer type's maximum (none
+        for float images).
+    max_masked : float
+        Candidates whose disk has more than this fraction of masked pixels are rejected.
+    min_separation : float, optional
+        Candidates closer than this (pixels) are doubles: the weaker is rejected.
+        Default ``0.75 * diameter`` (at least 1.5 px).
+    max_candidates : int
+        Keep at most this many local maxima (the strongest) before refinement.
+
+    Returns
+    -------
+    Candidates
+        Sorted by decreasing merit. ``n_rejected`` counts the maxima rejected at each step
+        (``border``, ``masked``, ``fit``, ``double``).
+
+    Raises
+    ------
+    InputError
+        Not a 2-D numeric image, bad diameter, polarity, template or roi, or no valid pixel.
+    """
+    img = _as_image(image)
+    d = _check_diameter(diameter)
+    if polarity not in ("dark", "bright"):
+        raise InputError(f"polarity: expected 'dark' or 'bright', got {polarity!r}")
+    if template not in ("tophat", "cone"):
+        raise InputError(f"template: expected 'tophat' or 'cone', got {template!r}")
+    if threshold is not None and not (np.isfinite(threshold) and threshold > 0):
+        raise InputError(f"threshold: must be a positive number, got {threshold!r}")
+    bad_full = _bad_pixels(img, mask, saturation)
+    n_masked_total = int(bad_full.sum())
+    if n_masked_total == img.size:
+        raise InputError("image: every pixel is masked (NaN, infinite or saturated)")
+    u0, v0, u1, v1 = _parse_roi(roi, img.shape)
+    R = d / 2.0
+    tmpl = marker_template(d, template)
+    th = tmpl.shape[0] // 2
+    pad = th + int(np.ceil(R + 3 * blur + 3))
+    # work on the roi plus a margin
+    cu0, cv0 = max(u0 - pad, 0), max(v0 - pad, 0)
+    cu1, cv1 = min(u1 + pad, img.shape[1] - 1), min(v1 + pad, img.shape[0] - 1)
+    sub = img[cv0:cv1 + 1, cu0:cu1 + 1].astype(np.float64)
+    bad = bad_full[cv0:cv1 + 1, cu0:cu1 + 1]
+    n_masked = int(bad_full[v0:v1 + 1, u0:u1 + 1].sum())
+    sign = -1.0 if polarity == "dark" else 1.0
+    signal = sign * sub
+    if bad.all():
+        raise InputError("image: every pixel of the roi is masked")
+    fill = float(np.median(signal[~bad]))
+    signal = np.where(bad, fill, signal)
+    noise = estimate_noise(signal, bad)
+    merit = fftconvolve(signal, tmpl[::-1, ::-1], mode="same")
+    merit_noise = noise * float(np.sqrt((tmpl**2).sum()))
+    thr = float(threshold) if threshold is not None else k_sigma * max(merit_noise, 1e-12)
+    size = max(3, 2 * int(np.floor(R)) + 1)
+    peaks = (merit == ndimage.maximum_filter(merit, size=size, mode="nearest")) & (merit > thr)
+    # candidates must lie inside the roi
+    pv, pu = np.nonzero(peaks)
+    gu_, gv_ = pu + cu0, pv + cv0
+    inside = (gu_ >= u0) & (gu_ <= u1) & (gv_ >= v0) & (gv_ <= v1)
+    pu, pv = pu[inside], pv[inside]
+    m = merit[pv, pu]
+    order = np.argsort(-m, kind="stable")[:max_candidates]
+    pu, pv, m = pu[order], pv[order], m[order]
+    rejected = {"border": 0, "masked": 0, "fit": 0, "double": 0}
+    empty = Candidates(*(np.zeros(0) for _ in _FIELDS), n_masked=n_masked, noise=noise,
+                       threshold=thr, polarity=polarity, n_rejected=rejected)
+    if pu.size == 0:
+        return empty
+    fit = refine_markers(signal, np.column_stack([pu, pv]).astype(float), d, bad=bad, blur=blur)
+    fu, fv, fr = fit["u"], fit["v"], fit["radius"]
+    ok = fit["ok"]
+    rejected["fit"] = int((~ok).sum())
+    masked_ok = fit["masked_fraction"] <= max_masked
+    rejected["masked"] = int((ok & ~masked_ok).sum())
+    ok &= masked_ok
+    # cut by the border of the roi (in sub-image coordinates) or of the image
+    reach = np.maximum(fr, R) + 1.0
+    bu0, bv0 = u0 - cu0 - 0.5, v0 - cv0 - 0.5
+    bu1, bv1 = u1 - cu0 + 0.5, v1 - cv0 + 0.5
+    with np.errstate(invalid="ignore"):
+        inb = (fu - reach >= bu0) & (fu + reach <= bu1) & (fv - reach >= bv0) & (fv + reach <= bv1)
+    rejected["border"] = int((ok & ~inb).sum())
+    ok &= inb
+    idx = np.flatnonzero(ok)
+    # doubles: keep the stronger merit (idx is sorted by decreasing merit)
+    sep = min_separation if min_separation is not None else max(0.75 * d, 1.5)
+    if idx.size > 1:
+        pts = np.column_stack([fu[idx], fv[idx]])
+        pairs = cKDTree(pts).query_pairs(sep, output_type="ndarray")
+        keep = np.ones(idx.size, bool)
+        if pairs.size:
+            pairs = np.sort(pairs, axis=1)
+            pairs = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+            for i, j in pairs:  # loop over the few close pairs only
+                if keep[i]:
+                    keep[j] = False
+        rejected["double"] = int((~keep).sum())
+        idx = idx[keep]
+    depth = fit["depth"][idx]
+    return Candidates(
+        u=fu[idx] + cu0,
+        v=fv[idx] + cv0,
+        diameter=2.0 * fr[idx],
+        depth=depth,
+        merit=m[idx],
+        snr=depth / max(noise, 1e-12),
+        n_masked=n_masked,
+        noise=noise,
+        threshold=thr,
+        polarity=polarity,
+        n_rejected=rejected,
+    )
+
+
+# ----------------------------------------------------------------------------- CRB
+def position_crb(diameter: float, blur: float, contrast: float, noise: float,
+                 *, n_positions: int = 16, half: int | None = None) -> float:
+    """Cramér-Rao bound on the standard deviation of one coordinate of a marker centre.
+
+    The model is the pixel-integrated blurred disk with 5 unknowns (u, v, radius, contrast,
+    background) under white Gaussian noise of standard deviation ``noise``; the Fisher
+    information ``J^T J / noise^2`` comes from the model's analytic gradient. The bound
+    depends slightly on the sub-pixel position: it is averaged (as a variance) over a grid
+    of ``n_positions`` positions in the pixel.
+
+    Returns
+    -------
+    float
+        Bound on the standard deviation of ``u`` (pixels).
+    """
+    R = diameter / 2.0
+    if half is None:
+        half = int(np.ceil(R + 4.0 * blur + 3.0))
+    ar = np.arange(-half, half + 1, dtype=float)
+    k = int(np.ceil(np.sqrt(n_positions)))
+    off = (np.arange(k) + 0.5) / k - 0.5
+    ox, oy = (a.ravel() for a in np.meshgrid(off, off))
+    n = ox.size
+    M, (dx, dy, dR) = _diskmodel.windows(ox, oy, np.full(n, R), blur, ar, ar, jacobian=True)
+    J = np.stack([contrast * dx, contrast * dy, contrast * dR, M, np.ones_like(M)], axis=-1)
+    J = J.reshape(n, -1, 5)
+    F = np.swapaxes(J, 1, 2) @ J / noise**2
+    cov = np.linalg.inv(F)
+    return float(np.sqrt(cov[:, 0, 0].mean()))
+
+
+# ----------------------------------------------------------------------------- CSV
+def write_candidates(path: str | os.PathLike, candidates: Candidates, ids=None) -> None:
+    """Write candidates as CSV ``u,v,diameter,depth,merit,snr`` (+ ``id`` if ids given;
+    candidates whose id is None or empty are left out)."""
+    path = Path(path)
+    cols = [getattr(candidates, f) for f in _FIELDS]
+    rows = range(len(candidates))
+    if ids is not None:
+        ids = list(ids)
+        if len(ids) != len(candidates):
+            raise InputError(f"ids: {len(ids)} ids for {len(candidates)} candidates")
+        rows = [i for i in rows if ids[i] not in (None, "")]
+    with open(path, "w", newline="") as fh:
+        wr = csv.writer(fh)
+        wr.writerow((["id"] if ids is not None else []) + list(_FIELDS))
+        for i in rows:
+            vals = [f"{c[i]:.6g}" if f not in ("u", "v") else f"{c[i]:.4f}"
+                    for f, c in zip(_FIELDS, cols, strict=True)]
+            wr.writerow(([str(ids[i])] if ids is not None else []) + vals)
+
+
+def read_candidates(path: str | os.PathLike) -> tuple[Candidates, list[str] | None]:
+    """Read a candidate CSV. Returns ``(candidates, ids)``, ``ids`` None without an ``id``
+    column. Columns other than ``u,v`` may be missing (NaN); unknown columns are an error."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such candidate file")
+    with open(path, newline="") as fh:
+        rd = csv.reader(fh)
+        try:
+            header = [h.strip() for h in next(rd)]
+        except StopIteration:
+            raise InputError(f"{path}: empty file, expected a header u,v,...") from None
+        rows = [r for r in rd if r and any(c.strip() for c in r)]
+    unknown = set(header) - set(_FIELDS) - {"id"}
+    if unknown:
+        raise InputError(f"{path}: unknown column(s) {sorted(unknown)}")
+    if "u" not in header or "v" not in header:
+        raise InputError(f"{path}: columns 'u' and 'v' are required")
+    data = {f: np.full(len(rows), np.nan) for f in _FIELDS}
+    ids = [] if "id" in header else None
+    for k, r in enumerate(rows):
+        if len(r) != len(header):
+            raise InputError(f"{path}: line {k + 2} has {len(r)} fields, expected {len(header)}")
+        for name, val in zip(header, r, strict=True):
+            if name == "id":
+                ids.append(val.strip())
+                continue
+            try:
+                data[name][k] = float(val)
+            except ValueError:
+                raise InputError(f"{path}: line {k + 2}: {name}={val!r} is not a number") \
+                    from None
+    if np.any(~np.isfinite(data["u"])) or np.any(~np.isfinite(data["v"])):
+        raise InputError(f"{path}: u and v must be finite numbers")
+    return Candidates(**data), ids
