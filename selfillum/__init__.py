@@ -4,4 +4,7 @@ Faces of a triangle mesh are the radiosity elements. ``B = E + diag(rho) F B`` l
 radiosity ``B`` (what a camera sees) to the emission ``E`` (what the paint emits).
 """
 
-__all__: list[str] = []
+from .radiosity import SolveInfo, correct, forward
+from .viewfactors import enforce_reciprocity, view_factors
+
+__all__: list[str] = ["view_factors", "enforce_reciprocity", "forward", "correct", "SolveInfo"]

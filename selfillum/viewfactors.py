@@ -1,0 +1,337 @@
+"""Form factors between the faces of a triangle mesh, by Embree ray casting.
+
+``F[i, j]`` is the fraction of the (Lambertian) light leaving face ``i`` that reaches face
+``j`` directly, occlusion included. It is estimated by casting ``K`` cosine-distributed
+rays from ``K`` stratified points of every face and counting ``1/K`` for each ray whose
+first hit is the painted side of face ``j``:
+
+``F_ij = (1 / A_i) integral_{A_i} integral_{A_j} cos(t_i) cos(t_j) V / (pi r^2) dA_j dA_i``
+
+The estimator is unbiased; its standard error falls as ``1/sqrt(K)`` (faster, thanks to
+the stratification, for smooth configurations). ``F`` is a ``scipy.sparse`` CSR matrix with
+at most ``K`` non-zeros a row, so memory grows as ``N K``, not ``N^2``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import scipy.sparse as sp
+import trimesh
+from embreex import rtcore_scene
+from embreex.mesh_construction import TriangleMesh
+
+from resection.errors import InputError
+
+from .mesh import check_mesh, face_areas, face_normals
+
+__all__ = ["view_factors", "enforce_reciprocity", "RayScene", "sample_rays"]
+
+#: Faces sharing one random stream; results do not depend on ``chunk_size``.
+_BLOCK = 512
+#: Ray origins are lifted off their face by this fraction of the mesh size.
+_OFFSET = 1e-6
+#: Default number of rays in flight per chunk.
+_RAYS_PER_CHUNK = 1 << 20
+
+
+class RayScene:
+    """An Embree scene of a mesh, in float32 coordinates centred on the mesh's box.
+
+    Parameters
+    ----------
+    vertices : (V, 3) array_like
+        Vertex coordinates (model units).
+    faces : (N, 3) array_like of int
+        Triangles.
+    """
+
+    def __init__(self, vertices, faces):
+        v = np.asarray(vertices, dtype=np.float64)
+        self.origin = 0.5 * (v.min(axis=0) + v.max(axis=0))
+        self.scene = rtcore_scene.EmbreeScene()
+        # keep references: Embree reads these buffers
+        self._v = np.ascontiguousarray(v - self.origin, dtype=np.float32)
+        self._f = np.ascontiguousarray(faces, dtype=np.int32)
+        TriangleMesh(scene=self.scene, vertices=self._v, indices=self._f)
+
+    def first_hit(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """Index of the first face hit by each ray (``-1`` for a miss), ``(M,)`` int64."""
+        o = np.ascontiguousarray(origins - self.origin, dtype=np.float32)
+        d = np.ascontiguousarray(directions, dtype=np.float32)
+        return np.asarray(self.scene.run(o, d), dtype=np.int64)
+
+
+def _stratified_2d(rng: np.random.Generator, n: int, k: int) -> np.ndarray:
+    """``(n, k, 2)`` points of the unit square: for each row, ``k`` distinct cells of an
+    ``m x m`` grid (``m = ceil(sqrt(k))``) drawn at random, jittered within the cell.
+    Every point is uniformly distributed; with ``k = m^2`` this is the jittered grid."""
+    m = int(np.ceil(np.sqrt(k)))
+    if m * m == k:
+        cells = np.broadcast_to(np.arange(k), (n, k))
+        cells = np.take_along_axis(cells, np.argsort(rng.random((n, k)), axis=1), axis=1)
+    else:
+        cells = np.argsort(rng.random((n, m * m)), axis=1)[:, :k]
+    jitter = rng.random((n, k, 2))
+    out = np.empty((n, k, 2))
+    out[..., 0] = (cells % m + jitter[..., 0]) / m
+    out[..., 1] = (cells // m + jitter[..., 1]) / m
+    return out
+
+
+def _tangent_frames(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors ``(t1, t2)`` completing each unit normal to a right-handed frame."""
+    helper = np.where(
+        (np.abs(normals[:, 0]) < 0.9)[:, None], np.array([1.0, 0.0, 0.0]), [0.0, 1.0, 0.0]
+    )
+    t1 = np.cross(normals, helper)
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    t2 = np.cross(normals, t1)
+    return t1, t2
+
+
+def sample_rays(
+    triangles: np.ndarray,
+    normals: np.ndarray,
+    k: int,
+    rng: np.random.Generator,
+    *,
+    two_sided: bool = False,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cosine-distributed rays leaving stratified points of faces.
+
+    Parameters
+    ----------
+    triangles : (n, 3, 3) ndarray
+        Vertices of the faces.
+    normals : (n, 3) ndarray
+        Unit normals (painted side).
+    k : int
+        Rays per face.
+    rng : numpy.random.Generator
+        Random stream.
+    two_sided : bool
+        Send half of the rays (at random) out of the back side.
+
+    Returns
+    -------
+    points : (n * k, 3) ndarray
+        Ray start points on the faces (not yet lifted off the face).
+    directions : (n * k, 3) ndarray
+        Unit directions, cosine-distributed about the (signed) normal.
+    side : (n * k,) ndarray of float
+        ``+1`` for rays leaving the painted side, ``-1`` for the back side.
+    """
+    n = triangles.shape[0]
+    pos = _stratified_2d(rng, n, k)
+    dirs = _stratified_2d(rng, n, k)
+    # uniform point of a triangle from the unit square (area-preserving)
+    sa = np.sqrt(pos[..., 0])
+    b1 = sa * (1.0 - pos[..., 1])
+    b2 = sa * pos[..., 1]
+    v0, e1, e2 = (
+        triangles[:, 0],
+        triangles[:, 1] - triangles[:, 0],
+        triangles[:, 2] - triangles[:, 0],
+    )
+    points = v0[:, None, :] + b1[..., None] * e1[:, None, :] + b2[..., None] * e2[:, None, :]
+    # cosine-weighted hemisphere (Malley's method)
+    r = np.sqrt(dirs[..., 0])
+    phi = 2.0 * np.pi * dirs[..., 1]
+    x, y = r * np.cos(phi), r * np.sin(phi)
+    z = np.sqrt(np.maximum(0.0, 1.0 - dirs[..., 0]))
+    if two_sided:
+        flip = rng.integers(0, 2, size=(n, 1))
+        side = np.where((np.arange(k)[None, :] + flip) % 2 == 0, 1.0, -1.0)
+    else:
+        side = np.ones((n, k))
+    t1, t2 = _tangent_frames(normals)
+    directions = (
+        x[..., None] * t1[:, None, :]
+        + y[..., None] * t2[:, None, :]
+        + (side * z)[..., None] * normals[:, None, :]
+    )
+    return points.reshape(-1, 3), directions.reshape(-1, 3), side.reshape(-1)
+
+
+def _chunk_matrix(
+    scene: RayScene,
+    triangles: np.ndarray,
+    normals: np.ndarray,
+    start: int,
+    stop: int,
+    k: int,
+    seed: int,
+    offset: float,
+    two_sided: bool,
+    n_faces: int,
+) -> sp.csr_matrix:
+    """Rows ``start:stop`` of ``F`` (shape ``(stop - start, n_faces)``)."""
+    parts_o, parts_d, parts_s = [], [], []
+    for b0 in range(start, stop, _BLOCK):
+        b1 = min(b0 + _BLOCK, stop)
+        rng = np.random.default_rng([seed, b0 // _BLOCK])
+        p, d, s = sample_rays(triangles[b0:b1], normals[b0:b1], k, rng, two_sided=two_sided)
+        parts_o.append(p + (offset * s)[:, None] * np.repeat(normals[b0:b1], k, axis=0))
+        parts_d.append(d)
+        parts_s.append(s)
+    origins = np.concatenate(parts_o)
+    directions = np.concatenate(parts_d)
+    hit = scene.first_hit(origins, directions)
+    src = np.repeat(np.arange(start, stop), k)
+    ok = (hit >= 0) & (hit != src)
+    if not two_sided:
+        # a ray arriving on the back (unpainted) side of a face is absorbed there
+        hn = normals[np.where(ok, hit, 0)]
+        ok &= np.einsum("ij,ij->i", directions, hn) < 0.0
+    rows = src[ok] - start
+    cols = hit[ok]
+    data = np.full(rows.size, 1.0 / k)
+    m = sp.csr_matrix((data, (rows, cols)), shape=(stop - start, n_faces))
+    m.sum_duplicates()
+    return m
+
+
+def view_factors(
+    mesh: trimesh.Trimesh,
+    rays_per_face: int = 256,
+    seed: int = 0,
+    *,
+    reciprocity: bool = False,
+    chunk_size: int | None = None,
+    two_sided: bool = False,
+    progress: bool | Callable | None = False,
+) -> sp.csr_matrix:
+    """Form factors between the faces of a mesh, with occlusion, by Embree ray casting.
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh
+        Triangle mesh; faces are the radiosity elements. Its painted side is the side
+        its normals point to (right-hand rule on the vertex order).
+    rays_per_face : int
+        ``K``, rays cast from each face; each hit adds ``1/K``.
+    seed : int
+        Seed of the random streams. The result depends only on ``mesh``,
+        ``rays_per_face``, ``seed`` and ``two_sided`` (not on ``chunk_size``).
+    reciprocity : bool
+        Enforce ``A_i F_ij = A_j F_ji`` by area-weighted symmetrisation (see
+        :func:`enforce_reciprocity`); the sparsity pattern then is the union of those of
+        ``F`` and ``F.T`` (up to ``2 K`` non-zeros a row).
+    chunk_size : int, optional
+        Faces traced at once, rounded to a multiple of 512 (memory in flight is about
+        ``chunk_size * K * 150`` bytes). Default: about ``2**20 / K`` faces (about
+        1 million rays a chunk).
+    two_sided : bool
+        Faces painted on both sides with the same radiosity (thin sheets): half the
+        rays of a face leave from its back, and hits on either side count. With the
+        default ``False`` rays leave the painted side only and a ray that reaches the
+        back of a face is absorbed there (it counts nowhere).
+    progress : bool or callable
+        ``True`` shows a ``tqdm`` bar over chunks; a callable is called with
+        ``(faces_done, faces_total)`` after each chunk.
+
+    Returns
+    -------
+    scipy.sparse.csr_matrix
+        ``F``, ``(N, N)`` float64, ``F[i, j]`` from face ``i`` to face ``j``. Row sums are
+        ``<= 1`` (``1`` minus what escapes the scene or hits unpainted sides).
+
+    Raises
+    ------
+    InputError
+        Invalid mesh (see :func:`selfillum.mesh.check_mesh`) or parameters.
+    """
+    check_mesh(mesh)
+    k = _positive_int(rays_per_face, "rays_per_face")
+    if chunk_size is None:
+        chunk = max(1, _RAYS_PER_CHUNK // k)
+    else:
+        chunk = _positive_int(chunk_size, "chunk_size")
+    try:
+        seed = int(seed)
+    except (TypeError, ValueError):
+        raise InputError(f"seed: expected an integer, got {seed!r}") from None
+    if seed < 0:
+        raise InputError(f"seed: expected a non-negative integer, got {seed}")
+    chunk = max(_BLOCK, (chunk // _BLOCK) * _BLOCK)  # whole random blocks per chunk
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    triangles = vertices[faces]
+    normals = face_normals(mesh)
+    n = len(faces)
+    scene = RayScene(vertices, faces)
+    size = float(np.ptp(vertices, axis=0).max())
+    offset = _OFFSET * size
+
+    starts = range(0, n, chunk)
+    bar = None
+    if progress is True:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=n, desc="view factors", unit="face", leave=False)
+    blocks = []
+    for s0 in starts:
+        s1 = min(s0 + chunk, n)
+        blocks.append(
+            _chunk_matrix(scene, triangles, normals, s0, s1, k, seed, offset, two_sided, n)
+        )
+        if bar is not None:
+            bar.update(s1 - s0)
+        elif callable(progress):
+            progress(s1, n)
+    if bar is not None:
+        bar.close()
+    F = sp.vstack(blocks, format="csr")
+    if reciprocity:
+        F = enforce_reciprocity(F, face_areas(mesh))
+    return F
+
+
+def enforce_reciprocity(F, areas) -> sp.csr_matrix:
+    """Make ``A_i F_ij = A_j F_ji`` hold exactly, keeping row sums ``<= 1``.
+
+    The area-weighted symmetrisation ``G = (A F + (A F)^T) / 2`` (``A = diag(areas)``) is
+    the reciprocal matrix closest to ``A F`` in the Frobenius norm; ``F' = A^-1 G``. Where
+    a row of ``F'`` sums to ``s_i > 1``, the pair ``(i, j)`` is scaled by
+    ``min(1, 1/s_i, 1/s_j)``, which keeps both reciprocity and ``sum_j F'_ij <= 1``.
+
+    Parameters
+    ----------
+    F : (N, N) sparse matrix
+        Form factors.
+    areas : (N,) array_like
+        Face areas (model units squared), positive.
+
+    Returns
+    -------
+    scipy.sparse.csr_matrix
+    """
+    F = sp.csr_matrix(F, dtype=np.float64)
+    a = np.asarray(areas, dtype=np.float64)
+    if F.shape[0] != F.shape[1] or a.shape != (F.shape[0],):
+        raise InputError(f"F {F.shape} and areas {a.shape} do not match")
+    if not np.all(a > 0):
+        raise InputError("areas: must be positive")
+    AF = sp.diags(a) @ F
+    G = ((AF + AF.T) * 0.5).tocsr()
+    Fr = (sp.diags(1.0 / a) @ G).tocsr()
+    s = np.asarray(Fr.sum(axis=1)).ravel()
+    if np.any(s > 1.0):
+        c = np.minimum(1.0, 1.0 / np.maximum(s, 1e-300))
+        G = G.tocoo()
+        G.data *= np.minimum(c[G.row], c[G.col])
+        Fr = (sp.diags(1.0 / a) @ G.tocsr()).tocsr()
+    Fr.sum_duplicates()
+    return Fr
+
+
+def _positive_int(value, name: str) -> int:
+    try:
+        iv = int(value)
+    except (TypeError, ValueError):
+        raise InputError(f"{name}: expected a positive integer, got {value!r}") from None
+    if iv != value or iv < 1:
+        raise InputError(f"{name}: expected a positive integer, got {value!r}")
+    return iv
