@@ -295,7 +295,8 @@ def pair_by_id(ids_a, values_a, ids_b, values_b) -> tuple[np.ndarray, np.ndarray
     for name, ids in (("first", ia), ("second", ib)):
         u, cnt = np.unique(ids, return_counts=True)
         if np.any(cnt > 1):
-            raise InputError(f"pair_by_id: duplicate marker id {u[cnt > 1][0]!r} in {name} table")
+            dup = str(u[cnt > 1][0])
+            raise InputError(f"pair_by_id: duplicate marker id {dup!r} in {name} table")
     common, pa, pb = np.intersect1d(ia, ib, assume_unique=True, return_indices=True)
     order = np.argsort(pa)
     return common[order], va[pa[order]], vb[pb[order]]
