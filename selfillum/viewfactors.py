@@ -289,13 +289,17 @@ def view_factors(
     return F
 
 
-def enforce_reciprocity(F, areas) -> sp.csr_matrix:
-    """Make ``A_i F_ij = A_j F_ji`` hold exactly, keeping row sums ``<= 1``.
+def enforce_reciprocity(F, areas, *, tol: float = 1e-10, maxiter: int = 500) -> sp.csr_matrix:
+    """Make ``A_i F_ij = A_j F_ji`` hold exactly, keeping each row's sum.
 
-    The area-weighted symmetrisation ``G = (A F + (A F)^T) / 2`` (``A = diag(areas)``) is
-    the reciprocal matrix closest to ``A F`` in the Frobenius norm; ``F' = A^-1 G``. Where
-    a row of ``F'`` sums to ``s_i > 1``, the pair ``(i, j)`` is scaled by
-    ``min(1, 1/s_i, 1/s_j)``, which keeps both reciprocity and ``sum_j F'_ij <= 1``.
+    1. Area-weighted symmetrisation: ``G = (A F + (A F)^T) / 2`` (``A = diag(areas)``),
+       the reciprocal matrix closest to ``A F`` in the Frobenius norm.
+    2. Symmetric balancing (symmetric Sinkhorn-Knopp): ``G' = X G X`` with ``X`` diagonal
+       positive, so that the row sums of ``F' = A^-1 G'`` equal those of ``F`` (the
+       fraction of rays of each face that hit something, an accurate estimate: exactly
+       1 in a closed enclosure). ``G'`` stays symmetric: reciprocity holds exactly.
+    3. Any row still summing above 1 (rounding, or balancing not converged) has its
+       pairs ``(i, j)`` scaled by ``min(1, 1/s_i, 1/s_j)``: rows ``<= 1``, still reciprocal.
 
     Parameters
     ----------
@@ -303,10 +307,16 @@ def enforce_reciprocity(F, areas) -> sp.csr_matrix:
         Form factors.
     areas : (N,) array_like
         Face areas (model units squared), positive.
+    tol : float
+        Relative tolerance on the row sums of the balancing.
+    maxiter : int
+        Balancing iterations at most (each is one sparse product).
 
     Returns
     -------
     scipy.sparse.csr_matrix
+        Reciprocal form factors; the sparsity pattern is the union of those of ``F`` and
+        ``F.T``.
     """
     F = sp.csr_matrix(F, dtype=np.float64)
     a = np.asarray(areas, dtype=np.float64)
@@ -314,15 +324,26 @@ def enforce_reciprocity(F, areas) -> sp.csr_matrix:
         raise InputError(f"F {F.shape} and areas {a.shape} do not match")
     if not np.all(a > 0):
         raise InputError("areas: must be positive")
-    AF = sp.diags(a) @ F
+    AF = (sp.diags(a) @ F).tocsr()
+    target = np.asarray(AF.sum(axis=1)).ravel()
     G = ((AF + AF.T) * 0.5).tocsr()
-    Fr = (sp.diags(1.0 / a) @ G).tocsr()
-    s = np.asarray(Fr.sum(axis=1)).ravel()
+    G.sum_duplicates()
+    x = np.ones(len(a))
+    active = target > 0
+    for _ in range(int(maxiter)):
+        gx = G @ x
+        got = x * gx
+        ok = active & (got > 0)
+        if np.all(np.abs(got[ok] - target[ok]) <= tol * target[ok]):
+            break
+        x = np.where(ok, np.sqrt(x * target / np.where(ok, gx, 1.0)), x)
+    G = G.tocoo()
+    G.data *= x[G.row] * x[G.col]
+    s = np.bincount(G.row, weights=G.data, minlength=len(a)) / a
     if np.any(s > 1.0):
         c = np.minimum(1.0, 1.0 / np.maximum(s, 1e-300))
-        G = G.tocoo()
         G.data *= np.minimum(c[G.row], c[G.col])
-        Fr = (sp.diags(1.0 / a) @ G.tocsr()).tocsr()
+    Fr = sp.csr_matrix((G.data / a[G.row], (G.row, G.col)), shape=F.shape)
     Fr.sum_duplicates()
     return Fr
 
