@@ -21,7 +21,9 @@ How the scene is built (see DESIGN.md, "the Mitsuba trap"):
   (fractions of the film width and height), pose from ``R, t`` (OpenCV's x right, y down,
   z forward is Mitsuba's camera frame turned by 180 degrees about z). Mitsuba's film puts
   pixel centres at ``+0.5``; ours are at integers: ``u = x_film - 0.5``;
-* a box reconstruction filter, so a pixel is the mean radiance over its square;
+* a box reconstruction filter, so a pixel is the mean radiance over its square, and the
+  stratified ``multijitter`` sampler (pixel coverage converges much faster than with
+  independent samples);
 * lens distortion, unequal ``fx, fy`` or skew are applied after rendering as a warp: an
   ideal pinhole image with square pixels is rendered on a canvas covering the undistorted
   field (``oversample`` times finer), and every output pixel is the mean of
@@ -70,7 +72,8 @@ class RenderResult:
     variant : str
         Mitsuba variant used (``cuda_ad_rgb``, ``llvm_ad_rgb`` or ``scalar_rgb``).
     spp : int
-        Samples per output pixel.
+        Samples per output pixel actually used (``spp`` rounded up to a count Mitsuba's
+        ``multijitter`` sampler stratifies exactly).
     bounces : int
         Path length limit given to the ``path`` integrator (``max_depth``; -1: no limit).
     seed : int
@@ -286,7 +289,7 @@ def _sensor(mi, camera: Camera, mesh: trimesh.Trimesh, spp: int) -> dict:
             "component_format": "float32",
             "sample_border": False,
         },
-        "sampler": {"type": "independent", "sample_count": spp},
+        "sampler": {"type": "multijitter", "sample_count": spp},
     }
 
 
@@ -329,13 +332,20 @@ def _check_bounces(bounces) -> int:
 
 
 # --------------------------------------------------------------------------- rendering
+def _multijitter_count(spp: int) -> int:
+    """Smallest sample count >= ``spp`` that Mitsuba's ``multijitter`` sampler takes as is
+    (``w x h`` strata with ``w = floor(sqrt(spp))``)."""
+    w = max(1, math.isqrt(spp))
+    return w * math.ceil(spp / w)
+
+
 def _render_pinhole(mi, mesh, e, r, camera, bounces, spp, seed):
     """Render with a square-pixel pinhole camera; several passes when ``W H spp`` is too
     many samples to trace at once. Returns float64 ``(H, W)`` radiance and the spp used."""
     lanes = camera.width * camera.height
     per_pass = max(1, min(spp, _MAX_LANES // max(lanes, 1)))
     passes = math.ceil(spp / per_pass)
-    per_pass = math.ceil(spp / passes)
+    per_pass = _multijitter_count(math.ceil(spp / passes))
     scene = _load_scene(mi, mesh, e, r, camera, bounces, per_pass)
     acc = np.zeros((camera.height, camera.width))
     for i in range(passes):
@@ -412,7 +422,9 @@ def render(
         ``max_depth`` of Mitsuba's ``path`` integrator: 1 = emission only (no
         self-illumination), 2 = emission + one reflection, ..., -1 = all orders.
     spp : int
-        Samples per output pixel (the variance of a pixel falls as ``1/spp``).
+        Samples per output pixel (the variance of a pixel falls as ``1/spp``); rounded up
+        to ``w * ceil(spp / w)``, ``w = floor(sqrt(spp))``, the counts Mitsuba's
+        ``multijitter`` sampler stratifies exactly (squares are kept).
     seed : int
         Seed of the sampler; equal inputs and seed give equal images.
     variant : str, optional

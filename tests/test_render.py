@@ -1,0 +1,311 @@
+"""Mitsuba renders (selfillum.render) against independent references.
+
+* pixel convention and camera mapping: the centroid of a small emitting square lands on
+  ``Camera.project`` of its centre (the lead's camera model), and its flux equals
+  ``E/pi`` times its projected area (shoelace formula);
+* per-face emission and reflectance: an emission-only render shows exactly ``E_k/pi`` on
+  every pixel that lies inside face ``k`` (faces located analytically from the pixel's
+  rays);
+* one reflection on a uniform corner: radiance ``(E + rho E F(x -> other plate)) / pi``
+  with ``F`` from Lambert's closed-form contour integral for a point and a polygon.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from resection import Camera, InputError
+from selfillum.render import available_variants, choose_variant, render
+
+# ----------------------------------------------------------------------------- helpers
+
+
+def corner_mesh(n: int = 8) -> trimesh.Trimesh:
+    """Floor z=0 (normal +z) and wall x=0 (normal +x), unit squares, ``n x n`` cells of two
+    triangles each; face order: floor lower triangles, floor upper, wall lower, wall upper
+    (see :func:`corner_face_at`)."""
+    g = np.linspace(0.0, 1.0, n + 1)
+    a, b = (x.ravel() for x in np.meshgrid(g, g, indexing="ij"))
+    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    q = np.stack([idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]], -1).reshape(-1, 4)
+    tri = np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]])
+    floor = np.column_stack([a, b, np.zeros_like(a)])
+    wall = np.column_stack([np.zeros_like(a), b, a])
+    faces = np.vstack([tri, tri[:, ::-1] + len(floor)])
+    return trimesh.Trimesh(np.vstack([floor, wall]), faces, process=False)
+
+
+def corner_face_at(plate: np.ndarray, p: np.ndarray, n: int) -> np.ndarray:
+    """Face index of :func:`corner_mesh` at points ``p`` on ``plate`` (0 floor, 1 wall)."""
+    a = np.where(plate == 0, p[:, 0], p[:, 2]) * n
+    b = p[:, 1] * n
+    i = np.clip(np.floor(a), 0, n - 1)
+    j = np.clip(np.floor(b), 0, n - 1)
+    upper = (b - j) > (a - i)
+    return (plate * 2 * n * n + upper * n * n + i * n + j).astype(int)
+
+
+def corner_hits(camera: Camera, uv: np.ndarray):
+    """Plate (0 floor, 1 wall, -1 none) and model point seen along each pixel's ray."""
+    o, d = camera.rays(uv)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tz = -o[:, 2] / d[:, 2]
+        tx = -o[:, 0] / d[:, 0]
+    pz = o + tz[:, None] * d
+    px = o + tx[:, None] * d
+    inside = lambda p, k: np.all((p[:, k] >= 0) & (p[:, k] <= 1), axis=1)  # noqa: E731
+    tz = np.where((tz > 0) & inside(pz, [0, 1]), tz, np.inf)
+    tx = np.where((tx > 0) & inside(px, [1, 2]), tx, np.inf)
+    plate = np.where(np.isinf(tz) & np.isinf(tx), -1, np.where(tz <= tx, 0, 1))
+    return plate, np.where((plate == 0)[:, None], pz, px)
+
+
+def pixel_grid(camera: Camera) -> np.ndarray:
+    vv, uu = np.mgrid[0 : camera.height, 0 : camera.width]
+    return np.column_stack([uu.ravel(), vv.ravel()]).astype(float)
+
+
+def footprint_faces(camera: Camera, n: int, reach: float = 0.5):
+    """Face at each pixel centre, whether the pixel's square (grown to ``reach`` px from
+    the centre) lies on that single face, and whether it misses the model entirely."""
+    uv = pixel_grid(camera)
+    plate, p = corner_hits(camera, uv)
+    face = np.where(plate >= 0, corner_face_at(plate, p, n), -1)
+    same = face >= 0
+    empty = face < 0
+    for du in (-reach, 0.0, reach):
+        for dv in (-reach, 0.0, reach):
+            pl2, p2 = corner_hits(camera, uv + [du, dv])
+            same &= (pl2 >= 0) & (corner_face_at(pl2, p2, n) == face)
+            empty &= pl2 < 0
+    return face, same, empty
+
+
+def lambert_form_factor(x: np.ndarray, normal: np.ndarray, polygon: np.ndarray) -> np.ndarray:
+    """Form factor from differential areas at ``x`` (M, 3) with unit ``normal`` (M, 3) to a
+    planar polygon (K, 3) entirely on their front side: Lambert's contour formula
+    ``F = |sum_k gamma_k n . (R_k x R_k+1) / |R_k x R_k+1|| / (2 pi)``."""
+    R = polygon[None] - x[:, None]
+    R1 = np.roll(R, -1, axis=1)
+    c = np.cross(R, R1)
+    cn = np.linalg.norm(c, axis=2)
+    cosg = np.einsum("mkj,mkj->mk", R, R1) / (
+        np.linalg.norm(R, axis=2) * np.linalg.norm(R1, axis=2)
+    )
+    gamma = np.arccos(np.clip(cosg, -1.0, 1.0))
+    proj = np.einsum("mkj,mj->mk", c, normal) / np.where(cn > 0, cn, 1.0)
+    return np.abs((gamma * proj).sum(axis=1)) / (2.0 * np.pi)
+
+
+def corner_camera(dist=None) -> Camera:
+    K = [[80.0, 0.0, 47.2], [0.0, 80.0, 35.9], [0.0, 0.0, 1.0]]
+    return Camera.look_at([1.4, 0.5, 1.2], [0.3, 0.5, 0.3], [0.0, 1.0, 0.0], K=K,
+                          width=96, height=72, dist=dist)
+
+
+def square(center, half, normal_axis_toward=+1):
+    """Two triangles of a square in the plane z = center[2], normal +z."""
+    c = np.asarray(center, float)
+    V = c + np.array([[-half, -half, 0], [half, -half, 0], [half, half, 0], [-half, half, 0]])
+    F = [[0, 1, 2], [0, 2, 3]] if normal_axis_toward > 0 else [[0, 2, 1], [0, 3, 2]]
+    return trimesh.Trimesh(V, F, process=False)
+
+
+VARIANTS = available_variants()
+
+
+# ----------------------------------------------------------------------------- variants
+def test_variant_choice_is_reported():
+    assert "scalar_rgb" in VARIANTS
+    assert choose_variant() == VARIANTS[0]
+    assert choose_variant("scalar") == "scalar_rgb"
+    cam = Camera.look_at([0, 0, 1.0], [0, 0, 0], [0, 1, 0],
+                         K=[[20, 0, 7.5], [0, 20, 7.5], [0, 0, 1]], width=16, height=16)
+    res = render(square([0, 0, 0], 0.1), 1.0, 0.0, cam, bounces=1, spp=4)
+    assert res.variant == VARIANTS[0]
+    assert res.spp == 4 and res.bounces == 1
+    assert render(square([0, 0, 0], 0.1), 1.0, 0.0, cam, bounces=1, spp=5).spp == 6
+    with pytest.raises(InputError, match="unknown Mitsuba variant"):
+        choose_variant("opengl")
+
+
+def test_llvm_variant_available_when_libllvm_installed():
+    from selfillum.render import _find_libllvm
+
+    if _find_libllvm() is not None:  # libLLVM >= 16 on this machine (tools/setup.sh)
+        assert "llvm_ad_rgb" in VARIANTS
+    assert VARIANTS[-1] == "scalar_rgb"  # fastest first, scalar the fallback
+
+
+# ----------------------------------------------------------------------------- pixels
+CAMERAS = {
+    # name: (K, dist, eye, up)
+    "pinhole": ([[60, 0, 31.5], [0, 60, 23.5], [0, 0, 1]], None, [0, 0, 1.0], [0, 1, 0]),
+    "offset_rolled": ([[55, 0, 27.3], [0, 55, 26.8], [0, 0, 1]], None, [0.1, -0.05, 1.2],
+                      [0.6, 0.8, 0]),
+    "fx_ne_fy": ([[60, 0, 30.3], [0, 66, 20.7], [0, 0, 1]], None, [0, 0, 1.0], [0, 1, 0]),
+    "distorted": ([[60, 0, 30.3], [0, 60, 20.7], [0, 0, 1]], [-0.2, 0.05, 0.001, -0.002, 0],
+                  [0, 0, 1.0], [0, 1, 0]),
+}
+
+
+def projected_square(camera: Camera, center, half: float, m: int = 120):
+    """Image area (px^2) and area centroid of the square seen by ``camera``: the square is
+    cut into ``m x m`` cells whose projected corners give each cell's image area."""
+    g = np.linspace(-half, half, m + 1)
+    a, b = np.meshgrid(g, g, indexing="ij")
+    pts = np.column_stack([a.ravel(), b.ravel(), np.zeros(a.size)]) + np.asarray(center)
+    q = camera.project(pts).reshape(m + 1, m + 1, 2)
+    c = [q[:-1, :-1], q[1:, :-1], q[1:, 1:], q[:-1, 1:]]
+    area = 0.5 * np.abs(sum(c[k][..., 0] * c[(k + 1) % 4][..., 1]
+                            - c[(k + 1) % 4][..., 0] * c[k][..., 1] for k in range(4)))
+    mid = sum(c) / 4.0
+    total = area.sum()
+    return total, (mid * area[..., None]).sum(axis=(0, 1)) / total
+
+
+@pytest.mark.parametrize("name", sorted(CAMERAS))
+@pytest.mark.parametrize("center", [[0.05, 0.02, 0.0], [-0.22, 0.1, 0.1]])
+def test_pixel_convention_centroid(name, center):
+    """Centroid within 0.05 px of where the camera model puts the square, flux within 1 %
+    of E/pi times its image area: checks the half-pixel shift, principal point, focal
+    length, pose and the distortion warp."""
+    K, dist, eye, up = CAMERAS[name]
+    cam = Camera.look_at(eye, [0, 0, 0], up, K=K, width=64, height=48, dist=dist)
+    half = 0.05
+    res = render(square(center, half), np.pi, 0.0, cam, bounces=1, spp=256, variant="scalar")
+    img = res.image.astype(np.float64)
+    vv, uu = np.mgrid[0:48, 0:64]
+    s = img.sum()
+    centroid = np.array([(img * uu).sum() / s, (img * vv).sum() / s])
+    area, expected = projected_square(cam, center, half)
+    assert np.all(np.abs(centroid - expected) < 0.05), (centroid, expected)
+    assert np.hypot(*(expected - cam.project(np.asarray(center, float)[None])[0])) < 0.5
+    assert s == pytest.approx(area, rel=0.01)  # radiance E/pi = 1
+    assert img.max() == pytest.approx(1.0, abs=1e-5)
+
+
+def test_back_side_is_black():
+    cam = Camera.look_at([0, 0, 1.0], [0, 0, 0], [0, 1, 0],
+                         K=[[20, 0, 7.5], [0, 20, 7.5], [0, 0, 1]], width=16, height=16)
+    front = render(square([0, 0, 0], 0.1), 1.0, 0.0, cam, bounces=1, spp=4, variant="scalar")
+    back = render(square([0, 0, 0], 0.1, -1), 1.0, 0.0, cam, bounces=1, spp=4,
+                  variant="scalar")
+    assert front.image.max() == pytest.approx(1 / np.pi, rel=1e-5)
+    assert back.image.max() == 0.0
+
+
+# ----------------------------------------------------------------------------- per face
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_emission_only_is_exact_per_face(variant):
+    n = 8
+    mesh = corner_mesh(n)
+    rng = np.random.default_rng(1)
+    E = rng.uniform(0.5, 3.0, len(mesh.faces))
+    cam = corner_camera()
+    res = render(mesh, E, 0.4, cam, bounces=1, spp=16, variant=variant)
+    assert res.variant == variant
+    face, inside, empty = footprint_faces(cam, n)
+    img = res.image.ravel().astype(np.float64)
+    assert inside.sum() > 2000
+    assert len(np.unique(face[inside])) == len(mesh.faces)  # every face checked
+    np.testing.assert_allclose(img[inside], E[face[inside]] / np.pi, rtol=2e-6)
+    assert empty.sum() > 1000 and np.all(img[empty] == 0.0)
+
+
+def test_emission_only_with_distortion_warp():
+    n = 8
+    mesh = corner_mesh(n)
+    E = np.random.default_rng(2).uniform(0.5, 3.0, len(mesh.faces))
+    cam = corner_camera(dist=[-0.15, 0.03, 0.002, -0.001, 0.0])
+    res = render(mesh, E, 0.4, cam, bounces=1, spp=16, variant="scalar")
+    # pixels whose square, grown by 1.5 canvas pixels of bilinear reach, stays on one face
+    face, inside, _ = footprint_faces(cam, n, reach=1.0)
+    img = res.image.ravel().astype(np.float64)
+    assert inside.sum() > 500 and len(np.unique(face[inside])) > 150
+    np.testing.assert_allclose(img[inside], E[face[inside]] / np.pi, rtol=1e-5)
+
+
+# ----------------------------------------------------------------------------- transport
+def test_one_reflection_corner_matches_view_factor_model():
+    """bounces=2 (emission + one reflection), E = 1 everywhere: a point x of one plate
+    shows (1 + rho F(x -> other plate)) / pi."""
+    n, rho = 8, 0.5
+    mesh = corner_mesh(n)
+    cam = corner_camera()
+    res = render(mesh, 1.0, rho, cam, bounces=2, spp=64, seed=3, variant=choose_variant())
+    uv = pixel_grid(cam)
+    plate, p = corner_hits(cam, uv)
+    ok = plate >= 0
+    for du in (-0.5, 0.5):
+        for dv in (-0.5, 0.5):
+            ok &= corner_hits(cam, uv + [du, dv])[0] == plate
+    floor_poly = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
+    wall_poly = np.array([[0, 0, 0], [0, 1, 0], [0, 1, 1], [0, 0, 1]], float)
+    on_floor = (plate == 0)[:, None]
+    normal = np.where(on_floor, [0.0, 0.0, 1.0], [1.0, 0.0, 0.0])
+    F = np.where(plate == 0, lambert_form_factor(p, normal, wall_poly),
+                 lambert_form_factor(p, normal, floor_poly))
+    expected = (1.0 + rho * F) / np.pi
+    img = res.image.ravel().astype(np.float64)
+    assert ok.sum() > 800 and F[ok].max() > 0.4 and F[ok].min() < 0.1
+    # means over bands of equal F (Monte-Carlo noise averages out): within 0.5 %
+    edges = np.quantile(F[ok], np.linspace(0, 1, 6))
+    band = np.clip(np.digitize(F[ok], edges) - 1, 0, 4)
+    for k in range(5):
+        sel = band == k
+        assert img[ok][sel].mean() == pytest.approx(expected[ok][sel].mean(), rel=0.005)
+    # the self-illumination part alone, over all pixels: within 2 %
+    si_render = img[ok].mean() - 1 / np.pi
+    si_model = expected[ok].mean() - 1 / np.pi
+    assert si_render == pytest.approx(si_model, rel=0.02)
+
+
+def test_bounces_add_reflection_orders():
+    mesh = corner_mesh(4)
+    cam = corner_camera()
+    imgs = [render(mesh, 1.0, 0.9, cam, bounces=b, spp=36, variant="scalar").image
+            for b in (1, 2, 3, -1)]
+    seen = imgs[0] > 0
+    means = [im[seen].mean() for im in imgs]
+    assert means[1] > means[0] * 1.1  # one reflection adds rho F E
+    assert means[2] > means[1] * 1.02  # the second reflection adds rho F rho F E
+    assert means[3] > means[2] * 1.005
+
+
+def test_same_seed_same_image():
+    mesh = corner_mesh(2)
+    cam = corner_camera()
+    a = render(mesh, 1.0, 0.5, cam, bounces=-1, spp=4, seed=7, variant="scalar").image
+    b = render(mesh, 1.0, 0.5, cam, bounces=-1, spp=4, seed=7, variant="scalar").image
+    c = render(mesh, 1.0, 0.5, cam, bounces=-1, spp=4, seed=8, variant="scalar").image
+    assert a.dtype == np.float32 and a.shape == (72, 96)
+    np.testing.assert_array_equal(a, b)
+    assert np.any(a != c)
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"reflectance": 1.0}, "reflectance must be in"),
+        ({"reflectance": -0.1}, "reflectance must be in"),
+        ({"emission": -1.0}, "emission must be >= 0"),
+        ({"emission": np.ones(3)}, "one value per face"),
+        ({"emission": np.nan}, "NaN or infinite"),
+        ({"bounces": 0}, "bounces must be"),
+        ({"spp": 0}, "spp must be"),
+        ({"variant": "vulkan"}, "unknown Mitsuba variant"),
+        ({"camera": "cam.json"}, "must be a resection.Camera"),
+        ({"mesh": trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [2, 0, 0]], [[0, 1, 2]],
+                                  process=False)}, "degenerate"),
+    ],
+)
+def test_bad_input(kwargs, match):
+    args = {"mesh": corner_mesh(2), "emission": 1.0, "reflectance": 0.5,
+            "camera": corner_camera()}
+    args.update(kwargs)
+    extra = {k: args.pop(k) for k in ("bounces", "spp", "variant") if k in args}
+    with pytest.raises(InputError, match=match):
+        render(args["mesh"], args["emission"], args["reflectance"], args["camera"], **extra)
