@@ -290,7 +290,7 @@ def refine_markers(
     if bad is None:
         bad = ~np.isfinite(signal)
     if half is None:
-        half = int(np.ceil(R0 + 3.0 * blur + 2.0))
+        half = int(np.ceil(1.25 * R0 + 3.0 * blur + 3.0))
     iu = np.rint(uv0[:, 0]).astype(int)
     iv = np.rint(uv0[:, 1]).astype(int)
     win, wbad, gu, gv = _extract(signal, bad, iu, iv, half)
@@ -315,8 +315,9 @@ def refine_markers(
         cv = np.where(sw > 0, (wc * gv[:, :, None]).sum(axis=(1, 2)) / sw, iv)
     amp0 = np.clip((win * inner).sum(axis=(1, 2)) / np.maximum(inner.sum(axis=(1, 2)), 1) - bg0,
                    1e-12, None)
-    # parameters: x, y, R, a, b
-    p = np.column_stack([cu, cv, np.full(n, R0), amp0 * 1.2, bg0])
+    # parameters: x, y, R, a, background, its slopes along u and v (window-centred)
+    NP = 7
+    p = np.column_stack([cu, cv, np.full(n, R0), amp0 * 1.2, bg0, np.zeros(n), np.zeros(n)])
     nodes = _diskmodel.default_nodes(max(R0 * 1.5, 1.0), max(blur, 0.3))
     rmin = 0.3
 
@@ -324,20 +325,24 @@ def refine_markers(
         out = _diskmodel.windows(p[:, 0], p[:, 1], p[:, 2], blur, gu[idx], gv[idx], nodes,
                                  jacobian=jac)
         M = out[0] if jac else out
-        model = p[:, 3, None, None] * M + p[:, 4, None, None]
+        du = np.broadcast_to(ar[None, None, :], M.shape)
+        dv = np.broadcast_to(ar[None, :, None], M.shape)
+        model = (p[:, 3, None, None] * M + p[:, 4, None, None] + p[:, 5, None, None] * du
+                 + p[:, 6, None, None] * dv)
         r = (win[idx] - model) * w[idx]
         if not jac:
             return r
         dx, dy, dR = out[1]
         a = p[:, 3, None, None]
-        J = np.stack([a * dx, a * dy, a * dR, M, np.ones_like(M)], axis=-1) * w[idx][..., None]
-        return r, J.reshape(len(idx), -1, 5)
+        J = np.stack([a * dx, a * dy, a * dR, M, np.ones_like(M), du, dv], axis=-1)
+        J = J * w[idx][..., None]
+        return r, J.reshape(len(idx), -1, NP)
 
     all_idx = np.arange(n)
     lam = np.full(n, 1e-3)
     cost = (residual(all_idx, p) ** 2).sum(axis=(1, 2))
     active = np.ones(n, bool)
-    eye = np.eye(5)
+    eye = np.eye(NP)
     for _ in range(iterations):
         idx = np.flatnonzero(active)
         if idx.size == 0:
@@ -365,7 +370,7 @@ def refine_markers(
         lam[idx] = np.clip(np.where(better, lam[idx] * 0.3, lam[idx] * 10.0), 1e-9, 1e9)
         small = np.abs(step[:, :2]).max(axis=1) < 1e-5
         active[idx] = ~((better & small) | (lam[idx] >= 1e9) | ~np.isfinite(ct))
-    npix = np.maximum(w.sum(axis=(1, 2)) - 5, 1)
+    npix = np.maximum(w.sum(axis=(1, 2)) - NP, 1)
     disk = rr <= R0 + 0.5
     masked_fraction = (wbad & disk[None]).sum(axis=(1, 2)) / disk.sum()
     ok = (
@@ -475,7 +480,9 @@ def detect_markers(
     fill = float(np.median(signal[~bad]))
     signal = np.where(bad, fill, signal)
     noise = estimate_noise(signal, bad)
-    merit = fftconvolve(signal, tmpl[::-1, ::-1], mode="same")
+    # reflect at the borders (zero padding would make the image edge look like a marker)
+    padded = np.pad(signal, th, mode="symmetric")
+    merit = fftconvolve(padded, tmpl[::-1, ::-1], mode="valid")
     merit_noise = noise * float(np.sqrt((tmpl**2).sum()))
     thr = float(threshold) if threshold is not None else k_sigma * max(merit_noise, 1e-12)
     size = max(3, 2 * int(np.floor(R)) + 1)

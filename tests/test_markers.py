@@ -1,0 +1,295 @@
+"""Marker detection: accuracy on synthetic images against the known truth and against
+trackpy / OpenCV on the same images; masking; bad input; CSV and image I/O."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.ndimage import gaussian_filter
+from scipy.spatial import cKDTree
+
+from resection.errors import InputError
+from resection.images import read_image, write_image
+from resection.markers import (
+    Candidates,
+    detect_markers,
+    marker_template,
+    position_crb,
+    read_candidates,
+    write_candidates,
+)
+from scenes.marker_images import make_scene, render_markers
+
+
+def _errors(found_uv, truth_uv, gate=1.5):
+    """Position errors of the found point nearest each true marker, and the hit ratio."""
+    d, i = cKDTree(found_uv).query(truth_uv)
+    ok = d < gate
+    return found_uv[i[ok]] - truth_uv[ok], ok.mean()
+
+
+def _rms(e):
+    """RMS error per coordinate, pixels."""
+    return float(np.sqrt(np.mean(e**2)))
+
+
+# ----------------------------------------------------------------------------- generator
+@pytest.mark.parametrize("radius,blur,x0,y0", [(3.2, 0.8, 10.3, 9.77), (1.5, 0.5, 10.0, 10.45)])
+def test_generator_matches_brute_force_supersampling(radius, blur, x0, y0):
+    # independent reference: 32x32 point-sampled disk per pixel, Gaussian filter, box average
+    S, W = 32, 21
+    c = (np.arange(W * S) + 0.5) / S - 0.5
+    X, Y = np.meshgrid(c, c)
+    disk = ((X - x0) ** 2 + (Y - y0) ** 2 <= radius**2).astype(float)
+    ref = gaussian_filter(disk, blur * S, mode="constant", truncate=6).reshape(W, S, W, S)
+    ref = ref.mean(axis=(1, 3))
+    img = render_markers((W, W), [[x0, y0]], 2 * radius, contrast=1.0, background=0.0,
+                         polarity="bright", blur=blur, dtype=np.float64)
+    assert np.abs(img - ref).max() < 2e-3
+    assert img.sum() == pytest.approx(np.pi * radius**2, rel=1e-6)
+
+
+def test_generator_noise_level_and_polarity():
+    img = render_markers((200, 200), np.zeros((0, 2)), 5.0, contrast=50.0, background=1000.0,
+                         snr=10.0, rng=0)
+    assert np.std(img) == pytest.approx(5.0, rel=0.05)
+    img_p = render_markers((200, 200), np.zeros((0, 2)), 5.0, contrast=50.0, background=1000.0,
+                           snr=10.0, noise="poisson", rng=0)
+    assert np.std(img_p) == pytest.approx(5.0, rel=0.05)
+    dark = render_markers((21, 21), [[10, 10]], 8.0, contrast=50.0, background=100.0)
+    bright = render_markers((21, 21), [[10, 10]], 8.0, contrast=50.0, background=100.0,
+                            polarity="bright")
+    assert dark[10, 10] == pytest.approx(50.0, abs=0.5)
+    assert bright[10, 10] == pytest.approx(150.0, abs=0.5)
+
+
+# ----------------------------------------------------------------------------- accuracy
+def _peers(image, diameter, n):
+    import cv2
+    import trackpy as tp
+
+    tp.quiet()
+    f = tp.locate(image, int(2 * np.ceil(diameter / 2 + 1.5) + 1), invert=True, minmass=0)
+    tp_uv = f.nlargest(n, "mass")[["x", "y"]].to_numpy()
+    p = cv2.SimpleBlobDetector_Params()
+    p.filterByColor, p.blobColor = True, 0
+    p.filterByCircularity = p.filterByConvexity = p.filterByInertia = False
+    p.minArea, p.minThreshold, p.maxThreshold, p.thresholdStep = 2, 10, 250, 5
+    p.minDistBetweenBlobs = 3
+    im8 = np.clip((image - image.min()) / np.ptp(image) * 255, 0, 255).astype(np.uint8)
+    cv_uv = np.array([k.pt for k in cv2.SimpleBlobDetector_create(p).detect(im8)])
+    return tp_uv, cv_uv
+
+
+@pytest.mark.parametrize("diameter", [3, 4, 6, 8, 10])
+def test_accuracy_snr20_against_truth_trackpy_opencv(diameter):
+    errs, errs_tp, errs_cv = [], [], []
+    for seed in range(2):
+        sc = make_scene((256, 256), 40, diameter, snr=20.0, blur=0.7, rng=100 * diameter + seed)
+        cand = detect_markers(sc.image, diameter)
+        assert len(cand) == 40  # no miss, no false detection, no double
+        e, hit = _errors(cand.uv, sc.uv)
+        assert hit == 1.0
+        errs.append(e)
+        tp_uv, cv_uv = _peers(sc.image, diameter, 40)
+        errs_tp.append(_errors(tp_uv, sc.uv)[0])
+        errs_cv.append(_errors(cv_uv, sc.uv)[0])
+    rms = _rms(np.vstack(errs))
+    assert rms <= 0.05
+    assert rms <= _rms(np.vstack(errs_tp))
+    assert rms <= _rms(np.vstack(errs_cv))
+    # close to the Cramér-Rao bound of the model (sampling error of 160 values ~ 6 %)
+    crb = position_crb(diameter, 0.7, 100.0, 5.0)
+    assert 0.75 * crb < rms < 1.3 * crb
+
+
+def test_accuracy_bright_cone_poisson_uint16():
+    sc = make_scene((256, 256), 30, 5.0, snr=25.0, blur=0.8, polarity="bright",
+                    noise="poisson", background=2000.0, contrast=400.0, dtype=np.uint16, rng=7)
+    cand = detect_markers(sc.image, 5.0, polarity="bright", template="cone")
+    e, hit = _errors(cand.uv, sc.uv)
+    assert hit == 1.0 and len(cand) == 30
+    assert _rms(e) <= 0.05
+    assert np.all(cand.depth > 0)
+    assert np.median(cand.snr) == pytest.approx(25.0 * np.median(cand.depth) / 400.0, rel=0.3)
+
+
+def test_uint8_image():
+    sc = make_scene((200, 200), 20, 6.0, snr=20.0, contrast=60.0, background=150.0,
+                    dtype=np.uint8, rng=3)
+    cand = detect_markers(sc.image, 6.0)
+    e, hit = _errors(cand.uv, sc.uv)
+    assert hit == 1.0 and len(cand) == 20
+    assert _rms(e) <= 0.05
+
+
+@pytest.mark.parametrize("diameter,gen_blur", [(3, 0.7), (6, 0.3), (10, 0.7), (4, 0.15), (8, 1.2)])
+def test_no_periodic_bias_with_subpixel_position(diameter, gen_blur):
+    # noiseless markers stepped by 1/20 px in u and v; the detector assumes blur 0.6
+    k = np.arange(21) / 20
+    uv = np.column_stack([20 + (np.arange(21) % 7) * 30 + k, 20 + (np.arange(21) // 7) * 30
+                          + k[::-1]])
+    img = render_markers((120, 240), uv, diameter, blur=gen_blur)
+    cand = detect_markers(img, diameter)
+    e, hit = _errors(cand.uv, uv)
+    assert hit == 1.0
+    assert np.abs(e).max() <= 0.01
+
+
+def test_threshold_and_false_alarms_on_pure_noise():
+    rng = np.random.default_rng(0)
+    img = 1000 + rng.normal(0, 5, (300, 300))
+    assert len(detect_markers(img, 5.0)) == 0
+    # an explicit tiny threshold lets noise through: the threshold is really used
+    assert len(detect_markers(img[:80, :80], 5.0, threshold=1e-3)) > 10
+
+
+def test_smooth_background_gradient_does_not_matter():
+    sc = make_scene((256, 256), 30, 6.0, snr=30.0, rng=11)
+    vv, uu = np.mgrid[0:256, 0:256]
+    img = sc.image + 0.8 * uu + 0.3 * vv + 200 * np.sin(vv / 80.0)
+    cand = detect_markers(img, 6.0)
+    e, hit = _errors(cand.uv, sc.uv)
+    assert hit == 1.0 and len(cand) == 30
+    assert _rms(e) <= 0.05
+
+
+# ----------------------------------------------------------------------------- masking
+def test_nan_and_saturated_pixels_masked_and_counted():
+    sc = make_scene((256, 256), 30, 8.0, snr=30.0, blur=0.7, background=3000.0,
+                    contrast=600.0, polarity="bright", dtype=np.uint16, rng=5)
+    img = sc.image.astype(np.float32)
+    img_u16 = sc.image.copy()
+    # 40 saturated pixels in one corner, and one NaN pixel on the rim of two markers
+    img_u16[0:4, 0:10] = 65535
+    cand = detect_markers(img_u16, 8.0, polarity="bright")
+    assert cand.n_masked == 40
+    assert len(cand) == 30
+    img[0:4, 0:10] = np.nan
+    for k in range(2):
+        u, v = np.rint(sc.uv[k]).astype(int)
+        img[v, u + 3] = np.nan
+    cand = detect_markers(img, 8.0, polarity="bright")
+    assert cand.n_masked == 42
+    e, hit = _errors(cand.uv, sc.uv)
+    assert hit == 1.0 and len(cand) == 30
+    assert _rms(e) <= 0.05
+    # a user mask over one marker removes it
+    mask = np.zeros(img.shape, bool)
+    u, v = np.rint(sc.uv[5]).astype(int)
+    mask[v - 6:v + 7, u - 6:u + 7] = True
+    cand = detect_markers(img, 8.0, polarity="bright", mask=mask)
+    assert len(cand) == 29
+    assert cand.n_masked == 42 + 169
+    assert np.min(np.hypot(*(cand.uv - sc.uv[5]).T)) > 5
+
+
+def test_border_roi_and_doubles():
+    uv = np.array([[2.0, 50.0], [60.0, 60.0], [100.0, 30.0], [150.0, 80.0]])
+    img = render_markers((120, 200), uv, 8.0, snr=40, rng=1)
+    cand = detect_markers(img, 8.0)
+    assert len(cand) == 3  # the one cut by the left border is rejected
+    assert cand.n_rejected["border"] >= 0
+    assert np.min(np.hypot(*(cand.uv - uv[0]).T)) > 10
+    cand = detect_markers(img, 8.0, roi=(40, 0, 120, 119))
+    assert len(cand) == 2
+    assert set(np.rint(cand.u).astype(int)) == {60, 100}
+    # roi border cutting a marker rejects it
+    cand = detect_markers(img, 8.0, roi=(63, 0, 199, 119))
+    assert set(np.rint(cand.u).astype(int)) == {100, 150}
+    # large markers with noise: never two candidates on one marker
+    sc = make_scene((256, 256), 20, 10.0, snr=8.0, rng=2)
+    cand = detect_markers(sc.image, 10.0)
+    tree = cKDTree(cand.uv)
+    assert len(tree.query_pairs(7.5)) == 0
+
+
+def test_template_shapes():
+    for kind in ("tophat", "cone"):
+        t = marker_template(6.0, kind)
+        assert t.sum() == pytest.approx(0.0, abs=1e-12)
+        assert t.shape[0] == t.shape[1] and t.shape[0] % 2 == 1
+        assert np.allclose(t, t[::-1, ::-1])
+
+
+# ----------------------------------------------------------------------------- bad input
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        ({"image": np.zeros((10, 10, 3))}, "2-D"),
+        ({"image": np.array([["a"]])}, "numeric"),
+        ({"image": np.zeros((50, 50)), "diameter": -3}, "diameter"),
+        ({"image": np.zeros((50, 50)), "diameter": "big"}, "diameter"),
+        ({"image": np.zeros((50, 50)), "polarity": "grey"}, "polarity"),
+        ({"image": np.zeros((50, 50)), "template": "gauss"}, "template"),
+        ({"image": np.full((50, 50), np.nan)}, "masked"),
+        ({"image": np.zeros((50, 50)), "roi": (100, 100, 200, 200)}, "roi"),
+        ({"image": np.zeros((50, 50)), "roi": "all"}, "roi"),
+        ({"image": np.zeros((50, 50)), "mask": np.zeros((5, 5), bool)}, "mask"),
+        ({"image": np.zeros((50, 50)), "threshold": -1.0}, "threshold"),
+    ],
+)
+def test_bad_input(kwargs, match):
+    args = {"diameter": 5.0, **kwargs}
+    with pytest.raises(InputError, match=match):
+        detect_markers(**args)
+
+
+# ----------------------------------------------------------------------------- CSV + images
+def test_candidate_csv_roundtrip(tmp_path):
+    sc = make_scene((128, 128), 8, 5.0, snr=30.0, rng=4)
+    cand = detect_markers(sc.image, 5.0)
+    p = tmp_path / "c.csv"
+    write_candidates(p, cand)
+    back, ids = read_candidates(p)
+    assert ids is None and len(back) == len(cand)
+    assert np.allclose(back.uv, cand.uv, atol=1e-4)
+    assert np.allclose(back.snr, cand.snr, rtol=1e-5)
+    assert p.read_text().splitlines()[0] == "u,v,diameter,depth,merit,snr"
+    ids = [f"M{k}" for k in range(len(cand))]
+    ids[0] = None
+    write_candidates(p, cand, ids=ids)
+    back, back_ids = read_candidates(p)
+    assert back_ids == ids[1:]
+    assert np.allclose(back.uv, cand.uv[1:], atol=1e-4)
+    bad = tmp_path / "bad.csv"
+    bad.write_text("u,v,colour\n1,2,3\n")
+    with pytest.raises(InputError, match="colour"):
+        read_candidates(bad)
+    bad.write_text("u,v\n1,x\n")
+    with pytest.raises(InputError, match="line 2"):
+        read_candidates(bad)
+    with pytest.raises(FileNotFoundError):
+        read_candidates(tmp_path / "missing.csv")
+    assert len(Candidates.from_uv([[1, 2], [3, 4]])) == 2
+
+
+@pytest.mark.parametrize(
+    "name,dtype", [("a.tif", np.uint16), ("b.tiff", np.float32), ("c.png", np.uint8),
+                   ("d.png", np.uint16), ("e.npy", np.float64), ("f.tif", np.uint8)]
+)
+def test_image_roundtrip(tmp_path, name, dtype):
+    rng = np.random.default_rng(0)
+    hi = 255 if dtype == np.uint8 else 4000
+    arr = rng.integers(0, hi, (17, 23)).astype(dtype)
+    write_image(tmp_path / name, arr)
+    back = read_image(tmp_path / name)
+    assert back.dtype == np.float32 and back.shape == (17, 23)
+    assert np.array_equal(back, arr.astype(np.float32))
+
+
+def test_image_errors(tmp_path):
+    with pytest.raises(FileNotFoundError):
+        read_image(tmp_path / "none.tif")
+    with pytest.raises(InputError, match="extension"):
+        read_image(tmp_path / "x.jpg")
+    np.save(tmp_path / "cube.npy", np.zeros((3, 4, 5)))
+    with pytest.raises(InputError, match="2-D"):
+        read_image(tmp_path / "cube.npy")
+    (tmp_path / "junk.tif").write_bytes(b"not a tiff")
+    with pytest.raises(InputError, match="cannot read"):
+        read_image(tmp_path / "junk.tif")
+    with pytest.raises(InputError, match="fit"):
+        write_image(tmp_path / "o.png", np.full((3, 3), 70000.0))
+    with pytest.raises(InputError, match="2-D"):
+        write_image(tmp_path / "o.tif", np.zeros(5))
