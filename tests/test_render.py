@@ -309,3 +309,36 @@ def test_bad_input(kwargs, match):
     extra = {k: args.pop(k) for k in ("bounces", "spp", "variant") if k in args}
     with pytest.raises(InputError, match=match):
         render(args["mesh"], args["emission"], args["reflectance"], args["camera"], **extra)
+
+
+# ----------------------------------------------------------------------------- CLI
+def test_cli_render_writes_image_and_preview(tmp_path, capsys):
+    from resection.images import read_image
+    from selfillum.cli import main
+
+    mesh = corner_mesh(4)
+    mesh.export(tmp_path / "corner.ply")
+    cam = corner_camera()
+    cam.write(tmp_path / "cam.json")
+    E = np.linspace(1.0, 2.0, len(mesh.faces))
+    np.save(tmp_path / "E.npy", E)
+    out = tmp_path / "render.tif"
+    rc = main(["render", "--mesh", str(tmp_path / "corner.ply"), "--camera",
+               str(tmp_path / "cam.json"), "--emission", str(tmp_path / "E.npy"),
+               "--reflectance", "0.3", "--bounces", "1", "--spp", "4", "--variant", "scalar",
+               "--out", str(out)])
+    assert rc == 0
+    assert "variant   scalar_rgb" in capsys.readouterr().out
+    img = read_image(out)
+    assert img.dtype == np.float32 and img.shape == (72, 96)
+    face, inside, _ = footprint_faces(cam, 4)
+    np.testing.assert_allclose(img.ravel()[inside], E[face[inside]] / np.pi, rtol=2e-6)
+    png = read_image(out.with_suffix(".png"))
+    assert png.shape == (72, 96) and png.max() == 255 and png.min() == 0
+
+    rc = main(["render", "--mesh", str(tmp_path / "corner.ply"), "--camera",
+               str(tmp_path / "cam.json"), "--emission", "1", "--reflectance", "1.5",
+               "--out", str(tmp_path / "bad.npy")])
+    assert rc == 2
+    assert "reflectance must be in [0, 1)" in capsys.readouterr().err
+    assert not (tmp_path / "bad.npy").exists()
