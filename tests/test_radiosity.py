@@ -1,0 +1,176 @@
+"""Lambertian forward model and its inverse, against closed forms (two patches, a closed
+enclosure) and a dense direct solve (numpy.linalg.solve)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import trimesh
+
+from resection.errors import InputError, SolveError
+from scenes.corner import corner
+from selfillum import correct, forward, view_factors
+
+
+def random_form_factors(n: int, k: int, seed: int) -> sp.csr_matrix:
+    """Sparse non-negative matrix, ``k`` entries a row, rows summing to values in
+    [0.5, 1]."""
+    rng = np.random.default_rng(seed)
+    cols = np.stack([rng.choice(n - 1, size=k, replace=False) for _ in range(n)])
+    cols = cols + (cols >= np.arange(n)[:, None])  # no diagonal
+    w = rng.random((n, k))
+    w *= (0.5 + 0.5 * rng.random((n, 1))) / w.sum(axis=1, keepdims=True)
+    return sp.csr_matrix((w.ravel(), (np.repeat(np.arange(n), k), cols.ravel())), shape=(n, n))
+
+
+# ---------------------------------------------------------------- forward
+def test_two_patch_closed_form():
+    f12, f21 = 0.3, 0.45
+    F = sp.csr_matrix([[0.0, f12], [f21, 0.0]])
+    E = np.array([2.0, 0.5])
+    rho = np.array([0.7, 0.4])
+    det = 1 - rho[0] * rho[1] * f12 * f21
+    exact = np.array([(E[0] + rho[0] * f12 * E[1]) / det, (E[1] + rho[1] * f21 * E[0]) / det])
+    np.testing.assert_allclose(forward(F, E, rho), exact, rtol=1e-9)
+
+
+@pytest.mark.parametrize("rho_max", [0.4, 0.95])  # Neumann path, BiCGSTAB path
+def test_forward_matches_dense_direct_solve(rho_max):
+    n = 300
+    F = random_form_factors(n, 12, seed=1)
+    rng = np.random.default_rng(2)
+    E = rng.random(n) + 0.1
+    rho = rho_max * rng.random(n)
+    rho[0] = rho_max
+    B, info = forward(F, E, rho, tol=1e-11, return_info=True)
+    exact = np.linalg.solve(np.eye(n) - rho[:, None] * F.toarray(), E)
+    np.testing.assert_allclose(B, exact, rtol=1e-9)
+    assert info.residual <= 1e-11
+    assert info.method == ("neumann" if rho_max <= 0.5 else "bicgstab")
+
+
+def test_closed_enclosure_closed_form():
+    """In a closed enclosure (rows of F sum to 1) with uniform E and rho,
+    B = E / (1 - rho) on every face."""
+    box = trimesh.creation.box(extents=(1.0, 1.0, 2.0)).subdivide()
+    box.invert()
+    F = view_factors(box, rays_per_face=64, seed=0)
+    B = forward(F, 3.0, 0.8)
+    np.testing.assert_allclose(B, 3.0 / (1 - 0.8), rtol=1e-9)
+
+
+def test_zero_emission_and_zero_reflectance():
+    F = random_form_factors(50, 5, seed=3)
+    np.testing.assert_array_equal(forward(F, np.zeros(50), 0.5), 0.0)
+    E = np.linspace(1, 2, 50)
+    np.testing.assert_allclose(forward(F, E, 0.0), E)
+
+
+def test_no_convergence_is_a_solve_error():
+    F = random_form_factors(200, 10, seed=4)
+    with pytest.raises(SolveError, match="did not converge"):
+        forward(F, np.ones(200), 0.99, tol=1e-14, maxiter=2)
+
+
+# ---------------------------------------------------------------- inverse
+def test_round_trip_all_seen():
+    n = 400
+    F = random_form_factors(n, 16, seed=5)
+    rng = np.random.default_rng(6)
+    E = rng.random(n) + 0.5
+    rho = 0.9 * rng.random(n)
+    B = forward(F, E, rho, tol=1e-12)
+    assert np.max(np.abs(B - E) / E) > 0.3  # there is something to correct
+    E2, info = correct(F, B, rho, return_info=True)
+    np.testing.assert_allclose(E2, E, rtol=1e-10)
+    assert info.method == "direct" and info.n_hidden == 0
+
+
+@pytest.fixture(scope="module")
+def small_corner():
+    sc = corner(resolution=12, pattern="uniform")
+    F = view_factors(sc.mesh, rays_per_face=128, seed=0)
+    c = np.asarray(sc.mesh.triangles_center)
+    s = np.where(sc.plate == 0, -c[:, 0], c[:, 2])
+    return sc, F, c, s
+
+
+def test_partial_observation_uniform_emission_recovered(small_corner):
+    """Upper wall hidden: uniform emission is the smoothest field, so it is recovered
+    everywhere, hidden faces included."""
+    sc, F, c, _ = small_corner
+    E = np.full(len(c), 2.0)
+    B = forward(F, E, sc.reflectance)
+    seen = ~((sc.plate == 1) & (c[:, 2] > 0.5))
+    measured = np.where(seen, B, np.nan)  # hidden values are not used
+    E2, info = correct(F, measured, sc.reflectance, seen, mesh=sc.mesh, return_info=True)
+    assert info.method == "lsmr" and info.n_hidden == int((~seen).sum())
+    np.testing.assert_allclose(E2, E, rtol=1e-3)
+
+
+def test_partial_observation_smooth_emission(small_corner):
+    """A smooth non-uniform field: on the seen faces the correction removes nearly all of
+    the self-illumination (errors small against the SI present)."""
+    sc, F, c, s = small_corner
+    E = 1.0 + 0.3 * np.cos(np.pi * s) + 0.1 * c[:, 1]
+    B = forward(F, E, sc.reflectance)
+    seen = ~((sc.plate == 1) & (c[:, 2] > 0.6))
+    si = (B - E) / E
+    E2 = correct(F, B, sc.reflectance, seen, mesh=sc.mesh)
+    err = np.abs(E2 - E) / E
+    assert si[seen].max() > 0.35
+    assert err[seen].max() < 0.05 * si[seen].max()
+    # ignoring the hidden faces altogether (B_h = 0) would be far worse
+    naive = B - sc.reflectance * (F @ np.where(seen, B, 0.0))
+    assert (np.abs(naive - E) / E)[seen].max() > 3 * err[seen].max()
+
+
+# ---------------------------------------------------------------- bad input
+def test_bad_reflectance():
+    F = random_form_factors(20, 4, seed=7)
+    E = np.ones(20)
+    for bad in (1.0, 1.2, -0.1, np.nan):
+        with pytest.raises(InputError, match="reflectance"):
+            forward(F, E, bad)
+        with pytest.raises(InputError, match="reflectance"):
+            correct(F, E, bad)
+    rho = np.full(20, 0.5)
+    rho[7] = 1.0
+    with pytest.raises(InputError, match="face 7"):
+        forward(F, E, rho)
+    with pytest.raises(InputError, match="reflectance"):
+        forward(F, E, np.full(19, 0.5))
+
+
+def test_bad_fields_and_matrices():
+    F = random_form_factors(20, 4, seed=8)
+    E = np.ones(20)
+    E[3] = np.nan
+    with pytest.raises(InputError, match="emission.*face 3"):
+        forward(F, E, 0.5)
+    with pytest.raises(InputError, match="radiosity.*face 3"):
+        correct(F, E, 0.5)
+    with pytest.raises(InputError, match="shape"):
+        forward(F, np.ones(21), 0.5)
+    with pytest.raises(InputError, match="square"):
+        forward(sp.csr_matrix(np.zeros((3, 4))), np.ones(3), 0.5)
+    with pytest.raises(InputError, match="sums to"):
+        forward(sp.csr_matrix([[0.0, 1.5], [0.2, 0.0]]), np.ones(2), 0.5)
+    with pytest.raises(InputError, match="negative"):
+        forward(sp.csr_matrix([[0.0, -0.5], [0.2, 0.0]]), np.ones(2), 0.5)
+
+
+def test_bad_seen_mask(small_corner):
+    sc, F, c, _ = small_corner
+    B = np.ones(len(c))
+    with pytest.raises(InputError, match="seen"):
+        correct(F, B, 0.5, np.ones(len(c)))  # not boolean
+    with pytest.raises(InputError, match="no face is seen"):
+        correct(F, B, 0.5, np.zeros(len(c), bool))
+    seen = np.ones(len(c), bool)
+    seen[0] = False
+    with pytest.raises(InputError, match="mesh"):
+        correct(F, B, 0.5, seen)
+    with pytest.raises(InputError, match="regularization"):
+        correct(F, B, 0.5, seen, mesh=sc.mesh, regularization=0.0)
