@@ -455,27 +455,30 @@ def _initial_poses(X, xy, planar: bool, max_triplets: int):
         except InputError:
             pass
     if n >= 4 and planar:
-        c = X.mean(axis=0)
-        _, _, Vt = np.linalg.svd(X - c)
-        E = Vt.T  # columns e1, e2, normal
-        ab = (X - c) @ E[:, :2]
         try:
-            H = fit_homography(ab, xy)
-            lam = 0.5 * (np.linalg.norm(H[:, 0]) + np.linalg.norm(H[:, 1]))
-            if H[2, 2] / lam < 0:
-                lam = -lam
-            r1, r2, tc = H[:, 0] / lam, H[:, 1] / lam, H[:, 2] / lam
-            U, _, Vt2 = np.linalg.svd(np.column_stack([r1, r2, np.cross(r1, r2)]))
-            Rc = U @ Vt2
-            if np.linalg.det(Rc) > 0:
-                R = Rc @ E.T
-                if np.linalg.det(R) < 0:  # E is a reflection: flip the normal
-                    E[:, 2] *= -1
-                    R = Rc @ E.T
-                cands.append((R, tc - R @ c))
-        except InputError:
+            cands.append(_pose_from_plane(X, xy))
+        except (InputError, SolveError):
             pass
     return cands
+
+
+def _pose_from_plane(X: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pose of coplanar model points ``X`` from their normalised image coordinates ``xy``
+    through the plane's homography (``H ~ [R e1, R e2, R c + t]`` in plane axes)."""
+    c = X.mean(axis=0)
+    _, _, Vt = np.linalg.svd(X - c)
+    E = Vt.T.copy()  # columns e1, e2, normal
+    if np.linalg.det(E) < 0:
+        E[:, 2] *= -1
+    H = fit_homography((X - c) @ E[:, :2], xy)
+    lam = 0.5 * (np.linalg.norm(H[:, 0]) + np.linalg.norm(H[:, 1]))
+    if H[2, 2] < 0:  # the centroid must be in front of the camera
+        lam = -lam
+    r1, r2, tc = H[:, 0] / lam, H[:, 1] / lam, H[:, 2] / lam
+    U, _, Vt2 = np.linalg.svd(np.column_stack([r1, r2, np.cross(r1, r2)]))
+    Rc = U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt2))]) @ Vt2
+    R = Rc @ E.T
+    return R, tc - R @ c
 
 
 def _sq_cost(res2: np.ndarray, robust: str | None, scale: float):

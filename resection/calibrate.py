@@ -1,0 +1,392 @@
+"""Camera calibration: intrinsics and distortion from one or several views of a target.
+
+:func:`calibrate` estimates the focal lengths, the perspective centre (principal point)
+and the Brown-Conrady distortion ``[k1, k2, p1, p2, k3]`` shared by all views, together
+with one pose per view, by minimising the reprojection error of all views jointly
+(Levenberg-Marquardt with an analytic Jacobian whose pose columns are block-sparse).
+
+Starts, without a user guess:
+
+* planar target (calibration card): per-view homographies and Zhang's closed form for the
+  image of the absolute conic (three or more views), else focal lengths with the
+  principal point at the image centre;
+* non-coplanar target: the 11-parameter DLT of each view with six or more markers,
+  decomposed into ``K`` (:mod:`resection.dlt`) - which also covers the single-image case;
+
+then the pose of each view by :func:`resection.solve_pose`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.spatial.transform import Rotation
+
+from ._checks import as_points
+from .camera import Camera, undistort_normalized
+from .dlt import (
+    COLLINEAR_RTOL,
+    COPLANAR_RTOL,
+    coplanarity,
+    decompose_projection,
+    fit_dlt,
+    fit_homography,
+)
+from .errors import DegenerateError, InputError, SolveError
+from .pose import (
+    _apply_intrinsics,
+    _intrinsic_params,
+    _pose_from_plane,
+    _project_jac,
+    solve_pose,
+)
+
+__all__ = ["CalibrationResult", "calibrate", "CALIBRATION_PARAMETERS"]
+
+#: Parameters :func:`calibrate` estimates; any of them can be held fixed with ``fix``,
+#: plus ``"aspect"`` to keep ``fy / fx`` fixed (one focal length).
+CALIBRATION_PARAMETERS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
+
+
+@dataclass(frozen=True)
+class CalibrationResult:
+    """Result of :func:`calibrate`.
+
+    Attributes
+    ----------
+    camera : Camera
+        The calibrated intrinsics, with the pose of the first view.
+    poses : list of Camera
+        One camera (same intrinsics) per view, with that view's pose.
+    residuals : list of (N_i, 2) ndarray
+        Observed minus projected pixel coordinates of each view, px.
+    rms : float
+        RMS reprojection error over all markers of all views, px.
+    view_rms : (V,) ndarray
+        RMS of each view, px.
+    parameters : tuple of str
+        Names of the estimated intrinsic parameters (``f`` when the aspect is fixed).
+    std : dict
+        Standard deviation of each estimated intrinsic parameter (px for ``f, fx, fy, cx,
+        cy``, dimensionless for distortion), from the Jacobian at the solution scaled by the
+        residual variance.
+    message : str
+    """
+
+    camera: Camera
+    poses: list
+    residuals: list
+    rms: float
+    view_rms: np.ndarray
+    parameters: tuple
+    std: dict
+    message: str = ""
+
+
+def _check_views(views):
+    try:
+        views = list(views)
+    except TypeError:
+        raise InputError("calibrate: views must be a list of (points3d, points2d) pairs") \
+            from None
+    if not views:
+        raise InputError("calibrate: no views given")
+    out = []
+    for i, v in enumerate(views):
+        try:
+            X, uv = v
+        except (TypeError, ValueError):
+            raise InputError(f"calibrate: view {i} is not a (points3d, points2d) pair") \
+                from None
+        X = as_points(X, 3, f"view {i} points3d")
+        uv = as_points(uv, 2, f"view {i} points2d")
+        if len(X) != len(uv):
+            raise InputError(f"calibrate: view {i}: {len(X)} markers but {len(uv)} image points")
+        if len(X) < 4:
+            raise InputError(f"calibrate: view {i}: at least 4 markers are needed, got {len(X)}")
+        s2, s3 = coplanarity(X)
+        if s2 < COLLINEAR_RTOL:
+            raise DegenerateError(f"calibrate: view {i}: the markers are collinear")
+        out.append((X, uv, s3 < COPLANAR_RTOL))
+    return out
+
+
+def _zhang(Hs: list[np.ndarray], w: int, h: int) -> np.ndarray | None:
+    """Intrinsics from plane homographies (image of the absolute conic), or None."""
+    N = np.array([[2.0 / max(w, h), 0, -1.0 * w / max(w, h)],
+                  [0, 2.0 / max(w, h), -1.0 * h / max(w, h)], [0, 0, 1.0]])
+    rows = []
+    for H in Hs:
+        Hn = N @ H
+        Hn = Hn / np.linalg.norm(Hn)
+
+        def v(i, j, Hn=Hn):
+            a, b = Hn[:, i], Hn[:, j]
+            return np.array([a[0] * b[0], a[0] * b[1] + a[1] * b[0], a[1] * b[1],
+                             a[2] * b[0] + a[0] * b[2], a[2] * b[1] + a[1] * b[2],
+                             a[2] * b[2]])
+
+        rows.append(v(0, 1))
+        rows.append(v(0, 0) - v(1, 1))
+    rows.append(np.array([0, 1.0, 0, 0, 0, 0]))  # zero skew
+    A = np.array(rows)
+    _, s, vt = np.linalg.svd(A)
+    b = vt[-1]
+    if b[0] < 0:
+        b = -b
+    B11, B12, B22, B13, B23, B33 = b
+    den = B11 * B22 - B12**2
+    if B11 <= 0 or den <= 0:
+        return None
+    v0 = (B12 * B13 - B11 * B23) / den
+    lam = B33 - (B13**2 + v0 * (B12 * B13 - B11 * B23)) / B11
+    if lam / B11 <= 0:
+        return None
+    alpha = math.sqrt(lam / B11)
+    beta = math.sqrt(lam * B11 / den)
+    u0 = -B13 * alpha**2 / lam
+    Kn = np.array([[alpha, 0, u0], [0, beta, v0], [0, 0, 1.0]])
+    K = np.linalg.solve(N, Kn)
+    K /= K[2, 2]
+    K[0, 1] = 0.0
+    if not (0 < K[0, 0] < 100 * max(w, h) and 0 < K[1, 1] < 100 * max(w, h)
+            and -0.5 * w < K[0, 2] < 1.5 * w and -0.5 * h < K[1, 2] < 1.5 * h):
+        return None
+    return K
+
+
+def _focal_from_planes(Hs, w, h) -> np.ndarray:
+    """Focal lengths with the principal point at the image centre and zero skew."""
+    cx, cy = (w - 1) / 2.0, (h - 1) / 2.0
+    T = np.array([[1.0, 0, -cx], [0, 1.0, -cy], [0, 0, 1.0]])
+    f0 = float(max(w, h))
+    S = np.diag([1 / f0, 1 / f0, 1.0])
+    rows, rhs = [], []
+    for H in Hs:
+        Hp = S @ T @ H
+        Hp = Hp / np.linalg.norm(Hp)
+        rows.append([Hp[0, 0] * Hp[0, 1], Hp[1, 0] * Hp[1, 1]])
+        rhs.append(-Hp[2, 0] * Hp[2, 1])
+        rows.append([Hp[0, 0] ** 2 - Hp[0, 1] ** 2, Hp[1, 0] ** 2 - Hp[1, 1] ** 2])
+        rhs.append(-(Hp[2, 0] ** 2 - Hp[2, 1] ** 2))
+    A, r = np.array(rows), np.array(rhs)
+    ab = np.linalg.lstsq(A, r, rcond=None)[0]
+    if np.all(ab > 0):
+        fx, fy = f0 / math.sqrt(ab[0]), f0 / math.sqrt(ab[1])
+    else:
+        a = float(np.linalg.lstsq(A.sum(axis=1, keepdims=True), r, rcond=None)[0][0])
+        fx = fy = f0 / math.sqrt(a) if a > 0 else f0
+    if not (0 < fx < 100 * f0 and 0 < fy < 100 * f0):
+        fx = fy = f0
+    return np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
+
+
+def _initial_K(views, w, h) -> np.ndarray:
+    Ks = []
+    for X, uv, planar in views:
+        if not planar and len(X) >= 6:
+            try:
+                K, _, _ = decompose_projection(fit_dlt(X, uv))
+                Ks.append(K)
+            except InputError:
+                pass
+    if Ks:
+        K = np.median(np.array(Ks), axis=0)
+        K[0, 1] = 0.0
+        if K[0, 0] > 0 and K[1, 1] > 0:
+            return K
+    Hs = []
+    for X, uv, planar in views:
+        if planar:
+            c = X.mean(axis=0)
+            _, _, Vt = np.linalg.svd(X - c)
+            try:
+                Hs.append(fit_homography((X - c) @ Vt[:2].T, uv))
+            except InputError:
+                pass
+    if not Hs:
+        f0 = float(max(w, h))
+        return np.array([[f0, 0, (w - 1) / 2], [0, f0, (h - 1) / 2], [0, 0, 1.0]])
+    K = _zhang(Hs, w, h) if len(Hs) >= 3 else None
+    return K if K is not None else _focal_from_planes(Hs, w, h)
+
+
+def _initial_pose(cam: Camera, X, uv, planar):
+    try:
+        r = solve_pose(cam, X, uv)
+        return np.array(r.camera.R), np.array(r.camera.t)
+    except SolveError:
+        pass
+    xy = undistort_normalized(cam.pixels_to_normalized(uv), cam.dist)
+    if planar:
+        return _pose_from_plane(X, xy)
+    P = fit_dlt(X, xy)
+    U, S, Vt = np.linalg.svd(P[:, :3])
+    return U @ Vt, P[:, 3] / S.mean()
+
+
+def calibrate(
+    views,
+    image_size: tuple[int, int],
+    *,
+    fix=(),
+    initial: Camera | None = None,
+    max_nfev: int = 500,
+) -> CalibrationResult:
+    """Calibrate a camera from one or more views of a planar or 3-D target.
+
+    Parameters
+    ----------
+    views : sequence of (points3d, points2d)
+        For each image, the target's marker coordinates ``(N_i, 3)`` (model units; a
+        planar target may lie in any plane) and their measured pixel positions
+        ``(N_i, 2)`` (pixel centres at integers).
+    image_size : (width, height)
+        Image size in pixels.
+    fix : iterable of str
+        Parameters held at their initial value: any of ``fx, fy, cx, cy, k1, k2, p1, p2,
+        k3``, and ``"aspect"`` to estimate one focal length with ``fy / fx`` fixed.
+        ``fix=("k3",)`` is common; a single view of a planar target needs ``("cx", "cy")``.
+    initial : Camera, optional
+        Starting (and fixed-parameter) intrinsics ``K`` and ``dist``. By default the
+        intrinsics come from the data and the distortion starts at zero.
+    max_nfev : int
+        Maximum number of function evaluations of the joint refinement.
+
+    Returns
+    -------
+    CalibrationResult
+
+    Raises
+    ------
+    InputError, DegenerateError
+        No views, fewer than 4 markers in a view, NaN, collinear markers, bad sizes,
+        unknown parameter names, fewer observations than parameters.
+    SolveError
+        Non-convergence, or parameters the views do not determine (the message names
+        them: e.g. the principal point from one planar view).
+    """
+    try:
+        w, h = (int(x) for x in image_size)
+    except (TypeError, ValueError):
+        raise InputError(f"calibrate: image_size must be (width, height), got {image_size!r}") \
+            from None
+    if w <= 0 or h <= 0:
+        raise InputError(f"calibrate: image size must be positive, got {w}x{h}")
+    fix = tuple(fix)
+    unknown = [f for f in fix if f not in CALIBRATION_PARAMETERS + ("aspect",)]
+    if unknown:
+        raise InputError(f"calibrate: unknown parameter(s) to fix: {', '.join(unknown)}; "
+                         f"allowed: {', '.join(CALIBRATION_PARAMETERS)}, aspect")
+    vw = _check_views(views)
+    if initial is not None:
+        if not isinstance(initial, Camera):
+            raise InputError("calibrate: initial must be a resection.Camera")
+        K0, dist0 = np.array(initial.K), np.array(initial.dist)
+    else:
+        K0, dist0 = _initial_K(vw, w, h), np.zeros(5)
+        if "cx" in fix:
+            K0[0, 2] = (w - 1) / 2.0
+        if "cy" in fix:
+            K0[1, 2] = (h - 1) / 2.0
+    names = [p for p in CALIBRATION_PARAMETERS if p not in fix]
+    if "aspect" in fix:
+        if "fx" in fix or "fy" in fix:
+            names = [p for p in names if p not in ("fx", "fy")]
+        else:
+            names = ["f"] + [p for p in names if p not in ("fx", "fy")]
+    names = tuple(names)
+    m = len(names)
+    V = len(vw)
+    n_obs = 2 * sum(len(X) for X, _, _ in vw)
+    n_par = m + 6 * V
+    if n_obs <= n_par:
+        raise InputError(f"calibrate: {n_obs} observations for {n_par} parameters; add markers "
+                         "or views, or fix parameters")
+
+    cam0 = Camera(w, h, K0, dist0)
+    R0s, t0s = [], []
+    for X, uv, planar in vw:
+        R, t = _initial_pose(cam0, X, uv, planar)
+        R0s.append(R)
+        t0s.append(t)
+
+    sizes = [len(X) for X, _, _ in vw]
+    offs = np.concatenate([[0], np.cumsum(sizes)]) * 2
+    theta0 = _intrinsic_params(names, K0, dist0)
+    p0 = np.concatenate([theta0] + [np.concatenate([np.zeros(3), t]) for t in t0s])
+    cache = {}
+
+    def evaluate(p):
+        key = p.tobytes()
+        if key not in cache:
+            cache.clear()
+            K, dist = _apply_intrinsics(names, p[:m], K0, dist0)
+            res = np.empty(offs[-1])
+            J = np.zeros((offs[-1], n_par))
+            for v, (X, uv, _) in enumerate(vw):
+                q = p[m + 6 * v: m + 6 * v + 6]
+                R = Rotation.from_rotvec(q[:3]).as_matrix() @ R0s[v]
+                proj, Jp, Ji, _ = _project_jac(K, dist, R, q[3:], X, names, K0, w=q[:3])
+                a, b = offs[v], offs[v + 1]
+                res[a:b] = (proj - uv).ravel()
+                J[a:b, :m] = Ji.reshape(-1, m)
+                J[a:b, m + 6 * v: m + 6 * v + 6] = Jp.reshape(-1, 6)
+            cache[key] = (res, J)
+        return cache[key]
+
+    sol = least_squares(lambda p: evaluate(p)[0], p0, jac=lambda p: evaluate(p)[1],
+                        method="lm", x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12,
+                        max_nfev=max_nfev)
+    if sol.status == 0:
+        raise SolveError(f"calibrate: did not converge in {max_nfev} evaluations")
+    p = sol.x
+    K, dist = _apply_intrinsics(names, p[:m], K0, dist0)
+    if K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise SolveError("calibrate: the refinement gave a negative focal length")
+    res, J = evaluate(p)
+    colnorm = np.linalg.norm(J, axis=0)
+    if np.any(colnorm == 0):
+        raise SolveError("calibrate: some parameters do not affect the projection")
+    Jn = J / colnorm
+    _, sv, vt = np.linalg.svd(Jn, full_matrices=False)
+    if sv[-1] < 1e-9 * sv[0]:
+        weak = vt[-1, :m]
+        bad = [names[i] for i in np.flatnonzero(np.abs(weak) > 0.3)]
+        raise SolveError(
+            "calibrate: the views do not determine "
+            + (", ".join(bad) if bad else "the poses")
+            + f" (condition number {sv[0] / max(sv[-1], 1e-300):.1e}); add views at other "
+            "angles, a deeper target, or fix those parameters")
+    dof = n_obs - n_par
+    s2 = float(res @ res) / dof
+    cov = s2 * np.linalg.inv(J.T @ J)
+    std = {nm: float(math.sqrt(cov[i, i])) for i, nm in enumerate(names)}
+
+    poses, residuals, vrms = [], [], []
+    for v, (X, uv, _) in enumerate(vw):
+        q = p[m + 6 * v: m + 6 * v + 6]
+        R = Rotation.from_rotvec(q[:3]).as_matrix() @ R0s[v]
+        try:
+            c = Camera(w, h, K, dist, R, q[3:])
+        except InputError as exc:
+            raise SolveError(f"calibrate: view {v}: invalid camera ({exc})") from None
+        proj, valid = c.project(X, return_valid=True)
+        if not valid.all():
+            raise SolveError(f"calibrate: view {v}: marker(s) {np.flatnonzero(~valid).tolist()} "
+                             "end up behind the camera or beyond the distortion's valid radius")
+        poses.append(c)
+        r = uv - proj
+        residuals.append(r)
+        vrms.append(float(np.sqrt(np.mean(np.sum(r**2, axis=1)))))
+    allr = np.concatenate(residuals)
+    rms = float(np.sqrt(np.mean(np.sum(allr**2, axis=1))))
+    msg = (f"{V} view(s), {n_obs // 2} markers, rms {rms:.3f} px; fx {K[0, 0]:.2f} "
+           f"fy {K[1, 1]:.2f} cx {K[0, 2]:.2f} cy {K[1, 2]:.2f} px")
+    return CalibrationResult(
+        camera=poses[0], poses=poses, residuals=residuals, rms=rms,
+        view_rms=np.array(vrms), parameters=names, std=std, message=msg,
+    )
