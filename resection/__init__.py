@@ -8,6 +8,7 @@ top-left pixel, images indexed ``img[v, u]``.
 
 from .camera import Camera, effective_focal_length
 from .errors import DegenerateError, InputError, SolveError
+from .meshio import load_mesh, read_plot3d, write_plot3d, write_surface
 from .surface import SurfaceMap, SurfaceSample, vertex_values
 from .visibility import RayCaster, visible_faces
 
@@ -18,6 +19,10 @@ __all__ = [
     "DegenerateError",
     "SolveError",
     "SurfaceMap",
+    "load_mesh",
+    "read_plot3d",
+    "write_plot3d",
+    "write_surface",
     "SurfaceSample",
     "vertex_values",
     "RayCaster",

@@ -1,0 +1,774 @@
+"""Model surface grids in and per-face results out.
+
+Reading (:func:`load_mesh`) gives a :class:`trimesh.Trimesh` built with ``process=False``,
+so the face order is that of the file and every per-face array of the package follows it:
+
+* anything trimesh reads (STL, OBJ, PLY, GLB, OFF, ...); a scene of several geometries is
+  concatenated and ``face_attributes["component"]`` says which geometry a face came from;
+* Plot3D surface grids (:func:`read_plot3d`): multi-block or single-block, formatted ASCII or
+  unformatted Fortran binary (4- or 8-byte record markers, either byte order) or raw stream
+  binary, single or double precision, with or without IBLANK, all detected from the file.
+  Every 2-D block (one of ``ni, nj, nk`` equal to 1) is split into triangles, two per grid
+  cell; cells with a corner of IBLANK = 0 are dropped; triangles made degenerate by a
+  collapsed grid line (two coincident grid points, e.g. a nose singularity) are dropped.
+  ``face_attributes["block"]`` (0-based block), ``["cell_i"]``, ``["cell_j"]`` (0-based cell
+  indices along the block's two surface directions) are kept per face;
+* Cart3D ``.tri`` (ASCII, or Fortran unformatted): ``face_attributes["component"]`` holds the
+  component id of every triangle (1 if the file has none).
+
+Degenerate (zero-area) triangles, NaN or infinite coordinates and empty meshes are refused
+with :class:`~resection.errors.InputError`.
+
+Writing (:func:`write_surface`) puts per-face fields on the mesh as PLY (binary, per-face
+properties), legacy VTK POLYDATA with CELL_DATA (ParaView opens it), or CSV (face index,
+centroid, fields). :func:`write_plot3d` writes Plot3D grids in all the forms read here.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from .errors import InputError
+
+__all__ = [
+    "load_mesh",
+    "check_mesh",
+    "read_plot3d",
+    "write_plot3d",
+    "plot3d_to_mesh",
+    "read_cart3d_tri",
+    "write_cart3d_tri",
+    "write_surface",
+]
+
+PLOT3D_SUFFIXES = (".xyz", ".x", ".p3d", ".g", ".grd", ".fmt", ".p3dfmt", ".plot3d")
+CART3D_SUFFIXES = (".tri",)
+
+
+# --------------------------------------------------------------------------- checks
+def check_mesh(mesh: trimesh.Trimesh, source: str = "mesh") -> trimesh.Trimesh:
+    """Refuse meshes the mapping cannot use; return ``mesh`` unchanged otherwise.
+
+    Raises
+    ------
+    InputError
+        No faces, NaN/infinite vertex coordinates, face indices out of range, or
+        degenerate triangles (zero area relative to the model size, repeated vertices).
+    """
+    verts = np.asarray(mesh.vertices, dtype=np.float64)
+    faces = np.asarray(mesh.faces)
+    if len(faces) == 0 or len(verts) == 0:
+        raise InputError(f"{source}: empty mesh (no triangles)")
+    if faces.ndim != 2 or faces.shape[1] != 3:
+        raise InputError(f"{source}: faces must be triangles, got shape {faces.shape}")
+    bad = ~np.all(np.isfinite(verts), axis=1)
+    if bad.any():
+        raise InputError(
+            f"{source}: {bad.sum()} vertex(es) with NaN or infinite coordinates "
+            f"(first: vertex {np.flatnonzero(bad)[0]})"
+        )
+    if faces.min() < 0 or faces.max() >= len(verts):
+        raise InputError(
+            f"{source}: face vertex indices out of range [0, {len(verts) - 1}] "
+            f"(min {faces.min()}, max {faces.max()})"
+        )
+    tri = verts[faces]
+    area2 = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    size = float(np.linalg.norm(verts.max(axis=0) - verts.min(axis=0)))
+    degenerate = area2 <= 1e-14 * size * size
+    if degenerate.any():
+        idx = np.flatnonzero(degenerate)
+        raise InputError(
+            f"{source}: {idx.size} degenerate triangle(s) (zero area or repeated vertices), "
+            f"first at face {idx[0]} with vertices {faces[idx[0]].tolist()}"
+        )
+    return mesh
+
+
+# --------------------------------------------------------------------------- loading
+def load_mesh(path: str | os.PathLike, *, format: str | None = None,
+              merge_vertices: bool = True) -> trimesh.Trimesh:
+    """Read a model surface as triangles.
+
+    Parameters
+    ----------
+    path : path-like
+        The file. The format comes from the suffix (Plot3D: .xyz .x .p3d .g .grd .fmt;
+        Cart3D: .tri; anything else goes to trimesh) unless ``format`` is given.
+    format : {"plot3d", "cart3d", or a trimesh file type}, optional
+        Force the format.
+    merge_vertices : bool
+        Plot3D only: merge coincident grid points (block interfaces, collapsed lines) so
+        that neighbouring faces share vertices. Face order is not changed.
+
+    Returns
+    -------
+    trimesh.Trimesh
+        ``process=False``: faces in file order, with ``face_attributes`` as described in
+        the module docstring and ``metadata["source"]``, ``metadata["format"]``.
+    """
+    path = Path(os.fspath(path))
+    if not path.exists():
+        raise InputError(f"mesh file not found: {path}")
+    if path.is_dir():
+        raise InputError(f"mesh path is a directory: {path}")
+    suffix = path.suffix.lower()
+    fmt = (format or "").lower()
+    if fmt == "plot3d" or (not fmt and suffix in PLOT3D_SUFFIXES):
+        mesh = plot3d_to_mesh(read_plot3d(path), merge_vertices=merge_vertices,
+                              source=str(path))
+        mesh.metadata["format"] = "plot3d"
+    elif fmt == "cart3d" or (not fmt and suffix in CART3D_SUFFIXES):
+        mesh = read_cart3d_tri(path)
+    else:
+        mesh = _load_trimesh(path, fmt or None)
+    mesh.metadata["source"] = str(path)
+    return check_mesh(mesh, str(path))
+
+
+def _load_trimesh(path: Path, file_type: str | None) -> trimesh.Trimesh:
+    try:
+        loaded = trimesh.load(str(path), file_type=file_type, process=False)
+    except Exception as exc:  # trimesh raises many kinds; report one line
+        raise InputError(f"{path}: cannot be read as a mesh ({type(exc).__name__}: {exc})") \
+            from None
+    if isinstance(loaded, trimesh.Scene):
+        geoms = [g for g in loaded.dump() if isinstance(g, trimesh.Trimesh)]
+        if not geoms:
+            raise InputError(f"{path}: empty mesh (the scene holds no triangles)")
+        comp = np.concatenate([np.full(len(g.faces), k) for k, g in enumerate(geoms)])
+        verts, faces, off = [], [], 0
+        for g in geoms:  # loop over geometries (a handful), not faces
+            verts.append(np.asarray(g.vertices))
+            faces.append(np.asarray(g.faces) + off)
+            off += len(g.vertices)
+        mesh = trimesh.Trimesh(np.vstack(verts), np.vstack(faces), process=False)
+        mesh.face_attributes["component"] = comp
+    elif isinstance(loaded, trimesh.Trimesh):
+        mesh = loaded
+        _ply_face_properties(mesh)
+        if "component" not in mesh.face_attributes:
+            mesh.face_attributes["component"] = np.zeros(len(mesh.faces), dtype=np.int64)
+    else:
+        raise InputError(f"{path}: holds no triangles ({type(loaded).__name__})")
+    mesh.metadata["format"] = path.suffix.lower().lstrip(".")
+    return mesh
+
+
+def _ply_face_properties(mesh: trimesh.Trimesh) -> None:
+    """Scalar per-face PLY properties (as written by :func:`write_surface`) become
+    ``face_attributes``."""
+    raw = mesh.metadata.get("_ply_raw", {}).get("face", {}).get("data")
+    names = getattr(getattr(raw, "dtype", None), "names", None) or ()
+    nf = len(mesh.faces)
+    for name in names:
+        if name in ("vertex_indices", "vertex_index"):
+            continue
+        a = raw[name]
+        if a.ndim == 1 and len(a) == nf and np.issubdtype(a.dtype, np.number):
+            mesh.face_attributes[name] = np.array(a)
+
+
+# --------------------------------------------------------------------------- Fortran records
+def _fortran_records(data: bytes, marker: int, endian: str) -> list[bytes] | None:
+    """Split unformatted sequential Fortran data into records, None if it is not that."""
+    dt = np.dtype(f"{endian}i{marker}")
+    pos, out, n = 0, [], len(data)
+    while pos < n:
+        if pos + marker > n:
+            return None
+        length = int(np.frombuffer(data, dt, 1, pos)[0])
+        end = pos + marker + length
+        if length < 0 or end + marker > n:
+            return None
+        if int(np.frombuffer(data, dt, 1, end)[0]) != length:
+            return None
+        out.append(data[pos + marker:end])
+        pos = end + marker
+    return out if out else None
+
+
+def _split_records(data: bytes):
+    for marker in (4, 8):
+        for endian in ("<", ">"):
+            recs = _fortran_records(data, marker, endian)
+            if recs is not None:
+                return recs, endian
+    return None, None
+
+
+# --------------------------------------------------------------------------- Plot3D
+def _block_layout(dims: np.ndarray, sizes_bytes: list[int] | int, source: str):
+    """Precision and IBLANK presence from the data sizes. Returns (real_bytes, iblank)."""
+    npts = np.prod(dims, axis=1)
+    total = int(npts.sum())
+    for real in (4, 8):
+        for ib in (False, True):
+            per = 3 * real + (4 if ib else 0)
+            if isinstance(sizes_bytes, int):
+                if sizes_bytes == per * total:
+                    return real, ib
+            elif all(s == per * int(p) for s, p in zip(sizes_bytes, npts, strict=True)):
+                return real, ib
+    raise InputError(
+        f"{source}: Plot3D data sizes do not match the block dimensions "
+        f"{dims.tolist()} for single or double precision, with or without IBLANK"
+    )
+
+
+def _split_block(values: np.ndarray, iblank: np.ndarray | None, dims):
+    ni, nj, nk = (int(d) for d in dims)
+    xyz = values.reshape(3, nk, nj, ni).transpose(3, 2, 1, 0)  # (ni, nj, nk, 3), i fastest
+    ib = None if iblank is None else iblank.reshape(nk, nj, ni).transpose(2, 1, 0)
+    return np.ascontiguousarray(xyz, dtype=np.float64), ib
+
+
+def _parse_binary_plot3d(data: bytes, source: str):
+    recs, endian = _split_records(data)
+    if recs is not None:
+        header = 0
+        first = recs[0]
+        if len(first) == 4 and len(recs) >= 2:
+            nb = int(np.frombuffer(first, f"{endian}i4")[0])
+            dims = np.frombuffer(recs[1], f"{endian}i4")
+            header = 2
+        elif len(first) == 12:
+            nb, dims, header = 1, np.frombuffer(first, f"{endian}i4"), 1
+        else:
+            raise InputError(f"{source}: unrecognised Plot3D header record ({len(first)} bytes)")
+        if dims.size != 3 * nb or nb < 1:
+            raise InputError(
+                f"{source}: Plot3D header gives {nb} block(s) but {dims.size} dimensions "
+                "(only 3-D grids with ni, nj, nk are read)"
+            )
+        dims = dims.reshape(nb, 3).astype(np.int64)
+        if np.any(dims < 1):
+            raise InputError(f"{source}: non-positive Plot3D block dimensions {dims.tolist()}")
+        data_recs = recs[header:]
+        if len(data_recs) != nb:
+            raise InputError(
+                f"{source}: Plot3D header announces {nb} block(s), file holds "
+                f"{len(data_recs)} data record(s)"
+            )
+        real, has_ib = _block_layout(dims, [len(r) for r in data_recs], source)
+        blocks = []
+        for rec, d in zip(data_recs, dims, strict=True):  # loop over blocks
+            n = int(np.prod(d))
+            vals = np.frombuffer(rec, f"{endian}f{real}", 3 * n)
+            ib = np.frombuffer(rec, f"{endian}i4", n, 3 * n * real) if has_ib else None
+            blocks.append(_split_block(vals, ib, d))
+        return blocks, {"encoding": "fortran", "precision": real, "iblank": has_ib}
+    # raw stream (C binary, no record markers)
+    for endian in ("<", ">"):
+        ints = np.frombuffer(data[: (len(data) // 4) * 4], f"{endian}i4")
+        for multi in (True, False):
+            if multi:
+                if ints.size < 4 or not (1 <= ints[0] <= 100000):
+                    continue
+                nb, off = int(ints[0]), 1
+            else:
+                nb, off = 1, 0
+            if ints.size < off + 3 * nb:
+                continue
+            dims = ints[off:off + 3 * nb].reshape(nb, 3).astype(np.int64)
+            if np.any(dims < 1) or np.any(dims > 10**7):
+                continue
+            rest = len(data) - 4 * (off + 3 * nb)
+            try:
+                real, has_ib = _block_layout(dims, rest, source)
+            except InputError:
+                continue
+            blocks, pos = [], 4 * (off + 3 * nb)
+            for d in dims:
+                n = int(np.prod(d))
+                vals = np.frombuffer(data, f"{endian}f{real}", 3 * n, pos)
+                pos += 3 * n * real
+                ib = None
+                if has_ib:
+                    ib = np.frombuffer(data, f"{endian}i4", n, pos)
+                    pos += 4 * n
+                blocks.append(_split_block(vals, ib, d))
+            return blocks, {"encoding": "stream", "precision": real, "iblank": has_ib}
+    return None, None
+
+
+def _expand_repeats(tokens: list[str]) -> list[str]:
+    """Fortran list-directed repeat counts ``n*value``."""
+    out: list[str] = []
+    for tok in tokens:  # only for files that use them
+        if "*" in tok:
+            n, _, val = tok.partition("*")
+            out.extend([val] * int(n))
+        else:
+            out.append(tok)
+    return out
+
+
+def _parse_ascii_plot3d(text: str, source: str):
+    tokens = text.replace("D", "E").replace("d", "e").replace(",", " ").split()
+    if any("*" in t for t in tokens):
+        tokens = _expand_repeats(tokens)
+    try:
+        v = np.array(tokens, dtype=np.float64)
+    except ValueError as exc:
+        raise InputError(f"{source}: not a Plot3D file (non-numeric entry: {exc})") from None
+    for multi in (True, False):
+        if multi:
+            if v.size < 4 or v[0] != int(v[0]) or v[0] < 1:
+                continue
+            nb, off = int(v[0]), 1
+        else:
+            nb, off = 1, 0
+        if v.size < off + 3 * nb:
+            continue
+        dims = v[off:off + 3 * nb]
+        if np.any(dims != np.round(dims)) or np.any(dims < 1):
+            continue
+        dims = dims.reshape(nb, 3).astype(np.int64)
+        npts = np.prod(dims, axis=1)
+        rest = v.size - off - 3 * nb
+        if rest == 3 * npts.sum():
+            has_ib = False
+        elif rest == 4 * npts.sum():
+            has_ib = True
+        else:
+            continue
+        blocks, pos = [], off + 3 * nb
+        for d, n in zip(dims, npts, strict=True):  # loop over blocks
+            vals = v[pos:pos + 3 * n]
+            pos += 3 * n
+            ib = None
+            if has_ib:
+                ib = v[pos:pos + n]
+                pos += n
+                if np.any(ib != np.round(ib)):
+                    raise InputError(f"{source}: Plot3D IBLANK values must be integers")
+                ib = ib.astype(np.int32)
+            blocks.append(_split_block(vals, ib, d))
+        return blocks, {"encoding": "ascii", "precision": 8, "iblank": has_ib}
+    raise InputError(
+        f"{source}: the number of values ({v.size}) does not fit a Plot3D grid "
+        "(multi- or single-block, 3 coordinates per point, optional IBLANK)"
+    )
+
+
+def read_plot3d(path: str | os.PathLike) -> list[tuple[np.ndarray, np.ndarray | None]]:
+    """Read a Plot3D grid file (format detected from its content).
+
+    Returns
+    -------
+    list of (xyz, iblank)
+        One entry per block: ``xyz`` (ni, nj, nk, 3) float64 and ``iblank`` (ni, nj, nk)
+        int or None.
+    """
+    path = os.fspath(path)
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read()
+    except FileNotFoundError:
+        raise InputError(f"Plot3D file not found: {path}") from None
+    if not data.strip():
+        raise InputError(f"{path}: empty file")
+    blocks = None
+    raw = np.frombuffer(data, np.uint8)
+    binary = bool(np.any((raw < 9) | ((raw > 13) & (raw < 32)) | (raw > 126)))
+    text = "" if binary else data.decode("ascii")
+    if binary:
+        blocks, _info = _parse_binary_plot3d(data, path)
+        if blocks is None:
+            raise InputError(f"{path}: not a readable Plot3D file (binary, no layout fits)")
+    else:
+        blocks, _info = _parse_ascii_plot3d(text, path)
+    for k, (xyz, _) in enumerate(blocks):
+        if not np.all(np.isfinite(xyz)):
+            raise InputError(f"{path}: block {k} holds NaN or infinite coordinates")
+    return blocks
+
+
+def plot3d_to_mesh(blocks, *, merge_vertices: bool = True,
+                   source: str = "plot3d") -> trimesh.Trimesh:
+    """Triangulate Plot3D surface blocks.
+
+    Each block must be 2-D: exactly one of ``ni, nj, nk`` equal to 1. Cell ``(i, j)`` with
+    corners ``p00, p10, p11, p01`` gives triangles ``(p00, p10, p11)`` (face ``2 c``) and
+    ``(p00, p11, p01)`` (face ``2 c + 1``) before dropping, so the normal follows
+    ``d/di x d/dj``. Cells with a corner of IBLANK 0 are dropped, and so are triangles that
+    a collapsed grid line makes degenerate.
+    """
+    verts, faces, blk, ci, cj = [], [], [], [], []
+    off = 0
+    for b, item in enumerate(blocks):  # loop over blocks
+        xyz, ib = item if isinstance(item, tuple) else (item, None)
+        xyz = np.asarray(xyz, dtype=np.float64)
+        if xyz.ndim == 3:
+            xyz = xyz[:, :, None, :]
+        if xyz.ndim != 4 or xyz.shape[3] != 3:
+            raise InputError(f"{source}: block {b} has shape {xyz.shape}, expected (ni,nj,nk,3)")
+        dims = xyz.shape[:3]
+        keep = [a for a in range(3) if dims[a] > 1]
+        if len(keep) != 2:
+            raise InputError(
+                f"{source}: block {b} with dimensions {dims} is not a surface (exactly one "
+                "of ni, nj, nk must be 1)"
+            )
+        P = xyz.reshape(dims[keep[0]], dims[keep[1]], 3)
+        na, nb = P.shape[:2]
+        idx = np.arange(na * nb).reshape(na, nb)
+        p00, p10 = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel()
+        p11, p01 = idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+        tri = np.stack([np.column_stack([p00, p10, p11]), np.column_stack([p00, p11, p01])],
+                       axis=1).reshape(-1, 3)
+        ii, jj = np.meshgrid(np.arange(na - 1), np.arange(nb - 1), indexing="ij")
+        cell_i, cell_j = np.repeat(ii.ravel(), 2), np.repeat(jj.ravel(), 2)
+        ok = np.ones(len(tri), dtype=bool)
+        if ib is not None:
+            ibf = np.asarray(ib).reshape(na, nb).ravel()
+            cell_ok = (ibf[p00] != 0) & (ibf[p10] != 0) & (ibf[p11] != 0) & (ibf[p01] != 0)
+            ok &= np.repeat(cell_ok, 2)
+        Pf = P.reshape(-1, 3)
+        a, bb, c = Pf[tri[:, 0]], Pf[tri[:, 1]], Pf[tri[:, 2]]
+        collapsed = (np.all(a == bb, axis=1) | np.all(bb == c, axis=1)
+                     | np.all(a == c, axis=1))
+        ok &= ~collapsed
+        verts.append(Pf)
+        faces.append(tri[ok] + off)
+        blk.append(np.full(ok.sum(), b))
+        ci.append(cell_i[ok])
+        cj.append(cell_j[ok])
+        off += len(Pf)
+    if not verts or off == 0:
+        raise InputError(f"{source}: empty mesh (no blocks)")
+    mesh = trimesh.Trimesh(np.vstack(verts), np.vstack(faces).astype(np.int64), process=False)
+    if len(mesh.faces) == 0:
+        raise InputError(f"{source}: empty mesh (every cell blanked or collapsed)")
+    if merge_vertices:
+        mesh.merge_vertices()
+    mesh.face_attributes["block"] = np.concatenate(blk).astype(np.int64)
+    mesh.face_attributes["cell_i"] = np.concatenate(ci).astype(np.int64)
+    mesh.face_attributes["cell_j"] = np.concatenate(cj).astype(np.int64)
+    return check_mesh(mesh, source)
+
+
+def write_plot3d(
+    path: str | os.PathLike,
+    blocks,
+    *,
+    iblank=None,
+    binary: bool = True,
+    precision: str = "double",
+    endian: str = "<",
+    multiblock: bool = True,
+    records: bool = True,
+) -> None:
+    """Write a Plot3D grid.
+
+    Parameters
+    ----------
+    blocks : list of (ni, nj, nk, 3) or (ni, nj, 3) arrays
+        Grid points (a 2-D array gets ``nk = 1``).
+    iblank : list of (ni, nj, nk) int arrays, optional
+    binary : bool
+        Unformatted binary (Fortran records unless ``records=False``: raw stream) or
+        formatted ASCII.
+    precision : {"single", "double"}
+    endian : {"<", ">"}
+    multiblock : bool
+        Write the number of blocks first (required for more than one block).
+    """
+    arrs = []
+    for b in blocks:
+        a = np.asarray(b, dtype=np.float64)
+        arrs.append(a[:, :, None, :] if a.ndim == 3 else a)
+    if not multiblock and len(arrs) != 1:
+        raise InputError("write_plot3d: several blocks need multiblock=True")
+    ibs = [None] * len(arrs) if iblank is None else [np.asarray(i).reshape(a.shape[:3])
+                                                     for i, a in zip(iblank, arrs, strict=True)]
+    dims = np.array([a.shape[:3] for a in arrs], dtype=np.int64)
+    real = {"single": 4, "double": 8}.get(precision)
+    if real is None:
+        raise InputError(f"write_plot3d: precision must be 'single' or 'double', got {precision}")
+
+    def block_payload(a, ib):
+        vals = a.transpose(3, 2, 1, 0).ravel()  # x, y, z each with i fastest
+        out = np.asarray(vals, f"{endian}f{real}").tobytes()
+        if ib is not None:
+            out += np.asarray(ib.transpose(2, 1, 0).ravel(), f"{endian}i4").tobytes()
+        return out
+
+    path = os.fspath(path)
+    if binary:
+        def rec(payload: bytes) -> bytes:
+            if not records:
+                return payload
+            m = np.array([len(payload)], f"{endian}i4").tobytes()
+            return m + payload + m
+
+        parts = []
+        if multiblock:
+            parts.append(rec(np.array([len(arrs)], f"{endian}i4").tobytes()))
+        parts.append(rec(np.asarray(dims.ravel(), f"{endian}i4").tobytes()))
+        parts += [rec(block_payload(a, ib)) for a, ib in zip(arrs, ibs, strict=True)]
+        with open(path, "wb") as fh:
+            fh.write(b"".join(parts))
+        return
+    fmt = "%.8e" if real == 4 else "%.17e"
+    with open(path, "w", encoding="ascii") as fh:
+        if multiblock:
+            fh.write(f"{len(arrs)}\n")
+        for d in dims:
+            fh.write(f"{d[0]} {d[1]} {d[2]}\n")
+        for a, ib in zip(arrs, ibs, strict=True):
+            np.savetxt(fh, a.transpose(3, 2, 1, 0).reshape(-1, 4) if a.size % 4 == 0
+                       else a.transpose(3, 2, 1, 0).reshape(-1, 1), fmt=fmt)
+            if ib is not None:
+                np.savetxt(fh, ib.transpose(2, 1, 0).reshape(-1, 1), fmt="%d")
+
+
+# --------------------------------------------------------------------------- Cart3D
+def read_cart3d_tri(path: str | os.PathLike) -> trimesh.Trimesh:
+    """Read a Cart3D ``.tri`` surface (ASCII or Fortran unformatted).
+
+    Layout: ``nVerts nTris``; the vertices (x y z); the triangles (1-based vertex indices);
+    optionally one component id per triangle (kept as ``face_attributes["component"]``,
+    1 when absent).
+    """
+    path = os.fspath(path)
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read()
+    except FileNotFoundError:
+        raise InputError(f"Cart3D file not found: {path}") from None
+    if not data.strip():
+        raise InputError(f"{path}: empty mesh (empty file)")
+    recs, endian = _split_records(data)
+    if recs is not None and len(recs[0]) in (8, 12):
+        head = np.frombuffer(recs[0], f"{endian}i4")
+        nv, nt = int(head[0]), int(head[1])
+        if len(recs) < 3:
+            raise InputError(f"{path}: Cart3D binary file is truncated")
+        real = len(recs[1]) // max(3 * nv, 1)
+        if real not in (4, 8) or len(recs[1]) != 3 * nv * real:
+            raise InputError(f"{path}: Cart3D vertex record does not hold {nv} vertices")
+        V = np.frombuffer(recs[1], f"{endian}f{real}").reshape(nv, 3).astype(np.float64)
+        T = np.frombuffer(recs[2], f"{endian}i4")
+        if T.size != 3 * nt:
+            raise InputError(f"{path}: Cart3D triangle record does not hold {nt} triangles")
+        T = T.reshape(nt, 3).astype(np.int64)
+        comp = (np.frombuffer(recs[3], f"{endian}i4").astype(np.int64)
+                if len(recs) > 3 and len(recs[3]) == 4 * nt else np.ones(nt, np.int64))
+    else:
+        try:
+            text = data.decode("ascii")
+        except UnicodeDecodeError:
+            raise InputError(f"{path}: not a Cart3D .tri file (neither ASCII nor "
+                             "Fortran records)") from None
+        lines = text.split("\n", 1)
+        try:
+            head = [int(x) for x in lines[0].split()]
+        except ValueError:
+            raise InputError(f"{path}: first line must be 'nVerts nTris'") from None
+        if len(head) < 2 or head[0] < 0 or head[1] < 0:
+            raise InputError(f"{path}: first line must be 'nVerts nTris'")
+        nv, nt = head[0], head[1]
+        if nv == 0 or nt == 0:
+            raise InputError(f"{path}: empty mesh ({nv} vertices, {nt} triangles)")
+        body = lines[1] if len(lines) > 1 else ""
+        try:
+            v = np.array(body.replace("D", "E").split(), dtype=np.float64)
+        except ValueError as exc:
+            raise InputError(f"{path}: non-numeric entry ({exc})") from None
+        need = 3 * nv + 3 * nt
+        if v.size < need:
+            raise InputError(
+                f"{path}: expected {nv} vertices and {nt} triangles ({need} numbers), "
+                f"found {v.size} numbers"
+            )
+        V = v[:3 * nv].reshape(nv, 3)
+        T = v[3 * nv:need]
+        if np.any(T != np.round(T)):
+            raise InputError(f"{path}: triangle vertex indices must be integers")
+        T = T.reshape(nt, 3).astype(np.int64)
+        rest = v[need:]
+        comp = rest[:nt].astype(np.int64) if rest.size >= nt else np.ones(nt, np.int64)
+    if nv == 0 or nt == 0:
+        raise InputError(f"{path}: empty mesh ({nv} vertices, {nt} triangles)")
+    if T.min() < 1 or T.max() > nv:
+        raise InputError(
+            f"{path}: triangle vertex indices must be 1-based in [1, {nv}], "
+            f"found {T.min()}..{T.max()}"
+        )
+    if not np.all(np.isfinite(V)):
+        raise InputError(f"{path}: vertices contain NaN or infinite coordinates")
+    mesh = trimesh.Trimesh(V, T - 1, process=False)
+    mesh.face_attributes["component"] = comp
+    mesh.metadata["format"] = "cart3d"
+    return check_mesh(mesh, path)
+
+
+def write_cart3d_tri(path: str | os.PathLike, mesh: trimesh.Trimesh, components=None) -> None:
+    """Write a Cart3D ASCII ``.tri`` file (1-based indices, one component id per face)."""
+    comp = (np.asarray(mesh.face_attributes.get("component", np.ones(len(mesh.faces))))
+            if components is None else np.asarray(components))
+    with open(os.fspath(path), "w", encoding="ascii") as fh:
+        fh.write(f"{len(mesh.vertices)} {len(mesh.faces)}\n")
+        np.savetxt(fh, np.asarray(mesh.vertices), fmt="%.17g")
+        np.savetxt(fh, np.asarray(mesh.faces) + 1, fmt="%d")
+        np.savetxt(fh, comp.reshape(-1, 1).astype(np.int64), fmt="%d")
+
+
+# --------------------------------------------------------------------------- writing
+def _field_columns(mesh: trimesh.Trimesh, face_fields: dict | None,
+                   include_attributes: bool) -> list[tuple[str, np.ndarray]]:
+    """Flatten fields to (name, (F,) array) columns; (F, k) fields become name_0.."""
+    nf = len(mesh.faces)
+    fields: dict = {}
+    if include_attributes:
+        for k, v in mesh.face_attributes.items():
+            a = np.asarray(v)
+            if a.shape[:1] == (nf,) and a.ndim <= 2 and np.issubdtype(a.dtype, np.number):
+                fields[k] = a
+    for k, v in (face_fields or {}).items():
+        a = np.asarray(v)
+        if a.ndim == 0 or a.shape[0] != nf or a.ndim > 2:
+            raise InputError(
+                f"face field {k!r}: shape {a.shape} does not match the mesh's {nf} faces"
+            )
+        if not (np.issubdtype(a.dtype, np.number) or a.dtype == bool):
+            raise InputError(f"face field {k!r}: must be numeric, got dtype {a.dtype}")
+        fields[k] = a
+    cols = []
+    for k, a in fields.items():
+        name = re.sub(r"[^A-Za-z0-9_]", "_", str(k)) or "field"
+        if a.ndim == 1:
+            cols.append((name, a))
+        else:
+            cols += [(f"{name}_{c}", a[:, c]) for c in range(a.shape[1])]
+    names = [c[0] for c in cols]
+    dup = {n for n in names if names.count(n) > 1}
+    if dup:
+        raise InputError(f"face fields: duplicate name(s) after sanitising: {sorted(dup)}")
+    return cols
+
+
+def write_surface(path: str | os.PathLike, mesh: trimesh.Trimesh, face_fields: dict | None = None,
+                  *, include_attributes: bool = True, vtk_binary: bool = True) -> None:
+    """Write the mesh with per-face fields.
+
+    Parameters
+    ----------
+    path : path-like
+        ``.ply`` (binary little-endian, per-face properties), ``.vtk`` (legacy POLYDATA with
+        CELL_DATA fields, binary by default; ParaView opens it) or ``.csv`` (columns
+        ``face, cx, cy, cz`` then the fields, one row per face).
+    mesh : trimesh.Trimesh
+    face_fields : dict of name -> (F,) or (F, k) array
+        Numeric per-face values (NaN allowed). Names are sanitised to ``[A-Za-z0-9_]``;
+        (F, k) arrays become ``name_0 .. name_{k-1}``.
+    include_attributes : bool
+        Also write the mesh's numeric ``face_attributes`` (e.g. ``block``, ``component``).
+    vtk_binary : bool
+        VTK only: binary (exact, NaN-safe) or ASCII.
+    """
+    path = os.fspath(path)
+    suffix = Path(path).suffix.lower()
+    cols = _field_columns(mesh, face_fields, include_attributes)
+    if suffix == ".ply":
+        _write_ply(path, mesh, cols)
+    elif suffix == ".vtk":
+        _write_vtk(path, mesh, cols, vtk_binary)
+    elif suffix == ".csv":
+        _write_csv(path, mesh, cols)
+    else:
+        raise InputError(f"{path}: unknown surface format {suffix!r} (use .ply, .vtk or .csv)")
+
+
+def _ply_type(a: np.ndarray) -> tuple[str, str]:
+    if a.dtype == bool:
+        return "uchar", "u1"
+    if np.issubdtype(a.dtype, np.integer):
+        return "int", "<i4"
+    return "double", "<f8"
+
+
+def _write_ply(path, mesh, cols):
+    V = np.asarray(mesh.vertices, dtype="<f8")
+    F = np.asarray(mesh.faces)
+    header = ["ply", "format binary_little_endian 1.0", "comment windtunnel-optics surface",
+              f"element vertex {len(V)}", "property double x", "property double y",
+              "property double z", f"element face {len(F)}",
+              "property list uchar int vertex_indices"]
+    dtype = [("n", "u1"), ("idx", "<i4", (3,))]
+    for name, a in cols:
+        pt, nt = _ply_type(a)
+        header.append(f"property {pt} {name}")
+        dtype.append((name, nt))
+    header.append("end_header")
+    rec = np.empty(len(F), dtype=dtype)
+    rec["n"] = 3
+    rec["idx"] = F
+    for name, a in cols:
+        rec[name] = a
+    with open(path, "wb") as fh:
+        fh.write(("\n".join(header) + "\n").encode("ascii"))
+        fh.write(V.tobytes())
+        fh.write(rec.tobytes())
+
+
+def _write_vtk(path, mesh, cols, binary: bool):
+    V = np.asarray(mesh.vertices, dtype=np.float64)
+    F = np.asarray(mesh.faces, dtype=np.int64)
+    nf = len(F)
+    poly = np.column_stack([np.full(nf, 3), F])
+    with open(path, "wb") as fh:
+        w = fh.write
+        w(b"# vtk DataFile Version 3.0\nwindtunnel-optics surface with per-face fields\n")
+        w(b"BINARY\n" if binary else b"ASCII\n")
+        w(b"DATASET POLYDATA\n")
+        w(f"POINTS {len(V)} double\n".encode())
+        if binary:
+            w(V.astype(">f8").tobytes() + b"\n")
+        else:
+            w(_ascii_rows(V, "%.17g"))
+        w(f"POLYGONS {nf} {4 * nf}\n".encode())
+        if binary:
+            w(poly.astype(">i4").tobytes() + b"\n")
+        else:
+            w(_ascii_rows(poly, "%d"))
+        if cols:
+            w(f"CELL_DATA {nf}\nFIELD FieldData {len(cols)}\n".encode())
+            for name, a in cols:
+                if np.issubdtype(a.dtype, np.integer) or a.dtype == bool:
+                    w(f"{name} 1 {nf} int\n".encode())
+                    arr, bt, fmt = a.astype(np.int64), ">i4", "%d"
+                else:
+                    w(f"{name} 1 {nf} double\n".encode())
+                    arr, bt, fmt = a.astype(np.float64), ">f8", "%.17g"
+                if binary:
+                    w(arr.astype(bt).tobytes() + b"\n")
+                else:
+                    w(_ascii_rows(arr.reshape(-1, 1), fmt))
+
+
+def _ascii_rows(a: np.ndarray, fmt: str) -> bytes:
+    import io
+
+    buf = io.StringIO()
+    np.savetxt(buf, a, fmt=fmt)
+    return buf.getvalue().encode("ascii")
+
+
+def _write_csv(path, mesh, cols):
+    cen = np.asarray(mesh.triangles_center, dtype=np.float64)
+    names = ["face", "cx", "cy", "cz"] + [c[0] for c in cols]
+    table = np.column_stack([np.arange(len(cen)), cen] + [c[1].astype(np.float64)
+                                                          for c in cols])
+    fmt = ["%d", "%.17g", "%.17g", "%.17g"] + [
+        "%d" if (np.issubdtype(a.dtype, np.integer) or a.dtype == bool) else "%.17g"
+        for _, a in cols
+    ]
+    np.savetxt(path, table, fmt=fmt, delimiter=",", header=",".join(names), comments="")
