@@ -1,0 +1,817 @@
+"""Sequences: markers tracked and the Point of View solved in every frame of a run.
+
+:func:`track` runs, for every frame of a sequence (the paper: 500 frames at 50 fps), marker
+detection (:func:`resection.markers.detect_markers`), matching to the 3-D markers from the
+previous frame (:func:`resection.match.match_markers`) and the pose
+(:func:`resection.pose.solve_pose`), and writes
+
+* ``poses.csv``: one row per frame: ``frame, file, status, reason, roll_deg, pitch_deg,
+  yaw_deg, dx, dy, dz, rms_px, n_markers, rvec_x, rvec_y, rvec_z, tvec_x, tvec_y, tvec_z``;
+* ``markers.csv``: one row per matched marker and frame: ``frame, id, u, v, residual,
+  residual_u, residual_v`` (pixels; residual = observed minus reprojected, and its length).
+
+Motion convention (``fixed_camera=True``: the camera is fixed in the tunnel, the model
+moves): the laboratory frame is the model frame at the reference frame (the first frame that
+succeeded). At frame ``k`` a model point ``X`` lies at ``Y = M_k X + d_k`` in that frame, with
+
+``M_k = R_0^T R_k``,  ``d_k = R_0^T (t_k - t_0)``
+
+(``R_k, t_k`` the solved camera pose, ``x_cam = R_k X + t_k``). The attitude is reported as
+``M_k = Rz(yaw) Ry(pitch) Rx(roll)`` (intrinsic z-y'-x'' sequence, right-handed rotations
+about the model's axes; degrees in the files) and ``(dx, dy, dz) = d_k`` is the displacement
+of the model origin (model units). With ``fixed_camera=False`` (the model is fixed, the
+camera moves) the same columns give the camera's attitude change ``R_k^T R_0`` (same Euler
+convention) and the displacement of its perspective centre ``C_k - C_0``, model frame.
+
+Parallelism and resume
+----------------------
+Frames are split into chunks of ``chunk_size`` consecutive frames. Within a chunk every frame
+is matched from the previous successful frame; each chunk starts from the reference frame
+(frame 0, linked through ``link`` or matched from the approximate ``camera``), so chunks are
+independent and run in parallel on a Dask cluster (a ``LocalCluster`` of ``workers``
+processes by default, or the scheduler at ``scheduler``); the matcher therefore has to bridge
+the motion between frame 0 and a chunk's first frame (several pixels are fine). The chunking
+does not depend on the number of workers, so 1 and N workers give the same results.
+
+Every finished frame is written at once to ``out_dir/frames/frame_NNNNNN.json`` (written to
+a temporary file, flushed, fsync'ed and renamed, so a file is either complete or absent).
+A run that is interrupted and started again with ``resume=True`` loads these files and
+computes only the missing frames; ``poses.csv`` and ``markers.csv`` are merged from them at
+the end. A failed frame is recorded (status ``failed`` and the reason) and the run goes on;
+the next frame is then matched from the last good one.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import tempfile
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ._checks import as_points
+from .camera import Camera
+from .errors import InputError, SolveError
+
+__all__ = [
+    "FrameResult",
+    "TrackResult",
+    "track",
+    "read_track",
+    "relative_motion",
+    "POSE_COLUMNS",
+    "MARKER_COLUMNS",
+]
+
+POSE_COLUMNS = ("frame", "file", "status", "reason", "roll_deg", "pitch_deg", "yaw_deg",
+                "dx", "dy", "dz", "rms_px", "n_markers", "rvec_x", "rvec_y", "rvec_z",
+                "tvec_x", "tvec_y", "tvec_z")
+MARKER_COLUMNS = ("frame", "id", "u", "v", "residual", "residual_u", "residual_v")
+_FORMAT_VERSION = 1
+
+
+# --------------------------------------------------------------------------- per frame
+@dataclass(frozen=True)
+class FrameResult:
+    """What one frame gave.
+
+    Attributes
+    ----------
+    frame : int
+        Index of the frame in the sequence (0-based).
+    file : str
+        The frame's path (``""`` for an in-memory image).
+    status : str
+        ``"ok"`` or ``"failed"``.
+    reason : str
+        Why the frame failed (``""`` when ok).
+    rvec, tvec : (3,) ndarray
+        Solved camera pose (OpenCV Rodrigues vector, radians; translation, model units);
+        NaN when failed.
+    rms : float
+        RMS reprojection error, pixels.
+    ids : (n,) ndarray of str
+        Matched marker ids.
+    uv : (n, 2) ndarray
+        Their measured positions, pixels.
+    residuals : (n, 2) ndarray
+        Observed minus reprojected positions, pixels.
+    """
+
+    frame: int
+    file: str
+    status: str
+    reason: str = ""
+    rvec: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
+    tvec: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
+    rms: float = float("nan")
+    ids: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=str))
+    uv: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    residuals: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+    def camera(self, base: Camera) -> Camera:
+        """``base`` (intrinsics) with this frame's pose."""
+        return base.with_pose(rvec=self.rvec, t=self.tvec)
+
+    def to_dict(self) -> dict:
+        return {
+            "version": _FORMAT_VERSION, "frame": int(self.frame), "file": self.file,
+            "status": self.status, "reason": self.reason,
+            "rvec": [float(x) for x in self.rvec], "tvec": [float(x) for x in self.tvec],
+            "rms": float(self.rms), "ids": [str(i) for i in self.ids],
+            "uv": np.asarray(self.uv, float).tolist(),
+            "residuals": np.asarray(self.residuals, float).tolist(),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> FrameResult:
+        n = len(d["ids"])
+        return cls(
+            frame=int(d["frame"]), file=str(d["file"]), status=str(d["status"]),
+            reason=str(d["reason"]), rvec=np.array(d["rvec"], float),
+            tvec=np.array(d["tvec"], float), rms=float(d["rms"]),
+            ids=np.array(d["ids"], dtype=str),
+            uv=np.array(d["uv"], float).reshape(n, 2),
+            residuals=np.array(d["residuals"], float).reshape(n, 2),
+        )
+
+
+@dataclass(frozen=True)
+class _Setup:
+    """Everything a worker needs to process frames (picklable, sent once)."""
+
+    camera: Camera
+    ids: np.ndarray
+    points3d: np.ndarray
+    diameter: float
+    polarity: str
+    detect_kw: dict
+    match_kw: dict
+    pose_kw: dict
+    min_markers: int
+
+
+def _load_image(frame) -> np.ndarray:
+    if isinstance(frame, np.ndarray):
+        img = frame
+    else:
+        from .images import read_image
+
+        img = read_image(frame)
+    if img.ndim != 2:
+        raise InputError(f"expected a 2-D image, got shape {img.shape}")
+    return img
+
+
+def _frame_name(frame) -> str:
+    return "" if isinstance(frame, np.ndarray) else os.fspath(frame)
+
+
+def _detect(img: np.ndarray, setup: _Setup):
+    from .markers import detect_markers
+
+    return detect_markers(img, setup.diameter, polarity=setup.polarity, **setup.detect_kw)
+
+
+def _match(candidates, setup: _Setup, reference: FrameResult | None):
+    """Matched ``(ids, uv)`` from the candidates, starting from the reference frame's
+    markers and pose, or from the approximate camera when there is no reference."""
+    from .match import match_markers
+
+    markers3d = (setup.ids, setup.points3d)
+    if reference is None:
+        ref = setup.camera
+    else:
+        ref = (reference.camera(setup.camera), reference.ids, reference.uv)
+    m = match_markers(candidates, markers3d, ref, **setup.match_kw)
+    return np.asarray(m.ids).astype(str), np.asarray(m.uv, dtype=float).reshape(-1, 2)
+
+
+def _solve(ids: np.ndarray, uv: np.ndarray, setup: _Setup, frame: int, file: str) -> FrameResult:
+    from .pose import solve_pose
+
+    index = {k: i for i, k in enumerate(setup.ids)}
+    unknown = [i for i in ids if i not in index]
+    if unknown:
+        raise InputError(f"matched marker id(s) {unknown[:3]} are not in the marker file")
+    if len(ids) < setup.min_markers:
+        raise SolveError(f"only {len(ids)} markers matched, at least {setup.min_markers} "
+                         "needed")
+    X = setup.points3d[[index[i] for i in ids]]
+    res = solve_pose(setup.camera, X, uv, **setup.pose_kw)
+    return FrameResult(frame=frame, file=file, status="ok", rvec=np.asarray(res.camera.rvec),
+                       tvec=np.asarray(res.camera.t, float), rms=float(res.rms),
+                       ids=np.asarray(ids, dtype=str), uv=np.asarray(uv, float),
+                       residuals=np.asarray(res.residuals, float))
+
+
+def _process_frame(frame_data, index: int, setup: _Setup,
+                   reference: FrameResult | None) -> FrameResult:
+    """Read, detect, match from ``reference`` and solve one frame; never raises for a bad
+    frame: the failure is returned with its reason."""
+    name = _frame_name(frame_data)
+    try:
+        img = _load_image(frame_data)
+        if img.shape != (setup.camera.height, setup.camera.width):
+            raise InputError(f"image is {img.shape[1]}x{img.shape[0]} px, the camera "
+                             f"{setup.camera.width}x{setup.camera.height}")
+        if not np.isfinite(img).any():
+            raise InputError("image has no finite pixel (all NaN or infinite)")
+        cands = _detect(img, setup)
+        if len(cands) < setup.min_markers:
+            raise SolveError(f"only {len(cands)} marker candidates detected")
+        ids, uv = _match(cands, setup, reference)
+        return _solve(ids, uv, setup, index, name)
+    except Exception as exc:  # noqa: BLE001 - any failure of one frame must not stop the run
+        msg = str(exc).splitlines()[0] if str(exc) else ""
+        reason = f"{type(exc).__name__}: {msg}" if msg else type(exc).__name__
+        return FrameResult(frame=index, file=name, status="failed", reason=reason)
+
+
+def _process_linked(frame_data, index: int, setup: _Setup, link: dict) -> FrameResult:
+    """The reference frame through a user linking: candidate index -> marker id."""
+    name = _frame_name(frame_data)
+    try:
+        img = _load_image(frame_data)
+        if img.shape != (setup.camera.height, setup.camera.width):
+            raise InputError(f"image is {img.shape[1]}x{img.shape[0]} px, the camera "
+                             f"{setup.camera.width}x{setup.camera.height}")
+        cands = _detect(img, setup)
+        ids, uv = _apply_link(cands, link)
+        return _solve(ids, uv, setup, index, name)
+    except Exception as exc:  # noqa: BLE001
+        msg = str(exc).splitlines()[0] if str(exc) else ""
+        return FrameResult(frame=index, file=name, status="failed",
+                           reason=f"{type(exc).__name__}: {msg}")
+
+
+def _apply_link(candidates, link: dict) -> tuple[np.ndarray, np.ndarray]:
+    from .link import apply_link
+
+    ids, uv = apply_link(candidates, link)
+    return np.asarray(ids).astype(str), np.asarray(uv, float).reshape(-1, 2)
+
+
+def _run_chunk(setup: _Setup, items: list, seed: FrameResult | None,
+               done: dict | None = None,
+               on_frame: Callable[[FrameResult], None] | None = None) -> list[dict]:
+    """Process consecutive frames ``items = [(index, frame), ...]``, each matched from the
+    previous good one (the first from ``seed``). Frames already in ``done`` (index -> dict)
+    are not recomputed but serve as references. Returns the frames' dictionaries."""
+    done = done or {}
+    ref = seed
+    out = []
+    for index, frame in items:
+        if index in done:
+            res = FrameResult.from_dict(done[index])
+        else:
+            res = _process_frame(frame, index, setup, ref)
+            if on_frame is not None:
+                on_frame(res)
+        if res.ok:
+            ref = res
+        out.append(res.to_dict())
+    return out
+
+
+# --------------------------------------------------------------------------- files
+def _atomic_write_text(path: Path, text: str) -> None:
+    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _frame_path(frames_dir: Path, index: int) -> Path:
+    return frames_dir / f"frame_{index:06d}.json"
+
+
+def _write_frame(frames_dir: Path, res: FrameResult) -> None:
+    _atomic_write_text(_frame_path(frames_dir, res.frame), json.dumps(res.to_dict()))
+
+
+def _read_frame(path: Path) -> dict | None:
+    try:
+        with open(path, encoding="utf-8") as fh:
+            d = json.load(fh)
+    except (OSError, json.JSONDecodeError):
+        return None
+    if not isinstance(d, dict) or d.get("version") != _FORMAT_VERSION:
+        return None
+    return d
+
+
+# --------------------------------------------------------------------------- motion
+def relative_motion(rvecs, tvecs, reference: int = 0, *,
+                    fixed_camera: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Attitude and position change of every frame relative to a reference frame.
+
+    Parameters
+    ----------
+    rvecs, tvecs : (F, 3) array_like
+        Camera poses (``x_cam = R(rvec) X + t``), NaN rows for failed frames.
+    reference : int
+        Index of the reference frame (must have a finite pose).
+    fixed_camera : bool
+        True: the model moves in front of a fixed camera; return the model's attitude
+        ``M = R_0^T R_k`` and origin displacement ``R_0^T (t_k - t_0)``. False: the camera
+        moves around a fixed model; return ``R_k^T R_0`` and ``C_k - C_0``.
+
+    Returns
+    -------
+    angles : (F, 3) ndarray
+        ``(roll, pitch, yaw)`` in degrees with ``M = Rz(yaw) Ry(pitch) Rx(roll)``.
+    translation : (F, 3) ndarray
+        Model units; NaN rows for failed frames.
+    """
+    rv = as_points(rvecs, 3, "rvecs", allow_nan=True)
+    tv = as_points(tvecs, 3, "tvecs", allow_nan=True)
+    if len(rv) != len(tv):
+        raise InputError(f"relative_motion: {len(rv)} rvecs but {len(tv)} tvecs")
+    if not (0 <= reference < len(rv)) or not np.all(np.isfinite(rv[reference])):
+        raise InputError(f"relative_motion: reference frame {reference} has no pose")
+    good = np.all(np.isfinite(rv), axis=1) & np.all(np.isfinite(tv), axis=1)
+    angles = np.full((len(rv), 3), np.nan)
+    trans = np.full((len(rv), 3), np.nan)
+    if not good.any():
+        return angles, trans
+    R = Rotation.from_rotvec(rv[good]).as_matrix()
+    R0 = Rotation.from_rotvec(rv[reference]).as_matrix()
+    t0 = tv[reference]
+    if fixed_camera:
+        M = np.einsum("ji,njk->nik", R0, R)
+        d = (tv[good] - t0) @ R0  # R0^T (t - t0) per row
+    else:
+        M = np.einsum("nji,jk->nik", R, R0)
+        C = -np.einsum("nji,nj->ni", R, tv[good])
+        d = C - (-R0.T @ t0)
+    ypr = Rotation.from_matrix(M).as_euler("ZYX")
+    angles[good] = np.degrees(ypr[:, ::-1])
+    trans[good] = d
+    return angles, trans
+
+
+# --------------------------------------------------------------------------- results
+@dataclass(frozen=True)
+class TrackResult:
+    """The per-frame poses and marker positions of a tracked sequence.
+
+    Attributes
+    ----------
+    frame : (F,) int ndarray
+    file : (F,) str ndarray
+    status, reason : (F,) str ndarrays
+    angles : (F, 3) ndarray
+        ``(roll, pitch, yaw)``, degrees (see the module docstring for the convention).
+    translation : (F, 3) ndarray
+        ``(dx, dy, dz)``, model units.
+    rms : (F,) ndarray
+        RMS reprojection error, pixels.
+    n_markers : (F,) int ndarray
+    rvec, tvec : (F, 3) ndarrays
+        Solved camera poses.
+    marker_frame : (K,) int ndarray
+    marker_id : (K,) str ndarray
+    marker_uv : (K, 2) ndarray
+        Measured marker positions, pixels.
+    marker_residual : (K, 2) ndarray
+        Observed minus reprojected, pixels.
+    fixed_camera : bool
+    reference : int
+        The frame the motion is relative to (-1 when no frame succeeded).
+    n_computed : int
+        Frames computed by this call (the others were resumed from ``out_dir``).
+    out_dir : str or None
+    """
+
+    frame: np.ndarray
+    file: np.ndarray
+    status: np.ndarray
+    reason: np.ndarray
+    angles: np.ndarray
+    translation: np.ndarray
+    rms: np.ndarray
+    n_markers: np.ndarray
+    rvec: np.ndarray
+    tvec: np.ndarray
+    marker_frame: np.ndarray
+    marker_id: np.ndarray
+    marker_uv: np.ndarray
+    marker_residual: np.ndarray
+    fixed_camera: bool = True
+    reference: int = 0
+    n_computed: int = 0
+    out_dir: str | None = None
+
+    @property
+    def ok(self) -> np.ndarray:
+        """(F,) bool: frames that succeeded."""
+        return self.status == "ok"
+
+    def __len__(self) -> int:
+        return len(self.frame)
+
+    def marker_positions(self, ids) -> np.ndarray:
+        """``(F, len(ids), 2)`` measured positions of the given markers in every frame, NaN
+        where a marker was not matched."""
+        ids = [str(i) for i in ids]
+        out = np.full((len(self.frame), len(ids), 2), np.nan)
+        col = {k: j for j, k in enumerate(ids)}
+        row = {int(f): i for i, f in enumerate(self.frame)}
+        sel = np.array([m in col for m in self.marker_id], bool)
+        if sel.any():
+            r = np.array([row[int(f)] for f in self.marker_frame[sel]])
+            c = np.array([col[m] for m in self.marker_id[sel]])
+            out[r, c] = self.marker_uv[sel]
+        return out
+
+
+def _assemble(results: list[FrameResult], fixed_camera: bool, n_computed: int,
+              out_dir: str | None) -> TrackResult:
+    F = len(results)
+    status = np.array([r.status for r in results], dtype=object).astype(str)
+    rvec = np.array([r.rvec for r in results], float).reshape(F, 3)
+    tvec = np.array([r.tvec for r in results], float).reshape(F, 3)
+    good = np.flatnonzero(status == "ok")
+    if good.size:
+        ref = int(good[0])
+        angles, trans = relative_motion(rvec, tvec, ref, fixed_camera=fixed_camera)
+    else:
+        ref = -1
+        angles = trans = np.full((F, 3), np.nan)
+    nm = np.array([len(r.ids) for r in results], int)
+    mf = np.repeat(np.array([r.frame for r in results], int), nm)
+    mid = np.concatenate([np.asarray(r.ids, str) for r in results]) if F else np.zeros(0, str)
+    muv = np.vstack([r.uv for r in results]) if F else np.zeros((0, 2))
+    mres = np.vstack([r.residuals for r in results]) if F else np.zeros((0, 2))
+    return TrackResult(
+        frame=np.array([r.frame for r in results], int),
+        file=np.array([r.file for r in results], dtype=object).astype(str),
+        status=status, reason=np.array([r.reason for r in results], dtype=object).astype(str),
+        angles=angles, translation=trans, rms=np.array([r.rms for r in results], float),
+        n_markers=nm, rvec=rvec, tvec=tvec, marker_frame=mf, marker_id=mid.astype(str),
+        marker_uv=muv.reshape(-1, 2), marker_residual=mres.reshape(-1, 2),
+        fixed_camera=fixed_camera, reference=ref, n_computed=n_computed, out_dir=out_dir,
+    )
+
+
+def _fmt(x: float) -> str:
+    return "" if not np.isfinite(x) else f"{x:.10g}"
+
+
+def _write_csvs(result: TrackResult, out: Path) -> None:
+    import io
+
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(POSE_COLUMNS)
+    for i in range(len(result)):
+        w.writerow([int(result.frame[i]), result.file[i], result.status[i], result.reason[i],
+                    *map(_fmt, result.angles[i]), *map(_fmt, result.translation[i]),
+                    _fmt(result.rms[i]), int(result.n_markers[i]),
+                    *map(_fmt, result.rvec[i]), *map(_fmt, result.tvec[i])])
+    _atomic_write_text(out / "poses.csv", buf.getvalue())
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(MARKER_COLUMNS)
+    res = result.marker_residual
+    for k in range(len(result.marker_frame)):
+        w.writerow([int(result.marker_frame[k]), result.marker_id[k],
+                    f"{result.marker_uv[k, 0]:.6f}", f"{result.marker_uv[k, 1]:.6f}",
+                    f"{np.hypot(*res[k]):.6f}", f"{res[k, 0]:.6f}", f"{res[k, 1]:.6f}"])
+    _atomic_write_text(out / "markers.csv", buf.getvalue())
+
+
+def read_track(out_dir: str | os.PathLike) -> TrackResult:
+    """Read the ``poses.csv`` and ``markers.csv`` written by :func:`track`."""
+    out = Path(out_dir)
+    pose_path, marker_path = out / "poses.csv", out / "markers.csv"
+    for p in (pose_path, marker_path):
+        if not p.is_file():
+            raise InputError(f"{p}: not found (is {out} a track output directory?)")
+    with open(pose_path, encoding="utf-8", newline="") as fh:
+        rows = list(csv.reader(fh))
+    if not rows or tuple(rows[0]) != POSE_COLUMNS:
+        raise InputError(f"{pose_path}: header is not {','.join(POSE_COLUMNS)}")
+    body = rows[1:]
+
+    def num(s):
+        return float(s) if s != "" else np.nan
+
+    def col(name):
+        return [r[POSE_COLUMNS.index(name)] for r in body]
+
+    def cols(*names):
+        return np.array([[num(r[POSE_COLUMNS.index(n)]) for n in names] for r in body],
+                        float).reshape(len(body), len(names))
+
+    with open(marker_path, encoding="utf-8", newline="") as fh:
+        mrows = list(csv.reader(fh))
+    if not mrows or tuple(mrows[0]) != MARKER_COLUMNS:
+        raise InputError(f"{marker_path}: header is not {','.join(MARKER_COLUMNS)}")
+    mb = mrows[1:]
+    status = np.array(col("status"), dtype=object).astype(str)
+    good = np.flatnonzero(status == "ok")
+    meta = {}
+    if (out / "track.json").is_file():
+        with open(out / "track.json", encoding="utf-8") as fh:
+            meta = json.load(fh)
+    return TrackResult(
+        frame=np.array(col("frame"), int), file=np.array(col("file"), dtype=object).astype(str),
+        status=status, reason=np.array(col("reason"), dtype=object).astype(str),
+        angles=cols("roll_deg", "pitch_deg", "yaw_deg"), translation=cols("dx", "dy", "dz"),
+        rms=cols("rms_px")[:, 0], n_markers=np.array(col("n_markers"), int),
+        rvec=cols("rvec_x", "rvec_y", "rvec_z"), tvec=cols("tvec_x", "tvec_y", "tvec_z"),
+        marker_frame=np.array([r[0] for r in mb], int),
+        marker_id=np.array([r[1] for r in mb], dtype=object).astype(str),
+        marker_uv=np.array([[float(r[2]), float(r[3])] for r in mb], float).reshape(-1, 2),
+        marker_residual=np.array([[float(r[5]), float(r[6])] for r in mb],
+                                 float).reshape(-1, 2),
+        fixed_camera=bool(meta.get("fixed_camera", True)),
+        reference=int(good[0]) if good.size else -1, n_computed=0, out_dir=str(out),
+    )
+
+
+# --------------------------------------------------------------------------- inputs
+def _as_markers(markers3d) -> tuple[np.ndarray, np.ndarray]:
+    """``(ids, points)`` from a marker file path, an ``(ids, points)`` pair, or an object
+    with ``ids`` and ``points``/``xyz`` attributes."""
+    if isinstance(markers3d, (str, os.PathLike)):
+        from .markerio import read_markers
+
+        markers3d = read_markers(markers3d)
+    if isinstance(markers3d, tuple) and len(markers3d) == 2:
+        ids, pts = markers3d
+    else:
+        ids = getattr(markers3d, "ids", None)
+        pts = getattr(markers3d, "points", getattr(markers3d, "xyz", None))
+        if ids is None or pts is None:
+            raise InputError("markers3d: expected a marker file, (ids, points) or an object "
+                             "with ids and points")
+    pts = as_points(pts, 3, "markers3d points")
+    ids = np.asarray(ids).astype(str).ravel()
+    if len(ids) != len(pts):
+        raise InputError(f"markers3d: {len(ids)} ids for {len(pts)} points")
+    u, c = np.unique(ids, return_counts=True)
+    if np.any(c > 1):
+        raise InputError(f"markers3d: duplicate marker id {str(u[c > 1][0])!r}")
+    return ids, pts
+
+
+def _as_link(link) -> dict | None:
+    if link is None:
+        return None
+    if isinstance(link, (str, os.PathLike)):
+        from .link import read_link
+
+        link = read_link(link)
+    if not isinstance(link, dict) or not link:
+        raise InputError("link: expected a linking file or a non-empty {id: candidate} dict")
+    return {str(k): v for k, v in link.items()}
+
+
+def _settings(setup: _Setup, link: dict | None, fixed_camera: bool, chunk_size: int) -> dict:
+    """The settings a resumed run must share with the interrupted one (JSON-able)."""
+    def plain(d):
+        return json.loads(json.dumps(d, default=lambda o: np.asarray(o).tolist()))
+
+    return plain({
+        "version": _FORMAT_VERSION,
+        "camera": setup.camera.to_dict(),
+        "markers": {"ids": setup.ids.tolist(), "points": setup.points3d.tolist()},
+        "diameter": setup.diameter, "polarity": setup.polarity,
+        "detect_kw": setup.detect_kw, "match_kw": setup.match_kw, "pose_kw": setup.pose_kw,
+        "min_markers": setup.min_markers,
+        "link": None if link is None else {k: link[k] for k in sorted(link)},
+        "fixed_camera": bool(fixed_camera), "chunk_size": int(chunk_size),
+    })
+
+
+# --------------------------------------------------------------------------- the driver
+def _execute_local(setup, tasks, on_frame):
+    for items, seed, done in tasks:
+        _run_chunk(setup, items, seed, done, on_frame)
+
+
+def _execute_dask(setup, tasks, on_chunk, scheduler, workers):
+    import logging
+
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    cluster = None
+    if scheduler is None:
+        cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
+                               dashboard_address=None, silence_logs=logging.ERROR)
+        client = Client(cluster)
+    else:
+        client = Client(scheduler)
+    try:
+        s = client.scatter(setup, broadcast=True)
+        futures = [client.submit(_run_chunk, s, items, seed, done, pure=False)
+                   for items, seed, done in tasks]
+        for fut in as_completed(futures):
+            on_chunk(fut.result())
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def track(
+    frames: Sequence,
+    camera: Camera,
+    markers3d,
+    *,
+    link=None,
+    diameter: float,
+    polarity: str = "dark",
+    fixed_camera: bool = True,
+    scheduler: str | None = None,
+    workers: int = 1,
+    out_dir: str | os.PathLike,
+    resume: bool = True,
+    progress: bool = True,
+    chunk_size: int = 20,
+    min_markers: int = 4,
+    detect_kw: dict | None = None,
+    match_kw: dict | None = None,
+    pose_kw: dict | None = None,
+) -> TrackResult:
+    """Track markers and solve the Point of View in every frame of a sequence.
+
+    Parameters
+    ----------
+    frames : sequence of path-like or (H, W) arrays
+        The frames in time order (TIFF/PNG/NPY files, see :func:`resection.images.read_image`).
+        With a Dask cluster the paths must be readable by the workers.
+    camera : Camera
+        Calibrated intrinsics. Without ``link``, its pose must also approximate the pose of
+        the first frame (matching starts from it).
+    markers3d : path-like, (ids, points) or object with ``ids`` and ``points``
+        The 3-D markers (DESIGN marker CSV ``id,x,y,z[,diameter]``), model units.
+    link : path-like or dict, optional
+        Linking of the first frame (CSV ``id,candidate``, see :mod:`resection.link`).
+    diameter : float
+        Marker diameter in the images, pixels.
+    polarity : {"dark", "bright"}
+    fixed_camera : bool
+        The camera is fixed and the model moves (report the model's motion), or the reverse.
+    scheduler : str, optional
+        Address of a running Dask scheduler (``tcp://host:8786``).
+    workers : int
+        Worker processes of the local Dask cluster; 1 without ``scheduler`` runs in this
+        process, without Dask (same chunks, same results).
+    out_dir : path-like
+        Output directory (created): ``poses.csv``, ``markers.csv``, ``frames/``, ``track.json``.
+    resume : bool
+        Keep the frames already finished in ``out_dir`` (by an interrupted run with the same
+        settings); False recomputes everything.
+    progress : bool
+        Show a tqdm progress bar.
+    chunk_size : int
+        Consecutive frames per task.
+    min_markers : int
+        Frames with fewer matched markers fail.
+    detect_kw, match_kw, pose_kw : dict, optional
+        Extra arguments of ``detect_markers``, ``match_markers`` and ``solve_pose``.
+
+    Returns
+    -------
+    TrackResult
+
+    Raises
+    ------
+    InputError
+        Bad inputs, or ``out_dir`` holds a run with different settings (use another directory
+        or ``resume=False``). Failures of single frames are not raised: they are recorded.
+    """
+    if not isinstance(camera, Camera):
+        raise InputError(f"camera: expected a resection.Camera, got {type(camera).__name__}")
+    if isinstance(frames, (str, os.PathLike, np.ndarray)) and not (
+            isinstance(frames, np.ndarray) and frames.ndim == 3):
+        raise InputError("frames: expected a sequence of frames (paths or 2-D arrays)")
+    frames = list(frames)
+    if not frames:
+        raise InputError("frames: the sequence is empty")
+    try:
+        d = float(diameter)
+    except (TypeError, ValueError):
+        raise InputError(f"diameter: must be a number of pixels, got {diameter!r}") from None
+    if not (np.isfinite(d) and d > 0):
+        raise InputError(f"diameter: must be positive, got {diameter!r}")
+    if polarity not in ("dark", "bright"):
+        raise InputError(f"polarity: expected 'dark' or 'bright', got {polarity!r}")
+    if int(workers) < 1:
+        raise InputError(f"workers: must be >= 1, got {workers}")
+    if int(chunk_size) < 1:
+        raise InputError(f"chunk_size: must be >= 1, got {chunk_size}")
+    if int(min_markers) < 3:
+        raise InputError(f"min_markers: must be >= 3, got {min_markers}")
+    for i, f in enumerate(frames):
+        if not isinstance(f, (str, os.PathLike, np.ndarray)):
+            raise InputError(f"frames[{i}]: expected a path or a 2-D array, got "
+                             f"{type(f).__name__}")
+    ids, pts = _as_markers(markers3d)
+    link_d = _as_link(link)
+    setup = _Setup(camera=camera, ids=ids, points3d=pts, diameter=d, polarity=polarity,
+                   detect_kw=dict(detect_kw or {}), match_kw=dict(match_kw or {}),
+                   pose_kw=dict(pose_kw or {}), min_markers=int(min_markers))
+    chunk_size = int(chunk_size)
+
+    out = Path(out_dir)
+    frames_dir = out / "frames"
+    frames_dir.mkdir(parents=True, exist_ok=True)
+    settings = _settings(setup, link_d, fixed_camera, chunk_size)
+    manifest = out / "track.json"
+    if resume and manifest.is_file():
+        try:
+            with open(manifest, encoding="utf-8") as fh:
+                old = json.load(fh)
+        except (OSError, json.JSONDecodeError):
+            old = None
+        if old is not None and old != settings:
+            diff = sorted(k for k in set(old) | set(settings) if old.get(k) != settings.get(k))
+            raise InputError(f"{out}: holds a run with other settings ({', '.join(diff)}); "
+                             "use another out_dir or resume=False")
+    if not resume:
+        for p in frames_dir.glob("frame_*.json"):
+            p.unlink()
+    _atomic_write_text(manifest, json.dumps(settings, indent=1))
+
+    # frames already finished (resume): their recorded file must be the same frame
+    done: dict[int, dict] = {}
+    if resume:
+        for i, f in enumerate(frames):
+            dd = _read_frame(_frame_path(frames_dir, i))
+            if dd is None:
+                continue
+            if dd["frame"] != i or dd["file"] != _frame_name(f):
+                raise InputError(f"{out}: frame {i} was {dd['file']!r} in the interrupted run, "
+                                 f"now {_frame_name(f)!r}; use another out_dir or resume=False")
+            done[i] = dd
+
+    from tqdm.auto import tqdm
+
+    bar = tqdm(total=len(frames), initial=len(done), desc="track", unit="frame",
+               disable=not progress)
+    computed = 0
+
+    def record(res: FrameResult) -> None:
+        nonlocal computed
+        _write_frame(frames_dir, res)
+        done[res.frame] = res.to_dict()
+        computed += 1
+        bar.update(1)
+
+    try:
+        # the reference frame, in this process
+        if 0 in done:
+            first = FrameResult.from_dict(done[0])
+        else:
+            if link_d is not None:
+                first = _process_linked(frames[0], 0, setup, link_d)
+            else:
+                first = _process_frame(frames[0], 0, setup, None)
+            record(first)
+        seed = first if first.ok else None
+        todo = [i for i in range(1, len(frames)) if i not in done]
+        tasks = []
+        for start in range(1, len(frames), chunk_size):
+            idx = list(range(start, min(start + chunk_size, len(frames))))
+            if not any(i in todo for i in idx):
+                continue
+            items = [(i, frames[i]) for i in idx]
+            tasks.append((items, seed, {i: done[i] for i in idx if i in done}))
+        if tasks:
+            if scheduler is None and int(workers) == 1:
+                _execute_local(setup, tasks, record)
+            else:
+                def on_chunk(dicts):
+                    for dct in dicts:
+                        if dct["frame"] not in done:
+                            record(FrameResult.from_dict(dct))
+
+                _execute_dask(setup, tasks, on_chunk, scheduler, workers)
+    finally:
+        bar.close()
+
+    results = [FrameResult.from_dict(done[i]) for i in range(len(frames))]
+    result = _assemble(results, fixed_camera, computed, str(out))
+    _write_csvs(result, out)
+    return result
