@@ -6,9 +6,21 @@ Conventions are those of DESIGN.md: OpenCV camera frame (x right, y down, z forw
 top-left pixel, images indexed ``img[v, u]``.
 """
 
+from .calibrate import CalibrationResult, calibrate
 from .camera import Camera, effective_focal_length
+from .dlt import (
+    apply_homography,
+    camera_from_dlt,
+    decompose_projection,
+    dewarp,
+    dlt_project,
+    fit_dlt,
+    fit_homography,
+)
 from .errors import DegenerateError, InputError, SolveError
+from .markerio import MarkerSet, read_markers, read_points, write_markers, write_points
 from .meshio import load_mesh, read_plot3d, write_plot3d, write_surface
+from .pose import PoseResult, solve_pose
 from .surface import SurfaceMap, SurfaceSample, vertex_values
 from .visibility import RayCaster, visible_faces
 
@@ -18,6 +30,22 @@ __all__ = [
     "InputError",
     "DegenerateError",
     "SolveError",
+    "solve_pose",
+    "PoseResult",
+    "calibrate",
+    "CalibrationResult",
+    "fit_dlt",
+    "dlt_project",
+    "decompose_projection",
+    "camera_from_dlt",
+    "fit_homography",
+    "apply_homography",
+    "dewarp",
+    "MarkerSet",
+    "read_markers",
+    "write_markers",
+    "read_points",
+    "write_points",
     "SurfaceMap",
     "load_mesh",
     "read_plot3d",

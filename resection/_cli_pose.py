@@ -1,0 +1,147 @@
+"""``resection pose`` and ``resection calibrate``: argument parsing only, the work is in
+:mod:`resection.pose`, :mod:`resection.calibrate` and :mod:`resection.markerio`."""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+from .calibrate import calibrate
+from .camera import Camera
+from .errors import InputError
+from .markerio import link_points, read_markers, read_points, write_residuals
+from .pose import solve_pose
+
+_LOSSES = ("huber", "soft_l1", "cauchy", "arctan")
+
+
+def register(sub) -> None:
+    """Add the ``pose`` and ``calibrate`` sub-commands to an argparse sub-parser set."""
+    p = sub.add_parser(
+        "pose",
+        help="camera Point of View from linked markers",
+        description="Solve the camera pose (and optionally refine intrinsics) from markers "
+        "with known model coordinates and linked image positions; prints the RMS and each "
+        "marker's residual, writes the camera JSON.",
+    )
+    p.add_argument("--camera", required=True, help="input camera JSON (intrinsics)")
+    p.add_argument("--markers", required=True, help="marker CSV: id,x,y,z[,diameter]")
+    p.add_argument("--points", help="linked image points CSV: id,u,v (pixels)")
+    p.add_argument("--out", required=True, help="output camera JSON with the solved pose")
+    p.add_argument("--residuals", help="also write the residual table (CSV) here")
+    p.add_argument("--robust", nargs="?", const="soft_l1", choices=_LOSSES,
+                   help="robust loss (default soft_l1 when given without a value)")
+    p.add_argument("--robust-scale", type=float, default=1.0,
+                   help="pixel error where the robust loss bends (default 1)")
+    p.add_argument("--refine-intrinsics", nargs="?", const="focal",
+                   choices=("focal", "center", "all"),
+                   help="also refine the focal length (default), focal and centre, or all "
+                   "with distortion")
+    p.add_argument("--max-rms", type=float, help="refuse a pose whose RMS exceeds this (px)")
+    p.set_defaults(func=run_pose)
+
+    c = sub.add_parser(
+        "calibrate",
+        help="intrinsics and distortion from views of a target",
+        description="Calibrate focal lengths, perspective centre and distortion from one or "
+        "more views of a planar or 3-D target; prints the RMS, per-view RMS and the "
+        "parameters, writes the camera JSON (pose of the first view).",
+    )
+    c.add_argument("--markers", help="target marker CSV shared by all views given by --points")
+    c.add_argument("--points", nargs="+", default=[], help="linked image points CSV per view")
+    c.add_argument("--views", nargs="+", default=[], metavar="MARKERS.csv:POINTS.csv",
+                   help="views as marker/points file pairs (targets may differ)")
+    c.add_argument("--size", required=True, metavar="WxH", help="image size in pixels")
+    c.add_argument("--fix", nargs="+", default=[], metavar="NAME",
+                   help="parameters held fixed: fx fy cx cy k1 k2 p1 p2 k3 aspect")
+    c.add_argument("--camera", help="initial camera JSON (start and fixed values)")
+    c.add_argument("--out", required=True, help="output camera JSON")
+    c.add_argument("--residuals", help="also write the residual table (CSV) here, with a "
+                   "view column")
+    c.set_defaults(func=run_calibrate)
+
+
+def _linked(markers_path: str, points_path: str):
+    markers = read_markers(markers_path)
+    ids, uv = read_points(points_path)
+    return link_points(markers, ids, uv, source=points_path)
+
+
+def pose_inputs(args: argparse.Namespace):
+    """Camera and linked ``(ids, points3d, points2d)`` of the ``pose`` command (the place
+    where other sources of image points plug in)."""
+    camera = Camera.read(args.camera)
+    if not args.points:
+        raise InputError("no image points: give --points POINTS.csv")
+    ids, X, uv = _linked(args.markers, args.points)
+    return camera, ids, X, uv
+
+
+def run_pose(args: argparse.Namespace) -> int:
+    camera, ids, X, uv = pose_inputs(args)
+    result = solve_pose(camera, X, uv, robust=args.robust, robust_scale=args.robust_scale,
+                        refine_intrinsics=args.refine_intrinsics or False,
+                        max_rms=args.max_rms)
+    print(f"pose: {result.message}")
+    print(f"rms {result.rms:.4f} px")
+    print(f"{'id':>12} {'du':>9} {'dv':>9} {'error':>9}")
+    for k, r, e in zip(ids, result.residuals, result.errors, strict=True):
+        print(f"{k:>12} {r[0]:9.4f} {r[1]:9.4f} {e:9.4f}")
+    result.camera.write(args.out)
+    if args.residuals:
+        write_residuals(args.residuals, ids, uv, result.residuals)
+    print(f"camera written to {args.out}")
+    return 0
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(x) for x in text.lower().split("x"))
+    except ValueError:
+        raise InputError(f"--size: expected WxH (e.g. 1280x960), got {text!r}") from None
+    return w, h
+
+
+def run_calibrate(args: argparse.Namespace) -> int:
+    size = _size(args.size)
+    pairs = []
+    if args.points:
+        if not args.markers:
+            raise InputError("--points needs --markers (the target shared by the views)")
+        pairs += [(args.markers, p) for p in args.points]
+    elif args.markers:
+        raise InputError("--markers needs --points (one linked points file per view)")
+    for v in args.views:
+        if ":" not in v:
+            raise InputError(f"--views: expected MARKERS.csv:POINTS.csv, got {v!r}")
+        m, pt = v.rsplit(":", 1)
+        pairs.append((m, pt))
+    if not pairs:
+        raise InputError("no views: give --markers M.csv --points P1.csv ... or --views")
+    views, ids = [], []
+    for m, pt in pairs:
+        i, X, uv = _linked(m, pt)
+        views.append((X, uv))
+        ids.append(i)
+    initial = Camera.read(args.camera) if args.camera else None
+    result = calibrate(views, size, fix=args.fix, initial=initial)
+    cam = result.camera
+    print(f"calibrate: {result.message}")
+    print(f"rms {result.rms:.4f} px")
+    for (_, pt), r in zip(pairs, result.view_rms, strict=True):
+        print(f"  view {os.path.basename(pt)}: rms {r:.4f} px")
+    for name in result.parameters:
+        val = {"f": cam.K[0, 0], "fx": cam.K[0, 0], "fy": cam.K[1, 1], "cx": cam.K[0, 2],
+               "cy": cam.K[1, 2], "k1": cam.dist[0], "k2": cam.dist[1], "p1": cam.dist[2],
+               "p2": cam.dist[3], "k3": cam.dist[4]}[name]
+        print(f"  {name:>3} = {val:.6g} +- {result.std[name]:.2g}")
+    cam.write(args.out)
+    if args.residuals:
+        with open(args.residuals, "w", encoding="utf-8") as fh:
+            fh.write("view,id,u,v,du,dv,error\n")
+            for v, (i, (_, uv), r) in enumerate(zip(ids, views, result.residuals, strict=True)):
+                for k, p, d in zip(i, uv, r, strict=True):
+                    e = (d[0] ** 2 + d[1] ** 2) ** 0.5
+                    fh.write(f"{v},{k},{p[0]:.6f},{p[1]:.6f},{d[0]:.6f},{d[1]:.6f},{e:.6f}\n")
+    print(f"camera written to {args.out}")
+    return 0
