@@ -1,0 +1,104 @@
+"""Visibility against closed-form geometry: a sphere half hidden behind a plate, back
+faces, the obliqueness limit, partial occlusion and the field of view."""
+
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial.transform import Rotation
+
+from resection import Camera, InputError, visible_faces
+
+C = np.array([0.0, 0.0, 5.0])
+K = [[400.0, 0.0, 199.5], [0.0, 400.0, 199.5], [0.0, 0.0, 1.0]]
+
+
+def cam(eye=C, target=(0, 0, 0), up=(0, 1, 0), w=400, h=400, k=K):
+    return Camera.look_at(eye, target, up, K=k, width=w, height=h)
+
+
+def plate(x0, x1, y0, y1, z, up=True):
+    v = np.array([[x0, y0, z], [x1, y0, z], [x1, y1, z], [x0, y1, z]], float)
+    f = np.array([[0, 1, 2], [0, 2, 3]])
+    return trimesh.Trimesh(v, f if up else f[:, ::-1], process=False)
+
+
+def sphere():
+    s = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
+    return trimesh.Trimesh(s.vertices, s.faces, process=False)
+
+
+@pytest.mark.parametrize("plate_faces_camera", [True, False])
+def test_sphere_behind_plate(plate_faces_camera):
+    sph = sphere()
+    pl = plate(-2.0, 0.0, -2.0, 2.0, 2.0, up=plate_faces_camera)
+    mesh = trimesh.util.concatenate([sph, pl])
+    mesh = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+    vis = visible_faces(mesh, cam(), max_obliqueness_deg=89.0, samples_per_face=1)
+    ns = len(sph.faces)
+    P = sph.triangles_center
+    # closed form: facing (true sphere normal) and the segment C -> P crossing the plate
+    to_c = C - P
+    cosang = np.einsum("ij,ij->i", P / np.linalg.norm(P, axis=1, keepdims=True), to_c) \
+        / np.linalg.norm(to_c, axis=1)
+    s = (2.0 - C[2]) / (P[:, 2] - C[2])
+    Q = C + s[:, None] * (P - C)
+    hidden = (Q[:, 0] > -2) & (Q[:, 0] < 0) & (np.abs(Q[:, 1]) < 2)
+    expected = (cosang > 0) & ~hidden
+    # skip faces on the limb (face normal vs sphere normal) or at the plate's edge
+    face_cos = np.einsum("ij,ij->i", sph.face_normals, to_c) / np.linalg.norm(to_c, axis=1)
+    clear = (np.abs(cosang) > 0.05) & (np.abs(face_cos) > 0.05) & (np.abs(Q[:, 0]) > 0.02)
+    assert clear.sum() > 0.9 * ns
+    np.testing.assert_array_equal(vis[:ns][clear], expected[clear])
+    assert expected[clear].sum() > 0.15 * ns  # seen faces
+    assert (~expected[clear] & (cosang[clear] > 0)).sum() > 50  # facing but hidden
+    # the plate is seen only if it faces the camera
+    assert vis[ns:].tolist() == [plate_faces_camera] * 2
+
+
+def test_obliqueness_limit():
+    angles = np.array([10.0, 30.0, 50.0, 59.0, 61.0, 75.0, 88.0])
+    parts = []
+    for k, a in enumerate(angles):
+        centre = np.array([(k - 3) * 0.6, 0.0, 0.0])
+        d = (C - centre) / np.linalg.norm(C - centre)
+        axis = np.cross(d, [0.0, 1.0, 0.0])
+        axis /= np.linalg.norm(axis)
+        n = Rotation.from_rotvec(np.radians(a) * axis).apply(d)
+        e1 = np.cross(n, [0.0, 1.0, 0.0])
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(n, e1)
+        r = 0.1
+        v = centre + r * np.array([e1, -0.5 * e1 + 0.866 * e2, -0.5 * e1 - 0.866 * e2])
+        # centroid of the triangle is the centre; order so the normal is +n
+        f = [0, 1, 2] if np.dot(np.cross(v[1] - v[0], v[2] - v[0]), n) > 0 else [0, 2, 1]
+        parts.append(trimesh.Trimesh(v, [f], process=False))
+    mesh = trimesh.util.concatenate(parts)
+    mesh = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+    vis = visible_faces(mesh, cam(), max_obliqueness_deg=60.0)
+    np.testing.assert_array_equal(vis, angles <= 60.0)
+    vis = visible_faces(mesh, cam(), max_obliqueness_deg=89.5)
+    assert vis.all()
+
+
+def test_partial_occlusion_any_all_and_field_of_view():
+    big = plate(-1.0, 1.0, -1.0, 1.0, 0.0)
+    blocker = plate(-0.6, 0.0, -2.0, 2.0, 1.0)  # hides part of both triangles
+    far = plate(20.0, 21.0, 0.0, 1.0, 0.0)  # outside the field of view
+    mesh = trimesh.util.concatenate([big, blocker, far])
+    mesh = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False)
+    any_ = visible_faces(mesh, cam(), samples_per_face=7, require="any")
+    all_ = visible_faces(mesh, cam(), samples_per_face=7, require="all")
+    assert any_[:2].all() and not all_[:2].any()
+    assert any_[2:4].all() and all_[2:4].all()
+    assert not any_[4:].any()
+    assert visible_faces(mesh, cam(), in_image=False)[4:].all()
+
+
+def test_errors():
+    mesh = sphere()
+    with pytest.raises(InputError, match="max_obliqueness_deg"):
+        visible_faces(mesh, cam(), max_obliqueness_deg=120)
+    with pytest.raises(InputError, match="samples_per_face"):
+        visible_faces(mesh, cam(), samples_per_face=9)
+    with pytest.raises(InputError, match="camera"):
+        visible_faces(mesh, None)
