@@ -230,6 +230,7 @@ def write_sequence(
         of a CSV with frame, time, roll/pitch/yaw in degrees and dx, dy, dz in metres).
     """
     from resection.images import write_image
+    from resection.markerio import write_markers
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -252,11 +253,8 @@ def write_sequence(
     cam_path = out / "camera.json"
     cam.write(cam_path)
     m_path = out / "markers.csv"
-    with open(m_path, "w", newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh)
-        w.writerow(["id", "x", "y", "z", "diameter"])
-        for i, X in zip(model.ids, model.points3d, strict=True):
-            w.writerow([i, *(f"{v:.9g}" for v in X), f"{model.marker_diameter:.9g}"])
+    write_markers(m_path, model.ids, model.points3d,
+                  np.full(len(model.ids), model.marker_diameter))
     t_path = out / "truth.csv"
     with open(t_path, "w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)

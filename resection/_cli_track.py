@@ -1,0 +1,79 @@
+"""``resection track``: argument parsing only; the work is in :mod:`resection.sequence` and
+:mod:`resection.motion_plots`."""
+
+from __future__ import annotations
+
+import argparse
+import glob
+import os
+
+from .camera import Camera
+from .errors import InputError
+
+
+def register(sub) -> None:
+    """Add the ``track`` sub-command to an argparse sub-parser set."""
+    p = sub.add_parser(
+        "track",
+        help="markers and Point of View in every frame of a sequence",
+        description="Detect, match (from the previous frame) and solve the pose in every "
+        "frame; writes poses.csv (3 angles in degrees, 3 translations, RMS per frame), "
+        "markers.csv (marker positions per frame) and pose_vs_time.png to --out. With a "
+        "fixed camera (default) the motion reported is the model's, relative to the first "
+        "frame. Interrupted runs resume; frames run in parallel on Dask.",
+    )
+    p.add_argument("frames", nargs="+", metavar="FRAME",
+                   help="frame images in time order (TIFF/PNG/NPY; glob patterns allowed)")
+    p.add_argument("--camera", required=True, help="camera JSON (intrinsics; its pose "
+                   "approximates the first frame's when --link is not given)")
+    p.add_argument("--markers", required=True, help="marker CSV: id,x,y,z[,diameter]")
+    p.add_argument("--link", help="linking CSV of the first frame: id,candidate")
+    p.add_argument("--diameter", required=True, type=float, help="marker diameter, pixels")
+    p.add_argument("--polarity", choices=("dark", "bright"), default="dark")
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--scheduler", metavar="ADDRESS", help="running Dask scheduler address")
+    p.add_argument("--workers", type=int, default=1,
+                   help="worker processes of the local Dask cluster (default 1: no Dask)")
+    p.add_argument("--chunk-size", type=int, default=20, help="frames per task (default 20)")
+    p.add_argument("--fps", type=float, help="frame rate, for the time axis of the plot")
+    p.add_argument("--moving-camera", action="store_true",
+                   help="the model is fixed and the camera moves (report the camera's motion)")
+    p.add_argument("--no-resume", action="store_true",
+                   help="recompute every frame even if --out holds finished ones")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run_track)
+
+
+def _expand(patterns: list[str]) -> list[str]:
+    out = []
+    for pat in patterns:
+        if any(ch in pat for ch in "*?[") and not os.path.exists(pat):
+            hits = sorted(glob.glob(pat))
+            if not hits:
+                raise InputError(f"no frame matches {pat!r}")
+            out.extend(hits)
+        else:
+            out.append(pat)
+    return out
+
+
+def run_track(args: argparse.Namespace) -> int:
+    from .motion_plots import plot_motion
+    from .sequence import track
+
+    camera = Camera.read(args.camera)
+    frames = _expand(args.frames)
+    result = track(
+        frames, camera, args.markers, link=args.link, diameter=args.diameter,
+        polarity=args.polarity, fixed_camera=not args.moving_camera,
+        scheduler=args.scheduler, workers=args.workers, out_dir=args.out,
+        resume=not args.no_resume, progress=not args.no_progress, chunk_size=args.chunk_size,
+    )
+    plot_motion(result, os.path.join(args.out, "pose_vs_time.png"), fps=args.fps)
+    n_ok = int(result.ok.sum())
+    print(f"{n_ok}/{len(result)} frames solved ({result.n_computed} computed now), "
+          f"motion relative to frame {result.reference}; results in {args.out}")
+    for i in range(len(result)):
+        if not result.ok[i]:
+            print(f"  frame {result.frame[i]} ({result.file[i]}): {result.reason[i]}")
+    return 0 if n_ok else 1
