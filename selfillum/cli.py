@@ -1,13 +1,16 @@
 """Command line of ``selfillum``: parses arguments and calls the library, nothing else.
 
-Sub-commands: ``corner`` (the corner case end to end). Errors on bad input are printed
-as one line and exit with status 2.
+Sub-commands: ``corner`` (the corner case end to end), ``correct`` (correct a camera
+image of a painted model), ``render`` (Mitsuba render, :mod:`selfillum._cli_render`).
+Errors on bad input are printed as one line and exit with status 2.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+
+import numpy as np
 
 from resection.errors import InputError, SolveError
 
@@ -38,6 +41,36 @@ def _cmd_corner(args) -> int:
     print(f"time                           {n.seconds['total']:.1f} s")
     for kind in ("png", "csv", "json"):
         print(f"wrote {paths[kind]}")
+    return 0
+
+
+def _cmd_correct(args) -> int:
+    from .correct_image import correct_image_file
+
+    result = correct_image_file(
+        args.mesh,
+        args.camera,
+        args.image,
+        args.reflectance,
+        args.out,
+        rays_per_face=args.rays,
+        seed=args.seed,
+        mode=args.mode,
+        surface_out=args.surface,
+        progress=not args.quiet,
+    )
+    seen = result.seen
+    b, e = result.radiosity[seen], result.emission[seen]
+    si = (b - e) / np.where(b != 0, b, np.nan)
+    print(f"faces seen                     {int(seen.sum())} of {seen.size}")
+    print(f"largest self-illumination      {100 * np.nanmax(si):.1f} % of the signal")
+    print(f"mean self-illumination         {100 * np.nanmean(si):.1f} %")
+    print(
+        f"inverse                        {result.info.method}, {result.info.iterations} iterations"
+    )
+    print(f"wrote {args.out}")
+    if args.surface:
+        print(f"wrote {args.surface}")
     return 0
 
 
@@ -97,6 +130,50 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_cmd_corner)
+
+    p = sub.add_parser(
+        "correct",
+        help="correct a camera image of a painted model for self-illumination",
+        description="Map the image onto the model's faces, remove self-illumination "
+        "(Lambertian, view factors by Embree ray casting) and write the corrected image: "
+        "same shape and pixel type, pixels off the model unchanged. The image is assumed "
+        "proportional to radiance (dark level subtracted).",
+    )
+    p.add_argument(
+        "--mesh",
+        required=True,
+        help="model surface (STL, OBJ, PLY, ..., Plot3D, "
+        "Cart3D .tri); normals point to the painted side",
+    )
+    p.add_argument("--camera", required=True, help="camera JSON (resection.Camera)")
+    p.add_argument("--image", required=True, help="image to correct (.tif, .tiff, .npy)")
+    p.add_argument(
+        "--reflectance",
+        required=True,
+        help="paint reflectance: a number in [0, 1) or a per-face .npy/.csv file",
+    )
+    p.add_argument("--out", required=True, help="corrected image (.tif, .tiff, .npy)")
+    p.add_argument(
+        "--mode",
+        choices=("subtract", "ratio"),
+        default="subtract",
+        help="subtract the interpolated self-illumination (default) or "
+        "multiply by the interpolated E/B ratio",
+    )
+    p.add_argument(
+        "--rays",
+        type=_positive(int),
+        default=256,
+        help="rays per face for the view factors (default 256)",
+    )
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    p.add_argument(
+        "--surface",
+        default=None,
+        help="also write per-face radiosity/emission/seen (.ply, .vtk, .csv)",
+    )
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=_cmd_correct)
     from . import _cli_render
 
     _cli_render.register(sub)

@@ -1,0 +1,346 @@
+"""Self-illumination correction of a camera image of a painted model.
+
+The image is mapped onto the faces (:class:`resection.surface.SurfaceMap`: per-face mean of
+the pixels that see each face), the per-face emission is recovered with
+:func:`selfillum.correct` (faces the camera does not see are handled by its
+partial-observation model), and the correction is brought back to *every pixel*,
+interpolated over the surface (face values -> vertex values -> barycentric interpolation at
+each pixel's hit point), so that face edges do not show:
+
+* ``mode="subtract"`` (default): the self-illumination ``B - E`` of the faces is
+  interpolated and subtracted from each pixel. Exact for the physics (what a pixel records
+  is its own emission plus reflected light, and the reflected light is a smooth field), and
+  it keeps features finer than a face (markers, shocks) untouched.
+* ``mode="ratio"``: each pixel is multiplied by the interpolated ``E / B``. Insensitive to
+  a smooth gain or vignetting across the image, but it scales sub-face contrast too.
+
+Assumptions: the image is proportional to the radiance of the model (dark level already
+subtracted), faces are Lambertian and painted on the side their normals point to.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+import trimesh
+
+from resection.camera import Camera
+from resection.errors import InputError
+
+from .mesh import check_mesh
+from .radiosity import SolveInfo, check_reflectance, correct
+from .viewfactors import view_factors
+
+__all__ = ["ImageCorrection", "correct_image", "read_reflectance", "correct_image_file"]
+
+
+@dataclass(frozen=True)
+class ImageCorrection:
+    """Result of :func:`correct_image`.
+
+    Attributes
+    ----------
+    image : (H, W) ndarray
+        Corrected image, same shape and dtype as the input; pixels off the model unchanged.
+    correction : (H, W) float64 ndarray
+        What was applied per pixel: the self-illumination subtracted (``"subtract"``) or
+        the factor applied (``"ratio"``); 0 or 1 off the model.
+    radiosity : (N,) ndarray
+        Per-face mean of the image (NaN on faces not seen).
+    emission : (N,) ndarray
+        Per-face emission recovered (estimated on faces not seen).
+    seen : (N,) bool ndarray
+        Faces seen by at least one finite pixel.
+    mode : str
+        ``"subtract"`` or ``"ratio"``.
+    info : SolveInfo
+        How the inverse was solved.
+    """
+
+    image: np.ndarray
+    correction: np.ndarray
+    radiosity: np.ndarray
+    emission: np.ndarray
+    seen: np.ndarray
+    mode: str
+    info: SolveInfo
+
+
+def correct_image(
+    image,
+    mesh: trimesh.Trimesh,
+    camera: Camera,
+    reflectance,
+    *,
+    F=None,
+    rays_per_face: int = 256,
+    seed: int = 0,
+    mode: str = "subtract",
+    surface_map=None,
+    progress: bool = False,
+) -> ImageCorrection:
+    """Remove self-illumination from a camera image of a painted model.
+
+    Parameters
+    ----------
+    image : (H, W) array_like
+        Camera image (any real dtype), proportional to radiance, ``img[v, u]``.
+    mesh : trimesh.Trimesh
+        Model surface; faces are the radiosity elements, painted on their normal side.
+    camera : resection.Camera
+        Calibrated camera with its pose; its size must match the image.
+    reflectance : float or (N,) array_like
+        Paint reflectance per face, in ``[0, 1)``.
+    F : (N, N) sparse matrix, optional
+        Form factors of ``mesh``; computed with :func:`selfillum.view_factors`
+        (``rays_per_face``, ``seed``) when not given.
+    rays_per_face, seed : int
+        View-factor parameters when ``F`` is computed here.
+    mode : {"subtract", "ratio"}
+        How the per-face correction is applied to pixels (see the module notes).
+    surface_map : resection.surface.SurfaceMap, optional
+        A map of this mesh and camera already built (reused across frames).
+    progress : bool
+        Progress bar on the ray casting.
+
+    Returns
+    -------
+    ImageCorrection
+
+    Raises
+    ------
+    InputError
+        Image size not that of the camera, non-numeric image, reflectance outside
+        ``[0, 1)``, invalid mesh, a camera that sees the model mostly from behind (the
+        normals do not point to the painted side), a camera that sees no face.
+    """
+    from resection.surface import SurfaceMap
+
+    check_mesh(mesh)
+    if mode not in ("subtract", "ratio"):
+        raise InputError(f"mode must be 'subtract' or 'ratio', got {mode!r}")
+    img = np.asarray(image)
+    if img.ndim != 2:
+        raise InputError(f"image: expected a 2-D single-channel image, got shape {img.shape}")
+    if img.dtype.kind not in "uif":
+        raise InputError(f"image: expected real pixel values, got dtype {img.dtype}")
+    if not isinstance(camera, Camera):
+        raise InputError(f"camera: expected a resection.Camera, got {type(camera).__name__}")
+    if img.shape != (camera.height, camera.width):
+        raise InputError(
+            f"image: shape {img.shape} does not match the camera's (height, width) = "
+            f"({camera.height}, {camera.width})"
+        )
+    n = len(mesh.faces)
+    rho = check_reflectance(reflectance, n)
+    smap = SurfaceMap(mesh, camera) if surface_map is None else surface_map
+    if smap.shape != img.shape or smap.n_faces != n:
+        raise InputError("surface_map: made for another camera size or mesh")
+    _check_painted_side(smap, mesh, camera)
+
+    sample = smap.to_surface(img.astype(np.float64))
+    B = sample.values
+    seen = ~sample.unseen
+    if not seen.any():
+        raise InputError("image: the camera sees no face of the model (check the pose)")
+    if F is None:
+        F = view_factors(mesh, rays_per_face=rays_per_face, seed=seed, progress=progress)
+    elif not sp.issparse(F) or F.shape != (n, n):
+        raise InputError(f"F: expected a sparse ({n}, {n}) matrix")
+    E, info = correct(F, np.where(seen, B, np.nan), rho, seen, mesh=mesh, return_info=True)
+
+    on = smap.mask & np.isfinite(img)
+    x = img.astype(np.float64)
+    out = x.copy()
+    if mode == "subtract":
+        si = np.where(seen, B - E, np.nan)
+        corr = smap.to_image(si, background=0.0)
+        corr = np.where(on & np.isfinite(corr), corr, 0.0)
+        out[on] = x[on] - corr[on]
+    else:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.where(seen & (B != 0), E / B, np.nan)
+        corr = smap.to_image(ratio, background=1.0)
+        corr = np.where(on & np.isfinite(corr), corr, 1.0)
+        out[on] = x[on] * corr[on]
+    return ImageCorrection(_as_dtype(out, img.dtype), corr, B, E, seen, mode, info)
+
+
+def _check_painted_side(smap, mesh, camera) -> None:
+    """Refuse a model whose seen pixels mostly land on the back of faces."""
+    f = smap.face_index[smap.mask]
+    if f.size == 0:
+        return
+    pts = smap.points[smap.mask]
+    view = np.asarray(camera.center, dtype=np.float64) - pts
+    normals = np.asarray(mesh.face_normals, dtype=np.float64)[f]
+    back = np.einsum("ij,ij->i", view, normals) < 0
+    if back.mean() > 0.5:
+        raise InputError(
+            f"mesh: {100 * back.mean():.0f}% of the pixels on the model see the back of "
+            "their face: face normals must point to the painted side (fix the winding)"
+        )
+
+
+def _as_dtype(values: np.ndarray, dtype: np.dtype) -> np.ndarray:
+    """Back to the input's dtype: integers are rounded and clipped to their range."""
+    if dtype.kind in "ui":
+        info = np.iinfo(dtype)
+        return np.clip(np.rint(values), info.min, info.max).astype(dtype)
+    return values.astype(dtype)
+
+
+def read_reflectance(spec, n_faces: int) -> np.ndarray:
+    """Reflectance from a number, or a per-face file.
+
+    Parameters
+    ----------
+    spec : float, str or path-like
+        A number (``0.6`` or ``"0.6"``), a ``.npy`` file with ``n_faces`` values, or a
+        ``.csv``/``.txt`` file with one value per face in face order (one column, or a
+        column named ``reflectance`` under a header).
+    n_faces : int
+        Faces of the mesh.
+
+    Returns
+    -------
+    (n_faces,) float64 ndarray in ``[0, 1)``.
+    """
+    if isinstance(spec, int | float | np.floating | np.integer):
+        return check_reflectance(float(spec), n_faces)
+    text = os.fspath(spec)
+    try:
+        return check_reflectance(float(text), n_faces)
+    except ValueError:
+        pass
+    path = Path(text)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such reflectance file (nor a number)")
+    suffix = path.suffix.lower()
+    if suffix == ".npy":
+        try:
+            values = np.load(path, allow_pickle=False)
+        except (ValueError, OSError) as exc:
+            raise InputError(f"{path}: not a readable .npy file ({exc})") from None
+    elif suffix in (".csv", ".txt"):
+        values = _read_column(path)
+    else:
+        raise InputError(f"{path}: unknown reflectance file type {suffix!r} (use .npy or .csv)")
+    values = np.asarray(values, dtype=np.float64).reshape(-1)
+    if values.size != n_faces:
+        raise InputError(f"{path}: {values.size} reflectance values for {n_faces} faces")
+    try:
+        return check_reflectance(values, n_faces)
+    except InputError as exc:
+        raise InputError(f"{path}: {exc}") from None
+
+
+def _read_column(path: Path) -> np.ndarray:
+    with open(path, newline="") as fh:
+        rows = [r for r in csv.reader(fh) if r and any(c.strip() for c in r)]
+    if not rows:
+        raise InputError(f"{path}: empty reflectance file")
+    col = 0
+    try:
+        float(rows[0][0])
+    except ValueError:
+        header = [h.strip().lower() for h in rows[0]]
+        rows = rows[1:]
+        if "reflectance" in header:
+            col = header.index("reflectance")
+        elif len(header) != 1:
+            raise InputError(
+                f"{path}: no 'reflectance' column in header {rows and header}"
+            ) from None
+    try:
+        return np.array([float(r[col]) for r in rows])
+    except (ValueError, IndexError):
+        raise InputError(f"{path}: non-numeric or missing reflectance values") from None
+
+
+def correct_image_file(
+    mesh_path,
+    camera_path,
+    image_path,
+    reflectance,
+    out_path,
+    *,
+    rays_per_face: int = 256,
+    seed: int = 0,
+    mode: str = "subtract",
+    surface_out=None,
+    progress: bool = False,
+) -> ImageCorrection:
+    """File-level :func:`correct_image`: read the mesh (any format of
+    :func:`resection.meshio.load_mesh`), the camera JSON and the image (TIFF or NPY),
+    correct, write the corrected image with the input's dtype (TIFF or NPY, from
+    ``out_path``'s suffix) and optionally the per-face fields (``radiosity``,
+    ``emission``, ``seen``) to ``surface_out`` (.ply, .vtk or .csv)."""
+    from resection.meshio import load_mesh, write_surface
+
+    image_path, out_path = Path(image_path), Path(out_path)
+    for p in (image_path, out_path):
+        if p.suffix.lower() not in (".tif", ".tiff", ".npy"):
+            raise InputError(f"{p}: images must be TIFF (.tif, .tiff) or NPY (.npy)")
+    if not image_path.exists():
+        raise FileNotFoundError(f"{image_path}: no such image file")
+    mesh = load_mesh(mesh_path)
+    camera = Camera.read(camera_path)
+    image = _read_native(image_path)
+    rho = read_reflectance(reflectance, len(mesh.faces))
+    result = correct_image(
+        image,
+        mesh,
+        camera,
+        rho,
+        rays_per_face=rays_per_face,
+        seed=seed,
+        mode=mode,
+        progress=progress,
+    )
+    if not out_path.parent.exists():
+        raise FileNotFoundError(f"{out_path.parent}: output directory does not exist")
+    if out_path.suffix.lower() == ".npy":
+        np.save(out_path, result.image, allow_pickle=False)
+    else:
+        import tifffile
+
+        tifffile.imwrite(out_path, result.image)
+    if surface_out is not None:
+        write_surface(
+            surface_out,
+            mesh,
+            {
+                "radiosity": result.radiosity,
+                "emission": result.emission,
+                "seen": result.seen.astype(np.uint8),
+            },
+        )
+    return result
+
+
+def _read_native(path: Path) -> np.ndarray:
+    """The image with its own dtype (not converted to float)."""
+    if path.suffix.lower() == ".npy":
+        try:
+            arr = np.load(path, allow_pickle=False)
+        except (ValueError, OSError) as exc:
+            raise InputError(f"{path}: not a readable .npy file ({exc})") from None
+    else:
+        import tifffile
+
+        try:
+            arr = tifffile.imread(path)
+        except Exception as exc:  # tifffile raises several types on bad files
+            raise InputError(f"{path}: not a readable TIFF file ({exc})") from None
+    arr = np.asarray(arr)
+    if arr.ndim == 3 and arr.shape[0] == 1:
+        arr = arr[0]
+    if arr.ndim != 2:
+        raise InputError(f"{path}: expected a 2-D single-channel image, got shape {arr.shape}")
+    return arr
