@@ -183,20 +183,21 @@ def _detect(img: np.ndarray, setup: _Setup):
 
 
 def _match(candidates, setup: _Setup, reference: FrameResult | None):
-    """Matched ``(ids, uv)`` from the candidates, starting from the reference frame's
-    markers and pose, or from the approximate camera when there is no reference."""
+    """Match the candidates to the 3-D markers, from the reference frame's markers (their
+    pixel positions) or, without a reference, from the approximate camera. Returns the
+    matched ``(ids, uv)`` and the matcher's pose solve (a ``PoseResult``)."""
     from .match import match_markers
 
     markers3d = (setup.ids, setup.points3d)
-    if reference is None:
-        ref = setup.camera
-    else:
-        ref = (reference.camera(setup.camera), reference.ids, reference.uv)
-    m = match_markers(candidates, markers3d, ref, **setup.match_kw)
-    return np.asarray(m.ids).astype(str), np.asarray(m.uv, dtype=float).reshape(-1, 2)
+    ref = setup.camera if reference is None else (tuple(reference.ids), reference.uv)
+    m = match_markers(candidates, markers3d, ref, camera=setup.camera, **setup.match_kw)
+    return np.asarray(m.marker_ids).astype(str), np.asarray(m.uv, float).reshape(-1, 2), m.pose
 
 
-def _solve(ids: np.ndarray, uv: np.ndarray, setup: _Setup, frame: int, file: str) -> FrameResult:
+def _solve(ids: np.ndarray, uv: np.ndarray, setup: _Setup, frame: int, file: str,
+           pose=None) -> FrameResult:
+    """The frame's pose from matched markers (``pose``: an already solved ``PoseResult``
+    for exactly these markers, reused when no extra ``pose_kw`` is asked)."""
     from .pose import solve_pose
 
     index = {k: i for i, k in enumerate(setup.ids)}
@@ -206,12 +207,13 @@ def _solve(ids: np.ndarray, uv: np.ndarray, setup: _Setup, frame: int, file: str
     if len(ids) < setup.min_markers:
         raise SolveError(f"only {len(ids)} markers matched, at least {setup.min_markers} "
                          "needed")
-    X = setup.points3d[[index[i] for i in ids]]
-    res = solve_pose(setup.camera, X, uv, **setup.pose_kw)
-    return FrameResult(frame=frame, file=file, status="ok", rvec=np.asarray(res.camera.rvec),
-                       tvec=np.asarray(res.camera.t, float), rms=float(res.rms),
+    if pose is None or setup.pose_kw:
+        X = setup.points3d[[index[i] for i in ids]]
+        pose = solve_pose(setup.camera, X, uv, **setup.pose_kw)
+    return FrameResult(frame=frame, file=file, status="ok", rvec=np.asarray(pose.camera.rvec),
+                       tvec=np.asarray(pose.camera.t, float), rms=float(pose.rms),
                        ids=np.asarray(ids, dtype=str), uv=np.asarray(uv, float),
-                       residuals=np.asarray(res.residuals, float))
+                       residuals=np.asarray(pose.residuals, float))
 
 
 def _process_frame(frame_data, index: int, setup: _Setup,
@@ -229,8 +231,8 @@ def _process_frame(frame_data, index: int, setup: _Setup,
         cands = _detect(img, setup)
         if len(cands) < setup.min_markers:
             raise SolveError(f"only {len(cands)} marker candidates detected")
-        ids, uv = _match(cands, setup, reference)
-        return _solve(ids, uv, setup, index, name)
+        ids, uv, pose = _match(cands, setup, reference)
+        return _solve(ids, uv, setup, index, name, pose)
     except Exception as exc:  # noqa: BLE001 - any failure of one frame must not stop the run
         msg = str(exc).splitlines()[0] if str(exc) else ""
         reason = f"{type(exc).__name__}: {msg}" if msg else type(exc).__name__

@@ -135,9 +135,10 @@ def _model_markers() -> tuple[np.ndarray, np.ndarray]:
     xs = np.array([-0.09, -0.045, 0.0, 0.045, 0.09])
     ys = np.array([-0.15, -0.09, -0.03, 0.03, 0.09, 0.15])
     gx, gy = np.meshgrid(xs, ys, indexing="ij")
-    # stagger alternate rows so that no three wing markers line up exactly
-    wing = np.column_stack([gx.ravel() + 0.012 * (np.arange(gy.size) % 3 - 1),
-                            gy.ravel(), np.zeros(gy.size)])
+    # an irregular layout, as painted by hand: a regular lattice would let a shift by one
+    # lattice step explain most markers (an ambiguous match); fixed jitter, same every call
+    jit = np.random.default_rng(143).uniform(-0.014, 0.014, (gx.size, 2))
+    wing = np.column_stack([gx.ravel() + jit[:, 0], gy.ravel() + jit[:, 1], np.zeros(gx.size)])
     fx = np.array([-0.18, -0.13, 0.15, 0.20])
     fus = np.column_stack([fx, np.zeros(fx.size), 0.035 + 0.1 * np.abs(fx) ** 2])
     pts = np.vstack([wing, fus])
