@@ -6,6 +6,7 @@ Conventions are those of DESIGN.md: OpenCV camera frame (x right, y down, z forw
 top-left pixel, images indexed ``img[v, u]``.
 """
 
+from .align import ViewWarp, warp_image
 from .calibrate import CalibrationResult, calibrate
 from .camera import Camera, effective_focal_length
 from .dlt import (
@@ -47,6 +48,8 @@ __all__ = [
     "read_points",
     "write_points",
     "SurfaceMap",
+    "ViewWarp",
+    "warp_image",
     "load_mesh",
     "read_plot3d",
     "write_plot3d",
