@@ -215,9 +215,11 @@ def read_reflectance(spec, n_faces: int) -> np.ndarray:
         return check_reflectance(float(spec), n_faces)
     text = os.fspath(spec)
     try:
-        return check_reflectance(float(text), n_faces)
+        number = float(text)
     except ValueError:
-        pass
+        number = None
+    if number is not None:
+        return check_reflectance(number, n_faces)
     path = Path(text)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such reflectance file (nor a number)")

@@ -1,0 +1,220 @@
+"""Image-level self-illumination correction against Mitsuba 3 renders (the independent
+reference): a render with all interreflections, corrected, must match the emission-only
+render of the same scene (``max_depth=1``) to within the render's own noise."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import tifffile
+from scipy.ndimage import binary_erosion
+
+from resection import Camera
+from resection.errors import InputError
+from resection.surface import SurfaceMap
+from scenes.corner import corner
+from selfillum.cli import main
+from selfillum.correct_image import correct_image, read_reflectance
+from selfillum.render import render
+
+
+def corner_camera() -> Camera:
+    K = [[160.0, 0.0, 95.5], [0.0, 160.0, 71.5], [0.0, 0.0, 1.0]]
+    return Camera.look_at(
+        [1.6, 0.5, 1.3], [0.3, 0.5, 0.3], [0.0, 1.0, 0.0], K=K, width=192, height=144
+    )
+
+
+@pytest.fixture(scope="module")
+def renders():
+    sc = corner(resolution=12)  # smooth emission pattern, reflectance 0.6
+    cam = corner_camera()
+    full = render(sc.mesh, sc.emission, sc.reflectance, cam, bounces=-1, spp=64, seed=1)
+    again = render(sc.mesh, sc.emission, sc.reflectance, cam, bounces=-1, spp=64, seed=9)
+    emit = render(sc.mesh, sc.emission, sc.reflectance, cam, bounces=1, spp=16, seed=2)
+    smap = SurfaceMap(sc.mesh, cam)
+    # pixels whose 5x5 neighbourhood lies on one plate (no silhouette or corner-line pixels)
+    plate_img = np.where(smap.mask, sc.plate[np.maximum(smap.face_index, 0)], -1)
+    inner = binary_erosion(plate_img == 0, iterations=2) | binary_erosion(
+        plate_img == 1, iterations=2
+    )
+    noise = np.std((again.image - full.image)[inner] / emit.image[inner]) / np.sqrt(2)
+    return sc, cam, smap, full.image, emit.image, inner, noise
+
+
+@pytest.mark.parametrize("mode", ["subtract", "ratio"])
+def test_corrected_render_matches_emission_only_render(renders, mode):
+    sc, cam, smap, full, emit, inner, noise = renders
+    r = correct_image(
+        full, sc.mesh, cam, sc.reflectance, rays_per_face=1024, surface_map=smap, mode=mode
+    )
+    si = (full - emit)[inner] / emit[inner]
+    err = (r.image - emit)[inner] / emit[inner]
+    assert si.max() > 0.35 and si.mean() > 0.1  # a lot of self-illumination to remove
+    # what is left is the render's own noise (plus < 0.5% of bias)
+    assert np.sqrt(np.mean(err**2)) < 1.15 * noise + 0.005
+    assert abs(err.mean()) < 0.005
+    # per face, averaging the pixels, the residual is far below the SI
+    face_err = smap.to_surface(np.where(inner, r.image - emit, np.nan)).values
+    face_emit = smap.to_surface(np.where(inner, emit, np.nan)).values
+    rel = np.abs(face_err / face_emit)
+    assert np.nanmax(rel) < 0.03
+    assert r.image.dtype == full.dtype and r.image.shape == full.shape
+    np.testing.assert_array_equal(r.image[~smap.mask], full[~smap.mask])
+
+
+def test_correction_is_smooth_across_face_edges(renders):
+    """The per-pixel correction is interpolated over the surface: neighbouring pixels
+    differ far less than the per-face values do from face to face."""
+    sc, cam, smap, full, emit, inner, _ = renders
+    r = correct_image(full, sc.mesh, cam, sc.reflectance, rays_per_face=256, surface_map=smap)
+    nearest = smap.to_image(r.radiosity - r.emission, background=0.0, interpolation="nearest")
+
+    def max_step(img):
+        ok = inner[:, 1:] & inner[:, :-1]
+        return np.abs(np.diff(img, axis=1))[ok].max()
+
+    assert max_step(r.correction) < 0.3 * max_step(nearest)
+
+
+def test_integer_image_keeps_dtype_and_background(renders):
+    sc, cam, smap, full, emit, inner, noise = renders
+    counts = np.rint(full * 4000 + 100 * ~smap.mask).astype(np.uint16)  # background = 100
+    r = correct_image(counts, sc.mesh, cam, sc.reflectance, rays_per_face=256, surface_map=smap)
+    assert r.image.dtype == np.uint16 and r.image.shape == counts.shape
+    np.testing.assert_array_equal(r.image[~smap.mask], counts[~smap.mask])
+    assert np.all(r.image[~smap.mask] >= 100)
+    err = (r.image.astype(float) / 4000 - emit)[inner] / emit[inner]
+    assert np.sqrt(np.mean(err**2)) < 1.15 * noise + 0.01
+
+
+def test_partially_seen_model(renders):
+    """Part of the wall is outside the image: those faces are estimated, the rest is still
+    corrected well."""
+    sc, cam, smap, full, emit, inner, noise = renders
+    crop = cam.replace(width=150)  # same pinhole, the right-hand part cut off
+    smap_c = SurfaceMap(sc.mesh, crop)
+    r = correct_image(full[:, :150], sc.mesh, crop, sc.reflectance, surface_map=smap_c)
+    assert r.info.method == "lsmr" and 0 < r.info.n_hidden < len(sc.mesh.faces)
+    inn = inner[:, :150]
+    err = (r.image - emit[:, :150])[inn] / emit[:, :150][inn]
+    assert np.sqrt(np.mean(err**2)) < 1.5 * noise + 0.01
+
+
+def test_cli_correct_tiff_round_trip(renders, tmp_path, capsys):
+    sc, cam, smap, full, emit, inner, noise = renders
+    mesh_path, cam_path = tmp_path / "corner.ply", tmp_path / "cam.json"
+    sc.mesh.export(mesh_path)
+    cam.write(cam_path)
+    counts = np.rint(full * 4000).astype(np.uint16)
+    tifffile.imwrite(tmp_path / "img.tif", counts)
+    np.savetxt(
+        tmp_path / "rho.csv",
+        np.full(len(sc.mesh.faces), sc.reflectance),
+        header="reflectance",
+        comments="",
+    )
+    rc = main(
+        [
+            "correct",
+            "--mesh",
+            str(mesh_path),
+            "--camera",
+            str(cam_path),
+            "--image",
+            str(tmp_path / "img.tif"),
+            "--reflectance",
+            str(tmp_path / "rho.csv"),
+            "--out",
+            str(tmp_path / "out.tif"),
+            "--surface",
+            str(tmp_path / "faces.csv"),
+            "--quiet",
+        ]
+    )
+    assert rc == 0
+    assert "largest self-illumination" in capsys.readouterr().out
+    out = tifffile.imread(tmp_path / "out.tif")
+    assert out.dtype == np.uint16 and out.shape == counts.shape
+    err = (out.astype(float) / 4000 - emit)[inner] / emit[inner]
+    assert np.sqrt(np.mean(err**2)) < 1.15 * noise + 0.01
+    assert (tmp_path / "faces.csv").read_text().splitlines()[0].startswith("face,")
+    # NPY in and out, float32, a scalar reflectance
+    np.save(tmp_path / "img.npy", full)
+    rc = main(
+        [
+            "correct",
+            "--mesh",
+            str(mesh_path),
+            "--camera",
+            str(cam_path),
+            "--image",
+            str(tmp_path / "img.npy"),
+            "--reflectance",
+            "0.6",
+            "--out",
+            str(tmp_path / "out.npy"),
+            "--quiet",
+            "--mode",
+            "ratio",
+        ]
+    )
+    assert rc == 0
+    out = np.load(tmp_path / "out.npy")
+    assert out.dtype == np.float32
+    np.testing.assert_array_equal(out[~smap.mask], full[~smap.mask])
+
+
+def test_cli_correct_bad_input(renders, tmp_path, capsys):
+    sc, cam, *_ = renders
+    sc.mesh.export(tmp_path / "m.ply")
+    cam.write(tmp_path / "c.json")
+    np.save(tmp_path / "small.npy", np.zeros((10, 10), np.float32))
+    base = [
+        "correct",
+        "--mesh",
+        str(tmp_path / "m.ply"),
+        "--camera",
+        str(tmp_path / "c.json"),
+        "--out",
+        str(tmp_path / "o.npy"),
+        "--quiet",
+    ]
+    cases = [
+        (["--image", str(tmp_path / "small.npy"), "--reflectance", "0.6"], "does not match"),
+        (["--image", str(tmp_path / "none.npy"), "--reflectance", "0.6"], "no such image"),
+        (["--image", str(tmp_path / "small.npy"), "--reflectance", "1.0"], "[0, 1)"),
+    ]
+    for extra, match in cases:
+        assert main(base + extra) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and match in err, err
+
+
+def test_read_reflectance(tmp_path):
+    np.testing.assert_array_equal(read_reflectance("0.25", 3), [0.25] * 3)
+    np.save(tmp_path / "r.npy", np.array([0.1, 0.2, 0.3]))
+    np.testing.assert_array_equal(read_reflectance(tmp_path / "r.npy", 3), [0.1, 0.2, 0.3])
+    (tmp_path / "r.csv").write_text("face,reflectance\n0,0.1\n1,0.2\n2,0.3\n")
+    np.testing.assert_array_equal(read_reflectance(tmp_path / "r.csv", 3), [0.1, 0.2, 0.3])
+    with pytest.raises(InputError, match="2 reflectance values for 3 faces"):
+        read_reflectance(tmp_path / "r.npy", 2) if False else read_reflectance(
+            _write(tmp_path / "two.npy", [0.1, 0.2]), 3
+        )
+    with pytest.raises(InputError, match="face 1"):
+        read_reflectance(_write(tmp_path / "bad.npy", [0.1, 1.2, 0.3]), 3)
+    with pytest.raises(FileNotFoundError):
+        read_reflectance(tmp_path / "missing.csv", 3)
+
+
+def _write(path, values):
+    np.save(path, np.asarray(values))
+    return path
+
+
+def test_back_facing_model_refused(renders):
+    sc, cam, *_ = renders
+    flipped = sc.mesh.copy()
+    flipped.invert()
+    with pytest.raises(InputError, match="painted side"):
+        correct_image(np.ones((144, 192)), flipped, cam, 0.5)
