@@ -418,7 +418,8 @@ def _pick_triplets(X: np.ndarray, uv: np.ndarray, max_triplets: int,
     i0 = int(np.argmax(np.einsum("ij,ij->i", d, d)))
     e = uv - uv[i0]
     i1 = int(np.argmax(np.einsum("ij,ij->i", e, e)))
-    area = np.abs(np.cross(uv[i1] - uv[i0], uv - uv[i0]))
+    a, b = uv[i1] - uv[i0], uv - uv[i0]
+    area = np.abs(a[0] * b[:, 1] - a[1] * b[:, 0])
     i2 = int(np.argmax(area))
     out = []
     if len({i0, i1, i2}) == 3 and ok((i0, i1, i2)):
