@@ -343,7 +343,9 @@ def _render_pinhole(mi, mesh, e, r, camera, bounces, spp, seed):
     """Render with a square-pixel pinhole camera; several passes when ``W H spp`` is too
     many samples to trace at once. Returns float64 ``(H, W)`` radiance and the spp used."""
     lanes = camera.width * camera.height
-    per_pass = max(1, min(spp, _MAX_LANES // max(lanes, 1)))
+    # the vectorised variants trace all samples of a pass at once; scalar works in blocks
+    limit = spp if mi.variant().startswith("scalar") else _MAX_LANES // max(lanes, 1)
+    per_pass = max(1, min(spp, limit))
     passes = math.ceil(spp / per_pass)
     per_pass = _multijitter_count(math.ceil(spp / passes))
     scene = _load_scene(mi, mesh, e, r, camera, bounces, per_pass)

@@ -1,0 +1,79 @@
+"""Mitsuba render of the corner against the Lambertian forward model of the same scene.
+
+Prints, for each Mitsuba variant this machine has, the time of an all-bounce render and
+its ratio to the time of the model's image (Embree view factors + radiosity solve +
+backprojection through a SurfaceMap), with the agreement of the two images. Run:
+
+    .venv/bin/python bench/bench_render.py [--resolution 20] [--spp 256] [--width 320]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+from scipy.ndimage import maximum_filter, minimum_filter
+
+from resection import Camera
+from resection.surface import SurfaceMap
+from scenes.corner import corner
+from selfillum.radiosity import forward
+from selfillum.render import available_variants, render
+from selfillum.viewfactors import view_factors
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--resolution", type=int, default=20, help="corner squares a side")
+    ap.add_argument("--rays", type=int, default=1024, help="view-factor rays per face")
+    ap.add_argument("--spp", type=int, default=256, help="Mitsuba samples per pixel")
+    ap.add_argument("--width", type=int, default=320, help="image width (height 3/4)")
+    ap.add_argument("--variants", default=None,
+                    help="comma-separated variants (default: all available)")
+    args = ap.parse_args()
+
+    sc = corner(resolution=args.resolution, reflectance=0.6, pattern="smooth")
+    W = args.width
+    H = W * 3 // 4
+    f = 0.8125 * W
+    cam = Camera.look_at([1.4, 0.5, 1.2], [0.3, 0.5, 0.3], [0, 1, 0],
+                         K=[[f, 0, (W - 1) / 2], [0, f, (H - 1) / 2], [0, 0, 1]],
+                         width=W, height=H)
+    nf = len(sc.mesh.faces)
+    print(f"corner: {nf} faces, image {W} x {H}, reflectance {sc.reflectance}")
+
+    t0 = time.perf_counter()
+    F = view_factors(sc.mesh, rays_per_face=args.rays, seed=1)
+    t1 = time.perf_counter()
+    B = forward(F, sc.emission, sc.reflectance)
+    t2 = time.perf_counter()
+    smap = SurfaceMap(sc.mesh, cam)
+    model = smap.to_image(B / np.pi, interpolation="nearest")
+    t3 = time.perf_counter()
+    t_model = t3 - t0
+    print(f"model: view factors {t1 - t0:.2f} s ({args.rays} rays/face), solve "
+          f"{t2 - t1:.3f} s, surface map + backprojection {t3 - t2:.2f} s; total "
+          f"{t_model:.2f} s")
+
+    fi = smap.face_index
+    plate = np.where(fi >= 0, sc.plate[np.maximum(fi, 0)], -1)
+    away = (plate >= 0) & (minimum_filter(plate, 5) == maximum_filter(plate, 5))
+
+    variants = args.variants.split(",") if args.variants else available_variants()
+    print(f"{'variant':<14}{'spp':>6}{'render s':>10}{'render/model':>14}"
+          f"{'median err':>12}{'p95 |err|':>11}")
+    for v in variants:
+        # warm-up (JIT compilation of the vectorised variants), not timed
+        render(sc.mesh, sc.emission, sc.reflectance, cam, bounces=-1, spp=1, variant=v)
+        t0 = time.perf_counter()
+        res = render(sc.mesh, sc.emission, sc.reflectance, cam, bounces=-1, spp=args.spp,
+                     seed=1, variant=v)
+        t_render = time.perf_counter() - t0
+        rel = res.image[away] / model[away] - 1.0
+        print(f"{res.variant:<14}{res.spp:>6}{t_render:>10.2f}{t_render / t_model:>14.1f}"
+              f"{100 * np.median(rel):>11.2f}%{100 * np.percentile(np.abs(rel), 95):>10.2f}%")
+
+
+if __name__ == "__main__":
+    main()
