@@ -178,7 +178,8 @@ def write_markers(path: str | os.PathLike, ids, xyz, diameter=None) -> None:
                 raise InputError(f"write_markers: {d.size} diameters for {len(ids)} markers")
             w.writerow(["id", "x", "y", "z", "diameter"])
             for k, p, di in zip(ids, xyz, d, strict=True):
-                w.writerow([k, *(repr(float(v)) for v in p), "" if np.isnan(di) else repr(float(di))])
+                dtext = "" if np.isnan(di) else repr(float(di))
+                w.writerow([k, *(repr(float(v)) for v in p), dtext])
 
 
 def read_points(path: str | os.PathLike) -> tuple[tuple[str, ...], np.ndarray]:
