@@ -141,7 +141,7 @@ def test_threshold_and_false_alarms_on_pure_noise():
     img = 1000 + rng.normal(0, 5, (300, 300))
     assert len(detect_markers(img, 5.0)) == 0
     # an explicit tiny threshold lets noise through: the threshold is really used
-    assert len(detect_markers(img[:80, :80], 5.0, threshold=1e-3)) > 10
+    assert len(detect_markers(img[:80, :80], 5.0, threshold=1e-3, min_snr=0.0)) > 10
 
 
 def test_smooth_background_gradient_does_not_matter():
@@ -293,3 +293,82 @@ def test_image_errors(tmp_path):
         write_image(tmp_path / "o.png", np.full((3, 3), 70000.0))
     with pytest.raises(InputError, match="2-D"):
         write_image(tmp_path / "o.tif", np.zeros(5))
+
+
+# ----------------------------------------------------------------------------- enhancement
+def _ir_scene():
+    """Low-contrast IR-like image: markers of contrast 8 on a hot spot of 400 counts."""
+    sc = make_scene((200, 240), 20, 6.0, snr=25.0, contrast=8.0, background=0.0, rng=21)
+    vv, uu = np.mgrid[0:200, 0:240]
+    bg = 300.0 + 400.0 * np.exp(-((uu - 150.0) ** 2 + (vv - 90.0) ** 2) / (2 * 50.0**2))
+    return sc, bg
+
+
+@pytest.mark.parametrize("method", ["median", "gaussian"])
+def test_subtract_background_removes_background_keeps_positions(method):
+    from resection.enhance import subtract_background
+
+    sc, bg = _ir_scene()
+    img = sc.image + bg
+    out = subtract_background(img, 20.0, method=method)
+    # compared with the known background: what is left is small against its 400 counts
+    resid = out - sc.image
+    assert np.sqrt(np.mean(resid**2)) < 8.0  # 2 % of the hot spot
+    cand = detect_markers(out, 6.0)
+    assert len(cand) == 20
+    e, hit = _errors(cand.uv, sc.uv)
+    assert hit == 1.0 and _rms(e) <= 0.05
+
+
+def test_normalize_contrast_equalises_gain():
+    from resection.enhance import normalize_contrast
+
+    rng = np.random.default_rng(0)
+    gain = np.linspace(0.1, 1.0, 300)[None, :] * np.ones((100, 1))
+    img = 500 + gain * rng.normal(0, 10, (100, 300))
+    out = normalize_contrast(img, 15.0)
+    left, right = out[10:-10, 10:60].std(), out[10:-10, 240:290].std()
+    assert img[:, 240:290].std() / img[:, 10:60].std() > 4
+    assert right / left == pytest.approx(1.0, abs=0.15)
+    assert abs(float(out[10:-10, 10:-10].mean())) < 0.05
+
+
+def test_clahe_against_empirical_cdf_and_windows():
+    from scipy.stats import rankdata
+
+    from resection.enhance import clahe, enhance
+
+    rng = np.random.default_rng(1)
+    img = rng.gamma(2.0, 50.0, (64, 80))
+    # one tile, no clipping: plain histogram equalisation = the empirical CDF
+    out = clahe(img, (1, 1), clip_limit=1e9, bins=4096)
+    ecdf = rankdata(img.ravel()).reshape(img.shape) / img.size
+    assert np.abs(out - ecdf).max() < 0.01
+    out = clahe(img, (4, 4), clip_limit=2.0)
+    assert 0.0 <= np.nanmin(out) and np.nanmax(out) <= 1.0
+    # windows: only the boxes change, each as if processed alone
+    win = [(10, 5, 40, 30)]
+    part = enhance(img, "clahe", windows=win, tiles=(2, 2))
+    alone = clahe(img[5:31, 10:41], (2, 2))
+    assert np.allclose(part[5:31, 10:41], alone)
+    outside = np.ones(img.shape, bool)
+    outside[5:31, 10:41] = False
+    assert np.array_equal(part[outside], img[outside].astype(np.float32))
+    img_nan = img.copy()
+    img_nan[3, 3] = np.nan
+    assert np.isnan(clahe(img_nan)[3, 3]) and np.isfinite(clahe(img_nan)[3, 4])
+
+
+def test_enhance_bad_input():
+    from resection.enhance import clahe, enhance, subtract_background
+
+    with pytest.raises(InputError, match="method"):
+        enhance(np.zeros((10, 10)), "sharpen")
+    with pytest.raises(InputError, match="2-D"):
+        subtract_background(np.zeros((3, 3, 3)))
+    with pytest.raises(InputError, match="size"):
+        subtract_background(np.zeros((10, 10)), -5)
+    with pytest.raises(InputError, match="windows"):
+        enhance(np.zeros((10, 10)), windows=[(1, 2, 3)])
+    with pytest.raises(InputError, match="finite"):
+        clahe(np.full((10, 10), np.nan))
