@@ -1,0 +1,230 @@
+"""Sequences: a synthetic run with a known model motion (scenes.moving_model) tracked by
+``resection.sequence.track``; interruption and resume, corrupt frames, Dask, CLI, plot.
+
+The reference is the scene's truth: the motion is built from explicit rotation matrices and
+the frames are rendered at the exact projections of the markers (pixel-integrated blurred
+noisy disks), independently of the tracking code.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pytest
+
+from resection import Camera, InputError
+from resection import sequence as seq
+from resection.cli import main
+from resection.sequence import read_track, relative_motion, track
+from scenes.moving_model import pitch_oscillation, rotation_zyx, write_sequence
+
+N_FAST = 60
+
+
+def _model(n):
+    return pitch_oscillation(n)
+
+
+@pytest.fixture(scope="module")
+def run60(tmp_path_factory):
+    """60 frames written to disk and tracked once, in this process."""
+    base = tmp_path_factory.mktemp("seq60")
+    model = _model(N_FAST)
+    files = write_sequence(model, base / "frames")
+    cam = Camera.read(files["camera"])
+    res = track(files["frames"], cam, files["markers"], diameter=5.6, out_dir=base / "out",
+                progress=False)
+    return model, files, cam, res, base
+
+
+def _check_against_truth(model, res, n):
+    assert res.ok.all(), res.reason[~res.ok]
+    # attitude and position change relative to frame 0
+    ang_err = res.angles - np.degrees(model.angles[:n])
+    assert np.abs(ang_err).max() < 0.01
+    assert np.abs(res.translation - model.translation[:n]).max() < 1e-4  # 0.1 mm
+    # the motion is really there (a test of a static model would pass trivially)
+    assert np.ptp(res.angles[:, 1]) > 1.0
+    # marker positions against the true projections
+    truth = np.stack([model.uv(k) for k in range(n)])
+    got = res.marker_positions(model.ids)
+    assert np.isfinite(got).all()  # every marker found in every frame
+    rms = np.sqrt(np.mean(np.sum((got - truth) ** 2, axis=-1)))
+    assert rms < 0.05
+    return rms, np.abs(ang_err).max()
+
+
+def test_track_recovers_known_motion(run60):
+    model, files, cam, res, base = run60
+    _check_against_truth(model, res, N_FAST)
+    assert res.n_computed == N_FAST and res.reference == 0
+    # the CSV files hold the same numbers
+    back = read_track(base / "out")
+    np.testing.assert_allclose(back.angles, res.angles, atol=1e-8)
+    np.testing.assert_allclose(back.translation, res.translation, atol=1e-12)
+    np.testing.assert_allclose(back.marker_uv, res.marker_uv, atol=1e-6)
+    assert back.status.tolist() == ["ok"] * N_FAST
+    assert back.file.tolist() == files["frames"]
+    with open(base / "out" / "poses.csv") as fh:
+        assert fh.readline().strip() == ",".join(seq.POSE_COLUMNS)
+    with open(base / "out" / "markers.csv") as fh:
+        assert fh.readline().strip() == "frame,id,u,v,residual,residual_u,residual_v"
+
+
+@pytest.mark.slow
+def test_track_500_frames(tmp_path):
+    model = _model(500)
+    files = write_sequence(model, tmp_path / "frames")
+    cam = Camera.read(files["camera"])
+    res = track(files["frames"], cam, files["markers"], diameter=5.6, out_dir=tmp_path / "out",
+                progress=False)
+    _check_against_truth(model, res, 500)
+
+
+def test_relative_motion_against_scene_truth():
+    model = _model(40)
+    cams = [model.camera_at(k) for k in range(40)]
+    rv = np.array([c.rvec for c in cams])
+    tv = np.array([c.t for c in cams])
+    ang, tr = relative_motion(rv, tv, 0)
+    np.testing.assert_allclose(ang, np.degrees(model.angles), atol=1e-10)
+    np.testing.assert_allclose(tr, model.translation, atol=1e-12)
+    # the angles rebuild M with the explicit Rz Ry Rx product
+    M = rotation_zyx(*np.radians(ang).T)
+    np.testing.assert_allclose(M, [model.camera.R.T @ c.R for c in cams], atol=1e-12)
+    # moving camera: displacement of the perspective centre, rotation R_k^T R_0
+    ang_c, tr_c = relative_motion(rv, tv, 0, fixed_camera=False)
+    np.testing.assert_allclose(tr_c, [c.center - cams[0].center for c in cams], atol=1e-12)
+    Mc = rotation_zyx(*np.radians(ang_c).T)
+    np.testing.assert_allclose(Mc, [c.R.T @ cams[0].R for c in cams], atol=1e-12)
+    rv[3] = np.nan
+    ang, tr = relative_motion(rv, tv, 0)
+    assert np.isnan(ang[3]).all() and np.isfinite(ang[4]).all()
+    with pytest.raises(InputError, match="reference frame 3 has no pose"):
+        relative_motion(rv, tv, 3)
+
+
+def test_interrupt_and_resume(run60, tmp_path, monkeypatch):
+    model, files, cam, ref, _ = run60
+    frames = files["frames"]
+    out = tmp_path / "out"
+    # a first run over the first half
+    half = track(frames[:30], cam, files["markers"], diameter=5.6, out_dir=out, progress=False)
+    assert half.n_computed == 30
+    mtimes = {p: os.stat(p).st_mtime_ns for p in (out / "frames").glob("*.json")}
+    assert len(mtimes) == 30
+    # then an interruption (Ctrl-C) in the middle of the next run
+    calls = {"n": 0}
+    detect = seq._detect
+
+    def interrupted(img, setup):
+        calls["n"] += 1
+        if calls["n"] == 12:
+            raise KeyboardInterrupt
+        return detect(img, setup)
+
+    monkeypatch.setattr(seq, "_detect", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        track(frames, cam, files["markers"], diameter=5.6, out_dir=out, progress=False)
+    assert len(list((out / "frames").glob("*.json"))) == 30 + 11
+    assert not list((out / "frames").glob("*.tmp"))
+    # resume: only the 19 missing frames are computed, the finished files are not touched
+    calls["n"] = -10**9
+    res = track(frames, cam, files["markers"], diameter=5.6, out_dir=out, progress=False)
+    assert res.n_computed == N_FAST - 41
+    assert calls["n"] == -10**9 + N_FAST - 41
+    for p, t in mtimes.items():
+        assert os.stat(p).st_mtime_ns == t
+    # and the result is the one of the uninterrupted run
+    np.testing.assert_allclose(res.angles, ref.angles, atol=1e-9)
+    np.testing.assert_allclose(res.marker_uv, ref.marker_uv, atol=1e-9)
+    # a run with other settings in the same directory is refused, resume=False redoes all
+    with pytest.raises(InputError, match="other settings"):
+        track(frames, cam, files["markers"], diameter=6.0, out_dir=out, progress=False)
+    with pytest.raises(InputError, match="frame 0 was"):
+        track(frames[3:], cam, files["markers"], diameter=5.6, out_dir=out, progress=False)
+
+
+def test_corrupt_frames_are_recorded_and_skipped(tmp_path):
+    model = _model(24)
+    files = write_sequence(model, tmp_path / "frames")
+    frames = list(files["frames"])
+    with open(frames[9], "wb") as fh:  # unreadable file
+        fh.write(b"\x93NUMPY garbage")
+    np.save(frames[10], np.full((256, 256), np.nan, np.float32))  # all-NaN image
+    frames[15] = str(tmp_path / "frames" / "missing.npy")  # file that does not exist
+    np.save(frames[17], np.full((200, 256), 1000.0, np.float32))  # wrong size
+    cam = Camera.read(files["camera"])
+    res = track(frames, cam, files["markers"], diameter=5.6, out_dir=tmp_path / "out",
+                progress=False, chunk_size=8)
+    bad = [9, 10, 15, 17]
+    assert np.flatnonzero(~res.ok).tolist() == bad
+    assert "cannot read image" in res.reason[9]
+    assert "no finite pixel" in res.reason[10] or "masked" in res.reason[10]
+    assert "no such image" in res.reason[15]
+    assert "256x200" in res.reason[17]
+    assert np.isnan(res.angles[bad]).all() and (res.n_markers[bad] == 0).all()
+    good = np.flatnonzero(res.ok)
+    np.testing.assert_allclose(res.angles[good], np.degrees(model.angles[good]), atol=0.01)
+    with open(tmp_path / "out" / "poses.csv") as fh:
+        rows = fh.read().splitlines()
+    assert rows[11].split(",")[2] == "failed"  # header + frame 10
+    assert len(rows) == 25
+
+
+def test_dask_two_workers_same_as_one(run60, tmp_path):
+    model, files, cam, ref, _ = run60
+    n = 30  # the chunks (20 frames) do not depend on the length of the run
+    res = track(files["frames"][:n], cam, files["markers"], diameter=5.6,
+                out_dir=tmp_path / "o", workers=2, progress=False)
+    assert res.n_computed == n
+    assert res.status.tolist() == ref.status[:n].tolist()
+    np.testing.assert_allclose(res.angles, ref.angles[:n], atol=1e-9)
+    np.testing.assert_allclose(res.translation, ref.translation[:n], atol=1e-12)
+    sel = ref.marker_frame < n
+    assert res.marker_id.tolist() == ref.marker_id[sel].tolist()
+    np.testing.assert_allclose(res.marker_uv, ref.marker_uv[sel], atol=1e-9)
+
+
+def test_cli_track_and_plot(run60, tmp_path, capsys):
+    model, files, cam, ref, _ = run60
+    out = tmp_path / "cli"
+    rc = main(["track", *files["frames"][:12], "--camera", files["camera"], "--markers",
+               files["markers"], "--diameter", "5.6", "--out", str(out), "--fps", "50",
+               "--no-progress", "--chunk-size", "5"])
+    assert rc == 0
+    assert "12/12 frames solved" in capsys.readouterr().out
+    back = read_track(out)
+    np.testing.assert_allclose(back.angles, ref.angles[:12], atol=1e-8)
+    png = out / "pose_vs_time.png"
+    assert png.stat().st_size > 10_000 and png.read_bytes()[:4] == b"\x89PNG"
+    with open(out / "track.json") as fh:
+        assert json.load(fh)["chunk_size"] == 5
+    # bad input: one line on stderr, exit status 2
+    rc = main(["track", files["frames"][0], "--camera", str(tmp_path / "nope.json"),
+               "--markers", files["markers"], "--diameter", "5.6", "--out", str(out)])
+    assert rc == 2
+    assert "nope.json" in capsys.readouterr().err
+
+
+def test_bad_input(run60, tmp_path):
+    model, files, cam, ref, _ = run60
+    kw = dict(out_dir=tmp_path / "o", progress=False)
+    with pytest.raises(InputError, match="empty"):
+        track([], cam, files["markers"], diameter=5.6, **kw)
+    with pytest.raises(InputError, match="diameter"):
+        track(files["frames"], cam, files["markers"], diameter=-1, **kw)
+    with pytest.raises(InputError, match="polarity"):
+        track(files["frames"], cam, files["markers"], diameter=5.6, polarity="grey", **kw)
+    with pytest.raises(InputError, match="workers"):
+        track(files["frames"], cam, files["markers"], diameter=5.6, workers=0, **kw)
+    with pytest.raises(InputError, match="camera"):
+        track(files["frames"], "cam.json", files["markers"], diameter=5.6, **kw)
+    with pytest.raises(InputError, match="frames\\[1\\]"):
+        track([files["frames"][0], 3], cam, files["markers"], diameter=5.6, **kw)
+    with pytest.raises(InputError, match="duplicate"):
+        track(files["frames"], cam, (["a", "a", "b"], np.eye(3)), diameter=5.6, **kw)
+    with pytest.raises(InputError, match="not found"):
+        read_track(tmp_path / "nothing")
