@@ -21,6 +21,7 @@ from .dlt import (
 from .errors import DegenerateError, InputError, SolveError
 from .markerio import MarkerSet, read_markers, read_points, write_markers, write_points
 from .meshio import load_mesh, read_plot3d, write_plot3d, write_surface
+from .plots import plot_resection, plot_surface, virtual_camera
 from .pose import PoseResult, solve_pose
 from .surface import SurfaceMap, SurfaceSample, vertex_values
 from .visibility import RayCaster, visible_faces
@@ -48,6 +49,9 @@ __all__ = [
     "read_points",
     "write_points",
     "SurfaceMap",
+    "plot_surface",
+    "plot_resection",
+    "virtual_camera",
     "ViewWarp",
     "warp_image",
     "load_mesh",

@@ -62,8 +62,11 @@ def _vertex_matrix(mesh: trimesh.Trimesh, face_weight: np.ndarray, linear: bool)
     it is corrected by an area-weighted least-squares gradient fitted to the face centroids
     (``f_v = mean + g . (x_v - c_mean)``), which makes the reconstruction exact for fields
     linear in space wherever the centroids around a vertex span the needed directions.
-    Directions the centroids do not span (a vertex with one or two faces) get no gradient,
-    i.e. the plain mean.
+    Directions in which the centroids spread less than a tenth of their largest spread
+    (eigenvalue ratio 1e-2 of the weighted covariance) get no gradient: the tangent
+    directions at a vertex with one or two faces, and the normal direction of a smooth
+    curved fan, where a fitted normal gradient would only amplify noise. Across a crease
+    (e.g. a 90-degree corner) the centroids spread in 3-D and the full gradient is used.
     """
     faces = np.asarray(mesh.faces, dtype=np.int64)
     verts = np.asarray(mesh.vertices, dtype=np.float64)
@@ -86,7 +89,7 @@ def _vertex_matrix(mesh: trimesh.Trimesh, face_weight: np.ndarray, linear: bool)
         evals, evecs = np.linalg.eigh(cov)
         scale = evals[:, -1:]
         with np.errstate(invalid="ignore", divide="ignore"):
-            inv = np.where(evals > 1e-9 * scale, 1.0 / evals, 0.0)
+            inv = np.where(evals > 1e-2 * scale, 1.0 / evals, 0.0)
         cinv = np.einsum("vij,vj,vkj->vik", evecs, inv, evecs)
         lever = np.einsum("vi,vij->vj", verts - cbar, cinv)  # (x_v - cbar)^T C^+
         coef = coef + w * np.einsum("pj,pj->p", lever[vid], dc)

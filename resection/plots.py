@@ -1,0 +1,278 @@
+"""Pictures: surface data seen from any Point of View, and the resection check.
+
+* :func:`plot_surface` (the paper's Figure 22): per-face data rendered through a (real or
+  virtual) camera, with a colour map and a colour bar. ``method="raster"`` backprojects the
+  faces with :class:`~resection.surface.SurfaceMap` (one Embree ray per pixel, hidden
+  surfaces removed exactly); ``method="polygons"`` draws the visible faces as a matplotlib
+  PolyCollection sorted by depth (painter's algorithm, vector output).
+* :func:`virtual_camera`: a camera looking at the model from an azimuth / elevation.
+* :func:`plot_resection` (Figure 20): the image, the model grid outline projected with the
+  solved camera, detected and reprojected markers, residual vectors (magnified, the factor
+  written on the picture) and the RMS in the title.
+
+Functions return :class:`matplotlib.figure.Figure` objects built without pyplot (no global
+state) and save a PNG when ``path`` is given.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import trimesh
+from matplotlib import colormaps
+from matplotlib.collections import LineCollection, PolyCollection
+from matplotlib.colors import Normalize
+from matplotlib.figure import Figure
+
+from ._checks import as_points
+from .camera import Camera
+from .errors import InputError
+from .surface import SurfaceMap
+from .visibility import visible_faces
+
+__all__ = ["plot_surface", "virtual_camera", "plot_resection", "outline_edges"]
+
+
+def virtual_camera(mesh: trimesh.Trimesh, azimuth_deg: float = 30.0,
+                   elevation_deg: float = 30.0, *, width: int = 640, height: int = 480,
+                   hfov_deg: float = 40.0, up=(0.0, 0.0, 1.0), margin: float = 1.1,
+                   target=None) -> Camera:
+    """A pinhole camera looking at ``mesh`` from a direction given in degrees.
+
+    The viewing direction is ``(cos el cos az, cos el sin az, sin el)`` from the target
+    (default: the bounding-box centre) in model axes; the distance makes the bounding
+    sphere (times ``margin``) fit the smaller field of view.
+    """
+    if width < 2 or height < 2:
+        raise InputError(f"virtual_camera: image size {width}x{height} too small")
+    lo, hi = np.asarray(mesh.bounds, dtype=float)
+    centre = (lo + hi) / 2 if target is None else np.asarray(target, dtype=float)
+    radius = 0.5 * float(np.linalg.norm(hi - lo)) * margin
+    f = (width / 2) / np.tan(np.radians(hfov_deg) / 2)
+    half = np.arctan(min(width, height) / 2 / f)
+    dist = radius / np.sin(half)
+    az, el = np.radians(azimuth_deg), np.radians(elevation_deg)
+    direction = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+    up = np.asarray(up, dtype=float)
+    if abs(np.dot(up / np.linalg.norm(up), direction)) > 0.999:
+        up = np.array([0.0, 1.0, 0.0]) if abs(direction[1]) < 0.9 else np.array([1.0, 0, 0])
+    K = [[f, 0.0, (width - 1) / 2], [0.0, f, (height - 1) / 2], [0.0, 0.0, 1.0]]
+    return Camera.look_at(centre + dist * direction, centre, up, K=K, width=width,
+                          height=height)
+
+
+def _finish(fig: Figure, path) -> Figure:
+    if path is not None:
+        fig.savefig(os.fspath(path), dpi=fig.dpi)
+    return fig
+
+
+def plot_surface(
+    mesh: trimesh.Trimesh,
+    face_values,
+    camera: Camera | None = None,
+    *,
+    method: str = "raster",
+    cmap: str = "viridis",
+    vmin: float | None = None,
+    vmax: float | None = None,
+    label: str = "",
+    title: str | None = None,
+    background=None,
+    interpolation: str = "linear",
+    edges: bool = False,
+    path: str | os.PathLike | None = None,
+    dpi: int = 100,
+) -> Figure:
+    """Per-face data seen from ``camera`` with a colour map and a colour bar.
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh
+    face_values : (F,) array_like
+        One value per face (NaN: not drawn).
+    camera : Camera, optional
+        Point of View; default :func:`virtual_camera` of the mesh.
+    method : {"raster", "polygons"}
+        See the module docstring.
+    cmap, vmin, vmax, label, title
+        Colour map, its limits (default: data range) and the colour bar label.
+    background : None or (H, W) image
+        Raster only: a grey image drawn under the data (e.g. the camera image).
+    interpolation : {"linear", "mean", "nearest"}
+        Raster only: see :meth:`SurfaceMap.to_image`.
+    edges : bool
+        Polygons only: draw the face edges.
+    path : path-like, optional
+        Save a PNG there.
+    """
+    fv = np.asarray(face_values, dtype=np.float64)
+    if fv.shape != (len(mesh.faces),):
+        raise InputError(
+            f"face_values: shape {fv.shape} does not match the mesh's {len(mesh.faces)} faces"
+        )
+    if method not in ("raster", "polygons"):
+        raise InputError(f"method must be 'raster' or 'polygons', got {method!r}")
+    camera = virtual_camera(mesh) if camera is None else camera
+    finite = fv[np.isfinite(fv)]
+    lo = float(finite.min()) if vmin is None and finite.size else (vmin or 0.0)
+    hi = float(finite.max()) if vmax is None and finite.size else (vmax or 1.0)
+    if hi <= lo:
+        hi = lo + 1.0
+    norm = Normalize(lo, hi)
+    cm = colormaps[cmap]
+    W, H = camera.width, camera.height
+    fig = Figure(figsize=(W / dpi + 1.6, H / dpi + 0.8), dpi=dpi)
+    ax = fig.add_axes([0.02, 0.04, 0.98 * W / (W + 1.6 * dpi), 0.86 * H / (H + 0.8 * dpi)
+                       + 0.04])
+    ax.set_xlim(-0.5, W - 0.5)
+    ax.set_ylim(H - 0.5, -0.5)
+    ax.set_aspect("equal")
+    ax.set_xticks([])
+    ax.set_yticks([])
+    if method == "raster":
+        if background is not None:
+            bg = np.asarray(background, dtype=float)
+            if bg.shape != (H, W):
+                raise InputError(f"background: shape {bg.shape} does not match the camera "
+                                 f"image (H, W) = ({H}, {W})")
+            ax.imshow(bg, cmap="gray", interpolation="nearest")
+        img = SurfaceMap(mesh, camera).to_image(fv, interpolation=interpolation)
+        mappable = ax.imshow(np.ma.masked_invalid(img), cmap=cm, norm=norm,
+                             interpolation="nearest")
+    else:
+        vis = visible_faces(mesh, camera, max_obliqueness_deg=90.0, samples_per_face=7,
+                            require="any", in_image=False) & np.isfinite(fv)
+        idx = np.flatnonzero(vis)
+        tri = np.asarray(mesh.vertices, dtype=float)[np.asarray(mesh.faces)[idx]]
+        uv = camera.project(tri.reshape(-1, 3)).reshape(-1, 3, 2)
+        depth = camera.to_camera_frame(tri.mean(axis=1))[:, 2]
+        ok = np.all(np.isfinite(uv), axis=(1, 2))
+        order = np.argsort(-depth[ok])  # far first
+        polys = PolyCollection(uv[ok][order], array=fv[idx][ok][order], cmap=cm, norm=norm,
+                               edgecolors="k" if edges else "face",
+                               linewidths=0.2 if edges else 0.3)
+        mappable = ax.add_collection(polys)
+    cax = fig.add_axes([0.985 * W / (W + 1.6 * dpi) + 0.02, 0.1, 0.025, 0.75])
+    cb = fig.colorbar(mappable, cax=cax)
+    if label:
+        cb.set_label(label)
+    if title is not None:
+        ax.set_title(title)
+    return _finish(fig, path)
+
+
+def outline_edges(mesh: trimesh.Trimesh, feature_angle_deg: float = 40.0) -> np.ndarray:
+    """Edges worth drawing as the grid outline: boundary edges (one face), edges between
+    faces of different ``block``/``component`` attributes, and sharp edges (dihedral angle
+    above ``feature_angle_deg``). Returns (E, 2, 3) segments in model coordinates."""
+    faces = np.asarray(mesh.faces)
+    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    _, inv, counts = np.unique(edges, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.ravel()
+    keep = counts[inv] == 1
+    adj = np.asarray(mesh.face_adjacency)
+    if len(adj):
+        sharp = np.asarray(mesh.face_adjacency_angles) > np.radians(feature_angle_deg)
+        for key in ("block", "component"):
+            if key in mesh.face_attributes:
+                a = np.asarray(mesh.face_attributes[key])
+                sharp |= a[adj[:, 0]] != a[adj[:, 1]]
+        sharp_edges = np.sort(np.asarray(mesh.face_adjacency_edges)[sharp], axis=1)
+        if len(sharp_edges):
+            key_all = edges[:, 0] * (len(mesh.vertices) + 1) + edges[:, 1]
+            key_sharp = sharp_edges[:, 0] * (len(mesh.vertices) + 1) + sharp_edges[:, 1]
+            keep |= np.isin(key_all, key_sharp)
+    e = np.unique(edges[keep], axis=0)
+    return np.asarray(mesh.vertices, dtype=float)[e]
+
+
+def plot_resection(
+    image,
+    camera: Camera,
+    markers_xyz,
+    detected_uv,
+    *,
+    mesh: trimesh.Trimesh | None = None,
+    ids=None,
+    residual_scale: float | None = None,
+    title: str | None = None,
+    path: str | os.PathLike | None = None,
+    dpi: int = 100,
+) -> Figure:
+    """The resection check picture (the paper's Figure 20).
+
+    Parameters
+    ----------
+    image : (H, W) array_like
+        The camera image (grey).
+    camera : Camera
+        The solved camera.
+    markers_xyz : (N, 3) array_like
+        Model coordinates of the matched markers.
+    detected_uv : (N, 2) array_like
+        Their detected image positions (pixels; NaN rows: not detected, drawn as
+        reprojection only).
+    mesh : trimesh.Trimesh, optional
+        Model grid; its outline (:func:`outline_edges`) is projected with ``camera``.
+    ids : sequence of str, optional
+        Marker labels written next to the markers.
+    residual_scale : float, optional
+        Magnification of the residual vectors (default: the largest residual is drawn 5 %
+        of the image width long). Written on the picture.
+    title : str, optional
+        Prefix of the title; the RMS residual (pixels) and marker count are always shown.
+    """
+    img = np.asarray(image, dtype=float)
+    H, W = camera.height, camera.width
+    if img.shape != (H, W):
+        raise InputError(f"image: shape {img.shape} does not match the camera image "
+                         f"(H, W) = ({H}, {W})")
+    X = as_points(markers_xyz, 3, "markers_xyz")
+    uv_det = as_points(detected_uv, 2, "detected_uv", allow_nan=True)
+    if len(X) != len(uv_det):
+        raise InputError(f"markers_xyz has {len(X)} rows but detected_uv has {len(uv_det)}")
+    uv_rep = camera.project(X)
+    res = uv_det - uv_rep
+    ok = np.all(np.isfinite(res), axis=1)
+    rms = float(np.sqrt(np.mean(np.sum(res[ok] ** 2, axis=1)))) if ok.any() else np.nan
+    fig_w = max(W / dpi, 8.0)
+    fig = Figure(figsize=(fig_w, fig_w * H / W + 0.6), dpi=dpi, layout="constrained")
+    ax = fig.add_subplot()
+    finite = img[np.isfinite(img)]
+    lo, hi = (np.percentile(finite, [1, 99.5]) if finite.size else (0.0, 1.0))
+    ax.imshow(img, cmap="gray", vmin=lo, vmax=hi if hi > lo else lo + 1,
+              interpolation="nearest")
+    if mesh is not None:
+        seg = outline_edges(mesh)
+        uv = camera.project(seg.reshape(-1, 3)).reshape(-1, 2, 2)
+        uv = uv[np.all(np.isfinite(uv), axis=(1, 2))]
+        ax.add_collection(LineCollection(uv, colors="deepskyblue", linewidths=0.8,
+                                         label="grid outline"))
+    ax.plot(uv_det[ok, 0], uv_det[ok, 1], "o", mfc="none", mec="lime", ms=8,
+            label="detected")
+    ax.plot(uv_rep[:, 0], uv_rep[:, 1], "+", color="red", ms=9, mew=1.2, label="reprojected")
+    if ok.any():
+        mags = np.linalg.norm(res[ok], axis=1)
+        if residual_scale is None:
+            residual_scale = 0.05 * W / max(float(mags.max()), 1e-12)
+        ax.quiver(uv_rep[ok, 0], uv_rep[ok, 1], res[ok, 0] * residual_scale,
+                  res[ok, 1] * residual_scale, angles="xy", scale_units="xy", scale=1,
+                  color="yellow", width=0.003, label="residual")
+        ax.text(0.01, 0.01, f"residual vectors x {residual_scale:.3g}",
+                transform=ax.transAxes, color="yellow", fontsize=9, va="bottom",
+                bbox={"facecolor": "black", "alpha": 0.5, "pad": 2})
+    if ids is not None:
+        for k, name in enumerate(ids):  # labels of a few tens of markers
+            if np.all(np.isfinite(uv_rep[k])):
+                ax.annotate(str(name), uv_rep[k], xytext=(5, -5), textcoords="offset points",
+                            color="white", fontsize=7)
+    ax.set_xlim(-0.5, W - 0.5)
+    ax.set_ylim(H - 0.5, -0.5)
+    ax.set_xticks([])
+    ax.set_yticks([])
+    head = f"{title}: " if title else ""
+    ax.set_title(f"{head}RMS residual {rms:.3f} px ({int(ok.sum())} markers)")
+    ax.legend(loc="upper right", fontsize=8, framealpha=0.6)
+    return _finish(fig, path)
