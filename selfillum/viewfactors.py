@@ -32,6 +32,8 @@ __all__ = ["view_factors", "enforce_reciprocity", "RayScene", "sample_rays"]
 _BLOCK = 512
 #: Ray origins are lifted off their face by this fraction of the mesh size.
 _OFFSET = 1e-6
+#: Random permutations of the strata drawn per block of faces.
+_POOL = 64
 #: Default number of rays in flight per chunk.
 _RAYS_PER_CHUNK = 1 << 20
 
@@ -64,20 +66,25 @@ class RayScene:
 
 
 def _stratified_2d(rng: np.random.Generator, n: int, k: int) -> np.ndarray:
-    """``(n, k, 2)`` points of the unit square: for each row, ``k`` distinct cells of an
-    ``m x m`` grid (``m = ceil(sqrt(k))``) drawn at random, jittered within the cell.
-    Every point is uniformly distributed; with ``k = m^2`` this is the jittered grid."""
+    """``(n, k, 2)`` float32 points of the unit square, stratified per row.
+
+    Each row takes ``k`` distinct cells of an ``m x m`` grid (``m = ceil(sqrt(k))``; all
+    of them, the jittered grid, when ``k = m^2``) in a random order and jitters each point
+    within its cell. The orders are drawn from a pool of random permutations (each row
+    picks one at random), which keeps every point uniformly distributed, the positions and
+    directions of a face decorrelated, and the cost linear in ``n k`` (no sort per row).
+    """
     m = int(np.ceil(np.sqrt(k)))
-    if m * m == k:
-        cells = np.broadcast_to(np.arange(k), (n, k))
-        cells = np.take_along_axis(cells, np.argsort(rng.random((n, k)), axis=1), axis=1)
-    else:
-        cells = np.argsort(rng.random((n, m * m)), axis=1)[:, :k]
-    jitter = rng.random((n, k, 2))
-    out = np.empty((n, k, 2))
-    out[..., 0] = (cells % m + jitter[..., 0]) / m
-    out[..., 1] = (cells // m + jitter[..., 1]) / m
-    return out
+    pool = min(n, _POOL)
+    perms = np.argsort(rng.random((pool, m * m), dtype=np.float32), axis=1)[:, :k]
+    cx = (perms % m).astype(np.float32)
+    cy = (perms // m).astype(np.float32)
+    pick = rng.integers(0, pool, size=n)
+    out = rng.random((n, k, 2), dtype=np.float32)
+    out[..., 0] += cx[pick]
+    out[..., 1] += cy[pick]
+    out *= np.float32(1.0 / m)
+    return np.minimum(out, np.float32(1.0 - 2**-24), out=out)
 
 
 def _tangent_frames(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -98,13 +105,15 @@ def sample_rays(
     rng: np.random.Generator,
     *,
     two_sided: bool = False,
+    offset: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Cosine-distributed rays leaving stratified points of faces.
+    """Cosine-distributed rays leaving stratified points of faces (float32, for Embree).
 
     Parameters
     ----------
     triangles : (n, 3, 3) ndarray
-        Vertices of the faces.
+        Vertices of the faces, in the frame the rays are wanted in (keep it centred on
+        the scene for float32 precision).
     normals : (n, 3) ndarray
         Unit normals (painted side).
     k : int
@@ -113,46 +122,56 @@ def sample_rays(
         Random stream.
     two_sided : bool
         Send half of the rays (at random) out of the back side.
+    offset : float
+        Lift the start points off the face by this distance, on the side the ray leaves
+        (model units), so that a ray does not hit its own face.
 
     Returns
     -------
-    points : (n * k, 3) ndarray
-        Ray start points on the faces (not yet lifted off the face).
-    directions : (n * k, 3) ndarray
+    origins : (n * k, 3) float32 ndarray
+        Ray start points: uniform, stratified points of the faces (lifted by ``offset``).
+    directions : (n * k, 3) float32 ndarray
         Unit directions, cosine-distributed about the (signed) normal.
-    side : (n * k,) ndarray of float
+    side : (n * k,) int8 ndarray
         ``+1`` for rays leaving the painted side, ``-1`` for the back side.
     """
     n = triangles.shape[0]
+    f32 = np.float32
     pos = _stratified_2d(rng, n, k)
     dirs = _stratified_2d(rng, n, k)
-    # uniform point of a triangle from the unit square (area-preserving)
-    sa = np.sqrt(pos[..., 0])
-    b1 = sa * (1.0 - pos[..., 1])
-    b2 = sa * pos[..., 1]
-    v0, e1, e2 = (
-        triangles[:, 0],
-        triangles[:, 1] - triangles[:, 0],
-        triangles[:, 2] - triangles[:, 0],
-    )
-    points = v0[:, None, :] + b1[..., None] * e1[:, None, :] + b2[..., None] * e2[:, None, :]
-    # cosine-weighted hemisphere (Malley's method)
-    r = np.sqrt(dirs[..., 0])
-    phi = 2.0 * np.pi * dirs[..., 1]
-    x, y = r * np.cos(phi), r * np.sin(phi)
-    z = np.sqrt(np.maximum(0.0, 1.0 - dirs[..., 0]))
+    tri = triangles.astype(f32)
+    nrm = normals.astype(f32)
     if two_sided:
         flip = rng.integers(0, 2, size=(n, 1))
-        side = np.where((np.arange(k)[None, :] + flip) % 2 == 0, 1.0, -1.0)
+        side = np.where((np.arange(k)[None, :] + flip) % 2 == 0, 1, -1).astype(np.int8)
     else:
-        side = np.ones((n, k))
+        side = np.ones((n, k), dtype=np.int8)
+    # uniform point of a triangle from the unit square (area-preserving map), as the
+    # weights of [v0, v1 - v0, v2 - v0, offset * normal]: one batched 4x3 product a face
+    sa = np.sqrt(pos[..., 0])
+    w = np.empty((n, k, 4), dtype=f32)
+    w[..., 0] = 1.0
+    w[..., 2] = sa * pos[..., 1]
+    w[..., 1] = sa - w[..., 2]
+    w[..., 3] = side
+    basis = np.empty((n, 4, 3), dtype=f32)
+    basis[:, 0] = tri[:, 0]
+    basis[:, 1] = tri[:, 1] - tri[:, 0]
+    basis[:, 2] = tri[:, 2] - tri[:, 0]
+    basis[:, 3] = f32(offset) * nrm
+    origins = np.matmul(w, basis)
+    # cosine-weighted hemisphere (Malley's method: uniform disk lifted to the hemisphere),
+    # local (x, y, z) times the face frame [t1, t2, n]
+    local = np.empty((n, k, 3), dtype=f32)
+    r = np.sqrt(dirs[..., 0])
+    phi = f32(2.0 * np.pi) * dirs[..., 1]
+    local[..., 0] = r * np.cos(phi)
+    local[..., 1] = r * np.sin(phi)
+    local[..., 2] = np.sqrt(np.maximum(f32(0.0), f32(1.0) - dirs[..., 0])) * side
     t1, t2 = _tangent_frames(normals)
-    directions = (
-        x[..., None] * t1[:, None, :]
-        + y[..., None] * t2[:, None, :]
-        + (side * z)[..., None] * normals[:, None, :]
-    )
-    return points.reshape(-1, 3), directions.reshape(-1, 3), side.reshape(-1)
+    frame = np.stack([t1, t2, normals], axis=1).astype(f32)
+    directions = np.matmul(local, frame)
+    return origins.reshape(-1, 3), directions.reshape(-1, 3), side.reshape(-1)
 
 
 def _chunk_matrix(
@@ -167,30 +186,34 @@ def _chunk_matrix(
     two_sided: bool,
     n_faces: int,
 ) -> sp.csr_matrix:
-    """Rows ``start:stop`` of ``F`` (shape ``(stop - start, n_faces)``)."""
-    parts_o, parts_d, parts_s = [], [], []
+    """Rows ``start:stop`` of ``F`` (shape ``(stop - start, n_faces)``); ``triangles`` in
+    the scene's centred frame."""
+    m = (stop - start) * k
+    origins = np.empty((m, 3), dtype=np.float32)
+    directions = np.empty((m, 3), dtype=np.float32)
     for b0 in range(start, stop, _BLOCK):
         b1 = min(b0 + _BLOCK, stop)
         rng = np.random.default_rng([seed, b0 // _BLOCK])
-        p, d, s = sample_rays(triangles[b0:b1], normals[b0:b1], k, rng, two_sided=two_sided)
-        parts_o.append(p + (offset * s)[:, None] * np.repeat(normals[b0:b1], k, axis=0))
-        parts_d.append(d)
-        parts_s.append(s)
-    origins = np.concatenate(parts_o)
-    directions = np.concatenate(parts_d)
-    hit = scene.first_hit(origins, directions)
-    src = np.repeat(np.arange(start, stop), k)
+        o, d, _ = sample_rays(
+            triangles[b0:b1], normals[b0:b1], k, rng, two_sided=two_sided, offset=offset
+        )
+        sl = slice((b0 - start) * k, (b1 - start) * k)
+        origins[sl] = o
+        directions[sl] = d
+    hit = np.asarray(scene.scene.run(origins, directions))
+    src = np.repeat(np.arange(start, stop, dtype=hit.dtype), k)
     ok = (hit >= 0) & (hit != src)
+    idx = np.flatnonzero(ok)
+    hit = hit[idx]
     if not two_sided:
         # a ray arriving on the back (unpainted) side of a face is absorbed there
-        hn = normals[np.where(ok, hit, 0)]
-        ok &= np.einsum("ij,ij->i", directions, hn) < 0.0
-    rows = src[ok] - start
-    cols = hit[ok]
+        front = np.einsum("ij,ij->i", directions[idx], normals[hit].astype(np.float32)) < 0
+        idx, hit = idx[front], hit[front]
+    rows = idx // k
     data = np.full(rows.size, 1.0 / k)
-    m = sp.csr_matrix((data, (rows, cols)), shape=(stop - start, n_faces))
-    m.sum_duplicates()
-    return m
+    mat = sp.csr_matrix((data, (rows, hit)), shape=(stop - start, n_faces))
+    mat.sum_duplicates()
+    return mat
 
 
 def view_factors(
@@ -258,10 +281,10 @@ def view_factors(
     chunk = max(_BLOCK, (chunk // _BLOCK) * _BLOCK)  # whole random blocks per chunk
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64)
-    triangles = vertices[faces]
     normals = face_normals(mesh)
     n = len(faces)
     scene = RayScene(vertices, faces)
+    triangles = (vertices - scene.origin)[faces]  # the scene's centred frame
     size = float(np.ptp(vertices, axis=0).max())
     offset = _OFFSET * size
 
