@@ -133,7 +133,7 @@ def _zhang(Hs: list[np.ndarray], w: int, h: int) -> np.ndarray | None:
         rows.append(v(0, 0) - v(1, 1))
     rows.append(np.array([0, 1.0, 0, 0, 0, 0]))  # zero skew
     A = np.array(rows)
-    _, s, vt = np.linalg.svd(A)
+    _, s, vt = np.linalg.svd(A, full_matrices=False)
     b = vt[-1]
     if b[0] < 0:
         b = -b
@@ -202,7 +202,7 @@ def _initial_K(views, w, h) -> np.ndarray:
     for X, uv, planar in views:
         if planar:
             c = X.mean(axis=0)
-            _, _, Vt = np.linalg.svd(X - c)
+            _, _, Vt = np.linalg.svd(X - c, full_matrices=False)
             try:
                 Hs.append(fit_homography((X - c) @ Vt[:2].T, uv))
             except InputError:

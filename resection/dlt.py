@@ -130,7 +130,7 @@ def fit_dlt(points3d, points2d) -> np.ndarray:
     A[0::2, 8:12] = -un[:, :1] * Xh
     A[1::2, 4:8] = Xh
     A[1::2, 8:12] = -un[:, 1:] * Xh
-    _, s, vt = np.linalg.svd(A)
+    _, s, vt = np.linalg.svd(A, full_matrices=False)
     if s[-2] < 1e-12 * s[0]:
         raise DegenerateError("DLT: the linear system is singular (degenerate marker layout)")
     Pn = vt[-1].reshape(3, 4)
@@ -268,7 +268,7 @@ def fit_homography(plane_points, points2d) -> np.ndarray:
     A[0::2, 6:9] = -b[:, :1] * ah
     A[1::2, 3:6] = ah
     A[1::2, 6:9] = -b[:, 1:] * ah
-    _, s, vt = np.linalg.svd(A)
+    _, s, vt = np.linalg.svd(A, full_matrices=A.shape[0] < A.shape[1])
     if s[-2] < 1e-10 * s[0]:
         raise DegenerateError("fit_homography: singular system (three or more of four "
                               "points collinear?)")

@@ -467,7 +467,7 @@ def _pose_from_plane(X: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndar
     """Pose of coplanar model points ``X`` from their normalised image coordinates ``xy``
     through the plane's homography (``H ~ [R e1, R e2, R c + t]`` in plane axes)."""
     c = X.mean(axis=0)
-    _, _, Vt = np.linalg.svd(X - c)
+    _, _, Vt = np.linalg.svd(X - c, full_matrices=False)
     E = Vt.T.copy()  # columns e1, e2, normal
     if np.linalg.det(E) < 0:
         E[:, 2] *= -1
