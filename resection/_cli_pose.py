@@ -6,10 +6,12 @@ from __future__ import annotations
 import argparse
 import os
 
+from ._cli_markers import add_detect_options
 from .calibrate import calibrate
 from .camera import Camera
 from .errors import InputError
 from .markerio import link_points, read_markers, read_points, write_residuals
+from .pipeline import image_points
 from .pose import solve_pose
 
 _LOSSES = ("huber", "soft_l1", "cauchy", "arctan")
@@ -27,6 +29,12 @@ def register(sub) -> None:
     p.add_argument("--camera", required=True, help="input camera JSON (intrinsics)")
     p.add_argument("--markers", required=True, help="marker CSV: id,x,y,z[,diameter]")
     p.add_argument("--points", help="linked image points CSV: id,u,v (pixels)")
+    p.add_argument("--image", help="image: detect its markers and match them automatically "
+                   "(approximate pose in --camera) or link them by hand with --links")
+    p.add_argument("--links", help="with --image: linking CSV id,candidate")
+    p.add_argument("--candidates", help="with --links: the candidate CSV it numbers (default: "
+                   "detect on --image)")
+    add_detect_options(p, required_diameter=False)
     p.add_argument("--out", required=True, help="output camera JSON with the solved pose")
     p.add_argument("--residuals", help="also write the residual table (CSV) here")
     p.add_argument("--robust", nargs="?", const="soft_l1", choices=_LOSSES,
@@ -71,6 +79,15 @@ def pose_inputs(args: argparse.Namespace):
     """Camera and linked ``(ids, points3d, points2d)`` of the ``pose`` command (the place
     where other sources of image points plug in)."""
     camera = Camera.read(args.camera)
+    if getattr(args, "image", None):
+        if args.points:
+            raise InputError("give --points or --image, not both")
+        pts = image_points(args.image, read_markers(args.markers), camera,
+                           diameter=args.diameter, polarity=args.polarity,
+                           template=args.template, roi=args.roi, threshold=args.threshold,
+                           enhance=args.enhance, links=args.links, candidates=args.candidates)
+        print(f"image: {len(pts.candidates)} candidates, {len(pts.ids)} markers linked")
+        return camera, pts.ids, pts.points3d, pts.points2d
     if not args.points:
         raise InputError("no image points: give --points POINTS.csv")
     ids, X, uv = _linked(args.markers, args.points)

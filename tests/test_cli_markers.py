@@ -1,0 +1,126 @@
+"""``resection detect / link / match`` and ``resection pose --image``, end to end on a
+synthetic image whose markers sit at the exact projections of a known camera."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from resection.camera import Camera
+from resection.cli import main
+from resection.images import write_image
+from resection.link import read_links
+from resection.markerio import write_markers
+from resection.markers import read_candidates
+from scenes.marker_images import render_markers
+
+K = [[1200.0, 0, 320], [0, 1200.0, 240], [0, 0, 1]]
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    d = tmp_path_factory.mktemp("markers_cli")
+    rng = np.random.default_rng(42)
+    n = 24
+    xyz = np.column_stack([rng.uniform(-0.2, 0.2, n), rng.uniform(-0.14, 0.14, n),
+                           rng.uniform(0.0, 0.05, n)])
+    ids = [f"T{k}" for k in range(n)]
+    true = Camera.look_at([0.05, -0.1, 1.0], [0, 0, 0], [0, 1, 0], K=K, width=640, height=480)
+    uv = true.project(xyz)
+    spurious = np.column_stack([rng.uniform(20, 620, 12), rng.uniform(20, 460, 12)])
+    keep = np.min(np.hypot(*(spurious[:, None] - uv[None]).transpose(2, 0, 1)), axis=1) > 15
+    img = render_markers((480, 640), np.vstack([uv, spurious[keep]]), 6.0, contrast=80,
+                         background=600, blur=0.7, snr=40, rng=1, dtype=np.uint16)
+    write_image(d / "img.tif", img)
+    write_markers(d / "markers.csv", ids, xyz, np.full(n, 0.005))
+    dR = Rotation.from_rotvec([0.004, -0.003, 0.002]).as_matrix()
+    approx = true.with_pose(R=dR @ true.R, t=true.t + [0.003, -0.002, 0.004])
+    approx.write(d / "approx.json")
+    return {"dir": d, "ids": ids, "xyz": xyz, "uv": uv, "true": true}
+
+
+def _run(args, capsys):
+    rc = main([str(a) for a in args])
+    out = capsys.readouterr()
+    return rc, out.out, out.err
+
+
+def test_detect_match_link_pose(scene, capsys):
+    d = scene["dir"]
+    rc, out, _ = _run(["detect", d / "img.tif", "--diameter", 6, "-o", d / "c.csv"], capsys)
+    assert rc == 0 and "candidates" in out
+    cand, ids = read_candidates(d / "c.csv")
+    assert ids is None and len(cand) >= len(scene["uv"])
+    # every true marker found within 0.05 px
+    dist = np.min(np.hypot(*(cand.uv[:, None] - scene["uv"][None]).transpose(2, 0, 1)), axis=0)
+    assert dist.max() < 0.05
+
+    rc, out, _ = _run(["match", "--candidates", d / "c.csv", "--markers", d / "markers.csv",
+                       "--camera", d / "approx.json", "-o", d / "m.csv", "--pose",
+                       d / "pose.json"], capsys)
+    assert rc == 0, out
+    m, mids = read_candidates(d / "m.csv")
+    assert len(mids) == len(scene["ids"])
+    truth = dict(zip(scene["ids"], scene["uv"], strict=True))
+    assert all(np.hypot(*(p - truth[k])) < 0.05 for k, p in zip(mids, m.uv, strict=True))
+    cam = Camera.read(d / "pose.json")
+    assert np.abs(cam.project(scene["xyz"]) - scene["uv"]).max() < 0.05
+
+    # match against the previous frame
+    rc, out, _ = _run(["match", "--candidates", d / "c.csv", "--markers", d / "markers.csv",
+                       "--reference", d / "m.csv", "-o", d / "m2.csv"], capsys)
+    assert rc == 0
+    assert read_candidates(d / "m2.csv")[1] == mids
+
+    # linking by hand: drawing, suggestion, reading
+    rc, out, _ = _run(["link", d / "img.tif", "--candidates", d / "c.csv", "--camera",
+                       d / "approx.json", "--markers", d / "markers.csv", "--png",
+                       d / "link.png", "--suggest", d / "links.csv"], capsys)
+    assert rc == 0
+    import imageio.v3 as iio
+
+    png = iio.imread(d / "link.png")
+    assert png.shape[0] >= 480 and png.shape[1] >= 640
+    lids, luv, _ = read_links(d / "links.csv", cand)
+    assert set(lids) == set(scene["ids"])
+    assert all(np.hypot(*(p - truth[k])) < 0.05 for k, p in zip(lids, luv, strict=True))
+    rc, out, _ = _run(["link", d / "img.tif", "--candidates", d / "c.csv", "--links",
+                       d / "links.csv", "-o", d / "linked.csv"], capsys)
+    assert rc == 0 and "thrown away" in out
+    linked, lk = read_candidates(d / "linked.csv")
+    assert len(lk) == len(scene["ids"]) < len(cand)
+
+    # pose straight from the image: automatic matching, then from the linking file
+    for extra in ([], ["--links", d / "links.csv", "--candidates", d / "c.csv"]):
+        rc, out, err = _run(["pose", "--camera", d / "approx.json", "--markers",
+                             d / "markers.csv", "--image", d / "img.tif", "--out",
+                             d / "p.json", *extra], capsys)
+        assert rc == 0, err
+        cam = Camera.read(d / "p.json")
+        assert np.abs(cam.project(scene["xyz"]) - scene["uv"]).max() < 0.05
+
+
+def test_cli_errors(scene, capsys):
+    d = scene["dir"]
+    rc, _, err = _run(["detect", d / "none.tif", "--diameter", 6, "-o", d / "x.csv"], capsys)
+    assert rc == 2 and "none.tif" in err
+    rc, _, err = _run(["detect", d / "img.tif", "--diameter", -6, "-o", d / "x.csv"], capsys)
+    assert rc == 2 and "diameter" in err
+    rc, _, err = _run(["match", "--candidates", d / "c.csv", "--markers", d / "markers.csv",
+                       "-o", d / "x.csv"], capsys)
+    assert rc == 2 and "--camera" in err
+    bad = d / "bad_links.csv"
+    bad.write_text("id,candidate\nT0,99999\n")
+    rc, _, err = _run(["link", d / "img.tif", "--candidates", d / "c.csv", "--links", bad,
+                       "-o", d / "x.csv"], capsys)
+    assert rc == 2 and "99999" in err
+    bad.write_text("id,candidate\nT0,1\nT0,2\n")
+    rc, _, err = _run(["link", d / "img.tif", "--candidates", d / "c.csv", "--links", bad,
+                       "-o", d / "x.csv"], capsys)
+    assert rc == 2 and "twice" in err
+    # spurious-only candidates: matching refuses, pose --image refuses
+    (d / "junk.csv").write_text("u,v\n10,10\n200,30\n400,400\n100,300\n")
+    rc, _, err = _run(["match", "--candidates", d / "junk.csv", "--markers", d / "markers.csv",
+                       "--camera", d / "approx.json", "-o", d / "x.csv"], capsys)
+    assert rc == 2 and "match_markers" in err
