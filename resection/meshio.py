@@ -44,6 +44,7 @@ __all__ = [
     "read_cart3d_tri",
     "write_cart3d_tri",
     "write_surface",
+    "read_face_fields",
 ]
 
 PLOT3D_SUFFIXES = (".xyz", ".x", ".p3d", ".g", ".grd", ".fmt", ".p3dfmt", ".plot3d")
@@ -772,3 +773,57 @@ def _write_csv(path, mesh, cols):
         for _, a in cols
     ]
     np.savetxt(path, table, fmt=fmt, delimiter=",", header=",".join(names), comments="")
+
+
+def read_face_fields(path: str | os.PathLike, n_faces: int | None = None) -> dict:
+    """Per-face fields from a file written by :func:`write_surface` (.ply, .csv) or a
+    ``.npy`` array (one value per face, returned under the name ``"values"``).
+
+    Parameters
+    ----------
+    n_faces : int, optional
+        Check that every field has this many values.
+
+    Returns
+    -------
+    dict of name -> (F,) float64 (CSV: every column but ``face, cx, cy, cz``).
+    """
+    path = Path(os.fspath(path))
+    if not path.exists():
+        raise InputError(f"face field file not found: {path}")
+    suffix = path.suffix.lower()
+    if suffix == ".npy":
+        try:
+            arr = np.load(path, allow_pickle=False)
+        except ValueError as exc:
+            raise InputError(f"{path}: not a numeric .npy array ({exc})") from None
+        if arr.ndim != 1:
+            raise InputError(f"{path}: expected one value per face (1-D), got shape {arr.shape}")
+        fields = {"values": arr.astype(np.float64)}
+    elif suffix == ".csv":
+        with open(path, encoding="utf-8") as fh:
+            header = fh.readline().strip().split(",")
+        if header[:1] != ["face"]:
+            raise InputError(f"{path}: expected a CSV whose first column is 'face'")
+        try:
+            table = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+        except ValueError as exc:
+            raise InputError(f"{path}: non-numeric entry ({exc})") from None
+        if table.shape[1] != len(header):
+            raise InputError(f"{path}: {table.shape[1]} columns but {len(header)} names")
+        order = np.argsort(table[:, 0], kind="stable")
+        fields = {name: table[order, k] for k, name in enumerate(header)
+                  if name not in ("face", "cx", "cy", "cz")}
+    elif suffix == ".ply":
+        mesh = _load_trimesh(path, None)
+        fields = {k: np.asarray(v, dtype=np.float64) for k, v in mesh.face_attributes.items()
+                  if np.asarray(v).ndim == 1}
+    else:
+        raise InputError(f"{path}: unknown face field format {suffix!r} (use .csv, .ply, .npy)")
+    if n_faces is not None:
+        for name, v in fields.items():
+            if len(v) != n_faces:
+                raise InputError(
+                    f"{path}: field {name!r} has {len(v)} values but the mesh has {n_faces} faces"
+                )
+    return fields

@@ -1,0 +1,161 @@
+"""``resection map``, ``backproject``, ``align`` and ``view``: argument parsing only; the
+work is in :mod:`resection.surface`, :mod:`resection.align`, :mod:`resection.meshio` and
+:mod:`resection.plots`."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from .align import ViewWarp
+from .camera import Camera
+from .errors import InputError
+from .images import read_image, write_image
+from .meshio import load_mesh, read_face_fields, write_surface
+from .plots import plot_surface, virtual_camera
+from .surface import SurfaceMap
+
+
+def register(sub) -> None:
+    """Add the image <-> surface sub-commands to an argparse sub-parser set."""
+    m = sub.add_parser(
+        "map",
+        help="camera image(s) -> per-face surface fields (PLY/VTK/CSV)",
+        description="Average every image's pixels onto the model faces they see (one Embree "
+        "ray per pixel) and write, per image, the mean (field named after the image file), "
+        "the pixel count (<name>_count) and whether the face was seen (<name>_seen).",
+    )
+    m.add_argument("--mesh", required=True, help="model grid (STL/OBJ/PLY/GLB/OFF, Plot3D, "
+                   "Cart3D .tri)")
+    m.add_argument("--camera", required=True, help="camera JSON with the solved pose")
+    m.add_argument("--image", required=True, nargs="+", help="image(s) of that camera")
+    m.add_argument("--out", required=True, help="surface file: .ply, .vtk or .csv")
+    m.add_argument("--max-obliqueness", type=float, default=None, metavar="DEG",
+                   help="ignore pixels seeing a face more obliquely than this (degrees)")
+    m.set_defaults(func=run_map)
+
+    b = sub.add_parser(
+        "backproject",
+        help="per-face values -> camera image",
+        description="Render per-face values into a camera's image, interpolated within "
+        "faces; pixels off the model keep the background (NaN, a value or an image).",
+    )
+    b.add_argument("--mesh", required=True)
+    b.add_argument("--camera", required=True)
+    b.add_argument("--values", required=True, help="per-face values: .csv/.ply written by "
+                   "'map' or any .npy with one value per face")
+    b.add_argument("--field", help="field name in --values (default: the only/first field)")
+    b.add_argument("--background", help="image or number for pixels off the model")
+    b.add_argument("--interpolation", choices=("linear", "mean", "nearest"), default="linear")
+    b.add_argument("--out", required=True, help="output image (.tif, .npy; .png if integer)")
+    b.set_defaults(func=run_backproject)
+
+    a = sub.add_parser(
+        "align",
+        help="warp an image of one camera into another camera's view through the model",
+        description="For every pixel of the target camera: its model surface point, "
+        "projected with the source camera, sampled in the source image (wind-on onto "
+        "wind-off).",
+    )
+    a.add_argument("--mesh", required=True)
+    a.add_argument("--source-camera", required=True, help="camera JSON of --image")
+    a.add_argument("--target-camera", required=True, help="camera JSON of the output view")
+    a.add_argument("--image", required=True)
+    a.add_argument("--order", type=int, default=1, help="interpolation order (1 bilinear)")
+    a.add_argument("--out", required=True, help="output image (.tif or .npy)")
+    a.set_defaults(func=run_align)
+
+    v = sub.add_parser(
+        "view",
+        help="picture of per-face data from any Point of View with a colour bar",
+        description="Render per-face data through a camera JSON or a virtual camera "
+        "(--azimuth/--elevation) with a colour map and a colour bar; writes a PNG.",
+    )
+    v.add_argument("--mesh", required=True)
+    v.add_argument("--values", required=True, help="per-face values (.csv/.ply/.npy)")
+    v.add_argument("--field", help="field name in --values")
+    v.add_argument("--camera", help="camera JSON (default: a virtual camera)")
+    v.add_argument("--azimuth", type=float, default=30.0, help="virtual camera, degrees")
+    v.add_argument("--elevation", type=float, default=30.0, help="virtual camera, degrees")
+    v.add_argument("--size", default="800x600", metavar="WxH", help="virtual camera image")
+    v.add_argument("--method", choices=("raster", "polygons"), default="raster")
+    v.add_argument("--cmap", default="viridis")
+    v.add_argument("--vmin", type=float)
+    v.add_argument("--vmax", type=float)
+    v.add_argument("--label", default=None, help="colour bar label (default: field name)")
+    v.add_argument("--out", required=True, help="PNG file")
+    v.set_defaults(func=run_view)
+
+
+def _field(path: str, name: str | None, n_faces: int) -> tuple[str, np.ndarray]:
+    fields = read_face_fields(path, n_faces)
+    if not fields:
+        raise InputError(f"{path}: holds no per-face field")
+    if name is None:
+        name = next(iter(fields))
+    if name not in fields:
+        raise InputError(f"{path}: no field {name!r}; fields: {', '.join(fields)}")
+    return name, fields[name]
+
+
+def run_map(args: argparse.Namespace) -> int:
+    mesh = load_mesh(args.mesh)
+    camera = Camera.read(args.camera)
+    smap = SurfaceMap(mesh, camera, max_obliqueness_deg=args.max_obliqueness)
+    fields = {}
+    for path in args.image:
+        name = Path(path).stem
+        res = smap.to_surface(read_image(path))
+        fields[name] = res.values
+        fields[f"{name}_count"] = res.counts
+        fields[f"{name}_seen"] = ~res.unseen
+    write_surface(args.out, mesh, fields)
+    print(f"map: {int(smap.seen_faces.sum())} of {len(mesh.faces)} faces seen by "
+          f"{int(smap.mask.sum())} pixels; written to {args.out}")
+    return 0
+
+
+def run_backproject(args: argparse.Namespace) -> int:
+    mesh = load_mesh(args.mesh)
+    camera = Camera.read(args.camera)
+    _, values = _field(args.values, args.field, len(mesh.faces))
+    background = None
+    if args.background is not None:
+        try:
+            background = float(args.background)
+        except ValueError:
+            background = read_image(args.background)
+    img = SurfaceMap(mesh, camera).to_image(values, background=background,
+                                            interpolation=args.interpolation)
+    write_image(args.out, img.astype(np.float32))
+    print(f"backproject: image written to {args.out}")
+    return 0
+
+
+def run_align(args: argparse.Namespace) -> int:
+    mesh = load_mesh(args.mesh)
+    warp = ViewWarp(mesh, Camera.read(args.source_camera), Camera.read(args.target_camera))
+    out = warp(read_image(args.image), order=args.order)
+    write_image(args.out, out.astype(np.float32))
+    print(f"align: {int(warp.valid.sum())} pixels aligned; written to {args.out}")
+    return 0
+
+
+def run_view(args: argparse.Namespace) -> int:
+    mesh = load_mesh(args.mesh)
+    name, values = _field(args.values, args.field, len(mesh.faces))
+    if args.camera:
+        camera = Camera.read(args.camera)
+    else:
+        try:
+            w, h = (int(x) for x in args.size.lower().split("x"))
+        except ValueError:
+            raise InputError(f"--size: expected WxH, got {args.size!r}") from None
+        camera = virtual_camera(mesh, args.azimuth, args.elevation, width=w, height=h)
+    plot_surface(mesh, values, camera, method=args.method, cmap=args.cmap, vmin=args.vmin,
+                 vmax=args.vmax, label=name if args.label is None else args.label,
+                 path=args.out)
+    print(f"view: {args.out}")
+    return 0
