@@ -158,6 +158,7 @@ class _Setup:
     match_kw: dict
     pose_kw: dict
     min_markers: int
+    roi_margin: float | None = None
 
 
 def _load_image(frame) -> np.ndarray:
@@ -176,10 +177,35 @@ def _frame_name(frame) -> str:
     return "" if isinstance(frame, np.ndarray) else os.fspath(frame)
 
 
-def _detect(img: np.ndarray, setup: _Setup):
+def _search_roi(setup: _Setup, reference: FrameResult | None, shape) -> tuple | None:
+    """Bounding box ``(u_min, v_min, u_max, v_max)`` of all the markers projected with the
+    reference pose (or the approximate camera), widened by ``roi_margin`` pixels: markers
+    cannot be elsewhere, and detection costs grow with the searched area. None: search the
+    whole image."""
+    if setup.roi_margin is None or "roi" in setup.detect_kw:
+        return None
+    cam = setup.camera if reference is None else reference.camera(setup.camera)
+    uv = cam.project(setup.points3d)
+    uv = uv[np.isfinite(uv).all(axis=1)]
+    if len(uv) == 0:
+        return None
+    m = float(setup.roi_margin)
+    H, W = shape
+    u0, v0 = np.floor(uv.min(axis=0) - m)
+    u1, v1 = np.ceil(uv.max(axis=0) + m)
+    u0, v0, u1, v1 = max(int(u0), 0), max(int(v0), 0), min(int(u1), W - 1), min(int(v1), H - 1)
+    if u1 - u0 < 2 * m or v1 - v0 < 2 * m:  # markers predicted (nearly) off the image
+        return None
+    return (u0, v0, u1, v1)
+
+
+def _detect(img: np.ndarray, setup: _Setup, roi=None):
     from .markers import detect_markers
 
-    return detect_markers(img, setup.diameter, polarity=setup.polarity, **setup.detect_kw)
+    kw = dict(setup.detect_kw)
+    if roi is not None:
+        kw["roi"] = roi
+    return detect_markers(img, setup.diameter, polarity=setup.polarity, **kw)
 
 
 def _match(candidates, setup: _Setup, reference: FrameResult | None):
@@ -228,7 +254,7 @@ def _process_frame(frame_data, index: int, setup: _Setup,
                              f"{setup.camera.width}x{setup.camera.height}")
         if not np.isfinite(img).any():
             raise InputError("image has no finite pixel (all NaN or infinite)")
-        cands = _detect(img, setup)
+        cands = _detect(img, setup, _search_roi(setup, reference, img.shape))
         if len(cands) < setup.min_markers:
             raise SolveError(f"only {len(cands)} marker candidates detected")
         ids, uv, pose = _match(cands, setup, reference)
@@ -599,7 +625,7 @@ def _settings(setup: _Setup, link: dict | None, fixed_camera: bool, chunk_size: 
         "markers": {"ids": setup.ids.tolist(), "points": setup.points3d.tolist()},
         "diameter": setup.diameter, "polarity": setup.polarity,
         "detect_kw": setup.detect_kw, "match_kw": setup.match_kw, "pose_kw": setup.pose_kw,
-        "min_markers": setup.min_markers,
+        "min_markers": setup.min_markers, "roi_margin": setup.roi_margin,
         "link": None if link is None else {k: link[k] for k in sorted(link)},
         "fixed_camera": bool(fixed_camera), "chunk_size": int(chunk_size),
     })
@@ -651,6 +677,7 @@ def track(
     progress: bool = True,
     chunk_size: int = 20,
     min_markers: int = 4,
+    roi_margin: float | None = 40.0,
     detect_kw: dict | None = None,
     match_kw: dict | None = None,
     pose_kw: dict | None = None,
@@ -690,6 +717,10 @@ def track(
         Consecutive frames per task.
     min_markers : int
         Frames with fewer matched markers fail.
+    roi_margin : float or None
+        Detect only inside the bounding box of the markers projected with the reference
+        pose, widened by this many pixels (more than the motion from the reference frame
+        plus a marker diameter); None searches the whole image.
     detect_kw, match_kw, pose_kw : dict, optional
         Extra arguments of ``detect_markers``, ``match_markers`` and ``solve_pose``.
 
@@ -725,6 +756,8 @@ def track(
         raise InputError(f"chunk_size: must be >= 1, got {chunk_size}")
     if int(min_markers) < 3:
         raise InputError(f"min_markers: must be >= 3, got {min_markers}")
+    if roi_margin is not None and not (np.isfinite(roi_margin) and roi_margin > 0):
+        raise InputError(f"roi_margin: must be positive or None, got {roi_margin!r}")
     for i, f in enumerate(frames):
         if not isinstance(f, (str, os.PathLike, np.ndarray)):
             raise InputError(f"frames[{i}]: expected a path or a 2-D array, got "
@@ -733,7 +766,8 @@ def track(
     link_d = _as_link(link)
     setup = _Setup(camera=camera, ids=ids, points3d=pts, diameter=d, polarity=polarity,
                    detect_kw=dict(detect_kw or {}), match_kw=dict(match_kw or {}),
-                   pose_kw=dict(pose_kw or {}), min_markers=int(min_markers))
+                   pose_kw=dict(pose_kw or {}), min_markers=int(min_markers),
+                   roi_margin=None if roi_margin is None else float(roi_margin))
     chunk_size = int(chunk_size)
 
     out = Path(out_dir)

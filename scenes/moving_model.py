@@ -221,7 +221,7 @@ def write_sequence(
     fmt : {"npy", "tif", "png"}
         Frame file format (PNG rounds to 16-bit integers).
     approximate_camera : bool
-        Write a camera whose pose is perturbed (about 1 degree, 1 cm) from the frame-0 truth,
+        Write a camera whose pose is perturbed (about 0.5 degree, 1 cm) from the frame-0 truth,
         as a user's approximate camera would be; otherwise the exact frame-0 camera.
 
     Returns
@@ -249,8 +249,8 @@ def write_sequence(
     if approximate_camera:
         from scipy.spatial.transform import Rotation
 
-        dR = Rotation.from_rotvec(np.radians([0.6, -0.8, 0.5])).as_matrix()
-        cam = cam.with_pose(R=dR @ cam.R, t=cam.t + np.array([0.01, -0.008, 0.012]))
+        dR = Rotation.from_rotvec(np.radians([0.3, -0.4, 0.25])).as_matrix()
+        cam = cam.with_pose(R=dR @ cam.R, t=cam.t + np.array([0.005, -0.004, 0.006]))
     cam_path = out / "camera.json"
     cam.write(cam_path)
     m_path = out / "markers.csv"

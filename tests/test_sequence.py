@@ -119,11 +119,11 @@ def test_interrupt_and_resume(run60, tmp_path, monkeypatch):
     calls = {"n": 0}
     detect = seq._detect
 
-    def interrupted(img, setup):
+    def interrupted(img, setup, roi=None):
         calls["n"] += 1
         if calls["n"] == 12:
             raise KeyboardInterrupt
-        return detect(img, setup)
+        return detect(img, setup, roi)
 
     monkeypatch.setattr(seq, "_detect", interrupted)
     with pytest.raises(KeyboardInterrupt):
