@@ -231,16 +231,18 @@ def _bitmap(mi, values: np.ndarray, tw: int, th: int) -> dict:
     }
 
 
-def _mitsuba_mesh(mi, mesh: trimesh.Trimesh, emission: np.ndarray, reflectance: np.ndarray):
+def _mitsuba_mesh(mi, mesh: trimesh.Trimesh, emission: np.ndarray, reflectance: np.ndarray,
+                  paint=None):
     """``mi.Mesh`` with unshared vertices, one texel per face for emitter and BSDF."""
     faces = np.asarray(mesh.faces, dtype=np.int64)
     n = len(faces)
     positions = np.asarray(mesh.vertices, dtype=np.float64)[faces].reshape(-1, 3)
     tw, th, uv = _texel_layout(n)
     props = mi.Properties()
-    props["bsdf"] = mi.load_dict(
-        {"type": "diffuse", "reflectance": _bitmap(mi, reflectance, tw, th)}
-    )
+    texture = _bitmap(mi, reflectance, tw, th)
+    bsdf = {"type": "diffuse", "reflectance": texture} if paint is None else \
+        paint.mitsuba_bsdf(texture)
+    props["bsdf"] = mi.load_dict(bsdf)
     if np.any(emission > 0):
         props["emitter"] = mi.load_dict(
             {"type": "area", "radiance": _bitmap(mi, emission / math.pi, tw, th)}
@@ -294,7 +296,7 @@ def _sensor(mi, camera: Camera, mesh: trimesh.Trimesh, spp: int) -> dict:
 
 
 def mitsuba_scene(mesh, emission, reflectance, camera, *, bounces: int = -1, spp: int = 16,
-                  variant: str | None = None):
+                  variant: str | None = None, paint=None):
     """The Mitsuba scene :func:`render` renders (for inspection or custom rendering).
 
     The camera must be a pinhole with square pixels and no skew or distortion (the warp
@@ -305,10 +307,20 @@ def mitsuba_scene(mesh, emission, reflectance, camera, *, bounces: int = -1, spp
     mi.set_variant(choose_variant(variant))
     e, r = _check_inputs(mesh, emission, reflectance)
     camera = _check_camera(camera)
-    return _load_scene(mi, mesh, e, r, camera, _check_bounces(bounces), int(spp))
+    return _load_scene(mi, mesh, e, r, camera, _check_bounces(bounces), int(spp),
+                       _check_paint(paint))
 
 
-def _load_scene(mi, mesh, e, r, camera, bounces, spp):
+def _check_paint(paint):
+    from .brdf import GlossyPaint
+
+    if paint is not None and not isinstance(paint, GlossyPaint):
+        raise InputError(f"render: paint must be a selfillum.brdf.GlossyPaint or None, got "
+                         f"{type(paint).__name__}")
+    return paint
+
+
+def _load_scene(mi, mesh, e, r, camera, bounces, spp, paint=None):
     K = camera.K
     if K[0, 1] != 0 or K[0, 0] != K[1, 1] or np.any(camera.dist):
         raise InputError("mitsuba_scene: the camera must have fx == fy, no skew and no "
@@ -317,7 +329,7 @@ def _load_scene(mi, mesh, e, r, camera, bounces, spp):
         "type": "scene",
         "integrator": {"type": "path", "max_depth": bounces, "hide_emitters": False},
         "sensor": _sensor(mi, camera, mesh, spp),
-        "model": _mitsuba_mesh(mi, mesh, e, r),
+        "model": _mitsuba_mesh(mi, mesh, e, r, paint),
     })
 
 
@@ -339,7 +351,7 @@ def _multijitter_count(spp: int) -> int:
     return w * math.ceil(spp / w)
 
 
-def _render_pinhole(mi, mesh, e, r, camera, bounces, spp, seed):
+def _render_pinhole(mi, mesh, e, r, camera, bounces, spp, seed, paint=None):
     """Render with a square-pixel pinhole camera; several passes when ``W H spp`` is too
     many samples to trace at once. Returns float64 ``(H, W)`` radiance and the spp used."""
     lanes = camera.width * camera.height
@@ -348,7 +360,7 @@ def _render_pinhole(mi, mesh, e, r, camera, bounces, spp, seed):
     per_pass = max(1, min(spp, limit))
     passes = math.ceil(spp / per_pass)
     per_pass = _multijitter_count(math.ceil(spp / passes))
-    scene = _load_scene(mi, mesh, e, r, camera, bounces, per_pass)
+    scene = _load_scene(mi, mesh, e, r, camera, bounces, per_pass, paint)
     acc = np.zeros((camera.height, camera.width))
     for i in range(passes):
         img = np.asarray(mi.render(scene, spp=per_pass, seed=seed + i), dtype=np.float64)
@@ -406,6 +418,7 @@ def render(
     seed: int = 0,
     variant: str | None = None,
     oversample: int = 2,
+    paint=None,
 ) -> RenderResult:
     """Render the radiance image of a painted mesh seen by a camera, with Mitsuba 3.
 
@@ -434,6 +447,10 @@ def render(
     oversample : int
         Canvas refinement used only when the camera has distortion, skew or
         ``fx != fy`` (see the module notes).
+    paint : selfillum.brdf.GlossyPaint, optional
+        Glossy paint (diffuse base of reflectance ``reflectance`` plus a GGX lobe,
+        Mitsuba's ``blendbsdf`` of ``diffuse`` and ``roughconductor``); default Lambertian.
+        The emission stays Lambertian.
 
     Returns
     -------
@@ -451,6 +468,7 @@ def render(
     e, r = _check_inputs(mesh, emission, reflectance)
     camera = _check_camera(camera)
     b = _check_bounces(bounces)
+    paint = _check_paint(paint)
     try:
         spp_i, seed_i, over = int(spp), int(seed), int(oversample)
     except (TypeError, ValueError):
@@ -468,22 +486,22 @@ def render(
     try:
         K = camera.K
         if K[0, 1] == 0 and K[0, 0] == K[1, 1] and not np.any(camera.dist):
-            img, used = _render_pinhole(mi, mesh, e, r, camera, b, spp_i, seed_i)
+            img, used = _render_pinhole(mi, mesh, e, r, camera, b, spp_i, seed_i, paint)
         else:
-            img, used = _render_warped(mi, mesh, e, r, camera, b, spp_i, seed_i, over)
+            img, used = _render_warped(mi, mesh, e, r, camera, b, spp_i, seed_i, over, paint)
     finally:
         if previous is not None and previous != name:
             mi.set_variant(previous)
     return RenderResult(img.astype(np.float32), name, int(used), b, seed_i)
 
 
-def _render_warped(mi, mesh, e, r, camera, bounces, spp, seed, over):
+def _render_warped(mi, mesh, e, r, camera, bounces, spp, seed, over, paint=None):
     from scipy.ndimage import map_coordinates
 
     canvas, coords = _canvas_for(camera, over)
     # each output pixel averages over*over canvas samples: keep its sample count ~ spp
     spp_canvas = max(1, math.ceil(spp / (over * over)))
-    pin, used = _render_pinhole(mi, mesh, e, r, canvas, bounces, spp_canvas, seed)
+    pin, used = _render_pinhole(mi, mesh, e, r, canvas, bounces, spp_canvas, seed, paint)
     valid = np.all(np.isfinite(coords), axis=0)
     c = np.where(valid, coords, -10.0)
     samples = map_coordinates(pin, c.reshape(2, -1), order=1, mode="constant", cval=0.0)
