@@ -18,22 +18,26 @@ where ``L_ji`` is the radiance leaving face ``j`` towards ``i`` and ``T`` is a s
 matrix with the pattern of the form factors ``F``: ``T_ij = (pi / K) sum_k f_i(w_k,
 v_i)`` over the ``K`` cosine-distributed rays from face ``i`` whose first hit is face
 ``j`` (``v_i`` the direction from face ``i`` to the camera), an unbiased estimate of
-``integral f cos dw`` over the solid angle of ``j``. :func:`transport_matrix` builds it
-with Embree.
+``integral f cos dw`` over the solid angle of ``j``. Optionally ``T2`` carries the light
+along two reflections (at ``j`` towards ``i``, then at ``i`` towards the camera), from
+``M`` secondary rays at each hit point. :func:`transport_matrix` builds both with Embree.
 
-Which orders are exact (in expectation over the rays):
+Which interreflection orders are exact (unbiased, up to the ray-sampling noise and the
+viewing direction taken at the face centroid) and which approximated:
 
-* emission (order 0) and the *first* interreflection (light emitted by ``j``, reflected
-  by ``i`` into the camera): ``L_ji = E_j / pi`` exactly, the paint emits diffusely;
-* the last reflection of every higher order, towards the camera, uses the full BRDF.
+* order 0 (emission) and order 1 (light emitted by ``j``, reflected by ``i`` into the
+  camera) are exact: the paint emits diffusely, so ``L_ji = E_j / pi``;
+* with ``T2``, order 2 is exact too;
+* the remaining orders (2 and up with ``T`` only, 3 and up with ``T2``) take the light
+  *leaving* the intermediate faces as Lambertian: ``L_kj = B_k / pi`` with ``B`` from the
+  Lambertian system ``(I - diag(a) F) B = E`` whose reflectance is the paint's
+  bihemispherical albedo ``a = (1 - w) rho + w A_ggx`` (energy-conserving,
+  direction-averaged). The last reflection, into the camera, always uses the full BRDF.
 
-What is approximated: the light reaching ``j`` from the other faces and re-emitted by
-``j`` towards ``i`` (second and higher orders) is taken as Lambertian,
-``L_ji = B_j / pi`` with ``B`` from the Lambertian system ``(I - diag(a) F) B = E`` whose
-reflectance is the paint's *bihemispherical albedo* ``a = (1 - w) rho + w A_ggx``
-(energy-conserving, direction-averaged). The error is that of the angular shape of the
-higher orders only (about 0.2 % of the signal on the corner with 30 % self-illumination,
-see tests/test_brdf.py).
+On the corner (about 35 % self-illumination, ``w = 0.4``, ``alpha = 0.3``) the all-bounce
+Mitsuba render agrees per face within 1.6 % (95th percentile) with ``T`` and ``T2``,
+4.3 % with ``T`` only, while a Lambertian model is 5 to 17 % off (tests/test_brdf.py).
+Cost: ``N K`` rays for ``T``, ``N K M`` more for ``T2``.
 """
 
 from __future__ import annotations
