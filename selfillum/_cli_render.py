@@ -57,15 +57,23 @@ def _cmd_render(args) -> int:
     camera = Camera.read(args.camera)
     emission = _per_face_arg(args.emission, "--emission")
     reflectance = _per_face_arg(args.reflectance, "--reflectance")
+    paint = None
+    if args.specular_weight > 0:
+        from .brdf import GlossyPaint
+
+        paint = GlossyPaint(args.specular_weight, args.roughness)
     t0 = time.perf_counter()
     res = render(mesh, emission, reflectance, camera, bounces=args.bounces, spp=args.spp,
-                 seed=args.seed, variant=args.variant)
+                 seed=args.seed, variant=args.variant, paint=paint)
     seconds = time.perf_counter() - t0
     write_image(out, res.image)
     png = out.with_suffix(".png")
     write_image(png, preview(res.image))
     print(f"variant   {res.variant}")
     print(f"image     {camera.width} x {camera.height}, {res.spp} spp, bounces {res.bounces}")
+    if paint is not None:
+        print(f"paint     glossy, specular weight {paint.specular_weight:g}, "
+              f"GGX alpha {paint.roughness:g}")
     print(f"time      {seconds:.2f} s")
     print(f"wrote {out}")
     print(f"wrote {png}")
@@ -115,5 +123,10 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="sampler seed (default 0)")
     p.add_argument("--variant", default="auto", choices=("auto", "cuda", "llvm", "scalar"),
                    help="Mitsuba variant (default auto: cuda, else llvm, else scalar)")
+    p.add_argument("--specular-weight", type=float, default=0.0,
+                   help="glossy paint: share w of a GGX specular lobe in [0, 1) (default 0: "
+                   "Lambertian); the reflectance is then that of the diffuse base")
+    p.add_argument("--roughness", type=float, default=0.3,
+                   help="glossy paint: GGX alpha in [0.2, 1] (default 0.3)")
     p.add_argument("--out", required=True, help="output image, .tif or .npy")
     p.set_defaults(func=_cmd_render)

@@ -400,6 +400,22 @@ def test_cli_render_writes_image_and_preview(tmp_path, capsys):
     png = read_image(out.with_suffix(".png"))
     assert png.shape == (72, 96) and png.max() == 255 and png.min() == 0
 
+    # glossy paint: brighter than Lambertian at the same diffuse reflectance
+    rc = main(["render", "--mesh", str(tmp_path / "corner.ply"), "--camera",
+               str(tmp_path / "cam.json"), "--emission", "1", "--reflectance", "0.3",
+               "--specular-weight", "0.5", "--roughness", "0.4", "--bounces", "2",
+               "--spp", "16", "--variant", "scalar", "--out", str(tmp_path / "g.npy")])
+    assert rc == 0 and "GGX alpha 0.4" in capsys.readouterr().out
+    rc = main(["render", "--mesh", str(tmp_path / "corner.ply"), "--camera",
+               str(tmp_path / "cam.json"), "--emission", "1", "--reflectance", "0.3",
+               "--bounces", "2", "--spp", "16", "--variant", "scalar",
+               "--out", str(tmp_path / "d.npy")])
+    assert rc == 0
+    capsys.readouterr()
+    glossy, diffuse = np.load(tmp_path / "g.npy"), np.load(tmp_path / "d.npy")
+    seen = diffuse > 0
+    assert glossy[seen].mean() > diffuse[seen].mean() * 1.01
+
     rc = main(["render", "--mesh", str(tmp_path / "corner.ply"), "--camera",
                str(tmp_path / "cam.json"), "--emission", "1", "--reflectance", "1.5",
                "--out", str(tmp_path / "bad.npy")])
