@@ -266,7 +266,9 @@ def _process_frame(frame_data, index: int, setup: _Setup,
 
 
 def _process_linked(frame_data, index: int, setup: _Setup, link: dict) -> FrameResult:
-    """The reference frame through a user linking: candidate index -> marker id."""
+    """The reference frame through a linking by hand: marker id -> candidate number, the
+    candidates being those of ``detect_markers`` on the whole frame (as ``resection detect``
+    numbers them). A linking that does not fit the candidates raises InputError."""
     name = _frame_name(frame_data)
     try:
         img = _load_image(frame_data)
@@ -274,7 +276,12 @@ def _process_linked(frame_data, index: int, setup: _Setup, link: dict) -> FrameR
             raise InputError(f"image is {img.shape[1]}x{img.shape[0]} px, the camera "
                              f"{setup.camera.width}x{setup.camera.height}")
         cands = _detect(img, setup)
-        ids, uv = _apply_link(cands, link)
+    except Exception as exc:  # noqa: BLE001 - recorded, the run goes on
+        msg = str(exc).splitlines()[0] if str(exc) else ""
+        return FrameResult(frame=index, file=name, status="failed",
+                           reason=f"{type(exc).__name__}: {msg}")
+    ids, uv = _apply_link(cands, link, setup)
+    try:
         return _solve(ids, uv, setup, index, name)
     except Exception as exc:  # noqa: BLE001
         msg = str(exc).splitlines()[0] if str(exc) else ""
@@ -282,11 +289,25 @@ def _process_linked(frame_data, index: int, setup: _Setup, link: dict) -> FrameR
                            reason=f"{type(exc).__name__}: {msg}")
 
 
-def _apply_link(candidates, link: dict) -> tuple[np.ndarray, np.ndarray]:
-    from .link import apply_link
+def _apply_link(candidates, link: dict, setup: _Setup) -> tuple[np.ndarray, np.ndarray]:
+    markers = (setup.ids, setup.points3d)
+    if link["path"] is not None:
+        from .link import read_links
 
-    ids, uv = apply_link(candidates, link)
-    return np.asarray(ids).astype(str), np.asarray(uv, float).reshape(-1, 2)
+        ids, uv, _ = read_links(link["path"], candidates, markers)
+        return np.asarray(ids).astype(str), np.asarray(uv, float).reshape(-1, 2)
+    pairs = link["pairs"]
+    known = set(setup.ids)
+    unknown = [k for k in pairs if k not in known]
+    if unknown:
+        raise InputError(f"link: id(s) not in the marker file: {', '.join(unknown[:10])}")
+    idx = np.array([pairs[k] for k in pairs], int)
+    if idx.size and (idx.min() < 0 or idx.max() >= len(candidates)):
+        raise InputError(f"link: candidate numbers must lie in 0..{len(candidates) - 1} "
+                         f"(the first frame has {len(candidates)} candidates)")
+    if len(set(idx.tolist())) != idx.size:
+        raise InputError("link: a candidate is linked twice")
+    return np.array(list(pairs), dtype=str), candidates.uv[idx].reshape(-1, 2)
 
 
 def _run_chunk(setup: _Setup, items: list, seed: FrameResult | None,
@@ -603,15 +624,27 @@ def _as_markers(markers3d) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _as_link(link) -> dict | None:
+    """``{"path": str or None, "pairs": {id: candidate} or None, "text": file content}``."""
     if link is None:
         return None
     if isinstance(link, (str, os.PathLike)):
-        from .link import read_link
-
-        link = read_link(link)
+        path = os.fspath(link)
+        try:
+            with open(path, encoding="utf-8") as fh:
+                text = fh.read()
+        except FileNotFoundError:
+            raise InputError(f"{path}: no such linking file") from None
+        except OSError as exc:
+            raise InputError(f"{path}: cannot read the linking file ({exc})") from None
+        return {"path": path, "pairs": None, "text": text}
     if not isinstance(link, dict) or not link:
-        raise InputError("link: expected a linking file or a non-empty {id: candidate} dict")
-    return {str(k): v for k, v in link.items()}
+        raise InputError("link: expected a linking CSV (id,candidate) or a non-empty "
+                         "{id: candidate number} dict")
+    try:
+        pairs = {str(k): int(v) for k, v in link.items()}
+    except (TypeError, ValueError):
+        raise InputError("link: candidate numbers must be integers") from None
+    return {"path": None, "pairs": pairs, "text": None}
 
 
 def _settings(setup: _Setup, link: dict | None, fixed_camera: bool, chunk_size: int) -> dict:
@@ -626,7 +659,9 @@ def _settings(setup: _Setup, link: dict | None, fixed_camera: bool, chunk_size: 
         "diameter": setup.diameter, "polarity": setup.polarity,
         "detect_kw": setup.detect_kw, "match_kw": setup.match_kw, "pose_kw": setup.pose_kw,
         "min_markers": setup.min_markers, "roi_margin": setup.roi_margin,
-        "link": None if link is None else {k: link[k] for k in sorted(link)},
+        "link": None if link is None else (link["text"] if link["path"] is not None
+                                           else {k: link["pairs"][k]
+                                                 for k in sorted(link["pairs"])}),
         "fixed_camera": bool(fixed_camera), "chunk_size": int(chunk_size),
     })
 
@@ -695,7 +730,10 @@ def track(
     markers3d : path-like, (ids, points) or object with ``ids`` and ``points``
         The 3-D markers (DESIGN marker CSV ``id,x,y,z[,diameter]``), model units.
     link : path-like or dict, optional
-        Linking of the first frame (CSV ``id,candidate``, see :mod:`resection.link`).
+        Linking of the first frame by hand: CSV ``id,candidate`` (see
+        :mod:`resection.link`) or ``{id: candidate}``, the candidate numbers being the
+        order of ``detect_markers`` on the whole first frame with this ``diameter``,
+        ``polarity`` and ``detect_kw`` (as ``resection detect`` writes them).
     diameter : float
         Marker diameter in the images, pixels.
     polarity : {"dark", "bright"}

@@ -209,6 +209,40 @@ def test_cli_track_and_plot(run60, tmp_path, capsys):
     assert "nope.json" in capsys.readouterr().err
 
 
+def test_first_frame_linked_by_hand(run60, tmp_path):
+    from resection.images import read_image
+    from resection.link import suggest_links, write_links
+    from resection.markers import detect_markers
+
+    model, files, cam, ref, _ = run60
+    # the person's linking of frame 0 (candidate numbers as `resection detect` writes them)
+    cands = detect_markers(read_image(files["frames"][0]), 5.6)
+    ids, index = suggest_links(cands, model.camera_at(0), (model.ids, model.points3d))
+    assert len(ids) == len(model.ids)
+    link = tmp_path / "link.csv"
+    write_links(link, ids, index)
+    # with a link the camera's pose is not used: give a useless one
+    far = cam.with_pose(R=np.eye(3), t=[0.0, 0.0, 5.0])
+    n = 12
+    res = track(files["frames"][:n], far, files["markers"], link=link, diameter=5.6,
+                out_dir=tmp_path / "o", progress=False)
+    assert res.ok.all()
+    np.testing.assert_allclose(res.angles, ref.angles[:n], atol=1e-7)
+    np.testing.assert_allclose(res.rvec, ref.rvec[:n], atol=1e-9)
+    # without the link, that camera cannot start the run
+    res = track(files["frames"][:2], far, files["markers"], diameter=5.6,
+                out_dir=tmp_path / "o2", progress=False)
+    assert not res.ok[0] and "match_markers" in res.reason[0]
+    # a linking that does not fit the first frame's candidates is an input error
+    write_links(link, ids[:3], [0, 1, 999])
+    with pytest.raises(InputError, match="candidate 999 does not exist"):
+        track(files["frames"][:2], far, files["markers"], link=link, diameter=5.6,
+              out_dir=tmp_path / "o3", progress=False)
+    with pytest.raises(InputError, match="no such linking file"):
+        track(files["frames"][:2], far, files["markers"], link=tmp_path / "none.csv",
+              diameter=5.6, out_dir=tmp_path / "o4", progress=False)
+
+
 def test_bad_input(run60, tmp_path):
     model, files, cam, ref, _ = run60
     kw = dict(out_dir=tmp_path / "o", progress=False)
