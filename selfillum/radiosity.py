@@ -216,7 +216,7 @@ def correct(
     *,
     mesh=None,
     regularization: float = 1e-6,
-    tol: float = 1e-10,
+    tol: float = 1e-8,
     maxiter: int | None = None,
     return_info: bool = False,
 ):
@@ -315,18 +315,29 @@ def correct(
     M = (sp.identity(n, format="csr") - sp.diags(rho) @ F).tocsc()
     Bs = B[seen_idx]
     e0 = M[:, seen_idx] @ Bs  # E with B_h = 0
-    Mh = M[:, hidden]  # E = e0 + Mh @ B_h
+    Mh = M[:, hidden].tocsr()  # E = e0 + Mh @ B_h
+    MhT = Mh.T.tocsr()
     D = face_adjacency_weights(mesh)
-    DMh = (D @ Mh).tocsr()
-    # Tikhonov weight relative to the typical size of the smoothness rows
-    col_norm = np.sqrt(np.asarray(DMh.multiply(DMh).sum(axis=0)).ravel())
+    DT = D.T.tocsr()
+    # Tikhonov weight relative to the typical size of the smoothness columns (the columns
+    # of D Mh are those of D up to the small rho F terms: M has a unit diagonal)
+    col_norm = np.sqrt(np.asarray(D.multiply(D).sum(axis=0)).ravel())[hidden]
     scale = float(np.median(col_norm[col_norm > 0])) if np.any(col_norm > 0) else 1.0
     lam = np.sqrt(regularization) * scale
+    p_rows, nh = D.shape[0], hidden.size
+
+    def matvec(x):
+        x = np.ravel(x)
+        return np.concatenate([D @ (Mh @ x), lam * x])
+
+    def rmatvec(y):
+        y = np.ravel(y)
+        return MhT @ (DT @ y[:p_rows]) + lam * y[p_rows:]
+
+    A = spla.LinearOperator((p_rows + nh, nh), matvec=matvec, rmatvec=rmatvec, dtype=float)
     prior = float(np.mean(Bs))
-    A = sp.vstack([DMh, lam * sp.identity(hidden.size, format="csr")], format="csr")
-    rhs = np.concatenate([-(D @ e0), np.full(hidden.size, lam * prior)])
-    # solve for the deviation from the prior (better started)
-    rhs0 = rhs - A @ np.full(hidden.size, prior)
+    # unknown: the deviation of B_h from the prior, so that x = 0 is a fair start
+    rhs0 = np.concatenate([-(D @ (e0 + Mh @ np.full(nh, prior))), np.zeros(nh)])
     limit = maxiter if maxiter is not None else max(1000, 10 * hidden.size)
     out = spla.lsmr(A, rhs0, atol=tol, btol=tol, maxiter=limit)
     x, istop, itn, normr, normar, norma = out[0], out[1], out[2], out[3], out[4], out[5]
