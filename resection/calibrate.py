@@ -215,17 +215,21 @@ def _initial_K(views, w, h) -> np.ndarray:
 
 
 def _initial_pose(cam: Camera, X, uv, planar):
-    try:
-        r = solve_pose(cam, X, uv)
-        return np.array(r.camera.R), np.array(r.camera.t)
-    except SolveError:
-        pass
+    """A start for one view: homography (plane) or DLT (>= 6 non-coplanar markers) with the
+    initial intrinsics, else :func:`solve_pose`."""
     xy = undistort_normalized(cam.pixels_to_normalized(uv), cam.dist)
-    if planar:
-        return _pose_from_plane(X, xy)
-    P = fit_dlt(X, xy)
-    U, S, Vt = np.linalg.svd(P[:, :3])
-    return U @ Vt, P[:, 3] / S.mean()
+    try:
+        if planar:
+            return _pose_from_plane(X, xy)
+        if len(X) >= 6:
+            P = fit_dlt(X, xy)
+            U, S, Vt = np.linalg.svd(P[:, :3])
+            if np.linalg.det(U @ Vt) > 0:
+                return U @ Vt, P[:, 3] / S.mean()
+    except InputError:
+        pass
+    r = solve_pose(cam, X, uv)
+    return np.array(r.camera.R), np.array(r.camera.t)
 
 
 def calibrate(
@@ -351,19 +355,20 @@ def calibrate(
     colnorm = np.linalg.norm(J, axis=0)
     if np.any(colnorm == 0):
         raise SolveError("calibrate: some parameters do not affect the projection")
-    Jn = J / colnorm
-    _, sv, vt = np.linalg.svd(Jn, full_matrices=False)
-    if sv[-1] < 1e-9 * sv[0]:
-        weak = vt[-1, :m]
+    JTJ = J.T @ J
+    N = JTJ / np.outer(colnorm, colnorm)  # normal matrix of the column-scaled Jacobian
+    ev, evec = np.linalg.eigh(N)
+    if ev[0] < 1e-18 * ev[-1]:
+        weak = evec[:m, 0]
         bad = [names[i] for i in np.flatnonzero(np.abs(weak) > 0.3)]
         raise SolveError(
             "calibrate: the views do not determine "
             + (", ".join(bad) if bad else "the poses")
-            + f" (condition number {sv[0] / max(sv[-1], 1e-300):.1e}); add views at other "
-            "angles, a deeper target, or fix those parameters")
+            + f" (condition number {math.sqrt(ev[-1] / max(ev[0], 1e-300)):.1e}); add views "
+            "at other angles, a deeper target, or fix those parameters")
     dof = n_obs - n_par
     s2 = float(res @ res) / dof
-    cov = s2 * np.linalg.inv(J.T @ J)
+    cov = s2 * np.linalg.inv(JTJ)
     std = {nm: float(math.sqrt(cov[i, i])) for i, nm in enumerate(names)}
 
     poses, residuals, vrms = [], [], []
