@@ -78,7 +78,7 @@ class ViewWarp:
         if occlusion and hit.size:
             C = camera_a.center
             d = pts - C
-            face, dist, _ = caster.first_hit(np.broadcast_to(C, d.shape), d)
+            face, dist, _ = caster.first_hit(C, d)
             target_dist = np.linalg.norm(d, axis=1)
             own = smap.face_index.ravel()[hit]
             ok &= (face == own) | ((face >= 0) & (dist >= target_dist * (1 - 1e-6)))

@@ -132,7 +132,10 @@ def _apply_vertex(mesh, area, fv, linear, cache):
     faces = np.asarray(mesh.faces)
     nv = len(mesh.vertices)
     out = np.empty((nv, flat.shape[1]))
-    patterns, group = np.unique(finite.T, axis=0, return_inverse=True)
+    if finite.all():  # the usual case: one group, no sorting of NaN patterns
+        patterns, group = np.ones((1, len(flat)), dtype=bool), np.zeros(flat.shape[1], int)
+    else:
+        patterns, group = np.unique(finite.T, axis=0, return_inverse=True)
     for g, pattern in enumerate(patterns):  # loop over distinct NaN patterns, not faces
         cols = np.flatnonzero(group.ravel() == g)
         if pattern.all() and cache is not None and linear in cache:
@@ -194,10 +197,11 @@ class SurfaceMap:
         H, W = camera.height, camera.width
         self.shape = (H, W)
         caster = RayCaster(mesh) if caster is None else caster
-        vv, uu = np.mgrid[0:H, 0:W]
-        uv = np.column_stack([uu.ravel(), vv.ravel()]).astype(np.float64)
-        origins, dirs = camera.rays(uv)
-        face, dist, bary = caster.first_hit(origins, dirs)
+        uv = np.empty((H * W, 2))
+        uv[:, 0] = np.tile(np.arange(W, dtype=np.float64), H)
+        uv[:, 1] = np.repeat(np.arange(H, dtype=np.float64), W)
+        _, dirs = camera.rays(uv)
+        face, dist, bary = caster.first_hit(camera.center, dirs)
         if max_obliqueness_deg is not None:
             lim = float(max_obliqueness_deg)
             if not (0.0 < lim <= 90.0):
@@ -215,18 +219,42 @@ class SurfaceMap:
         self.barycentric = bary.reshape(H, W, 3)
         self.depth = dist.reshape(H, W)
         self._hit = np.flatnonzero(face >= 0)  # flattened pixel indices on the model
+        self._hit_face = face[self._hit]
         nf = len(mesh.faces)
-        self.matrix = sp.csr_matrix(
-            (np.ones(self._hit.size), (face[self._hit], self._hit)), shape=(nf, H * W)
+        # face x (model pixel) matrix; the full face x pixel one is :attr:`matrix`
+        self._mhit = sp.csr_matrix(
+            (np.ones(self._hit.size), (self._hit_face, np.arange(self._hit.size))),
+            shape=(nf, self._hit.size),
         )
-        self.pixel_counts = np.bincount(face[self._hit], minlength=nf).astype(np.int64)
+        self.pixel_counts = np.bincount(self._hit_face, minlength=nf).astype(np.int64)
         _, self._area = _face_geometry(mesh)
         self._vcache: dict = {}
+        self._interp = None
 
     # ------------------------------------------------------------------ properties
     @property
     def n_faces(self) -> int:
         return len(self.mesh.faces)
+
+    @property
+    def matrix(self) -> sp.csr_matrix:
+        """(F, H*W) sparse: 1 where pixel (flattened ``v * W + u``) sees the face."""
+        H, W = self.shape
+        return sp.csr_matrix(
+            (np.ones(self._hit.size), (self._hit_face, self._hit)), shape=(self.n_faces, H * W)
+        )
+
+    def _interpolation_matrix(self) -> sp.csr_matrix:
+        """(model pixels, V) sparse: barycentric weights of each pixel's hit face corners."""
+        if self._interp is None:
+            corners = np.asarray(self.mesh.faces, dtype=np.int64)[self._hit_face]
+            b = self.barycentric.reshape(-1, 3)[self._hit]
+            n = self._hit.size
+            self._interp = sp.csr_matrix(
+                (b.ravel(), corners.ravel(), np.arange(0, 3 * n + 1, 3)),
+                shape=(n, len(self.mesh.vertices)),
+            )
+        return self._interp
 
     @property
     def mask(self) -> np.ndarray:
@@ -279,11 +307,16 @@ class SurfaceMap:
         if not np.issubdtype(arr.dtype, np.number) or np.issubdtype(arr.dtype, np.complexfloating):
             raise InputError(f"image: expected real numbers, got dtype {arr.dtype}")
         T = arr.shape[0]
-        X = arr.reshape(T, -1).T.astype(np.float64, copy=False)  # (P, T)
+        # model pixels of every frame as (pixels, frames) for one sparse product
+        X = np.ascontiguousarray(arr.reshape(T, -1)[:, self._hit].T, dtype=np.float64)
         finite = np.isfinite(X)
-        rhs = np.hstack([np.where(finite, X, 0.0), finite.astype(np.float64)])
-        prod = self.matrix @ rhs  # one sparse product for all frames
-        sums, counts = prod[:, :T].T, np.rint(prod[:, T:].T).astype(np.int64)
+        if finite.all():
+            sums = (self._mhit @ X).T
+            counts = np.broadcast_to(self.pixel_counts, (T, self.n_faces)).copy()
+        else:
+            X[~finite] = 0.0
+            sums = (self._mhit @ X).T
+            counts = np.rint((self._mhit @ finite.astype(np.float64)).T).astype(np.int64)
         with np.errstate(invalid="ignore", divide="ignore"):
             values = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
         unseen = counts == 0
@@ -344,17 +377,17 @@ class SurfaceMap:
         else:
             bg, _ = self._check_images(background, "background")
             out = np.broadcast_to(bg.reshape(bg.shape[0], -1), (T, H * W)).astype(np.float64)
-        hit = self._hit
-        f = self.face_index.ravel()[hit]
+        hit, f = self._hit, self._hit_face
         if interpolation == "nearest":
             vals = fv2[:, f]
         else:
             vert = self.vertex_values(fv2.T, interpolation)  # (V, T)
-            corners = np.asarray(self.mesh.faces)[f]  # (P, 3)
-            b = self.barycentric.reshape(-1, 3)[hit]
-            vals = np.einsum("pk,pkt->tp", b, vert[corners])
+            vals = (self._interpolation_matrix() @ np.nan_to_num(vert)).T  # (T, pixels)
         good = np.isfinite(fv2[:, f])
-        rows, cols = np.nonzero(good)
-        out[rows, hit[cols]] = vals[rows, cols]
+        if good.all():
+            out[:, hit] = vals
+        else:
+            rows, cols = np.nonzero(good)
+            out[rows, hit[cols]] = vals[rows, cols]
         out = out.reshape(T, H, W)
         return out[0] if single else out

@@ -57,6 +57,7 @@ class RayCaster:
         extent = float(np.linalg.norm(vertices.max(axis=0) - self._origin))
         self._scale = 100.0 / extent if extent > 0 else 1.0
         scaled = ((vertices - self._origin) * self._scale).astype(np.float32)
+        self._dual = None  # per-face data of _plane_hits, built on first use
         self._scene = rtcore_scene.EmbreeScene()
         TriangleMesh(scene=self._scene, vertices=scaled,
                      indices=self._faces.astype(np.int32))
@@ -70,9 +71,11 @@ class RayCaster:
 
         Parameters
         ----------
-        origins, directions : (N, 3) array_like
-            Ray origins and directions in model coordinates (directions need not be unit;
-            rows with NaN are not cast and come back as misses).
+        origins : (N, 3) or (3,) array_like
+            Ray origins in model coordinates, or one origin shared by every ray.
+        directions : (N, 3) array_like
+            Directions (need not be unit); rows with NaN are not cast and come back as
+            misses.
 
         Returns
         -------
@@ -85,45 +88,64 @@ class RayCaster:
             Barycentric coordinates of the hit point on the face's vertices ``(w0, w1, w2)``
             (sum 1), NaN for a miss.
         """
-        o = as_points(origins, 3, "ray origins", allow_nan=True)
         d = as_points(directions, 3, "ray directions", allow_nan=True)
-        if o.shape != d.shape:
+        o_in = np.asarray(origins, dtype=np.float64)
+        single = o_in.shape == (3,)  # one origin for every ray (a camera centre)
+        o = o_in[None, :] if single else as_points(o_in, 3, "ray origins", allow_nan=True)
+        if not single and o.shape != d.shape:
             raise InputError(f"rays: origins {o.shape} and directions {d.shape} differ")
-        n = len(o)
+        n = len(d)
         face = np.full(n, -1, dtype=np.int64)
         dist = np.full(n, np.nan)
         bary = np.full((n, 3), np.nan)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            norm = np.linalg.norm(d, axis=1)
-            ok = np.isfinite(norm) & (norm > 0) & np.all(np.isfinite(o), axis=1)
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            norm = np.sqrt(np.einsum("ij,ij->i", d, d))
+            ok = np.isfinite(norm) & (norm > 0)
+            if single:
+                ok &= bool(np.all(np.isfinite(o)))
+            else:
+                ok &= np.all(np.isfinite(o), axis=1)
         if not np.any(ok):
             return face, dist, bary
-        idx = np.flatnonzero(ok)
-        du = d[idx] / norm[idx, None]
-        so = ((o[idx] - self._origin) * self._scale).astype(np.float32)
-        hit = np.asarray(self._scene.run(so, du.astype(np.float32)), dtype=np.int64)
-        sel = hit >= 0
-        idx, hit, du = idx[sel], hit[sel], du[sel]
-        face[idx] = hit
-        t, b = _ray_triangle(o[idx], du, self._vertices[self._faces[hit]])
-        dist[idx] = t
-        bary[idx] = b
+        all_ok = bool(ok.all())
+        idx = None if all_ok else np.flatnonzero(ok)
+        du = d / norm[:, None] if all_ok else d[idx] / norm[idx, None]
+        oo = o if single else (o if all_ok else o[idx])
+        so = ((oo - self._origin) * self._scale).astype(np.float32)
+        if single:
+            so = np.broadcast_to(so, du.shape)
+        hit = np.asarray(self._scene.run(np.ascontiguousarray(so),
+                                         du.astype(np.float32)), dtype=np.int64)
+        sel = np.flatnonzero(hit >= 0)
+        rows = sel if all_ok else idx[sel]
+        hit = hit[sel]
+        face[rows] = hit
+        t, b = self._plane_hits(oo if single else oo[sel], du[sel], hit)
+        dist[rows] = t
+        bary[rows] = b
         return face, dist, bary
 
-
-def _ray_triangle(o: np.ndarray, d: np.ndarray, tri: np.ndarray):
-    """Distance along unit ``d`` and barycentrics of the ray's crossing of each triangle's
-    plane (float64, vectorised). ``tri`` is (N, 3, 3)."""
-    v0, v1, v2 = tri[:, 0], tri[:, 1], tri[:, 2]
-    e1, e2 = v1 - v0, v2 - v0
-    n = np.cross(e1, e2)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.einsum("ij,ij->i", n, v0 - o) / np.einsum("ij,ij->i", n, d)
-        p = o + t[:, None] * d - v0
-        nn = np.einsum("ij,ij->i", n, n)
-        w1 = np.einsum("ij,ij->i", np.cross(p, e2), n) / nn
-        w2 = np.einsum("ij,ij->i", np.cross(e1, p), n) / nn
-    return t, np.column_stack([1.0 - w1 - w2, w1, w2])
+    def _plane_hits(self, o: np.ndarray, d: np.ndarray, face: np.ndarray):
+        """Float64 distance and barycentrics of the rays' crossing of their faces' planes,
+        from per-face data computed once (no cross product per ray)."""
+        if self._dual is None:
+            tri = self._vertices[self._faces]
+            v0 = tri[:, 0]
+            e1, e2 = tri[:, 1] - v0, tri[:, 2] - v0
+            nrm = np.cross(e1, e2)
+            nn = np.einsum("ij,ij->i", nrm, nrm)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                a1 = np.cross(e2, nrm) / nn[:, None]  # w1 = (p - v0) . a1
+                a2 = np.cross(nrm, e1) / nn[:, None]  # w2 = (p - v0) . a2
+            self._dual = (v0, nrm, a1, a2)
+        v0, nrm, a1, a2 = (x[face] for x in self._dual)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            q = v0 - o  # (N, 3), o broadcast if one origin
+            t = np.einsum("ij,ij->i", nrm, q) / np.einsum("ij,ij->i", nrm, d)
+            p = t[:, None] * d - q  # hit point minus v0
+            w1 = np.einsum("ij,ij->i", p, a1)
+            w2 = np.einsum("ij,ij->i", p, a2)
+        return t, np.column_stack([1.0 - w1 - w2, w1, w2])
 
 
 def face_sample_points(mesh: trimesh.Trimesh, samples_per_face: int = 1) -> np.ndarray:
@@ -222,7 +244,7 @@ def visible_faces(
     flat = pts.reshape(-1, 3)
     d = flat - C
     target = np.linalg.norm(d, axis=1)
-    face_hit, dist, _ = caster.first_hit(np.broadcast_to(C, d.shape), d)
+    face_hit, dist, _ = caster.first_hit(C, d)
     own = np.repeat(cand, s)
     # the ray reaches the sample on its own face, or on a face at the same distance
     # (coplanar duplicate / edge): nothing lies in front of it
