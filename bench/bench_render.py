@@ -1,10 +1,12 @@
-"""Mitsuba render of the corner against the Lambertian forward model of the same scene.
+"""Mitsuba render of the corner against the Lambertian model of the same scene.
 
-Prints, for each Mitsuba variant this machine has, the time of an all-bounce render and
-its ratio to the time of the model's image (Embree view factors + radiosity solve +
-backprojection through a SurfaceMap), with the agreement of the two images. Run:
+1. For each Mitsuba variant this machine has: the time of an all-bounce render and its
+   ratio to the time of the model's image (Embree view factors + radiosity solve +
+   backprojection through a SurfaceMap), with the agreement of the two images.
+2. Against the number of faces N: view factors, the correction of a measured radiosity
+   (``selfillum.radiosity.correct``), and one render with the fastest variant.
 
-    .venv/bin/python bench/bench_render.py [--resolution 20] [--spp 256] [--width 320]
+Run:  .venv/bin/python bench/bench_render.py [--resolution 20] [--spp 256] [--width 320]
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from scipy.ndimage import maximum_filter, minimum_filter
 from resection import Camera
 from resection.surface import SurfaceMap
 from scenes.corner import corner
-from selfillum.radiosity import forward
+from selfillum.radiosity import correct, forward
 from selfillum.render import available_variants, render
 from selfillum.viewfactors import view_factors
 
@@ -73,6 +75,26 @@ def main() -> None:
         rel = res.image[away] / model[away] - 1.0
         print(f"{res.variant:<14}{res.spp:>6}{t_render:>10.2f}{t_render / t_model:>14.1f}"
               f"{100 * np.median(rel):>11.2f}%{100 * np.percentile(np.abs(rel), 95):>10.2f}%")
+
+    print()
+    print(f"against N ({args.rays} rays/face, render {variants[0]} at 64 spp, all bounces):")
+    print(f"{'N':>7}{'F s':>8}{'correct s':>11}{'render s':>10}{'render/correct':>16}"
+          f"{'render/(F+correct)':>20}")
+    for res_n in (10, 20, 40):
+        sc = corner(resolution=res_n, reflectance=0.6, pattern="smooth")
+        t0 = time.perf_counter()
+        F = view_factors(sc.mesh, rays_per_face=args.rays, seed=1)
+        t1 = time.perf_counter()
+        B = forward(F, sc.emission, sc.reflectance)
+        t2 = time.perf_counter()
+        correct(F, B, sc.reflectance)
+        t3 = time.perf_counter()
+        render(sc.mesh, sc.emission, sc.reflectance, cam, bounces=-1, spp=64, seed=1,
+               variant=variants[0])
+        t4 = time.perf_counter()
+        tf, tc, tr = t1 - t0, t3 - t2, t4 - t3
+        print(f"{len(sc.mesh.faces):>7}{tf:>8.2f}{tc:>11.4f}{tr:>10.2f}{tr / tc:>16.0f}"
+              f"{tr / (tf + tc):>20.1f}")
 
 
 if __name__ == "__main__":
