@@ -230,8 +230,20 @@ def plot_corner(result: CornerResult, path) -> Path:
     ax.set_ylim(top=ymax * 1.12)
     si = (p["with_si"] - p["true"]) / p["with_si"]
     err = (p["corrected"] - p["true"]) / p["true"]
-    ax2.plot(p["s"], 100 * si, color="tab:red", lw=1.4, label="self-illumination share")
-    ax2.plot(p["s"], 100 * err, color="tab:blue", lw=1.2, label="error after correction")
+    ax2.plot(
+        p["s"],
+        100 * si,
+        color="tab:red",
+        lw=1.4,
+        label="self-illumination, % of the measured signal",
+    )
+    ax2.plot(
+        p["s"],
+        100 * err,
+        color="tab:blue",
+        lw=1.2,
+        label="error after correction, % of the true emission",
+    )
     ax2.axhline(0.0, color="0.6", lw=0.8)
     ax2.axvline(0.0, color="0.6", lw=0.8)
     ax2.set_ylabel("% of signal")
