@@ -55,6 +55,37 @@ def _face_geometry(mesh: trimesh.Trimesh):
     return tri.mean(axis=1), area
 
 
+def _fit_pairs(vid, fid, w, cen, verts, nv, linear):
+    """Coefficients of the (vertex, face) pairs and the number of directions the centroids
+    span around each vertex (see :func:`_vertex_matrix`)."""
+    W = np.bincount(vid, weights=w, minlength=nv)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        coef = w / W[vid]
+    rank = np.zeros(nv, dtype=np.int64)
+    if linear:
+        Wsafe = np.where(W > 0, W, 1.0)
+        cbar = np.column_stack(
+            [np.bincount(vid, weights=w * cen[fid, k], minlength=nv) / Wsafe for k in range(3)]
+        )
+        dc = cen[fid] - cbar[vid]  # (P, 3)
+        cov = np.empty((nv, 3, 3))
+        for i in range(3):  # 3 x 3 entries, each one bincount over all pairs
+            for j in range(i, 3):
+                cov[:, i, j] = cov[:, j, i] = np.bincount(
+                    vid, weights=w * dc[:, i] * dc[:, j], minlength=nv)
+        evals, evecs = np.linalg.eigh(cov)
+        scale = evals[:, -1:]
+        keep = evals > 1e-2 * scale
+        rank = keep.sum(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            inv = np.where(keep, 1.0 / evals, 0.0)
+        cinv = np.einsum("vij,vj,vkj->vik", evecs, inv, evecs)
+        lever = np.einsum("vi,vij->vj", verts - cbar, cinv)  # (x_v - cbar)^T C^+
+        coef = coef + w * np.einsum("pj,pj->p", lever[vid], dc)
+    coef = np.where(np.isfinite(coef) & (w > 0), coef, 0.0)
+    return coef, rank, W
+
+
 def _vertex_matrix(mesh: trimesh.Trimesh, face_weight: np.ndarray, linear: bool) -> sp.csr_matrix:
     """Sparse (V, F) matrix turning face values into vertex values.
 
@@ -63,10 +94,11 @@ def _vertex_matrix(mesh: trimesh.Trimesh, face_weight: np.ndarray, linear: bool)
     (``f_v = mean + g . (x_v - c_mean)``), which makes the reconstruction exact for fields
     linear in space wherever the centroids around a vertex span the needed directions.
     Directions in which the centroids spread less than a tenth of their largest spread
-    (eigenvalue ratio 1e-2 of the weighted covariance) get no gradient: the tangent
-    directions at a vertex with one or two faces, and the normal direction of a smooth
-    curved fan, where a fitted normal gradient would only amplify noise. Across a crease
-    (e.g. a 90-degree corner) the centroids spread in 3-D and the full gradient is used.
+    (eigenvalue ratio 1e-2 of the weighted covariance) get no gradient: the normal
+    direction of a smooth curved fan, where a fitted normal gradient would only amplify
+    noise. Across a crease (e.g. a 90-degree corner) the centroids spread in 3-D and the
+    full gradient is used. Vertices whose faces span fewer than 2 directions (a grid
+    corner with one or two faces) use the faces around their neighbours too (2-ring).
     """
     faces = np.asarray(mesh.faces, dtype=np.int64)
     verts = np.asarray(mesh.vertices, dtype=np.float64)
@@ -75,26 +107,23 @@ def _vertex_matrix(mesh: trimesh.Trimesh, face_weight: np.ndarray, linear: bool)
     vid = faces.ravel()  # incidence pairs (vertex, face)
     fid = np.repeat(np.arange(nf), 3)
     w = face_weight[fid]
-    W = np.bincount(vid, weights=w, minlength=nv)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        coef = w / W[vid]
-    if linear:
-        cbar = np.column_stack(
-            [np.bincount(vid, weights=w * cen[fid, k], minlength=nv) for k in range(3)]
-        )
-        cbar = np.where(W[:, None] > 0, cbar / np.where(W > 0, W, 1.0)[:, None], 0.0)
-        dc = cen[fid] - cbar[vid]  # (P, 3)
-        cov = np.zeros((nv, 3, 3))
-        np.add.at(cov, vid, w[:, None, None] * dc[:, :, None] * dc[:, None, :])
-        evals, evecs = np.linalg.eigh(cov)
-        scale = evals[:, -1:]
-        with np.errstate(invalid="ignore", divide="ignore"):
-            inv = np.where(evals > 1e-2 * scale, 1.0 / evals, 0.0)
-        cinv = np.einsum("vij,vj,vkj->vik", evecs, inv, evecs)
-        lever = np.einsum("vi,vij->vj", verts - cbar, cinv)  # (x_v - cbar)^T C^+
-        coef = coef + w * np.einsum("pj,pj->p", lever[vid], dc)
-    coef = np.where(np.isfinite(coef) & (w > 0), coef, 0.0)
-    return sp.csr_matrix((coef, (vid, fid)), shape=(nv, nf))
+    coef, rank, W = _fit_pairs(vid, fid, w, cen, verts, nv, linear)
+    M = sp.csr_matrix((coef, (vid, fid)), shape=(nv, nf))
+    poor = np.flatnonzero((rank < 2) & (W > 0)) if linear else np.array([], dtype=int)
+    if poor.size:
+        inc = sp.csr_matrix((np.ones(vid.size), (vid, fid)), shape=(nv, nf))
+        ring2 = (inc[poor] @ inc.T) @ inc  # faces around the neighbours of poor vertices
+        ring2 = ring2.tocoo()
+        v2, f2 = poor[ring2.row], ring2.col
+        c2, r2, _ = _fit_pairs(v2, f2, face_weight[f2], cen, verts, nv, True)
+        better = r2[poor] >= 2
+        if better.any():
+            sel = np.isin(v2, poor[better])
+            keep_rows = np.ones(nv)
+            keep_rows[poor[better]] = 0.0
+            M = sp.diags(keep_rows) @ M + sp.csr_matrix(
+                (c2[sel], (v2[sel], f2[sel])), shape=(nv, nf))
+    return M.tocsr()
 
 
 def vertex_values(
