@@ -19,8 +19,12 @@ from .dlt import (
     fit_homography,
 )
 from .errors import DegenerateError, InputError, SolveError
+from .images import read_image, write_image
 from .markerio import MarkerSet, read_markers, read_points, write_markers, write_points
+from .markers import Candidates, detect_markers, read_candidates, write_candidates
+from .match import MatchResult, match_markers
 from .meshio import load_mesh, read_plot3d, write_plot3d, write_surface
+from .pipeline import pose_from_image
 from .plots import plot_resection, plot_surface, virtual_camera
 from .pose import PoseResult, solve_pose
 from .surface import SurfaceMap, SurfaceSample, vertex_values
@@ -62,4 +66,13 @@ __all__ = [
     "vertex_values",
     "RayCaster",
     "visible_faces",
+    "read_image",
+    "write_image",
+    "Candidates",
+    "detect_markers",
+    "read_candidates",
+    "write_candidates",
+    "MatchResult",
+    "match_markers",
+    "pose_from_image",
 ]
