@@ -19,9 +19,12 @@ so the face order is that of the file and every per-face array of the package fo
 Degenerate (zero-area) triangles, NaN or infinite coordinates and empty meshes are refused
 with :class:`~resection.errors.InputError`.
 
-Writing (:func:`write_surface`) puts per-face fields on the mesh as PLY (binary, per-face
-properties), legacy VTK POLYDATA with CELL_DATA (ParaView opens it), or CSV (face index,
-centroid, fields). :func:`write_plot3d` writes Plot3D grids in all the forms read here.
+Writing (:func:`write_surface`) puts per-face fields on the mesh as legacy VTK POLYDATA
+with CELL_DATA field arrays (the format for ParaView: checked to read back exactly, NaN
+included, with VTK 9.7's ``vtkPolyDataReader``), PLY (binary, one property per field on the
+face element: trimesh, MeshLab and :func:`load_mesh` read them; ParaView's PLY reader shows
+the geometry only) or CSV (face index, centroid, fields). :func:`write_plot3d` writes
+Plot3D grids in all the forms read here.
 """
 
 from __future__ import annotations
