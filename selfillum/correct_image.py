@@ -45,21 +45,22 @@ class ImageCorrection:
 
     Attributes
     ----------
-    image : (H, W) ndarray
-        Corrected image, same shape and dtype as the input; pixels off the model unchanged.
-    correction : (H, W) float64 ndarray
+    image : (H, W) or (T, H, W) ndarray
+        Corrected image(s), same shape and dtype as the input; pixels off the model
+        unchanged.
+    correction : (H, W) or (T, H, W) float64 ndarray
         What was applied per pixel: the self-illumination subtracted (``"subtract"``) or
         the factor applied (``"ratio"``); 0 or 1 off the model.
-    radiosity : (N,) ndarray
+    radiosity : (N,) or (T, N) ndarray
         Per-face mean of the image (NaN on faces not seen).
-    emission : (N,) ndarray
+    emission : (N,) or (T, N) ndarray
         Per-face emission recovered (estimated on faces not seen).
-    seen : (N,) bool ndarray
+    seen : (N,) or (T, N) bool ndarray
         Faces seen by at least one finite pixel.
     mode : str
         ``"subtract"`` or ``"ratio"``.
-    info : SolveInfo
-        How the inverse was solved.
+    info : SolveInfo or tuple of SolveInfo
+        How the inverse was solved (one per frame for a stack).
     """
 
     image: np.ndarray
@@ -68,7 +69,7 @@ class ImageCorrection:
     emission: np.ndarray
     seen: np.ndarray
     mode: str
-    info: SolveInfo
+    info: SolveInfo | tuple
 
 
 def correct_image(
@@ -88,8 +89,9 @@ def correct_image(
 
     Parameters
     ----------
-    image : (H, W) array_like
-        Camera image (any real dtype), proportional to radiance, ``img[v, u]``.
+    image : (H, W) or (T, H, W) array_like
+        Camera image, or a stack of ``T`` frames of the same camera (any real dtype),
+        proportional to radiance, ``img[v, u]``. NaN pixels are ignored and left NaN.
     mesh : trimesh.Trimesh
         Model surface; faces are the radiosity elements, painted on their normal side.
     camera : resection.Camera
@@ -111,6 +113,7 @@ def correct_image(
     Returns
     -------
     ImageCorrection
+        For a stack, every array gains a leading frame axis and ``info`` is a tuple.
 
     Raises
     ------
@@ -125,41 +128,55 @@ def correct_image(
     if mode not in ("subtract", "ratio"):
         raise InputError(f"mode must be 'subtract' or 'ratio', got {mode!r}")
     img = np.asarray(image)
-    if img.ndim != 2:
-        raise InputError(f"image: expected a 2-D single-channel image, got shape {img.shape}")
+    if img.ndim not in (2, 3):
+        raise InputError(f"image: expected a 2-D image or a (T, H, W) stack, got shape {img.shape}")
     if img.dtype.kind not in "uif":
         raise InputError(f"image: expected real pixel values, got dtype {img.dtype}")
     if not isinstance(camera, Camera):
         raise InputError(f"camera: expected a resection.Camera, got {type(camera).__name__}")
-    if img.shape != (camera.height, camera.width):
+    if img.shape[-2:] != (camera.height, camera.width):
         raise InputError(
             f"image: shape {img.shape} does not match the camera's (height, width) = "
             f"({camera.height}, {camera.width})"
         )
+    single = img.ndim == 2
+    stack = img[None] if single else img
     n = len(mesh.faces)
     rho = check_reflectance(reflectance, n)
     smap = SurfaceMap(mesh, camera) if surface_map is None else surface_map
-    if smap.shape != img.shape or smap.n_faces != n:
+    if smap.shape != stack.shape[1:] or smap.n_faces != n:
         raise InputError("surface_map: made for another camera size or mesh")
     _check_painted_side(smap, mesh, camera)
 
-    sample = smap.to_surface(img.astype(np.float64))
-    B = sample.values
+    x = stack.astype(np.float64)
+    sample = smap.to_surface(x)
+    B = sample.values  # (T, N)
     seen = ~sample.unseen
-    if not seen.any():
-        raise InputError("image: the camera sees no face of the model (check the pose)")
+    if not seen.any(axis=1).all():
+        t = int(np.flatnonzero(~seen.any(axis=1))[0])
+        raise InputError(
+            f"image: the camera sees no face of the model in frame {t} (check the pose)"
+        )
     if F is None:
         F = view_factors(mesh, rays_per_face=rays_per_face, seed=seed, progress=progress)
     elif not sp.issparse(F) or F.shape != (n, n):
         raise InputError(f"F: expected a sparse ({n}, {n}) matrix")
-    E, info = correct(F, np.where(seen, B, np.nan), rho, seen, mesh=mesh, return_info=True)
+    if seen.all():  # every face seen in every frame: one sparse product for the stack
+        E = B - rho * (F @ B.T).T
+        infos = [SolveInfo("direct", 0, 0.0, n, 0)] * len(B)
+    else:  # frame by frame (the seen faces may differ), reusing F and the surface map
+        E = np.empty_like(B)
+        infos = []
+        for t in range(len(B)):
+            E[t], info = correct(
+                F, np.where(seen[t], B[t], np.nan), rho, seen[t], mesh=mesh, return_info=True
+            )
+            infos.append(info)
 
-    on = smap.mask & np.isfinite(img)
-    x = img.astype(np.float64)
+    on = smap.mask[None] & np.isfinite(x)
     out = x.copy()
     if mode == "subtract":
-        si = np.where(seen, B - E, np.nan)
-        corr = smap.to_image(si, background=0.0)
+        corr = smap.to_image(np.where(seen, B - E, np.nan), background=0.0)
         corr = np.where(on & np.isfinite(corr), corr, 0.0)
         out[on] = x[on] - corr[on]
     else:
@@ -168,7 +185,10 @@ def correct_image(
         corr = smap.to_image(ratio, background=1.0)
         corr = np.where(on & np.isfinite(corr), corr, 1.0)
         out[on] = x[on] * corr[on]
-    return ImageCorrection(_as_dtype(out, img.dtype), corr, B, E, seen, mode, info)
+    out = _as_dtype(out, img.dtype)
+    if single:
+        return ImageCorrection(out[0], corr[0], B[0], E[0], seen[0], mode, infos[0])
+    return ImageCorrection(out, corr, B, E, seen, mode, tuple(infos))
 
 
 def _check_painted_side(smap, mesh, camera) -> None:
@@ -314,15 +334,12 @@ def correct_image_file(
 
         tifffile.imwrite(out_path, result.image)
     if surface_out is not None:
-        write_surface(
-            surface_out,
-            mesh,
-            {
-                "radiosity": result.radiosity,
-                "emission": result.emission,
-                "seen": result.seen.astype(np.uint8),
-            },
-        )
+        fields = {  # (N,) or, for a stack, (N, T): one column per frame
+            "radiosity": result.radiosity.T,
+            "emission": result.emission.T,
+            "seen": result.seen.astype(np.uint8).T,
+        }
+        write_surface(surface_out, mesh, fields)
     return result
 
 
@@ -343,6 +360,9 @@ def _read_native(path: Path) -> np.ndarray:
     arr = np.asarray(arr)
     if arr.ndim == 3 and arr.shape[0] == 1:
         arr = arr[0]
-    if arr.ndim != 2:
-        raise InputError(f"{path}: expected a 2-D single-channel image, got shape {arr.shape}")
+    if arr.ndim not in (2, 3):
+        raise InputError(
+            f"{path}: expected a 2-D single-channel image or a (T, H, W) stack, "
+            f"got shape {arr.shape}"
+        )
     return arr

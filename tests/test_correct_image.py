@@ -13,6 +13,7 @@ from resection import Camera
 from resection.errors import InputError
 from resection.surface import SurfaceMap
 from scenes.corner import corner
+from selfillum import view_factors
 from selfillum.cli import main
 from selfillum.correct_image import correct_image, read_reflectance
 from selfillum.render import render
@@ -218,3 +219,23 @@ def test_back_facing_model_refused(renders):
     flipped.invert()
     with pytest.raises(InputError, match="painted side"):
         correct_image(np.ones((144, 192)), flipped, cam, 0.5)
+
+
+def test_stack_of_frames(renders):
+    """A (T, H, W) stack: each frame corrected as on its own (F and the map reused); a
+    frame with a masked (NaN) region is corrected with its own seen faces."""
+    sc, cam, smap, full, emit, inner, noise = renders
+    F = view_factors(sc.mesh, rays_per_face=256, seed=0)
+    second = 0.5 * full
+    second[:, 120:] = np.nan  # part of the wall masked in this frame
+    stack = np.stack([full, second]).astype(np.float32)
+    r = correct_image(stack, sc.mesh, cam, sc.reflectance, F=F, surface_map=smap)
+    assert r.image.shape == stack.shape and r.image.dtype == np.float32
+    assert r.emission.shape == (2, len(sc.mesh.faces)) and len(r.info) == 2
+    one = correct_image(full, sc.mesh, cam, sc.reflectance, F=F, surface_map=smap)
+    np.testing.assert_allclose(r.image[0], one.image, rtol=1e-6, atol=1e-7)
+    assert r.info[0].method == "direct" and r.info[1].method == "lsmr"
+    assert np.all(np.isnan(r.image[1][:, 120:]))
+    ok = inner & np.isfinite(second)
+    err = (2 * r.image[1] - emit)[ok] / emit[ok]
+    assert np.sqrt(np.mean(err**2)) < 1.5 * noise + 0.01
