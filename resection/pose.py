@@ -23,7 +23,6 @@ from dataclasses import dataclass, field
 from itertools import combinations
 
 import numpy as np
-from numpy.polynomial import polynomial as npoly
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
@@ -84,11 +83,87 @@ def _kabsch(X: np.ndarray, Y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return R, cy - R @ cx
 
 
+def _pmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Products of polynomials, row by row (ascending coefficients on the last axis)."""
+    out = np.zeros(a.shape[:-1] + (a.shape[-1] + b.shape[-1] - 1,))
+    for i in range(a.shape[-1]):
+        out[..., i:i + b.shape[-1]] += a[..., i:i + 1] * b
+    return out
+
+
+def _pval(c: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Values of polynomials ``c (T, k)`` at ``x (T, m)`` (Horner)."""
+    out = np.zeros(x.shape, dtype=np.result_type(c, x))
+    for i in range(c.shape[-1] - 1, -1, -1):
+        out = out * x + c[..., i:i + 1]
+    return out
+
+
+def _p3p_batch(X: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """P3P for T triplets at once: ``X (T, 3, 3)`` model points, ``b (T, 3, 3)`` unit
+    bearings. Returns ``R (M, 3, 3)``, ``t (M, 3)`` and the triplet index ``(M,)`` of the
+    solutions that put their three points in front of the camera."""
+    T = len(X)
+    ca = np.einsum("ti,ti->t", b[:, 1], b[:, 2])
+    cb = np.einsum("ti,ti->t", b[:, 0], b[:, 2])
+    cg = np.einsum("ti,ti->t", b[:, 0], b[:, 1])
+    a = np.linalg.norm(X[:, 1] - X[:, 2], axis=1)
+    bb = np.linalg.norm(X[:, 0] - X[:, 2], axis=1)
+    c = np.linalg.norm(X[:, 0] - X[:, 1], axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a2, c2 = (a / bb) ** 2, (c / bb) ** 2
+    one = np.ones(T)
+    # Grunert: s2 = u s1, s3 = v s1; eliminating s1 and u leaves a quartic in v
+    W = np.stack([one, -2.0 * cb, one], axis=1)
+    Q = np.stack([-one, 0 * one, one], axis=1) + (c2 - a2)[:, None] * W
+    D = np.stack([2.0 * cg, -2.0 * ca], axis=1)
+    quartic = (_pmul(Q, Q) + np.pad(2.0 * cg[:, None] * _pmul(Q, D), ((0, 0), (0, 1)))
+               + _pmul(np.stack([1 - c2, 2 * c2 * cb, -c2], axis=1), _pmul(D, D)))
+    lead = quartic[:, 4]
+    ok = (np.isfinite(quartic).all(axis=1) & (np.abs(lead) > 1e-12 * np.abs(quartic).max(1))
+          & (a > 0) & (bb > 0) & (c > 0))
+    roots = np.full((T, 4), np.nan + 0j)
+    if ok.any():
+        comp = np.zeros((int(ok.sum()), 4, 4))
+        comp[:, 1:, :3] = np.eye(3)
+        comp[:, :, 3] = -quartic[ok, :4] / lead[ok, None]
+        roots[ok] = np.linalg.eigvals(comp)
+    real = np.abs(roots.imag) <= 1e-3 * (1.0 + np.abs(roots))
+    v = roots.real
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = _pval(D, v)
+        u = -_pval(Q, v) / d
+        den = 1.0 + u * u - 2.0 * u * cg[:, None]
+        s1 = c[:, None] / np.sqrt(den)
+    good = real & (v > 0) & (np.abs(d) > 1e-12) & (u > 0) & (den > 0) & np.isfinite(s1)
+    ti, ri = np.nonzero(good)
+    if ti.size == 0:
+        return np.zeros((0, 3, 3)), np.zeros((0, 3)), np.zeros(0, int)
+    s = s1[ti, ri]
+    P = np.stack([s[:, None] * b[ti, 0], (u[ti, ri] * s)[:, None] * b[ti, 1],
+                  (v[ti, ri] * s)[:, None] * b[ti, 2]], axis=1)  # (M, 3, 3) camera frame
+    Xs = X[ti]
+    cx, cp = Xs.mean(axis=1), P.mean(axis=1)
+    Hm = np.einsum("mki,mkj->mij", Xs - cx[:, None], P - cp[:, None])
+    U, _, Vt = np.linalg.svd(Hm)
+    det = np.sign(np.linalg.det(np.swapaxes(Vt, 1, 2) @ np.swapaxes(U, 1, 2)))
+    det[det == 0] = 1.0
+    Dg = np.zeros((len(ti), 3, 3))
+    Dg[:, 0, 0] = Dg[:, 1, 1] = 1.0
+    Dg[:, 2, 2] = det
+    R = np.swapaxes(Vt, 1, 2) @ Dg @ np.swapaxes(U, 1, 2)
+    t = cp - np.einsum("mij,mj->mi", R, cx)
+    z = np.einsum("mkj,mij->mki", Xs, R)[..., 2] + t[:, None, 2]
+    front = np.all(z > 0, axis=1)
+    return R[front], t[front], ti[front]
+
+
 def p3p(points3d, bearings) -> list[tuple[np.ndarray, np.ndarray]]:
     """All poses that put three model points on three lines of sight (perspective-3-point).
 
     Eliminates the three distances along the rays (Grunert's formulation) down to a quartic,
-    then aligns the model triangle with the camera-frame triangle.
+    solved as a companion-matrix eigenproblem, then aligns the model triangle with the
+    camera-frame triangle.
 
     Parameters
     ----------
@@ -106,43 +181,12 @@ def p3p(points3d, bearings) -> list[tuple[np.ndarray, np.ndarray]]:
     b = as_points(bearings, 3, "bearings")
     if len(X) != 3 or len(b) != 3:
         raise InputError("p3p: needs exactly three points and three bearings")
-    b = b / np.linalg.norm(b, axis=1, keepdims=True)
-    ca, cb, cg = b[1] @ b[2], b[0] @ b[2], b[0] @ b[1]
-    a = np.linalg.norm(X[1] - X[2])
-    bb = np.linalg.norm(X[0] - X[2])
-    c = np.linalg.norm(X[0] - X[1])
-    if min(a, bb, c) <= 0:
+    if min(np.linalg.norm(X[1] - X[2]), np.linalg.norm(X[0] - X[2]),
+           np.linalg.norm(X[0] - X[1])) <= 0:
         raise DegenerateError("p3p: two of the three points coincide")
-    a2, b2, c2 = (a / bb) ** 2, 1.0, (c / bb) ** 2
-    W = np.array([1.0, -2.0 * cb, 1.0])
-    Q = npoly.polyadd(b2 * np.array([-1.0, 0.0, 1.0]), (c2 - a2) * W)
-    D = np.array([2.0 * b2 * cg, -2.0 * b2 * ca])
-    quartic = npoly.polyadd(
-        npoly.polyadd(b2 * npoly.polymul(Q, Q), 2.0 * b2 * cg * npoly.polymul(Q, D)),
-        npoly.polymul(npoly.polysub([b2], c2 * W), npoly.polymul(D, D)),
-    )
-    quartic = np.trim_zeros(quartic, "b")
-    if quartic.size < 2 or not np.all(np.isfinite(quartic)):
-        return []
-    roots = npoly.polyroots(quartic)
-    out = []
-    for r in roots:
-        if abs(r.imag) > 1e-3 * (1.0 + abs(r)):
-            continue
-        v = r.real
-        d = npoly.polyval(v, D)
-        if v <= 0 or abs(d) < 1e-12:
-            continue
-        u = -npoly.polyval(v, Q) / d
-        den = 1.0 + u * u - 2.0 * u * cg
-        if u <= 0 or den <= 0:
-            continue
-        s1 = c / math.sqrt(den)
-        P = np.array([s1 * b[0], u * s1 * b[1], v * s1 * b[2]])
-        R, t = _kabsch(X, P)
-        if np.all((X @ R.T + t)[:, 2] > 0):
-            out.append((R, t))
-    return out
+    b = b / np.linalg.norm(b, axis=1, keepdims=True)
+    R, t, _ = _p3p_batch(X[None], b[None])
+    return list(zip(R, t, strict=True))
 
 
 # --------------------------------------------------------------------------- projection
@@ -270,22 +314,21 @@ def _batch_refine(X, uv, Rs, ts, K, dist, robust, scale, iterations=40):
     t = np.array(ts, dtype=float)
     C = len(R)
 
-    def cost_of(Rc, tc):
-        proj, _, _, z = _project_jac(K, dist, Rc, tc, X, jac=False)
-        e2 = np.sum((proj - uv) ** 2, axis=-1)
-        c = np.array(_sq_cost(e2, robust, scale), dtype=float)
+    def evaluate(Rc, tc):
+        proj, Jp, _, z = _project_jac(K, dist, Rc, tc, X)
+        res = proj - uv
+        c = np.array(_sq_cost(np.sum(res**2, axis=-1), robust, scale), dtype=float)
         c[np.any(z <= 0, axis=1)] = np.inf
-        return c
+        return c, res, Jp
 
     lam = np.full(C, 1e-3)
-    cost = cost_of(R, t)
+    cost, RES, JAC = evaluate(R, t)
     active = np.isfinite(cost)
     for _ in range(iterations):
         if not active.any():
             break
         idx = np.flatnonzero(active)
-        proj, Jp, _, _ = _project_jac(K, dist, R[idx], t[idx], X)
-        res = proj - uv  # (c, N, 2)
+        res, Jp = RES[idx], JAC[idx]  # (c, N, 2), (c, N, 2, 6) at the current poses
         wgt = _robust_weights(np.sum(res**2, axis=-1), robust, scale)[..., None]
         JTJ = np.einsum("cnki,cnk,cnkj->cij", Jp, np.broadcast_to(wgt, res.shape), Jp)
         g = np.einsum("cnki,cnk->ci", Jp, wgt * res)
@@ -297,10 +340,11 @@ def _batch_refine(X, uv, Rs, ts, K, dist, robust, scale, iterations=40):
             break
         Rn = Rotation.from_rotvec(delta[:, :3]).as_matrix() @ R[idx]
         tn = t[idx] + delta[:, 3:]
-        cn = cost_of(Rn, tn)
+        cn, rn, jn = evaluate(Rn, tn)
         better = cn < cost[idx]
         acc = idx[better]
         R[acc], t[acc] = Rn[better], tn[better]
+        RES[acc], JAC[acc] = rn[better], jn[better]
         rel = np.where(better, (cost[idx] - cn) / np.maximum(cost[idx], 1e-300), 0.0)
         cost[acc] = cn[better]
         lam[acc] = np.maximum(lam[acc] / 5.0, 1e-9)
@@ -440,12 +484,12 @@ def _initial_poses(X, xy, planar: bool, max_triplets: int):
     bear = np.column_stack([xy, np.ones(n)])
     cands = []
     rng = np.random.default_rng(12345)
-    for tri in _pick_triplets(X, xy, max_triplets, rng):
-        idx = list(tri)
-        try:
-            cands.extend(p3p(X[idx], bear[idx]))
-        except InputError:
-            continue
+    tris = _pick_triplets(X, xy, max_triplets, rng)
+    if tris:
+        idx = np.array(tris)
+        bu = bear / np.linalg.norm(bear, axis=1, keepdims=True)
+        Rs, ts, _ = _p3p_batch(X[idx], bu[idx])
+        cands.extend(zip(Rs, ts, strict=True))
     if n >= 6 and not planar:
         try:
             P = fit_dlt(X, xy)
