@@ -342,3 +342,15 @@ def test_error_slope_against_rays(case):
     slope = np.polyfit(np.log(ks), np.log(rms), 1)[0]
     assert slope < -0.5, rms
     assert rms[-1] < 0.002, rms
+
+
+def test_far_from_the_origin():
+    """Float32 ray casting is done in a frame centred on the mesh: a model 10 km away
+    from the origin gets the same factors."""
+    mesh, g = perpendicular_mesh(n=6)
+    far = mesh.copy()
+    far.apply_translation([1.0e4, -2.0e4, 5.0e3])
+    a = view_factors(mesh, rays_per_face=256, seed=3)
+    b = view_factors(far, rays_per_face=256, seed=3)
+    assert group_factor(b, far, g, 0, 1) == pytest.approx(group_factor(a, mesh, g, 0, 1), rel=1e-3)
+    assert abs(a - b).max() <= 2 / 256  # at most a ray or two a pair changes its hit
