@@ -107,8 +107,10 @@ def load_mesh(path: str | os.PathLike, *, format: str | None = None,
     format : {"plot3d", "cart3d", or a trimesh file type}, optional
         Force the format.
     merge_vertices : bool
-        Plot3D only: merge coincident grid points (block interfaces, collapsed lines) so
-        that neighbouring faces share vertices. Face order is not changed.
+        Merge coincident vertices (STL stores three per triangle; Plot3D block interfaces
+        and collapsed lines repeat grid points) so that neighbouring faces share vertices,
+        which the vertex interpolation of :meth:`SurfaceMap.to_image` needs. Face order and
+        face attributes are not changed.
 
     Returns
     -------
@@ -132,6 +134,9 @@ def load_mesh(path: str | os.PathLike, *, format: str | None = None,
     else:
         mesh = _load_trimesh(path, fmt or None)
     mesh.metadata["source"] = str(path)
+    check_mesh(mesh, str(path))
+    if merge_vertices:
+        mesh.merge_vertices(merge_tex=True, merge_norm=True)
     return check_mesh(mesh, str(path))
 
 

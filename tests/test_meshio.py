@@ -220,6 +220,9 @@ def test_trimesh_formats_keep_face_order(tmp_path, suffix):
     assert len(m.faces) == len(src.faces)
     # process=False: same triangles in the same order
     np.testing.assert_allclose(m.triangles, src.triangles, atol=1e-6)
+    # coincident vertices merged (STL stores 3 per triangle): faces share vertices
+    assert len(m.vertices) == len(src.vertices)
+    assert len(load_mesh(p, merge_vertices=False).vertices) >= len(src.vertices)
 
 
 def test_glb_scene_components(tmp_path):
