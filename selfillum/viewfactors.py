@@ -239,9 +239,10 @@ def view_factors(
         Seed of the random streams. The result depends only on ``mesh``,
         ``rays_per_face``, ``seed`` and ``two_sided`` (not on ``chunk_size``).
     reciprocity : bool
-        Enforce ``A_i F_ij = A_j F_ji`` by area-weighted symmetrisation (see
-        :func:`enforce_reciprocity`); the sparsity pattern then is the union of those of
-        ``F`` and ``F.T`` (up to ``2 K`` non-zeros a row).
+        Enforce ``A_i F_ij = A_j F_ji`` by area-weighted symmetrisation and symmetric
+        balancing to the raw row sums (see :func:`enforce_reciprocity`); the sparsity
+        pattern then is the union of those of ``F`` and ``F.T`` (up to ``2 K`` non-zeros
+        a row).
     chunk_size : int, optional
         Faces traced at once, rounded to a multiple of 512 (memory in flight is about
         ``chunk_size * K * 150`` bytes). Default: about ``2**20 / K`` faces (about
