@@ -272,3 +272,18 @@ def test_vertex_values_linear_exact_and_nan_faces():
     assert np.all(np.isfinite(vv[others]))
     with pytest.raises(InputError, match="faces"):
         vertex_values(mesh, f[:-1])
+
+
+def test_max_obliqueness_drops_grazing_pixels(plane_map):
+    mesh, cam, sm, (face, P, edge) = plane_map
+    # closed form: angle between the plane normal (+z) and the line of sight of each pixel
+    v = cam.center - P
+    ang = np.degrees(np.arccos(v[..., 2] / np.linalg.norm(v, axis=-1)))
+    on = face >= 0
+    lim = float(np.median(ang[on]))
+    sm2 = SurfaceMap(mesh, cam, max_obliqueness_deg=lim)
+    clear = on & (np.abs(ang - lim) > 1e-6) & (edge > 1e-4)
+    np.testing.assert_array_equal(sm2.mask[clear], ang[clear] <= lim)
+    assert 0.3 < sm2.mask.sum() / sm.mask.sum() < 0.7
+    with pytest.raises(InputError, match="max_obliqueness_deg"):
+        SurfaceMap(mesh, cam, max_obliqueness_deg=0)
