@@ -38,15 +38,17 @@ class SurfaceSample(NamedTuple):
     values : (F,) or (T, F) float64
         Mean of the finite pixels seeing each face (NaN where none).
     counts : (F,) or (T, F) int64
-        Number of finite pixels averaged. ``SurfaceMap.pixel_counts - counts`` is the
-        number of NaN pixels ignored.
+        Number of finite pixels averaged.
     unseen : (F,) or (T, F) bool
         Faces with no finite pixel (``counts == 0``).
+    nan_counts : (F,) or (T, F) int64
+        Number of pixels seeing the face that were NaN (or infinite) and ignored.
     """
 
     values: np.ndarray
     counts: np.ndarray
     unseen: np.ndarray
+    nan_counts: np.ndarray
 
 
 def _face_geometry(mesh: trimesh.Trimesh):
@@ -330,7 +332,8 @@ class SurfaceMap:
         Returns
         -------
         SurfaceSample
-            ``(values, counts, unseen)``, each (F,) for one image or (T, F) for a stack.
+            ``(values, counts, unseen, nan_counts)``, each (F,) for one image or (T, F)
+            for a stack.
         """
         arr, single = self._check_images(image)
         if not np.issubdtype(arr.dtype, np.number) or np.issubdtype(arr.dtype, np.complexfloating):
@@ -349,9 +352,10 @@ class SurfaceMap:
         with np.errstate(invalid="ignore", divide="ignore"):
             values = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
         unseen = counts == 0
+        nan_counts = self.pixel_counts[None, :] - counts
         if single:
-            return SurfaceSample(values[0], counts[0], unseen[0])
-        return SurfaceSample(values, counts, unseen)
+            return SurfaceSample(values[0], counts[0], unseen[0], nan_counts[0])
+        return SurfaceSample(values, counts, unseen, nan_counts)
 
     def vertex_values(self, face_values, interpolation: str = "linear") -> np.ndarray:
         """Per-vertex values of per-face values (see :func:`vertex_values`)."""

@@ -197,7 +197,8 @@ def test_nan_pixels_ignored_and_counted(plane_map):
     img[pix[1, 0], pix[1, 1]] = 100.0
     res = sm.to_surface(img)
     n = sm.pixel_counts[f0]
-    assert res.counts[f0] == n - 1
+    assert res.counts[f0] == n - 1 and res.nan_counts[f0] == 1
+    assert res.nan_counts.sum() == 1
     assert res.values[f0] == pytest.approx((n - 2 + 100.0) / (n - 1))
     # all pixels NaN -> unseen
     img[sm.face_index == f0] = np.nan
