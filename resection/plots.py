@@ -123,9 +123,9 @@ def plot_surface(
     norm = Normalize(lo, hi)
     cm = colormaps[cmap]
     W, H = camera.width, camera.height
-    fig = Figure(figsize=(W / dpi + 1.6, H / dpi + 0.8), dpi=dpi)
-    ax = fig.add_axes([0.02, 0.04, 0.98 * W / (W + 1.6 * dpi), 0.86 * H / (H + 0.8 * dpi)
-                       + 0.04])
+    fig_w = max(W / dpi, 5.0)
+    fig = Figure(figsize=(fig_w + 1.4, fig_w * H / W + 0.6), dpi=dpi, layout="constrained")
+    ax = fig.add_subplot()
     ax.set_xlim(-0.5, W - 0.5)
     ax.set_ylim(H - 0.5, -0.5)
     ax.set_aspect("equal")
@@ -154,8 +154,7 @@ def plot_surface(
                                edgecolors="k" if edges else "face",
                                linewidths=0.2 if edges else 0.3)
         mappable = ax.add_collection(polys)
-    cax = fig.add_axes([0.985 * W / (W + 1.6 * dpi) + 0.02, 0.1, 0.025, 0.75])
-    cb = fig.colorbar(mappable, cax=cax)
+    cb = fig.colorbar(mappable, ax=ax, shrink=0.85)
     if label:
         cb.set_label(label)
     if title is not None:
