@@ -366,3 +366,23 @@ def test_writer_errors(tmp_path):
         write_surface(tmp_path / "x.vtk", m, {"p": np.zeros(3)})
     with pytest.raises(InputError, match="unknown surface format"):
         write_surface(tmp_path / "x.xyz", m, {})
+
+
+def test_read_face_fields(tmp_path):
+    from resection.meshio import read_face_fields
+
+    m, f = _mesh_and_fields()
+    nf = len(m.faces)
+    for suffix in ("ply", "csv"):
+        p = tmp_path / f"out.{suffix}"
+        write_surface(p, m, f)
+        got = read_face_fields(p, nf)
+        np.testing.assert_array_equal(got["Cp"], f["Cp"])
+        np.testing.assert_array_equal(got["grad_1"], f["grad"][:, 1])
+        np.testing.assert_array_equal(got["block"], m.face_attributes["block"])
+    np.save(tmp_path / "v.npy", np.arange(nf, dtype=float))
+    np.testing.assert_array_equal(read_face_fields(tmp_path / "v.npy")["values"], np.arange(nf))
+    with pytest.raises(InputError, match="has 80 values but the mesh has 81 faces"):
+        read_face_fields(tmp_path / "v.npy", nf + 1)
+    with pytest.raises(InputError, match="not found"):
+        read_face_fields(tmp_path / "none.csv")
