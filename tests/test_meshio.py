@@ -386,3 +386,33 @@ def test_read_face_fields(tmp_path):
         read_face_fields(tmp_path / "v.npy", nf + 1)
     with pytest.raises(InputError, match="not found"):
         read_face_fields(tmp_path / "none.csv")
+
+
+def test_hand_written_cart3d_fortran_binary(tmp_path):
+    """Little-endian unformatted Cart3D: (nv, nt), float32 vertices, 1-based triangles,
+    component ids."""
+    verts = [0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0, 1]
+    tris = [1, 2, 3, 1, 2, 4]
+    data = (_rec("2i", 4, 2, endian="<") + _rec("12f", *verts, endian="<")
+            + _rec("6i", *tris, endian="<") + _rec("2i", 3, 9, endian="<"))
+    p = tmp_path / "bin.tri"
+    p.write_bytes(data)
+    m = load_mesh(p)
+    np.testing.assert_array_equal(m.faces, [[0, 1, 2], [0, 1, 3]])
+    np.testing.assert_array_equal(m.face_attributes["component"], [3, 9])
+    assert m.area == pytest.approx(1.0)
+
+
+def test_hand_written_plot3d_8_byte_record_markers(tmp_path):
+    """gfortran -frecord-marker=8, little-endian, double precision, single block."""
+    def rec8(fmt, *vals):
+        payload = struct.pack("<" + fmt, *vals)
+        mark = struct.pack("<q", len(payload))
+        return mark + payload + mark
+
+    x, y, z = [0.0, 1.0, 0.0, 1.0], [0.0, 0.0, 2.0, 2.0], [0.5] * 4
+    p = tmp_path / "g8.x"
+    p.write_bytes(rec8("3i", 2, 2, 1) + rec8("12d", *x, *y, *z))
+    m = load_mesh(p)
+    assert len(m.faces) == 2 and m.area == pytest.approx(2.0)
+    np.testing.assert_allclose(m.vertices[:, 2], 0.5)
