@@ -1,0 +1,118 @@
+"""PSP workflow (selfillum.psp) on a synthetic corner rendered by Mitsuba: the pressure
+error that self-illumination causes near the corner disappears once both images are
+corrected. References: the pressure field and Stern-Volmer law the images were made with."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from resection import Camera, InputError
+from selfillum.psp import (
+    SternVolmer,
+    Taps,
+    fit_stern_volmer,
+    psp_pressure,
+    read_taps,
+    tap_faces,
+)
+
+P_REF = 100.0
+LAW = SternVolmer(0.15, 0.85, P_REF)
+
+
+@pytest.fixture(scope="module")
+def psp_case():
+    from resection.surface import SurfaceMap
+    from scenes.corner import corner
+    from selfillum.multiview import merge_views
+    from selfillum.render import render
+    from selfillum.viewfactors import view_factors
+
+    sc = corner(resolution=12, reflectance=0.6, pattern="uniform")
+    mesh = sc.mesh
+    c = np.asarray(mesh.triangles_center)
+    s = np.where(sc.plate == 0, -c[:, 0], c[:, 2])  # signed distance from the corner line
+    p_true = P_REF * (1.0 + 0.25 * np.tanh(-s / 0.25))  # high on the floor, low on the wall
+    excitation = 1.0 + 0.3 * c.sum(axis=1)  # lamp non-uniformity, cancels in the ratio
+    e_off = excitation / LAW.ratio(P_REF)
+    e_on = excitation / LAW.ratio(p_true)
+    F = view_factors(mesh, rays_per_face=2048, seed=1)
+    cam = Camera.look_at([1.4, 0.5, 1.2], [0.3, 0.5, 0.3], [0, 1, 0],
+                         K=[[260, 0, 159.5], [0, 260, 119.5], [0, 0, 1]], width=320, height=240)
+    smap = SurfaceMap(mesh, cam)
+    off, on = (merge_views([smap], [render(mesh, e, sc.reflectance, cam, bounces=-1, spp=128,
+                                           seed=k).image]).values
+               for k, e in enumerate((e_off, e_on)))
+    rng = np.random.default_rng(0)
+    far = np.flatnonzero(np.abs(s) > 0.35)  # taps away from the corner
+    pick = np.concatenate([rng.choice(far[sc.plate[far] == k], 8, replace=False)
+                           for k in (0, 1)])
+    taps = Taps([f"T{i}" for i in range(pick.size)], c[pick], p_true[pick])
+    return sc, F, off, on, taps, p_true, np.abs(s) < 0.2
+
+
+def test_si_correction_removes_pressure_error_near_corner(psp_case):
+    sc, F, off, on, taps, p_true, near = psp_case
+    fixed = psp_pressure(sc.mesh, off, on, taps, P_REF, F=F, reflectance=sc.reflectance)
+    raw = psp_pressure(sc.mesh, off, on, taps, P_REF, correct_si=False)
+    err_fixed = np.abs(fixed.pressure - p_true) / P_REF
+    err_raw = np.abs(raw.pressure - p_true) / P_REF
+    assert np.all(np.isfinite(err_fixed))
+    assert np.percentile(err_fixed[near], 95) < 0.012
+    assert np.percentile(err_raw[near], 95) > 0.03
+    assert np.percentile(err_raw[near], 95) > 4 * np.percentile(err_fixed[near], 95)
+    # the law itself is recovered from the taps only when the SI is removed
+    assert fixed.stern_volmer.A == pytest.approx(LAW.A, abs=0.01)
+    assert fixed.stern_volmer.B == pytest.approx(LAW.B, abs=0.01)
+    assert abs(raw.stern_volmer.A - LAW.A) > 0.05
+    assert np.sqrt(np.mean(fixed.tap_residuals**2)) < 0.005 * P_REF
+    assert fixed.corrected and not raw.corrected
+
+
+def test_stern_volmer_fit_exact():
+    p = np.array([80.0, 95.0, 110.0, 130.0])
+    law = fit_stern_volmer(LAW.ratio(p), p, P_REF)
+    assert law.A == pytest.approx(LAW.A, abs=1e-12) and law.B == pytest.approx(LAW.B, abs=1e-12)
+    np.testing.assert_allclose(law.pressure(LAW.ratio(p)), p, rtol=1e-12)
+    with pytest.raises(InputError, match="at least 2 taps"):
+        fit_stern_volmer([1.0, np.nan], [100.0, 110.0], P_REF)
+    with pytest.raises(InputError, match="same pressure"):
+        fit_stern_volmer([1.0, 1.1], [100.0, 100.0], P_REF)
+    with pytest.raises(InputError, match="p_ref"):
+        fit_stern_volmer([1.0, 1.1], [100.0, 110.0], 0.0)
+
+
+def test_taps_file_and_faces(tmp_path):
+    from scenes.corner import corner
+
+    mesh = corner(resolution=4).mesh
+    c = np.asarray(mesh.triangles_center)
+    path = tmp_path / "taps.csv"
+    path.write_text("id,x,y,z,p\n" + "".join(
+        f"K{i},{c[i, 0]},{c[i, 1]},{c[i, 2]},{100 + i}\n" for i in (3, 40, 60)))
+    taps = read_taps(path)
+    assert taps.ids == ["K3", "K40", "K60"]
+    np.testing.assert_array_equal(taps.pressure, [103.0, 140.0, 160.0])
+    np.testing.assert_array_equal(tap_faces(mesh, taps.points), [3, 40, 60])
+    with pytest.raises(InputError, match="from the surface"):
+        tap_faces(mesh, [[0.5, 0.5, 0.3]])
+    bad = tmp_path / "bad.csv"
+    bad.write_text("id,x,y,z,pressure\nA,0,0,0,1\n")
+    with pytest.raises(InputError, match="id,x,y,z,p"):
+        read_taps(bad)
+    bad.write_text("id,x,y,z,p\nA,0,0,0,1\nA,0,0.1,0,1\n")
+    with pytest.raises(InputError, match="duplicate"):
+        read_taps(bad)
+    with pytest.raises(InputError, match="not found"):
+        read_taps(tmp_path / "none.csv")
+
+
+def test_psp_bad_input(psp_case):
+    sc, F, off, on, taps, p_true, near = psp_case
+    with pytest.raises(InputError, match="form factors"):
+        psp_pressure(sc.mesh, off, on, taps, P_REF)
+    with pytest.raises(InputError, match="one value per face"):
+        psp_pressure(sc.mesh, off[:-1], on, taps, P_REF, correct_si=False)
+    with pytest.raises(InputError, match="Taps"):
+        psp_pressure(sc.mesh, off, on, [[0, 0, 0]], P_REF, correct_si=False)
