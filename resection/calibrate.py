@@ -22,7 +22,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from ._checks import as_points
@@ -232,13 +231,101 @@ def _initial_pose(cam: Camera, X, uv, planar):
     return np.array(r.camera.R), np.array(r.camera.t)
 
 
+def _normal_blocks(vw, names, K, dist, K0, Rs, ts, *, schur=True):
+    """Residuals and the block structure of the normal equations of the joint problem.
+
+    The Jacobian is block-sparse: intrinsic columns dense, each view's 6 pose columns
+    (left rotation perturbation, translation) non-zero only on that view's rows. Returns
+    the sum of squares, the Schur complement ``S = U - sum W V^-1 W^T`` (m, m), the pose
+    blocks ``V`` (V, 6, 6), the couplings ``W`` (V, m, 6), and the gradients ``g_theta``
+    (m,) and ``g_pose`` (V, 6) (undamped)."""
+    m = len(names)
+    U = np.zeros((m, m))
+    g_t = np.zeros(m)
+    Vb = np.zeros((len(vw), 6, 6))
+    Wb = np.zeros((len(vw), m, 6))
+    g_p = np.zeros((len(vw), 6))
+    ss = 0.0
+    for v, (X, uv, _) in enumerate(vw):
+        proj, Jp, Ji, _ = _project_jac(K, dist, Rs[v], ts[v], X, names, K0)
+        r = (proj - uv).ravel()
+        A = Ji.reshape(-1, m)
+        B = Jp.reshape(-1, 6)
+        ss += float(r @ r)
+        U += A.T @ A
+        g_t += A.T @ r
+        Vb[v] = B.T @ B
+        Wb[v] = A.T @ B
+        g_p[v] = B.T @ r
+    S = None
+    if schur:
+        S = U - np.einsum("vij,vjk,vlk->il", Wb, np.linalg.inv(Vb), Wb) if m else U
+    return ss, S, Vb, Wb, g_t, g_p, U
+
+
+def _schur_lm(vw, names, K0, dist0, Rs, ts, max_iter):
+    """Levenberg-Marquardt on intrinsics + view poses, solving each damped step through
+    the Schur complement of the 6x6 pose blocks (cost linear in the number of views)."""
+    m = len(names)
+    theta = _intrinsic_params(names, K0, dist0)
+
+    def sumsq(theta, Rs, ts):
+        K, dist = _apply_intrinsics(names, theta, K0, dist0)
+        total = 0.0
+        for v, (X, uv, _) in enumerate(vw):
+            proj, _, _, z = _project_jac(K, dist, Rs[v], ts[v], X, jac=False)
+            if np.any(z <= 0):
+                return math.inf
+            total += float(np.sum((proj - uv) ** 2))
+        return total
+
+    lam = 1e-3
+    for it in range(1, max_iter + 1):
+        K, dist = _apply_intrinsics(names, theta, K0, dist0)
+        ss, _, Vb, Wb, g_t, g_p, U = _normal_blocks(vw, names, K, dist, K0, Rs, ts,
+                                                    schur=False)
+        while True:
+            Ud = U + lam * np.diag(np.maximum(np.diag(U), 1e-12))
+            dV = np.maximum(np.einsum("vii->vi", Vb), 1e-12)
+            Vd = Vb + lam * dV[:, :, None] * np.eye(6)
+            Vinv = np.linalg.inv(Vd)
+            if m:
+                WVi = np.einsum("vij,vjk->vik", Wb, Vinv)
+                Sd = Ud - np.einsum("vik,vlk->il", WVi, Wb)
+                rhs = -g_t + np.einsum("vik,vk->i", WVi, g_p)
+                try:
+                    d_t = np.linalg.solve(Sd, rhs)
+                except np.linalg.LinAlgError:
+                    d_t = np.zeros(m)
+                d_p = np.einsum("vij,vj->vi", Vinv, -g_p - np.einsum("vik,i->vk", Wb, d_t))
+            else:
+                d_t = np.zeros(0)
+                d_p = np.einsum("vij,vj->vi", Vinv, -g_p)
+            th_n = theta + d_t
+            Rs_n = Rotation.from_rotvec(d_p[:, :3]).as_matrix() @ Rs
+            ts_n = ts + d_p[:, 3:]
+            ss_n = sumsq(th_n, Rs_n, ts_n)
+            if ss_n < ss:
+                rel = (ss - ss_n) / max(ss, 1e-300)
+                theta, Rs, ts = th_n, Rs_n, ts_n
+                lam = max(lam / 5.0, 1e-12)
+                break
+            lam *= 10.0
+            if lam > 1e12:
+                return theta, Rs, ts, it
+        step = np.concatenate([d_t / np.maximum(np.abs(theta), 1e-3), d_p.ravel()])
+        if rel < 1e-14 or np.abs(step).max() < 1e-13:
+            return theta, Rs, ts, it
+    raise SolveError(f"calibrate: did not converge in {max_iter} iterations")
+
+
 def calibrate(
     views,
     image_size: tuple[int, int],
     *,
     fix=(),
     initial: Camera | None = None,
-    max_nfev: int = 500,
+    max_iter: int = 200,
 ) -> CalibrationResult:
     """Calibrate a camera from one or more views of a planar or 3-D target.
 
@@ -257,8 +344,8 @@ def calibrate(
     initial : Camera, optional
         Starting (and fixed-parameter) intrinsics ``K`` and ``dist``. By default the
         intrinsics come from the data and the distortion starts at zero.
-    max_nfev : int
-        Maximum number of function evaluations of the joint refinement.
+    max_iter : int
+        Maximum number of Levenberg-Marquardt iterations of the joint refinement.
 
     Returns
     -------
@@ -318,65 +405,40 @@ def calibrate(
         R0s.append(R)
         t0s.append(t)
 
-    sizes = [len(X) for X, _, _ in vw]
-    offs = np.concatenate([[0], np.cumsum(sizes)]) * 2
-    theta0 = _intrinsic_params(names, K0, dist0)
-    p0 = np.concatenate([theta0] + [np.concatenate([np.zeros(3), t]) for t in t0s])
-    cache = {}
-
-    def evaluate(p):
-        key = p.tobytes()
-        if key not in cache:
-            cache.clear()
-            K, dist = _apply_intrinsics(names, p[:m], K0, dist0)
-            res = np.empty(offs[-1])
-            J = np.zeros((offs[-1], n_par))
-            for v, (X, uv, _) in enumerate(vw):
-                q = p[m + 6 * v: m + 6 * v + 6]
-                R = Rotation.from_rotvec(q[:3]).as_matrix() @ R0s[v]
-                proj, Jp, Ji, _ = _project_jac(K, dist, R, q[3:], X, names, K0, w=q[:3])
-                a, b = offs[v], offs[v + 1]
-                res[a:b] = (proj - uv).ravel()
-                J[a:b, :m] = Ji.reshape(-1, m)
-                J[a:b, m + 6 * v: m + 6 * v + 6] = Jp.reshape(-1, 6)
-            cache[key] = (res, J)
-        return cache[key]
-
-    sol = least_squares(lambda p: evaluate(p)[0], p0, jac=lambda p: evaluate(p)[1],
-                        method="lm", x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12,
-                        max_nfev=max_nfev)
-    if sol.status == 0:
-        raise SolveError(f"calibrate: did not converge in {max_nfev} evaluations")
-    p = sol.x
-    K, dist = _apply_intrinsics(names, p[:m], K0, dist0)
+    theta, Rs, ts, niter = _schur_lm(vw, names, K0, dist0, np.array(R0s), np.array(t0s),
+                                     max_iter)
+    K, dist = _apply_intrinsics(names, theta, K0, dist0)
     if K[0, 0] <= 0 or K[1, 1] <= 0:
         raise SolveError("calibrate: the refinement gave a negative focal length")
-    res, J = evaluate(p)
-    colnorm = np.linalg.norm(J, axis=0)
-    if np.any(colnorm == 0):
-        raise SolveError("calibrate: some parameters do not affect the projection")
-    JTJ = J.T @ J
-    N = JTJ / np.outer(colnorm, colnorm)  # normal matrix of the column-scaled Jacobian
-    ev, evec = np.linalg.eigh(N)
-    if ev[0] < 1e-18 * ev[-1]:
-        weak = evec[:m, 0]
-        bad = [names[i] for i in np.flatnonzero(np.abs(weak) > 0.3)]
-        raise SolveError(
-            "calibrate: the views do not determine "
-            + (", ".join(bad) if bad else "the poses")
-            + f" (condition number {math.sqrt(ev[-1] / max(ev[0], 1e-300)):.1e}); add views "
-            "at other angles, a deeper target, or fix those parameters")
+    # marginal covariance of the intrinsics: inverse of the Schur complement at the solution
+    try:
+        ss, S, Vb, _, _, _, _ = _normal_blocks(vw, names, K, dist, K0, Rs, ts)
+    except np.linalg.LinAlgError:
+        raise SolveError("calibrate: the pose of some view is not determined") from None
+    scale = np.sqrt(np.maximum(np.diag(S), 1e-300))
+    if m:
+        ev, evec = np.linalg.eigh(S / np.outer(scale, scale))
+        if ev[0] < 1e-12 * ev[-1]:
+            bad = [names[i] for i in np.flatnonzero(np.abs(evec[:, 0]) > 0.3)]
+            raise SolveError(
+                "calibrate: the views do not determine "
+                + (", ".join(bad) if bad else "the intrinsics")
+                + f" (condition number {math.sqrt(ev[-1] / max(ev[0], 1e-300)):.1e}); add "
+                "views at other angles, a deeper target, or fix those parameters")
+    for v, Bv in enumerate(Vb):
+        d = np.sqrt(np.maximum(np.diag(Bv), 1e-300))
+        evv = np.linalg.eigvalsh(Bv / np.outer(d, d))
+        if evv[0] < 1e-12 * evv[-1]:
+            raise SolveError(f"calibrate: the pose of view {v} is not determined")
     dof = n_obs - n_par
-    s2 = float(res @ res) / dof
-    cov = s2 * np.linalg.inv(JTJ)
+    s2 = ss / dof
+    cov = s2 * np.linalg.inv(S) if m else np.zeros((0, 0))
     std = {nm: float(math.sqrt(cov[i, i])) for i, nm in enumerate(names)}
 
     poses, residuals, vrms = [], [], []
     for v, (X, uv, _) in enumerate(vw):
-        q = p[m + 6 * v: m + 6 * v + 6]
-        R = Rotation.from_rotvec(q[:3]).as_matrix() @ R0s[v]
         try:
-            c = Camera(w, h, K, dist, R, q[3:])
+            c = Camera(w, h, K, dist, Rs[v], ts[v])
         except InputError as exc:
             raise SolveError(f"calibrate: view {v}: invalid camera ({exc})") from None
         proj, valid = c.project(X, return_valid=True)
@@ -389,7 +451,8 @@ def calibrate(
         vrms.append(float(np.sqrt(np.mean(np.sum(r**2, axis=1)))))
     allr = np.concatenate(residuals)
     rms = float(np.sqrt(np.mean(np.sum(allr**2, axis=1))))
-    msg = (f"{V} view(s), {n_obs // 2} markers, rms {rms:.3f} px; fx {K[0, 0]:.2f} "
+    msg = (f"{V} view(s), {n_obs // 2} markers, rms {rms:.3f} px ({niter} iterations); "
+           f"fx {K[0, 0]:.2f} "
            f"fy {K[1, 1]:.2f} cx {K[0, 2]:.2f} cy {K[1, 2]:.2f} px")
     return CalibrationResult(
         camera=poses[0], poses=poses, residuals=residuals, rms=rms,
