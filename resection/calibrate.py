@@ -3,7 +3,9 @@
 :func:`calibrate` estimates the focal lengths, the perspective centre (principal point)
 and the Brown-Conrady distortion ``[k1, k2, p1, p2, k3]`` shared by all views, together
 with one pose per view, by minimising the reprojection error of all views jointly
-(Levenberg-Marquardt with an analytic Jacobian whose pose columns are block-sparse).
+(Levenberg-Marquardt with an analytic Jacobian; its pose columns are block-sparse, so each
+damped step is solved through the Schur complement of the 6x6 pose blocks, with a cost
+linear in the number of views, as in bundle adjustment).
 
 Starts, without a user guess:
 
@@ -13,7 +15,8 @@ Starts, without a user guess:
 * non-coplanar target: the 11-parameter DLT of each view with six or more markers,
   decomposed into ``K`` (:mod:`resection.dlt`) - which also covers the single-image case;
 
-then the pose of each view by :func:`resection.solve_pose`.
+then the pose of each view from its homography or DLT with those intrinsics (else
+:func:`resection.solve_pose`).
 """
 
 from __future__ import annotations
