@@ -644,11 +644,15 @@ def solve_pose(
         raise InputError(f"solve_pose: {n} 3-D markers but {len(uv)} image points")
     if n < 3:
         raise InputError(f"solve_pose: at least 3 markers are needed, got {n}")
+    if robust in ("linear", False):
+        robust = None
     if robust is not None and robust not in ("huber", "soft_l1", "cauchy", "arctan"):
         raise InputError(f"solve_pose: unknown robust loss {robust!r}; use huber, soft_l1, "
                          "cauchy or arctan")
-    if robust in ("linear",):
-        robust = None
+    if not (np.isfinite(ambiguity_px) and ambiguity_px > 0):
+        raise InputError(f"solve_pose: ambiguity_px must be positive, got {ambiguity_px}")
+    if min(max_triplets, max_refine, max_nfev) < 1:
+        raise InputError("solve_pose: max_triplets, max_refine and max_nfev must be >= 1")
     scale = float(robust_scale)
     if not (np.isfinite(scale) and scale > 0):
         raise InputError(f"solve_pose: robust_scale must be positive, got {robust_scale}")
