@@ -88,36 +88,47 @@ def max_monotonic_radius(dist: np.ndarray) -> float:
 
 
 def undistort_normalized(
-    xy_d: np.ndarray, dist: np.ndarray, *, iterations: int = 30, tol: float = 1e-14
+    xy_d: np.ndarray, dist: np.ndarray, *, iterations: int = 50, tol: float = 1e-15
 ) -> np.ndarray:
     """Invert :func:`distort_normalized` by vectorised Newton iterations.
 
-    Points whose inverse does not converge, or lies beyond
+    Each point iterates until its Newton step falls below ``tol`` (relative); the others
+    stop early. Points whose inverse does not converge, or lies beyond
     :func:`max_monotonic_radius`, are returned as NaN.
     """
     xy_d = np.asarray(xy_d, dtype=np.float64)
     k1, k2, p1, p2, k3 = dist
     if not np.any(dist):
         return xy_d.copy()
-    xy = xy_d.copy()
-    for _ in range(iterations):
-        x, y = xy[:, 0], xy[:, 1]
+    xd_all = np.ascontiguousarray(xy_d[:, 0])
+    yd_all = np.ascontiguousarray(xy_d[:, 1])
+    xs, ys = xd_all.copy(), yd_all.copy()
+    active = np.flatnonzero(np.isfinite(xd_all) & np.isfinite(yd_all))  # still iterating
+    for it in range(iterations):
+        if active.size == 0:
+            break
+        full = it == 0 and active.size == xs.size  # avoid gathers while all points move
+        x, y = (xs, ys) if full else (xs[active], ys[active])
+        xd, yd = (xd_all, yd_all) if full else (xd_all[active], yd_all[active])
         r2 = x * x + y * y
         radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
         dr = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)  # d(radial)/d(r2)
-        res = distort_normalized(xy, dist) - xy_d
+        rx = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x) - xd
+        ry = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y - yd
         j11 = radial + 2.0 * x * x * dr + 2.0 * p1 * y + 6.0 * p2 * x
         j12 = 2.0 * x * y * dr + 2.0 * p1 * x + 2.0 * p2 * y
-        j21 = 2.0 * x * y * dr + 2.0 * p1 * x + 2.0 * p2 * y
         j22 = radial + 2.0 * y * y * dr + 6.0 * p1 * y + 2.0 * p2 * x
-        det = j11 * j22 - j12 * j21
+        det = j11 * j22 - j12 * j12  # the Jacobian is symmetric
         with np.errstate(divide="ignore", invalid="ignore"):
-            dx = (j22 * res[:, 0] - j12 * res[:, 1]) / det
-            dy = (-j21 * res[:, 0] + j11 * res[:, 1]) / det
-        xy[:, 0] -= dx
-        xy[:, 1] -= dy
-        if np.nanmax(np.abs(res), initial=0.0) < tol:
-            break
+            dx = (j22 * rx - j12 * ry) / det
+            dy = (j11 * ry - j12 * rx) / det
+        x = x - dx
+        y = y - dy
+        xs[active] = x
+        ys[active] = y
+        step = np.maximum(np.abs(dx), np.abs(dy))
+        active = active[~(step <= tol * (1.0 + np.maximum(np.abs(x), np.abs(y))))]
+    xy = np.column_stack([xs, ys])
     res = np.abs(distort_normalized(xy, dist) - xy_d).max(axis=1)
     r = np.hypot(xy[:, 0], xy[:, 1])
     bad = ~(res < 1e-9) | (r > max_monotonic_radius(dist))
