@@ -10,7 +10,13 @@ from ._cli_markers import add_detect_options
 from .calibrate import calibrate
 from .camera import Camera
 from .errors import InputError
-from .markerio import link_points, read_markers, read_points, write_residuals
+from .markerio import (
+    link_points,
+    read_markers,
+    read_points,
+    write_residuals,
+    write_view_residuals,
+)
 from .pipeline import image_points
 from .pose import solve_pose
 
@@ -154,11 +160,6 @@ def run_calibrate(args: argparse.Namespace) -> int:
         print(f"  {name:>3} = {val:.6g} +- {result.std[name]:.2g}")
     cam.write(args.out)
     if args.residuals:
-        with open(args.residuals, "w", encoding="utf-8") as fh:
-            fh.write("view,id,u,v,du,dv,error\n")
-            for v, (i, (_, uv), r) in enumerate(zip(ids, views, result.residuals, strict=True)):
-                for k, p, d in zip(i, uv, r, strict=True):
-                    e = (d[0] ** 2 + d[1] ** 2) ** 0.5
-                    fh.write(f"{v},{k},{p[0]:.6f},{p[1]:.6f},{d[0]:.6f},{d[1]:.6f},{e:.6f}\n")
+        write_view_residuals(args.residuals, ids, [uv for _, uv in views], result.residuals)
     print(f"camera written to {args.out}")
     return 0

@@ -34,6 +34,7 @@ __all__ = [
     "write_points",
     "link_points",
     "write_residuals",
+    "write_view_residuals",
 ]
 
 _CANDIDATE_COLUMNS = ("diameter", "depth", "merit", "snr")
@@ -237,3 +238,23 @@ def write_residuals(path: str | os.PathLike, ids, uv, residuals) -> None:
         for k, p, r, e in zip(ids, uv, res, err, strict=True):
             w.writerow([k, f"{p[0]:.6f}", f"{p[1]:.6f}", f"{p[0] - r[0]:.6f}",
                         f"{p[1] - r[1]:.6f}", f"{r[0]:.6f}", f"{r[1]:.6f}", f"{e:.6f}"])
+
+
+def write_view_residuals(path: str | os.PathLike, ids, uv, residuals) -> None:
+    """Residual table of a multi-view calibration: ``view,id,u,v,du,dv,error`` (px;
+    ``du, dv`` observed minus projected). ``ids``, ``uv``, ``residuals``: one entry per
+    view."""
+    if not (len(ids) == len(uv) == len(residuals)):
+        raise InputError("write_view_residuals: ids, uv and residuals differ in length")
+    with open(os.fspath(path), "w", newline="", encoding="utf-8") as fh:
+        w = csv.writer(fh, lineterminator="\n")
+        w.writerow(["view", "id", "u", "v", "du", "dv", "error"])
+        for v, (i, p, r) in enumerate(zip(ids, uv, residuals, strict=True)):
+            p = as_points(p, 2, f"view {v} uv")
+            r = as_points(r, 2, f"view {v} residuals", allow_nan=True)
+            if not (len(i) == len(p) == len(r)):
+                raise InputError(f"write_view_residuals: view {v}: lengths differ")
+            e = np.hypot(r[:, 0], r[:, 1])
+            for k, pp, rr, ee in zip(i, p, r, e, strict=True):
+                w.writerow([v, k, f"{pp[0]:.6f}", f"{pp[1]:.6f}", f"{rr[0]:.6f}",
+                            f"{rr[1]:.6f}", f"{ee:.6f}"])

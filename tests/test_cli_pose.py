@@ -129,7 +129,14 @@ def test_calibrate_command(tmp_path, capsys):
                                                flags=cv2.CALIB_FIX_K3)
     np.testing.assert_allclose(cam.K, Kc, atol=0.1)
     np.testing.assert_allclose(cam.dist, dc.ravel()[:5], atol=1e-3)
-    assert len((tmp_path / "cal_res.csv").read_text().splitlines()) == 1 + 6 * 70
+    table = np.genfromtxt(tmp_path / "cal_res.csv", delimiter=",", names=True, dtype=None,
+                          encoding="utf-8")
+    assert len(table) == 6 * 70 and set(table["view"]) == set(range(6))
+    np.testing.assert_allclose(table["error"], np.hypot(table["du"], table["dv"]), atol=2e-6)
+    rms_line = [ln for ln in out.splitlines() if ln.startswith("rms")][0]
+    assert float(rms_line.split()[1]) == pytest.approx(
+        np.sqrt(np.mean(table["error"] ** 2)), abs=1e-4)
+    assert float(rms_line.split()[1]) == pytest.approx(rms_cv, abs=1e-4)
     # the --views form gives the same answer
     rc = main(["calibrate", "--views", *[f"{tmp_path / 'board.csv'}:{p}" for p in paths],
                "--size", f"{W}x{H}", "--fix", "k3", "--out", str(tmp_path / "cal2.json")])
