@@ -26,7 +26,7 @@ def test_geometry_and_orientation(scene):
     radial = np.column_stack([np.zeros(fus.sum()), c[fus, 1], c[fus, 2]])
     assert np.all(np.einsum("ij,ij->i", n[fus], radial) > 0)  # fuselage normals outwards
     for part, z in ((1, 1.0), (2, -1.0)):  # wing upper +z, lower -z
-        np.testing.assert_allclose(n[scene.part == part], [[0.0, 0.0, z]], atol=1e-12)
+        np.testing.assert_allclose(n[scene.part == part] - [0.0, 0.0, z], 0.0, atol=1e-12)
     # surface areas: the wing's upper side and the cylinder
     area = np.bincount(scene.part, weights=scene.mesh.area_faces)
     assert area[1] == pytest.approx(scene.chord * (scene.radius + scene.span
