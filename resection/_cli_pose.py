@@ -63,6 +63,8 @@ def register(sub) -> None:
     )
     c.add_argument("--markers", help="target marker CSV shared by all views given by --points")
     c.add_argument("--points", nargs="+", default=[], help="linked image points CSV per view")
+    c.add_argument("--points-dir", metavar="DIR",
+                   help="directory whose *.csv files (sorted) are the views' image points")
     c.add_argument("--views", nargs="+", default=[], metavar="MARKERS.csv:POINTS.csv",
                    help="views as marker/points file pairs (targets may differ)")
     c.add_argument("--size", required=True, metavar="WxH", help="image size in pixels")
@@ -128,10 +130,18 @@ def _size(text: str) -> tuple[int, int]:
 def run_calibrate(args: argparse.Namespace) -> int:
     size = _size(args.size)
     pairs = []
-    if args.points:
+    points = list(args.points)
+    if args.points_dir:
+        if not os.path.isdir(args.points_dir):
+            raise InputError(f"--points-dir: not a directory: {args.points_dir}")
+        found = sorted(f for f in os.listdir(args.points_dir) if f.lower().endswith(".csv"))
+        if not found:
+            raise InputError(f"--points-dir: no .csv files in {args.points_dir}")
+        points += [os.path.join(args.points_dir, f) for f in found]
+    if points:
         if not args.markers:
             raise InputError("--points needs --markers (the target shared by the views)")
-        pairs += [(args.markers, p) for p in args.points]
+        pairs += [(args.markers, p) for p in points]
     elif args.markers:
         raise InputError("--markers needs --points (one linked points file per view)")
     for v in args.views:
@@ -140,7 +150,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
         m, pt = v.rsplit(":", 1)
         pairs.append((m, pt))
     if not pairs:
-        raise InputError("no views: give --markers M.csv --points P1.csv ... or --views")
+        raise InputError("no views: give --markers M.csv --points P1.csv ... (or "
+                         "--points-dir DIR), or --views M.csv:P.csv ...")
     views, ids = [], []
     for m, pt in pairs:
         i, X, uv = _linked(m, pt)

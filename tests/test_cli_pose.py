@@ -113,7 +113,8 @@ def test_calibrate_command(tmp_path, capsys):
         if not (ok.all() and cam.in_image(uv, margin=3).all()):
             continue
         uv = uv + rng.normal(scale=0.1, size=uv.shape)
-        p = tmp_path / f"view{len(paths)}.csv"
+        p = tmp_path / "views" / f"view{len(paths)}.csv"
+        p.parent.mkdir(exist_ok=True)
         write_points(p, ids, uv)
         paths.append(str(p))
         obj.append(board.astype(np.float32))
@@ -142,6 +143,12 @@ def test_calibrate_command(tmp_path, capsys):
                "--size", f"{W}x{H}", "--fix", "k3", "--out", str(tmp_path / "cal2.json")])
     assert rc == 0
     np.testing.assert_allclose(Camera.read(tmp_path / "cal2.json").K, cam.K, atol=1e-6)
+    # and so does a directory of points files
+    rc = main(["calibrate", "--markers", str(tmp_path / "board.csv"), "--points-dir",
+               str(tmp_path / "views"), "--size", f"{W}x{H}", "--fix", "k3", "--out",
+               str(tmp_path / "cal3.json")])
+    assert rc == 0
+    np.testing.assert_allclose(Camera.read(tmp_path / "cal3.json").K, cam.K, atol=1e-6)
 
 
 def test_calibrate_command_bad_input(tmp_path, capsys):
@@ -161,3 +168,6 @@ def test_calibrate_command_bad_input(tmp_path, capsys):
     assert "MARKERS.csv:POINTS.csv" in err
     err = _err(capsys, [*base, "--size", "1280x960"])
     assert "observations" in err
+    err = _err(capsys, ["calibrate", "--markers", str(tmp_path / "b.csv"), "--points-dir",
+                        str(tmp_path / "nodir"), "--size", "10x10", "--out", "x.json"])
+    assert "not a directory" in err
