@@ -30,8 +30,12 @@ is matched from the previous successful frame; each chunk starts from the refere
 (frame 0, linked through ``link`` or matched from the approximate ``camera``), so chunks are
 independent and run in parallel on a Dask cluster (a ``LocalCluster`` of ``workers``
 processes by default, or the scheduler at ``scheduler``); the matcher therefore has to bridge
-the motion between frame 0 and a chunk's first frame (several pixels are fine). The chunking
-does not depend on the number of workers, so 1 and N workers give the same results.
+the motion between frame 0 and a chunk's first frame (several pixels are fine; a failed
+match is retried once with twice the landing tolerance). After a large excursion that can
+still fail: a second, sequential pass then processes again, from the last good frame before
+them, the frames that failed while matched from an older frame (corrupt frames, which failed
+although matched from the previous good frame, are not redone). The chunking does not depend
+on the number of workers, so 1 and N workers give the same results.
 
 Every finished frame is written at once to ``out_dir/frames/frame_NNNNNN.json`` (written to
 a temporary file, flushed, fsync'ed and renamed, so a file is either complete or absent).
@@ -44,6 +48,8 @@ the next frame is then matched from the last good one.
 from __future__ import annotations
 
 import csv
+import dataclasses
+import inspect
 import json
 import os
 import tempfile
@@ -101,6 +107,9 @@ class FrameResult:
         Their measured positions, pixels.
     residuals : (n, 2) ndarray
         Observed minus reprojected positions, pixels.
+    matched_from : int
+        The frame whose markers this one was matched from (-1: the approximate camera or
+        the linking).
     """
 
     frame: int
@@ -113,6 +122,7 @@ class FrameResult:
     ids: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=str))
     uv: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     residuals: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    matched_from: int = -1
 
     @property
     def ok(self) -> bool:
@@ -130,6 +140,7 @@ class FrameResult:
             "rms": float(self.rms), "ids": [str(i) for i in self.ids],
             "uv": np.asarray(self.uv, float).tolist(),
             "residuals": np.asarray(self.residuals, float).tolist(),
+            "matched_from": int(self.matched_from),
         }
 
     @classmethod
@@ -142,6 +153,7 @@ class FrameResult:
             ids=np.array(d["ids"], dtype=str),
             uv=np.array(d["uv"], float).reshape(n, 2),
             residuals=np.array(d["residuals"], float).reshape(n, 2),
+            matched_from=int(d.get("matched_from", -1)),
         )
 
 
@@ -216,7 +228,20 @@ def _match(candidates, setup: _Setup, reference: FrameResult | None):
 
     markers3d = (setup.ids, setup.points3d)
     ref = setup.camera if reference is None else (tuple(reference.ids), reference.uv)
-    m = match_markers(candidates, markers3d, ref, camera=setup.camera, **setup.match_kw)
+    try:
+        m = match_markers(candidates, markers3d, ref, camera=setup.camera, **setup.match_kw)
+    except SolveError as first:
+        # The matcher's hypotheses are 2-D similarities: a pitch of a degree or two between
+        # the reference and this frame (a chunk's first frame is matched from frame 0) bends
+        # the marker pattern by more than the landing tolerance. One retry with twice the
+        # tolerance; the matcher's pose verification and residual test still guard it.
+        kw = dict(setup.match_kw)
+        default = inspect.signature(match_markers).parameters["tolerance"].default
+        kw["tolerance"] = 2.0 * float(kw.get("tolerance", default))
+        try:
+            m = match_markers(candidates, markers3d, ref, camera=setup.camera, **kw)
+        except SolveError:
+            raise SolveError(f"{first} (also with tolerance {kw['tolerance']:g} px)") from None
     return np.asarray(m.marker_ids).astype(str), np.asarray(m.uv, float).reshape(-1, 2), m.pose
 
 
@@ -246,6 +271,12 @@ def _process_frame(frame_data, index: int, setup: _Setup,
                    reference: FrameResult | None) -> FrameResult:
     """Read, detect, match from ``reference`` and solve one frame; never raises for a bad
     frame: the failure is returned with its reason."""
+    res = _process_frame_unlabelled(frame_data, index, setup, reference)
+    return dataclasses.replace(res, matched_from=-1 if reference is None else reference.frame)
+
+
+def _process_frame_unlabelled(frame_data, index: int, setup: _Setup,
+                              reference: FrameResult | None) -> FrameResult:
     name = _frame_name(frame_data)
     try:
         img = _load_image(frame_data)
@@ -330,6 +361,27 @@ def _run_chunk(setup: _Setup, items: list, seed: FrameResult | None,
             ref = res
         out.append(res.to_dict())
     return out
+
+
+def _repair(frames: list, setup: _Setup, done: dict, record) -> None:
+    """Second, sequential pass over the frames that failed while matched from a frame other
+    than the last good one before them (a chunk's first frames are matched from frame 0:
+    after a large excursion that can fail where matching from the previous frame works).
+    Such a frame is processed again from the last good frame; a frame that failed although
+    matched from it (a corrupt frame) is left as it is, so the pass is cheap and a resumed
+    run does not redo it. Deterministic: it depends only on the first pass' results."""
+    last_good = None
+    for i in range(len(frames)):
+        d = done[i]
+        if d["status"] == "ok":
+            last_good = i
+            continue
+        if last_good is None or d.get("matched_from", -1) == last_good:
+            continue
+        res = _process_frame(frames[i], i, setup, FrameResult.from_dict(done[last_good]))
+        record(res)
+        if res.ok:
+            last_good = i
 
 
 # --------------------------------------------------------------------------- files
@@ -882,6 +934,14 @@ def track(
                             record(FrameResult.from_dict(dct))
 
                 _execute_dask(setup, tasks, on_chunk, scheduler, workers)
+
+        def rerecord(res: FrameResult) -> None:
+            nonlocal computed
+            _write_frame(frames_dir, res)
+            done[res.frame] = res.to_dict()
+            computed += 1
+
+        _repair(frames, setup, done, rerecord)
     finally:
         bar.close()
 
