@@ -240,7 +240,9 @@ def _project_jac(K, dist, R, t, X, names=(), K0=None, w=None, jac=True):
     xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
     yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
     fx, s, cx, fy, cy = K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
-    uv = np.stack([fx * xd + s * yd + cx, fy * yd + cy], axis=-1)
+    uv = np.empty(x.shape + (2,))
+    uv[..., 0] = fx * xd + s * yd + cx
+    uv[..., 1] = fy * yd + cy
     if not jac:
         return (uv[0], None, None, z[0]) if single else (uv, None, None, z)
     # d(xd, yd) / d(x, y)
@@ -252,14 +254,22 @@ def _project_jac(K, dist, R, t, X, names=(), K0=None, w=None, jac=True):
     b21, b22 = fy * a12, fy * a22
     iz = 1.0 / zs
     # d(u, v) / d(Xc) with d(x, y)/d(Xc) = [[1/z, 0, -x/z], [0, 1/z, -y/z]]
-    Juv_X = np.stack([
-        np.stack([b11 * iz, b12 * iz, -(b11 * x + b12 * y) * iz], -1),
-        np.stack([b21 * iz, b22 * iz, -(b21 * x + b22 * y) * iz], -1),
-    ], axis=-2)  # (C, N, 2, 3)
-    dX_dw = -_skew(Xc - t[:, None, :])  # (C, N, 3, 3)
+    J_pose = np.empty(uv.shape + (6,))
+    a = J_pose[..., 3:]  # d(u, v) / d(t) = d(u, v) / d(Xc)
+    a[..., 0, 0] = b11 * iz
+    a[..., 0, 1] = b12 * iz
+    a[..., 0, 2] = -(b11 * x + b12 * y) * iz
+    a[..., 1, 0] = b21 * iz
+    a[..., 1, 1] = b22 * iz
+    a[..., 1, 2] = -(b21 * x + b22 * y) * iz
+    # d(Xc)/dw = -[P]x with P = R X (left perturbation at 0): row a -> P x a
+    P = Xc - t[:, None, :]
+    P0, P1, P2 = P[..., 0, None], P[..., 1, None], P[..., 2, None]
+    J_pose[..., 0] = P1 * a[..., 2] - P2 * a[..., 1]
+    J_pose[..., 1] = P2 * a[..., 0] - P0 * a[..., 2]
+    J_pose[..., 2] = P0 * a[..., 1] - P1 * a[..., 0]
     if w is not None:
-        dX_dw = dX_dw @ _left_jacobian(w)
-    J_pose = np.concatenate([Juv_X @ dX_dw, Juv_X], axis=-1)
+        J_pose[..., :3] = J_pose[..., :3] @ _left_jacobian(w)
     J_intr = np.empty(uv.shape + (len(names),))
     if names:
         K0 = K if K0 is None else K0
