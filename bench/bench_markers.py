@@ -141,7 +141,7 @@ def bench_accuracy(diameters, snrs, n_images, png):
         for j, snr in enumerate(snrs):
             errs = []
             for k in range(n_images):
-                sc = make_scene((256, 256), 40, d, snr=snr, blur=blur, contrast=contrast,
+                sc = make_scene((320, 320), 40, d, snr=snr, blur=blur, contrast=contrast,
                                 rng=1000 * i + 10 * j + k)
                 cand = detect_markers(sc.image, d)
                 dist, idx = cKDTree(cand.uv).query(sc.uv)

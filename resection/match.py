@@ -181,9 +181,9 @@ def _basis_triples(P, n_bases, rng):
     if good.sum() < min(n_bases, len(T)):
         good = quality > 0.05
     T = T[good]
-    # prefer large triangles, but keep variety: rank by min side, take the best n_bases
-    order = np.argsort(-sides[good].min(axis=1))
-    return T[order[:n_bases]]
+    # random order among the good triangles (np.unique sorted them): variety, so that
+    # hidden markers cannot sink every basis
+    return T[rng.permutation(len(T))[:n_bases]]
 
 
 def _hypotheses(P, Q, tree, basis, radius, tol, max_scale, max_rot):
@@ -242,6 +242,19 @@ def _assign(pred, tree, tol):
     return np.where(keep, jj, -1), np.where(keep, d, np.inf)
 
 
+def _gate(errors, tolerance: float) -> float:
+    """Acceptance radius around a reprojection: 6 sigma of the position noise, sigma
+    estimated robustly from the median reprojection error (Rayleigh: median = 1.1774 sigma;
+    6 rather than ~4 because this estimate from ~20 residuals that the pose has partly
+    fitted is low by up to 30 %), at least 0.25 px, at most ``tolerance``. A true marker
+    falls outside with probability < 1e-5; the area where a spurious candidate could be
+    taken for a hidden marker stays as small as the noise allows."""
+    e = np.asarray(errors, float)
+    e = e[np.isfinite(e)]
+    sigma = float(np.median(e)) / 1.1774 if e.size else tolerance
+    return float(min(tolerance, max(6.0 * sigma, 0.25)))
+
+
 # ----------------------------------------------------------------------------- main
 def match_markers(
     candidates,
@@ -294,8 +307,9 @@ def match_markers(
     max_rms : float
         Refuse when the final RMS residual exceeds this, px.
     gate : float, optional
-        Largest residual of a matched marker after the pose solve (px); default
-        ``max(3 rms, 0.5)`` capped at ``tolerance``.
+        Largest residual of a matched marker after the pose solve (px); default 6 times
+        the position noise estimated from the median residual, at least 0.25 px, at most
+        ``tolerance``.
     seed : int
         Seed of the basis choice (the result is deterministic).
 
@@ -332,6 +346,10 @@ def match_markers(
     basis = _basis_triples(P, n_bases, rng)
     a, b = _hypotheses(P, Q, tree, basis, search_radius, tolerance, max_scale_change,
                        max_rotation)
+    if a.size == 0:  # every basis had a hidden marker: try more of them once
+        basis = _basis_triples(P, 5 * n_bases, rng)
+        a, b = _hypotheses(P, Q, tree, basis, search_radius, tolerance, max_scale_change,
+                           max_rotation)
     nh = int(a.size)
     if nh == 0:
         raise SolveError("match_markers: no hypothesis: no three candidates reproduce a "
@@ -380,18 +398,20 @@ def match_markers(
             raise InputError(f"reference: id(s) not in markers3d: {', '.join(unknown[:10])}")
         X = xyz[[pos3[k] for k in matched_ids]]
         pose = solve_pose(cam, X, Q[cand_idx], robust="huber", robust_scale=0.5)
-        # reproject every marker (also those absent from the reference), reassign, resolve
-        proj = pose.camera.project(xyz)
-        inview = np.isfinite(proj).all(axis=1)
-        rms0 = pose.rms if np.isfinite(pose.rms) else tolerance
-        g = gate if gate is not None else min(tolerance, max(3.0 * rms0, 0.5))
-        jj = np.full(len(xyz), -1)
-        jj[inview], _ = _assign(proj[inview], tree, g)
-        sel = np.flatnonzero(jj >= 0)
-        if sel.size < max(min_matches, 4):
-            raise SolveError(f"match_markers: only {sel.size} markers within {g:.2g} px of "
-                             "their reprojection after the pose solve")
-        pose = solve_pose(cam, xyz[sel], Q[jj[sel]])
+        # reproject every marker (also those absent from the reference), keep those within
+        # a statistical gate of their reprojection, resolve (twice: the first pose may
+        # still carry a wrong pair)
+        for _ in range(2):
+            proj = pose.camera.project(xyz)
+            inview = np.isfinite(proj).all(axis=1)
+            g = gate if gate is not None else _gate(pose.errors, tolerance)
+            jj = np.full(len(xyz), -1)
+            jj[inview], _ = _assign(proj[inview], tree, g)
+            sel = np.flatnonzero(jj >= 0)
+            if sel.size < max(min_matches, 4):
+                raise SolveError(f"match_markers: only {sel.size} markers within {g:.2g} px of "
+                                 "their reprojection after the pose solve")
+            pose = solve_pose(cam, xyz[sel], Q[jj[sel]])
         matched_ids = [ids3d[i] for i in sel]
         cand_idx = jj[sel]
         res = pose.residuals

@@ -372,3 +372,23 @@ def test_enhance_bad_input():
         enhance(np.zeros((10, 10)), windows=[(1, 2, 3)])
     with pytest.raises(InputError, match="finite"):
         clahe(np.full((10, 10), np.nan))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("snr", [20.0, 50.0, 100.0])
+def test_accuracy_grid_slow(snr):
+    # heavier variant: every diameter 3..10 px, 5 images each, bound and peers as above
+    for diameter in range(3, 11):
+        errs, errs_tp = [], []
+        for seed in range(5):
+            sc = make_scene((256, 256), 40, diameter, snr=snr, blur=0.7,
+                            rng=int(1000 * snr) + 10 * diameter + seed)
+            cand = detect_markers(sc.image, diameter)
+            e, hit = _errors(cand.uv, sc.uv)
+            assert hit == 1.0
+            errs.append(e)
+            errs_tp.append(_errors(_peers(sc.image, diameter, 40)[0], sc.uv)[0])
+        rms = _rms(np.vstack(errs))
+        assert rms <= 0.05
+        assert rms <= _rms(np.vstack(errs_tp))
+        assert rms < 1.3 * position_crb(diameter, 0.7, 100.0, 100.0 / snr)

@@ -145,3 +145,16 @@ def test_result_fields():
     assert [res.ids[i] for i in res.candidate_index] == list(res.marker_ids)
     assert res.residuals.shape == (len(res), 2)
     assert res.rms == pytest.approx(np.sqrt(np.mean(np.sum(res.residuals**2, 1))))
+
+
+@pytest.mark.slow
+def test_1000_frames_more_spurious_slow():
+    # heavier variant: 1000 frames, 40 % hidden, twice as many spurious candidates as real
+    rng = np.random.default_rng(11)
+    ids, X = _model(rng, 40)
+    n_ok = 0
+    for _ in range(1000):
+        Q, truth, cam = _frame(rng, ids, X, missing=0.4, spurious=2.0)
+        res = match_markers(Q, (ids, X), BASE)
+        n_ok += np.array_equal(np.array(res.ids, dtype=object), truth)
+    assert n_ok == 1000
