@@ -75,6 +75,9 @@ class Candidates:
     threshold : float
         Merit threshold used.
     polarity : str
+    n_rejected : dict
+        Local maxima rejected at each step: ``border``, ``masked``, ``fit`` (failed or too
+        faint fit), ``double``.
     """
 
     u: np.ndarray
@@ -304,13 +307,11 @@ def refine_markers(
     w = (~wbad & (rr <= half + 0.5)[None]).astype(float)
     # local background from the window's outer ring, weighted centroid inside
     ring = (rr > R0 + 1.5)[None] & ~wbad
-    ringcount = ring.sum(axis=(1, 2))
-    bg0 = np.where(
-        ringcount > 0,
-        np.nanmedian(np.where(ring, win, np.nan).reshape(n, -1), axis=1)
-        if n else np.zeros(0),
-        0.0,
-    ) if n else np.zeros(0)
+    ringvals = np.where(ring, win, np.nan).reshape(n, -1)
+    has_ring = ring.any(axis=(1, 2))
+    bg0 = np.zeros(n)
+    if has_ring.any():
+        bg0[has_ring] = np.nanmedian(ringvals[has_ring], axis=1)
     inner = (rr <= R0 + 1.0)[None] & ~wbad
     wc = np.clip(win - bg0[:, None, None], 0, None) * inner
     sw = wc.sum(axis=(1, 2))
