@@ -174,9 +174,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_cmd_correct)
-    from . import _cli_render
+    from . import _cli_psp, _cli_render
 
     _cli_render.register(sub)
+    _cli_psp.register(sub)
     return parser
 
 

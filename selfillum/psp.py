@@ -35,7 +35,7 @@ from .mesh import check_mesh
 from .radiosity import check_reflectance, correct
 
 __all__ = ["SternVolmer", "Taps", "fit_stern_volmer", "read_taps", "tap_faces", "PSPResult",
-           "psp_pressure"]
+           "psp_pressure", "psp_images"]
 
 
 @dataclass(frozen=True)
@@ -240,3 +240,52 @@ def psp_pressure(
     law = fit_stern_volmer(ratio[tf], taps.pressure, p_ref)
     pressure = law.pressure(ratio)
     return PSPResult(pressure, ratio, law, tf, pressure[tf] - taps.pressure, bool(correct_si))
+
+
+def psp_images(
+    maps,
+    wind_off_images,
+    wind_on_images,
+    taps: Taps,
+    p_ref: float,
+    *,
+    F=None,
+    reflectance=None,
+    correct_si: bool = True,
+) -> tuple[PSPResult, list]:
+    """The PSP workflow from camera images: one or several cameras, wind-off and wind-on.
+
+    Each camera's images are mapped onto the faces and merged over the cameras
+    (:func:`selfillum.multiview.merge_views`, silhouette pixels dropped), the pressure is
+    computed on the faces seen in both merged images (:func:`psp_pressure`) and
+    backprojected into every camera (interpolated over the surface).
+
+    Parameters
+    ----------
+    maps : sequence of resection.surface.SurfaceMap
+        One per camera, all of the same mesh. The model is assumed not to move between
+        wind-off and wind-on (align the images first otherwise).
+    wind_off_images, wind_on_images : sequence of (H_c, W_c) arrays
+        One image per camera each, dark level removed.
+    taps, p_ref, F, reflectance, correct_si
+        As in :func:`psp_pressure`.
+
+    Returns
+    -------
+    result : PSPResult
+        Per-face pressure and the fitted law.
+    images : list of (H_c, W_c) float64 arrays
+        Pressure seen by each camera (NaN off the model and on faces without pressure).
+    """
+    from .multiview import merge_views
+
+    maps = list(maps)
+    if not maps:
+        raise InputError("psp_images: no camera given")
+    off = merge_views(maps, wind_off_images)
+    on = merge_views(maps, wind_on_images)
+    mesh = maps[0].mesh
+    res = psp_pressure(mesh, off.values, on.values, taps, p_ref, F=F, reflectance=reflectance,
+                       seen=off.seen & on.seen, correct_si=correct_si)
+    images = [m.to_image(res.pressure) for m in maps]
+    return res, images

@@ -41,19 +41,19 @@ def psp_case():
     cam = Camera.look_at([1.4, 0.5, 1.2], [0.3, 0.5, 0.3], [0, 1, 0],
                          K=[[260, 0, 159.5], [0, 260, 119.5], [0, 0, 1]], width=320, height=240)
     smap = SurfaceMap(mesh, cam)
-    off, on = (merge_views([smap], [render(mesh, e, sc.reflectance, cam, bounces=-1, spp=128,
-                                           seed=k).image]).values
-               for k, e in enumerate((e_off, e_on)))
+    images = [render(mesh, e, sc.reflectance, cam, bounces=-1, spp=128, seed=k).image
+              for k, e in enumerate((e_off, e_on))]
+    off, on = (merge_views([smap], [im]).values for im in images)
     rng = np.random.default_rng(0)
     far = np.flatnonzero(np.abs(s) > 0.35)  # taps away from the corner
     pick = np.concatenate([rng.choice(far[sc.plate[far] == k], 8, replace=False)
                            for k in (0, 1)])
     taps = Taps([f"T{i}" for i in range(pick.size)], c[pick], p_true[pick])
-    return sc, F, off, on, taps, p_true, np.abs(s) < 0.2
+    return sc, F, off, on, taps, p_true, np.abs(s) < 0.2, smap, images
 
 
 def test_si_correction_removes_pressure_error_near_corner(psp_case):
-    sc, F, off, on, taps, p_true, near = psp_case
+    sc, F, off, on, taps, p_true, near, _, _ = psp_case
     fixed = psp_pressure(sc.mesh, off, on, taps, P_REF, F=F, reflectance=sc.reflectance)
     raw = psp_pressure(sc.mesh, off, on, taps, P_REF, correct_si=False)
     err_fixed = np.abs(fixed.pressure - p_true) / P_REF
@@ -108,8 +108,55 @@ def test_taps_file_and_faces(tmp_path):
         read_taps(tmp_path / "none.csv")
 
 
+def test_psp_images_and_cli(psp_case, tmp_path, capsys):
+    """Image-level workflow and ``selfillum psp``: the pressure images agree with the true
+    pressure backprojected the same way."""
+    import json
+
+    from resection.images import read_image, write_image
+    from selfillum.cli import main
+    from selfillum.psp import psp_images
+
+    sc, F, off, on, taps, p_true, near, smap, images = psp_case
+    res, (pimg,) = psp_images([smap], [images[0]], [images[1]], taps, P_REF, F=F,
+                              reflectance=sc.reflectance)
+    truth = smap.to_image(p_true)
+    face = smap.face_index
+    near_px = (face >= 0) & near[np.maximum(face, 0)] & np.isfinite(pimg)
+    assert near_px.sum() > 2000
+    assert np.percentile(np.abs(pimg - truth)[near_px], 95) < 0.015 * P_REF
+    assert np.all(np.isnan(pimg[face < 0]))
+    # the command line on the same data
+    sc.mesh.export(tmp_path / "corner.ply")
+    smap.camera.write(tmp_path / "cam.json")
+    write_image(tmp_path / "off.tif", images[0].astype(np.float32))
+    write_image(tmp_path / "on.tif", images[1].astype(np.float32))
+    (tmp_path / "taps.csv").write_text("id,x,y,z,p\n" + "".join(
+        f"{i},{x},{y},{z},{p}\n" for i, (x, y, z), p in zip(taps.ids, taps.points,
+                                                            taps.pressure, strict=True)))
+    out = tmp_path / "out"
+    rc = main(["psp", "--mesh", str(tmp_path / "corner.ply"), "--camera",
+               str(tmp_path / "cam.json"), "--wind-off", str(tmp_path / "off.tif"),
+               "--wind-on", str(tmp_path / "on.tif"), "--taps", str(tmp_path / "taps.csv"),
+               "--p-ref", str(P_REF), "--reflectance", str(sc.reflectance), "--rays", "2048",
+               "--out", str(out)])
+    assert rc == 0, capsys.readouterr().err
+    law = json.loads((out / "stern_volmer.json").read_text())
+    assert law["A"] == pytest.approx(LAW.A, abs=0.01) and law["B"] == pytest.approx(LAW.B,
+                                                                                      abs=0.01)
+    p_cli = read_image(out / "pressure_0.tif")
+    assert np.percentile(np.abs(p_cli - truth)[near_px], 95) < 0.015 * P_REF
+    faces = np.genfromtxt(out / "pressure_faces.csv", delimiter=",", names=True)
+    assert len(faces) == len(sc.mesh.faces)
+    rc = main(["psp", "--mesh", str(tmp_path / "corner.ply"), "--camera",
+               str(tmp_path / "cam.json"), "--wind-off", str(tmp_path / "off.tif"),
+               "--taps", str(tmp_path / "taps.csv"), "--p-ref", "100", "--reflectance", "0.6",
+               "--out", str(out)])
+    assert rc == 2 and "one wind-on image per camera" in capsys.readouterr().err
+
+
 def test_psp_bad_input(psp_case):
-    sc, F, off, on, taps, p_true, near = psp_case
+    sc, F, off, on, taps, p_true, near, _, _ = psp_case
     with pytest.raises(InputError, match="form factors"):
         psp_pressure(sc.mesh, off, on, taps, P_REF)
     with pytest.raises(InputError, match="one value per face"):
