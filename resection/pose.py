@@ -594,7 +594,7 @@ def solve_pose(
     max_rms: float | None = None,
     ambiguity_px: float = 0.5,
     max_triplets: int = 8,
-    max_refine: int = 8,
+    max_refine: int = 4,
     max_nfev: int = 200,
 ) -> PoseResult:
     """Camera pose (Point of View) from three or more markers, without an initial guess.
