@@ -35,6 +35,7 @@ __all__ = [
     "triangulate",
     "ImageDisplacements",
     "pair_by_id",
+    "stack_views",
     "marker_displacements",
     "Displacements3D",
     "displacements_3d",
@@ -300,6 +301,55 @@ def pair_by_id(ids_a, values_a, ids_b, values_b) -> tuple[np.ndarray, np.ndarray
     common, pa, pb = np.intersect1d(ia, ib, assume_unique=True, return_indices=True)
     order = np.argsort(pa)
     return common[order], va[pa[order]], vb[pb[order]]
+
+
+def stack_views(ids_per_camera, uv_per_camera, ids=None) -> tuple[np.ndarray, np.ndarray]:
+    """Gather per-camera marker tables into the ``(M, N, 2)`` array :func:`triangulate`
+    takes.
+
+    Parameters
+    ----------
+    ids_per_camera : sequence of M (n_m,) array_like of str
+        Marker ids measured by each camera (e.g. one frame of each camera's ``markers.csv``
+        from ``resection track``).
+    uv_per_camera : sequence of M (n_m, 2) array_like
+        Their pixel positions.
+    ids : (N,) array_like of str, optional
+        Markers wanted, in this order. Default: those seen by at least two cameras, sorted.
+
+    Returns
+    -------
+    ids : (N,) ndarray of str
+    uv : (M, N, 2) ndarray
+        NaN where a camera did not measure a marker.
+    """
+    if len(ids_per_camera) != len(uv_per_camera):
+        raise InputError(f"stack_views: {len(ids_per_camera)} id lists for "
+                         f"{len(uv_per_camera)} position arrays")
+    tables = []
+    for m, (i, uv) in enumerate(zip(ids_per_camera, uv_per_camera, strict=True)):
+        i = np.asarray(i).astype(str).ravel()
+        uv = as_points(uv, 2, f"uv of camera {m}", allow_nan=True)
+        if len(i) != len(uv):
+            raise InputError(f"stack_views: camera {m} has {len(i)} ids for {len(uv)} positions")
+        u, c = np.unique(i, return_counts=True)
+        if np.any(c > 1):
+            raise InputError(f"stack_views: duplicate marker id {str(u[c > 1][0])!r} in camera {m}")
+        tables.append(dict(zip(i.tolist(), uv, strict=True)))
+    if ids is None:
+        count: dict[str, int] = {}
+        for t in tables:
+            for k in t:
+                count[k] = count.get(k, 0) + 1
+        out_ids = np.array(sorted(k for k, c in count.items() if c >= 2), dtype=str)
+    else:
+        out_ids = np.asarray(ids).astype(str).ravel()
+    out = np.full((len(tables), len(out_ids), 2), np.nan)
+    for m, t in enumerate(tables):
+        for j, k in enumerate(out_ids):  # loop over marker ids (tens), not pixels
+            if k in t:
+                out[m, j] = t[k]
+    return out_ids, out
 
 
 @dataclass(frozen=True)

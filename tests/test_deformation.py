@@ -13,6 +13,7 @@ from resection.deformation import (
     displacements_3d,
     marker_displacements,
     pair_by_id,
+    stack_views,
     triangulate,
 )
 
@@ -173,6 +174,25 @@ def test_one_camera_displacements_in_known_plane():
     shift = np.cross(cam.R[2], [0.0, 0.0, 1.0]) * 0.004 + np.cross(cam.R[2], [1.0, 0, 0]) * 0.002
     res = marker_displacements(cam, ids, X0, ids, uv0, ids, cam.project(X0 + shift))
     np.testing.assert_allclose(res.dX, np.broadcast_to(shift, X0.shape), atol=1e-10)
+
+
+def test_stack_views_feeds_triangulation():
+    c1, c2 = _stereo()
+    c3 = Camera.look_at([0.0, 0.8, 1.8], [0, 0, 0], [1, 0, 0], K=K, width=1280, height=1000)
+    X = _points(6, seed=8)
+    ids = np.array([f"p{i}" for i in range(6)])
+    tabs = []
+    for m, c in enumerate((c1, c2, c3)):
+        keep = np.r_[np.arange(6)[m:], np.arange(6)[:m]][: 6 - m]  # shuffled, some missing
+        tabs.append((ids[keep], c.project(X)[keep]))
+    got_ids, uv = stack_views([t[0] for t in tabs], [t[1] for t in tabs])
+    idx = [int(k[1:]) for k in got_ids]
+    tri = triangulate([c1, c2, c3], uv)
+    np.testing.assert_allclose(tri.points, X[idx], atol=1e-9)
+    assert got_ids.tolist() == ["p1", "p2", "p3", "p4", "p5"]  # p0: one camera only
+    assert np.isnan(uv[2, 0]).all() and np.isfinite(uv[:, 1:]).all()
+    with pytest.raises(InputError, match="duplicate marker id 'p1'"):
+        stack_views([["p1", "p1"]], [[[0, 0], [1, 1]]])
 
 
 def test_bad_input():
