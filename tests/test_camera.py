@@ -58,7 +58,10 @@ def test_undistort_matches_opencv_and_inverts_distort():
     uv = rng.uniform([0, 0], [W - 1, H - 1], (400, 2))
     ours = cam.undistort(uv)
     crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-15)
-    ref = cv2.undistortPoints(uv.reshape(-1, 1, 2), K, DIST, R=None, P=K, criteria=crit)
+    if hasattr(cv2, "undistortPointsIter"):  # OpenCV 4.x
+        ref = cv2.undistortPointsIter(uv.reshape(-1, 1, 2), K, DIST, None, K, crit)
+    else:  # OpenCV 5: criteria moved into undistortPoints
+        ref = cv2.undistortPoints(uv.reshape(-1, 1, 2), K, DIST, R=None, P=K, criteria=crit)
     ref = ref.reshape(-1, 2)
     np.testing.assert_allclose(ours, ref, atol=1e-6, rtol=0)
     np.testing.assert_allclose(cam.distort(ours), uv, atol=1e-8, rtol=0)
