@@ -260,6 +260,15 @@ def test_first_frame_linked_by_hand(run60, tmp_path):
               diameter=5.6, out_dir=tmp_path / "o4", progress=False)
 
 
+def test_in_memory_frames(run60, tmp_path):
+    model, files, cam, ref, _ = run60
+    stack = np.stack([model.image(k) for k in range(6)])  # (F, H, W) array
+    res = track(stack, cam, (model.ids, model.points3d), diameter=5.6, out_dir=tmp_path / "m",
+                progress=False)
+    assert res.ok.all() and res.file.tolist() == [""] * 6
+    np.testing.assert_allclose(res.angles, ref.angles[:6], atol=1e-9)
+
+
 def test_bad_input(run60, tmp_path):
     model, files, cam, ref, _ = run60
     kw = dict(out_dir=tmp_path / "o", progress=False)
