@@ -41,8 +41,10 @@ Every finished frame is written at once to ``out_dir/frames/frame_NNNNNN.json`` 
 a temporary file, flushed, fsync'ed and renamed, so a file is either complete or absent).
 A run that is interrupted and started again with ``resume=True`` loads these files and
 computes only the missing frames; ``poses.csv`` and ``markers.csv`` are merged from them at
-the end. A failed frame is recorded (status ``failed`` and the reason) and the run goes on;
-the next frame is then matched from the last good one.
+the end. (On a Dask cluster the frames of a chunk are written when the chunk comes back, so
+an interruption loses at most the chunks in flight.) A failed frame is recorded (status
+``failed`` and the reason) and the run goes on; the next frame is then matched from the last
+good one.
 """
 
 from __future__ import annotations
