@@ -5,6 +5,8 @@
    backprojection through a SurfaceMap), with the agreement of the two images.
 2. Against the number of faces N: view factors, the correction of a measured radiosity
    (``selfillum.radiosity.correct``), and one render with the fastest variant.
+3. Glossy paint (``selfillum.brdf``): the view-dependent transport (T and T2) and the
+   glossy inverse against a glossy Mitsuba render, with the per-face agreement.
 
 Run:  .venv/bin/python bench/bench_render.py [--resolution 20] [--spp 256] [--width 320]
 """
@@ -95,6 +97,40 @@ def main() -> None:
         tf, tc, tr = t1 - t0, t3 - t2, t4 - t3
         print(f"{len(sc.mesh.faces):>7}{tf:>8.2f}{tc:>11.4f}{tr:>10.2f}{tr / tc:>16.0f}"
               f"{tr / (tf + tc):>20.1f}")
+
+    glossy(cam, variants[0], args.spp)
+
+
+def glossy(cam, variant, spp):
+    from selfillum.brdf import GlossyPaint, glossy_correct, glossy_forward, transport_matrix
+
+    paint, rho = GlossyPaint(0.4, 0.3), 0.5
+    sc = corner(resolution=10, reflectance=rho, pattern="smooth")
+    F = view_factors(sc.mesh, rays_per_face=2048, seed=1)
+    t0 = time.perf_counter()
+    tr = transport_matrix(sc.mesh, paint, rho, cam, rays_per_face=2048, seed=2,
+                          second_order_rays=16)
+    t1 = time.perf_counter()
+    L = glossy_forward(F, tr, sc.emission, rho, paint)
+    t2 = time.perf_counter()
+    E = glossy_correct(F, tr, L, rho, paint)
+    t3 = time.perf_counter()
+    res = render(sc.mesh, sc.emission, rho, cam, bounces=-1, spp=spp, seed=1, variant=variant,
+                 paint=paint)
+    t4 = time.perf_counter()
+    smap = SurfaceMap(sc.mesh, cam)
+    meas = smap.to_surface(res.image)
+    ok = meas.counts > 20
+    rel = meas.values[ok] / L[ok] - 1.0
+    assert np.allclose(E, sc.emission, rtol=1e-6)
+    print()
+    print(f"glossy paint (w 0.4, alpha 0.3), {len(sc.mesh.faces)} faces, {variant} "
+          f"{res.spp} spp:")
+    print(f"  transport T+T2 {t1 - t0:.2f} s, forward {t2 - t1:.3f} s, inverse {t3 - t2:.3f} s,"
+          f" render {t4 - t3:.2f} s; render/inverse {(t4 - t3) / (t3 - t2):.0f}, "
+          f"render/(transport+inverse) {(t4 - t3) / (t3 - t2 + t1 - t0):.1f}")
+    print(f"  render vs model per face: median {100 * np.median(rel):.2f}%, "
+          f"95th pct |err| {100 * np.percentile(np.abs(rel), 95):.2f}%")
 
 
 if __name__ == "__main__":
