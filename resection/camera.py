@@ -481,6 +481,9 @@ class Camera:
         rational and thin-prism models are not part of this camera model).
         """
         d = np.asarray(dist_coeffs, dtype=np.float64).ravel()
+        if d.size in (1, 2, 3):
+            raise InputError(f"from_opencv: expected 4, 5 or more distortion coefficients "
+                             f"(OpenCV order k1, k2, p1, p2[, k3, ...]), got {d.size}")
         if d.size not in (0, 4, 5) and not (d.size > 5 and np.all(d[5:] == 0)):
             raise InputError(
                 f"from_opencv: {d.size} distortion coefficients with non-zero terms beyond k3 "

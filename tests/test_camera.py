@@ -195,6 +195,11 @@ def test_opencv_round_trip_and_look_at():
     np.testing.assert_allclose(tv2.ravel(), tv, atol=1e-15)
     with pytest.raises(InputError, match="beyond k3"):
         Camera.from_opencv(K, [0, 0, 0, 0, 0, 0.1, 0, 0], rv, tv, W, H)
+    with pytest.raises(InputError, match="expected 4, 5"):
+        Camera.from_opencv(K, [0.1, 0.01], rv, tv, W, H)
+    # trailing zeros of OpenCV's 8/12/14-term models are accepted
+    c8 = Camera.from_opencv(K, [*DIST, 0, 0, 0], rv, tv, W, H)
+    np.testing.assert_array_equal(c8.dist, DIST)
     eye, target = np.array([1.0, 2.0, -3.0]), np.array([0.1, 0.2, 0.3])
     cam = Camera.look_at(eye, target, [0, 0, 1], K=K, width=W, height=H)
     np.testing.assert_allclose(cam.center, eye, atol=1e-12)
