@@ -918,7 +918,7 @@ def track(
                 first = _process_frame(frames[0], 0, setup, None)
             record(first)
         seed = first if first.ok else None
-        todo = [i for i in range(1, len(frames)) if i not in done]
+        todo = {i for i in range(1, len(frames)) if i not in done}
         tasks = []
         for start in range(1, len(frames), chunk_size):
             idx = list(range(start, min(start + chunk_size, len(frames))))
