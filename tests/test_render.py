@@ -145,6 +145,28 @@ def test_llvm_variant_available_when_libllvm_installed():
     assert VARIANTS[-1] == "scalar_rgb"  # fastest first, scalar the fallback
 
 
+def test_libllvm_lookup_picks_newest_supported(monkeypatch, tmp_path):
+    import subprocess
+
+    from selfillum import render as render_mod
+
+    libs = {name: tmp_path / name for name in
+            ("libLLVM-14.so.1", "libLLVM-15.so", "libLLVM.so.19.1", "libLLVM-17.so.1")}
+    for path in libs.values():
+        path.write_bytes(b"")
+    listing = "\n".join(f"\t{n} (libc6,x86-64) => {p}" for n, p in libs.items())
+    listing += "\n\tlibLLVM-21.so.1 (libc6,x86-64) => /nonexistent/libLLVM-21.so.1"
+
+    def fake_run(*args, **kwargs):
+        return subprocess.CompletedProcess(args, 0, stdout=listing, stderr="")
+
+    monkeypatch.setattr(render_mod.subprocess, "run", fake_run)
+    assert render_mod._find_libllvm() == str(libs["libLLVM.so.19.1"])
+    listing = "\n".join(f"\t{n} (libc6,x86-64) => {p}" for n, p in libs.items()
+                        if "19" not in n and "17" not in n)
+    assert render_mod._find_libllvm() is None  # only LLVM < 16: Mitsuba cannot use it
+
+
 # ----------------------------------------------------------------------------- pixels
 CAMERAS = {
     # name: (K, dist, eye, up)
