@@ -9,7 +9,9 @@ Two set-ups are covered:
   (by default the camera's optical axis, i.e. the motion across the line of sight at the
   marker's depth; for a wing whose spanwise stations are known, the spanwise axis). Both the
   wind-off and the wind-on lines of sight are intersected with that plane, so that the
-  wind-off resection residual cancels in the difference.
+  wind-off resection residual cancels in the difference. Alternatively the lines of sight
+  are intersected with the model surface (a mesh, Embree): the displacement along the
+  surface.
 * **Two or more calibrated cameras**: every marker is triangulated in 3-D (linear DLT on
   undistorted normalised coordinates, then a Levenberg-Marquardt refinement of the
   reprojection error in pixels, distortion included), vectorised across markers, and the
@@ -393,6 +395,17 @@ def _ray_plane(camera: Camera, uv: np.ndarray, P0: np.ndarray, n: np.ndarray,
     return X
 
 
+def _ray_surface(camera: Camera, uv: np.ndarray, surface) -> np.ndarray:
+    from .visibility import RayCaster
+
+    caster = surface if isinstance(surface, RayCaster) else RayCaster(surface)
+    o, d = camera.rays(uv)
+    face, dist, _ = caster.first_hit(camera.center, d)
+    X = camera.center + dist[:, None] * d
+    X[face < 0] = np.nan
+    return X
+
+
 def marker_displacements(
     camera: Camera,
     ids3d,
@@ -403,6 +416,7 @@ def marker_displacements(
     uv,
     *,
     normal=None,
+    surface=None,
     min_cos: float = 0.1,
 ) -> ImageDisplacements:
     """Marker displacements wind-on minus wind-off with one camera fixed from wind-off.
@@ -421,8 +435,14 @@ def marker_displacements(
         Normal (model frame) of the plane through each marker within which it is assumed to
         move. Default: the camera's optical axis (motion across the line of sight, at the
         marker's depth).
+    surface : trimesh.Trimesh or resection.visibility.RayCaster, optional
+        Instead of planes: the model surface (wind-off shape). The wind-off and wind-on
+        lines of sight are intersected with it (first hit, Embree), so ``dX`` is the
+        displacement *along the surface* that the image motion implies: exact for markers
+        that slide within the surface, and what an image <-> surface mapping of the wind-on
+        frame would use. ``X_ref`` and the wind-on point are NaN for rays that miss.
     min_cos : float
-        Lines of sight more oblique to the plane than this cosine give NaN.
+        Lines of sight more oblique to the plane than this cosine give NaN (plane mode).
 
     Returns
     -------
@@ -434,6 +454,8 @@ def marker_displacements(
     ids3 = np.asarray(ids3d).astype(str).ravel()
     if len(ids3) != len(P):
         raise InputError(f"marker_displacements: {len(ids3)} ids for {len(P)} 3-D markers")
+    if normal is not None and surface is not None:
+        raise InputError("marker_displacements: give a plane normal or a surface, not both")
     if normal is None:
         nrm = np.broadcast_to(camera.R[2], P.shape).copy()
     else:
@@ -456,8 +478,12 @@ def marker_displacements(
                          "wind-on tables")
     a, b = ab[:, :2], ab[:, 2:]
     P0, n = pn[:, :3], pn[:, 3:]
-    X_ref = _ray_plane(camera, a, P0, n, min_cos)
-    X_def = _ray_plane(camera, b, P0, n, min_cos)
+    if surface is None:
+        X_ref = _ray_plane(camera, a, P0, n, min_cos)
+        X_def = _ray_plane(camera, b, P0, n, min_cos)
+    else:
+        X_ref = _ray_surface(camera, a, surface)
+        X_def = _ray_surface(camera, b, surface)
     return ImageDisplacements(ids=ids_c, uv_ref=a, uv=b, duv=b - a, X_ref=X_ref,
                               dX=X_def - X_ref, normal=n)
 

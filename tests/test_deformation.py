@@ -176,6 +176,39 @@ def test_one_camera_displacements_in_known_plane():
     np.testing.assert_allclose(res.dX, np.broadcast_to(shift, X0.shape), atol=1e-10)
 
 
+def test_one_camera_displacements_along_a_surface():
+    import trimesh
+
+    cam = Camera.look_at([0.3, -0.9, 1.4], [0, 0, 0], [1, 0, 0], K=K, width=1280, height=1000,
+                         dist=[-0.05, 0.0, 0.0, 0.0, 0.0])
+    # a cylinder of radius 0.2 about the y axis; markers slide along it (known arc motion)
+    r = 0.2
+    cyl = trimesh.creation.cylinder(radius=r, height=1.0, sections=2048,
+                                    transform=trimesh.transformations.rotation_matrix(
+                                        np.pi / 2, [1, 0, 0]))
+    th = np.linspace(-0.5, 0.5, 7)
+    y = np.linspace(-0.3, 0.3, 5)
+    T, Y = np.meshgrid(th, y, indexing="ij")
+
+    def on_cyl(t, yy):
+        return np.column_stack([r * np.sin(t.ravel()), yy.ravel(), r * np.cos(t.ravel())])
+
+    X0 = on_cyl(T, Y)
+    X1 = on_cyl(T + 0.03, Y + 0.004)  # a slide of 6 mm round and 4 mm along the axis
+    ids = np.array([f"c{i}" for i in range(len(X0))])
+    res = marker_displacements(cam, ids, X0, ids, cam.project(X0), ids, cam.project(X1),
+                               surface=cyl)
+    # the faceted cylinder (2048 sections) differs from the true one by < r (pi/2048)^2 / 2
+    tol = r * (np.pi / 2048) ** 2
+    np.testing.assert_allclose(res.X_ref, X0, atol=tol)
+    np.testing.assert_allclose(res.dX, X1 - X0, atol=2 * tol)
+    # a plane constraint would not give this: the displacement has a normal component
+    assert np.abs(np.einsum("ij,j->i", X1 - X0, cam.R[2])).max() > 1e-3
+    with pytest.raises(InputError, match="not both"):
+        marker_displacements(cam, ids, X0, ids, cam.project(X0), ids, cam.project(X1),
+                             surface=cyl, normal=[0, 1, 0])
+
+
 def test_stack_views_feeds_triangulation():
     c1, c2 = _stereo()
     c3 = Camera.look_at([0.0, 0.8, 1.8], [0, 0, 0], [1, 0, 0], K=K, width=1280, height=1000)
