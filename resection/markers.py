@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 from scipy import ndimage
-from scipy.signal import fftconvolve
+from scipy.signal import oaconvolve
 from scipy.spatial import cKDTree
 
 from . import _diskmodel
@@ -257,6 +257,27 @@ def _extract(img: np.ndarray, bad: np.ndarray, iu, iv, half: int):
 
 
 # ----------------------------------------------------------------------------- refinement
+def _neighbour_pixels(uv0, gu, gv, reach, radius, min_dist, strength):
+    """(n, W, W) mask of window pixels within ``radius`` of *another* start position that
+    is at least ``min_dist`` away (a separate marker, not a side lobe) and at least 0.3
+    times as strong."""
+    n, W = gu.shape
+    out = np.zeros((n, W, W), bool)
+    if n < 2:
+        return out
+    pairs = cKDTree(uv0).query_pairs(reach, output_type="ndarray")
+    if pairs.size == 0:
+        return out
+    I = np.concatenate([pairs[:, 0], pairs[:, 1]])
+    J = np.concatenate([pairs[:, 1], pairs[:, 0]])
+    keep = (np.hypot(*(uv0[I] - uv0[J]).T) >= min_dist) & (strength[J] >= 0.3 * strength[I])
+    I, J = I[keep], J[keep]
+    du = gu[I][:, None, :] - uv0[J, 0][:, None, None]
+    dv = gv[I][:, :, None] - uv0[J, 1][:, None, None]
+    np.logical_or.at(out, I, du * du + dv * dv < radius * radius)
+    return out
+
+
 def refine_markers(
     signal: np.ndarray,
     uv0,
@@ -266,6 +287,7 @@ def refine_markers(
     blur: float = 0.6,
     iterations: int = 30,
     half: int | None = None,
+    strength=None,
 ) -> dict:
     """Sub-pixel centres of bright blobs by a least-squares disk fit, all at once.
 
@@ -285,7 +307,10 @@ def refine_markers(
     iterations : int
         Levenberg-Marquardt iterations.
     half : int, optional
-        Half-size of the fitted window (default ``ceil(R + 3 blur + 2)``).
+        Half-size of the fitted window (default ``ceil(1.25 R + 3 blur + 3)``).
+    strength : (n,) array, optional
+        Merit of each start; the pixels of a neighbour at least 0.3 times as strong and
+        at least ``1.5 R + 1`` away are left out of a candidate's fit.
 
     Returns
     -------
@@ -304,7 +329,13 @@ def refine_markers(
     win = np.where(wbad, 0.0, win)
     ar = np.arange(-half, half + 1)
     rr = np.hypot(ar[None, :], ar[:, None])
-    w = (~wbad & (rr <= half + 0.5)[None]).astype(float)
+    # pixels of a neighbouring marker (within R + 3 blur + 0.5 of another candidate) are
+    # left out of the fit, so that close markers do not pull each other
+    strength = np.ones(n) if strength is None else np.asarray(strength, float)
+    near = _neighbour_pixels(uv0, gu, gv, 2.0 * half + 1.0, R0 + 3.0 * blur + 0.5,
+                             1.5 * R0 + 1.0, strength)
+    wbad_fit = wbad | near
+    w = (~wbad_fit & (rr <= half + 0.5)[None]).astype(float)
     # local background from the window's outer ring, weighted centroid inside
     ring = (rr > R0 + 1.5)[None] & ~wbad
     ringvals = np.where(ring, win, np.nan).reshape(n, -1)
@@ -492,8 +523,10 @@ def detect_markers(
     signal = np.where(bad, fill, signal)
     noise = estimate_noise(signal, bad)
     # reflect at the borders (zero padding would make the image edge look like a marker)
-    padded = np.pad(signal, th, mode="symmetric")
-    merit = fftconvolve(padded, tmpl[::-1, ::-1], mode="valid")
+    # (float32 after removing the median level: the FFT rounding stays far under the noise)
+    padded = np.pad((signal - fill).astype(np.float32), th, mode="symmetric")
+    merit = oaconvolve(padded, tmpl[::-1, ::-1].astype(np.float32), mode="valid")
+    merit = merit.astype(np.float64)
     merit_noise = noise * float(np.sqrt((tmpl**2).sum()))
     thr = float(threshold) if threshold is not None else k_sigma * max(merit_noise, 1e-12)
     size = max(3, 2 * int(np.floor(R)) + 1)
@@ -511,7 +544,8 @@ def detect_markers(
                        threshold=thr, polarity=polarity, n_rejected=rejected)
     if pu.size == 0:
         return empty
-    fit = refine_markers(signal, np.column_stack([pu, pv]).astype(float), d, bad=bad, blur=blur)
+    fit = refine_markers(signal, np.column_stack([pu, pv]).astype(float), d, bad=bad, blur=blur,
+                         strength=m)
     fu, fv, fr = fit["u"], fit["v"], fit["radius"]
     ok = fit["ok"]
     ok &= fit["depth"] >= min_snr * noise

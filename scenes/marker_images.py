@@ -122,7 +122,7 @@ def render_markers(
         gen = np.random.default_rng(rng)
         noise_std = contrast / float(snr)
         if noise == "gaussian":
-            img = img + gen.normal(0.0, noise_std, img.shape)
+            img = img + noise_std * gen.standard_normal(img.shape, dtype=np.float32)
         elif noise == "poisson":
             if background <= 0:
                 raise InputError("poisson noise needs a positive background")

@@ -136,6 +136,19 @@ def test_no_periodic_bias_with_subpixel_position(diameter, gen_blur):
     assert np.abs(e).max() <= 0.01
 
 
+def test_close_neighbours_do_not_pull_each_other():
+    # pairs of 6 px markers 11 px apart (5 px gap), noiseless: each fit leaves out the
+    # neighbour's pixels
+    base = np.array([[30.0, 30.0], [80.0, 40.0], [130.0, 35.0]]) + [[0.3, 0.1], [0.7, 0.45],
+                                                                      [0.1, 0.8]]
+    uv = np.vstack([base, base + [[11.0, 0.0], [7.8, 7.8], [0.0, 11.0]]])
+    img = render_markers((80, 170), uv, 6.0, blur=0.7)
+    cand = detect_markers(img, 6.0)
+    e, hit = _errors(cand.uv, uv)
+    assert hit == 1.0 and len(cand) == 6
+    assert np.abs(e).max() < 0.01
+
+
 def test_threshold_and_false_alarms_on_pure_noise():
     rng = np.random.default_rng(0)
     img = 1000 + rng.normal(0, 5, (300, 300))
