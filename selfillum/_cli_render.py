@@ -64,7 +64,7 @@ def _cmd_render(args) -> int:
         paint = GlossyPaint(args.specular_weight, args.roughness)
     t0 = time.perf_counter()
     res = render(mesh, emission, reflectance, camera, bounces=args.bounces, spp=args.spp,
-                 seed=args.seed, variant=args.variant, paint=paint)
+                 seed=args.seed, variant=args.variant, paint=paint, two_sided=args.two_sided)
     seconds = time.perf_counter() - t0
     write_image(out, res.image)
     png = out.with_suffix(".png")
@@ -128,5 +128,7 @@ def register(sub) -> None:
                    "Lambertian); the reflectance is then that of the diffuse base")
     p.add_argument("--roughness", type=float, default=0.3,
                    help="glossy paint: GGX alpha in [0.2, 1] (default 0.3)")
+    p.add_argument("--two-sided", action="store_true",
+                   help="faces painted on both sides (thin sheets); default one-sided")
     p.add_argument("--out", required=True, help="output image, .tif or .npy")
     p.set_defaults(func=_cmd_render)

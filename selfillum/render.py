@@ -232,12 +232,24 @@ def _bitmap(mi, values: np.ndarray, tw: int, th: int) -> dict:
 
 
 def _mitsuba_mesh(mi, mesh: trimesh.Trimesh, emission: np.ndarray, reflectance: np.ndarray,
-                  paint=None):
-    """``mi.Mesh`` with unshared vertices, one texel per face for emitter and BSDF."""
+                  paint=None, two_sided: bool = False):
+    """``mi.Mesh`` with unshared vertices, one texel per face for emitter and BSDF.
+
+    ``two_sided``: every face also gets a reversed copy (same texel) set back behind it by
+    ``1e-5`` of the mesh size, so that its back emits and reflects like its front (Mitsuba's
+    area emitters are one-sided)."""
     faces = np.asarray(mesh.faces, dtype=np.int64)
-    n = len(faces)
-    positions = np.asarray(mesh.vertices, dtype=np.float64)[faces].reshape(-1, 3)
-    tw, th, uv = _texel_layout(n)
+    tw, th, uv = _texel_layout(len(faces))
+    tri = np.asarray(mesh.vertices, dtype=np.float64)[faces]
+    if two_sided:
+        normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+        setback = 1e-5 * float(np.linalg.norm(np.ptp(mesh.vertices, axis=0)))
+        back = tri[:, ::-1] - setback * normal[:, None, :]
+        tri = np.concatenate([tri, back])
+        uv = np.concatenate([uv, uv])
+    n = len(tri)
+    positions = tri.reshape(-1, 3)
     props = mi.Properties()
     texture = _bitmap(mi, reflectance, tw, th)
     bsdf = {"type": "diffuse", "reflectance": texture} if paint is None else \
@@ -296,7 +308,7 @@ def _sensor(mi, camera: Camera, mesh: trimesh.Trimesh, spp: int) -> dict:
 
 
 def mitsuba_scene(mesh, emission, reflectance, camera, *, bounces: int = -1, spp: int = 16,
-                  variant: str | None = None, paint=None):
+                  variant: str | None = None, paint=None, two_sided: bool = False):
     """The Mitsuba scene :func:`render` renders (for inspection or custom rendering).
 
     The camera must be a pinhole with square pixels and no skew or distortion (the warp
@@ -308,7 +320,7 @@ def mitsuba_scene(mesh, emission, reflectance, camera, *, bounces: int = -1, spp
     e, r = _check_inputs(mesh, emission, reflectance)
     camera = _check_camera(camera)
     return _load_scene(mi, mesh, e, r, camera, _check_bounces(bounces), int(spp),
-                       _check_paint(paint))
+                       _check_paint(paint), bool(two_sided))
 
 
 def _check_paint(paint):
@@ -320,7 +332,7 @@ def _check_paint(paint):
     return paint
 
 
-def _load_scene(mi, mesh, e, r, camera, bounces, spp, paint=None):
+def _load_scene(mi, mesh, e, r, camera, bounces, spp, paint=None, two_sided=False):
     K = camera.K
     if K[0, 1] != 0 or K[0, 0] != K[1, 1] or np.any(camera.dist):
         raise InputError("mitsuba_scene: the camera must have fx == fy, no skew and no "
@@ -329,7 +341,7 @@ def _load_scene(mi, mesh, e, r, camera, bounces, spp, paint=None):
         "type": "scene",
         "integrator": {"type": "path", "max_depth": bounces, "hide_emitters": False},
         "sensor": _sensor(mi, camera, mesh, spp),
-        "model": _mitsuba_mesh(mi, mesh, e, r, paint),
+        "model": _mitsuba_mesh(mi, mesh, e, r, paint, two_sided),
     })
 
 
@@ -351,7 +363,7 @@ def _multijitter_count(spp: int) -> int:
     return w * math.ceil(spp / w)
 
 
-def _render_pinhole(mi, mesh, e, r, camera, bounces, spp, seed, paint=None):
+def _render_pinhole(mi, mesh, e, r, camera, bounces, spp, seed, paint=None, two_sided=False):
     """Render with a square-pixel pinhole camera; several passes when ``W H spp`` is too
     many samples to trace at once. Returns float64 ``(H, W)`` radiance and the spp used."""
     lanes = camera.width * camera.height
@@ -360,7 +372,7 @@ def _render_pinhole(mi, mesh, e, r, camera, bounces, spp, seed, paint=None):
     per_pass = max(1, min(spp, limit))
     passes = math.ceil(spp / per_pass)
     per_pass = _multijitter_count(math.ceil(spp / passes))
-    scene = _load_scene(mi, mesh, e, r, camera, bounces, per_pass, paint)
+    scene = _load_scene(mi, mesh, e, r, camera, bounces, per_pass, paint, two_sided)
     acc = np.zeros((camera.height, camera.width))
     for i in range(passes):
         img = np.asarray(mi.render(scene, spp=per_pass, seed=seed + i), dtype=np.float64)
@@ -419,6 +431,7 @@ def render(
     variant: str | None = None,
     oversample: int = 2,
     paint=None,
+    two_sided: bool = False,
 ) -> RenderResult:
     """Render the radiance image of a painted mesh seen by a camera, with Mitsuba 3.
 
@@ -451,6 +464,10 @@ def render(
         Glossy paint (diffuse base of reflectance ``reflectance`` plus a GGX lobe,
         Mitsuba's ``blendbsdf`` of ``diffuse`` and ``roughconductor``); default Lambertian.
         The emission stays Lambertian.
+    two_sided : bool
+        Faces painted on both sides with the same emission and reflectance (thin sheets,
+        as ``two_sided`` in :func:`selfillum.viewfactors.view_factors`); default: one-sided,
+        the back is black.
 
     Returns
     -------
@@ -486,22 +503,26 @@ def render(
     try:
         K = camera.K
         if K[0, 1] == 0 and K[0, 0] == K[1, 1] and not np.any(camera.dist):
-            img, used = _render_pinhole(mi, mesh, e, r, camera, b, spp_i, seed_i, paint)
+            img, used = _render_pinhole(mi, mesh, e, r, camera, b, spp_i, seed_i, paint,
+                                        bool(two_sided))
         else:
-            img, used = _render_warped(mi, mesh, e, r, camera, b, spp_i, seed_i, over, paint)
+            img, used = _render_warped(mi, mesh, e, r, camera, b, spp_i, seed_i, over, paint,
+                                       bool(two_sided))
     finally:
         if previous is not None and previous != name:
             mi.set_variant(previous)
     return RenderResult(img.astype(np.float32), name, int(used), b, seed_i)
 
 
-def _render_warped(mi, mesh, e, r, camera, bounces, spp, seed, over, paint=None):
+def _render_warped(mi, mesh, e, r, camera, bounces, spp, seed, over, paint=None,
+                   two_sided=False):
     from scipy.ndimage import map_coordinates
 
     canvas, coords = _canvas_for(camera, over)
     # each output pixel averages over*over canvas samples: keep its sample count ~ spp
     spp_canvas = max(1, math.ceil(spp / (over * over)))
-    pin, used = _render_pinhole(mi, mesh, e, r, canvas, bounces, spp_canvas, seed, paint)
+    pin, used = _render_pinhole(mi, mesh, e, r, canvas, bounces, spp_canvas, seed, paint,
+                                two_sided)
     valid = np.all(np.isfinite(coords), axis=0)
     c = np.where(valid, coords, -10.0)
     samples = map_coordinates(pin, c.reshape(2, -1), order=1, mode="constant", cval=0.0)

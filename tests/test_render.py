@@ -225,6 +225,30 @@ def test_back_side_is_black():
     assert back.image.max() == 0.0
 
 
+def test_two_sided_faces():
+    """Both sides emit; seen from outside, a corner's plates receive nothing from each
+    other (their painted insides face away), so every pixel inside a face shows exactly
+    E/pi even with all bounces: the back copies neither leak nor shadow wrongly."""
+    n = 8
+    mesh = corner_mesh(n)
+    E = np.random.default_rng(4).uniform(0.5, 3.0, len(mesh.faces))
+    K = [[80.0, 0.0, 47.5], [0.0, 80.0, 35.5], [0.0, 0.0, 1.0]]
+    cam = Camera.look_at([-0.9, 0.5, -0.8], [0.35, 0.5, 0.35], [0, 1, 0], K=K, width=96,
+                         height=72)
+    one = render(mesh, E, 0.6, cam, bounces=-1, spp=16, variant="scalar")
+    two = render(mesh, E, 0.6, cam, bounces=-1, spp=16, variant="scalar", two_sided=True)
+    face, inside, _ = footprint_faces(cam, n)
+    assert inside.sum() > 1000
+    assert np.all(one.image.ravel()[inside] == 0.0)
+    np.testing.assert_allclose(two.image.ravel()[inside], E[face[inside]] / np.pi, rtol=2e-6)
+    # and inside the corner two-sided faces look the same as one-sided ones
+    cin = corner_camera()
+    a = render(mesh, E, 0.0, cin, bounces=1, spp=4, variant="scalar").image
+    b = render(mesh, E, 0.0, cin, bounces=1, spp=4, variant="scalar", two_sided=True).image
+    face, inside, _ = footprint_faces(cin, n)
+    np.testing.assert_allclose(b.ravel()[inside], a.ravel()[inside], rtol=2e-6)
+
+
 # ----------------------------------------------------------------------------- per face
 @pytest.mark.parametrize("variant", VARIANTS)
 def test_emission_only_is_exact_per_face(variant):
