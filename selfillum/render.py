@@ -15,7 +15,8 @@ How the scene is built (see DESIGN.md, "the Mitsuba trap"):
   ``mesh_attribute`` ``face_color`` emitter is looked up wrongly when the emitter is
   sampled directly);
 * faces are one-sided as in :mod:`selfillum.mesh`: they emit and reflect on the side their
-  normal points to (right-hand rule on the vertex order), their back is black;
+  normal points to (right-hand rule on the vertex order), their back is black, unless
+  ``two_sided`` (a reversed copy of each face, set back 1e-5 of the mesh size behind it);
 * the ``perspective`` sensor reproduces the camera's pinhole exactly: horizontal field of
   view from ``fx`` and the width, principal point through ``principal_point_offset_x/y``
   (fractions of the film width and height), pose from ``R, t`` (OpenCV's x right, y down,
