@@ -57,7 +57,7 @@ def plot_motion(
 
     t = result.frame / fps if fps else result.frame.astype(float)
     xlabel = "time (s)" if fps else "frame"
-    fig = Figure(figsize=(8.0, 7.0), dpi=dpi, layout="constrained")
+    fig = Figure(figsize=(9.0, 7.0), dpi=dpi, layout="constrained")
     axes = fig.subplots(3, 1, sharex=True, height_ratios=[3, 3, 1.5])
     colors = ("tab:blue", "tab:orange", "tab:green")
     who = "model" if result.fixed_camera else "camera"
@@ -86,8 +86,8 @@ def plot_motion(
     axes[1].set_ylabel(f"{who} displacement ({length_unit})")
     axes[2].set_ylabel("RMS (px)")
     axes[2].set_xlabel(xlabel)
-    axes[0].legend(loc="upper right", fontsize=8, ncol=4)
-    axes[1].legend(loc="upper right", fontsize=8, ncol=3)
+    for ax in axes[:2]:  # outside the axes, so that they never hide data
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, borderaxespad=0)
     n_ok = int(result.ok.sum())
     head = title or f"{who} motion relative to frame {ref}"
     fig.suptitle(f"{head}: {n_ok}/{len(result)} frames solved, median RMS "
