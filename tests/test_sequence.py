@@ -260,6 +260,24 @@ def test_first_frame_linked_by_hand(run60, tmp_path):
               diameter=5.6, out_dir=tmp_path / "o4", progress=False)
 
 
+def test_plot_motion_draws_the_result(run60, tmp_path):
+    from resection.motion_plots import plot_motion
+
+    model, files, cam, ref, _ = run60
+    fig = plot_motion(ref, tmp_path / "m.png", fps=50, length_unit="mm", length_scale=1000,
+                      truth=(np.degrees(model.angles), model.translation))
+    ang_ax, tr_ax, rms_ax = fig.axes[:3]
+    lines = {ln.get_label(): ln for ln in ang_ax.lines}
+    np.testing.assert_allclose(lines["pitch"].get_xdata(), np.arange(N_FAST) / 50)
+    np.testing.assert_allclose(lines["pitch"].get_ydata(), ref.angles[:, 1])
+    np.testing.assert_allclose({ln.get_label(): ln for ln in tr_ax.lines}["dz"].get_ydata(),
+                               1000 * ref.translation[:, 2])
+    np.testing.assert_allclose(rms_ax.lines[0].get_ydata(), ref.rms)
+    assert (tmp_path / "m.png").read_bytes()[:4] == b"\x89PNG"
+    with pytest.raises(InputError, match="fps"):
+        plot_motion(ref, fps=0)
+
+
 def test_in_memory_frames(run60, tmp_path):
     model, files, cam, ref, _ = run60
     stack = np.stack([model.image(k) for k in range(6)])  # (F, H, W) array
