@@ -70,7 +70,7 @@ def _peers(image, diameter, n):
 
     tp.quiet()
     f = tp.locate(image, int(2 * np.ceil(diameter / 2 + 1.5) + 1), invert=True, minmass=0)
-    tp_uv = f.nlargest(n, "mass")[["x", "y"]].to_numpy()
+    tp_uv = f.nlargest(n, "mass")[["x", "y"]].to_numpy(float) if len(f) else np.zeros((0, 2))
     p = cv2.SimpleBlobDetector_Params()
     p.filterByColor, p.blobColor = True, 0
     p.filterByCircularity = p.filterByConvexity = p.filterByInertia = False
@@ -394,13 +394,15 @@ def test_accuracy_grid_slow(snr):
     for diameter in range(3, 11):
         errs, errs_tp = [], []
         for seed in range(5):
-            sc = make_scene((256, 256), 40, diameter, snr=snr, blur=0.7,
+            sc = make_scene((320, 320), 40, diameter, snr=snr, blur=0.7,
                             rng=int(1000 * snr) + 10 * diameter + seed)
             cand = detect_markers(sc.image, diameter)
             e, hit = _errors(cand.uv, sc.uv)
             assert hit == 1.0
             errs.append(e)
-            errs_tp.append(_errors(_peers(sc.image, diameter, 40)[0], sc.uv)[0])
+            tp_uv = _peers(sc.image, diameter, 40)[0]
+            # trackpy sometimes finds nothing (3 px markers at high SNR): ours found all
+            errs_tp.append(_errors(tp_uv, sc.uv)[0] if len(tp_uv) else np.full((1, 2), np.inf))
         rms = _rms(np.vstack(errs))
         assert rms <= 0.05
         assert rms <= _rms(np.vstack(errs_tp))
