@@ -797,7 +797,9 @@ def track(
         Address of a running Dask scheduler (``tcp://host:8786``).
     workers : int
         Worker processes of the local Dask cluster; 1 without ``scheduler`` runs in this
-        process, without Dask (same chunks, same results).
+        process, without Dask (same chunks, same results). The workers are spawned
+        processes: a script that calls ``track`` with ``workers > 1`` needs the usual
+        ``if __name__ == "__main__":`` guard.
     out_dir : path-like
         Output directory (created): ``poses.csv``, ``markers.csv``, ``frames/``, ``track.json``.
     resume : bool
