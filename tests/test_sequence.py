@@ -192,10 +192,18 @@ def test_corrupt_frames_are_recorded_and_skipped(tmp_path):
 
 
 def test_dask_two_workers_same_as_one(run60, tmp_path):
+    import logging
+
+    from dask.distributed import LocalCluster
+
     model, files, cam, ref, _ = run60
     n = 30  # the chunks (20 frames) do not depend on the length of the run
-    res = track(files["frames"][:n], cam, files["markers"], diameter=5.6,
-                out_dir=tmp_path / "o", workers=2, progress=False)
+    # an existing cluster, given by its scheduler address (the CLI test covers workers=2)
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                      dashboard_address=None, silence_logs=logging.ERROR) as cluster:
+        res = track(files["frames"][:n], cam, files["markers"], diameter=5.6,
+                    out_dir=tmp_path / "o", scheduler=cluster.scheduler_address,
+                    progress=False)
     assert res.n_computed == n
     assert res.status.tolist() == ref.status[:n].tolist()
     np.testing.assert_allclose(res.angles, ref.angles[:n], atol=1e-9)
@@ -210,7 +218,7 @@ def test_cli_track_and_plot(run60, tmp_path, capsys):
     out = tmp_path / "cli"
     rc = main(["track", *files["frames"][:12], "--camera", files["camera"], "--markers",
                files["markers"], "--diameter", "5.6", "--out", str(out), "--fps", "50",
-               "--no-progress", "--chunk-size", "5"])
+               "--no-progress", "--chunk-size", "5", "--workers", "2"])
     assert rc == 0
     assert "12/12 frames solved" in capsys.readouterr().out
     back = read_track(out)
