@@ -55,6 +55,18 @@ def test_200_frames_from_approximate_camera_all_correct():
     assert n_ok == 200
 
 
+def test_approximate_camera_off_by_tens_of_pixels():
+    rng = np.random.default_rng(5)
+    ids, X = _model(rng)
+    shifts = []
+    for _ in range(30):
+        Q, truth, cam = _frame(rng, ids, X, rot_sigma=0.008, t_sigma=0.008)
+        shifts.append(np.nanmax(np.hypot(*(cam.project(X) - BASE.project(X)).T)))
+        res = match_markers(Q, (ids, X), BASE, search_radius=40)
+        assert np.array_equal(np.array(res.ids, dtype=object), truth)
+    assert max(shifts) > 20  # the approximate camera really was that far off
+
+
 def test_sequence_from_previous_frame_with_hidden_and_appearing_markers():
     # each frame is matched against the previous frame's result: markers hidden there must
     # be recovered through the pose (not-yet-visible markers)
