@@ -56,6 +56,15 @@ def test_detect_match_link_pose(scene, capsys):
     dist = np.min(np.hypot(*(cand.uv[:, None] - scene["uv"][None]).transpose(2, 0, 1)), axis=0)
     assert dist.max() < 0.05
 
+    # with enhancement and a roi: the same markers inside the box
+    rc, out, _ = _run(["detect", d / "img.tif", "--diameter", 6, "--enhance", "background",
+                       "--roi", 0, 0, 319, 479, "-o", d / "c_roi.csv"], capsys)
+    assert rc == 0
+    c_roi, _ = read_candidates(d / "c_roi.csv")
+    left = scene["uv"][scene["uv"][:, 0] < 312]
+    dist = np.min(np.hypot(*(c_roi.uv[:, None] - left[None]).transpose(2, 0, 1)), axis=0)
+    assert dist.max() < 0.05 and np.all(c_roi.u < 320)
+
     rc, out, _ = _run(["match", "--candidates", d / "c.csv", "--markers", d / "markers.csv",
                        "--camera", d / "approx.json", "-o", d / "m.csv", "--pose",
                        d / "pose.json"], capsys)
