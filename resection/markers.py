@@ -437,7 +437,7 @@ def detect_markers(
     k_sigma: float = 5.0,
     blur: float = 0.6,
     saturation: float | None = None,
-    max_masked: float = 0.3,
+    max_masked: float = 0.75,
     min_separation: float | None = None,
     max_candidates: int = 20000,
     min_snr: float = 3.0,
@@ -471,6 +471,8 @@ def detect_markers(
         for float images).
     max_masked : float
         Candidates whose disk has more than this fraction of masked pixels are rejected.
+        The default lets through bright markers with saturated centres, whose rim still
+        locates them (to about 0.01 px at SNR 40, see the tests).
     min_separation : float, optional
         Candidates closer than this (pixels) are doubles: the weaker is rejected.
         Default ``0.75 * diameter`` (at least 1.5 px).

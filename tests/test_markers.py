@@ -197,6 +197,20 @@ def test_nan_and_saturated_pixels_masked_and_counted():
     assert np.min(np.hypot(*(cand.uv - sc.uv[5]).T)) > 5
 
 
+def test_bright_markers_with_saturated_centres_uint8():
+    # 8-bit image whose bright markers clip at 255 over more than half of their disk: the
+    # saturated pixels are masked and the rim locates the marker
+    sc = make_scene((256, 256), 30, 8.0, snr=40.0, contrast=200.0, background=100.0,
+                    polarity="bright", dtype=np.uint8, rng=3)
+    n_sat = int((sc.image == 255).sum())
+    assert n_sat > 30 * 20
+    cand = detect_markers(sc.image, 8.0, polarity="bright")
+    assert cand.n_masked == n_sat
+    e, hit = _errors(cand.uv, sc.uv)
+    assert hit == 1.0 and len(cand) == 30
+    assert _rms(e) <= 0.03
+
+
 def test_border_roi_and_doubles():
     uv = np.array([[2.0, 50.0], [60.0, 60.0], [100.0, 30.0], [150.0, 80.0]])
     img = render_markers((120, 200), uv, 8.0, snr=40, rng=1)
