@@ -257,23 +257,26 @@ def _extract(img: np.ndarray, bad: np.ndarray, iu, iv, half: int):
 
 
 # ----------------------------------------------------------------------------- refinement
-def _neighbour_pixels(uv0, gu, gv, reach, radius, min_dist, strength):
-    """(n, W, W) mask of window pixels within ``radius`` of *another* start position that
-    is at least ``min_dist`` away (a separate marker, not a side lobe) and at least 0.3
-    times as strong."""
-    n, W = gu.shape
-    out = np.zeros((n, W, W), bool)
-    if n < 2:
+def _neighbour_pixels(uv_all, strength, sel, gu, gv, reach, radius, min_dist):
+    """(len(sel), W, W) mask of the pixels of windows ``sel`` within ``radius`` of *another*
+    start position that is at least ``min_dist`` away (a separate marker, not a side lobe)
+    and at least 0.3 times as strong."""
+    m, W = gu.shape
+    out = np.zeros((m, W, W), bool)
+    if len(uv_all) < 2 or m == 0:
         return out
-    pairs = cKDTree(uv0).query_pairs(reach, output_type="ndarray")
-    if pairs.size == 0:
+    lists = cKDTree(uv_all).query_ball_point(uv_all[sel], reach)
+    counts = np.fromiter((len(x) for x in lists), int, m)
+    if counts.sum() <= m:
         return out
-    I = np.concatenate([pairs[:, 0], pairs[:, 1]])
-    J = np.concatenate([pairs[:, 1], pairs[:, 0]])
-    keep = (np.hypot(*(uv0[I] - uv0[J]).T) >= min_dist) & (strength[J] >= 0.3 * strength[I])
+    I = np.repeat(np.arange(m), counts)  # window (local index)
+    J = np.fromiter((j for x in lists for j in x), int, counts.sum())  # other start
+    gi = sel[I]
+    keep = ((J != gi) & (np.hypot(*(uv_all[gi] - uv_all[J]).T) >= min_dist)
+            & (strength[J] >= 0.3 * strength[gi]))
     I, J = I[keep], J[keep]
-    du = gu[I][:, None, :] - uv0[J, 0][:, None, None]
-    dv = gv[I][:, :, None] - uv0[J, 1][:, None, None]
+    du = gu[I][:, None, :] - uv_all[J, 0][:, None, None]
+    dv = gv[I][:, :, None] - uv_all[J, 1][:, None, None]
     np.logical_or.at(out, I, du * du + dv * dv < radius * radius)
     return out
 
@@ -288,6 +291,7 @@ def refine_markers(
     iterations: int = 30,
     half: int | None = None,
     strength=None,
+    chunk: int = 1024,
 ) -> dict:
     """Sub-pixel centres of bright blobs by a least-squares disk fit, all at once.
 
@@ -311,6 +315,8 @@ def refine_markers(
     strength : (n,) array, optional
         Merit of each start; the pixels of a neighbour at least 0.3 times as strong and
         at least ``1.5 R + 1`` away are left out of a candidate's fit.
+    chunk : int
+        Candidates fitted together (memory grows with it).
 
     Returns
     -------
@@ -323,6 +329,21 @@ def refine_markers(
         bad = ~np.isfinite(signal)
     if half is None:
         half = int(np.ceil(1.25 * R0 + 3.0 * blur + 3.0))
+    strength = np.ones(n) if strength is None else np.asarray(strength, float)
+    parts = [_refine_chunk(signal, bad, uv0, strength, np.arange(k, min(k + chunk, n)), R0,
+                           blur, iterations, half) for k in range(0, n, max(int(chunk), 1))]
+    keys = ("u", "v", "radius", "depth", "background", "rms", "ok", "masked_fraction")
+    if not parts:
+        return {k: np.zeros(0, bool if k == "ok" else float) for k in keys}
+    return {k: np.concatenate([p[k] for p in parts]) for k in keys}
+
+
+def _refine_chunk(signal, bad, uv_all, strength, sel, R0, blur, iterations, half) -> dict:
+    """Levenberg-Marquardt fit of the windows of the starts ``sel`` (see refine_markers)."""
+    uv0 = uv_all[sel]
+    n = len(uv0)
+
+
     iu = np.rint(uv0[:, 0]).astype(int)
     iv = np.rint(uv0[:, 1]).astype(int)
     win, wbad, gu, gv = _extract(signal, bad, iu, iv, half)
@@ -331,9 +352,8 @@ def refine_markers(
     rr = np.hypot(ar[None, :], ar[:, None])
     # pixels of a neighbouring marker (within R + 3 blur + 0.5 of another candidate) are
     # left out of the fit, so that close markers do not pull each other
-    strength = np.ones(n) if strength is None else np.asarray(strength, float)
-    near = _neighbour_pixels(uv0, gu, gv, 2.0 * half + 1.0, R0 + 3.0 * blur + 0.5,
-                             1.5 * R0 + 1.0, strength)
+    near = _neighbour_pixels(uv_all, strength, sel, gu, gv, 2.0 * half + 1.0,
+                             R0 + 3.0 * blur + 0.5, 1.5 * R0 + 1.0)
     wbad_fit = wbad | near
     w = (~wbad_fit & (rr <= half + 0.5)[None]).astype(float)
     # local background from the window's outer ring, weighted centroid inside
@@ -374,9 +394,13 @@ def refine_markers(
         J = J * w[idx][..., None]
         return r, J.reshape(len(idx), -1, NP)
 
+    # the residuals and Jacobian are evaluated once per iteration, at the trial point, and
+    # kept for the candidates whose step is accepted
     all_idx = np.arange(n)
     lam = np.full(n, 1e-3)
-    cost = (residual(all_idx, p) ** 2).sum(axis=(1, 2))
+    r_c, J_c = residual(all_idx, p, True)
+    r_c = r_c.reshape(n, -1)
+    cost = (r_c**2).sum(axis=1)
     active = np.ones(n, bool)
     eye = np.eye(NP)
     for _ in range(iterations):
@@ -384,11 +408,10 @@ def refine_markers(
         if idx.size == 0:
             break
         pa = p[idx]
-        r, J = residual(idx, pa, True)
-        rv = r.reshape(idx.size, -1)
+        J = J_c[idx]
         JT = np.swapaxes(J, 1, 2)
         A = JT @ J
-        g = (JT @ rv[..., None])[..., 0]
+        g = (JT @ r_c[idx][..., None])[..., 0]
         diag = np.diagonal(A, axis1=1, axis2=2)
         Ad = A + lam[idx, None, None] * (diag[:, None, :] * eye[None] + 1e-12 * eye)
         try:
@@ -399,10 +422,15 @@ def refine_markers(
                 step[k] = np.linalg.lstsq(Ad[k], g[k], rcond=None)[0]
         pt = pa + step
         pt[:, 2] = np.clip(pt[:, 2], rmin, 3.0 * R0 + 2.0)
-        ct = (residual(idx, pt) ** 2).sum(axis=(1, 2))
+        rt, Jt = residual(idx, pt, True)
+        rt = rt.reshape(idx.size, -1)
+        ct = (rt**2).sum(axis=1)
         better = ct < cost[idx]
-        p[idx] = np.where(better[:, None], pt, pa)
-        cost[idx] = np.where(better, ct, cost[idx])
+        acc = idx[better]
+        p[acc] = pt[better]
+        cost[acc] = ct[better]
+        r_c[acc] = rt[better]
+        J_c[acc] = Jt[better]
         lam[idx] = np.clip(np.where(better, lam[idx] * 0.3, lam[idx] * 10.0), 1e-9, 1e9)
         # converged: a position step under 1e-4 px that was not forced small by damping
         small = (np.abs(step[:, :2]).max(axis=1) < 1e-4) & (better | (lam[idx] < 1e2))
@@ -521,14 +549,15 @@ def detect_markers(
     signal = sign * sub
     if bad.all():
         raise InputError("image: every pixel of the roi is masked")
-    fill = float(np.median(signal[~bad]))
+    k = max(1, int(np.sqrt(signal.size / 250_000)))  # a regular subset is enough
+    sub_ok = ~bad[::k, ::k]
+    fill = float(np.median(signal[::k, ::k][sub_ok] if sub_ok.any() else signal[~bad]))
     signal = np.where(bad, fill, signal)
     noise = estimate_noise(signal, bad)
     # reflect at the borders (zero padding would make the image edge look like a marker)
     # (float32 after removing the median level: the FFT rounding stays far under the noise)
     padded = np.pad((signal - fill).astype(np.float32), th, mode="symmetric")
     merit = oaconvolve(padded, tmpl[::-1, ::-1].astype(np.float32), mode="valid")
-    merit = merit.astype(np.float64)
     merit_noise = noise * float(np.sqrt((tmpl**2).sum()))
     thr = float(threshold) if threshold is not None else k_sigma * max(merit_noise, 1e-12)
     size = max(3, 2 * int(np.floor(R)) + 1)
@@ -538,7 +567,7 @@ def detect_markers(
     gu_, gv_ = pu + cu0, pv + cv0
     inside = (gu_ >= u0) & (gu_ <= u1) & (gv_ >= v0) & (gv_ <= v1)
     pu, pv = pu[inside], pv[inside]
-    m = merit[pv, pu]
+    m = merit[pv, pu].astype(np.float64)
     order = np.argsort(-m, kind="stable")[:max_candidates]
     pu, pv, m = pu[order], pv[order], m[order]
     rejected = {"border": 0, "masked": 0, "fit": 0, "double": 0}
