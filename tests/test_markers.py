@@ -231,6 +231,19 @@ def test_border_roi_and_doubles():
     assert len(tree.query_pairs(7.5)) == 0
 
 
+def test_refine_in_chunks_equals_one_batch():
+    from resection.markers import refine_markers
+
+    sc = make_scene((200, 200), 25, 5.0, snr=30.0, rng=8)
+    start = np.rint(sc.uv) + 0.0
+    a = refine_markers(-sc.image.astype(float), start, 5.0, chunk=7)
+    b = refine_markers(-sc.image.astype(float), start, 5.0, chunk=1000)
+    for key in ("u", "v", "radius", "depth", "ok"):
+        assert np.allclose(a[key], b[key], rtol=0, atol=1e-9)
+    e = np.column_stack([a["u"], a["v"]]) - sc.uv
+    assert _rms(e) <= 0.05
+
+
 def test_template_shapes():
     for kind in ("tophat", "cone"):
         t = marker_template(6.0, kind)
