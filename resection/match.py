@@ -387,8 +387,18 @@ def match_markers(
     cand_idx = jb[mk]
     pose = None
     if cam is None:
-        pred = _apply_affine(A, P[mk])
-        res = Q[cand_idx] - pred
+        # the same statistical gate as after a pose solve, on the affine residuals
+        err = np.hypot(*(Q[cand_idx] - _apply_affine(A, P[mk])).T)
+        g = gate if gate is not None else _gate(err, tolerance)
+        keep = err <= g
+        if keep.sum() < max(min_matches, 4):
+            raise SolveError(f"match_markers: only {keep.sum()} markers within {g:.2g} px of "
+                             "the fitted affine map")
+        sel = np.flatnonzero(mk)[keep]
+        A = _fit_affine(P[sel], Q[jb[sel]])
+        matched_ids = [ref_ids[i] for i in sel]
+        cand_idx = jb[sel]
+        res = Q[cand_idx] - _apply_affine(A, P[sel])
     else:
         from .pose import solve_pose
 
