@@ -9,6 +9,7 @@ top-left pixel, images indexed ``img[v, u]``.
 from .align import ViewWarp, warp_image
 from .calibrate import CalibrationResult, calibrate
 from .camera import Camera, effective_focal_length
+from .deformation import displacements_3d, marker_displacements, triangulate
 from .dlt import (
     apply_homography,
     camera_from_dlt,
@@ -24,9 +25,11 @@ from .markerio import MarkerSet, read_markers, read_points, write_markers, write
 from .markers import Candidates, detect_markers, read_candidates, write_candidates
 from .match import MatchResult, match_markers
 from .meshio import load_mesh, read_plot3d, write_plot3d, write_surface
+from .motion_plots import plot_motion
 from .pipeline import pose_from_image
 from .plots import plot_resection, plot_surface, virtual_camera
 from .pose import PoseResult, solve_pose
+from .sequence import TrackResult, read_track, relative_motion, track
 from .surface import SurfaceMap, SurfaceSample, vertex_values
 from .visibility import RayCaster, visible_faces
 
@@ -75,4 +78,12 @@ __all__ = [
     "MatchResult",
     "match_markers",
     "pose_from_image",
+    "track",
+    "read_track",
+    "relative_motion",
+    "TrackResult",
+    "plot_motion",
+    "triangulate",
+    "marker_displacements",
+    "displacements_3d",
 ]
