@@ -255,6 +255,26 @@ def _gate(errors, tolerance: float) -> float:
     return float(min(tolerance, max(6.0 * sigma, 0.25)))
 
 
+def _pose_options(pose_kw) -> dict:
+    """Checked copy of the ``solve_pose`` options: keyword names of solve_pose only."""
+    if pose_kw is None:
+        return {}
+    if not isinstance(pose_kw, dict):
+        raise InputError(f"pose_kw: expected a dict of solve_pose options, got "
+                         f"{type(pose_kw).__name__}")
+    import inspect
+
+    from .pose import solve_pose
+
+    params = inspect.signature(solve_pose).parameters
+    allowed = {k for k, p in params.items() if p.kind is inspect.Parameter.KEYWORD_ONLY}
+    unknown = sorted(set(pose_kw) - allowed)
+    if unknown:
+        raise InputError(f"pose_kw: unknown solve_pose option(s) {unknown}; expected some of "
+                         f"{sorted(allowed)}")
+    return dict(pose_kw)
+
+
 # ----------------------------------------------------------------------------- main
 def match_markers(
     candidates,
@@ -272,6 +292,7 @@ def match_markers(
     max_rms: float = 1.0,
     gate: float | None = None,
     seed: int = 0,
+    pose_kw: dict | None = None,
 ) -> MatchResult:
     """Link candidates to markers, or refuse with the reason.
 
@@ -312,6 +333,12 @@ def match_markers(
         ``tolerance``.
     seed : int
         Seed of the basis choice (the result is deterministic).
+    pose_kw : dict, optional
+        Further keyword arguments of :func:`resection.pose.solve_pose` for the verifying
+        pose solves (e.g. ``ambiguity_px``, ``max_triplets``, ``max_nfev``). The first solve,
+        on the hypothesis' pairs, uses ``robust="huber", robust_scale=0.5`` unless
+        ``pose_kw`` sets them; the final solves use ``pose_kw`` as given. Ignored without a
+        camera. Unknown keys are an :class:`~resection.errors.InputError`.
 
     Returns
     -------
@@ -327,6 +354,7 @@ def match_markers(
     """
     Q = _candidates_uv(candidates)
     ids3d, xyz = _markers(markers3d)
+    pose_kw = _pose_options(pose_kw)
     for name, val in (("search_radius", search_radius), ("tolerance", tolerance),
                       ("max_rms", max_rms)):
         if not (np.isfinite(val) and val > 0):
@@ -407,7 +435,8 @@ def match_markers(
         if unknown:
             raise InputError(f"reference: id(s) not in markers3d: {', '.join(unknown[:10])}")
         X = xyz[[pos3[k] for k in matched_ids]]
-        pose = solve_pose(cam, X, Q[cand_idx], robust="huber", robust_scale=0.5)
+        pose = solve_pose(cam, X, Q[cand_idx],
+                          **{"robust": "huber", "robust_scale": 0.5, **pose_kw})
         # reproject every marker (also those absent from the reference), keep those within
         # a statistical gate of their reprojection, resolve (twice: the first pose may
         # still carry a wrong pair)
@@ -421,7 +450,7 @@ def match_markers(
             if sel.size < max(min_matches, 4):
                 raise SolveError(f"match_markers: only {sel.size} markers within {g:.2g} px of "
                                  "their reprojection after the pose solve")
-            pose = solve_pose(cam, xyz[sel], Q[jj[sel]])
+            pose = solve_pose(cam, xyz[sel], Q[jj[sel]], **pose_kw)
         matched_ids = [ids3d[i] for i in sel]
         cand_idx = jj[sel]
         res = pose.residuals

@@ -170,3 +170,24 @@ def test_1000_frames_more_spurious_slow():
         res = match_markers(Q, (ids, X), BASE)
         n_ok += np.array_equal(np.array(res.ids, dtype=object), truth)
     assert n_ok == 1000
+
+
+def test_pose_options_reach_the_verifying_solve():
+    # pose_kw goes through to solve_pose: its refusals, checks and options are seen here
+    rng = np.random.default_rng(7)
+    ids, X = _model(rng)
+    Q, truth, cam = _frame(rng, ids, X)
+    plain = match_markers(Q, (ids, X), BASE)
+    same = match_markers(Q, (ids, X), BASE, pose_kw={"ambiguity_px": 0.5})  # the default
+    assert same.ids == plain.ids and same.rms == pytest.approx(plain.rms, abs=1e-12)
+    with pytest.raises(SolveError, match="max_rms"):
+        match_markers(Q, (ids, X), BASE, pose_kw={"max_rms": 0.2 * plain.rms})
+    with pytest.raises(InputError, match="ambiguity_px"):
+        match_markers(Q, (ids, X), BASE, pose_kw={"ambiguity_px": -1.0})
+    res = match_markers(Q, (ids, X), BASE, pose_kw={"refine_intrinsics": "focal"})
+    assert "refined" in res.pose.message and res.pose.camera.K[0, 0] != BASE.K[0, 0]
+    assert np.array_equal(np.array(res.ids, dtype=object), truth)
+    with pytest.raises(InputError, match="bogus"):
+        match_markers(Q, (ids, X), BASE, pose_kw={"bogus": 1})
+    with pytest.raises(InputError, match="pose_kw"):
+        match_markers(Q, (ids, X), BASE, pose_kw=["ambiguity_px"])
