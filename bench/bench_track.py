@@ -125,7 +125,7 @@ def main() -> None:
 
         t = time.perf_counter()
         r1 = track(frames, cam, files["markers"], diameter=diameter, out_dir=tmp / "o1",
-                   progress=False, chunk_size=args.chunk_size)
+                   workers=1, progress=False, chunk_size=args.chunk_size)
         t1 = time.perf_counter() - t
         rows.append(("track, 1 worker", n / t1, *accuracy(r1.angles, r1.marker_positions(
             model.ids))))

@@ -32,8 +32,10 @@ def register(sub) -> None:
     p.add_argument("--polarity", choices=("dark", "bright"), default="dark")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--scheduler", metavar="ADDRESS", help="running Dask scheduler address")
-    p.add_argument("--workers", type=int, default=1,
-                   help="worker processes of the local Dask cluster (default 1: no Dask)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="worker processes of the local Dask cluster started when no "
+                   "--scheduler is given (default: one per CPU core; 1: in this process, "
+                   "without Dask)")
     p.add_argument("--chunk-size", type=int, default=20, help="frames per task (default 20)")
     p.add_argument("--fps", type=float, help="frame rate, for the time axis of the plot")
     p.add_argument("--moving-camera", action="store_true",

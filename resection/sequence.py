@@ -28,8 +28,9 @@ Parallelism and resume
 Frames are split into chunks of ``chunk_size`` consecutive frames. Within a chunk every frame
 is matched from the previous successful frame; each chunk starts from the reference frame
 (frame 0, linked through ``link`` or matched from the approximate ``camera``), so chunks are
-independent and run in parallel on a Dask cluster (a ``LocalCluster`` of ``workers``
-processes by default, or the scheduler at ``scheduler``); the matcher therefore has to bridge
+independent and run in parallel on a Dask cluster (by default a ``LocalCluster`` with one
+worker process per CPU core, or ``workers`` of them, or the scheduler at ``scheduler``;
+``workers=1`` runs in this process, without Dask); the matcher therefore has to bridge
 the motion between frame 0 and a chunk's first frame (several pixels are fine; a failed
 match is retried once with twice the landing tolerance). After a large excursion that can
 still fail: a second, sequential pass then processes again, from the last good frame before
@@ -41,10 +42,13 @@ Every finished frame is written at once to ``out_dir/frames/frame_NNNNNN.json`` 
 a temporary file, flushed, fsync'ed and renamed, so a file is either complete or absent).
 A run that is interrupted and started again with ``resume=True`` loads these files and
 computes only the missing frames; ``poses.csv`` and ``markers.csv`` are merged from them at
-the end. (On a Dask cluster the frames of a chunk are written when the chunk comes back, so
-an interruption loses at most the chunks in flight.) A failed frame is recorded (status
-``failed`` and the reason) and the run goes on; the next frame is then matched from the last
-good one.
+the end. On a Dask cluster the file is written by the worker, inside the task, as soon as
+the frame is finished (the workers of a local cluster share the filesystem), so an
+interruption loses at most the frames in progress, one per worker; the progress bar follows
+these files. A worker that cannot write there (a remote cluster without a shared
+filesystem) leaves the file to the client, which writes it when the chunk comes back.
+A failed frame is recorded (status ``failed`` and the reason) and the run goes on; the next
+frame is then matched from the last good one.
 """
 
 from __future__ import annotations
@@ -345,10 +349,13 @@ def _apply_link(candidates, link: dict, setup: _Setup) -> tuple[np.ndarray, np.n
 
 def _run_chunk(setup: _Setup, items: list, seed: FrameResult | None,
                done: dict | None = None,
-               on_frame: Callable[[FrameResult], None] | None = None) -> list[dict]:
+               on_frame: Callable[[FrameResult], None] | None = None,
+               frames_dir: str | None = None) -> list[dict]:
     """Process consecutive frames ``items = [(index, frame), ...]``, each matched from the
     previous good one (the first from ``seed``). Frames already in ``done`` (index -> dict)
-    are not recomputed but serve as references. Returns the frames' dictionaries."""
+    are not recomputed but serve as references. With ``frames_dir`` (a Dask task) every
+    frame's result file is written there as soon as the frame is finished, so that an
+    interruption loses at most the frame in progress. Returns the frames' dictionaries."""
     done = done or {}
     ref = seed
     out = []
@@ -357,6 +364,8 @@ def _run_chunk(setup: _Setup, items: list, seed: FrameResult | None,
             res = FrameResult.from_dict(done[index])
         else:
             res = _process_frame(frame, index, setup, ref)
+            if frames_dir is not None:
+                _try_write_frame(Path(frames_dir), res)
             if on_frame is not None:
                 on_frame(res)
         if res.ok:
@@ -405,8 +414,22 @@ def _frame_path(frames_dir: Path, index: int) -> Path:
     return frames_dir / f"frame_{index:06d}.json"
 
 
+def _frame_text(d: dict) -> str:
+    return json.dumps(d)
+
+
 def _write_frame(frames_dir: Path, res: FrameResult) -> None:
-    _atomic_write_text(_frame_path(frames_dir, res.frame), json.dumps(res.to_dict()))
+    _atomic_write_text(_frame_path(frames_dir, res.frame), _frame_text(res.to_dict()))
+
+
+def _try_write_frame(frames_dir: Path, res: FrameResult) -> None:
+    """A worker's write of a finished frame. A worker that cannot reach the output directory
+    (a remote cluster without a shared filesystem) leaves it to the client, which writes
+    the frame when the chunk comes back."""
+    try:
+        _write_frame(frames_dir, res)
+    except OSError:
+        pass
 
 
 def _read_frame(path: Path) -> dict | None:
@@ -726,8 +749,13 @@ def _execute_local(setup, tasks, on_frame):
         _run_chunk(setup, items, seed, done, on_frame)
 
 
-def _execute_dask(setup, tasks, on_chunk, scheduler, workers):
+def _execute_dask(setup, tasks, on_chunk, on_poll, scheduler, workers, frames_dir,
+                  poll_s: float = 0.25):
+    """Run the chunks on Dask. The tasks write every finished frame to ``frames_dir``
+    themselves; ``on_poll()`` is called while waiting (it picks those files up, for the
+    progress bar) and ``on_chunk(dicts)`` when a chunk comes back."""
     import logging
+    import time
 
     from dask.distributed import Client, LocalCluster, as_completed
 
@@ -740,14 +768,26 @@ def _execute_dask(setup, tasks, on_chunk, scheduler, workers):
         client = Client(scheduler)
     try:
         s = client.scatter(setup, broadcast=True)
-        futures = [client.submit(_run_chunk, s, items, seed, done, pure=False)
+        futures = [client.submit(_run_chunk, s, items, seed, done, None, frames_dir,
+                                 pure=False)
                    for items, seed, done in tasks]
-        for fut in as_completed(futures):
-            on_chunk(fut.result())
+        pending = as_completed(futures)
+        while not pending.is_empty():
+            if pending.has_ready():
+                for fut in pending.next_batch(block=False):
+                    on_chunk(fut.result())
+            else:
+                on_poll()
+                time.sleep(poll_s)
     finally:
         client.close()
         if cluster is not None:
             cluster.close()
+
+
+def _default_workers() -> int:
+    """Worker processes of the default local cluster: one per CPU core."""
+    return max(int(os.cpu_count() or 1), 1)
 
 
 def track(
@@ -760,7 +800,7 @@ def track(
     polarity: str = "dark",
     fixed_camera: bool = True,
     scheduler: str | None = None,
-    workers: int = 1,
+    workers: int | None = None,
     out_dir: str | os.PathLike,
     resume: bool = True,
     progress: bool = True,
@@ -795,11 +835,11 @@ def track(
         The camera is fixed and the model moves (report the model's motion), or the reverse.
     scheduler : str, optional
         Address of a running Dask scheduler (``tcp://host:8786``).
-    workers : int
-        Worker processes of the local Dask cluster; 1 without ``scheduler`` runs in this
-        process, without Dask (same chunks, same results). The workers are spawned
-        processes: a script that calls ``track`` with ``workers > 1`` needs the usual
-        ``if __name__ == "__main__":`` guard.
+    workers : int, optional
+        Worker processes of the local Dask cluster started when no ``scheduler`` is given;
+        default: one per CPU core. 1 runs in this process, without Dask (same chunks, same
+        results). The workers are spawned processes: a script that calls ``track`` with
+        more than one worker needs the usual ``if __name__ == "__main__":`` guard.
     out_dir : path-like
         Output directory (created): ``poses.csv``, ``markers.csv``, ``frames/``, ``track.json``.
     resume : bool
@@ -844,7 +884,13 @@ def track(
         raise InputError(f"diameter: must be positive, got {diameter!r}")
     if polarity not in ("dark", "bright"):
         raise InputError(f"polarity: expected 'dark' or 'bright', got {polarity!r}")
-    if int(workers) < 1:
+    if workers is None:
+        workers = _default_workers()
+    try:
+        workers = int(workers)
+    except (TypeError, ValueError):
+        raise InputError(f"workers: must be a whole number, got {workers!r}") from None
+    if workers < 1:
         raise InputError(f"workers: must be >= 1, got {workers}")
     if int(chunk_size) < 1:
         raise InputError(f"chunk_size: must be >= 1, got {chunk_size}")
@@ -902,12 +948,16 @@ def track(
                disable=not progress)
     computed = 0
 
-    def record(res: FrameResult) -> None:
+    def note(d: dict) -> None:
+        """A frame finished (its file is written)."""
         nonlocal computed
-        _write_frame(frames_dir, res)
-        done[res.frame] = res.to_dict()
+        done[d["frame"]] = d
         computed += 1
         bar.update(1)
+
+    def record(res: FrameResult) -> None:
+        _write_frame(frames_dir, res)
+        note(res.to_dict())
 
     try:
         # the reference frame, in this process
@@ -929,15 +979,38 @@ def track(
             items = [(i, frames[i]) for i in idx]
             tasks.append((items, seed, {i: done[i] for i in idx if i in done}))
         if tasks:
-            if scheduler is None and int(workers) == 1:
+            if scheduler is None and workers == 1:
                 _execute_local(setup, tasks, record)
             else:
-                def on_chunk(dicts):
-                    for dct in dicts:
-                        if dct["frame"] not in done:
-                            record(FrameResult.from_dict(dct))
+                def on_poll() -> None:
+                    # frames the workers have written so far (shared filesystem)
+                    names = set(os.listdir(frames_dir))
+                    for i in sorted(todo):
+                        if _frame_path(frames_dir, i).name in names:
+                            d = _read_frame(_frame_path(frames_dir, i))
+                            if d is not None and d.get("frame") == i:
+                                todo.discard(i)
+                                note(d)
 
-                _execute_dask(setup, tasks, on_chunk, scheduler, workers)
+                def on_chunk(dicts: list) -> None:
+                    # a chunk came back: write what its worker could not (no shared
+                    # filesystem with a remote cluster)
+                    for dct in dicts:
+                        i = dct["frame"]
+                        if i not in todo:
+                            continue
+                        path, text = _frame_path(frames_dir, i), _frame_text(dct)
+                        try:
+                            same = path.read_text(encoding="utf-8") == text
+                        except OSError:
+                            same = False
+                        if not same:
+                            _atomic_write_text(path, text)
+                        todo.discard(i)
+                        note(dct)
+
+                _execute_dask(setup, tasks, on_chunk, on_poll, scheduler, workers,
+                              str(frames_dir.resolve()))
 
         def rerecord(res: FrameResult) -> None:
             nonlocal computed

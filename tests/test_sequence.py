@@ -17,10 +17,17 @@ import pytest
 from resection import Camera, InputError
 from resection import sequence as seq
 from resection.cli import main
-from resection.sequence import read_track, relative_motion, track
+from resection.sequence import read_track, relative_motion
+from resection.sequence import track as _track
 from scenes.moving_model import pitch_oscillation, rotation_zyx, write_sequence
 
 N_FAST = 60
+
+
+def track(*args, workers=1, **kw):
+    """``track`` in this process (its default is a local Dask cluster) unless a test asks
+    for workers."""
+    return _track(*args, workers=workers, **kw)
 
 
 def _model(n):
@@ -314,3 +321,71 @@ def test_bad_input(run60, tmp_path):
         track(files["frames"], cam, (["a", "a", "b"], np.eye(3)), diameter=5.6, **kw)
     with pytest.raises(InputError, match="not found"):
         read_track(tmp_path / "nothing")
+
+
+def test_dask_interruption_keeps_every_finished_frame(run60, tmp_path, monkeypatch):
+    # Each frame's result file is written inside the Dask task as soon as the frame is
+    # finished, not when its chunk returns: a run stopped in the middle of a chunk keeps
+    # the frames that chunk had finished, and resuming computes only the rest.
+    import logging
+
+    from dask.distributed import LocalCluster
+
+    model, files, cam, ref, _ = run60
+    n, stop = 20, 15
+    process = seq._process_frame
+
+    def dies_at_frame(frame, index, setup, reference):
+        if index == stop:  # the run is stopped while the chunk (frames 1..19) is in flight
+            raise RuntimeError("interrupted")
+        return process(frame, index, setup, reference)
+
+    monkeypatch.setattr(seq, "_process_frame", dies_at_frame)
+    out = tmp_path / "o"
+    # in-process workers (threads) so that the patch reaches the task
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                      dashboard_address=None, silence_logs=logging.ERROR) as cluster:
+        with pytest.raises(RuntimeError, match="interrupted"):
+            track(files["frames"][:n], cam, files["markers"], diameter=5.6, out_dir=out,
+                  scheduler=cluster.scheduler_address, chunk_size=n - 1, progress=False)
+    written = sorted(int(p.stem.split("_")[1]) for p in (out / "frames").glob("*.json"))
+    assert written == list(range(stop))  # frame 0 (client) and 1..14 (the task)
+    assert not list((out / "frames").glob("*.tmp"))
+    monkeypatch.setattr(seq, "_process_frame", process)
+    res = track(files["frames"][:n], cam, files["markers"], diameter=5.6, out_dir=out,
+                chunk_size=n - 1, progress=False)
+    assert res.n_computed == n - stop
+    np.testing.assert_allclose(res.angles, ref.angles[:n], atol=1e-9)
+    np.testing.assert_allclose(res.marker_uv, ref.marker_uv[ref.marker_frame < n], atol=1e-9)
+
+
+def test_default_is_a_local_cluster_and_client_writes_unshared_frames(run60, tmp_path,
+                                                                      monkeypatch, capsys):
+    # Without --workers/--scheduler the CLI (and track) start a local cluster with one
+    # worker per CPU core. The executor is replaced here by one that runs the chunks as a
+    # remote worker without the client's filesystem would: it writes no file, so the
+    # client must write every frame when the chunk comes back.
+    model, files, cam, ref, _ = run60
+    seen = {}
+
+    def fake_dask(setup, tasks, on_chunk, on_poll, scheduler, workers, frames_dir):
+        seen.update(scheduler=scheduler, workers=workers, frames_dir=frames_dir)
+        on_poll()  # nothing written yet: no frame may be taken as done
+        for items, s, done in tasks:
+            on_chunk(seq._run_chunk(setup, items, s, done))
+
+    monkeypatch.setattr(seq, "_execute_dask", fake_dask)
+    monkeypatch.setattr(seq.os, "cpu_count", lambda: 3)
+    out = tmp_path / "cli"
+    rc = main(["track", *files["frames"][:8], "--camera", files["camera"], "--markers",
+               files["markers"], "--diameter", "5.6", "--out", str(out), "--no-progress",
+               "--chunk-size", "3"])
+    assert rc == 0 and "8/8 frames solved" in capsys.readouterr().out
+    assert seen["workers"] == 3 and seen["scheduler"] is None
+    assert os.path.isabs(seen["frames_dir"])
+    assert len(list((out / "frames").glob("frame_*.json"))) == 8
+    np.testing.assert_allclose(read_track(out).angles, ref.angles[:8], atol=1e-9)
+    # nothing left to do on a resume
+    res = _track(files["frames"][:8], cam, files["markers"], diameter=5.6, out_dir=out,
+                 chunk_size=3, progress=False)
+    assert res.n_computed == 0
