@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import os
 
 from ._cli_markers import add_detect_options
@@ -169,6 +170,10 @@ def run_calibrate(args: argparse.Namespace) -> int:
                "cy": cam.K[1, 2], "k1": cam.dist[0], "k2": cam.dist[1], "p1": cam.dist[2],
                "p2": cam.dist[3], "k3": cam.dist[4]}[name]
         print(f"  {name:>3} = {val:.6g} +- {result.std[name]:.2g}")
+    print(f"{'view':>4} {'id':>12} {'du':>9} {'dv':>9} {'error':>9}")
+    for v, (i, r) in enumerate(zip(ids, result.residuals, strict=True)):
+        for k, (du, dv) in zip(i, r, strict=True):
+            print(f"{v:>4} {k:>12} {du:9.4f} {dv:9.4f} {math.hypot(du, dv):9.4f}")
     cam.write(args.out)
     if args.residuals:
         write_view_residuals(args.residuals, ids, [uv for _, uv in views], result.residuals)

@@ -358,7 +358,9 @@ def calibrate(
     ------
     InputError, DegenerateError
         No views, fewer than 4 markers in a view, NaN, collinear markers, bad sizes,
-        unknown parameter names, fewer observations than parameters.
+        image points outside the ``image_size`` image (pixel edges at ``-0.5`` and
+        ``W - 0.5``), an ``initial`` camera of another size, unknown parameter names,
+        fewer observations than parameters.
     SolveError
         Non-convergence, or parameters the views do not determine (the message names
         them: e.g. the principal point from one planar view).
@@ -376,9 +378,20 @@ def calibrate(
         raise InputError(f"calibrate: unknown parameter(s) to fix: {', '.join(unknown)}; "
                          f"allowed: {', '.join(CALIBRATION_PARAMETERS)}, aspect")
     vw = _check_views(views)
+    for i, (_, uv, _) in enumerate(vw):
+        out = np.flatnonzero((uv[:, 0] < -0.5) | (uv[:, 0] > w - 0.5)
+                             | (uv[:, 1] < -0.5) | (uv[:, 1] > h - 0.5))
+        if out.size:
+            raise InputError(
+                f"calibrate: view {i}: image point(s) at index {out[:10].tolist()} lie outside "
+                f"the {w}x{h} image (e.g. u, v = {uv[out[0], 0]:.1f}, {uv[out[0], 1]:.1f}): "
+                "wrong image size?")
     if initial is not None:
         if not isinstance(initial, Camera):
             raise InputError("calibrate: initial must be a resection.Camera")
+        if (initial.width, initial.height) != (w, h):
+            raise InputError(f"calibrate: image size {w}x{h} differs from the initial "
+                             f"camera's {initial.width}x{initial.height}")
         K0, dist0 = np.array(initial.K), np.array(initial.dist)
     else:
         K0, dist0 = _initial_K(vw, w, h), np.zeros(5)

@@ -158,3 +158,16 @@ def test_calibrate_bad_input():
         calibrate([(X[::13][:7], uv[::13][:7])], (W, H))
     with pytest.raises(InputError, match="pair"):
         calibrate([X], (W, H))
+
+
+def test_calibrate_wrong_image_size():
+    """Points beyond the given image, or an initial camera of another size, are refused
+    (a wrong size would silently bias the principal-point start)."""
+    rng = np.random.default_rng(6)
+    views, _ = _views(rng, _board(), 3)
+    with pytest.raises(InputError, match=r"view 0: .*outside the 640x480 image"):
+        calibrate(views, (640, 480))
+    with pytest.raises(InputError, match="differs from the initial camera's 640x480"):
+        calibrate(views, (W, H), initial=Camera(640, 480, K_TRUE))
+    # the right size passes the same views
+    assert calibrate(views, (W, H), fix=("k3",)).rms < 0.2

@@ -138,6 +138,14 @@ def test_calibrate_command(tmp_path, capsys):
     assert float(rms_line.split()[1]) == pytest.approx(
         np.sqrt(np.mean(table["error"] ** 2)), abs=1e-4)
     assert float(rms_line.split()[1]) == pytest.approx(rms_cv, abs=1e-4)
+    # every marker's residual is printed too: view, id, du, dv, error
+    rows = [ln.split() for ln in out.splitlines()
+            if len(ln.split()) == 5 and ln.split()[1] in ids]
+    assert len(rows) == 6 * 70
+    printed = np.array([[float(x) for x in r[2:]] for r in rows])
+    np.testing.assert_allclose(printed[:, 0], table["du"], atol=1e-4)
+    np.testing.assert_allclose(printed[:, 2], table["error"], atol=1e-4)
+    assert [int(r[0]) for r in rows] == list(table["view"])
     # the --views form gives the same answer
     rc = main(["calibrate", "--views", *[f"{tmp_path / 'board.csv'}:{p}" for p in paths],
                "--size", f"{W}x{H}", "--fix", "k3", "--out", str(tmp_path / "cal2.json")])
@@ -159,6 +167,11 @@ def test_calibrate_command_bad_input(tmp_path, capsys):
             str(tmp_path / "p.csv"), "--out", str(tmp_path / "c.json")]
     err = _err(capsys, [*base, "--size", "1280by960"])
     assert "WxH" in err
+    err = _err(capsys, [*base, "--size", "8x8"])
+    assert "outside the 8x8 image" in err
+    Camera(640, 480, K).write(tmp_path / "small.json")
+    err = _err(capsys, [*base, "--size", "1280x960", "--camera", str(tmp_path / "small.json")])
+    assert "640x480" in err
     err = _err(capsys, [*base, "--size", "1280x960", "--fix", "k7"])
     assert "k7" in err
     err = _err(capsys, ["calibrate", "--size", "10x10", "--out", "x.json"])
