@@ -146,9 +146,11 @@ def test_llvm_variant_available_when_libllvm_installed():
 
 
 def test_libllvm_lookup_picks_newest_supported(monkeypatch, tmp_path):
+    import importlib
     import subprocess
 
-    from selfillum import render as render_mod
+    # the module, not the function selfillum.render that the package exports
+    render_mod = importlib.import_module("selfillum.render")
 
     libs = {name: tmp_path / name for name in
             ("libLLVM-14.so.1", "libLLVM-15.so", "libLLVM.so.19.1", "libLLVM-17.so.1")}
