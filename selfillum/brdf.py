@@ -55,7 +55,7 @@ from resection.camera import Camera
 from resection.errors import InputError, SolveError
 
 from .mesh import check_mesh, face_normals
-from .radiosity import check_form_factors, check_reflectance, forward
+from .radiosity import _single_blas_thread, check_form_factors, check_reflectance, forward
 
 __all__ = ["GlossyPaint", "GlossyTransport", "transport_matrix", "glossy_forward",
            "glossy_correct"]
@@ -408,8 +408,9 @@ def glossy_correct(F, transport: GlossyTransport, radiance, reflectance, paint: 
     a = paint.albedo(rho)
     op = spla.LinearOperator((n, n), matvec=lambda e: _apply(F, T, T2, e, a, tol * 0.1),
                              dtype=np.float64)
-    E, info = spla.gmres(op, M, x0=M - T @ M, rtol=tol, atol=0.0, maxiter=maxiter,
-                         restart=50)
+    with _single_blas_thread(n):
+        E, info = spla.gmres(op, M, x0=M - T @ M, rtol=tol, atol=0.0, maxiter=maxiter,
+                             restart=50)
     if info != 0:
         raise SolveError(f"glossy_correct: GMRES did not converge (info {info})")
     return E

@@ -12,6 +12,7 @@ Units of ``E`` and ``B`` are the caller's (W/m^2, counts, ...), the same for bot
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,6 +22,27 @@ import scipy.sparse.linalg as spla
 from resection.errors import InputError, SolveError
 
 __all__ = ["forward", "correct", "SolveInfo", "check_reflectance", "check_form_factors"]
+
+#: Vectors at least this long are where OpenBLAS starts threading its dot products.
+_BLAS_THREADED_SIZE = 10_000
+
+
+def _single_blas_thread(size: int):
+    """Context manager keeping BLAS on one thread while an iterative solver runs on
+    vectors of length ``size`` (a no-op for short vectors).
+
+    The Krylov solvers of SciPy (LSMR, BiCGSTAB, GMRES) alternate sparse products, which
+    never use BLAS, with vector norms and dot products, which do. OpenBLAS threads those
+    above about 10,000 entries, and waking its threads for each of these microsecond-long
+    calls costs far more than it gains: measured on 2 shared cores, the partial
+    correction of 100,000 faces took 12 s with OpenBLAS's default threads and 1.7 s with
+    one (bench/README.md). The previous limits are restored on exit.
+    """
+    if size < _BLAS_THREADED_SIZE:
+        return contextlib.nullcontext()
+    from threadpoolctl import threadpool_limits
+
+    return threadpool_limits(limits=1, user_api="blas")
 
 
 @dataclass(frozen=True)
@@ -191,9 +213,10 @@ def forward(
         def cb(_x):
             counter["k"] += 1
 
-        B2, _ = spla.bicgstab(
-            A, E, x0=B, rtol=tol * 0.5, atol=0.0, maxiter=maxiter - it, callback=cb
-        )
+        with _single_blas_thread(n):
+            B2, _ = spla.bicgstab(
+                A, E, x0=B, rtol=tol * 0.5, atol=0.0, maxiter=maxiter - it, callback=cb
+            )
         it += counter["k"]
         method = "bicgstab"
         res2 = residual(B2)
@@ -339,7 +362,8 @@ def correct(
     # unknown: the deviation of B_h from the prior, so that x = 0 is a fair start
     rhs0 = np.concatenate([-(D @ (e0 + Mh @ np.full(nh, prior))), np.zeros(nh)])
     limit = maxiter if maxiter is not None else max(1000, 10 * hidden.size)
-    out = spla.lsmr(A, rhs0, atol=tol, btol=tol, maxiter=limit)
+    with _single_blas_thread(p_rows + nh):
+        out = spla.lsmr(A, rhs0, atol=tol, btol=tol, maxiter=limit)
     x, istop, itn, normr, normar, norma = out[0], out[1], out[2], out[3], out[4], out[5]
     if istop not in (0, 1, 2, 4, 5):
         raise SolveError(

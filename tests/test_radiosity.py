@@ -174,3 +174,43 @@ def test_bad_seen_mask(small_corner):
         correct(F, B, 0.5, seen)
     with pytest.raises(InputError, match="regularization"):
         correct(F, B, 0.5, seen, mesh=sc.mesh, regularization=0.0)
+
+
+def test_iterative_solves_keep_blas_on_one_thread():
+    """The Krylov solvers' vector norms run on one BLAS thread for long vectors (waking
+    OpenBLAS threads for each microsecond-long norm is what made LSMR slow on shared
+    cores); short vectors and the state after the solve are left alone."""
+    from threadpoolctl import threadpool_info
+
+    from selfillum.radiosity import _single_blas_thread
+
+    def blas_threads():
+        return [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"]
+
+    before = blas_threads()
+    assert before  # NumPy's BLAS is visible
+    with _single_blas_thread(100_000):
+        assert blas_threads() == [1] * len(before)
+    assert blas_threads() == before
+    with _single_blas_thread(100):
+        assert blas_threads() == before
+
+
+def test_lsmr_and_bicgstab_run_under_the_blas_limit(small_corner, monkeypatch):
+    import contextlib
+
+    import selfillum.radiosity as rad
+
+    sizes = []
+
+    def record(size):
+        sizes.append(size)
+        return contextlib.nullcontext()
+
+    monkeypatch.setattr(rad, "_single_blas_thread", record)
+    sc, F, c, _ = small_corner
+    B = forward(F, np.ones(len(c)), 0.9)  # rho > 0.5: BiCGSTAB
+    seen = c[:, 2] < 0.5
+    correct(F, np.where(seen, B, np.nan), 0.9, seen, mesh=sc.mesh)
+    n = len(c)
+    assert sizes[0] == n and sizes[1] > n  # the LSMR vectors: smoothness rows + hidden
