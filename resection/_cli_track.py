@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import glob
+import json
 import os
 
 from .camera import Camera
@@ -40,6 +41,10 @@ def register(sub) -> None:
     p.add_argument("--fps", type=float, help="frame rate, for the time axis of the plot")
     p.add_argument("--moving-camera", action="store_true",
                    help="the model is fixed and the camera moves (report the camera's motion)")
+    p.add_argument("--pose-options", metavar="JSON",
+                   help="solve_pose options as a JSON object, for every frame's pose and the "
+                   "matcher's verifying solves, e.g. '{\"robust\": \"huber\", "
+                   "\"max_rms\": 1.0}'")
     p.add_argument("--no-resume", action="store_true",
                    help="recompute every frame even if --out holds finished ones")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -59,10 +64,23 @@ def _expand(patterns: list[str]) -> list[str]:
     return out
 
 
+def _json_options(text: str | None, option: str) -> dict | None:
+    if text is None:
+        return None
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{option}: not valid JSON ({exc.msg})") from None
+    if not isinstance(value, dict):
+        raise InputError(f"{option}: expected a JSON object {{\"name\": value, ...}}")
+    return value
+
+
 def run_track(args: argparse.Namespace) -> int:
     from .motion_plots import plot_motion
     from .sequence import track
 
+    pose_kw = _json_options(args.pose_options, "--pose-options")
     camera = Camera.read(args.camera)
     frames = _expand(args.frames)
     result = track(
@@ -70,6 +88,7 @@ def run_track(args: argparse.Namespace) -> int:
         polarity=args.polarity, fixed_camera=not args.moving_camera,
         scheduler=args.scheduler, workers=args.workers, out_dir=args.out,
         resume=not args.no_resume, progress=not args.no_progress, chunk_size=args.chunk_size,
+        pose_kw=pose_kw,
     )
     plot_motion(result, os.path.join(args.out, "pose_vs_time.png"), fps=args.fps)
     n_ok = int(result.ok.sum())

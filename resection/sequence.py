@@ -234,14 +234,14 @@ def _match(candidates, setup: _Setup, reference: FrameResult | None):
 
     markers3d = (setup.ids, setup.points3d)
     ref = setup.camera if reference is None else (tuple(reference.ids), reference.uv)
+    kw = {**setup.match_kw, "pose_kw": setup.pose_kw}
     try:
-        m = match_markers(candidates, markers3d, ref, camera=setup.camera, **setup.match_kw)
+        m = match_markers(candidates, markers3d, ref, camera=setup.camera, **kw)
     except SolveError as first:
         # The matcher's hypotheses are 2-D similarities: a pitch of a degree or two between
         # the reference and this frame (a chunk's first frame is matched from frame 0) bends
         # the marker pattern by more than the landing tolerance. One retry with twice the
         # tolerance; the matcher's pose verification and residual test still guard it.
-        kw = dict(setup.match_kw)
         default = inspect.signature(match_markers).parameters["tolerance"].default
         kw["tolerance"] = 2.0 * float(kw.get("tolerance", default))
         try:
@@ -253,8 +253,8 @@ def _match(candidates, setup: _Setup, reference: FrameResult | None):
 
 def _solve(ids: np.ndarray, uv: np.ndarray, setup: _Setup, frame: int, file: str,
            pose=None) -> FrameResult:
-    """The frame's pose from matched markers (``pose``: an already solved ``PoseResult``
-    for exactly these markers, reused when no extra ``pose_kw`` is asked)."""
+    """The frame's pose from matched markers (``pose``: the matcher's ``PoseResult`` for
+    exactly these markers, solved with ``pose_kw``, reused)."""
     from .pose import solve_pose
 
     index = {k: i for i, k in enumerate(setup.ids)}
@@ -264,7 +264,7 @@ def _solve(ids: np.ndarray, uv: np.ndarray, setup: _Setup, frame: int, file: str
     if len(ids) < setup.min_markers:
         raise SolveError(f"only {len(ids)} markers matched, at least {setup.min_markers} "
                          "needed")
-    if pose is None or setup.pose_kw:
+    if pose is None:
         X = setup.points3d[[index[i] for i in ids]]
         pose = solve_pose(setup.camera, X, uv, **setup.pose_kw)
     return FrameResult(frame=frame, file=file, status="ok", rvec=np.asarray(pose.camera.rvec),
@@ -700,6 +700,27 @@ def _as_markers(markers3d) -> tuple[np.ndarray, np.ndarray]:
     return ids, pts
 
 
+def _check_options(kw, func, name: str, reserved: tuple) -> dict:
+    """Checked copy of extra keyword arguments for ``func``: a bad name would otherwise
+    make every frame fail, one by one."""
+    if kw is None:
+        return {}
+    if not isinstance(kw, dict):
+        raise InputError(f"{name}: expected a dict of {func.__name__} options, got "
+                         f"{type(kw).__name__}")
+    params = inspect.signature(func).parameters
+    allowed = {k for k, p in params.items()
+               if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY) and k not in reserved}
+    unknown = sorted(str(k) for k in kw if k not in allowed)
+    if unknown:
+        why = [k for k in unknown if k in reserved]
+        note = (f" ({', '.join(why)}: set by track itself; the intrinsics stay those of "
+                "the camera)" if why else "")
+        raise InputError(f"{name}: unknown or reserved {func.__name__} option(s) {unknown}"
+                         f"{note}; expected some of {sorted(allowed)}")
+    return dict(kw)
+
+
 def _as_link(link) -> dict | None:
     """``{"path": str or None, "pairs": {id: candidate} or None, "text": file content}``."""
     if link is None:
@@ -856,7 +877,9 @@ def track(
         pose, widened by this many pixels (more than the motion from the reference frame
         plus a marker diameter); None searches the whole image.
     detect_kw, match_kw, pose_kw : dict, optional
-        Extra arguments of ``detect_markers``, ``match_markers`` and ``solve_pose``.
+        Extra keyword arguments of ``detect_markers``, ``match_markers`` and
+        ``solve_pose`` (``pose_kw`` also goes to the matcher's verifying pose solves; the
+        intrinsics are not refined per frame). Unknown names are an InputError.
 
     Returns
     -------
@@ -904,9 +927,19 @@ def track(
                              f"{type(f).__name__}")
     ids, pts = _as_markers(markers3d)
     link_d = _as_link(link)
+    from .markers import detect_markers
+    from .match import match_markers
+    from .pose import solve_pose
+
+    detect_kw = _check_options(detect_kw, detect_markers, "detect_kw",
+                               ("image", "diameter", "polarity"))
+    match_kw = _check_options(match_kw, match_markers, "match_kw",
+                              ("candidates", "markers3d", "reference", "camera", "pose_kw"))
+    pose_kw = _check_options(pose_kw, solve_pose, "pose_kw",
+                             ("camera", "points3d", "points2d", "refine_intrinsics"))
     setup = _Setup(camera=camera, ids=ids, points3d=pts, diameter=d, polarity=polarity,
-                   detect_kw=dict(detect_kw or {}), match_kw=dict(match_kw or {}),
-                   pose_kw=dict(pose_kw or {}), min_markers=int(min_markers),
+                   detect_kw=detect_kw, match_kw=match_kw,
+                   pose_kw=pose_kw, min_markers=int(min_markers),
                    roi_margin=None if roi_margin is None else float(roi_margin))
     chunk_size = int(chunk_size)
 

@@ -389,3 +389,38 @@ def test_default_is_a_local_cluster_and_client_writes_unshared_frames(run60, tmp
     res = _track(files["frames"][:8], cam, files["markers"], diameter=5.6, out_dir=out,
                  chunk_size=3, progress=False)
     assert res.n_computed == 0
+
+
+def test_pose_options_reach_every_solve(run60, tmp_path, capsys):
+    model, files, cam, ref, _ = run60
+    frames = files["frames"][:3]
+    # the frames' RMS is a few hundredths of a pixel: a 0.5 px limit changes nothing, a
+    # 1e-4 px one refuses every frame (through the matcher's verifying solves)
+    assert np.nanmax(ref.rms[:3]) < 0.1
+    res = track(frames, cam, files["markers"], diameter=5.6, out_dir=tmp_path / "a",
+                pose_kw={"max_rms": 0.5, "robust": "huber"}, progress=False)
+    assert res.ok.all()
+    np.testing.assert_allclose(res.angles, ref.angles[:3], atol=1e-3)
+    out = tmp_path / "b"
+    rc = main(["track", *frames, "--camera", files["camera"], "--markers", files["markers"],
+               "--diameter", "5.6", "--out", str(out), "--no-progress", "--workers", "1",
+               "--pose-options", '{"max_rms": 1e-4}'])
+    assert rc == 1
+    back = read_track(out)
+    assert (back.status == "failed").all()
+    assert all("max_rms" in r for r in back.reason), back.reason
+    # option names are checked before any frame is processed
+    kw = dict(out_dir=tmp_path / "c", progress=False)
+    with pytest.raises(InputError, match="pose_kw.*max_rmss"):
+        track(frames, cam, files["markers"], diameter=5.6, pose_kw={"max_rmss": 1}, **kw)
+    with pytest.raises(InputError, match="refine_intrinsics.*set by track"):
+        track(frames, cam, files["markers"], diameter=5.6,
+              pose_kw={"refine_intrinsics": "focal"}, **kw)
+    with pytest.raises(InputError, match="detect_kw.*k_sigmaa"):
+        track(frames, cam, files["markers"], diameter=5.6, detect_kw={"k_sigmaa": 4}, **kw)
+    with pytest.raises(InputError, match="match_kw.*tolerence"):
+        track(frames, cam, files["markers"], diameter=5.6, match_kw={"tolerence": 4}, **kw)
+    assert not (tmp_path / "c").exists()
+    rc = main(["track", *frames, "--camera", files["camera"], "--markers", files["markers"],
+               "--diameter", "5.6", "--out", str(out), "--pose-options", "{max_rms: 1}"])
+    assert rc == 2 and "--pose-options: not valid JSON" in capsys.readouterr().err
