@@ -7,6 +7,7 @@ import argparse
 import glob
 import json
 import os
+import sys
 
 from .camera import Camera
 from .errors import InputError
@@ -83,13 +84,20 @@ def run_track(args: argparse.Namespace) -> int:
     pose_kw = _json_options(args.pose_options, "--pose-options")
     camera = Camera.read(args.camera)
     frames = _expand(args.frames)
-    result = track(
-        frames, camera, args.markers, link=args.link, diameter=args.diameter,
-        polarity=args.polarity, fixed_camera=not args.moving_camera,
-        scheduler=args.scheduler, workers=args.workers, out_dir=args.out,
-        resume=not args.no_resume, progress=not args.no_progress, chunk_size=args.chunk_size,
-        pose_kw=pose_kw,
-    )
+    try:
+        result = track(
+            frames, camera, args.markers, link=args.link, diameter=args.diameter,
+            polarity=args.polarity, fixed_camera=not args.moving_camera,
+            scheduler=args.scheduler, workers=args.workers, out_dir=args.out,
+            resume=not args.no_resume, progress=not args.no_progress,
+            chunk_size=args.chunk_size, pose_kw=pose_kw,
+        )
+    except KeyboardInterrupt:
+        frames_dir = os.path.join(args.out, "frames")
+        n = len(glob.glob(os.path.join(glob.escape(frames_dir), "frame_*.json")))
+        print(f"interrupted: {n}/{len(frames)} frames finished are kept in {frames_dir}; "
+              "run the same command again to resume", file=sys.stderr)
+        return 130
     plot_motion(result, os.path.join(args.out, "pose_vs_time.png"), fps=args.fps)
     n_ok = int(result.ok.sum())
     print(f"{n_ok}/{len(result)} frames solved ({result.n_computed} computed now), "

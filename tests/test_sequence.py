@@ -424,3 +424,27 @@ def test_pose_options_reach_every_solve(run60, tmp_path, capsys):
     rc = main(["track", *frames, "--camera", files["camera"], "--markers", files["markers"],
                "--diameter", "5.6", "--out", str(out), "--pose-options", "{max_rms: 1}"])
     assert rc == 2 and "--pose-options: not valid JSON" in capsys.readouterr().err
+
+
+def test_cli_ctrl_c_says_what_is_kept(run60, tmp_path, monkeypatch, capsys):
+    model, files, cam, ref, _ = run60
+    calls = {"n": 0}
+    detect = seq._detect
+
+    def interrupted(img, setup, roi=None):
+        calls["n"] += 1
+        if calls["n"] == 3:  # Ctrl-C while frame 2 is being processed
+            raise KeyboardInterrupt
+        return detect(img, setup, roi)
+
+    monkeypatch.setattr(seq, "_detect", interrupted)
+    out = tmp_path / "o"
+    args = ["track", *files["frames"][:4], "--camera", files["camera"], "--markers",
+            files["markers"], "--diameter", "5.6", "--out", str(out), "--no-progress",
+            "--workers", "1"]
+    assert main(args) == 130
+    err = capsys.readouterr().err
+    assert "interrupted: 2/4 frames finished are kept" in err and "again to resume" in err
+    monkeypatch.setattr(seq, "_detect", detect)
+    assert main(args) == 0
+    assert "4/4 frames solved (2 computed now)" in capsys.readouterr().out
