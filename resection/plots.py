@@ -20,7 +20,7 @@ import os
 
 import numpy as np
 import trimesh
-from matplotlib import colormaps
+from matplotlib import colormaps, patheffects
 from matplotlib.collections import LineCollection, PolyCollection
 from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
@@ -232,6 +232,10 @@ def plot_resection(
     uv_det = as_points(detected_uv, 2, "detected_uv", allow_nan=True)
     if len(X) != len(uv_det):
         raise InputError(f"markers_xyz has {len(X)} rows but detected_uv has {len(uv_det)}")
+    if ids is not None:
+        ids = [str(i) for i in (ids.tolist() if isinstance(ids, np.ndarray) else ids)]
+        if len(ids) != len(X):
+            raise InputError(f"ids has {len(ids)} labels but markers_xyz has {len(X)} rows")
     uv_rep = camera.project(X)
     res = uv_det - uv_rep
     ok = np.all(np.isfinite(res), axis=1)
@@ -247,7 +251,7 @@ def plot_resection(
         seg = outline_edges(mesh)
         uv = camera.project(seg.reshape(-1, 3)).reshape(-1, 2, 2)
         uv = uv[np.all(np.isfinite(uv), axis=(1, 2))]
-        ax.add_collection(LineCollection(uv, colors="deepskyblue", linewidths=0.8,
+        ax.add_collection(LineCollection(uv, colors="deepskyblue", linewidths=1.3,
                                          label="grid outline"))
     ax.plot(uv_det[ok, 0], uv_det[ok, 1], "o", mfc="none", mec="lime", ms=8,
             label="detected")
@@ -258,15 +262,17 @@ def plot_resection(
             residual_scale = 0.05 * W / max(float(mags.max()), 1e-12)
         ax.quiver(uv_rep[ok, 0], uv_rep[ok, 1], res[ok, 0] * residual_scale,
                   res[ok, 1] * residual_scale, angles="xy", scale_units="xy", scale=1,
-                  color="yellow", width=0.003, label="residual")
+                  color="yellow", edgecolor="black", linewidth=0.4, width=0.004,
+                  label="residual")
         ax.text(0.01, 0.01, f"residual vectors x {residual_scale:.3g}",
                 transform=ax.transAxes, color="yellow", fontsize=9, va="bottom",
                 bbox={"facecolor": "black", "alpha": 0.5, "pad": 2})
     if ids is not None:
+        halo = [patheffects.withStroke(linewidth=2.0, foreground="black")]
         for k, name in enumerate(ids):  # labels of a few tens of markers
-            if np.all(np.isfinite(uv_rep[k])):
-                ax.annotate(str(name), uv_rep[k], xytext=(5, -5), textcoords="offset points",
-                            color="white", fontsize=7)
+            if np.all(np.isfinite(uv_rep[k])):  # white on a black halo: readable anywhere
+                ax.annotate(name, uv_rep[k], xytext=(6, 6), textcoords="offset points",
+                            color="white", fontsize=8, path_effects=halo)
     ax.set_xlim(-0.5, W - 0.5)
     ax.set_ylim(H - 0.5, -0.5)
     ax.set_xticks([])

@@ -95,3 +95,12 @@ def test_resection_picture_rms_and_residuals(tmp_path):
         plot_resection(np.zeros((100, 100)), cam, X, det)
     with pytest.raises(InputError, match="10 rows"):
         plot_resection(np.zeros((240, 320)), cam, X, det[:5])
+    # marker labels: one per marker, placed at the reprojections, with a dark halo
+    ids = [f"M{k}" for k in range(10)]
+    fig = plot_resection(np.ones((240, 320)), cam, X, det, ids=ids)
+    labels = {t.get_text(): t for t in fig.axes[0].texts if t.get_text() in ids}
+    assert sorted(labels) == sorted(ids)
+    np.testing.assert_allclose(labels["M3"].xy, uv.reshape(-1, 2)[3], atol=1e-9)
+    assert labels["M3"].get_path_effects()
+    with pytest.raises(InputError, match="ids has 3 labels"):
+        plot_resection(np.zeros((240, 320)), cam, X, det, ids=ids[:3])
