@@ -28,6 +28,7 @@ from itertools import combinations
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
 
 from ._checks import as_points
 from .camera import Camera, max_monotonic_radius, undistort_normalized
@@ -539,6 +540,31 @@ def _pose_from_plane(X: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndar
     return R, tc - R @ c
 
 
+#: Probability that the noise bound of :func:`_ambiguity_sigma` is below the true noise.
+_NOISE_CONFIDENCE = 1e-4
+#: Smallest marker noise (px) the ambiguity test assumes: below any marker measurement,
+#: above the solvers' numerical precision.
+_MIN_SIGMA_PX = 1e-3
+
+
+def _ambiguity_sigma(cost: float, dof: int, ambiguity_px: float) -> float:
+    """Marker noise (px) against which competing poses are judged.
+
+    ``ambiguity_px`` is the assumed (upper) marker uncertainty. When the residuals of the
+    best pose prove the markers better measured - the upper ``1 - _NOISE_CONFIDENCE``
+    confidence bound ``sqrt(cost / chi2_dof.ppf(_NOISE_CONFIDENCE))`` on the noise lies
+    below ``ambiguity_px`` - that bound is used instead (not below ``_MIN_SIGMA_PX``);
+    when they show it worse measured (residual standard deviation ``sqrt(cost / dof)``
+    above ``ambiguity_px``), the residual standard deviation. Three markers (``dof = 0``)
+    give no noise estimate: ``ambiguity_px``.
+    """
+    if dof <= 0:
+        return ambiguity_px
+    s = math.sqrt(max(cost, 0.0) / dof)
+    s_up = math.sqrt(max(cost, 0.0) / chi2.ppf(_NOISE_CONFIDENCE, dof))
+    return max(s, min(ambiguity_px, max(s_up, _MIN_SIGMA_PX)))
+
+
 def _sq_cost(res2: np.ndarray, robust: str | None, scale: float):
     """Sum over the last axis of (robustified) squared errors, px^2, from the squared
     per-marker errors ``res2``."""
@@ -625,10 +651,17 @@ def solve_pose(
     max_rms : float, optional
         Refuse (``SolveError``) a pose whose RMS error (over inliers) exceeds this, px.
     ambiguity_px : float
-        Assumed marker position uncertainty ``sigma`` (px) used to decide whether two
-        distinct poses can be told apart: the pose is ambiguous when another pose's sum of
-        squared errors exceeds the best one's by less than ``16 * max(sigma, s)^2``, with
-        ``s`` the residual standard deviation of the best pose.
+        Assumed (upper) marker position uncertainty (px) used to decide whether two distinct
+        poses can be told apart: the pose is ambiguous when another pose's sum of squared
+        errors exceeds the best one's by less than ``16 sigma^2`` (a 4-sigma separation).
+        ``sigma`` is ``ambiguity_px``, except that it follows the measured noise: when the
+        best pose's residuals prove the markers better measured (their 99.99 % upper
+        confidence bound on the noise, from the ``2 N - 6`` degrees of freedom, lies below
+        ``ambiguity_px``) ``sigma`` is that bound (at least 0.001 px), so that markers
+        measured to a few thousandths of a pixel are not refused for a competitor a
+        fraction of a pixel away; when they show them worse measured, ``sigma`` is the
+        residual standard deviation. With three markers there is no noise estimate and
+        ``sigma = ambiguity_px``.
     max_triplets, max_refine, max_nfev : int
         Number of marker triplets tried by P3P, of distinct starts refined, and of
         function evaluations per refinement.
@@ -729,18 +762,39 @@ def solve_pose(
     if not minima:
         raise SolveError("solve_pose: every candidate pose puts markers behind the camera or "
                          "outside the lens' valid field (wrong marker/point pairing?)")
-    # polish the best with MINPACK's LM (convergence test), then judge the competitors
+    # polish the best with MINPACK's LM (convergence test), and every competitor that could
+    # come close to it (so that an unfinished batch refinement cannot hide an ambiguity)
+    def polish(m, check_valid=True):
+        R, t, _, _, sol = _refine(X, uv, m["R"], m["t"], K0, dist0, (), robust, scale,
+                                  max_nfev)
+        Xc = X @ R.T + t
+        if check_valid and (np.any(Xc[:, 2] <= 0)
+                            or np.any(np.hypot(Xc[:, 0], Xc[:, 1]) / Xc[:, 2] > rmax)):
+            return  # a competitor: keep its valid batch minimum
+        res = sol.fun.reshape(-1, 2)
+        m.update(R=R, t=t, C=-R.T @ t, converged=sol.status != 0,
+                 cost=float(_sq_cost(np.sum(res**2, axis=-1), robust, scale)))
+
+    best_cost0 = minima[0]["cost"]
+    polish(minima[0], check_valid=False)  # validity checked on the final camera below
+    dof = 2 * n - 6
+    s_res = math.sqrt(max(minima[0]["cost"], 0.0) / dof) if dof > 0 else 0.0
+    window = 16.0 * max(ambiguity_px, s_res) ** 2  # the widest threshold that can apply
+    for m in minima[1:]:
+        if m["cost"] - min(best_cost0, minima[0]["cost"]) < window:
+            polish(m)
+    minima.sort(key=lambda m: m["cost"])
+    distinct = []
+    for m in minima:  # polishing can bring two starts to the same minimum
+        if not any(_rotation_angle(m["R"], d["R"]) < 1e-3
+                   and np.linalg.norm(m["C"] - d["C"]) < 1e-3 * depth for d in distinct):
+            distinct.append(m)
+    minima = distinct
     best = minima[0]
-    R, t, _, _, sol = _refine(X, uv, best["R"], best["t"], K0, dist0, (), robust, scale,
-                              max_nfev)
-    if sol.status == 0:
+    if not best.get("converged", False):
         raise SolveError(f"solve_pose: Levenberg-Marquardt did not converge in {max_nfev} "
                          "evaluations")
-    res = sol.fun.reshape(-1, 2)
-    best.update(R=R, t=t, C=-R.T @ t,
-                cost=float(_sq_cost(np.sum(res**2, axis=-1), robust, scale)))
-    dof = 2 * n - 6
-    sigma = max(ambiguity_px, math.sqrt(best["cost"] / dof) if dof > 0 else 0.0)
+    sigma = _ambiguity_sigma(best["cost"], dof, ambiguity_px)
     alt_cost = min((m["cost"] for m in minima[1:]), default=math.inf)
     alt_rms = math.sqrt(alt_cost / n) if np.isfinite(alt_cost) else math.inf
     if alt_cost - best["cost"] < 16.0 * sigma**2:
@@ -750,7 +804,8 @@ def solve_pose(
             for m in close[:4])
         raise SolveError(
             f"solve_pose: ambiguous pose: {len(close)} distinct poses fit the {n} markers "
-            f"about equally well ({desc}); add markers or spread them in depth")
+            f"about equally well ({desc}; marker noise taken as {sigma:.2g} px); add markers "
+            "or spread them in depth")
 
     R, t, K, dist = best["R"], best["t"], K0, dist0
     # ---- joint refinement of intrinsics

@@ -169,6 +169,34 @@ def test_four_coplanar_markers_right_or_refused():
         assert not is_wrong(res.camera, cam, X)
 
 
+def test_ambiguity_threshold_follows_the_measured_noise():
+    """Planar layouts of 5-8 markers measured to 0.005 px: a competing pose 0.1-0.5 px RMS
+    away is thousands of noise standard deviations off and must not block the answer (a
+    fixed 0.5 px threshold refused all of these); the same layouts measured to 0.3 px are
+    genuinely ambiguous and are refused (or answered right), never answered wrong."""
+    rng = np.random.default_rng(21)
+    close = hi_refused = hi_wrong = 0
+    for _ in range(150):
+        n = int(rng.integers(5, 9))
+        cam, X, exact = random_case(rng, n, planar=True, noise=0.0)
+        res = solve_pose(cam, X, exact + rng.normal(scale=0.005, size=exact.shape))
+        assert not is_wrong(res.camera, cam, X, 0.005)
+        if res.alternative_rms >= 0.5:
+            continue
+        close += 1
+        assert res.alternative_rms > 10 * res.rms
+        try:
+            noisy = solve_pose(cam, X, exact + rng.normal(scale=0.3, size=exact.shape))
+        except SolveError as exc:
+            assert "ambiguous" in str(exc) and "marker noise taken as" in str(exc)
+            hi_refused += 1
+            continue
+        hi_wrong += is_wrong(noisy.camera, cam, X, 0.3)
+    assert close >= 5, close
+    assert hi_wrong == 0
+    assert hi_refused >= close - 2, (hi_refused, close)
+
+
 def test_robust_loss_rejects_an_outlier():
     rng = np.random.default_rng(8)
     cam, X, uv = random_case(rng, 12, noise=0.1)
