@@ -62,12 +62,17 @@ def _cmd_correct(args) -> int:
     seen = result.seen
     b, e = result.radiosity[seen], result.emission[seen]
     si = (b - e) / np.where(b != 0, b, np.nan)
-    print(f"faces seen                     {int(seen.sum())} of {seen.size}")
+    per_frame = np.atleast_2d(seen).sum(axis=1)  # one row per frame
+    lo, hi = int(per_frame.min()), int(per_frame.max())
+    print(f"faces seen                     {lo if lo == hi else f'{lo} to {hi}'} of "
+          f"{seen.shape[-1]}")
     print(f"largest self-illumination      {100 * np.nanmax(si):.1f} % of the signal")
     print(f"mean self-illumination         {100 * np.nanmean(si):.1f} %")
-    print(
-        f"inverse                        {result.info.method}, {result.info.iterations} iterations"
-    )
+    infos = result.info if isinstance(result.info, tuple) else (result.info,)
+    methods = ", ".join(sorted({i.method for i in infos}))
+    iterations = max(i.iterations for i in infos)
+    frames = f" ({len(infos)} frames)" if isinstance(result.info, tuple) else ""
+    print(f"inverse                        {methods}, {iterations} iterations at most{frames}")
     print(f"wrote {args.out}")
     if args.surface:
         print(f"wrote {args.surface}")

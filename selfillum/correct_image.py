@@ -134,6 +134,12 @@ def correct_image(
         raise InputError(f"image: expected real pixel values, got dtype {img.dtype}")
     if not isinstance(camera, Camera):
         raise InputError(f"camera: expected a resection.Camera, got {type(camera).__name__}")
+    colour = img.ndim == 3 and img.shape[2] in (3, 4)
+    if colour and img.shape[:2] == (camera.height, camera.width):
+        raise InputError(
+            f"image: shape {img.shape} is a colour image; give one channel (H, W) or a "
+            "(T, H, W) stack of frames"
+        )
     if img.shape[-2:] != (camera.height, camera.width):
         raise InputError(
             f"image: shape {img.shape} does not match the camera's (height, width) = "
@@ -311,6 +317,8 @@ def correct_image_file(
             raise InputError(f"{p}: images must be TIFF (.tif, .tiff) or NPY (.npy)")
     if not image_path.exists():
         raise FileNotFoundError(f"{image_path}: no such image file")
+    if not out_path.parent.exists():
+        raise FileNotFoundError(f"{out_path.parent}: output directory does not exist")
     mesh = load_mesh(mesh_path)
     camera = Camera.read(camera_path)
     image = _read_native(image_path)
@@ -325,8 +333,6 @@ def correct_image_file(
         mode=mode,
         progress=progress,
     )
-    if not out_path.parent.exists():
-        raise FileNotFoundError(f"{out_path.parent}: output directory does not exist")
     if out_path.suffix.lower() == ".npy":
         np.save(out_path, result.image, allow_pickle=False)
     else:

@@ -181,8 +181,10 @@ def test_cli_correct_bad_input(renders, tmp_path, capsys):
         str(tmp_path / "o.npy"),
         "--quiet",
     ]
+    np.save(tmp_path / "rgb.npy", np.zeros((144, 192, 3), np.float32))
     cases = [
         (["--image", str(tmp_path / "small.npy"), "--reflectance", "0.6"], "does not match"),
+        (["--image", str(tmp_path / "rgb.npy"), "--reflectance", "0.6"], "colour image"),
         (["--image", str(tmp_path / "none.npy"), "--reflectance", "0.6"], "no such image"),
         (["--image", str(tmp_path / "small.npy"), "--reflectance", "1.0"], "[0, 1)"),
     ]
@@ -239,3 +241,29 @@ def test_stack_of_frames(renders):
     ok = inner & np.isfinite(second)
     err = (2 * r.image[1] - emit)[ok] / emit[ok]
     assert np.sqrt(np.mean(err**2)) < 1.5 * noise + 0.01
+
+
+def test_cli_correct_stack(renders, tmp_path, capsys):
+    """A (T, H, W) NPY stack through ``selfillum correct``: one corrected frame per input
+    frame, the summary counts faces per frame (not over the stack)."""
+    sc, cam, smap, full, emit, inner, noise = renders
+    sc.mesh.export(tmp_path / "m.ply")
+    cam.write(tmp_path / "c.json")
+    second = 0.5 * full
+    second[:, 120:] = np.nan  # part of the wall masked in this frame
+    np.save(tmp_path / "stack.npy", np.stack([full, second]))
+    rc = main(["correct", "--mesh", str(tmp_path / "m.ply"), "--camera",
+               str(tmp_path / "c.json"), "--image", str(tmp_path / "stack.npy"),
+               "--reflectance", "0.6", "--out", str(tmp_path / "o.npy"), "--quiet"])
+    out = capsys.readouterr().out
+    assert rc == 0
+    n = len(sc.mesh.faces)
+    assert f"of {n}" in out and "2 frames" in out and "lsmr" in out
+    seen = int(out.split("faces seen")[1].split()[0])
+    assert seen < n  # the smaller count, of the masked frame
+    got = np.load(tmp_path / "o.npy")
+    assert got.shape == (2, *full.shape) and got.dtype == full.dtype
+    for frame, scale in ((got[0], 1.0), (got[1], 2.0)):
+        ok = inner & np.isfinite(frame)
+        err = (scale * frame - emit)[ok] / emit[ok]
+        assert np.sqrt(np.mean(err**2)) < 1.5 * noise + 0.01
