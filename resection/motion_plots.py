@@ -92,6 +92,6 @@ def plot_motion(
     head = title or f"{who} motion relative to frame {ref}"
     fig.suptitle(f"{head}: {n_ok}/{len(result)} frames solved, median RMS "
                  f"{np.nanmedian(result.rms) if n_ok else float('nan'):.3f} px", fontsize=10)
-    if path is not None:
-        fig.savefig(os.fspath(path))
-    return fig
+    from .plots import _finish
+
+    return _finish(fig, path, dpi)

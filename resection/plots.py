@@ -62,10 +62,27 @@ def virtual_camera(mesh: trimesh.Trimesh, azimuth_deg: float = 30.0,
                           height=height)
 
 
-def _finish(fig: Figure, path) -> Figure:
+def _finish(fig: Figure, path, dpi: float | None = None) -> Figure:
+    """Save ``fig`` to ``path`` (format from the suffix) when given; return it."""
     if path is not None:
-        fig.savefig(os.fspath(path), dpi=fig.dpi)
+        path = os.fspath(path)
+        suffix = os.path.splitext(path)[1].lower().lstrip(".")
+        formats = fig.canvas.get_supported_filetypes()
+        if suffix not in formats:
+            raise InputError(f"{path}: unknown picture format {suffix!r} (use one of "
+                             f"{', '.join(sorted(formats))})")
+        fig.savefig(path, dpi=fig.dpi if dpi is None else dpi)
     return fig
+
+
+def _colormap(cmap):
+    if not isinstance(cmap, str):
+        return cmap
+    try:
+        return colormaps[cmap]
+    except KeyError:
+        raise InputError(f"cmap: unknown colour map {cmap!r} (e.g. viridis, jet, coolwarm, "
+                         "gray)") from None
 
 
 def plot_surface(
@@ -115,13 +132,20 @@ def plot_surface(
     if method not in ("raster", "polygons"):
         raise InputError(f"method must be 'raster' or 'polygons', got {method!r}")
     camera = virtual_camera(mesh) if camera is None else camera
+    if not isinstance(camera, Camera):
+        raise InputError(f"camera: expected a resection.Camera, got {type(camera).__name__}")
+    for name, val in (("vmin", vmin), ("vmax", vmax)):
+        if val is not None and not np.isfinite(val):
+            raise InputError(f"{name} must be a finite number, got {val}")
+    if vmin is not None and vmax is not None and not vmax > vmin:
+        raise InputError(f"vmax ({vmax}) must be larger than vmin ({vmin})")
+    cm = _colormap(cmap)
     finite = fv[np.isfinite(fv)]
-    lo = float(finite.min()) if vmin is None and finite.size else (vmin or 0.0)
-    hi = float(finite.max()) if vmax is None and finite.size else (vmax or 1.0)
-    if hi <= lo:
-        hi = lo + 1.0
+    lo = float(vmin) if vmin is not None else (float(finite.min()) if finite.size else 0.0)
+    hi = float(vmax) if vmax is not None else (float(finite.max()) if finite.size else 1.0)
+    if hi <= lo:  # constant data, or one limit given beyond the data
+        hi, lo = (lo + 1.0, lo) if vmax is None else (hi, hi - 1.0)
     norm = Normalize(lo, hi)
-    cm = colormaps[cmap]
     W, H = camera.width, camera.height
     fig_w = max(W / dpi, 5.0)
     fig = Figure(figsize=(fig_w + 1.4, fig_w * H / W + 0.6), dpi=dpi, layout="constrained")

@@ -45,6 +45,17 @@ def test_surface_raster_shows_face_values(tmp_path):
     assert fig.axes[1].get_ylabel() == "Cp"  # the colour bar
     img = iio.imread(p)
     assert img.shape[0] > 150 and img.shape[1] > 200
+    # given colour limits are used as given; bad ones are refused, not silently changed
+    fig = plot_surface(mesh, values, cam, vmin=-1.0, vmax=3.0)
+    assert fig.axes[0].images[-1].norm.vmin == -1.0
+    assert fig.axes[0].images[-1].norm.vmax == 3.0
+    with pytest.raises(InputError, match="vmax"):
+        plot_surface(mesh, values, cam, vmin=2.0, vmax=1.0)
+    with pytest.raises(InputError, match="colour map 'nosuch'"):
+        plot_surface(mesh, values, cam, cmap="nosuch")
+    with pytest.raises(InputError, match="picture format 'txt'"):
+        plot_surface(mesh, values, cam, path=tmp_path / "surf.txt")
+    assert not (tmp_path / "surf.txt").exists()
 
 
 def test_surface_polygons_are_visible_faces_far_to_near():
