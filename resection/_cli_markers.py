@@ -37,6 +37,10 @@ def register(sub) -> None:
         "CSV u,v,diameter,depth,merit,snr (numbered from 0 in file order).")
     d.add_argument("image", help="image file (.tif/.tiff, .png, .npy)")
     add_detect_options(d)
+    d.add_argument("--enhance-window", type=float, nargs=4, action="append",
+                   metavar=("UMIN", "VMIN", "UMAX", "VMAX"),
+                   help="with --enhance: enhance only inside this box (pixels, inclusive; "
+                   "repeat for several boxes)")
     d.add_argument("--out", "-o", required=True, help="output candidate CSV")
     d.set_defaults(func=run_detect)
 
@@ -78,23 +82,13 @@ def register(sub) -> None:
     m.set_defaults(func=run_match)
 
 
-def _enhanced(img, method, diameter):
-    if method is None:
-        return img
-    from .enhance import enhance
-
-    opts = {} if method == "clahe" else {"size": max(4.0 * diameter, 15.0)}
-    return enhance(img, method, **opts)
-
-
 def run_detect(args: argparse.Namespace) -> int:
-    from .images import read_image
-    from .markers import detect_markers, write_candidates
+    from .markers import write_candidates
+    from .pipeline import detect_in_image
 
-    img = read_image(args.image)
-    img = _enhanced(img, args.enhance, args.diameter)
-    cand = detect_markers(img, args.diameter, args.polarity, args.template, args.roi,
-                          args.threshold)
+    cand = detect_in_image(args.image, args.diameter, args.polarity, args.template, args.roi,
+                           args.threshold, enhance=args.enhance,
+                           enhance_windows=args.enhance_window)
     write_candidates(args.out, cand)
     print(f"detect: {len(cand)} candidates (noise {cand.noise:.3g}, threshold "
           f"{cand.threshold:.3g}, {cand.n_masked} masked pixels, rejected "
@@ -117,7 +111,8 @@ def run_link(args: argparse.Namespace) -> int:
     if not (args.png or args.suggest or args.links):
         raise InputError("nothing to do: give --png, --suggest and/or --links")
     if args.png:
-        draw_links(args.png, read_image(args.image), cand, camera=camera, markers=markers)
+        draw_links(args.png, read_image(args.image, mask_saturated=True), cand, camera=camera,
+                   markers=markers)
         print(f"drawing written to {args.png}")
     if args.suggest:
         if camera is None:

@@ -108,7 +108,7 @@ def _in_windows(func, img, windows, **kw):
         arr = arr[None]
     if arr.ndim != 2 or arr.shape[1] != 4 or not np.all(np.isfinite(arr)):
         raise InputError("windows: expected boxes (u_min, v_min, u_max, v_max)")
-    for u0, v0, u1, v1 in np.rint(arr).astype(int):  # a loop over windows, not pixels
+    for u0, v0, u1, v1 in np.rint(arr).astype(int).tolist():  # a loop over windows, not pixels
         u0, v0, u1, v1 = max(u0, 0), max(v0, 0), min(u1, W - 1), min(v1, H - 1)
         if u1 <= u0 or v1 <= v0:
             raise InputError(f"windows: box {(u0, v0, u1, v1)} is empty or outside the image")

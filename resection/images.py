@@ -67,7 +67,7 @@ def _read_raw(path: str | os.PathLike) -> np.ndarray:
     return arr
 
 
-def read_image(path: str | os.PathLike) -> np.ndarray:
+def read_image(path: str | os.PathLike, *, mask_saturated: bool = False) -> np.ndarray:
     """Read a single-channel image as a 2-D ``float32`` array.
 
     Parameters
@@ -75,6 +75,10 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     path : path-like
         ``.tif``/``.tiff`` (8/16/32-bit integer or float, via tifffile), ``.png`` (8/16-bit,
         via imageio) or ``.npy`` (any numeric 2-D array).
+    mask_saturated : bool
+        Return the saturated pixels of an integer file (those at the type's maximum, e.g.
+        255 or 65535) as NaN, so that the float image still knows them (the marker detector
+        and the enhancement functions mask NaN). No effect on float files.
 
     Returns
     -------
@@ -88,7 +92,12 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     InputError
         Unknown extension, unreadable file, colour or multi-page image.
     """
-    return _read_raw(path).astype(np.float32)
+    raw = _read_raw(path)
+    img = raw.astype(np.float32)
+    sat = saturation_level(raw.dtype) if mask_saturated else None
+    if sat is not None:
+        img[raw >= sat] = np.nan
+    return img
 
 
 def image_info(path: str | os.PathLike) -> dict:

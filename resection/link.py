@@ -75,6 +75,9 @@ def draw_links(
     if img.ndim != 2:
         raise InputError(f"image: expected a 2-D array, got shape {img.shape}")
     uv = _uv_of(candidates)
+    if camera is not None and img.shape != (camera.height, camera.width):
+        raise InputError(f"image: {img.shape[1]}x{img.shape[0]} pixels, but the camera is "
+                         f"{camera.width}x{camera.height} (wrong image or camera file?)")
     path = Path(path)
     if not path.parent.exists():
         raise FileNotFoundError(f"{path.parent}: output directory does not exist")

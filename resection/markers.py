@@ -469,6 +469,7 @@ def detect_markers(
     min_separation: float | None = None,
     max_candidates: int = 20000,
     min_snr: float = 3.0,
+    diameter_range: tuple[float, float] = (0.5, 2.0),
 ) -> Candidates:
     """Find circular markers and locate them to sub-pixel accuracy.
 
@@ -510,6 +511,10 @@ def detect_markers(
         Reject fitted candidates whose contrast is below this many noise standard
         deviations (such faint blobs are residual background structure, or markers whose
         position would be off by a large fraction of a pixel).
+    diameter_range : (float, float)
+        Reject fitted candidates whose diameter is outside ``diameter_range`` times
+        ``diameter`` (counted as ``fit``): steps, edges of masked regions and noise
+        blobs fit as disks far too small or too large.
 
     Returns
     -------
@@ -530,6 +535,13 @@ def detect_markers(
         raise InputError(f"template: expected 'tophat' or 'cone', got {template!r}")
     if threshold is not None and not (np.isfinite(threshold) and threshold > 0):
         raise InputError(f"threshold: must be a positive number, got {threshold!r}")
+    try:
+        lo_d, hi_d = (float(x) for x in diameter_range)
+    except (TypeError, ValueError):
+        raise InputError(f"diameter_range: expected (min, max) factors, got "
+                         f"{diameter_range!r}") from None
+    if not (0.0 <= lo_d < hi_d):
+        raise InputError(f"diameter_range: need 0 <= min < max, got {diameter_range!r}")
     bad_full = _bad_pixels(img, mask, saturation)
     n_masked_total = int(bad_full.sum())
     if n_masked_total == img.size:
@@ -580,6 +592,7 @@ def detect_markers(
     fu, fv, fr = fit["u"], fit["v"], fit["radius"]
     ok = fit["ok"]
     ok &= fit["depth"] >= min_snr * noise
+    ok &= (2.0 * fr >= lo_d * d) & (2.0 * fr <= hi_d * d)
     rejected["fit"] = int((~ok).sum())
     masked_ok = fit["masked_fraction"] <= max_masked
     rejected["masked"] = int((ok & ~masked_ok).sum())

@@ -133,3 +133,43 @@ def test_cli_errors(scene, capsys):
     rc, _, err = _run(["match", "--candidates", d / "junk.csv", "--markers", d / "markers.csv",
                        "--camera", d / "approx.json", "-o", d / "x.csv"], capsys)
     assert rc == 2 and "match_markers" in err
+
+
+def test_cli_image_size_saturation_and_enhance_windows(scene, capsys):
+    import tifffile
+
+    d = scene["dir"]
+    img = tifffile.imread(d / "img.tif")
+    # an image of another size than the camera's is refused, not silently solved
+    tifffile.imwrite(d / "half.tif", img[:, :320])
+    rc, _, err = _run(["pose", "--camera", d / "approx.json", "--markers", d / "markers.csv",
+                       "--image", d / "half.tif", "--out", d / "x.json"], capsys)
+    assert rc == 2 and "320x480" in err and "640x480" in err
+    tifffile.imwrite(d / "t.tif", np.ascontiguousarray(img.T))
+    rc, _, err = _run(["link", d / "t.tif", "--candidates", d / "c.csv", "--camera",
+                       d / "approx.json", "--markers", d / "markers.csv", "--png",
+                       d / "x.png"], capsys)
+    assert rc == 2 and "480x640" in err
+    # saturated pixels of a 16-bit file are masked and counted
+    sat = img.copy()
+    sat[400:410, 600:630] = 65535
+    tifffile.imwrite(d / "sat.tif", sat)
+    rc, out, _ = _run(["detect", d / "sat.tif", "--diameter", 6, "-o", d / "cs.csv"], capsys)
+    assert rc == 0 and "300 masked pixels" in out
+    # enhancement inside windows: only markers wholly inside a window are found
+    rc, out, _ = _run(["detect", d / "img.tif", "--diameter", 6, "--enhance", "background",
+                       "--enhance-window", 0, 0, 299, 239, "--enhance-window", 340, 240,
+                       639, 479, "-o", d / "cw.csv"], capsys)
+    assert rc == 0
+    cw, _ = read_candidates(d / "cw.csv")
+    uv = scene["uv"]
+    inside = (((uv[:, 0] <= 293) & (uv[:, 1] <= 233))
+              | ((uv[:, 0] >= 346) & (uv[:, 1] >= 246)))
+    assert inside.sum() >= 5
+    dist = np.min(np.hypot(*(cw.uv[:, None] - uv[inside][None]).transpose(2, 0, 1)), axis=0)
+    assert dist.max() < 0.05
+    in_win = ((cw.u <= 299.5) & (cw.v <= 239.5)) | ((cw.u >= 339.5) & (cw.v >= 239.5))
+    assert np.all(in_win)
+    rc, _, err = _run(["detect", d / "img.tif", "--diameter", 6, "--enhance-window", 0, 0, 9,
+                       9, "-o", d / "x.csv"], capsys)
+    assert rc == 2 and "enhancement method" in err

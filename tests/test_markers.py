@@ -267,6 +267,8 @@ def test_template_shapes():
         ({"image": np.zeros((50, 50)), "roi": "all"}, "roi"),
         ({"image": np.zeros((50, 50)), "mask": np.zeros((5, 5), bool)}, "mask"),
         ({"image": np.zeros((50, 50)), "threshold": -1.0}, "threshold"),
+        ({"image": np.zeros((50, 50)), "diameter_range": (2.0, 0.5)}, "diameter_range"),
+        ({"image": np.zeros((50, 50)), "diameter_range": 3}, "diameter_range"),
     ],
 )
 def test_bad_input(kwargs, match):
@@ -434,3 +436,99 @@ def test_accuracy_grid_slow(snr):
         assert rms <= 0.05
         assert rms <= _rms(np.vstack(errs_tp))
         assert rms < 1.3 * position_crb(diameter, 0.7, 100.0, 100.0 / snr)
+
+
+# ----------------------------------------------------------------------------- IR enhancement
+def _hot_ir_image(seed):
+    """16-bit IR-like image: dark markers of 40 counts (SNR 25) on a 1500-count model with
+    a strong gradient (8 counts/px) and a 3000-count hot spot (sigma 45 px)."""
+    sc = make_scene((240, 320), 25, 6.0, snr=25.0, contrast=40.0, background=0.0, rng=seed)
+    vv, uu = np.mgrid[0:240, 0:320]
+    bg = 1500.0 + 8.0 * uu + 3000.0 * np.exp(-((uu - 170.0) ** 2 + (vv - 120.0) ** 2)
+                                             / (2 * 45.0**2))
+    return sc, np.clip(np.rint(sc.image + bg), 0, 65535).astype(np.uint16)
+
+
+def _found_false(cand, truth):
+    """(true markers found within 1.5 px, candidates farther than 1.5 px from any)."""
+    if len(cand) == 0:
+        return 0, 0
+    found = int((cKDTree(cand.uv).query(truth)[0] < 1.5).sum())
+    false = int((cKDTree(truth).query(cand.uv)[0] > 1.5).sum())
+    return found, false
+
+
+def test_background_enhancement_helps_on_hot_low_contrast_ir_image():
+    from resection.pipeline import detect_in_image
+
+    raw_missed = raw_false = 0
+    for seed in range(3):
+        sc, img = _hot_ir_image(seed)
+        found, false = _found_false(detect_markers(img, 6.0), sc.uv)
+        raw_missed += 25 - found
+        raw_false += false
+        cand = detect_in_image(img, 6.0, enhance="background")
+        assert _found_false(cand, sc.uv) == (25, 0)
+        assert _rms(_errors(cand.uv, sc.uv)[0]) <= 0.05
+    # without enhancement the hot spot's curvature hides markers and makes false ones
+    assert raw_missed >= 6 and raw_false >= 6
+
+
+def test_enhancement_in_windows_searches_only_there():
+    from resection.pipeline import _window_mask, detect_in_image
+
+    wins = [(10, 10, 129, 119), (180, 20, 309, 139), (40, 145, 199, 229)]
+    raw_missed = 0
+    for seed in range(2):
+        sc, img = _hot_ir_image(seed)
+        inside = np.zeros(len(sc.uv), bool)
+        for u0, v0, u1, v1 in wins:
+            inside |= ((sc.uv[:, 0] - 6 >= u0) & (sc.uv[:, 0] + 6 <= u1)
+                       & (sc.uv[:, 1] - 6 >= v0) & (sc.uv[:, 1] + 6 <= v1))
+        cand = detect_in_image(img, 6.0, enhance="background", enhance_windows=wins)
+        assert _found_false(cand, sc.uv[inside])[0] == inside.sum()
+        assert _found_false(cand, sc.uv)[1] == 0
+        assert np.all(_window_mask(img.shape, wins)[np.rint(cand.v).astype(int),
+                                                    np.rint(cand.u).astype(int)])
+        assert _rms(_errors(cand.uv, sc.uv[inside])[0]) <= 0.05
+        mask = ~_window_mask(img.shape, wins)
+        raw_missed += inside.sum() - _found_false(detect_markers(img, 6.0, mask=mask),
+                                                  sc.uv[inside])[0]
+    assert raw_missed >= 2
+    with pytest.raises(InputError, match="enhancement method"):
+        detect_in_image(img, 6.0, enhance_windows=wins)
+    with pytest.raises(InputError, match="roi"):
+        detect_in_image(img, 6.0, roi=(0, 0, 50, 50), enhance="background",
+                        enhance_windows=wins)
+
+
+def test_blobs_of_another_size_are_rejected():
+    # 6 px markers and strong 2 px dots (dust, defects): the dots fit as 2.3 px disks,
+    # outside the default diameter range (0.5 to 2 times the expected diameter)
+    uv = np.array([[30.0, 30.0], [90.0, 30.0], [30.0, 90.0], [90.0, 90.0]])
+    img = (render_markers((120, 120), uv[:2], 6.0, blur=0.7, snr=40, rng=1)
+           + render_markers((120, 120), uv[2:], 2.0, contrast=400.0, blur=0.7, background=0.0))
+    cand = detect_markers(img, 6.0)
+    assert _found_false(cand, uv[:2]) == (2, 0) and len(cand) == 2
+    assert cand.n_rejected["fit"] >= 2
+    wide = detect_markers(img, 6.0, diameter_range=(0.25, 2.0))
+    assert _found_false(wide, uv) == (4, 0)
+    assert np.allclose(np.sort(wide.diameter)[:2], 2.3, atol=0.15)
+
+
+def test_saturated_pixels_of_integer_files_stay_masked(tmp_path):
+    from resection.pipeline import detect_in_image
+
+    sc = make_scene((200, 200), 20, 6.0, snr=30.0, contrast=60.0, background=150.0,
+                    dtype=np.uint8, rng=3)
+    img = sc.image.copy()
+    img[100:110, 5:35] = 255  # a glint away from the markers
+    img[sc.uv[0, 1].round().astype(int), sc.uv[0, 0].round().astype(int)] = 255
+    write_image(tmp_path / "g.png", img)
+    back = read_image(tmp_path / "g.png", mask_saturated=True)
+    assert np.array_equal(np.isnan(back), img == 255)
+    assert np.array_equal(read_image(tmp_path / "g.png"), img.astype(np.float32))
+    for enhance in (None, "background"):
+        cand = detect_in_image(tmp_path / "g.png", 6.0, enhance=enhance)
+        assert cand.n_masked == int((img == 255).sum()) == 301
+        assert _found_false(cand, sc.uv) == (20, 0)
