@@ -490,13 +490,34 @@ def write_plot3d(
         Write the number of blocks first (required for more than one block).
     """
     arrs = []
-    for b in blocks:
-        a = np.asarray(b, dtype=np.float64)
-        arrs.append(a[:, :, None, :] if a.ndim == 3 else a)
+    for k, b in enumerate(blocks):
+        try:
+            a = np.asarray(b, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise InputError(f"write_plot3d: block {k} is not a numeric array") from None
+        a = a[:, :, None, :] if a.ndim == 3 else a
+        if a.ndim != 4 or a.shape[3] != 3 or 0 in a.shape:
+            raise InputError(f"write_plot3d: block {k} has shape {np.shape(b)}, expected "
+                             "(ni, nj, nk, 3) or (ni, nj, 3)")
+        if not np.all(np.isfinite(a)):
+            raise InputError(f"write_plot3d: block {k} holds NaN or infinite coordinates")
+        arrs.append(a)
+    if not arrs:
+        raise InputError("write_plot3d: no blocks")
     if not multiblock and len(arrs) != 1:
         raise InputError("write_plot3d: several blocks need multiblock=True")
-    ibs = [None] * len(arrs) if iblank is None else [np.asarray(i).reshape(a.shape[:3])
-                                                     for i, a in zip(iblank, arrs, strict=True)]
+    ibs = [None] * len(arrs)
+    if iblank is not None:
+        iblank = list(iblank)
+        if len(iblank) != len(arrs):
+            raise InputError(f"write_plot3d: {len(iblank)} IBLANK arrays for {len(arrs)} "
+                             "blocks")
+        for k, (ib, a) in enumerate(zip(iblank, arrs, strict=True)):
+            ib = np.asarray(ib)
+            if ib.size != np.prod(a.shape[:3]) or not np.issubdtype(ib.dtype, np.integer):
+                raise InputError(f"write_plot3d: IBLANK of block {k} must be integers of "
+                                 f"shape {a.shape[:3]}, got {ib.dtype} {ib.shape}")
+            ibs[k] = ib.reshape(a.shape[:3])
     dims = np.array([a.shape[:3] for a in arrs], dtype=np.int64)
     real = {"single": 4, "double": 8}.get(precision)
     if real is None:

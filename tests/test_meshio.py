@@ -170,6 +170,18 @@ def test_plot3d_errors(tmp_path):
     (tmp_path / "empty.xyz").write_text("")
     with pytest.raises(InputError, match="empty"):
         load_mesh(tmp_path / "empty.xyz")
+    # the writer refuses what the reader would refuse, and shapes that are not grids
+    grid = np.zeros((3, 2, 3))
+    grid[..., 0] = np.arange(3)[:, None]
+    with pytest.raises(InputError, match=r"block 0 has shape \(3, 3\)"):
+        write_plot3d(tmp_path / "w.xyz", [np.zeros((3, 3))])
+    with pytest.raises(InputError, match="block 1 holds NaN"):
+        write_plot3d(tmp_path / "w.xyz", [grid, np.full((2, 2, 3), np.nan)])
+    with pytest.raises(InputError, match="IBLANK of block 0"):
+        write_plot3d(tmp_path / "w.xyz", [grid], iblank=[np.ones((2, 2), int)])
+    with pytest.raises(InputError, match="2 IBLANK arrays for 1 blocks"):
+        write_plot3d(tmp_path / "w.xyz", [grid], iblank=[np.ones((3, 2), int)] * 2)
+    assert not (tmp_path / "w.xyz").exists()
 
 
 HAND_TRI = """5 3
