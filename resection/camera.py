@@ -201,8 +201,10 @@ class Camera:
 
     def __post_init__(self):
         try:
+            if isinstance(self.width, bool) or isinstance(self.height, bool):
+                raise TypeError
             w, h = int(self.width), int(self.height)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise InputError(
                 f"camera: width/height must be integers, got {self.width!r}, {self.height!r}"
             ) from None
@@ -215,7 +217,10 @@ class Camera:
             raise InputError(f"camera K: focal lengths must be positive, got {K[0, 0]}, {K[1, 1]}")
         if K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1:
             raise InputError("camera K: must be upper triangular with K[2,2] = 1")
-        dist = np.asarray(self.dist, dtype=np.float64).ravel()
+        try:
+            dist = np.asarray(self.dist, dtype=np.float64).ravel()
+        except (TypeError, ValueError) as exc:
+            raise InputError(f"camera dist: not a numeric array ({exc})") from None
         if dist.shape != (5,):
             raise InputError(f"camera dist: expected 5 values [k1,k2,p1,p2,k3], got {dist.size}")
         if not np.all(np.isfinite(dist)):
@@ -223,10 +228,14 @@ class Camera:
         R = as_matrix(self.R, (3, 3), "camera R")
         if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
             raise InputError("camera R: not a rotation matrix (R R^T != I or det(R) < 0)")
-        t = as_matrix(np.asarray(self.t, dtype=float).ravel(), (3,), "camera t")
+        t = as_matrix(self.t, np.shape(self.t), "camera t").ravel()
+        if t.shape != (3,):
+            raise InputError(f"camera t: expected 3 values, got shape {np.shape(self.t)}")
         oof = self.oof
         if oof is not None:
             try:
+                if isinstance(oof, (str, bytes, bool)):
+                    raise TypeError
                 oof = float(oof)
             except (TypeError, ValueError):
                 raise InputError(f"camera oof: must be a number, got {self.oof!r}") from None
@@ -237,6 +246,7 @@ class Camera:
         for attr, val in (("width", w), ("height", h), ("K", K), ("dist", dist), ("R", R),
                           ("t", t), ("oof", oof)):
             if isinstance(val, np.ndarray):
+                val = val.copy()  # never freeze (or alias) the caller's array
                 val.setflags(write=False)
             object.__setattr__(self, attr, val)
 

@@ -107,6 +107,11 @@ def test_json_round_trip(tmp_path):
         ({"R": [[-1, 0, 0], [0, 1, 0], [0, 0, 1]]}, "rotation"),
         ({"width": 12.5}, "width"),
         ({"K": [[-10, 0, 0], [0, 10, 0], [0, 0, 1]]}, "positive"),
+        ({"width": True}, "width"),
+        ({"height": float("inf")}, "width/height"),
+        ({"oof": "0.01"}, "oof"),
+        ({"dist": ["a", 0, 0, 0, 0]}, "dist: not a numeric"),
+        ({"t": [0, 0]}, "camera t"),
     ],
 )
 def test_json_bad_content(tmp_path, change, match):
@@ -116,6 +121,13 @@ def test_json_bad_content(tmp_path, change, match):
     p.write_text(json.dumps(d))
     with pytest.raises(InputError, match=match):
         Camera.read(p)
+
+
+def test_camera_copies_its_arrays():
+    Km = np.array(K)
+    cam = Camera(W, H, Km, DIST)
+    Km[0, 0] = 5.0  # the caller's array stays writable and the camera keeps its own copy
+    assert cam.K[0, 0] == K[0, 0] and not cam.K.flags.writeable
 
 
 def test_json_missing_key_and_bad_file(tmp_path):
