@@ -101,8 +101,14 @@ def face_adjacency_weights(mesh: trimesh.Trimesh) -> sp.csr_matrix:
     (``l_ij`` the shared edge length, ``d_ij`` the distance between the face centroids),
     so that ``|D x|^2`` approximates the Dirichlet energy ``integral |grad x|^2 dA`` of a
     per-face field ``x``. Only edges shared by exactly two faces (manifold edges) count.
+    Faces that touch through coincident but distinct vertices (a mesh built or read
+    without merging them) are adjacent too: the vertices are merged on a copy first.
     """
     n = len(mesh.faces)
+    mesh = mesh.copy()
+    mesh.merge_vertices()  # keeps the faces and their order
+    if len(mesh.faces) != n:  # pragma: no cover - trimesh keeps every face here
+        raise InputError("mesh: merging coincident vertices changed the faces")
     pairs = np.asarray(mesh.face_adjacency, dtype=np.int64).reshape(-1, 2)
     if pairs.size == 0:
         return sp.csr_matrix((0, n))

@@ -244,9 +244,9 @@ def view_factors(
         pattern then is the union of those of ``F`` and ``F.T`` (up to ``2 K`` non-zeros
         a row).
     chunk_size : int, optional
-        Faces traced at once, rounded to a multiple of 512 (memory in flight is about
-        ``chunk_size * K * 150`` bytes). Default: about ``2**20 / K`` faces (about
-        1 million rays a chunk).
+        Faces traced at once, rounded down to a multiple of 512 and at least 512 (one
+        random block); memory in flight is about ``chunk_size * K * 150`` bytes. Default:
+        about ``2**20 / K`` faces (about 1 million rays a chunk, more when ``K > 2048``).
     two_sided : bool
         Faces painted on both sides with the same radiosity (thin sheets): half the
         rays of a face leave from its back, and hits on either side count. With the

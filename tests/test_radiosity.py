@@ -214,3 +214,23 @@ def test_lsmr_and_bicgstab_run_under_the_blas_limit(small_corner, monkeypatch):
     correct(F, np.where(seen, B, np.nan), 0.9, seen, mesh=sc.mesh)
     n = len(c)
     assert sizes[0] == n and sizes[1] > n  # the LSMR vectors: smoothness rows + hidden
+
+
+def test_adjacency_of_a_mesh_with_unmerged_vertices(small_corner):
+    """Every face with its own three vertices (as many readers build meshes): the
+    partial-observation inverse still sees which faces touch, and gives the same answer."""
+    from selfillum.mesh import face_adjacency_weights
+
+    sc, F, c, _ = small_corner
+    tri = np.asarray(sc.mesh.triangles)
+    soup = trimesh.Trimesh(tri.reshape(-1, 3), np.arange(tri.size // 3).reshape(-1, 3),
+                           process=False)
+    np.testing.assert_array_equal(soup.triangles, sc.mesh.triangles)
+    D0, D1 = face_adjacency_weights(sc.mesh), face_adjacency_weights(soup)
+    assert D1.shape == D0.shape and D0.shape[0] > 0
+    np.testing.assert_allclose(np.sort(abs(D1).sum(axis=0).A1), np.sort(abs(D0).sum(axis=0).A1))
+    np.testing.assert_allclose((D1.T @ D1).toarray(), (D0.T @ D0).toarray(), atol=1e-12)
+    E = np.full(len(c), 2.0)
+    B = forward(F, E, sc.reflectance)
+    seen = c[:, 2] < 0.5
+    np.testing.assert_allclose(correct(F, B, sc.reflectance, seen, mesh=soup), E, rtol=1e-3)
