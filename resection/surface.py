@@ -30,6 +30,16 @@ from .visibility import RayCaster
 __all__ = ["SurfaceMap", "SurfaceSample", "vertex_values"]
 
 
+def _as_float(a, name: str) -> np.ndarray:
+    """float64 array of real numbers, or InputError naming ``name``."""
+    arr = np.asarray(a)
+    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.number)
+                                   or arr.dtype == bool) \
+            or np.issubdtype(arr.dtype, np.complexfloating):
+        raise InputError(f"{name}: expected real numbers, got dtype {arr.dtype}")
+    return arr.astype(np.float64, copy=False)
+
+
 class SurfaceSample(NamedTuple):
     """Result of :meth:`SurfaceMap.to_surface`.
 
@@ -145,10 +155,11 @@ def vertex_values(
     -------
     (V,) or (V, K) float64, NaN for vertices whose faces are all NaN.
     """
-    fv = np.asarray(face_values, dtype=np.float64)
+    fv = _as_float(face_values, "face_values")
     nf = len(mesh.faces)
-    if fv.shape[0] != nf:
-        raise InputError(f"face_values: expected {nf} faces, got shape {fv.shape}")
+    if fv.ndim not in (1, 2) or fv.shape[0] != nf:
+        raise InputError(f"face_values: expected ({nf},) or ({nf}, K) for the mesh's {nf} "
+                         f"faces, got shape {fv.shape}")
     if interpolation not in ("linear", "mean"):
         raise InputError(f"interpolation must be 'linear' or 'mean', got {interpolation!r}")
     _, area = _face_geometry(mesh)
@@ -228,6 +239,9 @@ class SurfaceMap:
         H, W = camera.height, camera.width
         self.shape = (H, W)
         caster = RayCaster(mesh) if caster is None else caster
+        if caster.n_faces != len(mesh.faces):
+            raise InputError(f"caster: built for {caster.n_faces} faces, the mesh has "
+                             f"{len(mesh.faces)}")
         uv = np.empty((H * W, 2))
         uv[:, 0] = np.tile(np.arange(W, dtype=np.float64), H)
         uv[:, 1] = np.repeat(np.arange(H, dtype=np.float64), W)
@@ -314,6 +328,8 @@ class SurfaceMap:
         if arr.ndim == 2 and arr.shape == (H, W):
             return arr[None], True
         if arr.ndim == 3 and arr.shape[1:] == (H, W):
+            if arr.shape[0] == 0:
+                raise InputError(f"{name}: empty stack (0 frames)")
             return arr, False
         raise InputError(
             f"{name}: shape {arr.shape} does not match the camera image (H, W) = ({H}, {W})"
@@ -359,7 +375,10 @@ class SurfaceMap:
 
     def vertex_values(self, face_values, interpolation: str = "linear") -> np.ndarray:
         """Per-vertex values of per-face values (see :func:`vertex_values`)."""
-        fv = np.asarray(face_values, dtype=np.float64)
+        fv = _as_float(face_values, "face_values")
+        if fv.ndim not in (1, 2) or fv.shape[0] != self.n_faces:
+            raise InputError(f"face_values: expected ({self.n_faces},) or ({self.n_faces}, K) "
+                             f"for the mesh's faces, got shape {fv.shape}")
         if interpolation not in ("linear", "mean"):
             raise InputError(f"interpolation must be 'linear' or 'mean', got {interpolation!r}")
         return _apply_vertex(self.mesh, self._area, fv, interpolation == "linear", self._vcache)
@@ -386,7 +405,7 @@ class SurfaceMap:
         -------
         (H, W) or (T, H, W) float64
         """
-        fv = np.asarray(face_values, dtype=np.float64)
+        fv = _as_float(face_values, "face_values")
         nf = self.n_faces
         if fv.ndim == 1 and fv.shape[0] == nf:
             fv2, single = fv[None], True
@@ -406,9 +425,12 @@ class SurfaceMap:
         if background is None:
             out = np.full((T, H * W), np.nan)
         elif np.ndim(background) == 0:
-            out = np.full((T, H * W), float(background))
+            out = np.full((T, H * W), float(_as_float(background, "background")))
         else:
-            bg, _ = self._check_images(background, "background")
+            bg, _ = self._check_images(_as_float(background, "background"), "background")
+            if bg.shape[0] not in (1, T):
+                raise InputError(f"background: {bg.shape[0]} images for {T} sets of face "
+                                 "values (give one image, or one per set)")
             out = np.broadcast_to(bg.reshape(bg.shape[0], -1), (T, H * W)).astype(np.float64)
         hit, f = self._hit, self._hit_face
         if interpolation == "nearest":

@@ -226,6 +226,9 @@ def visible_faces(
     if require not in ("any", "all"):
         raise InputError(f"require must be 'any' or 'all', got {require!r}")
     caster = RayCaster(mesh) if caster is None else caster
+    if caster.n_faces != len(mesh.faces):
+        raise InputError(f"caster: built for {caster.n_faces} faces, the mesh has "
+                         f"{len(mesh.faces)}")
     tri = np.asarray(mesh.vertices, dtype=np.float64)[np.asarray(mesh.faces)]
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     nlen = np.linalg.norm(normal, axis=1)

@@ -7,6 +7,7 @@ import pytest
 import trimesh
 
 from resection import Camera, InputError, SurfaceMap
+from resection.visibility import RayCaster
 
 N = 16  # grid cells per side
 H, W = 120, 160
@@ -251,6 +252,23 @@ def test_shape_errors(plane_map):
         sm.to_image(np.zeros(len(mesh.faces) + 1))
     with pytest.raises(InputError, match="camera"):
         SurfaceMap(mesh, "not a camera")
+    nf = len(mesh.faces)
+    with pytest.raises(InputError, match="background: 3 images for 2"):
+        sm.to_image(np.zeros((2, nf)), background=np.zeros((3, 120, 160)))
+    with pytest.raises(InputError, match="background: expected real numbers"):
+        sm.to_image(np.zeros(nf), background="abc")
+    with pytest.raises(InputError, match="face_values: expected real numbers"):
+        sm.to_image(np.array(["a"] * nf))
+    with pytest.raises(InputError, match="empty stack"):
+        sm.to_surface(np.zeros((0, 120, 160)))
+    with pytest.raises(InputError, match=f"expected \\({nf},\\)"):
+        sm.vertex_values(np.zeros(3))
+    with pytest.raises(InputError, match="caster: built for 2 faces"):
+        SurfaceMap(mesh, cam, caster=RayCaster(trimesh.Trimesh(
+            [[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], [[0, 1, 2], [1, 3, 2]])))
+    # one background image for every set of face values is fine
+    out = sm.to_image(np.zeros((2, nf)), background=np.full((1, 120, 160), 7.0))
+    assert out.shape == (2, 120, 160) and np.all(out[:, ~sm.mask] == 7.0)
 
 
 def test_vertex_values_linear_exact_and_nan_faces():
