@@ -68,8 +68,9 @@ def draw_links(
     import matplotlib
 
     matplotlib.use("Agg", force=False)
+    import matplotlib.patheffects as pe
     import matplotlib.pyplot as plt
-    from matplotlib.patches import Circle
+    from matplotlib.collections import EllipseCollection
 
     img = np.asarray(image, dtype=float)
     if img.ndim != 2:
@@ -82,7 +83,9 @@ def draw_links(
     if not path.parent.exists():
         raise FileNotFoundError(f"{path.parent}: output directory does not exist")
     H, W = img.shape
-    scale = min(1.0, 4000.0 / max(H, W)) if max(H, W) > 4000 else max(1.0, 800.0 / max(H, W))
+    # small images are enlarged (to 1600 px) so that the labels, whose size is fixed in
+    # points, do not cover each other; large ones are drawn at most 4000 px wide
+    scale = min(1.0, 4000.0 / max(H, W)) if max(H, W) > 4000 else max(1.0, 1600.0 / max(H, W))
     fig = plt.figure(figsize=(W * scale / dpi, H * scale / dpi), dpi=dpi)
     ax = fig.add_axes((0, 0, 1, 1))
     fin = img[np.isfinite(img)]
@@ -95,20 +98,32 @@ def draw_links(
         dia = np.full(len(uv), 8.0)
     if diameter is not None:
         dia = np.full(len(uv), float(diameter))
-    fs = max(6.0, 8.0 * scale)
+    fs = 9.0
+    outline = [pe.withStroke(linewidth=2.5, foreground="black")]
+    ring = 2.0 * (dia / 2 + 2.0)  # circle diameter, image pixels
+    ax.add_collection(EllipseCollection(ring, ring, 0.0, units="xy", offsets=uv,
+                                        offset_transform=ax.transData, facecolors="none",
+                                        edgecolors="orangered", linewidths=1.2))
     for k, ((u, v), d) in enumerate(zip(uv, dia, strict=True)):  # one label per candidate
-        ax.add_patch(Circle((u, v), d / 2 + 1.5, fill=False, color="red", lw=0.8))
-        ax.text(u + d / 2 + 2, v - d / 2 - 2, str(k), color="red", fontsize=fs)
+        ax.text(u + d / 2 + 2, v - d / 2 - 2, str(k), color="orangered", fontsize=fs,
+                fontweight="bold", path_effects=outline)
     if camera is not None and markers is not None:
         from .match import _markers
 
         ids, xyz = _markers(markers)
         proj = camera.project(xyz)
         ok = np.isfinite(proj).all(axis=1) & camera.in_image(proj)
-        ax.plot(proj[ok, 0], proj[ok, 1], "+", color="cyan", ms=8, mew=1.0)
+        ax.plot(proj[ok, 0], proj[ok, 1], "+", color="cyan", ms=10, mew=1.5,
+                path_effects=outline)
         for k in np.flatnonzero(ok):
-            ax.text(proj[k, 0] - 2, proj[k, 1] + 10, ids[k], color="cyan", fontsize=fs,
-                    ha="right")
+            ax.text(proj[k, 0] - 3, proj[k, 1] + 3, ids[k], color="cyan", fontsize=fs,
+                    ha="right", va="top", path_effects=outline)
+    key = "orange-red circle + number: candidate"
+    if camera is not None and markers is not None:
+        key += "     cyan cross + id: marker projected by the approximate camera"
+    ax.text(0.01, 0.01, key, transform=ax.transAxes, color="white", fontsize=fs,
+            va="bottom", ha="left", path_effects=outline,
+            bbox={"facecolor": "black", "alpha": 0.6, "edgecolor": "none"})
     ax.set_xlim(-0.5, W - 0.5)
     ax.set_ylim(H - 0.5, -0.5)
     ax.axis("off")

@@ -89,8 +89,23 @@ def test_detect_match_link_pose(scene, capsys):
     assert rc == 0
     import imageio.v3 as iio
 
-    png = iio.imread(d / "link.png")
+    png = iio.imread(d / "link.png")[..., :3].astype(int)
     assert png.shape[0] >= 480 and png.shape[1] >= 640
+    # every candidate's ring is drawn (orange-red) where the candidate is, every projected
+    # marker's cross (cyan) where the approximate camera puts it
+    sc = png.shape[1] / 640.0
+    red = (png[..., 0] > 200) & (png[..., 1] < 130) & (png[..., 2] < 80)
+    cyan = (png[..., 0] < 90) & (png[..., 1] > 200) & (png[..., 2] > 200)
+
+    def near(mask, u, v, r):
+        r0, c0 = int((v + 0.5) * sc), int((u + 0.5) * sc)
+        return mask[max(r0 - r, 0):r0 + r + 1, max(c0 - r, 0):c0 + r + 1].any()
+
+    ring = cand.diameter / 2 + 2.0
+    assert all(near(red, u + r, v, 3) for (u, v), r in zip(cand.uv, ring, strict=True))
+    proj = Camera.read(d / "approx.json").project(scene["xyz"])
+    assert all(near(cyan, u, v, 2) for u, v in proj)
+    assert red.mean() < 0.05 and cyan.mean() < 0.05  # marks, not a painted-over image
     lids, luv, _ = read_links(d / "links.csv", cand)
     assert set(lids) == set(scene["ids"])
     assert all(np.hypot(*(p - truth[k])) < 0.05 for k, p in zip(lids, luv, strict=True))
