@@ -260,10 +260,12 @@ def triangulate(cameras: Sequence[Camera], uv, *, refine: bool = True) -> Triang
         d_cam = np.column_stack([xn[m], np.ones(N)])
         d = d_cam @ c.R
         dirs[m] = d / np.linalg.norm(d, axis=1, keepdims=True)
-    cosang = np.einsum("anx,bnx->nab", dirs, dirs)
+    cosang = np.einsum("anx,bnx->nab", dirs, dirs).reshape(N, -1)
+    finite = np.isfinite(cosang)
+    smallest = np.min(np.where(finite, cosang, np.inf), axis=1)  # no all-NaN warning
+    smallest[~finite.any(axis=1)] = np.nan
     with np.errstate(invalid="ignore"):
-        ang = np.degrees(np.arccos(np.clip(np.nanmin(np.where(np.isfinite(cosang), cosang,
-                                                              np.nan), axis=(1, 2)), -1, 1)))
+        ang = np.degrees(np.arccos(np.clip(smallest, -1, 1)))
     ang[n_views < 2] = np.nan
     return Triangulation(points=X, residuals=res, rms=rms, n_views=n_views, angle=ang,
                          linear=X_lin)
@@ -454,6 +456,8 @@ def marker_displacements(
     ids3 = np.asarray(ids3d).astype(str).ravel()
     if len(ids3) != len(P):
         raise InputError(f"marker_displacements: {len(ids3)} ids for {len(P)} 3-D markers")
+    if not (0.0 <= float(min_cos) < 1.0):
+        raise InputError(f"min_cos: must be in [0, 1), got {min_cos}")
     if normal is not None and surface is not None:
         raise InputError("marker_displacements: give a plane normal or a surface, not both")
     if normal is None:

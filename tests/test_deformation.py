@@ -244,3 +244,13 @@ def test_bad_input():
         pair_by_id(["a", "a"], [[0, 0], [1, 1]], ["a"], [[0, 0]])
     with pytest.raises(InputError, match="no marker id common"):
         marker_displacements(c1, ["a"], [[0, 0, 0]], ["b"], [[1, 1]], ["b"], [[1, 1]])
+    with pytest.raises(InputError, match="min_cos"):
+        marker_displacements(c1, ["a"], [[0, 0, 0]], ["a"], [[1, 1]], ["a"], [[1, 1]],
+                             min_cos=float("nan"))
+    # markers seen by no camera: NaN, without a warning
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        tri = triangulate([c1, c2], np.full_like(np.asarray(uv, float), np.nan))
+    assert np.isnan(tri.points).all() and np.isnan(tri.angle).all()
