@@ -674,7 +674,8 @@ def solve_pose(
     ------
     InputError, DegenerateError
         Fewer than 3 markers, NaN, mismatched lengths, collinear markers, pixel positions
-        outside the range where the lens distortion can be inverted.
+        more than 1 px outside the camera's image (``width x height``; a wrong camera
+        file) or outside the range where the lens distortion can be inverted.
     SolveError
         Several poses fit (the message names them), the best pose puts markers behind the
         camera, the solver did not converge, the pose is not determined, or its RMS exceeds
@@ -705,6 +706,13 @@ def solve_pose(
     if max_rms is not None and not (np.isfinite(max_rms) and max_rms > 0):
         raise InputError(f"solve_pose: max_rms must be positive, got {max_rms}")
     names = _resolve_refine(refine_intrinsics, n)
+    outside = np.flatnonzero(~camera.in_image(uv, margin=-1.0))
+    if outside.size:
+        i0 = outside[0]
+        raise InputError(
+            f"solve_pose: image point(s) at index {outside[:10].tolist()} lie outside the "
+            f"camera's {camera.width}x{camera.height} image (e.g. u, v = {uv[i0, 0]:.1f}, "
+            f"{uv[i0, 1]:.1f}): wrong camera file or image size?")
     s2, s3 = coplanarity(X)
     if s2 < COLLINEAR_RTOL:
         raise DegenerateError(f"solve_pose: the {n} markers are collinear (or coincide): the "

@@ -93,6 +93,11 @@ def test_pose_command_bad_input(scene, capsys):
     (d / "cam2.json").write_text(json.dumps(cam))
     err = _err(capsys, [*base[:2], str(d / "cam2.json"), *base[3:]])
     assert "unknown key" in err and "focal" in err
+    cam["width"], cam["height"] = 640, 480
+    del cam["focal"]
+    (d / "cam3.json").write_text(json.dumps(cam))
+    err = _err(capsys, [*base[:2], str(d / "cam3.json"), *base[3:]])
+    assert "outside the camera's 640x480 image" in err
     err = _err(capsys, [*base, "--max-rms", "0.01"])
     assert "max_rms" in err
 
@@ -184,3 +189,15 @@ def test_calibrate_command_bad_input(tmp_path, capsys):
     err = _err(capsys, ["calibrate", "--markers", str(tmp_path / "b.csv"), "--points-dir",
                         str(tmp_path / "nodir"), "--size", "10x10", "--out", "x.json"])
     assert "not a directory" in err
+
+
+def test_argument_errors_are_one_line(capsys):
+    for argv, what in ((["pose", "--camera", "c.json"], "--markers, --out"),
+                       (["calibrate", "--size"], "--size"),
+                       (["pose", "--camera", "c", "--markers", "m", "--points", "p", "--out",
+                         "o", "--robust", "tukey"], "tukey")):
+        with pytest.raises(SystemExit) as exc:
+            main(argv)
+        assert exc.value.code == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and what in err and "error" in err, err

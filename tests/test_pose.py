@@ -318,6 +318,11 @@ def test_bad_input():
         solve_pose(cam.K, X, uv)
     with pytest.raises(InputError, match="points2d"):
         solve_pose(cam, X, uv[:, :1])
+    # a camera file of another size (e.g. binned 2 x 2): the points fall off its image
+    small = cam.replace(width=W // 2, height=H // 2)
+    assert not small.in_image(uv).all()
+    with pytest.raises(InputError, match=f"outside the camera's {W // 2}x{H // 2} image"):
+        solve_pose(small, X, uv)
 
 
 def test_untrustworthy_pose_is_refused():
