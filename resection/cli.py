@@ -12,8 +12,16 @@ import sys
 from .errors import InputError, SolveError
 
 
+class _Parser(argparse.ArgumentParser):
+    """Argument errors as one line (``prog: error: message``, exit status 2), without the
+    usage block; ``--help`` still shows it. Sub-command parsers inherit the class."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="resection",
         description="Camera resection for wind-tunnel optical measurements.",
     )
