@@ -62,6 +62,7 @@ def test_planar_views_recover_truth_and_match_opencv():
     assert abs(K[1, 2] - K_TRUE[1, 2]) < 4 * res.std["cy"]
     assert abs(d[0] - D_TRUE[0]) < 4 * res.std["k1"]
     assert abs(d[1] - D_TRUE[1]) < 4 * res.std["k2"]
+    _within_std(res)  # tangential p1, p2 too
     assert d[4] == 0.0 and "k3" not in res.parameters
     np.testing.assert_allclose(K, K_TRUE, rtol=3e-3, atol=3.0)
     assert res.rms == pytest.approx(0.1 * np.sqrt(2), rel=0.15)
@@ -79,8 +80,17 @@ def test_planar_views_recover_truth_and_match_opencv():
 
 def test_full_distortion_model_matches_opencv():
     rng = np.random.default_rng(1)
-    views, _ = _views(rng, _board(), 12, dist=np.array([-0.25, 0.12, 0.001, 0.0005, -0.03]))
+    d_true = np.array([-0.25, 0.12, 0.001, 0.0005, -0.03])
+    views, _ = _views(rng, _board(), 12, dist=d_true)
     res = calibrate(views, (W, H))
+    # the five distortion coefficients and the intrinsics recover the truth
+    for i, nm in enumerate(("k1", "k2", "p1", "p2", "k3")):
+        assert abs(res.camera.dist[i] - d_true[i]) < 4 * res.std[nm], nm
+    for nm, est, tru in (("fx", res.camera.K[0, 0], K_TRUE[0, 0]),
+                         ("fy", res.camera.K[1, 1], K_TRUE[1, 1]),
+                         ("cx", res.camera.K[0, 2], K_TRUE[0, 2]),
+                         ("cy", res.camera.K[1, 2], K_TRUE[1, 2])):
+        assert abs(est - tru) < 4 * res.std[nm], nm
     rms_cv, Kc, dc, _, _ = _opencv(views)
     assert res.rms == pytest.approx(rms_cv, rel=1e-4)
     np.testing.assert_allclose(res.camera.K, Kc, rtol=0, atol=0.1)
