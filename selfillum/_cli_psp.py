@@ -41,7 +41,8 @@ def _cmd_psp(args) -> int:
     F = rho = None
     if not args.no_correction:
         rho = _per_face_arg(args.reflectance, "--reflectance")
-        F = view_factors(mesh, rays_per_face=args.rays, seed=args.seed)
+        F = view_factors(mesh, rays_per_face=args.rays, seed=args.seed,
+                         progress=not args.quiet)
     res, images = psp_images(maps, off_imgs, on_imgs, taps, args.p_ref, F=F,
                              reflectance=rho, correct_si=not args.no_correction)
     for k, img in enumerate(images):
@@ -91,4 +92,5 @@ def register(sub) -> None:
     p.add_argument("--no-correction", action="store_true",
                    help="do not remove the self-illumination (for comparison)")
     p.add_argument("--out", required=True, help="output folder (created if needed)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_psp)

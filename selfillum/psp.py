@@ -122,7 +122,9 @@ def fit_stern_volmer(ratio, pressure, p_ref: float) -> SternVolmer:
     Raises
     ------
     InputError
-        Fewer than 2 taps with a finite ratio, all at the same pressure, ``p_ref <= 0``.
+        Fewer than 2 taps with a finite ratio, all at the same pressure, ``p_ref <= 0``,
+        a fitted ``B`` that is not significantly positive (``B <= 3`` standard errors with
+        3 taps or more, or a ratio that does not vary).
     """
     r = np.asarray(ratio, dtype=np.float64).ravel()
     p = np.asarray(pressure, dtype=np.float64).ravel()
@@ -140,6 +142,19 @@ def fit_stern_volmer(ratio, pressure, p_ref: float) -> SternVolmer:
     (A, B), *_ = np.linalg.lstsq(M, r[ok], rcond=None)
     if B <= 0:
         raise InputError(f"fit_stern_volmer: fitted B = {B:.3g} <= 0 (ratio must grow with p)")
+    # B must stand out of the scatter of the taps: its standard error (>= 3 taps), and
+    # the rounding of a ratio that does not vary at all (e.g. wind-on = wind-off)
+    se = 0.0
+    if x.size > 2:
+        res = r[ok] - (A + B * x)
+        s2 = float(res @ res) / (x.size - 2)
+        se = float(np.sqrt(s2 / np.sum((x - x.mean()) ** 2)))
+    if B <= 3.0 * se or B <= 1e-9 * max(1.0, abs(A)):
+        raise InputError(
+            f"fit_stern_volmer: fitted B = {B:.3g} (standard error {se:.2g}) is not "
+            "significantly > 0: the intensity ratio at the taps does not follow their "
+            "pressures (wrong images, taps or p_ref?)"
+        )
     return SternVolmer(float(A), float(B), float(p_ref))
 
 

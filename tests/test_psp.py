@@ -81,6 +81,15 @@ def test_stern_volmer_fit_exact():
         fit_stern_volmer([1.0, 1.1], [100.0, 100.0], P_REF)
     with pytest.raises(InputError, match="p_ref"):
         fit_stern_volmer([1.0, 1.1], [100.0, 110.0], 0.0)
+    # a ratio that does not follow the pressure (wind-on image = wind-off image, or
+    # scatter that swamps the slope) is refused, not turned into pressures
+    with pytest.raises(InputError, match="not significantly"):
+        fit_stern_volmer(np.ones(4), p, P_REF)
+    noisy = LAW.ratio(p) + np.array([0.3, -0.3, 0.3, -0.3])
+    with pytest.raises(InputError, match="not significantly"):
+        fit_stern_volmer(noisy, p, P_REF)
+    small_noise = LAW.ratio(p) + np.array([0.003, -0.003, 0.003, -0.003])
+    assert fit_stern_volmer(small_noise, p, P_REF).B == pytest.approx(LAW.B, rel=0.05)
 
 
 def test_taps_file_and_faces(tmp_path):
