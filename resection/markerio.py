@@ -74,7 +74,7 @@ def _read_table(path, required: tuple[str, ...], optional: tuple[str, ...], what
     """Rows of a CSV file as ``(line_number, {column: text})``, header checked."""
     path = os.fspath(path)
     try:
-        fh = open(path, newline="", encoding="utf-8")
+        fh = open(path, newline="", encoding="utf-8-sig")  # a BOM (Excel) is skipped
     except FileNotFoundError:
         raise InputError(f"{what} file not found: {path}") from None
     except IsADirectoryError:

@@ -91,3 +91,12 @@ def test_bad_points_and_links(tmp_path):
         write_markers(tmp_path / "x.csv", ["a", "a"], np.zeros((2, 3)))
     with pytest.raises(InputError, match="directory"):
         read_markers(tmp_path)
+
+
+def test_spreadsheet_export_with_bom_and_crlf(tmp_path):
+    """A CSV saved by a spreadsheet (UTF-8 byte-order mark, CRLF line ends) reads the same."""
+    p = tmp_path / "m.csv"
+    p.write_bytes("\ufeffid,x,y,z\r\nA,1,2,3\r\nB,4,5,6\r\n".encode())
+    m = read_markers(p)
+    assert m.ids == ("A", "B")
+    np.testing.assert_array_equal(m.xyz, [[1, 2, 3], [4, 5, 6]])
