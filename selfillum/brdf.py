@@ -55,7 +55,13 @@ from resection.camera import Camera
 from resection.errors import InputError, SolveError
 
 from .mesh import check_mesh, face_normals
-from .radiosity import _single_blas_thread, check_form_factors, check_reflectance, forward
+from .radiosity import (
+    _field,
+    _single_blas_thread,
+    check_form_factors,
+    check_reflectance,
+    forward,
+)
 
 __all__ = ["GlossyPaint", "GlossyTransport", "transport_matrix", "glossy_forward",
            "glossy_correct"]
@@ -265,16 +271,24 @@ def transport_matrix(
     from .viewfactors import RayScene, sample_rays
 
     check_mesh(mesh)
-    if not isinstance(paint, GlossyPaint):
-        raise InputError(f"paint: expected a GlossyPaint, got {type(paint).__name__}")
+    _check_paint(paint)
     if not isinstance(camera, Camera):
         raise InputError(f"camera: expected a resection.Camera, got {type(camera).__name__}")
     n = len(mesh.faces)
     rho = check_reflectance(reflectance, n)
-    k = int(rays_per_face)
+    try:
+        k, m2 = int(rays_per_face), int(second_order_rays)
+    except (TypeError, ValueError):
+        raise InputError("rays_per_face and second_order_rays must be integers, got "
+                         f"{rays_per_face!r} and {second_order_rays!r}") from None
     if k != rays_per_face or k < 1:
         raise InputError(f"rays_per_face: expected a positive integer, got {rays_per_face!r}")
-    m2 = int(second_order_rays)
+    try:
+        seed = int(seed)
+    except (TypeError, ValueError):
+        raise InputError(f"seed: expected an integer, got {seed!r}") from None
+    if seed < 0:
+        raise InputError(f"seed: expected a non-negative integer, got {seed}")
     if m2 != second_order_rays or m2 < 0:
         raise InputError(
             f"second_order_rays: expected an integer >= 0, got {second_order_rays!r}"
@@ -367,9 +381,8 @@ def glossy_forward(F, transport: GlossyTransport, emission, reflectance,
     n = F.shape[0]
     T, T2 = _check_transport(transport, n)
     rho = check_reflectance(reflectance, n)
-    E = np.broadcast_to(np.asarray(emission, dtype=np.float64), (n,)).copy()
-    if not np.all(np.isfinite(E)):
-        raise InputError("emission: NaN or infinite values")
+    _check_paint(paint)
+    E = _field(emission, n, "emission")
     return _apply(F, T, T2, E, paint.albedo(rho), 1e-10) / math.pi
 
 
@@ -398,7 +411,11 @@ def glossy_correct(F, transport: GlossyTransport, radiance, reflectance, paint: 
     n = F.shape[0]
     T, T2 = _check_transport(transport, n)
     rho = check_reflectance(reflectance, n)
-    M = np.asarray(radiance, dtype=np.float64) * math.pi
+    _check_paint(paint)
+    try:
+        M = np.asarray(radiance, dtype=np.float64) * math.pi
+    except (TypeError, ValueError):
+        raise InputError("radiance: not a numeric array") from None
     if M.shape != (n,):
         raise InputError(f"radiance: expected shape ({n},), got {M.shape}")
     if not np.all(np.isfinite(M)):
@@ -414,6 +431,11 @@ def glossy_correct(F, transport: GlossyTransport, radiance, reflectance, paint: 
     if info != 0:
         raise SolveError(f"glossy_correct: GMRES did not converge (info {info})")
     return E
+
+
+def _check_paint(paint) -> None:
+    if not isinstance(paint, GlossyPaint):
+        raise InputError(f"paint: expected a GlossyPaint, got {type(paint).__name__}")
 
 
 def _check_transport(transport, n: int):

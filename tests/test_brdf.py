@@ -112,6 +112,18 @@ def test_bad_paint_and_inputs():
         glossy_correct(F, tr, L, 0.5, PAINT)
     with pytest.raises(InputError, match="GlossyTransport"):
         glossy_forward(F, tr.T, 1.0, 0.5, PAINT)
+    with pytest.raises(InputError, match=r"emission: expected shape \(16,\)"):
+        glossy_forward(F, tr, np.ones(3), 0.5, PAINT)
+    with pytest.raises(InputError, match="emission: not a numeric"):
+        glossy_forward(F, tr, "bright", 0.5, PAINT)
+    with pytest.raises(InputError, match="paint: expected a GlossyPaint"):
+        glossy_forward(F, tr, 1.0, 0.5, "glossy")
+    with pytest.raises(InputError, match="paint: expected a GlossyPaint"):
+        glossy_correct(F, tr, np.ones(16), 0.5, None)
+    with pytest.raises(InputError, match="seed"):
+        transport_matrix(sc.mesh, PAINT, 0.5, cam, rays_per_face=8, seed=-1)
+    with pytest.raises(InputError, match="integers"):
+        transport_matrix(sc.mesh, PAINT, 0.5, cam, rays_per_face="many")
     with pytest.raises(InputError, match="paint must be"):
         render(sc.mesh, 1.0, 0.5, cam, paint="glossy", spp=1)
 
