@@ -771,7 +771,7 @@ def _execute_local(setup, tasks, on_frame):
 
 
 def _execute_dask(setup, tasks, on_chunk, on_poll, scheduler, workers, frames_dir,
-                  poll_s: float = 0.25):
+                  poll_s: float = 0.25, connect_timeout: float = 20.0):
     """Run the chunks on Dask. The tasks write every finished frame to ``frames_dir``
     themselves; ``on_poll()`` is called while waiting (it picks those files up, for the
     progress bar) and ``on_chunk(dicts)`` when a chunk comes back."""
@@ -786,7 +786,12 @@ def _execute_dask(setup, tasks, on_chunk, on_poll, scheduler, workers, frames_di
                                dashboard_address=None, silence_logs=logging.ERROR)
         client = Client(cluster)
     else:
-        client = Client(scheduler)
+        try:
+            client = Client(scheduler, timeout=connect_timeout)
+        except (OSError, ValueError, TypeError) as exc:  # unreachable or malformed address
+            msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            raise InputError(f"scheduler: cannot connect to the Dask scheduler at "
+                             f"{scheduler!r} ({msg})") from None
     try:
         s = client.scatter(setup, broadcast=True)
         futures = [client.submit(_run_chunk, s, items, seed, done, None, frames_dir,

@@ -321,6 +321,9 @@ def test_bad_input(run60, tmp_path):
         track(files["frames"], cam, (["a", "a", "b"], np.eye(3)), diameter=5.6, **kw)
     with pytest.raises(InputError, match="not found"):
         read_track(tmp_path / "nothing")
+    with pytest.raises(InputError, match="cannot connect to the Dask scheduler at 'foo bar'"):
+        track(files["frames"][:3], cam, files["markers"], diameter=5.6, scheduler="foo bar",
+              **kw)
 
 
 def test_dask_interruption_keeps_every_finished_frame(run60, tmp_path, monkeypatch):
