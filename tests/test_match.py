@@ -47,12 +47,20 @@ def test_200_frames_from_approximate_camera_all_correct():
     rng = np.random.default_rng(1)
     ids, X = _model(rng)
     n_ok = 0
+    shifts, n_hyp = [], []
     for _ in range(200):
         Q, truth, cam = _frame(rng, ids, X)
         res = match_markers(Q, (ids, X), BASE)
         n_ok += np.array_equal(np.array(res.ids, dtype=object), truth)
         assert res.second_score < 0.7 * res.score
+        shifts.append(np.nanmax(np.hypot(*(cam.project(X) - BASE.project(X)).T)))
+        n_hyp.append(res.n_hypotheses)
     assert n_ok == 200
+    # the model really moved by several pixels against the reference
+    assert np.median(shifts) > 5 and max(shifts) > 10
+    # prefiltered hypotheses: a few dozen, where all triples of markers times all ordered
+    # triples of candidates would be C(30, 3) * 40 * 39 * 38 ~ 2.4e8
+    assert max(n_hyp) <= 500
 
 
 def test_approximate_camera_off_by_tens_of_pixels():
