@@ -47,10 +47,9 @@ def _cmd_psp(args) -> int:
                              reflectance=rho, correct_si=not args.no_correction)
     for k, img in enumerate(images):
         write_image(out / f"pressure_{k}.tif", img.astype(np.float32))
-    with open(out / "pressure_faces.csv", "w", encoding="utf-8") as fh:
-        fh.write("face,pressure,ratio\n")
-        for i, (p, r) in enumerate(zip(res.pressure, res.ratio, strict=True)):
-            fh.write(f"{i},{p:.9g},{r:.9g}\n")
+    table = np.column_stack([np.arange(len(res.pressure)), res.pressure, res.ratio])
+    np.savetxt(out / "pressure_faces.csv", table, fmt=["%d", "%.9g", "%.9g"], delimiter=",",
+               header="face,pressure,ratio", comments="")
     law = res.stern_volmer
     info = {
         "A": law.A, "B": law.B, "p_ref": law.p_ref, "si_corrected": res.corrected,
