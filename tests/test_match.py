@@ -152,6 +152,17 @@ def test_too_few_candidates_and_bad_input():
         match_markers(np.zeros((5, 2)), (ids, X), BASE, search_radius=-1)
     with pytest.raises(InputError, match="markers3d"):
         match_markers(np.zeros((5, 2)), None, BASE)
+    Q, truth, cam = _frame(rng, ids, X)
+    ref = match_markers(Q, (ids, X), BASE)
+    with pytest.raises(InputError, match="not in markers3d: ZM"):
+        match_markers(Q, (ids, X), (tuple("Z" + k for k in ref.marker_ids), ref.uv),
+                      camera=BASE)
+    with pytest.raises(InputError, match="camera"):
+        match_markers(Q, (ids, X), ref, camera="approx.json")
+    with pytest.raises(InputError, match="ids but"):
+        match_markers(Q, (ids, X), (ref.marker_ids, ref.uv[:-1]))
+    with pytest.raises(InputError, match="max_rms"):
+        match_markers(Q, (ids, X), ref, max_rms=float("nan"))
 
 
 def test_result_fields():
