@@ -101,6 +101,11 @@ def _field(path: str, name: str | None, n_faces: int) -> tuple[str, np.ndarray]:
 
 
 def run_map(args: argparse.Namespace) -> int:
+    names = [Path(p).stem for p in args.image]
+    repeated = sorted({n for n in names if names.count(n) > 1})
+    if repeated:
+        raise InputError(f"--image: several images named {repeated[0]!r} (the field names "
+                         "come from the file names; rename or map them separately)")
     mesh = load_mesh(args.mesh)
     camera = Camera.read(args.camera)
     smap = SurfaceMap(mesh, camera, max_obliqueness_deg=args.max_obliqueness)

@@ -83,3 +83,14 @@ def test_errors_are_one_line(files, capsys):
     rc = main(["map", "--mesh", str(d / "missing.xyz"), "--camera", str(d / "off.json"),
                "--image", str(d / "small.npy"), "--out", str(d / "x.csv")])
     assert rc == 2 and "not found" in capsys.readouterr().err
+    # two images with the same file name would overwrite each other's field
+    (d / "sub").mkdir(exist_ok=True)
+    np.save(d / "sub" / "tex.npy", np.load(d / "tex.npy"))
+    rc = main(["map", "--mesh", str(d / "panel.xyz"), "--camera", str(d / "off.json"),
+               "--image", str(d / "tex.npy"), str(d / "sub" / "tex.npy"), "--out",
+               str(d / "x.csv")])
+    assert rc == 2 and "several images named 'tex'" in capsys.readouterr().err
+    assert not (d / "x.csv").exists()
+    rc = main(["view", "--mesh", str(d / "panel.xyz"), "--values", str(d / "surf.csv"),
+               "--cmap", "nosuch", "--out", str(d / "v.png")])
+    assert rc == 2 and "colour map 'nosuch'" in capsys.readouterr().err
