@@ -53,6 +53,10 @@ def register(sub) -> None:
                    help="also refine the focal length (default), focal and centre, or all "
                    "with distortion")
     p.add_argument("--max-rms", type=float, help="refuse a pose whose RMS exceeds this (px)")
+    p.add_argument("--ambiguity-px", type=float, default=0.5, metavar="PX",
+                   help="assumed (upper) marker uncertainty when telling competing poses "
+                   "apart; lowered automatically when the residuals prove the markers "
+                   "better measured (default 0.5)")
     p.set_defaults(func=run_pose)
 
     c = sub.add_parser(
@@ -107,7 +111,7 @@ def run_pose(args: argparse.Namespace) -> int:
     camera, ids, X, uv = pose_inputs(args)
     result = solve_pose(camera, X, uv, robust=args.robust, robust_scale=args.robust_scale,
                         refine_intrinsics=args.refine_intrinsics or False,
-                        max_rms=args.max_rms)
+                        max_rms=args.max_rms, ambiguity_px=args.ambiguity_px)
     print(f"pose: {result.message}")
     print(f"rms {result.rms:.4f} px")
     print(f"{'id':>12} {'du':>9} {'dv':>9} {'error':>9}")

@@ -812,8 +812,8 @@ def solve_pose(
             for m in close[:4])
         raise SolveError(
             f"solve_pose: ambiguous pose: {len(close)} distinct poses fit the {n} markers "
-            f"about equally well ({desc}; marker noise taken as {sigma:.2g} px); add markers "
-            "or spread them in depth")
+            f"about equally well ({desc}; marker noise taken as {sigma:.2g} px); add markers, "
+            "spread them in depth, or give ambiguity_px if they are measured better")
 
     R, t, K, dist = best["R"], best["t"], K0, dist0
     # ---- joint refinement of intrinsics

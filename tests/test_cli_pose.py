@@ -52,6 +52,23 @@ def test_pose_command(scene, capsys):
     assert len(rows) == 15 and rows[1].startswith("P13,")
 
 
+def test_pose_command_ambiguity_px(scene, capsys):
+    """Four coplanar markers measured to 0.002 px: refused by default (two degrees of
+    freedom cannot prove that precision), solved right with --ambiguity-px 0.01."""
+    d, truth, ids, _, _ = scene
+    sq = 0.2 * np.array([[-0.2, -0.15, 0], [0.25, -0.1, 0], [0.15, 0.2, 0], [-0.1, 0.1, 0]])
+    uv = truth.project(sq) + np.random.default_rng(3).normal(scale=0.002, size=(4, 2))
+    write_markers(d / "sq.csv", ids[:4], sq)
+    write_points(d / "sq_pts.csv", ids[:4], uv)
+    argv = ["pose", "--camera", str(d / "cam.json"), "--markers", str(d / "sq.csv"),
+            "--points", str(d / "sq_pts.csv"), "--out", str(d / "sq.json")]
+    err = _err(capsys, argv)
+    assert "ambiguous" in err and "ambiguity_px" in err
+    assert main([*argv, "--ambiguity-px", "0.01"]) == 0
+    cam = Camera.read(d / "sq.json")
+    assert np.linalg.norm(cam.center - truth.center) < 1e-3
+
+
 def test_pose_command_options_and_console_script(scene):
     d, truth, *_ = scene
     proc = subprocess.run(
@@ -98,6 +115,8 @@ def test_pose_command_bad_input(scene, capsys):
     (d / "cam3.json").write_text(json.dumps(cam))
     err = _err(capsys, [*base[:2], str(d / "cam3.json"), *base[3:]])
     assert "outside the camera's 640x480 image" in err
+    err = _err(capsys, [*base, "--ambiguity-px", "-1"])
+    assert "ambiguity_px must be positive" in err
     err = _err(capsys, [*base, "--max-rms", "0.01"])
     assert "max_rms" in err
 

@@ -197,6 +197,29 @@ def test_ambiguity_threshold_follows_the_measured_noise():
     assert hi_refused >= close - 2, (hi_refused, close)
 
 
+def test_four_coplanar_markers_known_precision():
+    """Four coplanar markers leave 2 degrees of freedom: the residuals cannot prove a
+    0.005 px precision, so a competitor under 1 px is refused by default; stating the
+    precision (``ambiguity_px``) resolves those cases, right every time."""
+    rng = np.random.default_rng(31)
+    refused = solved = 0
+    for _ in range(60):
+        cam, X, uv = random_case(rng, 4, planar=True, noise=0.005)
+        try:
+            solve_pose(cam, X, uv)
+            continue
+        except SolveError as exc:
+            assert "ambiguity_px" in str(exc)
+            refused += 1
+        try:
+            res = solve_pose(cam, X, uv, ambiguity_px=0.02)
+        except SolveError:
+            continue
+        solved += 1
+        assert not is_wrong(res.camera, cam, X, 0.005)
+    assert refused >= 5 and solved >= 0.8 * refused, (refused, solved)
+
+
 def test_robust_loss_rejects_an_outlier():
     rng = np.random.default_rng(8)
     cam, X, uv = random_case(rng, 12, noise=0.1)
