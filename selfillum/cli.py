@@ -71,8 +71,8 @@ def _cmd_correct(args) -> int:
     infos = result.info if isinstance(result.info, tuple) else (result.info,)
     methods = ", ".join(sorted({i.method for i in infos}))
     iterations = max(i.iterations for i in infos)
-    frames = f" ({len(infos)} frames)" if isinstance(result.info, tuple) else ""
-    print(f"inverse                        {methods}, {iterations} iterations at most{frames}")
+    frames = f" at most ({len(infos)} frames)" if isinstance(result.info, tuple) else ""
+    print(f"inverse                        {methods}, {iterations} iterations{frames}")
     print(f"wrote {args.out}")
     if args.surface:
         print(f"wrote {args.surface}")
