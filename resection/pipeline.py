@@ -4,7 +4,9 @@
 coordinates), either from a hand-made linking file (``id,candidate``, see
 :mod:`resection.link`) or by automatic matching against an approximate camera or an earlier
 matched frame (:func:`resection.match.match_markers`). :func:`pose_from_image` adds the
-Point-of-View solve (:func:`resection.pose.solve_pose`).
+Point-of-View solve (:func:`resection.pose.solve_pose`). :func:`detect_in_image` reads an
+image file (saturated pixels of 8/16-bit files masked), enhances it over the whole image or
+inside windows, and detects its markers.
 """
 
 from __future__ import annotations
