@@ -306,22 +306,29 @@ def _parse_binary_plot3d(data: bytes, source: str):
     return None, None
 
 
-def _expand_repeats(tokens: list[str]) -> list[str]:
-    """Fortran list-directed repeat counts ``n*value``."""
-    out: list[str] = []
-    for tok in tokens:  # only for files that use them
-        if "*" in tok:
-            n, _, val = tok.partition("*")
-            out.extend([val] * int(n))
-        else:
-            out.append(tok)
-    return out
+def _expand_repeats(tokens: list[str], source: str) -> np.ndarray:
+    """Fortran list-directed repeat counts ``n*value``, expanded without a Python loop over
+    the tokens."""
+    arr = np.array(tokens)
+    has = np.char.find(arr, "*") >= 0
+    counts = np.ones(arr.size, dtype=np.int64)
+    head, _, val = np.char.partition(arr[has], "*").T
+    try:
+        n = head.astype(np.int64)
+    except ValueError:
+        raise InputError(f"{source}: bad repeat count in '{arr[has][0]}'") from None
+    if np.any(n < 1):
+        raise InputError(f"{source}: repeat counts must be positive")
+    counts[has] = n
+    arr = arr.astype(val.dtype if val.dtype.itemsize > arr.dtype.itemsize else arr.dtype)
+    arr[has] = val
+    return np.repeat(arr, counts)
 
 
 def _parse_ascii_plot3d(text: str, source: str):
     tokens = text.replace("D", "E").replace("d", "e").replace(",", " ").split()
-    if any("*" in t for t in tokens):
-        tokens = _expand_repeats(tokens)
+    if "*" in text:
+        tokens = _expand_repeats(tokens, source)
     try:
         v = np.array(tokens, dtype=np.float64)
     except ValueError as exc:

@@ -50,6 +50,21 @@ def test_hand_written_ascii_multiblock(tmp_path):
     np.testing.assert_array_equal(m.face_attributes["cell_i"], [0, 0, 1, 1, 0, 0])
 
 
+def test_ascii_fortran_repeat_counts(tmp_path):
+    # list-directed output writes runs of equal values as n*value
+    p = tmp_path / "rep.xyz"
+    p.write_text("2\n3 2 1\n2 2 1\n0 1 2 0 1 2\n3*0 3*1\n6*0\n5.0 7.0 5.0 7.0\n"
+                 "2*0.0D0 2*1.0D0\n4*1\n")
+    ref = tmp_path / "ref.xyz"
+    ref.write_text(HAND_ASCII)
+    a, b = load_mesh(p), load_mesh(ref)
+    np.testing.assert_array_equal(a.vertices, b.vertices)
+    np.testing.assert_array_equal(a.faces, b.faces)
+    p.write_text("1\n2 2 1\n0 1 0 1\n0 0 1 1\nx*0\n")
+    with pytest.raises(InputError, match="bad repeat count"):
+        load_mesh(p)
+
+
 def _rec(fmt: str, *vals, endian=">") -> bytes:
     payload = struct.pack(endian + fmt, *vals)
     mark = struct.pack(endian + "i", len(payload))
