@@ -12,6 +12,7 @@ from __future__ import annotations
 import csv
 import json
 import time
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -142,13 +143,15 @@ def run_corner(
     scene = corner(size=size, resolution=resolution, reflectance=reflectance, pattern=pattern)
     E = scene.emission
     t = time.perf_counter()
-    F_ref = view_factors(
-        scene.mesh, int(rays_per_face) * int(reference_factor), seed + 1, progress=progress
-    )
+    with _bar(progress, "reference view factors", len(E)) as bar:
+        F_ref = view_factors(
+            scene.mesh, int(rays_per_face) * int(reference_factor), seed + 1, progress=bar
+        )
     B = forward(F_ref, E, scene.reflectance)
     seconds["simulate_measurement"] = time.perf_counter() - t
     t = time.perf_counter()
-    F = view_factors(scene.mesh, rays_per_face, seed, progress=progress)
+    with _bar(progress, "working view factors", len(E)) as bar:
+        F = view_factors(scene.mesh, rays_per_face, seed, progress=bar)
     seconds["view_factors"] = time.perf_counter() - t
     t = time.perf_counter()
     E_corr = correct(F, B, scene.reflectance)
@@ -183,6 +186,23 @@ def run_corner(
         seconds={k: round(v, 3) for k, v in seconds.items()},
     )
     return CornerResult(scene, F, B, E_corr, profile, numbers)
+
+
+@contextmanager
+def _bar(show: bool, desc: str, total: int):
+    """A ``progress`` callable for :func:`view_factors` driving a ``tqdm`` bar named
+    ``desc`` over ``total`` faces (``None`` when ``show`` is false)."""
+    if not show:
+        yield None
+        return
+    from tqdm.auto import tqdm
+
+    with tqdm(desc=desc, total=total, unit="face", leave=False) as bar:
+
+        def update(done: int, _total: int) -> None:
+            bar.update(done - bar.n)
+
+        yield update
 
 
 def plot_corner(result: CornerResult, path) -> Path:

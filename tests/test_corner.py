@@ -111,3 +111,12 @@ def test_cli_bad_input_one_line_exit_2(tmp_path, capsys, args, match):
         assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert match in err[-1] and err[-1].startswith("selfillum corner: error:")
+
+
+def test_progress_bars_name_each_ray_casting(capsys):
+    run_corner(resolution=4, rays_per_face=8, progress=True)
+    err = capsys.readouterr().err
+    for step in ("reference view factors", "working view factors"):
+        assert step in err and "64/64" in err
+    run_corner(resolution=4, rays_per_face=8, progress=False)
+    assert capsys.readouterr().err == ""
