@@ -135,7 +135,7 @@ def bench_matching(t_detect, frames):
 def bench_accuracy(diameters, snrs, n_images, png):
     blur, contrast = 0.7, 100.0
     table = np.zeros((len(diameters), len(snrs)))
-    tpy = np.zeros(len(diameters))
+    peers = {"trackpy": np.zeros(len(diameters)), "opencv": np.zeros(len(diameters))}
     crb = np.zeros_like(table)
     for i, d in enumerate(diameters):
         for j, snr in enumerate(snrs):
@@ -149,43 +149,61 @@ def bench_accuracy(diameters, snrs, n_images, png):
                 errs.append(cand.uv[idx[ok]] - sc.uv[ok])
                 if snr == 20:
                     f = _trackpy(sc.image, d).nlargest(40, "mass")[["x", "y"]].to_numpy()
-                    tpy[i] += _rms(f, sc.uv)[0] ** 2 / n_images
+                    peers["trackpy"][i] += _rms(f, sc.uv)[0] ** 2 / n_images
+                    peers["opencv"][i] += _rms(_opencv(sc.image), sc.uv)[0] ** 2 / n_images
             table[i, j] = np.sqrt(np.mean(np.vstack(errs) ** 2))
             crb[i, j] = position_crb(d, blur, contrast, contrast / snr)
-    tpy = np.sqrt(tpy)
+    peers = {k: np.sqrt(v) for k, v in peers.items()}
+    has20 = 20 in snrs
     print("\n## RMS position error per coordinate (px): measured / Cramér-Rao bound\n")
     print("| diameter (px) | " + " | ".join(f"SNR {s:g}" for s in snrs)
-          + (" | trackpy, SNR 20 |" if 20 in snrs else " |"))
-    print("|---" * (len(snrs) + 1 + (20 in snrs)) + "|")
+          + (" | trackpy, SNR 20 | OpenCV, SNR 20 |" if has20 else " |"))
+    print("|---" * (len(snrs) + 1 + 2 * has20) + "|")
     for i, d in enumerate(diameters):
         cells = " | ".join(f"{table[i, j]:.4f} / {crb[i, j]:.4f}" for j in range(len(snrs)))
-        print(f"| {d:g} | {cells}" + (f" | {tpy[i]:.4f} |" if 20 in snrs else " |"))
+        extra = f" | {peers['trackpy'][i]:.4f} | {peers['opencv'][i]:.4f} |" if has20 else " |"
+        print(f"| {d:g} | {cells}" + extra)
     if png:
         import matplotlib
 
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
 
-        fig, ax = plt.subplots(1, 2, figsize=(11, 4.2))
+        fig, ax = plt.subplots(1, 3, figsize=(16, 4.8))
         colors = plt.cm.viridis(np.linspace(0, 0.9, len(diameters)))
         for i, d in enumerate(diameters):
-            ax[0].loglog(snrs, table[i], "o-", color=colors[i], label=f"D = {d:g} px")
+            ax[0].loglog(snrs, table[i], "o-", color=colors[i], ms=4, label=f"D = {d:g} px")
             ax[0].loglog(snrs, crb[i], "--", color=colors[i], lw=1)
-        ax[0].axhline(0.05, color="red", lw=0.8)
+        ax[0].axhline(0.05, color="red", lw=0.8, label="0.05 px target")
         ax[0].set_xlabel("SNR (contrast / noise std)")
         ax[0].set_ylabel("RMS error per coordinate (px)")
         ax[0].set_title("measured (o-) and Cramér-Rao bound (--)")
-        ax[0].legend(fontsize=8)
-        j20 = list(snrs).index(20) if 20 in snrs else len(snrs) // 2
+        ax[0].grid(True, which="both", alpha=0.3)
+        ax[0].legend(fontsize=8, ncol=2)
+        j20 = list(snrs).index(20) if has20 else len(snrs) // 2
         ax[1].plot(diameters, table[:, j20], "o-", label="resection.detect_markers")
-        ax[1].plot(diameters, crb[:, j20], "k--", label="Cramér-Rao bound")
-        if 20 in snrs:
-            ax[1].plot(diameters, tpy, "s:", label="trackpy.locate")
+        ax[1].plot(diameters, crb[:, j20], "k--", label="Cramér-Rao bound (floor)")
+        if has20:
+            ax[1].plot(diameters, peers["trackpy"], "s:", label="trackpy.locate")
+            ax[1].plot(diameters, peers["opencv"], "^:", label="cv2.SimpleBlobDetector")
         ax[1].axhline(0.05, color="red", lw=0.8, label="0.05 px target")
+        ax[1].set_yscale("log")
         ax[1].set_xlabel("marker diameter (px)")
         ax[1].set_ylabel("RMS error per coordinate (px)")
-        ax[1].set_title(f"SNR {snrs[j20]:g}, PSF sigma {blur} px")
+        ax[1].set_title(f"SNR {snrs[j20]:g}, PSF sigma {blur} px, same images")
+        ax[1].grid(True, which="both", alpha=0.3)
         ax[1].legend(fontsize=8)
+        scol = plt.cm.plasma(np.linspace(0, 0.85, len(snrs)))
+        for j, snr in enumerate(snrs):
+            ax[2].plot(diameters, table[:, j] / crb[:, j], "o-", color=scol[j], ms=4,
+                       label=f"SNR {snr:g}")
+        ax[2].axhline(1.0, color="k", ls="--", lw=1, label="on the bound")
+        ax[2].set_ylim(0.7, 1.4)
+        ax[2].set_xlabel("marker diameter (px)")
+        ax[2].set_ylabel("measured RMS / Cramér-Rao bound")
+        ax[2].set_title(f"efficiency ({40 * n_images} markers a point, ~6 % sampling noise)")
+        ax[2].grid(True, alpha=0.3)
+        ax[2].legend(fontsize=8, ncol=2)
         fig.tight_layout()
         fig.savefig(png, dpi=110)
         print(f"\nplot written to {png}")
@@ -201,7 +219,7 @@ def main():
     if a.quick:
         bench_accuracy([3, 6], [10, 20], 1, a.png)
     else:
-        bench_accuracy([3, 4, 5, 6, 8, 10], [5, 10, 20, 50, 100], 3, a.png)
+        bench_accuracy([3, 4, 5, 6, 7, 8, 9, 10], [5, 10, 20, 50, 100], 3, a.png)
 
 
 if __name__ == "__main__":
