@@ -212,8 +212,11 @@ def bench_accuracy(diameters, snrs, n_images, png):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer cases (a smoke run)")
-    ap.add_argument("--png", default=str(Path(__file__).with_name("markers_error.png")))
+    ap.add_argument("--png", help="plot file (default bench/markers_error.png; none with "
+                    "--quick, so that a smoke run does not overwrite the published plot)")
     a = ap.parse_args()
+    if a.png is None and not a.quick:
+        a.png = str(Path(__file__).with_name("markers_error.png"))
     t_detect = bench_detection(1 if a.quick else 3)
     bench_matching(t_detect, 20 if a.quick else 100)
     if a.quick:
