@@ -279,6 +279,28 @@ def test_deterministic_for_a_seed_and_any_chunk_size():
     assert (a != c).nnz > 0
 
 
+def test_chunking_bounds_memory():
+    """Rays are generated and traced chunk by chunk: the peak memory (NumPy allocations,
+    traced by tracemalloc) with chunks of 512 faces is a fraction of that of one chunk of
+    all 6400 faces, while F is the same."""
+    import tracemalloc
+
+    mesh, _ = perpendicular_mesh(n=40)  # 6400 faces
+
+    def peak(chunk):
+        tracemalloc.start()
+        try:
+            F = view_factors(mesh, rays_per_face=64, seed=1, chunk_size=chunk)
+            return tracemalloc.get_traced_memory()[1], F
+        finally:
+            tracemalloc.stop()
+
+    small, F1 = peak(512)
+    large, F2 = peak(6400)
+    assert (F1 != F2).nnz == 0
+    assert small < 0.4 * large
+
+
 def test_progress_callback():
     mesh, _ = perpendicular_mesh(n=20)
     calls = []
