@@ -41,7 +41,8 @@ def plot_motion(
     length_unit, length_scale : str, float
         Unit label and scale of the translations.
     truth : (angles_deg (F, 3), translation (F, 3)), optional
-        A known motion drawn as thin black lines (synthetic sequences).
+        A known motion drawn as wide grey bands under the measured curves (synthetic
+        sequences).
     title : str, optional
     dpi : int
 
@@ -70,10 +71,11 @@ def plot_motion(
         ta, tt = (np.asarray(a, float) for a in truth)
         if ta.shape != result.angles.shape or tt.shape != result.translation.shape:
             raise InputError("plot_motion: truth arrays must have the shape of the result's")
-        for k in range(3):
-            axes[0].plot(t, ta[:, k], "-", color="k", lw=0.5,
+        for k in range(3):  # a wide grey band under the measured (coloured) curves
+            axes[0].plot(t, ta[:, k], "-", color="0.55", lw=3.0, alpha=0.5, zorder=1,
                          label="truth" if k == 0 else None)
-            axes[1].plot(t, tt[:, k] * length_scale, "-", color="k", lw=0.5)
+            axes[1].plot(t, tt[:, k] * length_scale, "-", color="0.55", lw=3.0, alpha=0.5,
+                         zorder=1, label="truth" if k == 0 else None)
     axes[2].plot(t, result.rms, ".", ms=2, color="tab:purple")
     failed = ~result.ok
     for ax in axes:
