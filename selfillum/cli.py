@@ -16,8 +16,13 @@ from resection.errors import InputError, SolveError
 
 
 def _cmd_corner(args) -> int:
+    from pathlib import Path
+
     from .corner import run_corner, write_corner
 
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out: {out} exists and is not a folder")
     result = run_corner(
         resolution=args.resolution,
         rays_per_face=args.rays,
@@ -195,6 +200,7 @@ def main(argv: list[str] | None = None) -> int:
         InputError,
         SolveError,
         FileNotFoundError,
+        FileExistsError,
         IsADirectoryError,
         PermissionError,
         NotADirectoryError,

@@ -99,9 +99,15 @@ def test_cli_corner_writes_outputs(tmp_path, capsys):
 
 @pytest.mark.parametrize(
     "args, match",
-    [(["--reflectance", "1.0"], "reflectance"), (["--resolution", "0"], "must be > 0")],
+    [
+        (["--reflectance", "1.0"], "reflectance"),
+        (["--resolution", "0"], "must be > 0"),
+        (["--out", "FILE"], "is not a folder"),
+    ],
 )
 def test_cli_bad_input_one_line_exit_2(tmp_path, capsys, args, match):
+    (tmp_path / "FILE").write_text("not a folder")
+    args = [str(tmp_path / a) if a == "FILE" else a for a in args]
     argv = ["corner", "--out", str(tmp_path / "o"), "--quiet", *args]
     if match == "must be > 0":  # argparse refuses it before the library runs
         with pytest.raises(SystemExit) as exc:
