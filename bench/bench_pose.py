@@ -1,7 +1,8 @@
 """solve_pose and calibrate against OpenCV on the same synthetic data: speed ratio and
 accuracy.
 
-Run: ``.venv/bin/python bench/bench_pose.py [--cases 200] [--repeat 3]``. Prints a Markdown
+Run: ``.venv/bin/python bench/bench_pose.py [--cases 200] [--repeat 3] [--noise 0.1]
+[--pose-only]``. Prints a Markdown
 table (the section of bench/README.md).
 
 * Pose: random cameras (focal 900-2500 px, distortion, 0.1 px noise), 6-15 markers in a
@@ -38,7 +39,7 @@ def _rot_err(Ra, Rb):
     return math.degrees(math.acos(min(1.0, max(-1.0, c))))
 
 
-def _case(rng, n, planar):
+def _case(rng, n, planar, noise=0.1):
     f = rng.uniform(900, 2500)
     K = np.array([[f, 0, W / 2 + rng.normal(scale=15)], [0, f, H / 2 + rng.normal(scale=15)],
                   [0, 0, 1.0]])
@@ -57,7 +58,7 @@ def _case(rng, n, planar):
             continue
         uv, ok = cam.project(X, return_valid=True)
         if ok.all() and cam.in_image(uv, margin=5).all():
-            return cam, X, uv + rng.normal(scale=0.1, size=uv.shape)
+            return cam, X, uv + rng.normal(scale=noise, size=uv.shape)
 
 
 def _mahalanobis(R, t, cam, X, sigma=0.1):
@@ -74,13 +75,13 @@ def _mahalanobis(R, t, cam, X, sigma=0.1):
     return float(e @ info @ e)
 
 
-def bench_pose(n_cases: int, repeat: int):
+def bench_pose(n_cases: int, repeat: int, noise: float = 0.1):
     rng = np.random.default_rng(7)
     cases = []
     for i in range(n_cases):
         planar = i % 5 >= 3
         n = int(rng.integers(4, 9)) if planar else int(rng.integers(6, 16))
-        cases.append(_case(rng, n, planar))
+        cases.append(_case(rng, n, planar, noise))
     solvers = {
         "resection": lambda cam, X, uv: solve_pose(cam, X, uv),
         "ITERATIVE": lambda cam, X, uv: cv2.solvePnP(X, uv, cam.K, cam.dist,
@@ -123,7 +124,7 @@ def bench_pose(n_cases: int, repeat: int):
                 R, C, t = c.R, c.center, c.t
             er, ec = _rot_err(R, cam.R), np.linalg.norm(C - cam.center)
             gross += er > 1.0 or ec > 0.02 * np.linalg.norm(cam.center)
-            is_wrong = _mahalanobis(R, t, cam, X) > 50.0
+            is_wrong = _mahalanobis(R, t, cam, X, noise) > 50.0
             wrong += is_wrong
             if not is_wrong:
                 errs[k] = er, ec / np.linalg.norm(cam.center)
@@ -134,6 +135,31 @@ def bench_pose(n_cases: int, repeat: int):
         r["rot"] = float(np.median(per_case[name][common, 0]))
         r["pos"] = float(np.median(per_case[name][common, 1]))
         r["n_common"] = int(common.sum())
+    return rows
+
+
+def bench_ambiguity(n_cases: int = 300):
+    """Refusals of solve_pose against the marker noise, 4-8 markers (half of the layouts
+    planar): how many poses are refused as ambiguous, how many returned poses are wrong,
+    and how many returned poses a fixed 0.5 px noise assumption would have refused
+    (competitor's sum of squares within ``16 * max(0.5, s)^2`` px^2 of the best)."""
+    rows = []
+    for noise in (0.005, 0.02, 0.1, 0.3):
+        rng = np.random.default_rng(11)
+        refused = wrong = fixed_would_refuse = 0
+        for i in range(n_cases):
+            planar = i % 2 == 0
+            n = int(rng.integers(4, 9))
+            cam, X, uv = _case(rng, n, planar, noise)
+            try:
+                r = solve_pose(cam, X, uv)
+            except SolveError:
+                refused += 1
+                continue
+            wrong += _mahalanobis(r.camera.R, r.camera.t, cam, X, noise) > 50.0
+            s2 = n * r.rms**2 / (2 * n - 6)
+            fixed_would_refuse += n * (r.alternative_rms**2 - r.rms**2) < 16 * max(0.25, s2)
+        rows.append((noise, refused, wrong, fixed_would_refuse))
     return rows
 
 
@@ -176,10 +202,12 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", type=int, default=200)
     ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--noise", type=float, default=0.1, help="marker noise, px (pose)")
+    ap.add_argument("--pose-only", action="store_true")
     a = ap.parse_args(argv)
-    rows = bench_pose(a.cases, a.repeat)
+    rows = bench_pose(a.cases, a.repeat, a.noise)
     ref = rows["ITERATIVE"]["time"]
-    print(f"### solve_pose vs cv2.solvePnP ({a.cases} cases, 0.1 px noise)\n")
+    print(f"### solve_pose vs cv2.solvePnP ({a.cases} cases, {a.noise:g} px noise)\n")
     print("| solver | time / solvePnP ITERATIVE | median rot. err. (deg) | median centre "
           "err. / distance | wrong poses returned | gross errors | refused |")
     print("|---|---|---|---|---|---|---|")
@@ -190,6 +218,16 @@ def main(argv=None):
     n_common = rows["resection"]["n_common"]
     print(f"\n(solvePnP ITERATIVE: {ref / a.cases * 1e3:.3f} ms a case; medians over the "
           f"{n_common} cases where every solver returned a pose that is not wrong)\n")
+    print("### solve_pose refusals against the marker noise (300 cases of 4-8 markers, "
+          "half planar)\n")
+    print("| noise (px) | refused as ambiguous | wrong poses returned | returned, but a fixed "
+          "0.5 px threshold would refuse |")
+    print("|---|---|---|---|")
+    for noise, refused, wrong, fixed in bench_ambiguity():
+        print(f"| {noise:g} | {refused} | {wrong} | {fixed} |")
+    print()
+    if a.pose_only:
+        return
     c = bench_calibrate(a.repeat)
     print("### calibrate vs cv2.calibrateCamera (10 views x 88 points, k3 fixed)\n")
     print("| | time ratio (ours / OpenCV) | rms (px) | max intrinsic error (px) | "
