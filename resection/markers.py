@@ -525,7 +525,8 @@ def detect_markers(
     Raises
     ------
     InputError
-        Not a 2-D numeric image, bad diameter, polarity, template or roi, or no valid pixel.
+        Not a 2-D numeric image, bad diameter, polarity, template, roi, threshold or
+        diameter_range, a mask of another shape, or no valid pixel.
     """
     img = _as_image(image)
     d = _check_diameter(diameter)
