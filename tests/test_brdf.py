@@ -191,9 +191,9 @@ def test_glossy_correct_recovers_emission(glossy_corner):
     meas = smap.to_surface(full)
     assert np.all(meas.counts > 0)
     E = glossy_correct(F, tr, meas.values, rho, PAINT)
-    rel = E / sc.emission - 1.0
+    rel = E / sc.emission - 1.0  # the bound: within 2 % (measured: 1.6 %)
     assert abs(np.median(rel)) < 0.01
-    assert np.percentile(np.abs(rel), 95) < 0.03
+    assert np.percentile(np.abs(rel), 95) < 0.02
     before = meas.values * np.pi / sc.emission - 1.0
     assert np.median(before) > 0.1
     # the forward model of the recovered emission reproduces the measurement
