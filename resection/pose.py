@@ -7,12 +7,15 @@ three or more markers with known model coordinates and measured pixel positions:
    linear DLT for six or more non-coplanar markers, a homography for coplanar ones;
 2. the best distinct starts (lowest reprojection cost) are refined together by a
    vectorised Levenberg-Marquardt on the reprojection error (analytic Jacobian,
-   distortion included, IRLS weights for a robust loss), the best one polished by
-   ``scipy.optimize.least_squares`` (MINPACK LM, or TRF with a robust loss);
-3. the best minimum is kept only if no *distinct* pose fits the markers about as well
-   (with 3 markers, or 4 in some layouts, several poses reproject exactly: that is
-   reported as a :class:`~resection.errors.SolveError`, never resolved by chance), all
-   markers lie in front of the camera, the solver converged and the RMS is acceptable;
+   distortion included, IRLS weights for a robust loss), the best one and any competitor
+   close to it polished by ``scipy.optimize.least_squares`` (MINPACK LM, or TRF with a
+   robust loss);
+3. the best minimum is kept only if no *distinct* pose fits the markers about as well,
+   judged against the marker noise (``ambiguity_px``, or less when the residuals prove the
+   markers better measured; with 3 markers, or 4 in some layouts, several poses reproject
+   exactly: that is reported as a :class:`~resection.errors.SolveError`, never resolved by
+   chance), all markers lie in front of the camera, the solver converged and the RMS is
+   acceptable;
 4. optionally the intrinsics are refined jointly with the pose from there.
 
 Rotations are handled as left perturbations ``R = exp([w]x) R0``; reported covariances are
