@@ -863,9 +863,10 @@ def track(
         Address of a running Dask scheduler (``tcp://host:8786``).
     workers : int, optional
         Worker processes of the local Dask cluster started when no ``scheduler`` is given;
-        default: one per CPU core. 1 runs in this process, without Dask (same chunks, same
-        results). The workers are spawned processes: a script that calls ``track`` with
-        more than one worker needs the usual ``if __name__ == "__main__":`` guard.
+        default: one per CPU core, at most one per chunk. 1 (or a single chunk to do) runs
+        in this process, without Dask (same chunks, same results). The workers are spawned
+        processes: a script that calls ``track`` with more than one worker needs the usual
+        ``if __name__ == "__main__":`` guard.
     out_dir : path-like
         Output directory (created): ``poses.csv``, ``markers.csv``, ``frames/``, ``track.json``.
     resume : bool
@@ -1017,7 +1018,8 @@ def track(
             items = [(i, frames[i]) for i in idx]
             tasks.append((items, seed, {i: done[i] for i in idx if i in done}))
         if tasks:
-            if scheduler is None and workers == 1:
+            n_local = min(workers, len(tasks))  # no idle local workers: start-up costs
+            if scheduler is None and n_local == 1:
                 _execute_local(setup, tasks, record)
             else:
                 def on_poll() -> None:
@@ -1047,7 +1049,7 @@ def track(
                         todo.discard(i)
                         note(dct)
 
-                _execute_dask(setup, tasks, on_chunk, on_poll, scheduler, workers,
+                _execute_dask(setup, tasks, on_chunk, on_poll, scheduler, n_local,
                               str(frames_dir.resolve()))
 
         def rerecord(res: FrameResult) -> None:

@@ -392,6 +392,15 @@ def test_default_is_a_local_cluster_and_client_writes_unshared_frames(run60, tmp
     res = _track(files["frames"][:8], cam, files["markers"], diameter=5.6, out_dir=out,
                  chunk_size=3, progress=False)
     assert res.n_computed == 0
+    # no more local workers than chunks: two chunks, two workers; one chunk, no cluster
+    seen.clear()
+    _track(files["frames"][:8], cam, files["markers"], diameter=5.6, out_dir=tmp_path / "b",
+           chunk_size=4, progress=False)
+    assert seen["workers"] == 2
+    seen.clear()
+    res = _track(files["frames"][:4], cam, files["markers"], diameter=5.6,
+                 out_dir=tmp_path / "c", chunk_size=4, progress=False)
+    assert not seen and res.ok.all() and res.n_computed == 4
 
 
 def test_pose_options_reach_every_solve(run60, tmp_path, capsys):
