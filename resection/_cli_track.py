@@ -22,7 +22,9 @@ def register(sub) -> None:
         "frame; writes poses.csv (3 angles in degrees, 3 translations, RMS per frame), "
         "markers.csv (marker positions per frame) and pose_vs_time.png to --out. With a "
         "fixed camera (default) the motion reported is the model's, relative to the first "
-        "frame. Interrupted runs resume; frames run in parallel on Dask.",
+        "frame. A failed frame is recorded with its reason and the run goes on. Interrupted runs "
+        "resume (each finished frame is kept in --out/frames). Frames run in parallel on a "
+        "local Dask cluster (one worker per CPU core) or on --scheduler.",
     )
     p.add_argument("frames", nargs="+", metavar="FRAME",
                    help="frame images in time order (TIFF/PNG/NPY; glob patterns allowed)")
