@@ -60,6 +60,9 @@ class ViewWarp:
         caster = RayCaster(mesh)
         if isinstance(target, SurfaceMap):
             smap = target
+            if len(smap.mesh.faces) != len(mesh.faces):
+                raise InputError(f"target: SurfaceMap of a mesh of {len(smap.mesh.faces)} "
+                                 f"faces, the mesh has {len(mesh.faces)}")
         elif isinstance(target, Camera):
             smap = SurfaceMap(mesh, target, caster=caster)
         else:
@@ -111,6 +114,9 @@ class ViewWarp:
                 f"image: shape {arr.shape} does not match camera A's image (H, W) = "
                 f"({Ha}, {Wa}) (or a stack (T, H, W))"
             )
+        if not (np.issubdtype(arr.dtype, np.number) or arr.dtype == bool) \
+                or np.issubdtype(arr.dtype, np.complexfloating):
+            raise InputError(f"image: expected real numbers, got dtype {arr.dtype}")
         if not (0 <= int(order) <= 5):
             raise InputError(f"order must be 0..5, got {order}")
         H, W = self.shape

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from resection import Camera, InputError
+from resection import Camera, InputError, SurfaceMap
 from resection.align import ViewWarp, warp_image
 from scenes.psp_pair import panel_mesh, plane_hits, pressure_factor, psp_pair, render
 
@@ -121,3 +121,8 @@ def test_stack_and_errors(pair):
         warp(np.zeros((10, 10)))
     with pytest.raises(InputError, match="target"):
         ViewWarp(pp.mesh, pp.camera_off, "camera")
+    with pytest.raises(InputError, match="image: expected real numbers"):
+        warp(np.full((240, 320), "a"))
+    other = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], process=False)
+    with pytest.raises(InputError, match="SurfaceMap of a mesh of 1 faces"):
+        ViewWarp(pp.mesh, pp.camera_off, SurfaceMap(other, pp.camera_on))
