@@ -319,7 +319,7 @@ def _schur_lm(vw, names, K0, dist0, Rs, ts, max_iter):
         step = np.concatenate([d_t / np.maximum(np.abs(theta), 1e-3), d_p.ravel()])
         if rel < 1e-14 or np.abs(step).max() < 1e-13:
             return theta, Rs, ts, it
-    raise SolveError(f"calibrate: did not converge in {max_iter} iterations")
+    return theta, Rs, ts, None  # not converged: the caller names the cause
 
 
 def calibrate(
@@ -423,6 +423,7 @@ def calibrate(
 
     theta, Rs, ts, niter = _schur_lm(vw, names, K0, dist0, np.array(R0s), np.array(t0s),
                                      max_iter)
+    converged = niter is not None
     K, dist = _apply_intrinsics(names, theta, K0, dist0)
     if K[0, 0] <= 0 or K[1, 1] <= 0:
         raise SolveError("calibrate: the refinement gave a negative focal length")
@@ -441,6 +442,14 @@ def calibrate(
                 + (", ".join(bad) if bad else "the intrinsics")
                 + f" (condition number {math.sqrt(ev[-1] / max(ev[0], 1e-300)):.1e}); add "
                 "views at other angles, a deeper target, or fix those parameters")
+    if not converged:
+        weak = ""
+        if m:
+            bad = [names[i] for i in np.flatnonzero(np.abs(evec[:, 0]) > 0.3)]
+            weak = (f"; the least determined parameters are {', '.join(bad)} (condition "
+                    f"number {math.sqrt(ev[-1] / max(ev[0], 1e-300)):.1e})")
+        raise SolveError(f"calibrate: did not converge in {max_iter} iterations{weak}: fix "
+                         "them, or add views at other angles")
     for v, Bv in enumerate(Vb):
         d = np.sqrt(np.maximum(np.diag(Bv), 1e-300))
         evv = np.linalg.eigvalsh(Bv / np.outer(d, d))

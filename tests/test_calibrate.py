@@ -170,6 +170,14 @@ def test_calibrate_bad_input():
         calibrate([X], (W, H))
 
 
+def test_non_convergence_names_the_weakest_parameters():
+    rng = np.random.default_rng(7)
+    views, _ = _views(rng, _board(), 3)
+    with pytest.raises(SolveError, match=r"did not converge in 2 iterations; the least "
+                                         r"determined parameters are \w+"):
+        calibrate(views, (W, H), max_iter=2)
+
+
 def test_calibrate_wrong_image_size():
     """Points beyond the given image, or an initial camera of another size, are refused
     (a wrong size would silently bias the principal-point start)."""
