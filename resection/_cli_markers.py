@@ -12,6 +12,15 @@ from .camera import Camera
 from .errors import InputError
 
 
+def add_enhance_window_option(parser) -> None:
+    """``--enhance-window``: enhance (and search) only inside boxes; shared by ``detect``
+    and ``pose --image``."""
+    parser.add_argument("--enhance-window", type=float, nargs=4, action="append",
+                        metavar=("UMIN", "VMIN", "UMAX", "VMAX"),
+                        help="with --enhance: enhance only inside this box (pixels, "
+                        "inclusive; repeat for several boxes)")
+
+
 def add_detect_options(p: argparse.ArgumentParser, *, required_diameter: bool = True) -> None:
     """Detection options shared by ``detect`` and ``pose --image``."""
     p.add_argument("--diameter", type=float, required=required_diameter,
@@ -37,10 +46,7 @@ def register(sub) -> None:
         "CSV u,v,diameter,depth,merit,snr (numbered from 0 in file order).")
     d.add_argument("image", help="image file (.tif/.tiff, .png, .npy)")
     add_detect_options(d)
-    d.add_argument("--enhance-window", type=float, nargs=4, action="append",
-                   metavar=("UMIN", "VMIN", "UMAX", "VMAX"),
-                   help="with --enhance: enhance only inside this box (pixels, inclusive; "
-                   "repeat for several boxes)")
+    add_enhance_window_option(d)
     d.add_argument("--out", "-o", required=True, help="output candidate CSV")
     d.set_defaults(func=run_detect)
 

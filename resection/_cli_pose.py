@@ -7,7 +7,7 @@ import argparse
 import math
 import os
 
-from ._cli_markers import add_detect_options
+from ._cli_markers import add_detect_options, add_enhance_window_option
 from .calibrate import calibrate
 from .camera import Camera
 from .errors import InputError
@@ -42,6 +42,7 @@ def register(sub) -> None:
     p.add_argument("--candidates", help="with --links: the candidate CSV it numbers (default: "
                    "detect on --image)")
     add_detect_options(p, required_diameter=False)
+    add_enhance_window_option(p)
     p.add_argument("--out", required=True, help="output camera JSON with the solved pose")
     p.add_argument("--residuals", help="also write the residual table (CSV) here")
     p.add_argument("--robust", nargs="?", const="soft_l1", choices=_LOSSES,
@@ -98,11 +99,14 @@ def pose_inputs(args: argparse.Namespace):
         pts = image_points(args.image, read_markers(args.markers), camera,
                            diameter=args.diameter, polarity=args.polarity,
                            template=args.template, roi=args.roi, threshold=args.threshold,
-                           enhance=args.enhance, links=args.links, candidates=args.candidates)
+                           enhance=args.enhance, enhance_windows=args.enhance_window,
+                           links=args.links, candidates=args.candidates)
         print(f"image: {len(pts.candidates)} candidates, {len(pts.ids)} markers linked")
         return camera, pts.ids, pts.points3d, pts.points2d
     if not args.points:
-        raise InputError("no image points: give --points POINTS.csv")
+        if getattr(args, "links", None) or getattr(args, "candidates", None):
+            raise InputError("--links/--candidates need --image IMAGE")
+        raise InputError("no image points: give --points POINTS.csv or --image IMAGE")
     ids, X, uv = _linked(args.markers, args.points)
     return camera, ids, X, uv
 

@@ -185,7 +185,7 @@ def _load_image(frame) -> np.ndarray:
     else:
         from .images import read_image
 
-        img = read_image(frame)
+        img = read_image(frame, mask_saturated=True)  # saturated pixels -> NaN, masked
     if img.ndim != 2:
         raise InputError(f"expected a 2-D image, got shape {img.shape}")
     return img

@@ -188,3 +188,24 @@ def test_cli_image_size_saturation_and_enhance_windows(scene, capsys):
     rc, _, err = _run(["detect", d / "img.tif", "--diameter", 6, "--enhance-window", 0, 0, 9,
                        9, "-o", d / "x.csv"], capsys)
     assert rc == 2 and "enhancement method" in err
+
+
+def test_pose_image_with_enhance_windows_and_links_need_image(scene, capsys):
+    d = scene["dir"]
+    # pose --image with enhancement restricted to a window covering the whole model: the
+    # pose is right (every marker found inside the window, markers cut by it dropped)
+    rc, out, err = _run(["pose", "--camera", d / "approx.json", "--markers", d / "markers.csv",
+                         "--image", d / "img.tif", "--enhance", "background",
+                         "--enhance-window", 0, 0, 639, 479, "--out", d / "pw.json"], capsys)
+    assert rc == 0, err
+    cam = Camera.read(d / "pw.json")
+    assert np.abs(cam.project(scene["xyz"]) - scene["uv"]).max() < 0.05
+    # a window without a method is refused by the same rule as for detect
+    rc, _, err = _run(["pose", "--camera", d / "approx.json", "--markers", d / "markers.csv",
+                       "--image", d / "img.tif", "--enhance-window", 0, 0, 99, 99,
+                       "--out", d / "x.json"], capsys)
+    assert rc == 2 and "enhancement method" in err
+    # --links without --image names what is missing
+    rc, _, err = _run(["pose", "--camera", d / "approx.json", "--markers", d / "markers.csv",
+                       "--links", d / "links.csv", "--out", d / "x.json"], capsys)
+    assert rc == 2 and "--image" in err

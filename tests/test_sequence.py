@@ -460,3 +460,16 @@ def test_cli_ctrl_c_says_what_is_kept(run60, tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(seq, "_detect", detect)
     assert main(args) == 0
     assert "4/4 frames solved (2 computed now)" in capsys.readouterr().out
+
+
+def test_frames_of_integer_files_have_saturated_pixels_masked(tmp_path):
+    import tifffile
+
+    from resection.sequence import _load_image
+
+    img = np.full((20, 30), 1000, np.uint16)
+    img[5:8, 10:14] = 65535
+    tifffile.imwrite(tmp_path / "f.tif", img)
+    out = _load_image(tmp_path / "f.tif")
+    assert out.shape == (20, 30) and np.isnan(out).sum() == 12
+    assert np.all(np.isnan(out[5:8, 10:14])) and np.all(out[~np.isnan(out)] == 1000)
