@@ -36,7 +36,8 @@ def _single_blas_thread(size: int):
     above about 10,000 entries, and waking its threads for each of these microsecond-long
     calls costs far more than it gains: measured on 2 shared cores, the partial
     correction of 100,000 faces took 12 s with OpenBLAS's default threads and 1.7 s with
-    one (bench/README.md). The previous limits are restored on exit.
+    one (bench/README.md). The limit is process-wide while it lasts (other threads'
+    BLAS calls run on one thread too) and the previous limits are restored on exit.
     """
     if size < _BLAS_THREADED_SIZE:
         return contextlib.nullcontext()
