@@ -23,7 +23,7 @@ from resection import Camera
 from resection.surface import SurfaceMap
 from scenes.corner import corner
 from selfillum.radiosity import correct, forward
-from selfillum.render import available_variants, render
+from selfillum.rendering import available_variants, render
 from selfillum.viewfactors import view_factors
 
 

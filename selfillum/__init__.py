@@ -19,7 +19,7 @@ from .correct_image import ImageCorrection, correct_image
 from .multiview import MergedViews, merge_views
 from .psp import PSPResult, SternVolmer, fit_stern_volmer, psp_images, psp_pressure, read_taps
 from .radiosity import SolveInfo, correct, forward
-from .render import RenderResult, choose_variant, render
+from .rendering import RenderResult, choose_variant, render
 from .viewfactors import enforce_reciprocity, view_factors
 
 __all__: list[str] = [

@@ -1,6 +1,6 @@
 """``selfillum render``: a synthetic validation image rendered with Mitsuba 3.
 
-Only parses arguments, reads the inputs and calls :func:`selfillum.render.render`.
+Only parses arguments, reads the inputs and calls :func:`selfillum.rendering.render`.
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ def _cmd_render(args) -> int:
     from resection.images import write_image
     from resection.meshio import load_mesh
 
-    from .render import render
+    from .rendering import render
 
     out = Path(args.out)
     if out.suffix.lower() not in (".tif", ".tiff", ".npy"):

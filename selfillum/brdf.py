@@ -8,7 +8,7 @@ roughconductor(distribution="ggx", alpha, material="none"))``, is
 with ``h`` the half vector, ``D`` the GGX (Trowbridge-Reitz) normal distribution of
 roughness ``alpha``, ``G1`` Smith's GGX masking term and a perfectly reflecting interface
 (Fresnel factor 1). Mitsuba implements exactly this function, so its renders check the
-transport built on it (:func:`selfillum.render.render` with ``paint=``).
+transport built on it (:func:`selfillum.rendering.render` with ``paint=``).
 
 Self-illumination with such paint is view-dependent. The camera sees, from face ``i``,
 

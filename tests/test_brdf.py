@@ -16,7 +16,7 @@ from selfillum.brdf import (
     glossy_forward,
     transport_matrix,
 )
-from selfillum.render import choose_variant, render
+from selfillum.rendering import choose_variant, render
 
 PAINT = GlossyPaint(specular_weight=0.4, roughness=0.3)
 

@@ -16,7 +16,7 @@ from scenes.corner import corner
 from selfillum import view_factors
 from selfillum.cli import main
 from selfillum.correct_image import correct_image, read_reflectance
-from selfillum.render import render
+from selfillum.rendering import render
 
 
 def corner_camera() -> Camera:

@@ -8,7 +8,7 @@ import pytest
 
 from resection import Camera, InputError
 from selfillum.multiview import merge_views
-from selfillum.render import render
+from selfillum.rendering import render
 
 
 @pytest.fixture(scope="module")

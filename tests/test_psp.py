@@ -26,7 +26,7 @@ def psp_case():
     from resection.surface import SurfaceMap
     from scenes.corner import corner
     from selfillum.multiview import merge_views
-    from selfillum.render import render
+    from selfillum.rendering import render
     from selfillum.viewfactors import view_factors
 
     sc = corner(resolution=12, reflectance=0.6, pattern="uniform")

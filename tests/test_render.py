@@ -1,4 +1,4 @@
-"""Mitsuba renders (selfillum.render) against independent references.
+"""Mitsuba renders (selfillum.render, module selfillum.rendering) against independent references.
 
 * pixel convention and camera mapping: the centroid of a small emitting square lands on
   ``Camera.project`` of its centre (the lead's camera model), and its flux equals
@@ -17,7 +17,7 @@ import pytest
 import trimesh
 
 from resection import Camera, InputError
-from selfillum.render import available_variants, choose_variant, render
+from selfillum.rendering import available_variants, choose_variant, render
 
 # ----------------------------------------------------------------------------- helpers
 
@@ -138,7 +138,7 @@ def test_variant_choice_is_reported():
 
 
 def test_llvm_variant_available_when_libllvm_installed():
-    from selfillum.render import _find_libllvm
+    from selfillum.rendering import _find_libllvm
 
     if _find_libllvm() is not None:  # libLLVM >= 16 on this machine (tools/setup.sh)
         assert "llvm_ad_rgb" in VARIANTS
@@ -146,11 +146,9 @@ def test_llvm_variant_available_when_libllvm_installed():
 
 
 def test_libllvm_lookup_picks_newest_supported(monkeypatch, tmp_path):
-    import importlib
     import subprocess
 
-    # the module, not the function selfillum.render that the package exports
-    render_mod = importlib.import_module("selfillum.render")
+    import selfillum.rendering as render_mod
 
     libs = {name: tmp_path / name for name in
             ("libLLVM-14.so.1", "libLLVM-15.so", "libLLVM.so.19.1", "libLLVM-17.so.1")}

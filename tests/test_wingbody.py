@@ -77,7 +77,7 @@ def test_self_illumination_at_the_junction_against_mitsuba(scene):
     from resection.surface import SurfaceMap
     from selfillum.multiview import merge_views
     from selfillum.radiosity import correct, forward
-    from selfillum.render import render
+    from selfillum.rendering import render
     from selfillum.viewfactors import view_factors
 
     cam = default_camera(scene)
