@@ -9,19 +9,11 @@ from __future__ import annotations
 import argparse
 import sys
 
-from .errors import InputError, SolveError
-
-
-class _Parser(argparse.ArgumentParser):
-    """Argument errors as one line (``prog: error: message``, exit status 2), without the
-    usage block; ``--help`` still shows it. Sub-command parsers inherit the class."""
-
-    def error(self, message: str):
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+from ._cliutil import OneLineParser, run
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(
+    parser = OneLineParser(
         prog="resection",
         description="Camera resection for wind-tunnel optical measurements.",
     )
@@ -34,14 +26,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    try:
-        return int(args.func(args) or 0)
-    except (InputError, SolveError, FileNotFoundError, IsADirectoryError, PermissionError) as exc:
-        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        print(f"resection {args.command}: error: {msg}", file=sys.stderr)
-        return 2
+    return run(build_parser(), argv)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -12,7 +12,8 @@ import sys
 
 import numpy as np
 
-from resection.errors import InputError, SolveError
+from resection._cliutil import OneLineParser, run
+from resection.errors import InputError
 
 
 def _cmd_corner(args) -> int:
@@ -98,7 +99,7 @@ def _positive(kind):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="selfillum",
         description="Self-illumination of painted wind-tunnel models: view factors, "
         "Lambertian forward model and correction.",
@@ -192,22 +193,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    try:
-        return int(args.func(args) or 0)
-    except (
-        InputError,
-        SolveError,
-        FileNotFoundError,
-        FileExistsError,
-        IsADirectoryError,
-        PermissionError,
-        NotADirectoryError,
-    ) as exc:
-        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        print(f"selfillum {args.command}: error: {msg}", file=sys.stderr)
-        return 2
+    return run(build_parser(), argv)
 
 
 if __name__ == "__main__":  # pragma: no cover

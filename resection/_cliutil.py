@@ -1,0 +1,50 @@
+"""What the two command lines (``resection``, ``selfillum``) share: one-line errors.
+
+Bad input (an :class:`~resection.errors.InputError`, an untrustworthy solve, a missing or
+unwritable file, a bad argument) is printed as one line naming the problem, with exit
+status 2, never as a traceback. A closed output pipe (``... | head``) ends quietly.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+from .errors import InputError, SolveError
+
+#: Exceptions reported as one line with exit status 2.
+USER_ERRORS = (
+    InputError,
+    SolveError,
+    FileNotFoundError,
+    FileExistsError,
+    IsADirectoryError,
+    NotADirectoryError,
+    PermissionError,
+)
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """Argument errors as one line (``prog: error: message``, exit status 2), without the
+    usage block; ``--help`` still shows it. Sub-command parsers inherit the class."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def run(parser: argparse.ArgumentParser, argv: list[str] | None) -> int:
+    """Parse ``argv`` and call the chosen sub-command's ``func(args)``; return the exit
+    status."""
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except USER_ERRORS as exc:
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        print(f"{parser.prog} {args.command}: error: {msg}", file=sys.stderr)
+        return 2
+    except BrokenPipeError:
+        # the reader went away (e.g. `| head`): stop quietly, as Unix tools do
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 1
