@@ -99,17 +99,7 @@ def check_form_factors(F) -> sp.csr_matrix:
 
 def check_reflectance(reflectance, n: int) -> np.ndarray:
     """Reflectance as an ``(n,)`` float64 array in ``[0, 1)``: a scalar is broadcast."""
-    try:
-        rho = np.asarray(reflectance, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputError(f"reflectance: not a number or numeric array ({reflectance!r})") from None
-    if rho.ndim == 0:
-        rho = np.full(n, float(rho))
-    if rho.shape != (n,):
-        raise InputError(f"reflectance: expected a scalar or shape ({n},), got {rho.shape}")
-    bad = np.flatnonzero(~np.isfinite(rho))
-    if bad.size:
-        raise InputError(f"reflectance: NaN or infinite at face {int(bad[0])}")
+    rho = _field(reflectance, n, "reflectance")
     bad = np.flatnonzero((rho < 0) | (rho >= 1))
     if bad.size:
         raise InputError(
@@ -119,6 +109,7 @@ def check_reflectance(reflectance, n: int) -> np.ndarray:
 
 
 def _field(values, n: int, name: str) -> np.ndarray:
+    """``values`` as a finite ``(n,)`` float64 array (a scalar is broadcast) or InputError."""
     try:
         x = np.asarray(values, dtype=np.float64)
     except (TypeError, ValueError):
