@@ -26,6 +26,8 @@ from scipy.spatial.transform import Rotation
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from _timing import best_of  # noqa: E402  (bench/ is on sys.path when run as a script)
+
 from resection.camera import Camera  # noqa: E402
 from resection.markers import detect_markers, position_crb  # noqa: E402
 from resection.match import match_markers  # noqa: E402
@@ -38,15 +40,6 @@ def _rms(found, truth, gate=1.5):
     e = found[i[ok]] - truth[ok]
     return float(np.sqrt(np.mean(e**2))), float(ok.mean())
 
-
-def _best_time(f, repeat=3):
-    best = np.inf
-    out = None
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        out = f()
-        best = min(best, time.perf_counter() - t0)
-    return best, out
 
 
 def _trackpy(img, diameter):
@@ -74,9 +67,9 @@ def bench_detection(repeat):
     sc = make_scene((1024, 1024), 200, 6.0, snr=20.0, blur=0.7, rng=0)
     img = sc.image
     mpx = img.size / 1e6
-    t_ours, cand = _best_time(lambda: detect_markers(img, 6.0), repeat)
-    t_tp, f = _best_time(lambda: _trackpy(img, 6.0), repeat)
-    t_cv, cv_uv = _best_time(lambda: _opencv(img), 1)
+    t_ours, cand = best_of(lambda: detect_markers(img, 6.0), repeat)
+    t_tp, f = best_of(lambda: _trackpy(img, 6.0), repeat)
+    t_cv, cv_uv = best_of(lambda: _opencv(img), 1)
     tp_uv = f.nlargest(200, "mass")[["x", "y"]].to_numpy()
     rows = [("resection.detect_markers", t_ours, _rms(cand.uv, sc.uv)),
             ("trackpy.locate", t_tp, _rms(tp_uv, sc.uv)),

@@ -16,24 +16,14 @@ Run: ``.venv/bin/python bench/bench_surface.py [--size 1024] [--frames 20]``
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
 import trimesh
+from _timing import best_of
 from embreex import rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 
 from resection import Camera, SurfaceMap
-
-
-def best_of(fn, repeat=3):
-    times = []
-    out = None
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        out = fn()
-        times.append(time.perf_counter() - t0)
-    return min(times), out
 
 
 def main() -> None:

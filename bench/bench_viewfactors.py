@@ -29,20 +29,12 @@ import trimesh
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from _timing import best_of  # noqa: E402
+
 from scenes.corner import corner  # noqa: E402
 from selfillum import correct, forward, view_factors  # noqa: E402
 from selfillum.mesh import face_normals  # noqa: E402
 from selfillum.viewfactors import _BLOCK, _OFFSET, RayScene, sample_rays  # noqa: E402
-
-
-def best_of(fn, repeat=3):
-    best = np.inf
-    out = None
-    for _ in range(repeat):
-        t = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - t)
-    return best, out
 
 
 def same_rays(mesh, k, seed):
