@@ -373,6 +373,18 @@ def _parse_ascii_plot3d(text: str, source: str):
     )
 
 
+def _read_bytes(path: str, kind: str, empty: str) -> bytes:
+    """The whole file, or InputError naming it when it is missing or blank."""
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read()
+    except FileNotFoundError:
+        raise InputError(f"{kind} file not found: {path}") from None
+    if not data.strip():
+        raise InputError(f"{path}: {empty}")
+    return data
+
+
 def read_plot3d(path: str | os.PathLike) -> list[tuple[np.ndarray, np.ndarray | None]]:
     """Read a Plot3D grid file (format detected from its content).
 
@@ -383,13 +395,7 @@ def read_plot3d(path: str | os.PathLike) -> list[tuple[np.ndarray, np.ndarray | 
         int or None.
     """
     path = os.fspath(path)
-    try:
-        with open(path, "rb") as fh:
-            data = fh.read()
-    except FileNotFoundError:
-        raise InputError(f"Plot3D file not found: {path}") from None
-    if not data.strip():
-        raise InputError(f"{path}: empty file")
+    data = _read_bytes(path, "Plot3D", "empty file")
     blocks = None
     raw = np.frombuffer(data, np.uint8)
     binary = bool(np.any((raw < 9) | ((raw > 13) & (raw < 32)) | (raw > 126)))
@@ -575,13 +581,7 @@ def read_cart3d_tri(path: str | os.PathLike) -> trimesh.Trimesh:
     1 when absent).
     """
     path = os.fspath(path)
-    try:
-        with open(path, "rb") as fh:
-            data = fh.read()
-    except FileNotFoundError:
-        raise InputError(f"Cart3D file not found: {path}") from None
-    if not data.strip():
-        raise InputError(f"{path}: empty mesh (empty file)")
+    data = _read_bytes(path, "Cart3D", "empty mesh (empty file)")
     recs, endian = _split_records(data)
     if recs is not None and len(recs[0]) in (8, 12):
         head = np.frombuffer(recs[0], f"{endian}i4")
