@@ -37,7 +37,7 @@ def opencv_pipeline(frames, camera, ids, points3d, rvec0, tvec0, diameter):
     import cv2
     from scipy.spatial import cKDTree
 
-    from resection.images import read_image
+    from resection.io.images import read_image
 
     K, dist, _, _ = camera.to_opencv()
     params = cv2.SimpleBlobDetector_Params()

@@ -20,11 +20,11 @@ from .dlt import (
     fit_homography,
 )
 from .errors import DegenerateError, InputError, SolveError
-from .images import read_image, write_image
-from .markerio import MarkerSet, read_markers, read_points, write_markers, write_points
+from .io.images import read_image, write_image
+from .io.markers import MarkerSet, read_markers, read_points, write_markers, write_points
+from .io.meshes import load_mesh, read_plot3d, write_plot3d, write_surface
 from .markers import Candidates, detect_markers, read_candidates, write_candidates
 from .match import MatchResult, match_markers
-from .meshio import load_mesh, read_plot3d, write_plot3d, write_surface
 from .motion_plots import plot_motion
 from .pipeline import pose_from_image
 from .plots import plot_resection, plot_surface, virtual_camera

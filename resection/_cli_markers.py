@@ -104,9 +104,9 @@ def run_detect(args: argparse.Namespace) -> int:
 
 
 def run_link(args: argparse.Namespace) -> int:
-    from .images import read_image
+    from .io.images import read_image
+    from .io.markers import read_markers
     from .link import draw_links, read_links, suggest_links, write_links
-    from .markerio import read_markers
     from .markers import read_candidates, write_candidates
 
     cand, _ = read_candidates(args.candidates)
@@ -140,7 +140,7 @@ def run_link(args: argparse.Namespace) -> int:
 
 
 def run_match(args: argparse.Namespace) -> int:
-    from .markerio import read_markers
+    from .io.markers import read_markers
     from .markers import read_candidates, write_candidates
     from .match import match_markers
 

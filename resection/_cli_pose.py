@@ -1,5 +1,5 @@
 """``resection pose`` and ``resection calibrate``: argument parsing only, the work is in
-:mod:`resection.pose`, :mod:`resection.calibrate` and :mod:`resection.markerio`."""
+:mod:`resection.pose`, :mod:`resection.calibrate` and :mod:`resection.io.markers`."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from ._cli_markers import add_detect_options, add_enhance_window_option
 from .calibrate import calibrate
 from .camera import Camera
 from .errors import InputError
-from .markerio import (
+from .io.markers import (
     link_points,
     read_markers,
     read_points,

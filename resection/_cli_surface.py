@@ -1,5 +1,5 @@
 """``resection map``, ``backproject``, ``align`` and ``view``: argument parsing only; the
-work is in :mod:`resection.surface`, :mod:`resection.align`, :mod:`resection.meshio` and
+work is in :mod:`resection.surface`, :mod:`resection.align`, :mod:`resection.io.meshes` and
 :mod:`resection.plots`."""
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ import numpy as np
 from .align import ViewWarp
 from .camera import Camera
 from .errors import InputError
-from .images import read_image, write_image
-from .meshio import load_mesh, read_face_fields, write_surface
+from .io.images import read_image, write_image
+from .io.meshes import load_mesh, read_face_fields, write_surface
 from .plots import plot_surface, virtual_camera
 from .surface import SurfaceMap
 

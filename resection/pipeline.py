@@ -66,7 +66,7 @@ def detect_in_image(
     Parameters
     ----------
     image : (H, W) array or path
-        A path is read with :func:`resection.images.read_image` with ``mask_saturated``:
+        A path is read with :func:`resection.io.images.read_image` with ``mask_saturated``:
         the saturated pixels of 8/16-bit files become NaN, so they stay masked (and counted
         in ``Candidates.n_masked``) also after enhancement.
     diameter, polarity, template, roi, threshold
@@ -90,7 +90,7 @@ def detect_in_image(
     from .markers import _check_diameter
 
     if isinstance(image, str | os.PathLike):
-        from .images import read_image
+        from .io.images import read_image
 
         image = read_image(image, mask_saturated=True)
     d = _check_diameter(diameter)
@@ -172,8 +172,8 @@ def _check_size(image, camera):
 
 
 def _load(image, markers, camera):
-    from .images import read_image
-    from .markerio import read_markers
+    from .io.images import read_image
+    from .io.markers import read_markers
 
     if isinstance(image, str | os.PathLike):
         image = read_image(image, mask_saturated=True)

@@ -183,7 +183,7 @@ def _load_image(frame) -> np.ndarray:
     if isinstance(frame, np.ndarray):
         img = frame
     else:
-        from .images import read_image
+        from .io.images import read_image
 
         img = read_image(frame, mask_saturated=True)  # saturated pixels -> NaN, masked
     if img.ndim != 2:
@@ -679,7 +679,7 @@ def _as_markers(markers3d) -> tuple[np.ndarray, np.ndarray]:
     """``(ids, points)`` from a marker file path, an ``(ids, points)`` pair, or an object
     with ``ids`` and ``points``/``xyz`` attributes."""
     if isinstance(markers3d, (str, os.PathLike)):
-        from .markerio import read_markers
+        from .io.markers import read_markers
 
         markers3d = read_markers(markers3d)
     if isinstance(markers3d, tuple) and len(markers3d) == 2:
@@ -842,7 +842,7 @@ def track(
     Parameters
     ----------
     frames : sequence of path-like or (H, W) arrays
-        The frames in time order (TIFF/PNG/NPY files, see :func:`resection.images.read_image`).
+        The frames in time order (TIFF/PNG/NPY files, see :func:`resection.io.images.read_image`).
         With a Dask cluster the paths must be readable by the workers.
     camera : Camera
         Calibrated intrinsics. Without ``link``, its pose must also approximate the pose of

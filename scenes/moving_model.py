@@ -230,8 +230,8 @@ def write_sequence(
         ``frames`` (list of paths), ``camera`` (path), ``markers`` (path), ``truth`` (path
         of a CSV with frame, time, roll/pitch/yaw in degrees and dx, dy, dz in metres).
     """
-    from resection.images import write_image
-    from resection.markerio import write_markers
+    from resection.io.images import write_image
+    from resection.io.markers import write_markers
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

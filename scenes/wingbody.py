@@ -232,7 +232,7 @@ def default_camera(scene: WingBody, width: int = 320, height: int = 240) -> Came
 
 def write_markers(scene: WingBody, path: str | os.PathLike) -> None:
     """Write the markers as a DESIGN marker CSV (``id,x,y,z,diameter``)."""
-    from resection.markerio import write_markers as _write
+    from resection.io.markers import write_markers as _write
 
     _write(path, scene.marker_ids, scene.markers,
            np.full(len(scene.marker_ids), scene.marker_diameter))

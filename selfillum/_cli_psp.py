@@ -16,8 +16,8 @@ from resection.errors import InputError
 
 def _cmd_psp(args) -> int:
     from resection.camera import Camera
-    from resection.images import read_image, write_image
-    from resection.meshio import load_mesh
+    from resection.io.images import read_image, write_image
+    from resection.io.meshes import load_mesh
     from resection.surface import SurfaceMap
 
     from ._cli_render import _per_face_arg

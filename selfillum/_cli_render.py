@@ -43,8 +43,8 @@ def preview(image: np.ndarray) -> np.ndarray:
 
 def _cmd_render(args) -> int:
     from resection.camera import Camera
-    from resection.images import write_image
-    from resection.meshio import load_mesh
+    from resection.io.images import write_image
+    from resection.io.meshes import load_mesh
 
     from .rendering import render
 

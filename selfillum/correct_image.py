@@ -305,11 +305,11 @@ def correct_image_file(
     progress: bool = False,
 ) -> ImageCorrection:
     """File-level :func:`correct_image`: read the mesh (any format of
-    :func:`resection.meshio.load_mesh`), the camera JSON and the image (TIFF or NPY),
+    :func:`resection.io.meshes.load_mesh`), the camera JSON and the image (TIFF or NPY),
     correct, write the corrected image with the input's dtype (TIFF or NPY, from
     ``out_path``'s suffix) and optionally the per-face fields (``radiosity``,
     ``emission``, ``seen``) to ``surface_out`` (.ply, .vtk or .csv)."""
-    from resection.meshio import load_mesh, write_surface
+    from resection.io.meshes import load_mesh, write_surface
 
     image_path, out_path = Path(image_path), Path(out_path)
     for p in (image_path, out_path):

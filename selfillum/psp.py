@@ -116,6 +116,9 @@ def tap_faces(mesh: trimesh.Trimesh, points, max_distance: float | None = None) 
     return np.asarray(faces, dtype=np.int64)
 
 
+_ROUNDING_TOL = 1e-9  # a slope below this share of the ratios is rounding, not signal
+
+
 def fit_stern_volmer(ratio, pressure, p_ref: float) -> SternVolmer:
     """Least-squares ``A, B`` of ``ratio = A + B p / p_ref`` at the taps.
 
@@ -140,16 +143,20 @@ def fit_stern_volmer(ratio, pressure, p_ref: float) -> SternVolmer:
         raise InputError("fit_stern_volmer: all taps at the same pressure, B is undetermined")
     M = np.column_stack([np.ones_like(x), x])
     (A, B), *_ = np.linalg.lstsq(M, r[ok], rcond=None)
-    if B <= 0:
-        raise InputError(f"fit_stern_volmer: fitted B = {B:.3g} <= 0 (ratio must grow with p)")
-    # B must stand out of the scatter of the taps: its standard error (>= 3 taps), and
-    # the rounding of a ratio that does not vary at all (e.g. wind-on = wind-off)
+    # B must stand out of the scatter of the taps (3 standard errors, >= 3 taps) and of
+    # the rounding of the fit itself: a ratio that does not vary at all (wind-on =
+    # wind-off) gives B = +-1e-16, which is zero, not a sign. Tolerance stated here:
+    # ROUNDING_TOL relative to the size of the ratios.
     se = 0.0
     if x.size > 2:
         res = r[ok] - (A + B * x)
         s2 = float(res @ res) / (x.size - 2)
         se = float(np.sqrt(s2 / np.sum((x - x.mean()) ** 2)))
-    if B <= 3.0 * se or B <= 1e-9 * max(1.0, abs(A)):
+    noise = max(3.0 * se, _ROUNDING_TOL * max(1.0, float(np.abs(r[ok]).max())))
+    if B < -noise:
+        raise InputError(f"fit_stern_volmer: fitted B = {B:.3g} < 0 (standard error "
+                         f"{se:.2g}): the ratio must grow with p (images swapped?)")
+    if B <= noise:
         raise InputError(
             f"fit_stern_volmer: fitted B = {B:.3g} (standard error {se:.2g}) is not "
             "significantly > 0: the intensity ratio at the taps does not follow their "

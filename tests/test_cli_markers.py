@@ -9,9 +9,9 @@ from scipy.spatial.transform import Rotation
 
 from resection.camera import Camera
 from resection.cli import main
-from resection.images import write_image
+from resection.io.images import write_image
+from resection.io.markers import write_markers
 from resection.link import read_links
-from resection.markerio import write_markers
 from resection.markers import read_candidates
 from scenes.marker_images import render_markers
 

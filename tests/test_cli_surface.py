@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 
 from resection.cli import main
-from resection.meshio import write_plot3d
+from resection.io.meshes import write_plot3d
 from scenes.psp_pair import HALF_X, HALF_Y, plane_hits, psp_pair, render
 
 

@@ -9,7 +9,7 @@ from scipy.ndimage import gaussian_filter
 from scipy.spatial import cKDTree
 
 from resection.errors import InputError
-from resection.images import read_image, write_image
+from resection.io.images import read_image, write_image
 from resection.markers import (
     Candidates,
     detect_markers,

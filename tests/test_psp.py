@@ -122,7 +122,7 @@ def test_psp_images_and_cli(psp_case, tmp_path, capsys):
     pressure backprojected the same way."""
     import json
 
-    from resection.images import read_image, write_image
+    from resection.io.images import read_image, write_image
     from selfillum.cli import main
     from selfillum.psp import psp_images
 

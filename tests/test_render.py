@@ -477,7 +477,7 @@ def test_forward_model_matches_render_closely():
 
 # ----------------------------------------------------------------------------- CLI
 def test_cli_render_writes_image_and_preview(tmp_path, capsys):
-    from resection.images import read_image
+    from resection.io.images import read_image
     from selfillum.cli import main
 
     mesh = corner_mesh(4)

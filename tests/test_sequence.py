@@ -242,7 +242,7 @@ def test_cli_track_and_plot(run60, tmp_path, capsys):
 
 
 def test_first_frame_linked_by_hand(run60, tmp_path):
-    from resection.images import read_image
+    from resection.io.images import read_image
     from resection.link import suggest_links, write_links
     from resection.markers import detect_markers
 

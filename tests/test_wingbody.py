@@ -39,7 +39,7 @@ def test_geometry_and_orientation(scene):
 
 
 def test_markers_on_the_surface_and_seen(scene, tmp_path):
-    from resection.markerio import read_markers
+    from resection.io.markers import read_markers
     from selfillum.viewfactors import RayScene
 
     _, dist, face = trimesh.proximity.closest_point(scene.mesh, scene.markers)

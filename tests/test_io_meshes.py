@@ -12,7 +12,7 @@ import pytest
 import trimesh
 
 from resection import InputError
-from resection.meshio import (
+from resection.io.meshes import (
     load_mesh,
     read_plot3d,
     write_cart3d_tri,
@@ -396,7 +396,7 @@ def test_writer_errors(tmp_path):
 
 
 def test_read_face_fields(tmp_path):
-    from resection.meshio import read_face_fields
+    from resection.io.meshes import read_face_fields
 
     m, f = _mesh_and_fields()
     nf = len(m.faces)

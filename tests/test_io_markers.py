@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from resection import InputError, read_markers, read_points, write_markers, write_points
-from resection.markerio import link_points, write_residuals
+from resection.io.markers import link_points, write_residuals
 
 
 def test_round_trips(tmp_path):

@@ -23,8 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._checks import as_points
-from .errors import InputError
+from .._checks import as_points
+from ..errors import InputError
 
 __all__ = [
     "MarkerSet",

@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from .errors import InputError
+from ..errors import InputError
 
 __all__ = [
     "load_mesh",
