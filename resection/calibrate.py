@@ -116,6 +116,30 @@ def _check_views(views):
     return out
 
 
+def _check_determined(vw, names) -> None:
+    """Refuse intrinsics that the views cannot determine, before solving.
+
+    Each view of a planar target gives two constraints on the focal lengths and the
+    principal point (Zhang 2000; zero skew assumed), whatever the number of markers; a
+    view of a 3-D target with >= 6 markers determines all of them (DLT). So with planar
+    views only, at most ``2 V`` of ``f`` (or ``fx, fy``), ``cx, cy`` can be estimated: one
+    planar view with the principal point free gives a focal length that only looks
+    determined (a few % off with a small reported error), so it is refused here.
+    """
+    if any(not planar and len(X) >= 6 for X, _, planar in vw):
+        return
+    free = [n for n in ("f", "fx", "fy", "cx", "cy") if n in names]
+    n_planar = sum(planar for _, _, planar in vw)
+    if n_planar and len(free) > 2 * n_planar:
+        undetermined = [n for n in ("cx", "cy") if n in free] or free
+        raise SolveError(
+            f"calibrate: {n_planar} view(s) of a planar target do not determine "
+            f"{', '.join(free)} together (each planar view fixes only 2 of them): "
+            f"{', '.join(undetermined)} not determined; add views at other angles or a "
+            "3-D target, or fix " + " ".join(undetermined)
+            + (" (and aspect)" if len(free) - len(undetermined) > 2 * n_planar else ""))
+
+
 def _zhang(Hs: list[np.ndarray], w: int, h: int) -> np.ndarray | None:
     """Intrinsics from plane homographies (image of the absolute conic), or None."""
     N = np.array([[2.0 / max(w, h), 0, -1.0 * w / max(w, h)],
@@ -413,6 +437,7 @@ def calibrate(
     if n_obs <= n_par:
         raise InputError(f"calibrate: {n_obs} observations for {n_par} parameters; add markers "
                          "or views, or fix parameters")
+    _check_determined(vw, names)
 
     cam0 = Camera(w, h, K0, dist0)
     R0s, t0s = [], []
