@@ -16,6 +16,8 @@ import pytest
 
 from resection import Camera, InputError
 from resection import sequence as seq
+from resection.sequence import process as seq_process
+from resection.sequence import run as seq_run
 from resection.cli import main
 from resection.sequence import read_track, relative_motion
 from resection.sequence import track as _track
@@ -141,7 +143,7 @@ def test_interrupt_and_resume(run60, tmp_path, monkeypatch):
     assert len(mtimes) == 30
     # then an interruption (Ctrl-C) in the middle of the next run
     calls = {"n": 0}
-    detect = seq._detect
+    detect = seq_process._detect
 
     def interrupted(img, setup, roi=None):
         calls["n"] += 1
@@ -149,7 +151,7 @@ def test_interrupt_and_resume(run60, tmp_path, monkeypatch):
             raise KeyboardInterrupt
         return detect(img, setup, roi)
 
-    monkeypatch.setattr(seq, "_detect", interrupted)
+    monkeypatch.setattr(seq_process, "_detect", interrupted)
     with pytest.raises(KeyboardInterrupt):
         track(frames, cam, files["markers"], diameter=5.6, out_dir=out, progress=False)
     assert len(list((out / "frames").glob("*.json"))) == 30 + 11
@@ -336,14 +338,14 @@ def test_dask_interruption_keeps_every_finished_frame(run60, tmp_path, monkeypat
 
     model, files, cam, ref, _ = run60
     n, stop = 20, 15
-    process = seq._process_frame
+    process = seq_process._process_frame
 
     def dies_at_frame(frame, index, setup, reference):
         if index == stop:  # the run is stopped while the chunk (frames 1..19) is in flight
             raise RuntimeError("interrupted")
         return process(frame, index, setup, reference)
 
-    monkeypatch.setattr(seq, "_process_frame", dies_at_frame)
+    monkeypatch.setattr(seq_process, "_process_frame", dies_at_frame)
     out = tmp_path / "o"
     # in-process workers (threads) so that the patch reaches the task
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
@@ -354,7 +356,7 @@ def test_dask_interruption_keeps_every_finished_frame(run60, tmp_path, monkeypat
     written = sorted(int(p.stem.split("_")[1]) for p in (out / "frames").glob("*.json"))
     assert written == list(range(stop))  # frame 0 (client) and 1..14 (the task)
     assert not list((out / "frames").glob("*.tmp"))
-    monkeypatch.setattr(seq, "_process_frame", process)
+    monkeypatch.setattr(seq_process, "_process_frame", process)
     res = track(files["frames"][:n], cam, files["markers"], diameter=5.6, out_dir=out,
                 chunk_size=n - 1, progress=False)
     assert res.n_computed == n - stop
@@ -375,10 +377,10 @@ def test_default_is_a_local_cluster_and_client_writes_unshared_frames(run60, tmp
         seen.update(scheduler=scheduler, workers=workers, frames_dir=frames_dir)
         on_poll()  # nothing written yet: no frame may be taken as done
         for items, s, done in tasks:
-            on_chunk(seq._run_chunk(setup, items, s, done))
+            on_chunk(seq_process._run_chunk(setup, items, s, done))
 
-    monkeypatch.setattr(seq, "_execute_dask", fake_dask)
-    monkeypatch.setattr(seq.os, "cpu_count", lambda: 3)
+    monkeypatch.setattr(seq_run, "_execute_dask", fake_dask)
+    monkeypatch.setattr(os, "cpu_count", lambda: 3)
     out = tmp_path / "cli"
     rc = main(["track", *files["frames"][:8], "--camera", files["camera"], "--markers",
                files["markers"], "--diameter", "5.6", "--out", str(out), "--no-progress",
@@ -441,7 +443,7 @@ def test_pose_options_reach_every_solve(run60, tmp_path, capsys):
 def test_cli_ctrl_c_says_what_is_kept(run60, tmp_path, monkeypatch, capsys):
     model, files, cam, ref, _ = run60
     calls = {"n": 0}
-    detect = seq._detect
+    detect = seq_process._detect
 
     def interrupted(img, setup, roi=None):
         calls["n"] += 1
@@ -449,7 +451,7 @@ def test_cli_ctrl_c_says_what_is_kept(run60, tmp_path, monkeypatch, capsys):
             raise KeyboardInterrupt
         return detect(img, setup, roi)
 
-    monkeypatch.setattr(seq, "_detect", interrupted)
+    monkeypatch.setattr(seq_process, "_detect", interrupted)
     out = tmp_path / "o"
     args = ["track", *files["frames"][:4], "--camera", files["camera"], "--markers",
             files["markers"], "--diameter", "5.6", "--out", str(out), "--no-progress",
@@ -457,7 +459,7 @@ def test_cli_ctrl_c_says_what_is_kept(run60, tmp_path, monkeypatch, capsys):
     assert main(args) == 130
     err = capsys.readouterr().err
     assert "interrupted: 2/4 frames finished are kept" in err and "again to resume" in err
-    monkeypatch.setattr(seq, "_detect", detect)
+    monkeypatch.setattr(seq_process, "_detect", detect)
     assert main(args) == 0
     assert "4/4 frames solved (2 computed now)" in capsys.readouterr().out
 
@@ -465,7 +467,7 @@ def test_cli_ctrl_c_says_what_is_kept(run60, tmp_path, monkeypatch, capsys):
 def test_frames_of_integer_files_have_saturated_pixels_masked(tmp_path):
     import tifffile
 
-    from resection.sequence import _load_image
+    from resection.sequence.frames import _load_image
 
     img = np.full((20, 30), 1000, np.uint16)
     img[5:8, 10:14] = 65535

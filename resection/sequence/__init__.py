@@ -1,0 +1,69 @@
+"""Sequences: markers tracked and the Point of View solved in every frame of a run.
+
+:func:`track` runs, for every frame of a sequence (the paper: 500 frames at 50 fps), marker
+detection (:func:`resection.markers.detect_markers`), matching to the 3-D markers from the
+previous frame (:func:`resection.match.match_markers`) and the pose
+(:func:`resection.pose.solve_pose`), and writes
+
+* ``poses.csv``: one row per frame: ``frame, file, status, reason, roll_deg, pitch_deg,
+  yaw_deg, dx, dy, dz, rms_px, n_markers, rvec_x, rvec_y, rvec_z, tvec_x, tvec_y, tvec_z``;
+* ``markers.csv``: one row per matched marker and frame: ``frame, id, u, v, residual,
+  residual_u, residual_v`` (pixels; residual = observed minus reprojected, and its length).
+
+Motion convention (``fixed_camera=True``: the camera is fixed in the tunnel, the model
+moves): the laboratory frame is the model frame at the reference frame (the first frame that
+succeeded). At frame ``k`` a model point ``X`` lies at ``Y = M_k X + d_k`` in that frame, with
+
+``M_k = R_0^T R_k``,  ``d_k = R_0^T (t_k - t_0)``
+
+(``R_k, t_k`` the solved camera pose, ``x_cam = R_k X + t_k``). The attitude is reported as
+``M_k = Rz(yaw) Ry(pitch) Rx(roll)`` (intrinsic z-y'-x'' sequence, right-handed rotations
+about the model's axes; degrees in the files) and ``(dx, dy, dz) = d_k`` is the displacement
+of the model origin (model units). With ``fixed_camera=False`` (the model is fixed, the
+camera moves) the same columns give the camera's attitude change ``R_k^T R_0`` (same Euler
+convention) and the displacement of its perspective centre ``C_k - C_0``, model frame.
+
+Parallelism and resume
+----------------------
+Frames are split into chunks of ``chunk_size`` consecutive frames. Within a chunk every frame
+is matched from the previous successful frame; each chunk starts from the reference frame
+(frame 0, linked through ``link`` or matched from the approximate ``camera``), so chunks are
+independent and run in parallel on a Dask cluster (by default a ``LocalCluster`` with one
+worker process per CPU core, or ``workers`` of them, or the scheduler at ``scheduler``;
+``workers=1`` runs in this process, without Dask); the matcher therefore has to bridge
+the motion between frame 0 and a chunk's first frame (several pixels are fine; a failed
+match is retried once with twice the landing tolerance). After a large excursion that can
+still fail: a second, sequential pass then processes again, from the last good frame before
+them, the frames that failed while matched from an older frame (corrupt frames, which failed
+although matched from the previous good frame, are not redone). The chunking does not depend
+on the number of workers, so 1 and N workers give the same results.
+
+Every finished frame is written at once to ``out_dir/frames/frame_NNNNNN.json`` (written to
+a temporary file, flushed, fsync'ed and renamed, so a file is either complete or absent).
+A run that is interrupted and started again with ``resume=True`` loads these files and
+computes only the missing frames; ``poses.csv`` and ``markers.csv`` are merged from them at
+the end. On a Dask cluster the file is written by the worker, inside the task, as soon as
+the frame is finished (the workers of a local cluster share the filesystem), so an
+interruption loses at most the frames in progress, one per worker; the progress bar follows
+these files. A worker that cannot write there (a remote cluster without a shared
+filesystem) leaves the file to the client, which writes it when the chunk comes back.
+A failed frame is recorded (status ``failed`` and the reason) and the run goes on; the next
+frame is then matched from the last good one.
+"""
+
+from __future__ import annotations
+
+from .motion import relative_motion
+from .outputs import read_track
+from .results import MARKER_COLUMNS, POSE_COLUMNS, FrameResult, TrackResult
+from .run import track
+
+__all__ = [
+    "FrameResult",
+    "TrackResult",
+    "track",
+    "read_track",
+    "relative_motion",
+    "POSE_COLUMNS",
+    "MARKER_COLUMNS",
+]

@@ -1,0 +1,104 @@
+"""Checks of the inputs of :func:`resection.sequence.track` and the settings a resumed run
+must share."""
+
+from __future__ import annotations
+
+import inspect
+import json
+import os
+
+import numpy as np
+
+from .._checks import as_points
+from ..errors import InputError
+from .process import _Setup
+from .results import _FORMAT_VERSION
+
+
+def _as_markers(markers3d) -> tuple[np.ndarray, np.ndarray]:
+    """``(ids, points)`` from a marker file path, an ``(ids, points)`` pair, or an object
+    with ``ids`` and ``points``/``xyz`` attributes."""
+    if isinstance(markers3d, (str, os.PathLike)):
+        from ..io.markers import read_markers
+
+        markers3d = read_markers(markers3d)
+    if isinstance(markers3d, tuple) and len(markers3d) == 2:
+        ids, pts = markers3d
+    else:
+        ids = getattr(markers3d, "ids", None)
+        pts = getattr(markers3d, "points", getattr(markers3d, "xyz", None))
+        if ids is None or pts is None:
+            raise InputError("markers3d: expected a marker file, (ids, points) or an object "
+                             "with ids and points")
+    pts = as_points(pts, 3, "markers3d points")
+    ids = np.asarray(ids).astype(str).ravel()
+    if len(ids) != len(pts):
+        raise InputError(f"markers3d: {len(ids)} ids for {len(pts)} points")
+    u, c = np.unique(ids, return_counts=True)
+    if np.any(c > 1):
+        raise InputError(f"markers3d: duplicate marker id {str(u[c > 1][0])!r}")
+    return ids, pts
+
+
+def _check_options(kw, func, name: str, reserved: tuple) -> dict:
+    """Checked copy of extra keyword arguments for ``func``: a bad name would otherwise
+    make every frame fail, one by one."""
+    if kw is None:
+        return {}
+    if not isinstance(kw, dict):
+        raise InputError(f"{name}: expected a dict of {func.__name__} options, got "
+                         f"{type(kw).__name__}")
+    params = inspect.signature(func).parameters
+    allowed = {k for k, p in params.items()
+               if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY) and k not in reserved}
+    unknown = sorted(str(k) for k in kw if k not in allowed)
+    if unknown:
+        why = [k for k in unknown if k in reserved]
+        note = (f" ({', '.join(why)}: set by track itself; the intrinsics stay those of "
+                "the camera)" if why else "")
+        raise InputError(f"{name}: unknown or reserved {func.__name__} option(s) {unknown}"
+                         f"{note}; expected some of {sorted(allowed)}")
+    return dict(kw)
+
+
+def _as_link(link) -> dict | None:
+    """``{"path": str or None, "pairs": {id: candidate} or None, "text": file content}``."""
+    if link is None:
+        return None
+    if isinstance(link, (str, os.PathLike)):
+        path = os.fspath(link)
+        try:
+            with open(path, encoding="utf-8") as fh:
+                text = fh.read()
+        except FileNotFoundError:
+            raise InputError(f"{path}: no such linking file") from None
+        except OSError as exc:
+            raise InputError(f"{path}: cannot read the linking file ({exc})") from None
+        return {"path": path, "pairs": None, "text": text}
+    if not isinstance(link, dict) or not link:
+        raise InputError("link: expected a linking CSV (id,candidate) or a non-empty "
+                         "{id: candidate number} dict")
+    try:
+        pairs = {str(k): int(v) for k, v in link.items()}
+    except (TypeError, ValueError):
+        raise InputError("link: candidate numbers must be integers") from None
+    return {"path": None, "pairs": pairs, "text": None}
+
+
+def _settings(setup: _Setup, link: dict | None, fixed_camera: bool, chunk_size: int) -> dict:
+    """The settings a resumed run must share with the interrupted one (JSON-able)."""
+    def plain(d):
+        return json.loads(json.dumps(d, default=lambda o: np.asarray(o).tolist()))
+
+    return plain({
+        "version": _FORMAT_VERSION,
+        "camera": setup.camera.to_dict(),
+        "markers": {"ids": setup.ids.tolist(), "points": setup.points3d.tolist()},
+        "diameter": setup.diameter, "polarity": setup.polarity,
+        "detect_kw": setup.detect_kw, "match_kw": setup.match_kw, "pose_kw": setup.pose_kw,
+        "min_markers": setup.min_markers, "roi_margin": setup.roi_margin,
+        "link": None if link is None else (link["text"] if link["path"] is not None
+                                           else {k: link["pairs"][k]
+                                                 for k in sorted(link["pairs"])}),
+        "fixed_camera": bool(fixed_camera), "chunk_size": int(chunk_size),
+    })

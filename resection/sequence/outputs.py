@@ -1,0 +1,138 @@
+"""Files of a tracked sequence: per-frame result files, ``poses.csv``, ``markers.csv``, and
+:func:`read_track`."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from .results import _FORMAT_VERSION, MARKER_COLUMNS, POSE_COLUMNS, FrameResult, TrackResult
+
+
+def _atomic_write_text(path: Path, text: str) -> None:
+    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _frame_path(frames_dir: Path, index: int) -> Path:
+    return frames_dir / f"frame_{index:06d}.json"
+
+
+def _frame_text(d: dict) -> str:
+    return json.dumps(d)
+
+
+def _write_frame(frames_dir: Path, res: FrameResult) -> None:
+    _atomic_write_text(_frame_path(frames_dir, res.frame), _frame_text(res.to_dict()))
+
+
+def _try_write_frame(frames_dir: Path, res: FrameResult) -> None:
+    """A worker's write of a finished frame. A worker that cannot reach the output directory
+    (a remote cluster without a shared filesystem) leaves it to the client, which writes
+    the frame when the chunk comes back."""
+    try:
+        _write_frame(frames_dir, res)
+    except OSError:
+        pass
+
+
+def _read_frame(path: Path) -> dict | None:
+    try:
+        with open(path, encoding="utf-8") as fh:
+            d = json.load(fh)
+    except (OSError, json.JSONDecodeError):
+        return None
+    if not isinstance(d, dict) or d.get("version") != _FORMAT_VERSION:
+        return None
+    return d
+
+def _fmt(x: float) -> str:
+    return "" if not np.isfinite(x) else f"{x:.10g}"
+
+
+def _write_csvs(result: TrackResult, out: Path) -> None:
+    import io
+
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(POSE_COLUMNS)
+    for i in range(len(result)):
+        w.writerow([int(result.frame[i]), result.file[i], result.status[i], result.reason[i],
+                    *map(_fmt, result.angles[i]), *map(_fmt, result.translation[i]),
+                    _fmt(result.rms[i]), int(result.n_markers[i]),
+                    *map(_fmt, result.rvec[i]), *map(_fmt, result.tvec[i])])
+    _atomic_write_text(out / "poses.csv", buf.getvalue())
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(MARKER_COLUMNS)
+    res = result.marker_residual
+    for k in range(len(result.marker_frame)):
+        w.writerow([int(result.marker_frame[k]), result.marker_id[k],
+                    f"{result.marker_uv[k, 0]:.6f}", f"{result.marker_uv[k, 1]:.6f}",
+                    f"{np.hypot(*res[k]):.6f}", f"{res[k, 0]:.6f}", f"{res[k, 1]:.6f}"])
+    _atomic_write_text(out / "markers.csv", buf.getvalue())
+
+
+def read_track(out_dir: str | os.PathLike) -> TrackResult:
+    """Read the ``poses.csv`` and ``markers.csv`` written by :func:`track`."""
+    out = Path(out_dir)
+    pose_path, marker_path = out / "poses.csv", out / "markers.csv"
+    for p in (pose_path, marker_path):
+        if not p.is_file():
+            raise InputError(f"{p}: not found (is {out} a track output directory?)")
+    with open(pose_path, encoding="utf-8", newline="") as fh:
+        rows = list(csv.reader(fh))
+    if not rows or tuple(rows[0]) != POSE_COLUMNS:
+        raise InputError(f"{pose_path}: header is not {','.join(POSE_COLUMNS)}")
+    body = rows[1:]
+
+    def num(s):
+        return float(s) if s != "" else np.nan
+
+    def col(name):
+        return [r[POSE_COLUMNS.index(name)] for r in body]
+
+    def cols(*names):
+        return np.array([[num(r[POSE_COLUMNS.index(n)]) for n in names] for r in body],
+                        float).reshape(len(body), len(names))
+
+    with open(marker_path, encoding="utf-8", newline="") as fh:
+        mrows = list(csv.reader(fh))
+    if not mrows or tuple(mrows[0]) != MARKER_COLUMNS:
+        raise InputError(f"{marker_path}: header is not {','.join(MARKER_COLUMNS)}")
+    mb = mrows[1:]
+    status = np.array(col("status"), dtype=object).astype(str)
+    good = np.flatnonzero(status == "ok")
+    meta = {}
+    if (out / "track.json").is_file():
+        with open(out / "track.json", encoding="utf-8") as fh:
+            meta = json.load(fh)
+    return TrackResult(
+        frame=np.array(col("frame"), int), file=np.array(col("file"), dtype=object).astype(str),
+        status=status, reason=np.array(col("reason"), dtype=object).astype(str),
+        angles=cols("roll_deg", "pitch_deg", "yaw_deg"), translation=cols("dx", "dy", "dz"),
+        rms=cols("rms_px")[:, 0], n_markers=np.array(col("n_markers"), int),
+        rvec=cols("rvec_x", "rvec_y", "rvec_z"), tvec=cols("tvec_x", "tvec_y", "tvec_z"),
+        marker_frame=np.array([r[0] for r in mb], int),
+        marker_id=np.array([r[1] for r in mb], dtype=object).astype(str),
+        marker_uv=np.array([[float(r[2]), float(r[3])] for r in mb], float).reshape(-1, 2),
+        marker_residual=np.array([[float(r[5]), float(r[6])] for r in mb],
+                                 float).reshape(-1, 2),
+        fixed_camera=bool(meta.get("fixed_camera", True)),
+        reference=int(good[0]) if good.size else -1, n_computed=0, out_dir=str(out),
+    )

@@ -1,0 +1,233 @@
+"""One frame: detection, matching from a reference frame, pose; chunks of consecutive
+frames and the repair pass."""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..camera import Camera
+from ..errors import InputError, SolveError
+from .frames import _frame_name, _load_image
+from .outputs import _try_write_frame
+from .results import FrameResult
+
+
+@dataclass(frozen=True)
+class _Setup:
+    """Everything a worker needs to process frames (picklable, sent once)."""
+
+    camera: Camera
+    ids: np.ndarray
+    points3d: np.ndarray
+    diameter: float
+    polarity: str
+    detect_kw: dict
+    match_kw: dict
+    pose_kw: dict
+    min_markers: int
+    roi_margin: float | None = None
+
+def _search_roi(setup: _Setup, reference: FrameResult | None, shape) -> tuple | None:
+    """Bounding box ``(u_min, v_min, u_max, v_max)`` of all the markers projected with the
+    reference pose (or the approximate camera), widened by ``roi_margin`` pixels: markers
+    cannot be elsewhere, and detection costs grow with the searched area. None: search the
+    whole image."""
+    if setup.roi_margin is None or "roi" in setup.detect_kw:
+        return None
+    cam = setup.camera if reference is None else reference.camera(setup.camera)
+    uv = cam.project(setup.points3d)
+    uv = uv[np.isfinite(uv).all(axis=1)]
+    if len(uv) == 0:
+        return None
+    m = float(setup.roi_margin)
+    H, W = shape
+    u0, v0 = np.floor(uv.min(axis=0) - m)
+    u1, v1 = np.ceil(uv.max(axis=0) + m)
+    u0, v0, u1, v1 = max(int(u0), 0), max(int(v0), 0), min(int(u1), W - 1), min(int(v1), H - 1)
+    if u1 - u0 < 2 * m or v1 - v0 < 2 * m:  # markers predicted (nearly) off the image
+        return None
+    return (u0, v0, u1, v1)
+
+
+def _detect(img: np.ndarray, setup: _Setup, roi=None):
+    from ..markers import detect_markers
+
+    kw = dict(setup.detect_kw)
+    if roi is not None:
+        kw["roi"] = roi
+    return detect_markers(img, setup.diameter, polarity=setup.polarity, **kw)
+
+
+def _match(candidates, setup: _Setup, reference: FrameResult | None):
+    """Match the candidates to the 3-D markers, from the reference frame's markers (their
+    pixel positions) or, without a reference, from the approximate camera. Returns the
+    matched ``(ids, uv)`` and the matcher's pose solve (a ``PoseResult``)."""
+    from ..match import match_markers
+
+    markers3d = (setup.ids, setup.points3d)
+    ref = setup.camera if reference is None else (tuple(reference.ids), reference.uv)
+    kw = {**setup.match_kw, "pose_kw": setup.pose_kw}
+    try:
+        m = match_markers(candidates, markers3d, ref, camera=setup.camera, **kw)
+    except SolveError as first:
+        # The matcher's hypotheses are 2-D similarities: a pitch of a degree or two between
+        # the reference and this frame (a chunk's first frame is matched from frame 0) bends
+        # the marker pattern by more than the landing tolerance. One retry with twice the
+        # tolerance; the matcher's pose verification and residual test still guard it.
+        default = inspect.signature(match_markers).parameters["tolerance"].default
+        kw["tolerance"] = 2.0 * float(kw.get("tolerance", default))
+        try:
+            m = match_markers(candidates, markers3d, ref, camera=setup.camera, **kw)
+        except SolveError:
+            raise SolveError(f"{first} (also with tolerance {kw['tolerance']:g} px)") from None
+    return np.asarray(m.marker_ids).astype(str), np.asarray(m.uv, float).reshape(-1, 2), m.pose
+
+
+def _solve(ids: np.ndarray, uv: np.ndarray, setup: _Setup, frame: int, file: str,
+           pose=None) -> FrameResult:
+    """The frame's pose from matched markers (``pose``: the matcher's ``PoseResult`` for
+    exactly these markers, solved with ``pose_kw``, reused)."""
+    from ..pose import solve_pose
+
+    index = {k: i for i, k in enumerate(setup.ids)}
+    unknown = [i for i in ids if i not in index]
+    if unknown:
+        raise InputError(f"matched marker id(s) {unknown[:3]} are not in the marker file")
+    if len(ids) < setup.min_markers:
+        raise SolveError(f"only {len(ids)} markers matched, at least {setup.min_markers} "
+                         "needed")
+    if pose is None:
+        X = setup.points3d[[index[i] for i in ids]]
+        pose = solve_pose(setup.camera, X, uv, **setup.pose_kw)
+    return FrameResult(frame=frame, file=file, status="ok", rvec=np.asarray(pose.camera.rvec),
+                       tvec=np.asarray(pose.camera.t, float), rms=float(pose.rms),
+                       ids=np.asarray(ids, dtype=str), uv=np.asarray(uv, float),
+                       residuals=np.asarray(pose.residuals, float))
+
+
+def _process_frame(frame_data, index: int, setup: _Setup,
+                   reference: FrameResult | None) -> FrameResult:
+    """Read, detect, match from ``reference`` and solve one frame; never raises for a bad
+    frame: the failure is returned with its reason."""
+    res = _process_frame_unlabelled(frame_data, index, setup, reference)
+    return dataclasses.replace(res, matched_from=-1 if reference is None else reference.frame)
+
+
+def _process_frame_unlabelled(frame_data, index: int, setup: _Setup,
+                              reference: FrameResult | None) -> FrameResult:
+    name = _frame_name(frame_data)
+    try:
+        img = _load_image(frame_data)
+        if img.shape != (setup.camera.height, setup.camera.width):
+            raise InputError(f"image is {img.shape[1]}x{img.shape[0]} px, the camera "
+                             f"{setup.camera.width}x{setup.camera.height}")
+        if not np.isfinite(img).any():
+            raise InputError("image has no finite pixel (all NaN or infinite)")
+        cands = _detect(img, setup, _search_roi(setup, reference, img.shape))
+        if len(cands) < setup.min_markers:
+            raise SolveError(f"only {len(cands)} marker candidates detected")
+        ids, uv, pose = _match(cands, setup, reference)
+        return _solve(ids, uv, setup, index, name, pose)
+    except Exception as exc:  # noqa: BLE001 - any failure of one frame must not stop the run
+        msg = str(exc).splitlines()[0] if str(exc) else ""
+        reason = f"{type(exc).__name__}: {msg}" if msg else type(exc).__name__
+        return FrameResult(frame=index, file=name, status="failed", reason=reason)
+
+
+def _process_linked(frame_data, index: int, setup: _Setup, link: dict) -> FrameResult:
+    """The reference frame through a linking by hand: marker id -> candidate number, the
+    candidates being those of ``detect_markers`` on the whole frame (as ``resection detect``
+    numbers them). A linking that does not fit the candidates raises InputError."""
+    name = _frame_name(frame_data)
+    try:
+        img = _load_image(frame_data)
+        if img.shape != (setup.camera.height, setup.camera.width):
+            raise InputError(f"image is {img.shape[1]}x{img.shape[0]} px, the camera "
+                             f"{setup.camera.width}x{setup.camera.height}")
+        cands = _detect(img, setup)
+    except Exception as exc:  # noqa: BLE001 - recorded, the run goes on
+        msg = str(exc).splitlines()[0] if str(exc) else ""
+        return FrameResult(frame=index, file=name, status="failed",
+                           reason=f"{type(exc).__name__}: {msg}")
+    ids, uv = _apply_link(cands, link, setup)
+    try:
+        return _solve(ids, uv, setup, index, name)
+    except Exception as exc:  # noqa: BLE001
+        msg = str(exc).splitlines()[0] if str(exc) else ""
+        return FrameResult(frame=index, file=name, status="failed",
+                           reason=f"{type(exc).__name__}: {msg}")
+
+
+def _apply_link(candidates, link: dict, setup: _Setup) -> tuple[np.ndarray, np.ndarray]:
+    markers = (setup.ids, setup.points3d)
+    if link["path"] is not None:
+        from ..link import read_links
+
+        ids, uv, _ = read_links(link["path"], candidates, markers)
+        return np.asarray(ids).astype(str), np.asarray(uv, float).reshape(-1, 2)
+    pairs = link["pairs"]
+    known = set(setup.ids)
+    unknown = [k for k in pairs if k not in known]
+    if unknown:
+        raise InputError(f"link: id(s) not in the marker file: {', '.join(unknown[:10])}")
+    idx = np.array([pairs[k] for k in pairs], int)
+    if idx.size and (idx.min() < 0 or idx.max() >= len(candidates)):
+        raise InputError(f"link: candidate numbers must lie in 0..{len(candidates) - 1} "
+                         f"(the first frame has {len(candidates)} candidates)")
+    if len(set(idx.tolist())) != idx.size:
+        raise InputError("link: a candidate is linked twice")
+    return np.array(list(pairs), dtype=str), candidates.uv[idx].reshape(-1, 2)
+
+
+def _run_chunk(setup: _Setup, items: list, seed: FrameResult | None,
+               done: dict | None = None,
+               on_frame: Callable[[FrameResult], None] | None = None,
+               frames_dir: str | None = None) -> list[dict]:
+    """Process consecutive frames ``items = [(index, frame), ...]``, each matched from the
+    previous good one (the first from ``seed``). Frames already in ``done`` (index -> dict)
+    are not recomputed but serve as references. With ``frames_dir`` (a Dask task) every
+    frame's result file is written there as soon as the frame is finished, so that an
+    interruption loses at most the frame in progress. Returns the frames' dictionaries."""
+    done = done or {}
+    ref = seed
+    out = []
+    for index, frame in items:
+        if index in done:
+            res = FrameResult.from_dict(done[index])
+        else:
+            res = _process_frame(frame, index, setup, ref)
+            if frames_dir is not None:
+                _try_write_frame(Path(frames_dir), res)
+            if on_frame is not None:
+                on_frame(res)
+        if res.ok:
+            ref = res
+        out.append(res.to_dict())
+    return out
+
+
+def _repair(frames: list, setup: _Setup, done: dict, record) -> None:
+    """Second, sequential pass over the frames that failed while matched from a frame other
+    than the last good one before them (a chunk's first frames are matched from frame 0:
+    after a large excursion that can fail where matching from the previous frame works).
+    Such a frame is processed again from the last good frame; a frame that failed although
+    matched from it (a corrupt frame) is left as it is, so the pass is cheap and a resumed
+    run does not redo it. Deterministic: it depends only on the first pass' results."""
+    last_good = None
+    for i in range(len(frames)):
+        d = done[i]
+        if d["status"] == "ok":
+            last_good = i
+            continue
+        if last_good is None or d.get("matched_from", -1) == last_good:
+            continue
+        res = _process_frame(frames[i], i, setup, FrameResult.from_dict(done[last_good]))
+        record(res)
+        if res.ok:
+            last_good = i
