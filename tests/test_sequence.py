@@ -16,10 +16,10 @@ import pytest
 
 from resection import Camera, InputError
 from resection import sequence as seq
-from resection.sequence import process as seq_process
-from resection.sequence import run as seq_run
 from resection.cli import main
+from resection.sequence import process as seq_process
 from resection.sequence import read_track, relative_motion
+from resection.sequence import run as seq_run
 from resection.sequence import track as _track
 from scenes.moving_model import pitch_oscillation, rotation_zyx, write_sequence
 
