@@ -28,6 +28,41 @@ def as_points(a, dim: int, name: str, *, allow_nan: bool = False) -> np.ndarray:
     return arr
 
 
+def json_array(v, shapes: tuple[tuple[int, ...], ...] | None, name: str) -> np.ndarray:
+    """A nested list of JSON numbers with one of ``shapes`` (None: any), as float64, or raise.
+
+    Stricter than :func:`as_matrix`, for values read from files: strings (``"1.5"``),
+    booleans (``true``) and shapes other than those listed (``t`` as 3x1) are errors that
+    name the entry, never silently converted.
+    """
+    def walk(x, where):
+        if isinstance(x, (list, tuple)):
+            return [walk(y, f"{where}[{i}]") for i, y in enumerate(x)]
+        return json_number(x, f"{name}{where}")
+
+    if not isinstance(v, (list, tuple)):
+        raise InputError(f"{name}: must be a list of numbers, got {v!r}")
+    nested = walk(v, "")
+    try:
+        arr = np.array(nested, dtype=np.float64)
+    except ValueError:
+        raise InputError(f"{name}: rows of unequal length") from None
+    if shapes is not None and arr.shape not in shapes:
+        want = " or ".join("x".join(map(str, s)) for s in shapes)
+        got = "x".join(map(str, arr.shape))
+        raise InputError(f"{name}: expected shape {want}, got {got}")
+    return arr
+
+
+def json_number(v, name: str) -> float:
+    """A JSON number (int or float; not a bool, not a string), finite, as float."""
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise InputError(f"{name}: not a number, got {v!r}")
+    if not np.isfinite(v):
+        raise InputError(f"{name}: contains NaN or infinite values ({v!r})")
+    return float(v)
+
+
 def as_matrix(a, shape: tuple[int, ...], name: str) -> np.ndarray:
     """Return ``a`` as a finite float64 array of exactly ``shape`` or raise."""
     try:

@@ -14,7 +14,6 @@ Conventions (see DESIGN.md):
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import os
 from dataclasses import dataclass, field
@@ -22,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ._checks import as_matrix, as_points
+from ._checks import as_matrix, as_points, json_array, json_number
 from .errors import InputError
 
 __all__ = [
@@ -201,7 +200,7 @@ class Camera:
 
     def __post_init__(self):
         try:
-            if isinstance(self.width, bool) or isinstance(self.height, bool):
+            if any(isinstance(v, (bool, str, bytes)) for v in (self.width, self.height)):
                 raise TypeError
             w, h = int(self.width), int(self.height)
         except (TypeError, ValueError, OverflowError):
@@ -543,31 +542,38 @@ class Camera:
         if missing:
             raise InputError(f"{source}: missing key(s) {', '.join(map(repr, missing))}")
         try:
-            return cls(
-                d["width"], d["height"], d["K"], d["dist"], d["R"], d["t"],
-                oof=d.get("oof"), name=d.get("name"),
-            )
+            for k in ("width", "height"):
+                v = d[k]
+                if isinstance(v, bool) or not isinstance(v, int):
+                    raise InputError(f"camera width/height: {k} must be an integer, got {v!r}")
+            # types first (a string or a boolean is never read as a number), then the
+            # constructor checks the shapes and values
+            K, dist, R, t = (json_array(d[k], None, f"camera {k}") for k in ("K", "dist", "R", "t"))
+            for k, arr in (("dist", dist), ("t", t)):
+                if arr.ndim != 1:
+                    raise InputError(f"camera {k}: expected a flat list, got shape "
+                                     f"{'x'.join(map(str, arr.shape))}")
+            oof = d.get("oof")
+            if oof is not None:
+                oof = json_number(oof, "camera oof")
+            return cls(d["width"], d["height"], K, dist, R, t, oof=oof, name=d.get("name"))
         except InputError as exc:
             raise InputError(f"{source}: {exc}") from None
 
     @classmethod
     def read(cls, path: str | os.PathLike) -> Camera:
-        """Read a camera JSON file (DESIGN format)."""
-        path = os.fspath(path)
-        try:
-            with open(path, encoding="utf-8") as fh:
-                d = json.load(fh)
-        except FileNotFoundError:
-            raise InputError(f"camera file not found: {path}") from None
-        except json.JSONDecodeError as exc:
-            raise InputError(f"{path}: not valid JSON ({exc})") from None
-        return cls.from_dict(d, source=path)
+        """Read a camera file: the DESIGN JSON, a uPSP JSON or an OpenCV FileStorage file,
+        recognised by content (see :func:`resection.io.cameras.read_camera`)."""
+        from .io.cameras import read_camera
 
-    def write(self, path: str | os.PathLike) -> None:
-        """Write the camera as JSON (DESIGN format)."""
-        with open(os.fspath(path), "w", encoding="utf-8") as fh:
-            json.dump(self.to_dict(), fh, indent=2)
-            fh.write("\n")
+        return read_camera(path)
+
+    def write(self, path: str | os.PathLike, *, format: str = "auto") -> None:
+        """Write the camera: DESIGN JSON, or OpenCV FileStorage for ``.yml``/``.yaml``/``.xml``
+        (see :func:`resection.io.cameras.write_camera`, which also writes uPSP files)."""
+        from .io.cameras import write_camera
+
+        write_camera(path, self, format=format)
 
     def __eq__(self, other) -> bool:  # arrays make the dataclass default useless
         if not isinstance(other, Camera):

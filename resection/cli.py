@@ -18,9 +18,9 @@ def build_parser() -> argparse.ArgumentParser:
         description="Camera resection for wind-tunnel optical measurements.",
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    from . import _cli_markers, _cli_pose, _cli_surface, _cli_track
+    from . import _cli_io, _cli_markers, _cli_pose, _cli_surface, _cli_track
 
-    for module in (_cli_pose, _cli_track, _cli_surface, _cli_markers):
+    for module in (_cli_pose, _cli_track, _cli_surface, _cli_markers, _cli_io):
         module.register(sub)
     return parser
 

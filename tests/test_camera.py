@@ -110,7 +110,7 @@ def test_json_round_trip(tmp_path):
         ({"width": True}, "width"),
         ({"height": float("inf")}, "width/height"),
         ({"oof": "0.01"}, "oof"),
-        ({"dist": ["a", 0, 0, 0, 0]}, "dist: not a numeric"),
+        ({"dist": ["a", 0, 0, 0, 0]}, r"dist\[0\]: not a number"),
         ({"t": [0, 0]}, "camera t"),
     ],
 )

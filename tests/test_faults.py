@@ -99,3 +99,52 @@ def test_calibrate_single_planar_view_with_centre_fixed_is_accepted():
     assert res.parameters == ("fx", "fy")
     for i, nm in ((0, "fx"), (1, "fy")):
         assert abs(res.camera.K[i, i] - cam.K[i, i]) < 4 * res.std[nm]
+
+# File parsing (io): camera JSON
+# --------------------------------------------------------------------------------------
+
+
+def _camera_dict() -> dict:
+    from resection import Camera
+
+    K = [[800.0, 0.0, 128.0], [0.0, 800.0, 96.0], [0.0, 0.0, 1.0]]
+    return Camera(256, 192, K, t=[0.0, 0.0, 2.0]).to_dict()
+
+
+def test_camera_json_with_byte_order_mark_is_accepted(tmp_path):
+    from resection import Camera
+
+    p = tmp_path / "cam.json"
+    import json
+
+    p.write_bytes(b"\xef\xbb\xbf" + json.dumps(_camera_dict()).encode())
+    cam = Camera.read(p)
+    assert (cam.width, cam.height) == (256, 192) and cam.K[0, 0] == 800.0
+
+
+@pytest.mark.parametrize(
+    "key, value, match",
+    [
+        ("width", "256", r"width must be an integer, got '256'"),
+        ("K", [["800", 0, 128], [0, 800, 96], [0, 0, 1]], r"K\[0\]\[0\]: not a number"),
+        ("K", [[True, 0, 128], [0, 800, 96], [0, 0, 1]], r"K\[0\]\[0\]: not a number"),
+        ("t", [[0.0], [0.0], [2.0]], r"camera t: expected a flat list, got shape 3x1"),
+        ("dist", [["0", 0, 0, 0, 0]], r"camera dist"),
+    ],
+)
+def test_camera_json_wrong_types_and_shapes_are_errors(tmp_path, key, value, match):
+    """String numbers, booleans and 3x1 vectors were accepted silently (or reported as a
+    distortion error, or as 'got 256, 256'): each is now a one-line error naming the key."""
+    import json
+
+    from resection import Camera
+
+    d = _camera_dict()
+    d[key] = value
+    p = tmp_path / "cam.json"
+    p.write_text(json.dumps(d))
+    with pytest.raises(InputError, match=match) as err:
+        Camera.read(p)
+    msg = str(err.value)
+    assert msg.startswith(str(p)) and "\n" not in msg
+    assert "256, 256" not in msg

@@ -1,0 +1,160 @@
+"""Camera files (uPSP JSON, OpenCV FileStorage YAML/XML, native JSON): one reader, checked
+against OpenCV's own FileStorage and projectPoints (independent references)."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from resection import Camera, InputError
+from resection.cli import main as resection_main
+from resection.io.cameras import read_camera, read_camera_file, write_camera
+
+W, H = 1280, 800
+K = np.array([[1630.5, 0.0, 652.25], [0.0, 1628.75, 391.5], [0.0, 0.0, 1.0]])
+DIST = np.array([-0.12, 0.05, 0.0008, -0.0004, 0.01])
+RVEC = np.array([0.3, -0.2, 0.1])
+TVEC = np.array([0.1, -0.05, 2.5])
+
+
+def _camera() -> Camera:
+    return Camera.from_opencv(K, DIST, RVEC, TVEC, W, H)
+
+
+def _upsp_dict(with_pose=True) -> dict:
+    """A uPSP camera-to-tunnel file, built as uPSP documents it (not with our writer)."""
+    Ku = K.copy()
+    Ku[0, 2] -= W / 2  # principal point relative to the image centre
+    Ku[1, 2] -= H / 2
+    d = {"uPSP_cameraMatrix": Ku.tolist(), "distCoeffs": [DIST.tolist()],
+         "sensor_resolution": [H, W, 1], "sensor_size": [1.0, 0.625]}
+    if with_pose:
+        d["rmat"] = cv2.Rodrigues(RVEC)[0].tolist()
+        d["tvec"] = TVEC.tolist()
+    return d
+
+
+def test_upsp_file_projects_as_opencv(tmp_path):
+    p = tmp_path / "camera01.json"
+    p.write_text(json.dumps(_upsp_dict()))
+    cam = Camera.read(p)  # the ordinary reader recognises uPSP by its keys
+    assert (cam.width, cam.height) == (W, H)
+    X = np.random.default_rng(0).uniform(-0.4, 0.4, (50, 3))
+    ref, _ = cv2.projectPoints(X, RVEC, TVEC, K, DIST)
+    np.testing.assert_allclose(cam.project(X), ref.reshape(-1, 2), atol=1e-6, rtol=0)
+
+
+def test_upsp_round_trip_exact(tmp_path):
+    src = tmp_path / "in.json"
+    src.write_text(json.dumps(_upsp_dict()))
+    cf = read_camera_file(src)
+    assert cf.format == "upsp" and cf.has_pose and cf.sensor_size == (1.0, 0.625)
+    out = tmp_path / "out.json"
+    write_camera(out, cf.camera, format="upsp", sensor_size=cf.sensor_size,
+                 channels=cf.channels)
+    a, b = json.loads(src.read_text()), json.loads(out.read_text())
+    assert set(a) == set(b)
+    for k in a:
+        np.testing.assert_allclose(np.array(b[k], float), np.array(a[k], float),
+                                   rtol=1e-15, atol=1e-12, err_msg=k)
+    assert read_camera(out) == cf.camera
+
+
+def test_upsp_internal_calibration(tmp_path):
+    p = tmp_path / "incal.json"
+    p.write_text(json.dumps(_upsp_dict(with_pose=False)))
+    cf = read_camera_file(p)
+    assert not cf.has_pose
+    np.testing.assert_allclose(cf.camera.K, K, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(cf.camera.R, np.eye(3))
+
+
+@pytest.mark.parametrize("ext", ["yml", "xml"])
+def test_opencv_filestorage_written_by_opencv(tmp_path, ext):
+    p = str(tmp_path / f"cam.{ext}")
+    fs = cv2.FileStorage(p, cv2.FILE_STORAGE_WRITE)
+    fs.write("image_width", W)
+    fs.write("image_height", H)
+    fs.write("camera_matrix", K)
+    fs.write("distortion_coefficients", DIST.reshape(1, 5))
+    fs.write("avg_reprojection_error", 0.21)
+    fs.release()
+    cf = read_camera_file(p)
+    assert cf.format == f"opencv-{'yaml' if ext == 'yml' else 'xml'}" and not cf.has_pose
+    np.testing.assert_array_equal(cf.camera.K, K)
+    np.testing.assert_array_equal(cf.camera.dist, DIST)
+    assert (cf.camera.width, cf.camera.height) == (W, H)
+
+
+@pytest.mark.parametrize("ext", ["yml", "xml"])
+def test_opencv_filestorage_read_by_opencv(tmp_path, ext):
+    cam = _camera()
+    p = tmp_path / f"cam.{ext}"
+    cam.write(p)  # the extension picks OpenCV's FileStorage
+    fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_READ)
+    np.testing.assert_array_equal(fs.getNode("camera_matrix").mat(), cam.K)
+    np.testing.assert_array_equal(fs.getNode("distortion_coefficients").mat().ravel(), cam.dist)
+    np.testing.assert_allclose(fs.getNode("rvec").mat().ravel(), RVEC, atol=1e-12)
+    assert int(fs.getNode("image_width").real()) == W
+    fs.release()
+    back = Camera.read(p)
+    np.testing.assert_array_equal(back.K, cam.K)
+    np.testing.assert_allclose(back.R, cam.R, atol=1e-14)
+    np.testing.assert_array_equal(back.t, cam.t)
+
+
+def test_convert_camera_cli(tmp_path, capsys):
+    src = tmp_path / "cam.json"
+    _camera().write(src)
+    out = tmp_path / "cam_upsp.json"
+    assert resection_main(["convert-camera", str(src), "--out", str(out), "--format",
+                           "upsp"]) == 0
+    d = json.loads(out.read_text())
+    np.testing.assert_allclose(d["uPSP_cameraMatrix"][0][2], K[0, 2] - W / 2, atol=1e-12)
+    assert d["sensor_resolution"][:2] == [H, W]
+    assert resection_main(["convert-camera", str(src), "--out", str(src)]) == 2
+    assert "overwrite" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "change, match",
+    [
+        ({"focal": 3}, "unknown key"),
+        ({"sensor_resolution": None}, "sensor_resolution"),
+        ({"distCoeffs": [[0.1, 0.2]]}, "distCoeffs"),
+        ({"tvec": ["0.1", 0, 2]}, "not a number"),
+        ({"rmat": None}, "rmat"),
+    ],
+)
+def test_upsp_bad_content(tmp_path, change, match):
+    d = _upsp_dict()
+    d.update(change)
+    d = {k: v for k, v in d.items() if v is not None}
+    p = tmp_path / "bad.json"
+    p.write_text(json.dumps(d))
+    with pytest.raises(InputError, match=match) as err:
+        Camera.read(p)
+    assert str(p) in str(err.value)
+
+
+def test_bad_camera_files(tmp_path):
+    good = tmp_path / "c.yml"
+    _camera().write(good)
+    text = good.read_text()
+    cases = {
+        "trunc.yml": text[: len(text) // 2],  # cut inside a matrix
+        "unknown.yml": text + "focus_mm: 3\n",
+        "trunc.json": json.dumps(_upsp_dict())[:-20],
+        "empty.json": "",
+        "trunc.xml": '<?xml version="1.0"?>\n<opencv_storage>\n<camera_matrix type_id=',
+    }
+    for name, body in cases.items():
+        p = tmp_path / name
+        p.write_text(body)
+        with pytest.raises(InputError) as err:
+            Camera.read(p)
+        msg = str(err.value)
+        assert msg.startswith(str(p)) and "\n" not in msg, (name, msg)
