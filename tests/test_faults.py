@@ -148,3 +148,46 @@ def test_camera_json_wrong_types_and_shapes_are_errors(tmp_path, key, value, mat
     msg = str(err.value)
     assert msg.startswith(str(p)) and "\n" not in msg
     assert "256, 256" not in msg
+
+
+# --------------------------------------------------------------------------------------
+# File parsing (io): images
+# --------------------------------------------------------------------------------------
+
+
+def test_detect_on_an_empty_npy_is_a_one_line_error(tmp_path, capsys):
+    from resection.cli import main
+
+    p = tmp_path / "empty.npy"
+    p.write_bytes(b"")
+    assert main(["detect", str(p), "--diameter", "6", "--out", str(tmp_path / "c.csv")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "empty.npy" in err and "empty" in err and len(err.splitlines()) == 1
+
+
+@pytest.mark.parametrize("content", [b"", b"\x93NUMPY\x01\x00v\x00{'descr': '<f8', 'fo"])
+def test_read_image_on_empty_or_truncated_npy(tmp_path, content):
+    from resection import read_image
+
+    p = tmp_path / "frame.npy"
+    p.write_bytes(content)
+    with pytest.raises(InputError, match="frame.npy"):
+        read_image(p)
+
+
+def test_corrupt_npy_never_advises_allow_pickle(tmp_path):
+    from resection import read_image
+
+    p = tmp_path / "obj.npy"
+    np.save(p, np.array([{"a": 1}, None], dtype=object), allow_pickle=True)
+    with pytest.raises(InputError) as err:
+        read_image(p)
+    assert "allow_pickle" not in str(err.value) and "obj.npy" in str(err.value)
+
+
+def test_write_image_into_a_missing_folder_is_an_input_error(tmp_path):
+    from resection import write_image
+
+    with pytest.raises(InputError, match="does not exist"):
+        write_image(tmp_path / "nope" / "a.tif", np.zeros((4, 4), np.float32))
+    assert not (tmp_path / "nope").exists()

@@ -6,4 +6,7 @@ accepts what any other writes.
 - :mod:`resection.io.meshes`: surface meshes (trimesh formats, Plot3D, Cart3D).
 - :mod:`resection.io.markers`: 3-D marker files and 2-D point files.
 - :mod:`resection.io.images`: single images (PNG, TIFF, NPY).
+- :mod:`resection.io.cameras`: camera files (native JSON, uPSP JSON, OpenCV FileStorage).
+- :mod:`resection.io.video`: frame sequences read lazily (image lists, TIFF/NPY stacks,
+  Photron .mraw/.cih, Phantom .cine): :func:`~resection.io.video.iter_frames`.
 """

@@ -49,21 +49,55 @@ def _read_raw(path: str | os.PathLike) -> np.ndarray:
 
             arr = iio.imread(path)
         else:
-            arr = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, TypeError) as exc:
-        raise InputError(f"{path}: cannot read image ({exc})") from None
+            arr = _load_npy(path)
+    except (OSError, ValueError, TypeError, EOFError) as exc:
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise InputError(f"{path}: cannot read image ({msg})") from None
     arr = np.asarray(arr)
-    if arr.ndim == 3 and arr.shape[-1] in (3, 4) and suf in _PNG:
+    if arr.ndim == 3 and arr.shape[-1] in (2, 3, 4) and suf in _PNG | _TIFF:
+        kind = {2: "grey + alpha", 3: "colour (RGB)", 4: "colour + alpha (RGBA)"}[arr.shape[-1]]
         raise InputError(
-            f"{path}: colour image with {arr.shape[-1]} channels; expected a single-channel "
-            "(grey) image"
+            f"{path}: {kind} image with {arr.shape[-1]} channels; expected a single-channel "
+            "(grey) image without alpha"
         )
     if arr.ndim == 3 and arr.shape[0] == 1:
         arr = arr[0]
+    if arr.ndim == 3 and suf in _TIFF | _NPY:
+        raise InputError(f"{path}: a stack of {arr.shape[0]} frames, not one image; read it "
+                         "as a sequence (resection.io.video.iter_frames)")
     if arr.ndim != 2:
         raise InputError(f"{path}: expected a 2-D single-channel image, got shape {arr.shape}")
     if arr.dtype.kind not in "uif" and arr.dtype != np.bool_:
         raise InputError(f"{path}: unsupported pixel type {arr.dtype}")
+    return arr
+
+
+def _load_npy(path, mmap_mode=None) -> np.ndarray:
+    """``numpy.load`` of a numeric ``.npy`` file, with one-line errors.
+
+    Object arrays are refused; the message never advises ``allow_pickle`` (loading pickles
+    runs arbitrary code). An empty or truncated file is named as such.
+    """
+    path = Path(path)
+    size = path.stat().st_size
+    if size == 0:
+        raise InputError(f"{path}: empty file (0 bytes), not a .npy array")
+    try:
+        arr = np.load(path, allow_pickle=False, mmap_mode=mmap_mode)
+    except EOFError:
+        raise InputError(f"{path}: truncated .npy file ({size} bytes)") from None
+    except ValueError as exc:
+        msg = str(exc)
+        if "pickle" in msg.lower() or "object" in msg.lower():
+            raise InputError(f"{path}: holds Python objects, not a numeric array; refused "
+                             "(save a numeric array)") from None
+        if "size" in msg.lower() or "reshape" in msg.lower() or "truncat" in msg.lower():
+            raise InputError(f"{path}: truncated or corrupt .npy file ({size} bytes)") from None
+        raise InputError(f"{path}: not a valid .npy file ({msg.splitlines()[0]})") from None
+    except (OSError, TypeError) as exc:
+        raise InputError(f"{path}: not a valid .npy file ({exc})") from None
+    if not isinstance(arr, np.ndarray) or arr.dtype.kind not in "uifb":
+        raise InputError(f"{path}: not a numeric array")
     return arr
 
 
@@ -156,16 +190,24 @@ def write_image(path: str | os.PathLike, array, *, dtype=None) -> None:
             arr = np.rint(arr).astype(dtype) if arr.dtype.kind == "f" else arr.astype(dtype)
         else:
             arr = arr.astype(dtype)
-    parent = path.parent
-    if not parent.exists():
-        raise FileNotFoundError(f"{parent}: output directory does not exist")
-    if suf in _TIFF:
-        import tifffile
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        raise InputError(f"{path}: output folder {parent} does not exist")
+    # a temporary name in the same folder, renamed into place: a crash never leaves half a file
+    tmp = parent / f".{path.stem}.{os.getpid()}.tmp{suf}"
+    try:
+        if suf in _TIFF:
+            import tifffile
 
-        tifffile.imwrite(path, arr)
-    elif suf in _PNG:
-        import imageio.v3 as iio
+            tifffile.imwrite(tmp, arr)
+        elif suf in _PNG:
+            import imageio.v3 as iio
 
-        iio.imwrite(path, arr)
-    else:
-        np.save(path, arr, allow_pickle=False)
+            iio.imwrite(tmp, arr, extension=".png")
+        else:
+            with open(tmp, "wb") as fh:
+                np.save(fh, arr, allow_pickle=False)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()

@@ -1,0 +1,319 @@
+"""Frame sequences, read lazily one frame at a time: image files, multi-page TIFF stacks,
+3-D NPY stacks, Photron ``.mraw`` + ``.cih`` and Phantom ``.cine``.
+
+The one entry point for commands that walk a sequence (``track``, ``map``) is
+:func:`iter_frames` (or :func:`open_frames` for random access)::
+
+    n, frames = iter_frames(["f000.tif", "f001.tif"])   # or "run.cine", "run.cih", "stack.tif"
+    for label, image in frames:                         # image: (H, W) float32, img[v, u]
+        ...
+
+Readers
+-------
+* Image files (PNG, TIFF, NPY): :func:`resection.io.images.read_image`, one file per frame.
+* Multi-page TIFF: ``tifffile.TiffFile`` pages, one page read per frame.
+* 3-D NPY ``(n, H, W)``: ``numpy.load(mmap_mode="r")``.
+* Photron ``.mraw`` (+ its ``.cih``/``.cihx`` header, found next to it with the same stem):
+  ``pyMRAW.get_cih`` for the header, then ``pyMRAW.load_images`` which memory-maps the raw
+  file (8/12/16-bit); a frame is read when it is indexed.
+* Phantom ``.cine``: the maintained ``cine-handler`` package (module ``cine_reader``, numpy
+  only), which seeks to one frame's offset and decodes it (8/16-bit, packed 10-bit).
+  Phantom stores rows bottom-up when the bitmap header's height is positive (the DIB
+  convention): such frames are flipped so that row 0 is the top of the image.
+
+Counts stay counts (a 12-bit pixel of 4095 reads 4095.0); with ``mask_saturated`` the
+pixels at the sensor's full scale (``2**bits - 1``) read as NaN, as
+:func:`~resection.io.images.read_image` does for single images.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from .images import read_image
+
+__all__ = ["FrameSource", "open_frames", "iter_frames", "VIDEO_SUFFIXES"]
+
+VIDEO_SUFFIXES = (".cine", ".mraw", ".cih", ".cihx")
+
+
+class FrameSource:
+    """A sequence of frames read on demand.
+
+    Attributes
+    ----------
+    path : str
+        The file (or the first file of a list).
+    n : int
+        Number of frames; ``len(source)`` too.
+    shape : (int, int)
+        ``(H, W)`` of every frame.
+    bits : int or None
+        Bits per pixel of the sensor data (None for float files).
+    frame_rate : float or None
+        Frames per second when the file says so (``.cine``, ``.mraw``).
+
+    ``source[i]`` is frame ``i`` as a ``(H, W)`` float32 array; ``source.label(i)`` names it
+    (``"run.cine#12"`` or the image file's path), for messages and result files.
+    """
+
+    def __init__(self, path, n, shape, reader, labeler, *, bits=None, frame_rate=None,
+                 mask_saturated=False, closer=None):
+        self.path = str(path)
+        self.n = int(n)
+        self.shape = tuple(int(s) for s in shape)
+        self.bits = bits
+        self.frame_rate = frame_rate
+        self.mask_saturated = mask_saturated
+        self._reader = reader
+        self._labeler = labeler
+        self._closer = closer
+
+    def __len__(self) -> int:
+        return self.n
+
+    def label(self, i: int) -> str:
+        return self._labeler(i)
+
+    def __getitem__(self, i: int) -> np.ndarray:
+        i = int(i)
+        if i < 0:
+            i += self.n
+        if not 0 <= i < self.n:
+            raise IndexError(f"{self.path}: frame {i} out of range (0..{self.n - 1})")
+        raw = np.asarray(self._reader(i))
+        if raw.shape != self.shape:
+            raise InputError(f"{self.label(i)}: frame of shape {raw.shape}, expected "
+                             f"{self.shape} like the others")
+        img = raw.astype(np.float32)
+        if self.mask_saturated and self.bits is not None and raw.dtype.kind in "ui":
+            img[raw >= (1 << self.bits) - 1] = np.nan
+        return img
+
+    def __iter__(self) -> Iterator[np.ndarray]:
+        for i in range(self.n):
+            yield self[i]
+
+    def close(self) -> None:
+        if self._closer is not None:
+            self._closer()
+            self._closer = None
+
+    def __enter__(self) -> FrameSource:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def iter_frames(
+    path_or_paths: str | os.PathLike | Sequence[str | os.PathLike],
+    *,
+    mask_saturated: bool = False,
+) -> tuple[int, Iterator[tuple[str, np.ndarray]]]:
+    """Count the frames of a sequence and iterate over them lazily.
+
+    Parameters
+    ----------
+    path_or_paths : path or list of paths
+        A list of image files (one frame each, in the given order), or one file holding
+        many frames: ``.cine``, ``.mraw`` (or its ``.cih``/``.cihx``), a multi-page TIFF, a
+        3-D ``.npy``; a single 2-D image file is a sequence of one frame.
+    mask_saturated : bool
+        Saturated pixels (full scale of the sensor's bit depth) read as NaN.
+
+    Returns
+    -------
+    n : int
+        Number of frames, known before any frame is read.
+    frames : iterator of (label, image)
+        ``label`` names the frame (``"run.cine#12"``, or the image file's path);
+        ``image`` is a ``(H, W)`` float32 array, ``img[v, u]``. Frames are read one at a time
+        as the iterator advances; the file is closed at the end.
+
+    Raises
+    ------
+    InputError
+        Missing, unknown or unreadable file (the message names it).
+    """
+    src = open_frames(path_or_paths, mask_saturated=mask_saturated)
+
+    def gen():
+        try:
+            for i in range(src.n):
+                yield src.label(i), src[i]
+        finally:
+            src.close()
+
+    return src.n, gen()
+
+
+def open_frames(
+    path_or_paths: str | os.PathLike | Sequence[str | os.PathLike],
+    *,
+    mask_saturated: bool = False,
+) -> FrameSource:
+    """Open a frame sequence for random access (see :func:`iter_frames` for the inputs)."""
+    if isinstance(path_or_paths, (str, os.PathLike)):
+        paths = [Path(path_or_paths)]
+    else:
+        paths = [Path(p) for p in path_or_paths]
+        if not paths:
+            raise InputError("no frames given")
+    if len(paths) > 1:
+        for p in paths:
+            if p.suffix.lower() in VIDEO_SUFFIXES:
+                raise InputError(f"{p}: a video file cannot be mixed with other frame files")
+        return _image_files(paths, mask_saturated)
+    p = paths[0]
+    if not p.exists():
+        raise InputError(f"{p}: no such frame file")
+    if p.is_dir():
+        raise InputError(f"{p}: is a folder; give the frame files")
+    suf = p.suffix.lower()
+    if suf == ".cine":
+        return _cine(p, mask_saturated)
+    if suf in (".mraw", ".cih", ".cihx"):
+        return _mraw(p, mask_saturated)
+    if suf in (".tif", ".tiff"):
+        return _tiff_stack(p, mask_saturated)
+    if suf == ".npy":
+        return _npy_stack(p, mask_saturated)
+    return _image_files(paths, mask_saturated)
+
+
+# --------------------------------------------------------------------------- readers
+def _image_files(paths: list[Path], mask_saturated: bool) -> FrameSource:
+    first = read_image(paths[0])
+    return FrameSource(paths[0], len(paths), first.shape,
+                       lambda i: read_image(paths[i], mask_saturated=mask_saturated),
+                       lambda i: str(paths[i]))
+
+
+def _tiff_stack(p: Path, mask_saturated: bool) -> FrameSource:
+    import tifffile
+
+    try:
+        tf = tifffile.TiffFile(p)
+        series = tf.series[0]
+        shape = series.shape
+        dtype = series.dtype
+    except (OSError, ValueError, IndexError, tifffile.TiffFileError) as exc:
+        raise InputError(f"{p}: cannot read TIFF ({str(exc).splitlines()[0]})") from None
+    if len(shape) == 2:
+        tf.close()
+        return _image_files([p], mask_saturated)
+    if len(shape) != 3 or shape[-1] in (3, 4) and len(tf.pages) == 1:
+        tf.close()
+        raise InputError(f"{p}: expected a stack of single-channel pages, got shape {shape}")
+    pages = tf.pages
+
+    def read(i):
+        try:
+            return pages[i].asarray()
+        except (OSError, ValueError, tifffile.TiffFileError) as exc:
+            raise InputError(f"{p}#{i}: cannot read page ({exc})") from None
+
+    bits = np.iinfo(dtype).bits if dtype.kind in "ui" else None
+    return FrameSource(p, shape[0], shape[1:], read, lambda i: f"{p}#{i}", bits=bits,
+                       mask_saturated=mask_saturated, closer=tf.close)
+
+
+def _npy_stack(p: Path, mask_saturated: bool) -> FrameSource:
+    from .images import _load_npy
+
+    arr = _load_npy(p, mmap_mode="r")
+    if arr.ndim == 2:
+        return _image_files([p], mask_saturated)
+    if arr.ndim != 3:
+        raise InputError(f"{p}: expected a 2-D frame or a 3-D (n, H, W) stack, got "
+                         f"shape {arr.shape}")
+    bits = np.iinfo(arr.dtype).bits if arr.dtype.kind in "ui" else None
+    return FrameSource(p, arr.shape[0], arr.shape[1:], lambda i: np.array(arr[i]),
+                       lambda i: f"{p}#{i}", bits=bits, mask_saturated=mask_saturated)
+
+
+def _mraw(p: Path, mask_saturated: bool) -> FrameSource:
+    import pyMRAW
+
+    if p.suffix.lower() == ".mraw":
+        cands = [p.with_suffix(s) for s in (".cihx", ".cih")]
+        cih = next((c for c in cands if c.exists()), None)
+        if cih is None:
+            raise InputError(f"{p}: no .cih/.cihx header next to it (same name)")
+        mraw = p
+    else:
+        cih, mraw = p, p.with_suffix(".mraw")
+        if not mraw.exists():
+            raise InputError(f"{p}: no .mraw file next to it ({mraw.name})")
+    try:
+        info = pyMRAW.get_cih(str(cih))
+        w = int(info["Image Width"])
+        h = int(info["Image Height"])
+        n = int(info["Total Frame"])
+        bits = int(info["Color Bit"])
+        eff = int(info.get("EffectiveBit Depth", bits))
+    except (KeyError, ValueError, TypeError, OSError, Exception) as exc:  # noqa: BLE001
+        raise InputError(f"{cih}: not a readable Photron header "
+                         f"({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''})"
+                         ) from None
+    if bits not in (8, 12, 16):
+        raise InputError(f"{cih}: {bits}-bit frames are not supported (8, 12 or 16)")
+    need = n * w * h * bits // 8
+    have = mraw.stat().st_size
+    if have < need:
+        raise InputError(f"{mraw}: truncated ({have} bytes, the header says {n} frames of "
+                         f"{w}x{h} at {bits} bit = {need} bytes)")
+    try:
+        images = pyMRAW.load_images(str(mraw), h, w, n, bit=bits, roll_axis=False)
+    except (ValueError, OSError) as exc:
+        raise InputError(f"{mraw}: cannot read frames ({exc})") from None
+    rate = info.get("Record Rate(fps)")
+    return FrameSource(mraw, n, (h, w), lambda i: images[i], lambda i: f"{mraw}#{i}",
+                       bits=eff if 0 < eff <= bits else bits,
+                       frame_rate=float(rate) if rate else None, mask_saturated=mask_saturated)
+
+
+def _cine(p: Path, mask_saturated: bool) -> FrameSource:
+    try:
+        from cine_reader import Cine
+    except ImportError:  # pragma: no cover - a runtime dependency
+        raise InputError(f"{p}: reading .cine needs the 'cine-handler' package") from None
+    try:
+        cine = Cine(p, keep_annotations=False)
+        first = int(cine.file_header.FirstImageNo)
+        n = int(cine.file_header.ImageCount)
+        hdr = cine.image_header
+        w, h_signed = int(hdr.biWidth), int(hdr.biHeight)
+        bits = int(cine.camera_setup.RealBPP) or int(hdr.biBitCount)
+        rate = float(cine.frame_rate)
+    except (OSError, ValueError, EOFError, IndexError, struct_error()) as exc:
+        raise InputError(f"{p}: not a readable Phantom .cine file ({exc})") from None
+    if int(hdr.biBitCount) not in (8, 16):
+        cine.close_file()
+        raise InputError(f"{p}: colour .cine ({hdr.biBitCount} bits a pixel) is not supported; "
+                         "record in grey")
+    flip = h_signed > 0  # DIB: positive height = rows stored bottom-up
+
+    def read(i):
+        try:
+            cine.load_frame(first + i)
+        except (OSError, ValueError, EOFError) as exc:
+            raise InputError(f"{p}#{i}: cannot read frame ({exc})") from None
+        img = cine.pixel_array
+        return img[::-1] if flip else img
+
+    return FrameSource(p, n, (abs(h_signed), w), read, lambda i: f"{p}#{i}", bits=bits,
+                       frame_rate=rate if rate > 0 else None, mask_saturated=mask_saturated,
+                       closer=cine.close_file)
+
+
+def struct_error():
+    import struct
+
+    return struct.error
