@@ -15,7 +15,7 @@ from .errors import InputError
 from .io.images import read_image, write_image
 from .io.meshes import load_mesh, read_face_fields, write_surface
 from .plots import plot_surface, virtual_camera
-from .surface import SurfaceMap
+from .surface import DEFAULT_MAX_OBLIQUENESS, SurfaceMap
 
 
 def register(sub) -> None:
@@ -32,8 +32,10 @@ def register(sub) -> None:
     m.add_argument("--camera", required=True, help="camera JSON with the solved pose")
     m.add_argument("--image", required=True, nargs="+", help="image(s) of that camera")
     m.add_argument("--out", required=True, help="surface file: .ply, .vtk or .csv")
-    m.add_argument("--max-obliqueness", type=float, default=None, metavar="DEG",
-                   help="ignore pixels seeing a face more obliquely than this (degrees)")
+    m.add_argument("--max-obliqueness", type=float, default=DEFAULT_MAX_OBLIQUENESS,
+                   metavar="DEG", help="faces seen more obliquely than this (degrees between "
+                   "line of sight and normal, default %(default)g as uPSP; 90: none) count as "
+                   "unseen")
     m.set_defaults(func=run_map)
 
     b = sub.add_parser(
@@ -108,7 +110,7 @@ def run_map(args: argparse.Namespace) -> int:
                          "come from the file names; rename or map them separately)")
     mesh = load_mesh(args.mesh)
     camera = Camera.read(args.camera)
-    smap = SurfaceMap(mesh, camera, max_obliqueness_deg=args.max_obliqueness)
+    smap = SurfaceMap(mesh, camera, max_obliqueness=args.max_obliqueness)
     fields = {}
     for path in args.image:
         name = Path(path).stem

@@ -27,7 +27,12 @@ from .camera import Camera
 from .errors import InputError
 from .visibility import RayCaster
 
-__all__ = ["SurfaceMap", "SurfaceSample", "vertex_values"]
+__all__ = ["DEFAULT_MAX_OBLIQUENESS", "SurfaceMap", "SurfaceSample", "oblique_faces",
+           "vertex_values"]
+
+#: Default obliqueness cut-off (degrees between the line of sight and the face normal), as
+#: NASA's uPSP software uses: paint seen more obliquely is not measured reliably.
+DEFAULT_MAX_OBLIQUENESS = 70.0
 
 
 def _as_float(a, name: str) -> np.ndarray:
@@ -65,6 +70,51 @@ def _face_geometry(mesh: trimesh.Trimesh):
     tri = np.asarray(mesh.vertices, dtype=np.float64)[np.asarray(mesh.faces)]
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
     return tri.mean(axis=1), area
+
+
+def _check_obliqueness(max_obliqueness) -> float | None:
+    if max_obliqueness is None:
+        return None
+    try:
+        lim = float(max_obliqueness)
+    except (TypeError, ValueError):
+        raise InputError(f"max_obliqueness: expected degrees, got {max_obliqueness!r}") from None
+    if not (0.0 < lim <= 90.0):
+        raise InputError(f"max_obliqueness must be in (0, 90] degrees, got {max_obliqueness}")
+    return lim
+
+
+def oblique_faces(
+    mesh: trimesh.Trimesh, center, max_obliqueness: float | None = DEFAULT_MAX_OBLIQUENESS
+) -> np.ndarray:
+    """Faces seen from ``center`` more obliquely than a cut-off.
+
+    The obliqueness of a face is the angle between its normal and the line from its
+    centroid to the perspective centre, whichever side of the face is seen (grids' winding
+    is not always consistent across blocks; back faces are the visibility test's business).
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh
+    center : (3,) array_like
+        Perspective centre (``Camera.center``), model units.
+    max_obliqueness : float or None
+        Cut-off in degrees, in (0, 90]. None: no cut-off (no face is oblique).
+
+    Returns
+    -------
+    (F,) bool
+        True where the angle exceeds the cut-off (such faces count as unseen).
+    """
+    lim = _check_obliqueness(max_obliqueness)
+    nf = len(mesh.faces)
+    if lim is None:
+        return np.zeros(nf, dtype=bool)
+    cen, _ = _face_geometry(mesh)
+    view = np.asarray(center, dtype=np.float64)[None, :] - cen
+    n = np.asarray(mesh.face_normals, dtype=np.float64)
+    cosang = np.abs(np.einsum("ij,ij->i", n, view)) / np.linalg.norm(view, axis=1)
+    return cosang < np.cos(np.radians(lim)) - 1e-12
 
 
 def _fit_pairs(vid, fid, w, cen, verts, nv, linear):
@@ -203,10 +253,11 @@ class SurfaceMap:
     camera : Camera
         Calibrated camera with its pose; one ray per pixel centre through
         :meth:`Camera.rays` (distortion included).
-    max_obliqueness_deg : float, optional
-        If given, pixels that see a face more obliquely than this (angle between the face
-        normal and the line of sight, degrees) or see its back are treated as background.
-        Default None keeps every hit.
+    max_obliqueness : float or None, optional
+        Obliqueness cut-off, degrees in (0, 90] (default 70, as uPSP): a face whose normal
+        makes a larger angle with the line of sight from the perspective centre to its
+        centroid (:func:`oblique_faces`) counts as unseen, and the pixels that hit it are
+        background. None keeps every hit.
 
     Attributes
     ----------
@@ -220,6 +271,10 @@ class SurfaceMap:
         1 where pixel (flattened ``v * W + u``) sees face.
     pixel_counts : (F,) int64
         Pixels seeing each face (before removing NaN pixels of an image).
+    oblique : (F,) bool
+        Faces beyond the obliqueness cut-off (unseen whether or not a pixel hits them).
+    max_obliqueness : float or None
+        The cut-off used, degrees.
     """
 
     def __init__(
@@ -227,7 +282,7 @@ class SurfaceMap:
         mesh: trimesh.Trimesh,
         camera: Camera,
         *,
-        max_obliqueness_deg: float | None = None,
+        max_obliqueness: float | None = DEFAULT_MAX_OBLIQUENESS,
         caster: RayCaster | None = None,
     ):
         if not isinstance(camera, Camera):
@@ -236,6 +291,7 @@ class SurfaceMap:
             raise InputError(f"mesh: expected a trimesh.Trimesh, got {type(mesh).__name__}")
         self.mesh = mesh
         self.camera = camera
+        self.max_obliqueness = _check_obliqueness(max_obliqueness)
         H, W = camera.height, camera.width
         self.shape = (H, W)
         caster = RayCaster(mesh) if caster is None else caster
@@ -247,16 +303,10 @@ class SurfaceMap:
         uv[:, 1] = np.repeat(np.arange(H, dtype=np.float64), W)
         _, dirs = camera.rays(uv)
         face, dist, bary = caster.first_hit(camera.center, dirs)
-        if max_obliqueness_deg is not None:
-            lim = float(max_obliqueness_deg)
-            if not (0.0 < lim <= 90.0):
-                raise InputError(
-                    f"max_obliqueness_deg must be in (0, 90], got {max_obliqueness_deg}"
-                )
-            n = np.asarray(mesh.face_normals, dtype=np.float64)
-            hit = face >= 0
-            cosang = -np.einsum("ij,ij->i", n[face[hit]], dirs[hit])
-            bad = np.flatnonzero(hit)[cosang < np.cos(np.radians(lim)) - 1e-12]
+        self.oblique = oblique_faces(mesh, camera.center, self.max_obliqueness)
+        if self.oblique.any():
+            bad = np.flatnonzero(face >= 0)
+            bad = bad[self.oblique[face[bad]]]
             face[bad] = -1
             dist[bad] = np.nan
             bary[bad] = np.nan

@@ -94,3 +94,42 @@ def test_errors_are_one_line(files, capsys):
     rc = main(["view", "--mesh", str(d / "panel.xyz"), "--values", str(d / "surf.csv"),
                "--cmap", "nosuch", "--out", str(d / "v.png")])
     assert rc == 2 and "colour map 'nosuch'" in capsys.readouterr().err
+
+
+def test_map_max_obliqueness(tmp_path, capsys):
+    """The slab's -y edge is seen at about 76 degrees (closed form below): unseen by default
+    (70), seen with --max-obliqueness 90; a cut-off outside (0, 90] is a one-line error."""
+    import trimesh
+
+    from resection import Camera
+
+    box = trimesh.creation.box(extents=(1.0, 0.6, 0.05))
+    v, f = trimesh.remesh.subdivide(*trimesh.remesh.subdivide(box.vertices, box.faces))
+    trimesh.Trimesh(v, f, process=False).export(tmp_path / "slab.stl")
+    K = [[300.0, 0.0, 159.5], [0.0, 300.0, 119.5], [0.0, 0.0, 1.0]]
+    cam = Camera.look_at([0.0, -0.8, 2.0], [0.0, 0.0, 0.0], [0, 1, 0], K=K, width=320,
+                         height=240)
+    cam.write(tmp_path / "cam.json")
+    np.save(tmp_path / "img.npy", np.ones((240, 320)))
+    # angle between the -y side's normal and the view from its centre line (y = -0.3)
+    side_angle = np.degrees(np.arctan2(2.0, 0.5))
+    assert 75.0 < side_angle < 77.0
+    counts = {}
+    for opt in ([], ["--max-obliqueness", "90"]):
+        out = tmp_path / f"surf{len(opt)}.csv"
+        rc = main(["map", "--mesh", str(tmp_path / "slab.stl"), "--camera",
+                   str(tmp_path / "cam.json"), "--image", str(tmp_path / "img.npy"),
+                   "--out", str(out)] + opt)
+        assert rc == 0
+        df = pd.read_csv(out)
+        side = np.isclose(df["cy"], -0.3)
+        counts[len(opt)] = int(df["img_count"][side].sum())
+        top = np.isclose(df["cz"], 0.025)
+        assert df["img_seen"][top].sum() == top.sum() == 32
+    assert counts[0] == 0 and counts[2] > 20
+    rc = main(["map", "--mesh", str(tmp_path / "slab.stl"), "--camera",
+               str(tmp_path / "cam.json"), "--image", str(tmp_path / "img.npy"),
+               "--out", str(tmp_path / "bad.csv"), "--max-obliqueness", "95"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "max_obliqueness" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "bad.csv").exists()

@@ -293,16 +293,60 @@ def test_vertex_values_linear_exact_and_nan_faces():
         vertex_values(mesh, f[:-1])
 
 
-def test_max_obliqueness_drops_grazing_pixels(plane_map):
+def test_max_obliqueness_drops_faces_beyond_the_cut_off(plane_map):
     mesh, cam, sm, (face, P, edge) = plane_map
-    # closed form: angle between the plane normal (+z) and the line of sight of each pixel
-    v = cam.center - P
-    ang = np.degrees(np.arccos(v[..., 2] / np.linalg.norm(v, axis=-1)))
-    on = face >= 0
-    lim = float(np.median(ang[on]))
-    sm2 = SurfaceMap(mesh, cam, max_obliqueness_deg=lim)
-    clear = on & (np.abs(ang - lim) > 1e-6) & (edge > 1e-4)
-    np.testing.assert_array_equal(sm2.mask[clear], ang[clear] <= lim)
+    # closed form: angle between the plane normal (+z) and the line from each face's
+    # centroid to the perspective centre
+    cen = mesh.vertices[mesh.faces].mean(axis=1)
+    v = cam.center - cen
+    ang = np.degrees(np.arccos(np.abs(v[:, 2]) / np.linalg.norm(v, axis=1)))
+    hit = sm.pixel_counts > 0
+    lim = float(np.median(ang[hit]))
+    sm2 = SurfaceMap(mesh, cam, max_obliqueness=lim)
+    clear = np.abs(ang - lim) > 1e-6
+    np.testing.assert_array_equal(sm2.oblique[clear], ang[clear] > lim)
+    kept = hit & clear & (ang < lim)
+    np.testing.assert_array_equal(sm2.pixel_counts[kept], sm.pixel_counts[kept])
+    assert np.all(sm2.pixel_counts[clear & (ang > lim)] == 0)
+    # pixels on dropped faces are background
+    gone = np.isin(face, np.flatnonzero(ang > lim)) & (edge > 1e-4)
+    assert gone.sum() > 100 and not sm2.mask[gone].any()
     assert 0.3 < sm2.mask.sum() / sm.mask.sum() < 0.7
-    with pytest.raises(InputError, match="max_obliqueness_deg"):
-        SurfaceMap(mesh, cam, max_obliqueness_deg=0)
+    for bad in (0, 91, "x"):
+        with pytest.raises(InputError, match="max_obliqueness"):
+            SurfaceMap(mesh, cam, max_obliqueness=bad)
+
+
+def slab(half=(0.5, 0.3, 0.025), subdivisions=3):
+    """Thin box centred on the origin, faces split to about 3 cm."""
+    box = trimesh.creation.box(extents=2 * np.asarray(half))
+    v, f = box.vertices, box.faces
+    for _ in range(subdivisions):
+        v, f = trimesh.remesh.subdivide(v, f)
+    return trimesh.Trimesh(v, f, process=False)
+
+
+def test_slab_edges_seen_edge_on_carry_no_value():
+    half = np.array([0.5, 0.3, 0.025])
+    mesh = slab(half)
+    K = [[300.0, 0.0, 159.5], [0.0, 300.0, 119.5], [0.0, 0.0, 1.0]]
+    cam = Camera.look_at([0.1, -0.8, 2.0], [0.0, 0.0, 0.0], [0, 1, 0], K=K, width=320,
+                         height=240)
+    # closed-form normals of the box: the axis whose coordinate sits on the box's half size
+    cen = mesh.vertices[mesh.faces].mean(axis=1)
+    axis = np.argmax(np.abs(cen) / half - 1.0 > -1e-9, axis=1)
+    normal = np.zeros_like(cen)
+    normal[np.arange(len(cen)), axis] = np.sign(cen[np.arange(len(cen)), axis])
+    view = cam.center - cen
+    ang = np.degrees(np.arccos(np.abs(np.einsum("ij,ij->i", normal, view))
+                               / np.linalg.norm(view, axis=1)))
+    image = np.ones((240, 320))
+    every = SurfaceMap(mesh, cam, max_obliqueness=None).to_surface(image)
+    default = SurfaceMap(mesh, cam).to_surface(image)  # 70 degrees
+    side = ~every.unseen & (ang > 70.5)  # the slab's -y edge, seen almost edge-on
+    front = ~every.unseen & (ang < 69.5)
+    assert side.sum() >= 8 and front.sum() > 100
+    assert np.all(ang[side] > 75)  # really grazing, not borderline
+    assert np.all(default.unseen[side]) and np.all(np.isnan(default.values[side]))
+    np.testing.assert_array_equal(default.counts[front], every.counts[front])
+    np.testing.assert_allclose(default.values[front], 1.0)
