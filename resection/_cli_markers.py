@@ -10,6 +10,7 @@ import numpy as np
 
 from .camera import Camera
 from .errors import InputError
+from .io.outputs import atomic_write
 
 
 def add_enhance_window_option(parser) -> None:
@@ -95,7 +96,7 @@ def run_detect(args: argparse.Namespace) -> int:
     cand = detect_in_image(args.image, args.diameter, args.polarity, args.template, args.roi,
                            args.threshold, enhance=args.enhance,
                            enhance_windows=args.enhance_window)
-    write_candidates(args.out, cand)
+    atomic_write(args.out, write_candidates, cand)
     print(f"detect: {len(cand)} candidates (noise {cand.noise:.3g}, threshold "
           f"{cand.threshold:.3g}, {cand.n_masked} masked pixels, rejected "
           + ", ".join(f"{k} {v}" for k, v in cand.n_rejected.items()) + ")")
@@ -117,14 +118,14 @@ def run_link(args: argparse.Namespace) -> int:
     if not (args.png or args.suggest or args.links):
         raise InputError("nothing to do: give --png, --suggest and/or --links")
     if args.png:
-        draw_links(args.png, read_image(args.image, mask_saturated=True), cand, camera=camera,
-                   markers=markers)
+        atomic_write(args.png, draw_links, read_image(args.image, mask_saturated=True), cand,
+                     camera=camera, markers=markers)
         print(f"drawing written to {args.png}")
     if args.suggest:
         if camera is None:
             raise InputError("--suggest needs --camera and --markers")
         ids, index = suggest_links(cand, camera, markers)
-        write_links(args.suggest, ids, index)
+        atomic_write(args.suggest, write_links, ids, index)
         print(f"{len(ids)} suggested links written to {args.suggest}")
     if args.links:
         if not args.out:
@@ -133,7 +134,7 @@ def run_link(args: argparse.Namespace) -> int:
         labels = [None] * len(cand)
         for k, i in zip(ids, index, strict=True):
             labels[int(i)] = k
-        write_candidates(args.out, cand, ids=labels)
+        atomic_write(args.out, write_candidates, cand, ids=labels)
         print(f"link: {len(ids)} markers linked, {len(cand) - len(ids)} candidates thrown "
               f"away; written to {args.out}")
     return 0
@@ -160,7 +161,7 @@ def run_match(args: argparse.Namespace) -> int:
     res = match_markers(cand, markers, reference, camera=camera,
                         search_radius=args.search_radius, tolerance=args.tolerance,
                         max_rms=args.max_rms)
-    write_candidates(args.out, cand, ids=list(res.ids))
+    atomic_write(args.out, write_candidates, cand, ids=list(res.ids))
     print(f"match: {res.message}")
     if res.pose is not None:
         errs = np.hypot(res.residuals[:, 0], res.residuals[:, 1])
@@ -168,7 +169,7 @@ def run_match(args: argparse.Namespace) -> int:
         for k, e in zip(res.marker_ids, errs, strict=True):
             print(f"{k:>12} {e:9.4f}")
         if args.pose:
-            res.pose.camera.write(args.pose)
+            atomic_write(args.pose, res.pose.camera.write)
             print(f"camera written to {args.pose}")
     elif args.pose:
         raise InputError("--pose needs --camera")

@@ -18,6 +18,7 @@ from .io.markers import (
     write_residuals,
     write_view_residuals,
 )
+from .io.outputs import atomic_write
 from .pipeline import image_points
 from .pose import solve_pose
 
@@ -121,9 +122,9 @@ def run_pose(args: argparse.Namespace) -> int:
     print(f"{'id':>12} {'du':>9} {'dv':>9} {'error':>9}")
     for k, r, e in zip(ids, result.residuals, result.errors, strict=True):
         print(f"{k:>12} {r[0]:9.4f} {r[1]:9.4f} {e:9.4f}")
-    result.camera.write(args.out)
+    atomic_write(args.out, result.camera.write)
     if args.residuals:
-        write_residuals(args.residuals, ids, uv, result.residuals)
+        atomic_write(args.residuals, write_residuals, ids, uv, result.residuals)
     print(f"camera written to {args.out}")
     return 0
 
@@ -182,8 +183,9 @@ def run_calibrate(args: argparse.Namespace) -> int:
     for v, (i, r) in enumerate(zip(ids, result.residuals, strict=True)):
         for k, (du, dv) in zip(i, r, strict=True):
             print(f"{v:>4} {k:>12} {du:9.4f} {dv:9.4f} {math.hypot(du, dv):9.4f}")
-    cam.write(args.out)
+    atomic_write(args.out, cam.write)
     if args.residuals:
-        write_view_residuals(args.residuals, ids, [uv for _, uv in views], result.residuals)
+        atomic_write(args.residuals, write_view_residuals, ids, [uv for _, uv in views],
+                     result.residuals)
     print(f"camera written to {args.out}")
     return 0

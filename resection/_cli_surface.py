@@ -14,6 +14,7 @@ from .camera import Camera
 from .errors import InputError
 from .io.images import read_image, write_image
 from .io.meshes import load_mesh, read_face_fields, write_surface
+from .io.outputs import atomic_path, atomic_write
 from .plots import plot_surface, virtual_camera
 from .surface import DEFAULT_MAX_OBLIQUENESS, SurfaceMap
 
@@ -118,7 +119,7 @@ def run_map(args: argparse.Namespace) -> int:
         fields[name] = res.values
         fields[f"{name}_count"] = res.counts
         fields[f"{name}_seen"] = ~res.unseen
-    write_surface(args.out, mesh, fields)
+    atomic_write(args.out, write_surface, mesh, fields)
     print(f"map: {int(smap.seen_faces.sum())} of {len(mesh.faces)} faces seen by "
           f"{int(smap.mask.sum())} pixels; written to {args.out}")
     return 0
@@ -136,7 +137,7 @@ def run_backproject(args: argparse.Namespace) -> int:
             background = read_image(args.background)
     img = SurfaceMap(mesh, camera).to_image(values, background=background,
                                             interpolation=args.interpolation)
-    write_image(args.out, img.astype(np.float32))
+    atomic_write(args.out, write_image, img.astype(np.float32))
     print(f"backproject: image written to {args.out}")
     return 0
 
@@ -145,7 +146,7 @@ def run_align(args: argparse.Namespace) -> int:
     mesh = load_mesh(args.mesh)
     warp = ViewWarp(mesh, Camera.read(args.source_camera), Camera.read(args.target_camera))
     out = warp(read_image(args.image), order=args.order)
-    write_image(args.out, out.astype(np.float32))
+    atomic_write(args.out, write_image, out.astype(np.float32))
     print(f"align: {int(warp.valid.sum())} pixels aligned; written to {args.out}")
     return 0
 
@@ -161,8 +162,9 @@ def run_view(args: argparse.Namespace) -> int:
         except ValueError:
             raise InputError(f"--size: expected WxH, got {args.size!r}") from None
         camera = virtual_camera(mesh, args.azimuth, args.elevation, width=w, height=h)
-    plot_surface(mesh, values, camera, method=args.method, cmap=args.cmap, vmin=args.vmin,
-                 vmax=args.vmax, label=name if args.label is None else args.label,
-                 path=args.out)
+    with atomic_path(args.out) as tmp:
+        plot_surface(mesh, values, camera, method=args.method, cmap=args.cmap, vmin=args.vmin,
+                     vmax=args.vmax, label=name if args.label is None else args.label,
+                     path=tmp)
     print(f"view: {args.out}")
     return 0

@@ -1,8 +1,9 @@
 """What the two command lines (``resection``, ``selfillum``) share: one-line errors.
 
 Bad input (an :class:`~resection.errors.InputError`, an untrustworthy solve, a missing or
-unwritable file, a bad argument) is printed as one line naming the problem, with exit
-status 2, never as a traceback. A closed output pipe (``... | head``) ends quietly.
+unwritable file, a bad argument, an output that is one of the inputs) is printed as one
+line naming the problem, with exit status 2, never as a traceback. A closed output pipe
+(``... | head``) ends quietly.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ import os
 import sys
 
 from .errors import InputError, SolveError
+from .io.outputs import check_command_outputs
 
 #: Exceptions reported as one line with exit status 2.
 USER_ERRORS = (
@@ -38,6 +40,7 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None) -> int:
     status."""
     args = parser.parse_args(argv)
     try:
+        check_command_outputs(args)  # no output may be one of the inputs
         return int(args.func(args) or 0)
     except USER_ERRORS as exc:
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__

@@ -18,6 +18,7 @@ def _cmd_psp(args) -> int:
     from resection.camera import Camera
     from resection.io.images import read_image, write_image
     from resection.io.meshes import load_mesh
+    from resection.io.outputs import atomic_write, output_folder
     from resection.surface import SurfaceMap
 
     from ._cli_render import _per_face_arg
@@ -31,8 +32,6 @@ def _cmd_psp(args) -> int:
     if len(ons) != len(cams):
         raise InputError(f"give one wind-on image per camera ({len(cams)} cameras, "
                          f"{len(ons)} wind-on images)")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     mesh = load_mesh(args.mesh)
     taps = read_taps(args.taps)
     maps = [SurfaceMap(mesh, Camera.read(c)) for c in cams]
@@ -45,11 +44,6 @@ def _cmd_psp(args) -> int:
                          progress=not args.quiet)
     res, images = psp_images(maps, off_imgs, on_imgs, taps, args.p_ref, F=F,
                              reflectance=rho, correct_si=not args.no_correction)
-    for k, img in enumerate(images):
-        write_image(out / f"pressure_{k}.tif", img.astype(np.float32))
-    table = np.column_stack([np.arange(len(res.pressure)), res.pressure, res.ratio])
-    np.savetxt(out / "pressure_faces.csv", table, fmt=["%d", "%.9g", "%.9g"], delimiter=",",
-               header="face,pressure,ratio", comments="")
     law = res.stern_volmer
     info = {
         "A": law.A, "B": law.B, "p_ref": law.p_ref, "si_corrected": res.corrected,
@@ -57,7 +51,15 @@ def _cmd_psp(args) -> int:
                  for tid, f, r in zip(taps.ids, res.tap_faces, res.tap_residuals,
                                       strict=True)},
     }
-    (out / "stern_volmer.json").write_text(json.dumps(info, indent=2) + "\n")
+    table = np.column_stack([np.arange(len(res.pressure)), res.pressure, res.ratio])
+    # the folder exists only once there is something to write (removed if writing fails)
+    with output_folder(args.out) as out:
+        for k, img in enumerate(images):
+            atomic_write(out / f"pressure_{k}.tif", write_image, img.astype(np.float32))
+        atomic_write(out / "pressure_faces.csv", np.savetxt, table, fmt=["%d", "%.9g", "%.9g"],
+                     delimiter=",", header="face,pressure,ratio", comments="")
+        atomic_write(out / "stern_volmer.json", Path.write_text,
+                     json.dumps(info, indent=2) + "\n")
     rms = float(np.sqrt(np.nanmean(res.tap_residuals**2)))
     print(f"Stern-Volmer   I_ref/I = {law.A:.4f} + {law.B:.4f} p/p_ref (p_ref {law.p_ref:g})")
     print(f"taps           {len(taps.ids)}, rms residual {rms:.4g}")

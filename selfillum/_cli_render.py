@@ -45,6 +45,7 @@ def _cmd_render(args) -> int:
     from resection.camera import Camera
     from resection.io.images import write_image
     from resection.io.meshes import load_mesh
+    from resection.io.outputs import atomic_write, side_path
 
     from .rendering import render
 
@@ -53,6 +54,7 @@ def _cmd_render(args) -> int:
         raise InputError(f"--out: expected a .tif, .tiff or .npy file, got {out.name!r}")
     if not out.parent.exists():
         raise InputError(f"--out: folder {out.parent} does not exist")
+    png = side_path(out, "preview", ".png")  # a.tif -> a.preview.png, never an unrelated a.png
     mesh = load_mesh(args.mesh)
     camera = Camera.read(args.camera)
     emission = _per_face_arg(args.emission, "--emission")
@@ -66,9 +68,8 @@ def _cmd_render(args) -> int:
     res = render(mesh, emission, reflectance, camera, bounces=args.bounces, spp=args.spp,
                  seed=args.seed, variant=args.variant, paint=paint, two_sided=args.two_sided)
     seconds = time.perf_counter() - t0
-    write_image(out, res.image)
-    png = out.with_suffix(".png")
-    write_image(png, preview(res.image))
+    atomic_write(out, write_image, res.image)
+    atomic_write(png, write_image, preview(res.image))
     print(f"variant   {res.variant}")
     print(f"image     {camera.width} x {camera.height}, {res.spp} spp, bounces {res.bounces}")
     if paint is not None:

@@ -279,13 +279,17 @@ def plot_corner(result: CornerResult, path) -> Path:
 def write_corner(result: CornerResult, out_dir) -> dict:
     """Write ``corner_profile.png``, ``corner_profile.csv`` and ``corner_numbers.json``
     to ``out_dir`` (created if needed); return their paths by kind."""
+    from resection.io.outputs import atomic_path  # each file via a temporary name
+
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    png = plot_corner(result, out / "corner_profile.png")
+    png = out / "corner_profile.png"
+    with atomic_path(png) as tmp:
+        plot_corner(result, tmp)
     csv_path = out / "corner_profile.csv"
     p = result.profile
     cols = ["s", "x", "y", "z", "face", "true", "with_si", "corrected"]
-    with open(csv_path, "w", newline="") as fh:
+    with atomic_path(csv_path) as tmp, open(tmp, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(cols)
         for row in zip(*(p[c] for c in cols), strict=True):
@@ -293,5 +297,6 @@ def write_corner(result: CornerResult, out_dir) -> dict:
                 [int(v) if c == "face" else f"{v:.9g}" for c, v in zip(cols, row, strict=True)]
             )
     json_path = out / "corner_numbers.json"
-    json_path.write_text(json.dumps(asdict(result.numbers), indent=2) + "\n")
+    with atomic_path(json_path) as tmp:
+        tmp.write_text(json.dumps(asdict(result.numbers), indent=2) + "\n")
     return {"png": png, "csv": csv_path, "json": json_path}

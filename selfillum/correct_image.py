@@ -310,8 +310,13 @@ def correct_image_file(
     ``out_path``'s suffix) and optionally the per-face fields (``radiosity``,
     ``emission``, ``seen``) to ``surface_out`` (.ply, .vtk or .csv)."""
     from resection.io.meshes import load_mesh, write_surface
+    from resection.io.outputs import atomic_path, refuse_overwriting_inputs
 
     image_path, out_path = Path(image_path), Path(out_path)
+    refuse_overwriting_inputs(
+        {"out_path": out_path, "surface_out": surface_out},
+        {"image_path": [image_path], "mesh_path": [mesh_path], "camera_path": [camera_path],
+         "reflectance": [reflectance] if isinstance(reflectance, (str, os.PathLike)) else []})
     for p in (image_path, out_path):
         if p.suffix.lower() not in (".tif", ".tiff", ".npy"):
             raise InputError(f"{p}: images must be TIFF (.tif, .tiff) or NPY (.npy)")
@@ -333,19 +338,21 @@ def correct_image_file(
         mode=mode,
         progress=progress,
     )
-    if out_path.suffix.lower() == ".npy":
-        np.save(out_path, result.image, allow_pickle=False)
-    else:
-        import tifffile
+    # both files through temporary names, renamed into place only when both are written
+    with atomic_path(out_path) as tmp, atomic_path(surface_out) as tmp_surface:
+        if out_path.suffix.lower() == ".npy":
+            np.save(tmp, result.image, allow_pickle=False)
+        else:
+            import tifffile
 
-        tifffile.imwrite(out_path, result.image)
-    if surface_out is not None:
-        fields = {  # (N,) or, for a stack, (N, T): one column per frame
-            "radiosity": result.radiosity.T,
-            "emission": result.emission.T,
-            "seen": result.seen.astype(np.uint8).T,
-        }
-        write_surface(surface_out, mesh, fields)
+            tifffile.imwrite(tmp, result.image)
+        if surface_out is not None:
+            fields = {  # (N,) or, for a stack, (N, T): one column per frame
+                "radiosity": result.radiosity.T,
+                "emission": result.emission.T,
+                "seen": result.seen.astype(np.uint8).T,
+            }
+            write_surface(tmp_surface, mesh, fields)
     return result
 
 

@@ -497,7 +497,7 @@ def test_cli_render_writes_image_and_preview(tmp_path, capsys):
     assert img.dtype == np.float32 and img.shape == (72, 96)
     face, inside, _ = footprint_faces(cam, 4)
     np.testing.assert_allclose(img.ravel()[inside], E[face[inside]] / np.pi, rtol=2e-6)
-    png = read_image(out.with_suffix(".png"))
+    png = read_image(tmp_path / "render.preview.png")  # named from --out
     assert png.shape == (72, 96) and png.max() == 255 and png.min() == 0
 
     # glossy paint: brighter than Lambertian at the same diffuse reflectance

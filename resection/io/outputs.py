@@ -1,0 +1,207 @@
+"""Writing outputs safely: never over an input, never half a file.
+
+Three rules every command follows (DESIGN.md, "Outputs never overwrite an input"):
+
+* an output that is one of the command's inputs (the same file, through any path, link or
+  hard link) is refused before anything is computed: :func:`refuse_overwriting_inputs`,
+  and :func:`check_command_outputs` which applies it to a parsed command line;
+* every file is written to a temporary name in its own folder and renamed into place
+  (``os.replace``, atomic on one file system), so a crash, a full disk or a bad value
+  never leaves half a file nor destroys the previous one: :func:`atomic_path`,
+  :func:`atomic_write`;
+* a side file (a preview, a sidecar) is named from the output it goes with and never
+  replaces a file the command did not make: :func:`side_path`. An output folder is
+  created only by a run that succeeds (:func:`output_folder`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import secrets
+import shutil
+from collections.abc import Iterable, Iterator, Mapping
+from pathlib import Path
+
+from ..errors import InputError
+
+__all__ = [
+    "OUTPUT_OPTIONS",
+    "atomic_path",
+    "atomic_write",
+    "check_command_outputs",
+    "output_folder",
+    "refuse_overwriting_inputs",
+    "same_file",
+    "side_path",
+]
+
+#: Command-line options (argparse ``dest``) that name files a command writes; every other
+#: option whose value names an existing file is taken as an input.
+OUTPUT_OPTIONS = ("out", "residuals", "png", "suggest", "pose", "surface", "plot")
+
+
+def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
+    """True when ``a`` and ``b`` are one file: ``os.path.samefile`` when both exist (links
+    and hard links included), else the same absolute path with links resolved."""
+    a, b = Path(a), Path(b)
+    try:
+        if a.exists() and b.exists():
+            return os.path.samefile(a, b)
+    except OSError:
+        pass
+    return a.resolve() == b.resolve()
+
+
+def refuse_overwriting_inputs(outputs: Mapping[str, str | os.PathLike | None],
+                              inputs: Mapping[str, Iterable[str | os.PathLike]]) -> None:
+    """Raise :class:`InputError` when an output is one of the inputs, or two outputs are
+    one file.
+
+    Parameters
+    ----------
+    outputs : mapping of str to path or None
+        Outputs by the name the user knows them under (e.g. ``"--out"``); None is skipped.
+        An existing folder is not a file output and is skipped.
+    inputs : mapping of str to iterable of paths
+        Inputs by name (e.g. ``"--image"``); only existing files are compared.
+    """
+    outs = [(k, Path(v)) for k, v in outputs.items()
+            if v is not None and str(v) != "" and not Path(v).is_dir()]
+    for i, (name, path) in enumerate(outs):
+        for other_name, other in outs[:i]:
+            if same_file(path, other):
+                raise InputError(f"{name} {path}: same file as {other_name}; give each "
+                                 "output its own name")
+        for in_name, paths in inputs.items():
+            for p in paths:
+                if Path(p).is_file() and same_file(path, p):
+                    raise InputError(
+                        f"{name} {path}: is an input of this command ({in_name} {p}); "
+                        "refusing to overwrite it: write to another file")
+
+
+def _as_paths(value) -> list[str]:
+    """The file names a parsed option value may hold (a string, a list of them, or
+    ``A:B`` pairs as in ``calibrate --views``)."""
+    if isinstance(value, (str, os.PathLike)):
+        text = os.fspath(value)
+        return [text, *text.rsplit(":", 1)] if ":" in text else [text]
+    if isinstance(value, (list, tuple)):
+        return [p for v in value for p in _as_paths(v)]
+    return []
+
+
+def check_command_outputs(args, output_options: Iterable[str] = OUTPUT_OPTIONS) -> None:
+    """Apply :func:`refuse_overwriting_inputs` to a parsed command line: the options in
+    ``output_options`` are the outputs, every other option naming an existing file an
+    input. Called before the command runs, so nothing is computed in vain."""
+    opts = vars(args)
+    output_options = tuple(output_options)
+    outputs = {f"--{k.replace('_', '-')}": v for k, v in opts.items()
+               if k in output_options and isinstance(v, (str, os.PathLike))}
+    inputs = {f"input {k.replace('_', '-')}": _as_paths(v)
+              for k, v in opts.items() if k not in output_options + ("command", "func")}
+    refuse_overwriting_inputs(outputs, inputs)
+
+
+def _temporary_name(path: Path) -> Path:
+    """A fresh name next to ``path`` with the same extension (writers choose the format
+    from it): ``folder/.name.<pid>-<random>.tmp<suffix>``."""
+    tag = f"{os.getpid()}-{secrets.token_hex(4)}"
+    return path.with_name(f".{path.stem}.{tag}.tmp{path.suffix}")
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike | None) -> Iterator[Path | None]:
+    """Context manager: a temporary path to write ``path`` through.
+
+    Write the file to the yielded path; when the block ends without an exception it is
+    renamed to ``path`` (``os.replace``: readers see the old file or the new one, never a
+    part); on an exception it is removed and ``path`` is left as it was. A ``None`` path
+    yields None (an optional output not asked for).
+
+    Raises
+    ------
+    InputError
+        The folder of ``path`` does not exist, or ``path`` is a folder.
+    """
+    if path is None:
+        yield None
+        return
+    final = Path(path)
+    if final.is_dir():
+        raise InputError(f"{final}: is a folder, expected a file name")
+    folder = final.parent
+    if not folder.is_dir():
+        raise InputError(f"{final}: folder {folder} does not exist")
+    tmp = _temporary_name(final)
+    try:
+        yield tmp
+        if not tmp.exists():
+            raise InputError(f"{final}: nothing was written")
+        os.replace(tmp, final)
+    except BaseException as exc:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        msg = str(exc)
+        if tmp.name in msg and isinstance(exc, ValueError):
+            # the writer's message names the temporary file: name the user's file
+            raise type(exc)(msg.replace(str(tmp), str(final)).replace(tmp.name, final.name)) \
+                from None
+        raise
+
+
+def atomic_write(path: str | os.PathLike, writer, *args, **kwargs):
+    """``writer(tmp, *args, **kwargs)`` through :func:`atomic_path`; returns its result.
+
+    E.g. ``atomic_write("out.tif", write_image, image)``.
+    """
+    with atomic_path(path) as tmp:
+        return writer(tmp, *args, **kwargs)
+
+
+def side_path(output: str | os.PathLike, tag: str, suffix: str) -> Path:
+    """The name of a side file (preview, sidecar) of ``output``: ``<stem>.<tag><suffix>``
+    in the same folder (``a.tif`` -> ``a.preview.png``).
+
+    A side file never replaces a file the command did not make: an existing one is
+    accepted only when ``output`` exists too (the pair left by an earlier run into the same
+    output), else it is refused.
+
+    Raises
+    ------
+    InputError
+        The side file exists without its output, or is the output itself.
+    """
+    output = Path(output)
+    side = output.with_name(f"{output.stem}.{tag}{suffix}")
+    if same_file(side, output):
+        raise InputError(f"{output}: its {tag} would have the same name {side.name}")
+    if side.exists() and not output.exists():
+        raise InputError(
+            f"{side}: exists and was not made with {output.name} (its {tag} goes there); "
+            "refusing to replace it: move it or choose another output name")
+    return side
+
+
+@contextlib.contextmanager
+def output_folder(path: str | os.PathLike) -> Iterator[Path]:
+    """Context manager: the output folder ``path``, created if missing, and removed again
+    (with what the block wrote into it) when the block fails and the folder was made here.
+    An existing folder is never removed."""
+    folder = Path(path)
+    if folder.exists() and not folder.is_dir():
+        raise InputError(f"{folder}: exists and is not a folder")
+    made = None  # the topmost folder this call creates
+    for parent in (folder, *folder.parents):
+        if parent.exists():
+            break
+        made = parent
+    folder.mkdir(parents=True, exist_ok=True)
+    try:
+        yield folder
+    except BaseException:
+        if made is not None:
+            shutil.rmtree(made, ignore_errors=True)
+        raise
