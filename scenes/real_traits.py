@@ -15,8 +15,9 @@ A painted flat plate carrying a black, unpainted block, filmed by two cameras:
   the true ones moved along the surface by 0.5 to 1.5 px equivalent (at camera 0's
   distance), as real survey errors are;
 * **pressure taps**: smaller dark dots (1.5 mm, not in the marker file): distractors;
-* **frames**: 8-bit (``uint8``), camera 1 with a different gain from camera 0, Gaussian
-  read noise, and a glare spot (additive, saturated at its core) in camera 0.
+* **frames**: 8-bit (``uint8``), camera 1 with a different gain from camera 0, vignetting
+  (12 % at the corners), Gaussian read noise, and a glare spot (additive, saturated at its
+  core) in camera 0.
 
 Rendering: every pixel's line of sight (distortion included) is cast on the grid by
 :class:`resection.SurfaceMap`; the pixel gets the luminescence at its hit point (or the black
@@ -197,7 +198,8 @@ def _dots(smap: SurfaceMap, caster: RayCaster, centres, normals, diameter):
 
 
 def real_traits(*, scale: float = 1.0, seed: int = 0, gain_ratio: float = 1.25,
-                noise: float = 1.2, glare: float = 140.0) -> RealTraits:
+                noise: float = 1.2, glare: float = 140.0, vignetting: float = 0.12
+                ) -> RealTraits:
     """Build the scene (see the module docstring).
 
     Parameters
@@ -213,6 +215,9 @@ def real_traits(*, scale: float = 1.0, seed: int = 0, gain_ratio: float = 1.25,
         Read-noise standard deviation, counts.
     glare : float
         Peak of camera 0's glare spot, counts (its core saturates the 8-bit frame).
+    vignetting : float
+        Relative fall-off of the light at the image corners (``1 - vignetting r^2``, ``r``
+        the distance to the image centre over the half diagonal).
     """
     if not (0.25 <= scale <= 8):
         raise InputError(f"real_traits: scale must be in [0.25, 8], got {scale}")
@@ -274,6 +279,9 @@ def real_traits(*, scale: float = 1.0, seed: int = 0, gain_ratio: float = 1.25,
                                       blur=blur, dtype=np.float64)
         signal = signal * (1.0 - _DOT_DEPTH * np.clip(att, 0.0, 1.0))
         vv, uu = np.mgrid[0:cam.height, 0:cam.width]
+        r2 = ((uu - (cam.width - 1) / 2) ** 2 + (vv - (cam.height - 1) / 2) ** 2) \
+            / (((cam.width - 1) / 2) ** 2 + ((cam.height - 1) / 2) ** 2)
+        signal = signal * (1.0 - vignetting * r2)
         g = np.zeros((cam.height, cam.width))
         if c == 0 and glare > 0:
             gu, gv, gs = 0.3 * cam.width, 0.3 * cam.height, 0.05 * cam.width

@@ -213,7 +213,7 @@ def psp_pressure(
         The model.
     wind_off, wind_on : (F,) array_like
         Per-face intensity (e.g. :meth:`resection.surface.SurfaceMap.to_surface` of the
-        images, or :func:`selfillum.multiview.merge_views`), proportional to radiance.
+        images, or :func:`resection.merge.merge_views`), proportional to radiance.
         NaN on faces not seen.
     taps : Taps
         Tap positions and pressures.
@@ -278,7 +278,8 @@ def psp_images(
     """The PSP workflow from camera images: one or several cameras, wind-off and wind-on.
 
     Each camera's images are mapped onto the faces and merged over the cameras
-    (:func:`selfillum.multiview.merge_views`, silhouette pixels dropped), the pressure is
+    (:func:`resection.merge.merge_views`: feathered weights, obliqueness cut-off, camera
+    gains matched on the wind-off overlaps and reused wind-on), the pressure is
     computed on the faces seen in both merged images (:func:`psp_pressure`) and
     backprojected into every camera (interpolated over the surface).
 
@@ -299,13 +300,13 @@ def psp_images(
     images : list of (H_c, W_c) float64 arrays
         Pressure seen by each camera (NaN off the model and on faces without pressure).
     """
-    from .multiview import merge_views
+    from resection.merge import merge_views
 
     maps = list(maps)
     if not maps:
         raise InputError("psp_images: no camera given")
     off = merge_views(maps, wind_off_images)
-    on = merge_views(maps, wind_on_images)
+    on = merge_views(maps, wind_on_images, gains=off.gains)
     mesh = maps[0].mesh
     res = psp_pressure(mesh, off.values, on.values, taps, p_ref, F=F, reflectance=reflectance,
                        seen=off.seen & on.seen, correct_si=correct_si)
