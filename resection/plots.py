@@ -28,6 +28,7 @@ from matplotlib.figure import Figure
 from ._checks import as_points
 from .camera import Camera
 from .errors import InputError
+from .memory import PICTURE_BYTES_PER_PIXEL, check_pixel_memory
 from .surface import SurfaceMap
 from .visibility import visible_faces
 
@@ -147,6 +148,7 @@ def plot_surface(
         hi, lo = (lo + 1.0, lo) if vmax is None else (hi, hi - 1.0)
     norm = Normalize(lo, hi)
     W, H = camera.width, camera.height
+    check_pixel_memory(W, H, PICTURE_BYTES_PER_PIXEL, "plot_surface")
     fig_w = max(W / dpi, 5.0)
     fig = Figure(figsize=(fig_w + 1.4, fig_w * H / W + 0.6), dpi=dpi, layout="constrained")
     ax = fig.add_subplot()

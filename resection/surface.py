@@ -25,6 +25,7 @@ import trimesh
 
 from .camera import Camera
 from .errors import InputError
+from .memory import SURFACE_MAP_BYTES_PER_PIXEL, check_pixel_memory
 from .visibility import RayCaster
 
 __all__ = ["DEFAULT_MAX_OBLIQUENESS", "SurfaceMap", "SurfaceSample", "oblique_faces",
@@ -293,6 +294,7 @@ class SurfaceMap:
         self.camera = camera
         self.max_obliqueness = _check_obliqueness(max_obliqueness)
         H, W = camera.height, camera.width
+        check_pixel_memory(W, H, SURFACE_MAP_BYTES_PER_PIXEL, "SurfaceMap")
         self.shape = (H, W)
         caster = RayCaster(mesh) if caster is None else caster
         if caster.n_faces != len(mesh.faces):

@@ -378,3 +378,38 @@ def test_output_folder_removed_only_when_this_run_made_it(tmp_path):
         with output_folder(tmp_path / "old") as out:
             raise RuntimeError("solver failed")
     assert (tmp_path / "old" / "keep.txt").read_text() == "mine"
+
+
+# --------------------------------------------------------------------------------------
+# Image sizes that cannot be allocated are refused before allocating (issue 10 item 6)
+# --------------------------------------------------------------------------------------
+
+
+def test_view_size_that_cannot_be_allocated_is_refused(tmp_path, capsys):
+    """``resection view --size 100000x100000`` ended in a MemoryError traceback: 1e10
+    pixels need terabytes for the per-pixel rays; refused in one line, nothing written."""
+    from resection.cli import main
+
+    sc, _, _ = _corner_files(tmp_path)
+    np.save(tmp_path / "v.npy", np.arange(len(sc.mesh.faces), dtype=float))
+    out = tmp_path / "view.png"
+    rc = main(["view", "--mesh", str(tmp_path / "corner.ply"), "--values",
+               str(tmp_path / "v.npy"), "--size", "100000x100000", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 2 and "100000x100000" in err and "GiB" in err and len(err.splitlines()) == 1
+    assert not out.exists()
+    # a size that fits still works
+    rc = main(["view", "--mesh", str(tmp_path / "corner.ply"), "--values",
+               str(tmp_path / "v.npy"), "--size", "120x90", "--out", str(out)])
+    assert rc == 0 and out.exists()
+
+
+def test_pixel_memory_decision_against_a_stated_budget():
+    """The decision itself, with the budget given (independent of this machine)."""
+    from resection.memory import check_pixel_memory
+
+    check_pixel_memory(1000, 1000, 100, "x", available=100_000_000)  # exactly fits
+    with pytest.raises(InputError, match="1001x1000"):
+        check_pixel_memory(1001, 1000, 100, "x", available=100_000_000)
+    with pytest.raises(InputError, match="positive"):
+        check_pixel_memory(0, 10, 100, "x", available=100)

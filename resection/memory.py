@@ -1,0 +1,63 @@
+"""Memory budget of per-pixel work: refuse an image size that cannot be allocated,
+before allocating it (a one-line error instead of a ``MemoryError`` traceback or a
+machine swapping itself to a halt)."""
+
+from __future__ import annotations
+
+import os
+
+from .errors import InputError
+
+__all__ = ["available_memory", "check_pixel_memory"]
+
+#: Bytes a pixel at least costs in :class:`resection.surface.SurfaceMap` (pixel grid,
+#: ray directions, hit face, depth and barycentric coordinates: 80 bytes in float64/int64,
+#: with the temporaries of the ray set-up and the hit test about twice that).
+SURFACE_MAP_BYTES_PER_PIXEL = 160
+#: Bytes a pixel at least costs in a picture (RGBA canvas, colour-mapped float image).
+PICTURE_BYTES_PER_PIXEL = 40
+
+
+def available_memory() -> int | None:
+    """Memory the process can still allocate, bytes: ``MemAvailable`` of
+    ``/proc/meminfo`` (Linux), else the physical memory (``sysconf``), else None."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return int(os.sysconf("SC_PHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (AttributeError, ValueError, OSError):
+        return None
+
+
+def check_pixel_memory(width: int, height: int, bytes_per_pixel: float, what: str, *,
+                       available: int | None = None) -> None:
+    """Raise :class:`InputError` when ``width x height`` pixels at ``bytes_per_pixel``
+    exceed the memory available.
+
+    Parameters
+    ----------
+    width, height : int
+        Image size, pixels.
+    bytes_per_pixel : float
+        What one pixel costs at least (a lower bound, so that nothing that would fit is
+        refused).
+    what : str
+        What is being allocated, for the message (e.g. ``"the surface map"``).
+    available : int, optional
+        Bytes available; default :func:`available_memory` (no check when unknown).
+    """
+    w, h = int(width), int(height)
+    if w <= 0 or h <= 0:
+        raise InputError(f"{what}: image size must be positive, got {w}x{h}")
+    avail = available_memory() if available is None else int(available)
+    need = float(w) * float(h) * float(bytes_per_pixel)
+    if avail is not None and need > avail:
+        raise InputError(
+            f"{what}: a {w}x{h} image ({w * h / 1e6:.4g} Mpixel) needs at least "
+            f"{need / 2**30:.3g} GiB, only {avail / 2**30:.3g} GiB available: use a smaller "
+            "image size")
