@@ -41,6 +41,7 @@ import numpy as np
 from .._checks import json_array
 from ..camera import Camera
 from ..errors import InputError
+from ._write import atomic_text
 
 __all__ = ["CameraFile", "read_camera", "read_camera_file", "write_camera", "camera_format"]
 
@@ -372,7 +373,7 @@ def write_camera(
                           indent=2) + "\n"
     else:
         text = _to_opencv(camera, fmt, intrinsics_only)
-    _atomic_write_text(path, text)
+    atomic_text(path, text)
 
 
 def _to_upsp(cam: Camera, sensor_size, channels, intrinsics_only) -> dict:
@@ -412,17 +413,3 @@ def _to_opencv(cam: Camera, fmt: str, intrinsics_only: bool) -> str:
                 f"</{name}>"]
     out.append("</opencv_storage>")
     return "\n".join(out) + "\n"
-
-
-def _atomic_write_text(path: str, text: str) -> None:
-    folder = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(folder):
-        raise InputError(f"{path}: output folder {folder} does not exist")
-    tmp = os.path.join(folder, f".{os.path.basename(path)}.{os.getpid()}.tmp")
-    try:
-        with open(tmp, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)

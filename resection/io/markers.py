@@ -2,8 +2,11 @@
 
 Formats (DESIGN.md):
 
-* marker file: CSV with a header ``id,x,y,z`` and optionally ``diameter`` (model units);
-  ids are strings, unique.
+* marker file: CSV with a header ``id,x,y,z`` and optionally ``diameter`` (model units)
+  and ``nx,ny,nz`` (the outward surface normal at the marker; all three or none); ids are
+  strings, unique. A uPSP ``.tgts`` file (``*Targets`` / ``*Taps`` sections, see
+  :mod:`resection.io.tgts`) is recognised by content and read by the same
+  :func:`read_markers`.
 * linked image points: CSV ``id,u,v`` (pixels, centre of the top-left pixel at (0, 0));
   the columns of a matched-candidates file (``diameter,depth,merit,snr``) may be present
   and are ignored.
@@ -25,6 +28,7 @@ import numpy as np
 
 from .._checks import as_points
 from ..errors import InputError
+from ._write import atomic_text
 
 __all__ = [
     "MarkerSet",
@@ -52,14 +56,67 @@ class MarkerSet:
         Model coordinates, model units.
     diameter : (N,) ndarray
         Diameters, model units (NaN where not given).
+    normals : (N, 3) ndarray
+        Outward unit surface normals at the markers (rows of NaN where not given). A marker
+        whose normal faces away from a camera is not expected in its image
+        (:meth:`facing`).
+    taps : (N,) bool ndarray
+        True for pressure taps (``*Taps`` of a ``.tgts`` file): known dark spots that are
+        *not* targets. Matching and pose must not take them for targets (use
+        :attr:`targets`); ``selfillum psp`` may use their positions for the in-situ fit.
     """
 
     ids: tuple[str, ...]
     xyz: np.ndarray
     diameter: np.ndarray
+    normals: np.ndarray | None = None
+    taps: np.ndarray | None = None
+
+    def __post_init__(self):
+        n = len(self.ids)
+        normals = np.full((n, 3), np.nan) if self.normals is None else \
+            np.array(self.normals, dtype=np.float64).reshape(-1, 3)
+        taps = np.zeros(n, bool) if self.taps is None else np.array(self.taps, dtype=bool)
+        if normals.shape != (n, 3) or taps.shape != (n,):
+            raise InputError(f"MarkerSet: {n} ids but normals {normals.shape}, taps "
+                             f"{taps.shape}")
+        with np.errstate(invalid="ignore"):
+            norm = np.linalg.norm(normals, axis=1)
+        given = np.isfinite(norm)
+        if np.any(given & ~(norm > 0)):
+            raise InputError("MarkerSet: zero-length normal")
+        normals[given] /= norm[given, None]
+        normals.setflags(write=False)
+        taps.setflags(write=False)
+        object.__setattr__(self, "normals", normals)
+        object.__setattr__(self, "taps", taps)
 
     def __len__(self) -> int:
         return len(self.ids)
+
+    def subset(self, mask) -> MarkerSet:
+        """The markers where ``mask`` (bool array or index array) selects them."""
+        idx = np.arange(len(self))[mask]
+        return MarkerSet(tuple(self.ids[i] for i in idx), self.xyz[idx], self.diameter[idx],
+                         self.normals[idx], self.taps[idx])
+
+    @property
+    def targets(self) -> MarkerSet:
+        """The markers without the pressure taps (what matching and pose use)."""
+        return self if not self.taps.any() else self.subset(~self.taps)
+
+    @property
+    def tap_set(self) -> MarkerSet:
+        """Only the pressure taps."""
+        return self.subset(self.taps)
+
+    def facing(self, center) -> np.ndarray:
+        """``(N,)`` bool: True where the marker's normal faces the point ``center`` (a
+        camera's perspective centre, model units), or where no normal is given."""
+        c = np.asarray(center, dtype=np.float64).reshape(3)
+        with np.errstate(invalid="ignore"):
+            dots = np.einsum("ij,ij->i", self.normals, c - self.xyz)
+        return ~(dots <= 0)
 
     def select(self, ids) -> np.ndarray:
         """Coordinates ``(M, 3)`` of the given ids, in that order (unknown id: InputError)."""
@@ -137,8 +194,16 @@ def _ids(path, rows) -> tuple[str, ...]:
     return tuple(seen)
 
 
-def read_markers(path: str | os.PathLike) -> MarkerSet:
-    """Read a marker file ``id,x,y,z[,diameter]``.
+def read_markers(path: str | os.PathLike, *, mesh=None) -> MarkerSet:
+    """Read a marker file: CSV ``id,x,y,z[,diameter][,nx,ny,nz]`` or a uPSP ``.tgts`` file
+    (recognised by its ``*Targets`` section, whatever the extension).
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh, optional
+        The model surface: targets lying under it (a known trap of uPSP target files) are
+        moved out to it along their normals, with a warning naming them
+        (:func:`resection.io.tgts.snap_to_surface`).
 
     Raises
     ------
@@ -146,7 +211,20 @@ def read_markers(path: str | os.PathLike) -> MarkerSet:
         Missing file or column, unknown column, duplicate or empty id, non-numeric or
         non-finite coordinate, negative diameter: the message names the file and line.
     """
-    path, rows = _read_table(path, ("id", "x", "y", "z"), ("diameter",), "marker")
+    from . import tgts
+
+    if tgts.is_tgts(path):
+        ms = tgts.read_tgts(path)
+    else:
+        ms = _read_marker_csv(path)
+    if mesh is not None:
+        ms = tgts.snap_to_surface(ms, mesh, source=os.fspath(path))
+    return ms
+
+
+def _read_marker_csv(path) -> MarkerSet:
+    path, rows = _read_table(path, ("id", "x", "y", "z"), ("diameter", "nx", "ny", "nz"),
+                             "marker")
     ids = _ids(path, rows)
     xyz = np.array([[_number(path, ln, r, c) for c in ("x", "y", "z")] for ln, r in rows])
     if "diameter" in rows[0][1]:
@@ -156,31 +234,61 @@ def read_markers(path: str | os.PathLike) -> MarkerSet:
                 raise InputError(f"{path}:{ln}: diameter must be positive, got {d}")
     else:
         diam = np.full(len(rows), np.nan)
-    return MarkerSet(ids, xyz, diam)
+    ncols = [c for c in ("nx", "ny", "nz") if c in rows[0][1]]
+    normals = None
+    if ncols:
+        if len(ncols) != 3:
+            raise InputError(f"{path}: normal columns nx,ny,nz come together, got only "
+                             f"{','.join(ncols)}")
+        normals = np.array([[_number(path, ln, r, c, allow_empty=True) for c in ncols]
+                            for ln, r in rows])
+        for (ln, _), n in zip(rows, normals, strict=True):
+            if np.isnan(n).any() and not np.isnan(n).all():
+                raise InputError(f"{path}:{ln}: give all of nx,ny,nz or none")
+            if np.all(np.isfinite(n)) and not np.any(n):
+                raise InputError(f"{path}:{ln}: zero normal")
+    return MarkerSet(ids, xyz, diam, normals)
 
 
-def write_markers(path: str | os.PathLike, ids, xyz, diameter=None) -> None:
-    """Write a marker file ``id,x,y,z[,diameter]``."""
+def write_markers(path: str | os.PathLike, ids, xyz, diameter=None, normals=None) -> None:
+    """Write a marker file ``id,x,y,z[,diameter][,nx,ny,nz]`` (for uPSP's ``.tgts`` see
+    :func:`resection.io.tgts.write_tgts`)."""
     ids = [str(k) for k in ids]
     xyz = as_points(xyz, 3, "xyz")
     if len(ids) != len(xyz):
         raise InputError(f"write_markers: {len(ids)} ids but {len(xyz)} coordinates")
     if len(set(ids)) != len(ids):
         raise InputError("write_markers: duplicate ids")
-    with open(os.fspath(path), "w", newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh, lineterminator="\n")
-        if diameter is None:
-            w.writerow(["id", "x", "y", "z"])
-            for k, p in zip(ids, xyz, strict=True):
-                w.writerow([k, *(repr(float(v)) for v in p)])
-        else:
-            d = np.asarray(diameter, dtype=float).ravel()
-            if d.shape != (len(ids),):
-                raise InputError(f"write_markers: {d.size} diameters for {len(ids)} markers")
-            w.writerow(["id", "x", "y", "z", "diameter"])
-            for k, p, di in zip(ids, xyz, d, strict=True):
-                dtext = "" if np.isnan(di) else repr(float(di))
-                w.writerow([k, *(repr(float(v)) for v in p), dtext])
+    cols = [["id"] + list(ids), *([["x", "y", "z"][k]] + list(xyz[:, k]) for k in range(3))]
+    if diameter is not None:
+        d = np.asarray(diameter, dtype=float).ravel()
+        if d.shape != (len(ids),):
+            raise InputError(f"write_markers: {d.size} diameters for {len(ids)} markers")
+        cols.append(["diameter"] + list(d))
+    if normals is not None:
+        nrm = as_points(normals, 3, "normals", allow_nan=True)
+        if len(nrm) != len(ids):
+            raise InputError(f"write_markers: {len(nrm)} normals for {len(ids)} markers")
+        cols += [[c] + list(nrm[:, k]) for k, c in enumerate(("nx", "ny", "nz"))]
+
+    def text(v):
+        if isinstance(v, str):
+            return v
+        return "" if np.isnan(v) else repr(float(v))
+
+    lines = [",".join(c[0] for c in cols)]
+    for i in range(len(ids)):
+        row = [cols[0][i + 1]] + [text(c[i + 1]) for c in cols[1:]]
+        lines.append(_csv_line(row))
+    atomic_text(os.fspath(path), "\n".join(lines) + "\n")
+
+
+def _csv_line(fields) -> str:
+    import io
+
+    buf = io.StringIO()
+    csv.writer(buf, lineterminator="").writerow(fields)
+    return buf.getvalue()
 
 
 def read_points(path: str | os.PathLike) -> tuple[tuple[str, ...], np.ndarray]:

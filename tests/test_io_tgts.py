@@ -1,0 +1,109 @@
+"""uPSP .tgts target files and marker CSV normals: read, write, taps, targets under the
+surface (closed-form geometry on a flat plate)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from resection import InputError, read_markers, write_markers
+from resection.io.markers import MarkerSet
+from resection.io.tgts import read_tgts, snap_to_surface, write_tgts
+
+TGTS = """# uPSP targets, inches
+*Targets
+1  10.0  2.0  0.5   0.0 0.0 2.0   0.25  1 10 4  T1
+2  12.5 -1.0  0.5   0.0 0.0 1.0   0.25  1 20 7  T2
+3  14.0  0.0  0.25  1.0 0.0 0.0   0.30  2  3 3  T3
+*Taps
+1  11.0  0.0  0.5   0.0 0.0 1.0   0.05  1 15 5  P1
+# end
+"""
+
+
+def test_read_tgts(tmp_path):
+    p = tmp_path / "model.tgts"
+    p.write_text(TGTS)
+    ms = read_markers(p)
+    assert ms.ids == ("T1", "T2", "T3", "P1")
+    np.testing.assert_array_equal(ms.xyz[2], [14.0, 0.0, 0.25])
+    np.testing.assert_array_equal(ms.normals[0], [0.0, 0.0, 1.0])  # normalised
+    np.testing.assert_array_equal(ms.diameter, [0.25, 0.25, 0.30, 0.05])
+    assert ms.taps.tolist() == [False, False, False, True]
+    assert ms.targets.ids == ("T1", "T2", "T3") and ms.tap_set.ids == ("P1",)
+    other = tmp_path / "model.txt"  # recognised by content, not by extension
+    other.write_text(TGTS)
+    assert read_markers(other).ids == ms.ids
+
+
+def test_tgts_round_trip(tmp_path):
+    src = tmp_path / "a.tgts"
+    src.write_text(TGTS)
+    ms = read_tgts(src)
+    out = tmp_path / "b.tgts"
+    write_tgts(out, ms)
+    back = read_tgts(out)
+    assert back.ids == ms.ids
+    for attr in ("xyz", "normals", "diameter", "taps"):
+        np.testing.assert_array_equal(getattr(back, attr), getattr(ms, attr))
+
+
+def test_marker_csv_normals_round_trip_and_facing(tmp_path):
+    xyz = np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0]])
+    nrm = np.array([[0.0, 0, 1], [0, 0, -1], [np.nan] * 3])
+    p = tmp_path / "m.csv"
+    write_markers(p, ["a", "b", "c"], xyz, [0.01, 0.01, np.nan], normals=nrm)
+    ms = read_markers(p)
+    np.testing.assert_array_equal(ms.xyz, xyz)
+    np.testing.assert_array_equal(ms.normals[:2], nrm[:2])
+    assert np.isnan(ms.normals[2]).all() and np.isnan(ms.diameter[2])
+    # a camera above the plate sees a, not b (normal away); c has no normal: expected
+    assert ms.facing([0.5, 0.0, 3.0]).tolist() == [True, False, True]
+
+
+@pytest.mark.parametrize(
+    "body, match",
+    [
+        ("*Targets\n1 1 2 3 0 0 1 0.2 1 1 1\n", r":2: 11 columns, expected 12"),
+        ("*Targets\n1 1 2 3 0 0 1 0.2 1 1 1 T1\n*Other\n", r":3: unknown section"),
+        ("*Targets\n1 1 2 x 0 0 1 0.2 1 1 1 T1\n", r":2: a numeric column"),
+        ("*Targets\n1 1 2 3 0 0 0 0.2 1 1 1 T1\n", r":2: zero normal"),
+        ("*Targets\n1 1 2 3 0 0 1 0.2 1 1 1 T1\n2 1 2 3 0 0 1 0.2 1 1 1 T1\n", "duplicate"),
+        ("*Taps\n1 1 2 3 0 0 1 0.2 1 1 1 P1\n", "no targets"),
+    ],
+)
+def test_bad_tgts(tmp_path, body, match):
+    p = tmp_path / "bad.tgts"
+    p.write_text(body)
+    with pytest.raises(InputError, match=match) as err:
+        read_markers(p)
+    assert str(p) in str(err.value) and "\n" not in str(err.value)
+
+
+def test_marker_csv_partial_normals_refused(tmp_path):
+    p = tmp_path / "m.csv"
+    p.write_text("id,x,y,z,nx,ny\na,0,0,0,0,1\n")
+    with pytest.raises(InputError, match="nx,ny,nz come together"):
+        read_markers(p)
+
+
+def test_target_under_the_surface_moves_out_along_its_normal(tmp_path):
+    # a 1 x 1 plate at z = 0, normal +z, and a 0.2-thick block: targets 2 mm under the
+    # plate move to z = 0 along +z; one tilted normal moves along it (closed form)
+    plate = trimesh.creation.box(extents=[1.0, 1.0, 0.2])
+    plate.apply_translation([0, 0, -0.1])  # top face at z = 0
+    n2 = np.array([0.0, 0.6, 0.8])
+    ms = MarkerSet(("a", "b", "c"), np.array([[0.1, 0.1, -0.002], [0.2, -0.1, -0.004],
+                                               [0.0, 0.0, 0.001]]),
+                   np.full(3, 0.01), np.array([[0, 0, 1.0], n2, [0, 0, 1.0]]))
+    with pytest.warns(UserWarning, match=r"2 target\(s\) lay under the surface.*a \(0\.002\)"):
+        out = snap_to_surface(ms, plate, source="m.tgts")
+    np.testing.assert_allclose(out.xyz[0], [0.1, 0.1, 0.0], atol=1e-12)
+    np.testing.assert_allclose(out.xyz[1], [0.2, -0.1 + 0.004 / 0.8 * 0.6, 0.0], atol=1e-12)
+    np.testing.assert_array_equal(out.xyz[2], ms.xyz[2])  # above the surface: untouched
+    p = tmp_path / "m.csv"
+    write_markers(p, ms.ids, ms.xyz, ms.diameter, normals=ms.normals)
+    with pytest.warns(UserWarning, match="m.csv"):
+        again = read_markers(p, mesh=plate)
+    np.testing.assert_allclose(again.xyz, out.xyz, atol=1e-12)
