@@ -15,6 +15,7 @@ from .errors import InputError
 from .io.images import read_image, write_image
 from .io.meshes import load_mesh, read_face_fields, write_surface
 from .io.outputs import atomic_path, atomic_write
+from .merge import merge_views
 from .plots import plot_surface, virtual_camera
 from .surface import DEFAULT_MAX_OBLIQUENESS, SurfaceMap
 
@@ -23,20 +24,33 @@ def register(sub) -> None:
     """Add the image <-> surface sub-commands to an argparse sub-parser set."""
     m = sub.add_parser(
         "map",
-        help="camera image(s) -> per-face surface fields (PLY/VTK/CSV)",
+        help="camera image(s) -> per-face surface fields (PLY/VTK/CSV); several cameras "
+        "merged onto one grid",
         description="Average every image's pixels onto the model faces they see (one Embree "
         "ray per pixel) and write, per image, the mean (field named after the image file), "
-        "the pixel count (<name>_count) and whether the face was seen (<name>_seen).",
+        "the pixel count (<name>_count) and whether the face was seen (<name>_seen). With "
+        "several --camera, one --image per camera (in the same order): the images are merged "
+        "(weights feathered by view angle and by distance to each image's edges and "
+        "occlusion boundaries, a gain per camera matched on the overlaps) into the fields "
+        "merged, merged_weight, merged_cameras and merged_seen, in the first camera's "
+        "counts; gains and overlap statistics are printed.",
     )
     m.add_argument("--mesh", required=True, help="model grid (STL/OBJ/PLY/GLB/OFF, Plot3D, "
                    "Cart3D .tri)")
-    m.add_argument("--camera", required=True, help="camera JSON with the solved pose")
-    m.add_argument("--image", required=True, nargs="+", help="image(s) of that camera")
+    m.add_argument("--camera", required=True, action="append",
+                   help="camera JSON with the solved pose; repeat for several cameras")
+    m.add_argument("--image", required=True, nargs="+", action="extend",
+                   help="image(s) of that camera; with several cameras, one per camera")
     m.add_argument("--out", required=True, help="surface file: .ply, .vtk or .csv")
     m.add_argument("--max-obliqueness", type=float, default=DEFAULT_MAX_OBLIQUENESS,
                    metavar="DEG", help="faces seen more obliquely than this (degrees between "
                    "line of sight and normal, default %(default)g as uPSP; 90: none) count as "
                    "unseen")
+    m.add_argument("--feather", type=float, default=8.0, metavar="PX",
+                   help="several cameras: width of the weight ramp from image edges and "
+                   "occlusion boundaries, pixels (default %(default)g; 0: none)")
+    m.add_argument("--no-gain-match", action="store_true",
+                   help="several cameras: do not match the camera gains on the overlaps")
     m.set_defaults(func=run_map)
 
     b = sub.add_parser(
@@ -109,8 +123,10 @@ def run_map(args: argparse.Namespace) -> int:
     if repeated:
         raise InputError(f"--image: several images named {repeated[0]!r} (the field names "
                          "come from the file names; rename or map them separately)")
+    if len(args.camera) > 1:
+        return _run_merge(args, names)
     mesh = load_mesh(args.mesh)
-    camera = Camera.read(args.camera)
+    camera = Camera.read(args.camera[0])
     smap = SurfaceMap(mesh, camera, max_obliqueness=args.max_obliqueness)
     fields = {}
     for path in args.image:
@@ -122,6 +138,27 @@ def run_map(args: argparse.Namespace) -> int:
     atomic_write(args.out, write_surface, mesh, fields)
     print(f"map: {int(smap.seen_faces.sum())} of {len(mesh.faces)} faces seen by "
           f"{int(smap.mask.sum())} pixels; written to {args.out}")
+    return 0
+
+
+def _run_merge(args: argparse.Namespace, names: list) -> int:
+    if len(args.image) != len(args.camera):
+        raise InputError(f"--image: {len(args.image)} images for {len(args.camera)} cameras "
+                         "(give one image per camera, in camera order)")
+    mesh = load_mesh(args.mesh)
+    cameras = [Camera.read(p) for p in args.camera]
+    maps = [SurfaceMap(mesh, c, max_obliqueness=args.max_obliqueness) for c in cameras]
+    images = [read_image(p, mask_saturated=True) for p in args.image]
+    mv = merge_views(maps, images, feather_px=args.feather, match_gain=not args.no_gain_match)
+    fields = {"merged": mv.values, "merged_weight": mv.weight,
+              "merged_cameras": mv.n_cameras, "merged_seen": mv.seen}
+    for c, name in enumerate(names):
+        fields[name] = mv.camera_values[c]
+        fields[f"{name}_weight"] = mv.camera_weights[c]
+    atomic_write(args.out, write_surface, mesh, fields)
+    print(mv.report())
+    print(f"map: {int(mv.seen.sum())} of {len(mesh.faces)} faces seen by {len(maps)} "
+          f"cameras ({int((mv.n_cameras > 1).sum())} by several); written to {args.out}")
     return 0
 
 

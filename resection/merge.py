@@ -13,7 +13,7 @@ therefore
 2. averages each camera's pixels onto the faces with those weights; a camera's weight for
    a face is the sum of its pixel weights (proportional to the face's projected area)
    times a view-angle taper, 1 for a face seen square-on and 0 at the obliqueness cut-off
-   ``max_obliqueness_deg`` (default 70 degrees between the line of sight and the face
+   ``max_obliqueness`` (default 70 degrees between the line of sight and the face
    normal, as uPSP); faces beyond it count as unseen by that camera;
 3. matches a gain per camera on the overlaps: for every pair of cameras the median of
    ``log(v_b / v_a)`` over the faces both see, then one least-squares solve for all the
@@ -116,13 +116,20 @@ def _face_normals_centres(mesh) -> tuple[np.ndarray, np.ndarray]:
     return n, tri.mean(axis=1)
 
 
-def angle_weights(smap, max_obliqueness_deg: float = 70.0) -> np.ndarray:
+def angle_weights(smap, max_obliqueness: float | None = None) -> np.ndarray:
     """View-angle taper per face: ``(cos t - cos t_max) / (1 - cos t_max)`` clipped to
     [0, 1], ``t`` the angle between the face normal and the direction from the face centre
-    to the camera; 0 beyond the cut-off and for faces seen from behind."""
-    lim = float(max_obliqueness_deg)
+    to the camera (as :func:`resection.surface.oblique_faces`), ``t_max`` the cut-off
+    (degrees; None: the map's own ``max_obliqueness``, 90 if it has none); 0 beyond the
+    cut-off and for faces seen from behind."""
+    if max_obliqueness is None:
+        max_obliqueness = getattr(smap, "max_obliqueness", None) or 90.0
+    try:
+        lim = float(max_obliqueness)
+    except (TypeError, ValueError):
+        lim = np.nan
     if not 0.0 < lim <= 90.0:
-        raise InputError(f"max_obliqueness_deg must be in (0, 90], got {max_obliqueness_deg}")
+        raise InputError(f"max_obliqueness must be in (0, 90] degrees, got {max_obliqueness}")
     n, cen = _face_normals_centres(smap.mesh)
     to_cam = smap.camera.center[None, :] - cen
     cos = np.einsum("ij,ij->i", n, to_cam) / np.linalg.norm(to_cam, axis=1)
@@ -267,7 +274,7 @@ def _restate(o: Overlap, vals, wts, gains) -> Overlap:
 
 def merge_views(maps: Sequence, images: Sequence, *, method: str = "weighted",
                 min_pixels: int = 1, edge_margin: int = 1, feather_px: float = 8.0,
-                max_obliqueness_deg: float = 70.0, match_gain: bool = True,
+                max_obliqueness: float | None = None, match_gain: bool = True,
                 reference: int = 0, min_overlap: int = 10, depth_jump: float = 0.02,
                 crease_deg: float = 45.0, gains=None) -> MergedViews:
     """Merge what several cameras see of the same surface onto its faces.
@@ -289,9 +296,10 @@ def merge_views(maps: Sequence, images: Sequence, *, method: str = "weighted",
         themselves, whose square straddles the outline or an occlusion edge).
     feather_px : float
         Width of the weight ramp from image edges and boundaries, pixels (0: none).
-    max_obliqueness_deg : float
+    max_obliqueness : float, optional
         Obliqueness cut-off, degrees: faces seen more obliquely count as unseen by that
-        camera; the weight tapers to 0 there.
+        camera; the weight tapers to 0 there. Default: each map's own cut-off
+        (:class:`~resection.surface.SurfaceMap`'s ``max_obliqueness``, 70 by default).
     match_gain : bool
         Match a gain per camera on the overlaps (else every gain is 1).
     reference : int
@@ -353,7 +361,7 @@ def merge_views(maps: Sequence, images: Sequence, *, method: str = "weighted",
         wsum = M @ pw
         vsum = M @ (pw * np.where(finite, arr, 0.0).ravel())
         npx = M @ (pw > 0).astype(np.float64)
-        ang = angle_weights(m, max_obliqueness_deg)
+        ang = angle_weights(m, max_obliqueness)
         ok = (npx >= mp - 0.5) & (wsum > 0) & (ang > 0)
         with np.errstate(invalid="ignore", divide="ignore"):
             vals[c] = np.where(ok, vsum / np.where(ok, wsum, 1.0), np.nan)

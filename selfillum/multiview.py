@@ -27,7 +27,7 @@ def merge_views(maps: Sequence, images: Sequence, *, method: str = "weighted",
     :func:`resection.merge.merge_views` with ``edge_margin = silhouette_margin`` (pixels
     within this many pixels of the model's outline or of an occlusion boundary are dropped;
     0 keeps them); ``options`` go to it unchanged (``feather_px``,
-    ``max_obliqueness_deg``, ``match_gain``, ``gains``, ...).
+    ``max_obliqueness``, ``match_gain``, ``gains``, ...).
     """
     try:
         margin = int(silhouette_margin)

@@ -119,7 +119,38 @@ def test_given_gains_and_bad_input(scene):
         merge_views(maps, images[:1])
     with pytest.raises(InputError, match="feather_px"):
         merge_views(maps, images, feather_px=-1)
-    with pytest.raises(InputError, match="max_obliqueness_deg"):
-        merge_views(maps, images, max_obliqueness_deg=95)
+    with pytest.raises(InputError, match="max_obliqueness"):
+        merge_views(maps, images, max_obliqueness=95)
     with pytest.raises(InputError, match="shape"):
         merge_views(maps, [images[0], images[1][:-1]])
+
+
+def test_cli_map_merges_two_cameras(scene, tmp_path, capsys):
+    """``resection map`` with two (camera, image) pairs: the merged field of the files (8-bit
+    PNGs with a saturated glare, Plot3D grid) is the library's merge, in camera 0's counts."""
+    import pandas as pd
+
+    from resection.cli import main
+    from scenes.real_traits import write_scene
+
+    sc, maps, images = scene
+    p = write_scene(sc, tmp_path)
+    out = tmp_path / "merged.csv"
+    rc = main(["map", "--mesh", p["grid"], "--camera", p["camera0"], "--image", p["image0"],
+               "--camera", p["camera1"], "--image", p["image1"], "--out", str(out)])
+    text = capsys.readouterr().out
+    assert rc == 0 and "cameras 0-1" in text and "gain ratio 1.2" in text
+    df = pd.read_csv(out)
+    assert {"merged", "merged_weight", "merged_cameras", "merged_seen", "cam0",
+            "cam1_weight"} <= set(df.columns)
+    mv = merge_views(maps, images)
+    got = df["merged"].to_numpy()
+    assert np.array_equal(np.isfinite(got), mv.seen)
+    assert np.allclose(got[mv.seen], mv.values[mv.seen], rtol=1e-6)
+    assert (df["merged_cameras"] == 2).sum() > 300
+    # one image for two cameras: a one-line error, exit 2, nothing written
+    rc = main(["map", "--mesh", p["grid"], "--camera", p["camera0"], "--image", p["image0"],
+               "--camera", p["camera1"], "--out", str(tmp_path / "bad.csv")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "1 images for 2 cameras" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "bad.csv").exists()
