@@ -17,9 +17,9 @@ import pytest
 from resection import Camera, InputError
 from resection import sequence as seq
 from resection.cli import main
+from resection.sequence import execute as seq_execute
 from resection.sequence import process as seq_process
 from resection.sequence import read_track, relative_motion
-from resection.sequence import run as seq_run
 from resection.sequence import track as _track
 from scenes.moving_model import pitch_oscillation, rotation_zyx, write_sequence
 
@@ -379,7 +379,7 @@ def test_default_is_a_local_cluster_and_client_writes_unshared_frames(run60, tmp
         for items, s, done in tasks:
             on_chunk(seq_process._run_chunk(setup, items, s, done))
 
-    monkeypatch.setattr(seq_run, "_execute_dask", fake_dask)
+    monkeypatch.setattr(seq_execute, "_execute_dask", fake_dask)
     monkeypatch.setattr(os, "cpu_count", lambda: 3)
     out = tmp_path / "cli"
     rc = main(["track", *files["frames"][:8], "--camera", files["camera"], "--markers",

@@ -1,11 +1,112 @@
-"""Running the chunks of frames: in this process, or on a Dask cluster."""
+"""Running the frames: the reference frame in this process, then chunks of consecutive
+frames in this process or on a Dask cluster, then the repair pass."""
 
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 from ..errors import InputError
-from .process import _run_chunk
+from .outputs import _atomic_write_text, _frame_path, _frame_text, _read_frame, _write_frame
+from .process import _process_frame, _process_linked, _repair, _run_chunk, _Setup
+from .results import FrameResult
+
+
+def run_frames(frames: list, setup: _Setup, link: dict | None, done: dict, *,
+               chunk_size: int, workers: int, scheduler: str | None, frames_dir: Path,
+               progress: bool) -> int:
+    """Compute every frame not in ``done`` (index -> frame dict, completed in place), each
+    written to ``frames_dir`` as soon as it is finished. Returns the number computed."""
+    from tqdm.auto import tqdm
+
+    bar = tqdm(total=len(frames), initial=len(done), desc="track", unit="frame",
+               disable=not progress)
+    computed = 0
+
+    def note(d: dict) -> None:
+        """A frame finished (its file is written)."""
+        nonlocal computed
+        done[d["frame"]] = d
+        computed += 1
+        bar.update(1)
+
+    def record(res: FrameResult) -> None:
+        _write_frame(frames_dir, res)
+        note(res.to_dict())
+
+    try:
+        if 0 in done:  # the reference frame, in this process
+            first = FrameResult.from_dict(done[0])
+        else:
+            first = (_process_linked(frames[0], 0, setup, link) if link is not None
+                     else _process_frame(frames[0], 0, setup, None))
+            record(first)
+        tasks = _chunks(frames, done, first if first.ok else None, chunk_size)
+        n_local = min(workers, len(tasks))  # no idle local workers: start-up costs
+        if tasks and scheduler is None and n_local == 1:
+            _execute_local(setup, tasks, record)
+        elif tasks:
+            todo = {i for items, _, _ in tasks for i, _ in items if i not in done}
+            _execute_dask(setup, tasks, _on_chunk(frames_dir, todo, note),
+                          _on_poll(frames_dir, todo, note), scheduler, n_local,
+                          str(frames_dir.resolve()))
+
+        def rerecord(res: FrameResult) -> None:
+            nonlocal computed
+            _write_frame(frames_dir, res)
+            done[res.frame] = res.to_dict()
+            computed += 1
+
+        _repair(frames, setup, done, rerecord)
+    finally:
+        bar.close()
+    return computed
+
+
+def _chunks(frames: list, done: dict, seed: FrameResult | None, chunk_size: int) -> list:
+    """``(items, seed, done)`` per chunk of consecutive frames (after frame 0) with at least
+    one frame to compute; ``items = [(index, frame), ...]``."""
+    tasks = []
+    for start in range(1, len(frames), chunk_size):
+        idx = range(start, min(start + chunk_size, len(frames)))
+        if all(i in done for i in idx):
+            continue
+        tasks.append(([(i, frames[i]) for i in idx], seed,
+                      {i: done[i] for i in idx if i in done}))
+    return tasks
+
+
+def _on_poll(frames_dir: Path, todo: set, note):
+    """While Dask runs: pick up the frames the workers have written (shared filesystem)."""
+    def on_poll() -> None:
+        names = set(os.listdir(frames_dir))
+        for i in sorted(todo):
+            if _frame_path(frames_dir, i).name in names:
+                d = _read_frame(_frame_path(frames_dir, i))
+                if d is not None and d.get("frame") == i:
+                    todo.discard(i)
+                    note(d)
+    return on_poll
+
+
+def _on_chunk(frames_dir: Path, todo: set, note):
+    """A chunk came back: write what its worker could not (no shared filesystem with a
+    remote cluster)."""
+    def on_chunk(dicts: list) -> None:
+        for dct in dicts:
+            i = dct["frame"]
+            if i not in todo:
+                continue
+            path, text = _frame_path(frames_dir, i), _frame_text(dct)
+            try:
+                same = path.read_text(encoding="utf-8") == text
+            except OSError:
+                same = False
+            if not same:
+                _atomic_write_text(path, text)
+            todo.discard(i)
+            note(dct)
+    return on_chunk
 
 
 def _execute_local(setup, tasks, on_frame):

@@ -102,3 +102,62 @@ def _settings(setup: _Setup, link: dict | None, fixed_camera: bool, chunk_size: 
                                                  for k in sorted(link["pairs"])}),
         "fixed_camera": bool(fixed_camera), "chunk_size": int(chunk_size),
     })
+
+
+def _checked(frames, camera, markers3d, *, link, diameter, polarity, workers, chunk_size,
+             min_markers, roi_margin, detect_kw, match_kw, pose_kw):
+    """Checked inputs of :func:`track`: ``(frames list, _Setup, link dict or None,
+    workers, chunk_size)``; InputError for the first bad one, before any file is made."""
+    from ..camera import Camera
+    from ..markers import detect_markers
+    from ..match import match_markers
+    from ..pose import solve_pose
+    from .execute import _default_workers
+
+    if not isinstance(camera, Camera):
+        raise InputError(f"camera: expected a resection.Camera, got {type(camera).__name__}")
+    if isinstance(frames, (str, os.PathLike, np.ndarray)) and not (
+            isinstance(frames, np.ndarray) and frames.ndim == 3):
+        raise InputError("frames: expected a sequence of frames (paths or 2-D arrays)")
+    frames = list(frames)
+    if not frames:
+        raise InputError("frames: the sequence is empty")
+    try:
+        d = float(diameter)
+    except (TypeError, ValueError):
+        raise InputError(f"diameter: must be a number of pixels, got {diameter!r}") from None
+    if not (np.isfinite(d) and d > 0):
+        raise InputError(f"diameter: must be positive, got {diameter!r}")
+    if polarity not in ("dark", "bright"):
+        raise InputError(f"polarity: expected 'dark' or 'bright', got {polarity!r}")
+    if workers is None:
+        workers = _default_workers()
+    try:
+        workers = int(workers)
+    except (TypeError, ValueError):
+        raise InputError(f"workers: must be a whole number, got {workers!r}") from None
+    if workers < 1:
+        raise InputError(f"workers: must be >= 1, got {workers}")
+    if int(chunk_size) < 1:
+        raise InputError(f"chunk_size: must be >= 1, got {chunk_size}")
+    if int(min_markers) < 3:
+        raise InputError(f"min_markers: must be >= 3, got {min_markers}")
+    if roi_margin is not None and not (np.isfinite(roi_margin) and roi_margin > 0):
+        raise InputError(f"roi_margin: must be positive or None, got {roi_margin!r}")
+    for i, f in enumerate(frames):
+        if not isinstance(f, (str, os.PathLike, np.ndarray)):
+            raise InputError(f"frames[{i}]: expected a path or a 2-D array, got "
+                             f"{type(f).__name__}")
+    ids, pts = _as_markers(markers3d)
+    link_d = _as_link(link)
+    detect_kw = _check_options(detect_kw, detect_markers, "detect_kw",
+                               ("image", "diameter", "polarity"))
+    match_kw = _check_options(match_kw, match_markers, "match_kw",
+                              ("candidates", "markers3d", "reference", "camera", "pose_kw"))
+    pose_kw = _check_options(pose_kw, solve_pose, "pose_kw",
+                             ("camera", "points3d", "points2d", "refine_intrinsics"))
+    setup = _Setup(camera=camera, ids=ids, points3d=pts, diameter=d, polarity=polarity,
+                   detect_kw=detect_kw, match_kw=match_kw,
+                   pose_kw=pose_kw, min_markers=int(min_markers),
+                   roi_margin=None if roi_margin is None else float(roi_margin))
+    return frames, setup, link_d, workers, int(chunk_size)

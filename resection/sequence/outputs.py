@@ -136,3 +136,46 @@ def read_track(out_dir: str | os.PathLike) -> TrackResult:
         fixed_camera=bool(meta.get("fixed_camera", True)),
         reference=int(good[0]) if good.size else -1, n_computed=0, out_dir=str(out),
     )
+
+
+def _start_run(out: Path, frames: list, settings: dict, resume: bool) -> dict[int, dict]:
+    """Prepare ``out`` (locked by the caller) for a run: check that a run there had the same
+    settings, write them, and return the frames already finished (index -> frame dict) of
+    files that have not changed since; the result files of changed frames are removed."""
+    from .frames import _frame_name, changed
+
+    frames_dir = out / "frames"
+    manifest = out / "track.json"
+    if resume and manifest.is_file():
+        try:
+            with open(manifest, encoding="utf-8") as fh:
+                old = json.load(fh)
+        except (OSError, json.JSONDecodeError):
+            old = None
+        if old is not None and old != settings:
+            diff = sorted(k for k in set(old) | set(settings) if old.get(k) != settings.get(k))
+            raise InputError(f"{out}: holds a run with other settings ({', '.join(diff)}); "
+                             "use another out_dir or resume=False")
+    if not resume:
+        for p in frames_dir.glob("frame_*.json"):
+            p.unlink()
+    _atomic_write_text(manifest, json.dumps(settings, indent=1))
+    done: dict[int, dict] = {}
+    if not resume:
+        return done
+    names = set(os.listdir(frames_dir))
+    for i, f in enumerate(frames):
+        path = _frame_path(frames_dir, i)
+        if path.name not in names:
+            continue
+        d = _read_frame(path)
+        if d is None:
+            continue
+        if d["frame"] != i or d["file"] != _frame_name(f):
+            raise InputError(f"{out}: frame {i} was {d['file']!r} in the interrupted run, "
+                             f"now {_frame_name(f)!r}; use another out_dir or resume=False")
+        if changed(f, d.get("source")):  # the file was written since: recompute it
+            path.unlink()
+            continue
+        done[i] = d
+    return done

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..camera import Camera
 from ..errors import InputError, SolveError
-from .frames import _frame_name, _load_image
+from .frames import _frame_name, _load_image, failure_reason, fingerprint
 from .outputs import _try_write_frame
 from .results import FrameResult
 
@@ -115,8 +115,10 @@ def _process_frame(frame_data, index: int, setup: _Setup,
                    reference: FrameResult | None) -> FrameResult:
     """Read, detect, match from ``reference`` and solve one frame; never raises for a bad
     frame: the failure is returned with its reason."""
+    source = fingerprint(frame_data)  # before reading: a later change is seen next time
     res = _process_frame_unlabelled(frame_data, index, setup, reference)
-    return dataclasses.replace(res, matched_from=-1 if reference is None else reference.frame)
+    return dataclasses.replace(res, matched_from=-1 if reference is None else reference.frame,
+                               source=source)
 
 
 def _process_frame_unlabelled(frame_data, index: int, setup: _Setup,
@@ -135,15 +137,21 @@ def _process_frame_unlabelled(frame_data, index: int, setup: _Setup,
         ids, uv, pose = _match(cands, setup, reference)
         return _solve(ids, uv, setup, index, name, pose)
     except Exception as exc:  # noqa: BLE001 - any failure of one frame must not stop the run
-        msg = str(exc).splitlines()[0] if str(exc) else ""
-        reason = f"{type(exc).__name__}: {msg}" if msg else type(exc).__name__
-        return FrameResult(frame=index, file=name, status="failed", reason=reason)
+        return FrameResult(frame=index, file=name, status="failed",
+                           reason=failure_reason(exc, name))
 
 
 def _process_linked(frame_data, index: int, setup: _Setup, link: dict) -> FrameResult:
     """The reference frame through a linking by hand: marker id -> candidate number, the
     candidates being those of ``detect_markers`` on the whole frame (as ``resection detect``
     numbers them). A linking that does not fit the candidates raises InputError."""
+    source = fingerprint(frame_data)
+    return dataclasses.replace(_process_linked_unlabelled(frame_data, index, setup, link),
+                               source=source)
+
+
+def _process_linked_unlabelled(frame_data, index: int, setup: _Setup,
+                               link: dict) -> FrameResult:
     name = _frame_name(frame_data)
     try:
         img = _load_image(frame_data)
@@ -152,16 +160,14 @@ def _process_linked(frame_data, index: int, setup: _Setup, link: dict) -> FrameR
                              f"{setup.camera.width}x{setup.camera.height}")
         cands = _detect(img, setup)
     except Exception as exc:  # noqa: BLE001 - recorded, the run goes on
-        msg = str(exc).splitlines()[0] if str(exc) else ""
         return FrameResult(frame=index, file=name, status="failed",
-                           reason=f"{type(exc).__name__}: {msg}")
+                           reason=failure_reason(exc, name))
     ids, uv = _apply_link(cands, link, setup)
     try:
         return _solve(ids, uv, setup, index, name)
     except Exception as exc:  # noqa: BLE001
-        msg = str(exc).splitlines()[0] if str(exc) else ""
         return FrameResult(frame=index, file=name, status="failed",
-                           reason=f"{type(exc).__name__}: {msg}")
+                           reason=failure_reason(exc, name))
 
 
 def _apply_link(candidates, link: dict, setup: _Setup) -> tuple[np.ndarray, np.ndarray]:

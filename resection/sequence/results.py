@@ -13,7 +13,7 @@ POSE_COLUMNS = ("frame", "file", "status", "reason", "roll_deg", "pitch_deg", "y
                 "dx", "dy", "dz", "rms_px", "n_markers", "rvec_x", "rvec_y", "rvec_z",
                 "tvec_x", "tvec_y", "tvec_z")
 MARKER_COLUMNS = ("frame", "id", "u", "v", "residual", "residual_u", "residual_v")
-_FORMAT_VERSION = 1
+_FORMAT_VERSION = 2  # 2: frame files record their source's fingerprint
 
 @dataclass(frozen=True)
 class FrameResult:
@@ -43,6 +43,9 @@ class FrameResult:
     matched_from : int
         The frame whose markers this one was matched from (-1: the approximate camera or
         the linking).
+    source : list of int or None
+        Fingerprint of the frame's file when it was read (see
+        :func:`resection.sequence.frames.fingerprint`); None for an in-memory frame.
     """
 
     frame: int
@@ -56,6 +59,7 @@ class FrameResult:
     uv: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     residuals: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     matched_from: int = -1
+    source: list | None = None
 
     @property
     def ok(self) -> bool:
@@ -74,6 +78,7 @@ class FrameResult:
             "uv": np.asarray(self.uv, float).tolist(),
             "residuals": np.asarray(self.residuals, float).tolist(),
             "matched_from": int(self.matched_from),
+            "source": None if self.source is None else [int(x) for x in self.source],
         }
 
     @classmethod
@@ -87,6 +92,7 @@ class FrameResult:
             uv=np.array(d["uv"], float).reshape(n, 2),
             residuals=np.array(d["residuals"], float).reshape(n, 2),
             matched_from=int(d.get("matched_from", -1)),
+            source=d.get("source"),
         )
 
 
