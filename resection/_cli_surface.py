@@ -16,7 +16,7 @@ from .io.images import read_image, write_image
 from .io.meshes import load_mesh, read_face_fields, write_surface
 from .io.outputs import atomic_path, atomic_write
 from .merge import merge_views
-from .plots import plot_surface, virtual_camera
+from .plots import frame_camera, plot_surface, virtual_camera
 from .surface import DEFAULT_MAX_OBLIQUENESS, SurfaceMap
 
 
@@ -88,7 +88,9 @@ def register(sub) -> None:
         "view",
         help="picture of per-face data from any Point of View with a colour bar",
         description="Render per-face data through a camera JSON or a virtual camera "
-        "(--azimuth/--elevation) with a colour map and a colour bar; writes a PNG.",
+        "(--azimuth/--elevation) with a colour map, a colour bar and the model's outline "
+        "(silhouettes and creases, never grid-block interfaces); writes a PNG. --target "
+        "with --zoom, or --box, frames a region of the same Point of View.",
     )
     v.add_argument("--mesh", required=True)
     v.add_argument("--values", required=True, help="per-face values (.csv/.ply/.npy)")
@@ -102,6 +104,16 @@ def register(sub) -> None:
     v.add_argument("--vmin", type=float)
     v.add_argument("--vmax", type=float)
     v.add_argument("--label", default=None, help="colour bar label (default: field name)")
+    v.add_argument("--target", nargs=3, type=float, metavar=("X", "Y", "Z"),
+                   help="model point put at the picture's centre")
+    v.add_argument("--zoom", type=float, default=1.0,
+                   help="magnification about --target (default %(default)g)")
+    v.add_argument("--box", nargs=6, type=float,
+                   metavar=("XMIN", "YMIN", "ZMIN", "XMAX", "YMAX", "ZMAX"),
+                   help="frame this box of the model (model units)")
+    v.add_argument("--crease", type=float, default=30.0, metavar="DEG",
+                   help="outline edges whose dihedral angle exceeds this (default %(default)g)")
+    v.add_argument("--no-outline", action="store_true", help="do not draw the outline")
     v.add_argument("--out", required=True, help="PNG file")
     v.set_defaults(func=run_view)
 
@@ -199,9 +211,11 @@ def run_view(args: argparse.Namespace) -> int:
         except ValueError:
             raise InputError(f"--size: expected WxH, got {args.size!r}") from None
         camera = virtual_camera(mesh, args.azimuth, args.elevation, width=w, height=h)
+    box = None if args.box is None else np.reshape(args.box, (2, 3))
+    camera = frame_camera(camera, target=args.target, zoom=args.zoom, box=box)
     with atomic_path(args.out) as tmp:
         plot_surface(mesh, values, camera, method=args.method, cmap=args.cmap, vmin=args.vmin,
                      vmax=args.vmax, label=name if args.label is None else args.label,
-                     path=tmp)
+                     outline=not args.no_outline, crease_deg=args.crease, path=tmp)
     print(f"view: {args.out}")
     return 0

@@ -29,10 +29,12 @@ from ._checks import as_points
 from .camera import Camera
 from .errors import InputError
 from .memory import PICTURE_BYTES_PER_PIXEL, check_pixel_memory
+from .outline import outline_edges, visible_segments
 from .surface import SurfaceMap
 from .visibility import visible_faces
 
-__all__ = ["plot_surface", "virtual_camera", "plot_resection", "outline_edges"]
+__all__ = ["plot_surface", "virtual_camera", "frame_camera", "plot_resection",
+           "outline_edges"]
 
 
 def virtual_camera(mesh: trimesh.Trimesh, azimuth_deg: float = 30.0,
@@ -61,6 +63,102 @@ def virtual_camera(mesh: trimesh.Trimesh, azimuth_deg: float = 30.0,
     K = [[f, 0.0, (width - 1) / 2], [0.0, f, (height - 1) / 2], [0.0, 0.0, 1.0]]
     return Camera.look_at(centre + dist * direction, centre, up, K=K, width=width,
                           height=height)
+
+
+def frame_camera(camera: Camera, *, target=None, zoom: float = 1.0, box=None,
+                 margin: float = 1.1) -> Camera:
+    """The same Point of View magnified onto a region: a target point and a zoom, or a box.
+
+    Only ``K`` changes (focal lengths times the magnification, principal point moved), so
+    the picture is exactly a magnified crop of ``camera``'s image, distortion included, of
+    the same size: pixel ``u`` of ``camera`` goes to ``cx' + m (u - u_c)``.
+
+    Parameters
+    ----------
+    camera : Camera
+    target : (3,) array_like, optional
+        Model point put at the picture's centre (default: the image centre stays).
+    zoom : float
+        Magnification (> 0) when framing a target.
+    box : (2, 3) array_like, optional
+        ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]`` (model units): the picture is centred
+        on the projection of its corners and magnified so they fit, times ``margin``.
+    margin : float
+        Room left around the box (1: the box's projection touches the picture's edges).
+
+    Raises
+    ------
+    InputError
+        A target or box corner behind the camera, a zoom or margin not positive, both a
+        target and a box.
+    """
+    if not isinstance(camera, Camera):
+        raise InputError(f"camera: expected a resection.Camera, got {type(camera).__name__}")
+    if target is not None and box is not None:
+        raise InputError("frame: give a target (and zoom) or a box, not both")
+    try:
+        zoom, margin = float(zoom), float(margin)
+    except (TypeError, ValueError):
+        raise InputError(f"frame: zoom and margin must be numbers, got {zoom!r}, {margin!r}") \
+            from None
+    if not (np.isfinite(zoom) and zoom > 0):
+        raise InputError(f"frame: zoom must be a positive number, got {zoom}")
+    if not (np.isfinite(margin) and margin > 0):
+        raise InputError(f"frame: margin must be a positive number, got {margin}")
+    W, H = camera.width, camera.height
+    centre = np.array([(W - 1) / 2, (H - 1) / 2])
+    if box is not None:
+        b = as_points(box, 3, "box")
+        if b.shape != (2, 3) or not np.all(b[1] >= b[0]):
+            raise InputError(f"box: expected [[xmin, ymin, zmin], [xmax, ymax, zmax]] with "
+                             f"max >= min, got {np.asarray(box).tolist()}")
+        corners = np.array([[b[i, 0], b[j, 1], b[k, 2]] for i in (0, 1) for j in (0, 1)
+                            for k in (0, 1)])
+        if np.any(camera.to_camera_frame(corners)[:, 2] <= 0):
+            raise InputError("box: partly behind the camera")
+        uv = camera.project(corners)
+        if not np.all(np.isfinite(uv)):
+            raise InputError("box: outside the camera's field of view")
+        lo, hi = uv.min(axis=0), uv.max(axis=0)
+        centre_uv = (lo + hi) / 2
+        size = np.maximum(hi - lo, 1e-9) * margin
+        m = float(min((W - 1) / size[0], (H - 1) / size[1]))
+    elif target is not None:
+        X = as_points(target, 3, "target")
+        if len(X) != 1:
+            raise InputError(f"target: expected one point (x, y, z), got {len(X)}")
+        if camera.to_camera_frame(X)[0, 2] <= 0:
+            raise InputError("target: behind the camera")
+        centre_uv = camera.project(X)[0]
+        if not np.all(np.isfinite(centre_uv)):
+            raise InputError("target: outside the camera's field of view")
+        m = zoom
+    else:
+        centre_uv, m = centre, zoom
+    K = np.array(camera.K, dtype=np.float64)
+    # u' = m (u - u_c) + c  with  u = fx x + cx  =>  fx' = m fx, cx' = m (cx - u_c) + c
+    K[0, 0] *= m
+    K[1, 1] *= m
+    K[0, 1] *= m
+    K[0, 2] = m * (K[0, 2] - centre_uv[0]) + centre[0]
+    K[1, 2] = m * (K[1, 2] - centre_uv[1]) + centre[1]
+    return camera.replace(K=K)
+
+
+def _draw_outline(ax, mesh, camera, crease_deg, color, width, label) -> None:
+    """Silhouettes and creases of ``mesh`` seen by ``camera``, hidden parts removed."""
+    seg = outline_edges(mesh, crease_deg, camera=camera)
+    if not len(seg):
+        return
+    # split long edges so that partly hidden ones are drawn in part
+    n = 4
+    s = np.linspace(0.0, 1.0, n + 1)
+    pts = seg[:, None, 0, :] + s[None, :, None] * (seg[:, None, 1, :] - seg[:, None, 0, :])
+    sub = np.stack([pts[:, :-1], pts[:, 1:]], axis=2).reshape(-1, 2, 3)
+    sub = sub[visible_segments(mesh, camera, sub)]
+    uv = camera.project(sub.reshape(-1, 3)).reshape(-1, 2, 2)
+    uv = uv[np.all(np.isfinite(uv), axis=(1, 2))]
+    ax.add_collection(LineCollection(uv, colors=color, linewidths=width, label=label))
 
 
 def _finish(fig: Figure, path, dpi: float | None = None) -> Figure:
@@ -100,6 +198,8 @@ def plot_surface(
     background=None,
     interpolation: str = "linear",
     edges: bool = False,
+    outline: bool = False,
+    crease_deg: float = 30.0,
     path: str | os.PathLike | None = None,
     dpi: int = 100,
 ) -> Figure:
@@ -122,6 +222,10 @@ def plot_surface(
         Raster only: see :meth:`SurfaceMap.to_image`.
     edges : bool
         Polygons only: draw the face edges.
+    outline : bool
+        Draw the model's outline: silhouettes and creases sharper than ``crease_deg``
+        degrees (:func:`resection.outline.outline_edges`; grid-block interfaces never),
+        hidden parts removed.
     path : path-like, optional
         Save a PNG there.
     """
@@ -180,37 +284,14 @@ def plot_surface(
                                edgecolors="k" if edges else "face",
                                linewidths=0.2 if edges else 0.3)
         mappable = ax.add_collection(polys)
+    if outline:
+        _draw_outline(ax, mesh, camera, crease_deg, "black", 0.9, None)
     cb = fig.colorbar(mappable, ax=ax, shrink=0.85)
     if label:
         cb.set_label(label)
     if title is not None:
         ax.set_title(title)
     return _finish(fig, path)
-
-
-def outline_edges(mesh: trimesh.Trimesh, feature_angle_deg: float = 40.0) -> np.ndarray:
-    """Edges worth drawing as the grid outline: boundary edges (one face), edges between
-    faces of different ``block``/``component`` attributes, and sharp edges (dihedral angle
-    above ``feature_angle_deg``). Returns (E, 2, 3) segments in model coordinates."""
-    faces = np.asarray(mesh.faces)
-    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    _, inv, counts = np.unique(edges, axis=0, return_inverse=True, return_counts=True)
-    inv = inv.ravel()
-    keep = counts[inv] == 1
-    adj = np.asarray(mesh.face_adjacency)
-    if len(adj):
-        sharp = np.asarray(mesh.face_adjacency_angles) > np.radians(feature_angle_deg)
-        for key in ("block", "component"):
-            if key in mesh.face_attributes:
-                a = np.asarray(mesh.face_attributes[key])
-                sharp |= a[adj[:, 0]] != a[adj[:, 1]]
-        sharp_edges = np.sort(np.asarray(mesh.face_adjacency_edges)[sharp], axis=1)
-        if len(sharp_edges):
-            key_all = edges[:, 0] * (len(mesh.vertices) + 1) + edges[:, 1]
-            key_sharp = sharp_edges[:, 0] * (len(mesh.vertices) + 1) + sharp_edges[:, 1]
-            keep |= np.isin(key_all, key_sharp)
-    e = np.unique(edges[keep], axis=0)
-    return np.asarray(mesh.vertices, dtype=float)[e]
 
 
 def plot_resection(
@@ -220,6 +301,7 @@ def plot_resection(
     detected_uv,
     *,
     mesh: trimesh.Trimesh | None = None,
+    crease_deg: float = 30.0,
     ids=None,
     residual_scale: float | None = None,
     title: str | None = None,
@@ -240,7 +322,9 @@ def plot_resection(
         Their detected image positions (pixels; NaN rows: not detected, drawn as
         reprojection only).
     mesh : trimesh.Trimesh, optional
-        Model grid; its outline (:func:`outline_edges`) is projected with ``camera``.
+        Model grid; its outline (silhouettes and creases sharper than ``crease_deg``
+        degrees, :func:`resection.outline.outline_edges`; never grid-block interfaces),
+        hidden parts removed, is projected with ``camera``.
     ids : sequence of str, optional
         Marker labels written next to the markers.
     residual_scale : float, optional
@@ -274,11 +358,7 @@ def plot_resection(
     ax.imshow(img, cmap="gray", vmin=lo, vmax=hi if hi > lo else lo + 1,
               interpolation="nearest")
     if mesh is not None:
-        seg = outline_edges(mesh)
-        uv = camera.project(seg.reshape(-1, 3)).reshape(-1, 2, 2)
-        uv = uv[np.all(np.isfinite(uv), axis=(1, 2))]
-        ax.add_collection(LineCollection(uv, colors="deepskyblue", linewidths=1.3,
-                                         label="grid outline"))
+        _draw_outline(ax, mesh, camera, crease_deg, "deepskyblue", 1.3, "model outline")
     ax.plot(uv_det[ok, 0], uv_det[ok, 1], "o", mfc="none", mec="lime", ms=8,
             label="detected")
     ax.plot(uv_rep[:, 0], uv_rep[:, 1], "+", color="red", ms=9, mew=1.2, label="reprojected")
