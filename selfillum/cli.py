@@ -10,8 +10,6 @@ from __future__ import annotations
 import argparse
 import sys
 
-import numpy as np
-
 from resection._cliutil import OneLineParser, run
 from resection.errors import InputError
 
@@ -52,6 +50,7 @@ def _cmd_corner(args) -> int:
 
 def _cmd_correct(args) -> int:
     from .correct_image import correct_image_file
+    from .summary import summarize
 
     result = correct_image_file(
         args.mesh,
@@ -63,23 +62,28 @@ def _cmd_correct(args) -> int:
         seed=args.seed,
         mode=args.mode,
         surface_out=args.surface,
+        unseen=args.unseen,
+        unpainted=args.unpainted,
+        max_obliqueness=args.max_obliqueness,
         progress=not args.quiet,
     )
-    seen = result.seen
-    b, e = result.radiosity[seen], result.emission[seen]
-    si = (b - e) / np.where(b != 0, b, np.nan)
-    per_frame = np.atleast_2d(seen).sum(axis=1)  # one row per frame
-    lo, hi = int(per_frame.min()), int(per_frame.max())
-    print(f"faces seen                     {lo if lo == hi else f'{lo} to {hi}'} of "
-          f"{seen.shape[-1]}")
-    print(f"largest self-illumination      {100 * np.nanmax(si):.1f} % of the signal")
-    print(f"mean self-illumination         {100 * np.nanmean(si):.1f} %")
-    infos = result.info if isinstance(result.info, tuple) else (result.info,)
-    methods = ", ".join(sorted({i.method for i in infos}))
-    iterations = max(i.iterations for i in infos)
-    frames = f" at most ({len(infos)} frames)" if isinstance(result.info, tuple) else ""
-    print(f"inverse                        {methods}, {iterations} iterations{frames}")
+    s = summarize(result)
+    seen = s.seen_min if s.seen_min == s.seen_max else f"{s.seen_min} to {s.seen_max}"
+    p, u = s.si_percentiles, s.unseen_part_percentiles
+    print(f"unseen faces emit              {s.assumption}")
+    print(f"faces seen                     {seen} of {s.faces} ({s.grazing} beyond "
+          f"{args.max_obliqueness:g} deg count as unseen)")
+    print(f"unseen faces in the solve      {s.coupled} (coupled to the seen ones)")
+    print(f"self-illumination, seen faces  median {100 * p['50']:.1f} %, 95th "
+          f"{100 * p['95']:.1f} %, 99th {100 * p['99']:.1f} % of the signal")
+    print(f"  of it from unseen faces      median {100 * u['50']:.1f} %, 95th "
+          f"{100 * u['95']:.1f} %, 99th {100 * u['99']:.1f} % of the signal")
+    frames = f" at most ({len(result.info)} frames)" if isinstance(result.info, tuple) else ""
+    print(f"inverse                        {s.method}, {s.iterations} iterations{frames}")
+    for w in s.warnings:
+        print(f"warning: {w}", file=sys.stderr)
     print(f"wrote {args.out}")
+    print(f"wrote {args.out}.json")
     if args.surface:
         print(f"wrote {args.surface}")
     return 0
@@ -96,6 +100,16 @@ def _positive(kind):
         return v
 
     return parse
+
+
+def _obliqueness(text):
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not 0.0 < v <= 90.0:
+        raise argparse.ArgumentTypeError(f"must be in (0, 90] degrees, got {text}")
+    return v
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -181,7 +195,29 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--surface",
         default=None,
-        help="also write per-face radiosity/emission/seen (.ply, .vtk, .csv)",
+        help="also write per-face radiosity/emission/seen/unseen_share (.ply, .vtk, .csv)",
+    )
+    p.add_argument(
+        "--unseen",
+        default="continue",
+        metavar="continue|none|FILE",
+        help="what faces the camera does not see emit: the smoothest continuation of "
+        "the seen emission (default), nothing, or per-face values (.npy/.csv)",
+    )
+    p.add_argument(
+        "--unpainted",
+        default=None,
+        metavar="FILE|BLOCKS",
+        help="faces that emit nothing, seen or not: a per-face 0/1 file (.npy/.csv, 1 = "
+        "unpainted) or Plot3D block numbers counted from 1 (e.g. 7-11)",
+    )
+    p.add_argument(
+        "--max-obliqueness",
+        type=_obliqueness,
+        default=70.0,
+        metavar="DEG",
+        help="faces seen more obliquely than this (degrees from the normal) count as "
+        "unseen (default 70)",
     )
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_cmd_correct)

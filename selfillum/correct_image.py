@@ -22,7 +22,8 @@ from __future__ import annotations
 
 import csv
 import os
-from dataclasses import dataclass
+import warnings
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -32,11 +33,16 @@ import trimesh
 from resection.camera import Camera
 from resection.errors import InputError
 
-from .mesh import check_mesh
+from .coupling import coupled_view_factors
+from .mesh import check_mesh, face_areas, face_normals
 from .radiosity import SolveInfo, check_reflectance, correct
-from .viewfactors import view_factors
+from .unseen import describe_unseen, read_unpainted, read_unseen, unseen_warning
 
-__all__ = ["ImageCorrection", "correct_image", "read_reflectance", "correct_image_file"]
+#: Default obliqueness cut-off (degrees), as for ``resection map``.
+DEFAULT_MAX_OBLIQUENESS = 70.0
+
+__all__ = ["ImageCorrection", "correct_image", "read_reflectance", "correct_image_file",
+           "UnseenFacesWarning", "DEFAULT_MAX_OBLIQUENESS"]
 
 
 @dataclass(frozen=True)
@@ -61,6 +67,17 @@ class ImageCorrection:
         ``"subtract"`` or ``"ratio"``.
     info : SolveInfo or tuple of SolveInfo
         How the inverse was solved (one per frame for a stack).
+    unseen_share : (N,) or (T, N) float64 ndarray
+        Share of each seen face's correction that comes from faces the camera does not
+        see (NaN on those), see :attr:`selfillum.SolveInfo.unseen_share`.
+    assumption : str
+        What unseen and unpainted faces were taken to emit, in words
+        (:func:`selfillum.unseen.describe_unseen`).
+    warnings : tuple of str
+        Warnings on the result (:func:`selfillum.unseen.unseen_warning`, one per frame
+        at most).
+    grazing : (N,) bool ndarray
+        Faces the camera sees beyond ``max_obliqueness`` (counted as unseen).
     """
 
     image: np.ndarray
@@ -70,6 +87,10 @@ class ImageCorrection:
     seen: np.ndarray
     mode: str
     info: SolveInfo | tuple
+    unseen_share: np.ndarray | None = None
+    assumption: str = ""
+    warnings: tuple = ()
+    grazing: np.ndarray | None = None
 
 
 def correct_image(
@@ -83,6 +104,9 @@ def correct_image(
     seed: int = 0,
     mode: str = "subtract",
     surface_map=None,
+    unseen="continue",
+    unpainted=None,
+    max_obliqueness: float = DEFAULT_MAX_OBLIQUENESS,
     progress: bool = False,
 ) -> ImageCorrection:
     """Remove self-illumination from a camera image of a painted model.
@@ -99,14 +123,24 @@ def correct_image(
     reflectance : float or (N,) array_like
         Paint reflectance per face, in ``[0, 1)``.
     F : (N, N) sparse matrix, optional
-        Form factors of ``mesh``; computed with :func:`selfillum.view_factors`
-        (``rays_per_face``, ``seed``) when not given.
+        Form factors of ``mesh``. When not given, only the rows the correction needs are
+        computed (:func:`selfillum.coupling.coupled_view_factors`: the seen faces and the
+        hidden faces coupled to them), with ``rays_per_face`` and ``seed``.
     rays_per_face, seed : int
         View-factor parameters when ``F`` is computed here.
     mode : {"subtract", "ratio"}
         How the per-face correction is applied to pixels (see the module notes).
     surface_map : resection.surface.SurfaceMap, optional
         A map of this mesh and camera already built (reused across frames).
+    unseen : {"continue", "none"} or (N,) array_like
+        What faces the camera does not see emit (see :func:`selfillum.correct`).
+    unpainted : (N,) array_like of bool, optional
+        Faces that emit nothing, seen or not (see :func:`selfillum.correct`).
+    max_obliqueness : float
+        Faces whose centroid the camera sees at more than this angle (degrees, between
+        the line of sight and the normal) count as unseen: their few, smeared pixels are
+        not a measurement (default 70, as :class:`resection.surface.SurfaceMap`). Their
+        pixels are left uncorrected.
     progress : bool
         Progress bar on the ray casting.
 
@@ -149,6 +183,14 @@ def correct_image(
     stack = img[None] if single else img
     n = len(mesh.faces)
     rho = check_reflectance(reflectance, n)
+    lim = float(max_obliqueness)
+    if not 0.0 < lim <= 90.0:
+        raise InputError(f"max_obliqueness: must be in (0, 90] degrees, got {max_obliqueness}")
+    source = ""
+    if unpainted is not None:
+        unpainted, source = read_unpainted(unpainted, mesh)
+    if isinstance(unseen, str | os.PathLike) and unseen not in ("continue", "none"):
+        unseen = read_unseen(unseen, n)
     smap = SurfaceMap(mesh, camera) if surface_map is None else surface_map
     if smap.shape != stack.shape[1:] or smap.n_faces != n:
         raise InputError("surface_map: made for another camera size or mesh")
@@ -157,27 +199,43 @@ def correct_image(
     x = stack.astype(np.float64)
     sample = smap.to_surface(x)
     B = sample.values  # (T, N)
-    seen = ~sample.unseen
+    grazing = _grazing(mesh, camera, lim)
+    seen = ~sample.unseen & ~grazing[None]
     if not seen.any(axis=1).all():
         t = int(np.flatnonzero(~seen.any(axis=1))[0])
         raise InputError(
             f"image: the camera sees no face of the model in frame {t} (check the pose)"
         )
     if F is None:
-        F = view_factors(mesh, rays_per_face=rays_per_face, seed=seed, progress=progress)
+        F, _ = coupled_view_factors(
+            mesh, seen.any(axis=0), rays_per_face=rays_per_face, seed=seed, progress=progress
+        )
     elif not sp.issparse(F) or F.shape != (n, n):
         raise InputError(f"F: expected a sparse ({n}, {n}) matrix")
-    if seen.all():  # every face seen in every frame: one sparse product for the stack
-        E = B - rho * (F @ B.T).T
-        infos = [SolveInfo("direct", 0, 0.0, n, 0)] * len(B)
-    else:  # frame by frame (the seen faces may differ), reusing F and the surface map
-        E = np.empty_like(B)
-        infos = []
-        for t in range(len(B)):
-            E[t], info = correct(
-                F, np.where(seen[t], B[t], np.nan), rho, seen[t], mesh=mesh, return_info=True
-            )
-            infos.append(info)
+    E = np.empty_like(B)
+    share = np.full_like(B, np.nan)
+    infos = []
+    for t in range(len(B)):  # frame by frame (the seen faces may differ), reusing F
+        E[t], info = correct(
+            F, np.where(seen[t], B[t], np.nan), rho, seen[t], mesh=mesh, unseen=unseen,
+            unpainted=unpainted, return_info=True,
+        )
+        if info.unseen_share is not None:
+            share[t] = info.unseen_share
+        else:
+            share[t][seen[t]] = 0.0
+        infos.append(info)
+    areas = face_areas(mesh)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        si = np.where(seen & (B != 0), (B - E) / B, np.nan)
+    warns = []
+    for t in range(len(B)):
+        w = unseen_warning(share[t], si[t], seen[t], areas)
+        if w is not None:
+            warns.append(w if single else f"frame {t}: {w}")
+    for w in warns:
+        warnings.warn(w, UnseenFacesWarning, stacklevel=2)
+    said = describe_unseen(unseen, unpainted, source)
 
     on = smap.mask[None] & np.isfinite(x)
     out = x.copy()
@@ -193,8 +251,24 @@ def correct_image(
         out[on] = x[on] * corr[on]
     out = _as_dtype(out, img.dtype)
     if single:
-        return ImageCorrection(out[0], corr[0], B[0], E[0], seen[0], mode, infos[0])
-    return ImageCorrection(out, corr, B, E, seen, mode, tuple(infos))
+        return ImageCorrection(out[0], corr[0], B[0], E[0], seen[0], mode, infos[0],
+                               share[0], said, tuple(warns), grazing)
+    return ImageCorrection(out, corr, B, E, seen, mode, tuple(infos), share, said,
+                           tuple(warns), grazing)
+
+
+class UnseenFacesWarning(UserWarning):
+    """The correction rests on faces no camera sees over a meaningful area."""
+
+
+def _grazing(mesh: trimesh.Trimesh, camera: Camera, max_obliqueness: float) -> np.ndarray:
+    """Faces whose centroid the camera sees at more than ``max_obliqueness`` degrees from
+    their normal, whichever side is seen (the painted side is checked separately)."""
+    c = np.asarray(mesh.triangles_center, dtype=np.float64)
+    view = np.asarray(camera.center, dtype=np.float64)[None] - c
+    view /= np.linalg.norm(view, axis=1, keepdims=True)
+    cosang = np.abs(np.einsum("ij,ij->i", view, face_normals(mesh)))
+    return cosang < np.cos(np.radians(max_obliqueness)) - 1e-12
 
 
 def _check_painted_side(smap, mesh, camera) -> None:
@@ -302,21 +376,28 @@ def correct_image_file(
     seed: int = 0,
     mode: str = "subtract",
     surface_out=None,
+    unseen="continue",
+    unpainted=None,
+    max_obliqueness: float = DEFAULT_MAX_OBLIQUENESS,
     progress: bool = False,
 ) -> ImageCorrection:
     """File-level :func:`correct_image`: read the mesh (any format of
     :func:`resection.io.meshes.load_mesh`), the camera JSON and the image (TIFF or NPY),
     correct, write the corrected image with the input's dtype (TIFF or NPY, from
-    ``out_path``'s suffix) and optionally the per-face fields (``radiosity``,
-    ``emission``, ``seen``) to ``surface_out`` (.ply, .vtk or .csv)."""
+    ``out_path``'s suffix), the summary with the assumption for unseen faces
+    (:func:`selfillum.summary.write_summary`) to ``out_path`` + ``".json"``, and
+    optionally the per-face fields (``radiosity``, ``emission``, ``seen``,
+    ``unseen_share``, ``grazing``, ``unpainted``) to ``surface_out`` (.ply, .vtk or .csv).
+
+    ``unseen`` is ``"continue"``, ``"none"`` or a per-face file of emission values;
+    ``unpainted`` a per-face 0/1 file or Plot3D block numbers
+    (:func:`selfillum.unseen.read_unpainted`)."""
     from resection.io.meshes import load_mesh, write_surface
     from resection.io.outputs import atomic_path, refuse_overwriting_inputs
 
+    from .summary import summarize, write_summary
+
     image_path, out_path = Path(image_path), Path(out_path)
-    refuse_overwriting_inputs(
-        {"out_path": out_path, "surface_out": surface_out},
-        {"image_path": [image_path], "mesh_path": [mesh_path], "camera_path": [camera_path],
-         "reflectance": [reflectance] if isinstance(reflectance, (str, os.PathLike)) else []})
     for p in (image_path, out_path):
         if p.suffix.lower() not in (".tif", ".tiff", ".npy"):
             raise InputError(f"{p}: images must be TIFF (.tif, .tiff) or NPY (.npy)")
@@ -324,33 +405,61 @@ def correct_image_file(
         raise FileNotFoundError(f"{image_path}: no such image file")
     if not out_path.parent.exists():
         raise FileNotFoundError(f"{out_path.parent}: output directory does not exist")
+    summary_path = out_path.with_name(out_path.name + ".json")
+    refuse_overwriting_inputs(
+        {"--out": out_path, "--surface": surface_out, "summary": summary_path},
+        {"--image": [image_path], "--mesh": [mesh_path], "--camera": [camera_path],
+         "--reflectance": [reflectance] if isinstance(reflectance, str | os.PathLike) else [],
+         "--unseen": [unseen] if isinstance(unseen, str | os.PathLike) else [],
+         "--unpainted": [unpainted] if isinstance(unpainted, str | os.PathLike) else []})
     mesh = load_mesh(mesh_path)
     camera = Camera.read(camera_path)
     image = _read_native(image_path)
-    rho = read_reflectance(reflectance, len(mesh.faces))
-    result = correct_image(
-        image,
-        mesh,
-        camera,
-        rho,
-        rays_per_face=rays_per_face,
-        seed=seed,
-        mode=mode,
-        progress=progress,
-    )
-    # both files through temporary names, renamed into place only when both are written
-    with atomic_path(out_path) as tmp, atomic_path(surface_out) as tmp_surface:
+    n = len(mesh.faces)
+    rho = read_reflectance(reflectance, n)
+    unpainted_mask, source = (None, "") if unpainted is None else \
+        read_unpainted(unpainted, mesh)
+    unseen_value = read_unseen(unseen, n)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UnseenFacesWarning)  # returned in the result
+        result = correct_image(
+            image,
+            mesh,
+            camera,
+            rho,
+            rays_per_face=rays_per_face,
+            seed=seed,
+            mode=mode,
+            unseen=unseen_value,
+            unpainted=unpainted_mask,
+            max_obliqueness=max_obliqueness,
+            progress=progress,
+        )
+    said = describe_unseen(unseen_value, unpainted_mask, source)
+    result = replace(result, assumption=said)
+    said_file = f"{said}: {unseen}" if isinstance(unseen_value, np.ndarray) else said
+    # every file through a temporary name, renamed into place only when all are written
+    with atomic_path(out_path) as tmp, atomic_path(surface_out) as tmp_surface, \
+            atomic_path(summary_path) as tmp_summary:
         if out_path.suffix.lower() == ".npy":
             np.save(tmp, result.image, allow_pickle=False)
         else:
             import tifffile
 
             tifffile.imwrite(tmp, result.image)
+        write_summary(tmp_summary, summarize(result), assumption_detail=said_file,
+                      max_obliqueness_deg=float(max_obliqueness),
+                      rays_per_face=rays_per_face, image=str(image_path),
+                      mesh=str(mesh_path))
         if surface_out is not None:
             fields = {  # (N,) or, for a stack, (N, T): one column per frame
                 "radiosity": result.radiosity.T,
                 "emission": result.emission.T,
                 "seen": result.seen.astype(np.uint8).T,
+                "unseen_share": result.unseen_share.T,
+                "grazing": result.grazing.astype(np.uint8),
+                "unpainted": (np.zeros(n, np.uint8) if unpainted_mask is None
+                              else unpainted_mask.astype(np.uint8)),
             }
             write_surface(tmp_surface, mesh, fields)
     return result

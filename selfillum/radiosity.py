@@ -13,15 +13,20 @@ Units of ``E`` and ``B`` are the caller's (W/m^2, counts, ...), the same for bot
 from __future__ import annotations
 
 import contextlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+import trimesh
 
 from resection.errors import InputError, SolveError
 
-__all__ = ["forward", "correct", "SolveInfo", "check_reflectance", "check_form_factors"]
+from .coupling import coupled_faces
+
+__all__ = [
+    "forward", "correct", "SolveInfo", "check_reflectance", "check_form_factors", "UNSEEN_CHOICES"
+]
 
 #: Vectors at least this long are where OpenBLAS starts threading its dot products.
 _BLAS_THREADED_SIZE = 10_000
@@ -64,6 +69,17 @@ class SolveInfo:
         Faces with a measured radiosity.
     n_hidden : int
         Faces without one.
+    n_coupled : int
+        Hidden faces coupled to the seen ones through ``F`` (reachable from them along
+        its non-zeros, :func:`selfillum.coupling.coupled_faces`): those that entered the
+        solve. The other hidden faces cannot change the seen faces' emission.
+    assumption : str
+        What the hidden faces were taken to emit (``"continue"``, ``"none"``,
+        ``"given"``), ``""`` when every face is seen.
+    unseen_share : (N,) ndarray or None
+        For each seen face, the share of its correction ``B_i - E_i = rho_i (F B)_i``
+        that comes from hidden faces, ``rho_i (F B_hidden)_i / (rho_i (F B)_i)`` (0 where
+        the correction is 0, NaN on hidden faces); ``None`` when every face is seen.
     """
 
     method: str
@@ -71,6 +87,9 @@ class SolveInfo:
     residual: float
     n_seen: int
     n_hidden: int
+    n_coupled: int = 0
+    assumption: str = ""
+    unseen_share: np.ndarray | None = field(default=None, repr=False, compare=False)
 
 
 def check_form_factors(F) -> sp.csr_matrix:
@@ -223,6 +242,10 @@ def forward(
     return (B, info) if return_info else B
 
 
+#: What hidden faces may be taken to emit (see :func:`correct`).
+UNSEEN_CHOICES = ("continue", "none", "given")
+
+
 def correct(
     F,
     radiosity,
@@ -230,6 +253,8 @@ def correct(
     seen=None,
     *,
     mesh=None,
+    unseen="continue",
+    unpainted=None,
     regularization: float = 1e-6,
     tol: float = 1e-8,
     maxiter: int | None = None,
@@ -241,22 +266,36 @@ def correct(
     exact: ``E = B - rho * (F B)``.
 
     With a camera seeing only part of the surface (``seen`` a boolean mask), the radiosity
-    ``B_h`` of the hidden faces is unknown and the emission ``E = (I - rho F) B`` depends
-    on it. Assumption for the hidden faces: their radiosity obeys the same transport
-    equation and their emission is the *smoothest continuation* of the seen emission:
-    ``B_h`` minimises the Dirichlet energy of ``E`` over the whole surface,
-    ``|D E|^2`` (``D`` the face-adjacency difference operator of
-    :func:`selfillum.mesh.face_adjacency_weights`), plus a small Tikhonov term
-    ``regularization * |B_h - mean(B_seen)|^2`` that fixes what the smoothness leaves
-    free (hidden parts with no edge-connection to seen ones). The measured ``B`` of seen
-    faces is honoured exactly. This is a sparse linear least-squares problem in
-    ``B_h``, solved with LSMR; ``E`` follows for every face (hidden faces' ``E`` are the
-    model's estimate, not a measurement).
+    ``B_h`` of the hidden faces is unknown and the emission ``E = (I - rho F) B`` of the
+    seen faces depends on it. What the hidden faces emit is an assumption, stated with
+    ``unseen``:
+
+    * ``"continue"`` (default): the hidden faces' emission is the *smoothest continuation*
+      of the seen emission. ``B_h`` minimises the Dirichlet energy ``|D E|^2`` of ``E``
+      over the seen and coupled faces (``D`` the face-adjacency difference operator of
+      :func:`selfillum.mesh.face_adjacency_weights`, edges between painted faces only),
+      plus a small Tikhonov term ``regularization * |B_h - mean(B_seen)|^2`` that fixes
+      what the smoothness leaves free. A sparse least-squares problem, solved with LSMR.
+    * ``"none"``: hidden faces emit nothing (``E_h = 0``);
+    * an ``(N,)`` array: hidden faces emit these values (``"given"``; values of seen faces
+      are ignored).
+
+    With ``"none"`` or given values, ``B_h`` solves the forward problem of the hidden
+    faces, ``(I - rho F)_hh B_h = E_h + rho_h F_hs B_s``, a square well-conditioned system.
+
+    ``unpainted`` faces emit nothing, seen or not (``E = 0`` on them whatever ``unseen``
+    says); they still reflect with their ``reflectance``.
+
+    Only the hidden faces coupled to the seen ones through ``F`` (reachable from them along
+    its non-zeros, :func:`selfillum.coupling.coupled_faces`) enter the solve: the others
+    cannot change the seen faces' emission, so ``F`` needs only the rows of the seen and
+    coupled faces. Their emission is the assumption itself (0, or the given values) and
+    NaN under ``"continue"`` (not estimated).
 
     Parameters
     ----------
     F : (N, N) sparse matrix
-        Form factors.
+        Form factors. Rows of faces neither seen nor coupled may be empty.
     radiosity : (N,) array_like
         ``B``, measured radiosity per face. Values of hidden faces are ignored (may be NaN).
     reflectance : float or (N,) array_like
@@ -264,20 +303,24 @@ def correct(
     seen : (N,) array_like of bool, optional
         Faces whose radiosity is measured. ``None``: all.
     mesh : trimesh.Trimesh, optional
-        The mesh of ``F``: required when some faces are hidden (for the adjacency).
+        The mesh of ``F``: required under ``"continue"`` when some faces are hidden.
+    unseen : {"continue", "none"} or (N,) array_like
+        What hidden faces emit (units of ``B``).
+    unpainted : (N,) array_like of bool, optional
+        Faces that emit nothing (unpainted parts of the model).
     regularization : float
         Weight of the Tikhonov term relative to the smoothness term (``> 0``).
     tol : float
-        Tolerance of LSMR (``atol`` and ``btol``).
+        Tolerance of LSMR (``atol`` and ``btol``) and of the other iterative solves.
     maxiter : int, optional
         Largest number of LSMR iterations (default ``10 * n_hidden``, at least 1000).
     return_info : bool
-        Also return a :class:`SolveInfo`.
+        Also return a :class:`SolveInfo` (with the per-face ``unseen_share``).
 
     Returns
     -------
     E : (N,) ndarray
-        Emission per face (units of ``B``).
+        Emission per face (units of ``B``); on hidden faces the model's estimate.
     info : SolveInfo
         Only with ``return_info=True``.
 
@@ -285,21 +328,16 @@ def correct(
     ------
     InputError
         Bad shapes, NaN in seen radiosity, reflectance outside ``[0, 1)``, no seen face,
-        ``mesh`` missing or not matching ``F``.
+        ``mesh`` missing or not matching ``F``, an unknown ``unseen``.
     SolveError
-        LSMR stopped before reaching ``tol``.
+        An iterative solve stopped before reaching ``tol``.
     """
     F = check_form_factors(F)
     n = F.shape[0]
     rho = check_reflectance(reflectance, n)
-    if seen is None:
-        mask = np.ones(n, dtype=bool)
-    else:
-        mask = np.asarray(seen)
-        if mask.shape != (n,) or mask.dtype != bool:
-            raise InputError(
-                f"seen: expected a boolean array of shape ({n},), got {mask.dtype} {mask.shape}"
-            )
+    mask = _mask(seen, n, "seen", default=True)
+    paint_off = _mask(unpainted, n, "unpainted", default=False)
+    kind, given = _unseen_choice(unseen, n)
     try:
         B = np.asarray(radiosity, dtype=np.float64)
     except (TypeError, ValueError):
@@ -314,46 +352,168 @@ def correct(
         raise InputError("seen: no face is seen, nothing to correct")
     if n_seen == n:
         E = B - rho * (F @ B)
+        E[paint_off] = 0.0
         info = SolveInfo("direct", 0, 0.0, n, 0)
         return (E, info) if return_info else E
+    if kind == "continue":
+        if mesh is None:
+            raise InputError("mesh: required when some faces are hidden (seen has False "
+                             "values) and their emission is continued")
+        if len(mesh.faces) != n:
+            raise InputError(f"mesh: has {len(mesh.faces)} faces but F is {n} x {n}")
+        if not regularization > 0:
+            raise InputError(f"regularization: must be > 0, got {regularization!r}")
 
-    if mesh is None:
-        raise InputError("mesh: required when some faces are hidden (seen has False values)")
-    if len(mesh.faces) != n:
-        raise InputError(f"mesh: has {len(mesh.faces)} faces but F is {n} x {n}")
-    if not regularization > 0:
-        raise InputError(f"regularization: must be > 0, got {regularization!r}")
+    reach = coupled_faces(F, mask)
+    sub = np.flatnonzero(reach)  # seen + coupled hidden faces, the whole problem
+    M = (sp.identity(n, format="csr") - sp.diags(rho) @ F).tocsr()[sub][:, sub]
+    loc_seen = mask[sub]
+    Bsub = np.where(loc_seen, B[sub], 0.0)
+    hid = np.flatnonzero(~loc_seen)
+    method, itn, rel = "direct", 0, 0.0
+    if hid.size and kind == "continue":
+        Bsub[hid], itn, rel = _continue_hidden(
+            M, Bsub, loc_seen, paint_off[sub], mesh, sub, regularization, tol, maxiter
+        )
+        method = "lsmr"
+    elif hid.size:
+        target = np.zeros(n) if given is None else given.copy()
+        target[paint_off] = 0.0
+        rho_h = rho[sub][hid]
+        Fh = F[sub][:, sub][hid].tocsc()
+        s_loc = np.flatnonzero(loc_seen)
+        # the forward problem of the hidden faces, lit by the seen ones:
+        # (I - rho F)_hh B_h = E_h + rho_h F_hs B_s
+        rhs = target[sub][hid] + rho_h * (Fh[:, s_loc] @ Bsub[s_loc])
+        Bsub[hid], finfo = forward(Fh[:, hid].tocsr(), rhs, rho_h, tol=1e-2 * tol,
+                                   return_info=True)
+        method, itn, rel = finfo.method, finfo.iterations, finfo.residual
+    E = np.full(n, np.nan) if kind == "continue" else (
+        np.zeros(n) if given is None else given.copy())
+    E[sub] = M @ Bsub
+    E[paint_off] = 0.0
+    Bfull = np.zeros(n)
+    Bfull[sub] = Bsub
+    total = rho * (F @ Bfull)
+    from_hidden = rho * (F @ np.where(mask, 0.0, Bfull))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        share = np.where(total != 0, from_hidden / total, 0.0)
+    share[~mask] = np.nan
+    info = SolveInfo(method, int(itn), float(rel), n_seen, n - n_seen,
+                     int(hid.size), kind, share)
+    return (E, info) if return_info else E
+
+
+def _mask(values, n: int, name: str, *, default: bool) -> np.ndarray:
+    """A boolean ``(n,)`` mask, or ``default`` everywhere for ``None``."""
+    if values is None:
+        return np.full(n, default)
+    mask = np.asarray(values)
+    if mask.shape != (n,) or mask.dtype != bool:
+        raise InputError(
+            f"{name}: expected a boolean array of shape ({n},), got {mask.dtype} {mask.shape}"
+        )
+    return mask
+
+
+def _unseen_choice(unseen, n: int) -> tuple[str, np.ndarray | None]:
+    """``("continue" | "none" | "given", given values or None)``."""
+    if isinstance(unseen, str):
+        if unseen not in ("continue", "none"):
+            raise InputError(
+                f"unseen: expected 'continue', 'none' or per-face values, got {unseen!r}"
+            )
+        return unseen, None
+    return "given", _field(unseen, n, "unseen emission")
+
+
+def _neumann(RF: sp.csr_matrix, rhs: np.ndarray, tol: float) -> np.ndarray:
+    """``x = (I - RF)^-1 rhs`` by the Neumann series (``|RF|_inf < 1``)."""
+    x = rhs.copy()
+    scale = float(np.linalg.norm(rhs))
+    if RF.nnz == 0 or scale == 0.0:
+        return x
+    for _ in range(10_000):
+        nxt = rhs + RF @ x
+        step = float(np.linalg.norm(nxt - x))
+        x = nxt
+        if step <= 1e-3 * tol * scale:
+            return x
+    raise SolveError("unpainted faces: the Neumann series did not converge")
+
+
+def _continue_hidden(M, Bsub, loc_seen, paint_off, mesh, sub, regularization, tol, maxiter):
+    """Radiosity of the coupled hidden faces under the smooth-continuation model.
+
+    Works on the sub-problem of the seen + coupled faces (``M = (I - rho F)`` restricted to
+    them). Hidden painted faces ``P`` are the unknowns of LSMR; hidden unpainted faces
+    ``U`` follow from ``E_U = 0`` exactly: ``B_U = -M_UU^-1 (M_Us B_s + M_UP B_P)``,
+    ``M_UU^-1`` applied by its Neumann series. Returns ``(B_hidden, iterations,
+    relative residual)`` in the order of the hidden faces of ``sub``.
+    """
     from .mesh import face_adjacency_weights
 
-    hidden = np.flatnonzero(~mask)
-    seen_idx = np.flatnonzero(mask)
-    M = (sp.identity(n, format="csr") - sp.diags(rho) @ F).tocsc()
-    Bs = B[seen_idx]
-    e0 = M[:, seen_idx] @ Bs  # E with B_h = 0
-    Mh = M[:, hidden].tocsr()  # E = e0 + Mh @ B_h
-    MhT = Mh.T.tocsr()
-    D = face_adjacency_weights(mesh)
+    hid = np.flatnonzero(~loc_seen)
+    P = hid[~paint_off[hid]]
+    U = hid[paint_off[hid]]
+    s_idx = np.flatnonzero(loc_seen)
+    Mc = M.tocsc()
+    e_s = Mc[:, s_idx] @ Bsub[s_idx]
+    M_SP = Mc[:, P].tocsr()
+    M_SU = Mc[:, U].tocsr()
+    RF_UU = (sp.identity(U.size, format="csr") - M[U][:, U]).tocsr()
+    RF_UUt = RF_UU.T.tocsr()
+    M_UP = M[U][:, P].tocsr()
+    M_Us = M[U][:, s_idx].tocsr()
+
+    def u_of(bp):  # B_U from B_P with E_U = 0
+        return _neumann(RF_UU, -(M_Us @ Bsub[s_idx] + M_UP @ bp), tol)
+
+    if P.size == 0:
+        return u_of(np.zeros(0)), 0, 0.0
+    u0 = u_of(np.zeros(P.size)) if U.size else np.zeros(0)
+    e0 = e_s + M_SU @ u0 if U.size else e_s
+
+    def g(x):  # E over sub from the deviation x of B_P: linear part
+        out = M_SP @ x
+        if U.size:
+            out = out - M_SU @ _neumann(RF_UU, M_UP @ x, tol)
+        return out
+
+    def gt(y):
+        out = M_SP.T @ y
+        if U.size:
+            out = out - M_UP.T @ _neumann(RF_UUt, M_SU.T @ y, tol)
+        return out
+
+    # smoothness over edges between painted faces of the sub-problem
+    submesh = trimesh.Trimesh(np.asarray(mesh.vertices), np.asarray(mesh.faces)[sub],
+                              process=False)
+    D = face_adjacency_weights(submesh)
+    if D.shape[0]:
+        touches_unpainted = (abs(D) @ paint_off.astype(float)) > 0
+        D = D[np.flatnonzero(~touches_unpainted)]
+    D = D.tocsr()
     DT = D.T.tocsr()
-    # Tikhonov weight relative to the typical size of the smoothness columns (the columns
-    # of D Mh are those of D up to the small rho F terms: M has a unit diagonal)
-    col_norm = np.sqrt(np.asarray(D.multiply(D).sum(axis=0)).ravel())[hidden]
+    col_norm = np.sqrt(np.asarray(D.multiply(D).sum(axis=0)).ravel())[P]
     scale = float(np.median(col_norm[col_norm > 0])) if np.any(col_norm > 0) else 1.0
     lam = np.sqrt(regularization) * scale
-    p_rows, nh = D.shape[0], hidden.size
+    p_rows, nh = D.shape[0], P.size
 
     def matvec(x):
         x = np.ravel(x)
-        return np.concatenate([D @ (Mh @ x), lam * x])
+        return np.concatenate([D @ g(x), lam * x])
 
     def rmatvec(y):
         y = np.ravel(y)
-        return MhT @ (DT @ y[:p_rows]) + lam * y[p_rows:]
+        return gt(DT @ y[:p_rows]) + lam * y[p_rows:]
 
     A = spla.LinearOperator((p_rows + nh, nh), matvec=matvec, rmatvec=rmatvec, dtype=float)
-    prior = float(np.mean(Bs))
-    # unknown: the deviation of B_h from the prior, so that x = 0 is a fair start
-    rhs0 = np.concatenate([-(D @ (e0 + Mh @ np.full(nh, prior))), np.zeros(nh)])
-    limit = maxiter if maxiter is not None else max(1000, 10 * hidden.size)
+    painted_seen = s_idx[~paint_off[s_idx]]
+    prior = float(np.mean(Bsub[painted_seen] if painted_seen.size else Bsub[s_idx]))
+    base = np.full(nh, prior)
+    rhs0 = np.concatenate([-(D @ (e0 + g(base))), np.zeros(nh)])
+    limit = maxiter if maxiter is not None else max(1000, 10 * nh)
     with _single_blas_thread(p_rows + nh):
         out = spla.lsmr(A, rhs0, atol=tol, btol=tol, maxiter=limit)
     x, istop, itn, normr, normar, norma = out[0], out[1], out[2], out[3], out[4], out[5]
@@ -362,10 +522,10 @@ def correct(
             f"correction least squares did not converge (LSMR stop {istop} after {itn} "
             f"iterations, residual {normr:.3g})"
         )
-    Bh = prior + x
-    Bfull = B.copy()
-    Bfull[hidden] = Bh
-    E = M @ Bfull
+    bp = base + x
+    Bh = np.empty(hid.size)
+    Bh[~paint_off[hid]] = bp
+    if U.size:
+        Bh[paint_off[hid]] = u_of(bp)
     rel = float(normar / max(norma * normr, np.finfo(float).tiny)) if normr > 0 else 0.0
-    info = SolveInfo("lsmr", int(itn), rel, n_seen, int(hidden.size))
-    return (E, info) if return_info else E
+    return Bh, itn, rel

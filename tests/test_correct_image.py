@@ -15,7 +15,7 @@ from resection.surface import SurfaceMap
 from scenes.corner import corner
 from selfillum import view_factors
 from selfillum.cli import main
-from selfillum.correct_image import correct_image, read_reflectance
+from selfillum.correct_image import UnseenFacesWarning, correct_image, read_reflectance
 from selfillum.rendering import render
 
 
@@ -134,7 +134,9 @@ def test_cli_correct_tiff_round_trip(renders, tmp_path, capsys):
         ]
     )
     assert rc == 0
-    assert "largest self-illumination" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "self-illumination, seen faces  median" in printed and "99th" in printed
+    assert "unseen faces emit              continue" in printed
     out = tifffile.imread(tmp_path / "out.tif")
     assert out.dtype == np.uint16 and out.shape == counts.shape
     err = (out.astype(float) / 4000 - emit)[inner] / emit[inner]
@@ -231,7 +233,9 @@ def test_stack_of_frames(renders):
     second = 0.5 * full
     second[:, 120:] = np.nan  # part of the wall masked in this frame
     stack = np.stack([full, second]).astype(np.float32)
-    r = correct_image(stack, sc.mesh, cam, sc.reflectance, F=F, surface_map=smap)
+    with pytest.warns(UnseenFacesWarning, match="frame 1"):  # the masked frame only
+        r = correct_image(stack, sc.mesh, cam, sc.reflectance, F=F, surface_map=smap)
+    assert len(r.warnings) == 1
     assert r.image.shape == stack.shape and r.image.dtype == np.float32
     assert r.emission.shape == (2, len(sc.mesh.faces)) and len(r.info) == 2
     one = correct_image(full, sc.mesh, cam, sc.reflectance, F=F, surface_map=smap)
