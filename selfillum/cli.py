@@ -12,6 +12,7 @@ import sys
 
 from resection._cliutil import OneLineParser, run
 from resection.errors import InputError
+from resection.surface import DEFAULT_MAX_OBLIQUENESS
 
 
 def _cmd_corner(args) -> int:
@@ -214,7 +215,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--max-obliqueness",
         type=_obliqueness,
-        default=70.0,
+        default=DEFAULT_MAX_OBLIQUENESS,
         metavar="DEG",
         help="faces seen more obliquely than this (degrees from the normal) count as "
         "unseen (default 70)",

@@ -32,14 +32,12 @@ import trimesh
 
 from resection.camera import Camera
 from resection.errors import InputError
+from resection.surface import DEFAULT_MAX_OBLIQUENESS
 
 from .coupling import coupled_view_factors
-from .mesh import check_mesh, face_areas, face_normals
+from .mesh import check_mesh, face_areas
 from .radiosity import SolveInfo, check_reflectance, correct
 from .unseen import describe_unseen, read_unpainted, read_unseen, unseen_warning
-
-#: Default obliqueness cut-off (degrees), as for ``resection map``.
-DEFAULT_MAX_OBLIQUENESS = 70.0
 
 __all__ = ["ImageCorrection", "correct_image", "read_reflectance", "correct_image_file",
            "UnseenFacesWarning", "DEFAULT_MAX_OBLIQUENESS"]
@@ -156,7 +154,7 @@ def correct_image(
         ``[0, 1)``, invalid mesh, a camera that sees the model mostly from behind (the
         normals do not point to the painted side), a camera that sees no face.
     """
-    from resection.surface import SurfaceMap
+    from resection.surface import SurfaceMap, oblique_faces
 
     check_mesh(mesh)
     if mode not in ("subtract", "ratio"):
@@ -191,7 +189,8 @@ def correct_image(
         unpainted, source = read_unpainted(unpainted, mesh)
     if isinstance(unseen, str | os.PathLike) and unseen not in ("continue", "none"):
         unseen = read_unseen(unseen, n)
-    smap = SurfaceMap(mesh, camera) if surface_map is None else surface_map
+    smap = SurfaceMap(mesh, camera, max_obliqueness=lim) if surface_map is None \
+        else surface_map
     if smap.shape != stack.shape[1:] or smap.n_faces != n:
         raise InputError("surface_map: made for another camera size or mesh")
     _check_painted_side(smap, mesh, camera)
@@ -199,7 +198,7 @@ def correct_image(
     x = stack.astype(np.float64)
     sample = smap.to_surface(x)
     B = sample.values  # (T, N)
-    grazing = _grazing(mesh, camera, lim)
+    grazing = oblique_faces(mesh, camera.center, lim)
     seen = ~sample.unseen & ~grazing[None]
     if not seen.any(axis=1).all():
         t = int(np.flatnonzero(~seen.any(axis=1))[0])
@@ -259,16 +258,6 @@ def correct_image(
 
 class UnseenFacesWarning(UserWarning):
     """The correction rests on faces no camera sees over a meaningful area."""
-
-
-def _grazing(mesh: trimesh.Trimesh, camera: Camera, max_obliqueness: float) -> np.ndarray:
-    """Faces whose centroid the camera sees at more than ``max_obliqueness`` degrees from
-    their normal, whichever side is seen (the painted side is checked separately)."""
-    c = np.asarray(mesh.triangles_center, dtype=np.float64)
-    view = np.asarray(camera.center, dtype=np.float64)[None] - c
-    view /= np.linalg.norm(view, axis=1, keepdims=True)
-    cosang = np.abs(np.einsum("ij,ij->i", view, face_normals(mesh)))
-    return cosang < np.cos(np.radians(max_obliqueness)) - 1e-12
 
 
 def _check_painted_side(smap, mesh, camera) -> None:
