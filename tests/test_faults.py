@@ -563,3 +563,81 @@ def test_lock_is_exclusive_within_one_process_too(tmp_path):
                 pass
     with lock_folder(tmp_path, command="third") as me:  # released: free again
         assert me["command"] == "third"
+
+
+
+# --------------------------------------------------------------------------------------
+# File parsing (io): meshes
+# --------------------------------------------------------------------------------------
+
+
+def _stl_bytes():
+    import trimesh
+
+    return trimesh.creation.box().export(file_type="stl")
+
+
+@pytest.mark.parametrize("kind", ["random", "truncated", "ascii-truncated"])
+def test_random_or_truncated_stl_names_the_problem(tmp_path, kind):
+    """A random or truncated STL reported "No module named 'charset_normalizer'"."""
+    import trimesh
+
+    from resection import load_mesh
+
+    p = tmp_path / "model.stl"
+    if kind == "random":
+        p.write_bytes(np.random.default_rng(0).bytes(3000))
+    elif kind == "truncated":
+        p.write_bytes(_stl_bytes()[:-70])
+    else:
+        text = trimesh.creation.box().export(file_type="stl_ascii")
+        p.write_text(text[: len(text) // 2])
+    with pytest.raises(InputError) as err:
+        load_mesh(p)
+    msg = str(err.value)
+    assert "model.stl" in msg and "STL" in msg and "charset" not in msg
+    assert "\n" not in msg
+
+
+def test_duplicate_faces_are_named(tmp_path):
+    import trimesh
+
+    from resection import load_mesh
+
+    box = trimesh.creation.box()
+    faces = np.vstack([box.faces, box.faces[[3]]])  # face 3 twice: face 12 is its copy
+    dup = trimesh.Trimesh(box.vertices, faces, process=False)
+    p = tmp_path / "dup.stl"
+    dup.export(p)
+    with pytest.raises(InputError, match=r"dup.stl: 1 duplicate face.*faces 3 and 12"):
+        load_mesh(p)
+
+
+def test_byte_swapped_plot3d_is_read_or_named(tmp_path):
+    """Coordinates written in the other byte order than the record markers gave "200
+    degenerate triangles": they are now detected and read in the right order; a file whose
+    coordinates are garbage in both orders is refused naming the byte order."""
+    import struct
+
+    from resection import load_mesh, write_plot3d
+
+    x, y = np.meshgrid(np.linspace(0, 1, 11), np.linspace(0, 2, 11), indexing="ij")
+    grid = np.stack([x, y, 0.1 * x * y], -1)[:, :, None, :]
+    p = tmp_path / "wing.x"
+    write_plot3d(p, [grid], endian="<")
+    ref = load_mesh(p)
+    d = bytearray(p.read_bytes())
+    pos, recs = 0, []
+    while pos < len(d):
+        n = struct.unpack("<i", d[pos:pos + 4])[0]
+        recs.append((pos + 4, n))
+        pos += 8 + n
+    s, n = recs[2]
+    d[s:s + n] = np.frombuffer(bytes(d[s:s + n]), "<f8").astype(">f8").tobytes()
+    p.write_bytes(bytes(d))
+    got = load_mesh(p)
+    np.testing.assert_array_equal(got.vertices, ref.vertices)
+    d[s:s + n] = np.full(n // 8, 1e200).tobytes()  # implausible in both byte orders
+    p.write_bytes(bytes(d))
+    with pytest.raises(InputError, match=r"wing.x: block 0: .*implausible.*byte order"):
+        load_mesh(p)

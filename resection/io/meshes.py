@@ -37,10 +37,20 @@ import numpy as np
 import trimesh
 
 from ..errors import InputError
+from .plot3d import (  # noqa: F401 - re-exported: Plot3D lives in io/plot3d.py
+    PLOT3D_SUFFIXES,
+    _read_bytes,
+    _split_records,
+    is_plot3d,
+    read_plot3d,
+    write_plot3d,
+)
 
 __all__ = [
     "load_mesh",
     "check_mesh",
+    "duplicate_faces",
+    "MESH_FORMATS",
     "read_plot3d",
     "write_plot3d",
     "plot3d_to_mesh",
@@ -50,7 +60,6 @@ __all__ = [
     "read_face_fields",
 ]
 
-PLOT3D_SUFFIXES = (".xyz", ".x", ".p3d", ".g", ".grd", ".fmt", ".p3dfmt", ".plot3d")
 CART3D_SUFFIXES = (".tri",)
 
 
@@ -91,7 +100,33 @@ def check_mesh(mesh: trimesh.Trimesh, source: str = "mesh") -> trimesh.Trimesh:
             f"{source}: {idx.size} degenerate triangle(s) (zero area or repeated vertices), "
             f"first at face {idx[0]} with vertices {faces[idx[0]].tolist()}"
         )
+    dup = duplicate_faces(faces)
+    if dup.size:
+        a, b = dup[0]
+        raise InputError(
+            f"{source}: {len(dup)} duplicate face(s) (the same triangle twice), first: faces "
+            f"{a} and {b} with vertices {faces[a].tolist()}; remove the copies"
+        )
     return mesh
+
+
+def duplicate_faces(faces) -> np.ndarray:
+    """Pairs ``(first, copy)`` of faces that are the same triangle with the same orientation
+    (the same three vertex indices in the same cyclic order), as an ``(M, 2)`` array.
+
+    Opposite windings of the same vertices (the two sides of a zero-thickness sheet) are
+    not duplicates. Vertices must be merged for coordinates-equal copies to show.
+    """
+    f = np.asarray(faces, dtype=np.int64)
+    if len(f) < 2:
+        return np.empty((0, 2), np.int64)
+    r = np.argmin(f, axis=1)  # rotate each face so that its smallest index comes first
+    rows = np.arange(len(f))[:, None]
+    g = f[rows, (r[:, None] + np.arange(3)) % 3]
+    _, first, inv = np.unique(g, axis=0, return_index=True, return_inverse=True)
+    inv = inv.ravel()
+    copies = np.flatnonzero(first[inv] != np.arange(len(f)))
+    return np.column_stack([first[inv[copies]], copies])
 
 
 # --------------------------------------------------------------------------- loading
@@ -102,10 +137,11 @@ def load_mesh(path: str | os.PathLike, *, format: str | None = None,
     Parameters
     ----------
     path : path-like
-        The file. The format comes from the suffix (Plot3D: .xyz .x .p3d .g .grd .fmt;
-        Cart3D: .tri; anything else goes to trimesh) unless ``format`` is given.
-    format : {"plot3d", "cart3d", or a trimesh file type}, optional
-        Force the format.
+        The file. Without ``format``: STL/OBJ/PLY/OFF/GLB/GLTF and Cart3D ``.tri`` by their
+        extensions; Plot3D by content whatever the extension (``.grid``, ``.grd``, ``.x``,
+        ``.g``, ``.xyz``, ``.p3d``, ``.fmt``, ...).
+    format : one of :data:`MESH_FORMATS`, optional
+        Force the format (the commands' ``--format``).
     merge_vertices : bool
         Merge coincident vertices (STL stores three per triangle; Plot3D block interfaces
         and collapsed lines repeat grid points) so that neighbouring faces share vertices,
@@ -124,20 +160,80 @@ def load_mesh(path: str | os.PathLike, *, format: str | None = None,
     if path.is_dir():
         raise InputError(f"mesh path is a directory: {path}")
     suffix = path.suffix.lower()
-    fmt = (format or "").lower()
-    if fmt == "plot3d" or (not fmt and suffix in PLOT3D_SUFFIXES):
+    fmt = (format or "").lower().lstrip(".")
+    if fmt and fmt not in MESH_FORMATS:
+        raise InputError(f"{path}: unknown mesh format {format!r}; one of "
+                         f"{', '.join(MESH_FORMATS)}")
+    if not fmt:
+        fmt = _format_by_content(path, suffix)
+    if fmt == "plot3d":
         mesh = plot3d_to_mesh(read_plot3d(path), merge_vertices=merge_vertices,
                               source=str(path))
         mesh.metadata["format"] = "plot3d"
-    elif fmt == "cart3d" or (not fmt and suffix in CART3D_SUFFIXES):
+    elif fmt == "cart3d":
         mesh = read_cart3d_tri(path)
     else:
-        mesh = _load_trimesh(path, fmt or None)
+        if fmt == "stl":
+            _check_stl(path)
+        mesh = _load_trimesh(path, fmt)
     mesh.metadata["source"] = str(path)
     check_mesh(mesh, str(path))
     if merge_vertices:
         mesh.merge_vertices(merge_tex=True, merge_norm=True)
     return check_mesh(mesh, str(path))
+
+
+#: What ``format=`` (and the commands' ``--format``) accepts.
+MESH_FORMATS = ("plot3d", "cart3d", "stl", "obj", "ply", "off", "glb", "gltf")
+
+
+def _format_by_content(path: Path, suffix: str) -> str:
+    """The mesh format of a file without ``format=``: the trimesh formats and Cart3D by
+    their extensions, Plot3D by content whatever the extension (``.grid``, ``.grd``, ...)."""
+    ext = suffix.lstrip(".")
+    if ext in ("stl", "obj", "ply", "off", "glb", "gltf"):
+        return ext
+    if suffix in CART3D_SUFFIXES:
+        return "cart3d"
+    if suffix in PLOT3D_SUFFIXES or is_plot3d(path):
+        return "plot3d"
+    raise InputError(
+        f"{path}: unknown mesh format (extension {suffix or 'none'!r}, and the content is "
+        f"not a Plot3D grid); give --format (one of {', '.join(MESH_FORMATS)})"
+    )
+
+
+def _check_stl(path: Path) -> None:
+    """Refuse a truncated or random STL with a clear message (trimesh would otherwise try
+    to decode it as text and fail on an unrelated import)."""
+    data = _read_bytes(str(path), "STL", "empty file")
+    if len(data) >= 84:
+        n = int(np.frombuffer(data, "<u4", 1, 80)[0])
+        if len(data) == 84 + 50 * n:
+            if n == 0:
+                raise InputError(f"{path}: empty mesh (binary STL with 0 triangles)")
+            return  # a well-formed binary STL
+    head = data[:512].lstrip().lower()
+    if head.startswith(b"solid"):
+        try:
+            text = data.decode("ascii")
+        except UnicodeDecodeError:
+            text = None
+        if text is not None:
+            body = text.lower()
+            if "facet" in body and body.count("endfacet") == body.count("facet normal") \
+                    and "endsolid" in body:
+                return
+            raise InputError(f"{path}: truncated or malformed ASCII STL ("
+                             f"{body.count('facet normal')} facets opened, "
+                             f"{body.count('endfacet')} closed"
+                             f"{'' if 'endsolid' in body else ', no endsolid'})")
+    if len(data) >= 84:
+        n = int(np.frombuffer(data, "<u4", 1, 80)[0])
+        raise InputError(f"{path}: not a valid STL: binary header announces {n} triangles "
+                         f"({84 + 50 * n} bytes) but the file has {len(data)} bytes "
+                         "(truncated or not an STL)")
+    raise InputError(f"{path}: not a valid STL ({len(data)} bytes, too short for a header)")
 
 
 def _load_trimesh(path: Path, file_type: str | None) -> trimesh.Trimesh:
@@ -183,235 +279,7 @@ def _ply_face_properties(mesh: trimesh.Trimesh) -> None:
             mesh.face_attributes[name] = np.array(a)
 
 
-# --------------------------------------------------------------------------- Fortran records
-def _fortran_records(data: bytes, marker: int, endian: str) -> list[bytes] | None:
-    """Split unformatted sequential Fortran data into records, None if it is not that."""
-    dt = np.dtype(f"{endian}i{marker}")
-    pos, out, n = 0, [], len(data)
-    while pos < n:
-        if pos + marker > n:
-            return None
-        length = int(np.frombuffer(data, dt, 1, pos)[0])
-        end = pos + marker + length
-        if length < 0 or end + marker > n:
-            return None
-        if int(np.frombuffer(data, dt, 1, end)[0]) != length:
-            return None
-        out.append(data[pos + marker:end])
-        pos = end + marker
-    return out if out else None
-
-
-def _split_records(data: bytes):
-    for marker in (4, 8):
-        for endian in ("<", ">"):
-            recs = _fortran_records(data, marker, endian)
-            if recs is not None:
-                return recs, endian
-    return None, None
-
-
 # --------------------------------------------------------------------------- Plot3D
-def _block_layout(dims: np.ndarray, sizes_bytes: list[int] | int, source: str):
-    """Precision and IBLANK presence from the data sizes. Returns (real_bytes, iblank)."""
-    npts = np.prod(dims, axis=1)
-    total = int(npts.sum())
-    for real in (4, 8):
-        for ib in (False, True):
-            per = 3 * real + (4 if ib else 0)
-            if isinstance(sizes_bytes, int):
-                if sizes_bytes == per * total:
-                    return real, ib
-            elif all(s == per * int(p) for s, p in zip(sizes_bytes, npts, strict=True)):
-                return real, ib
-    raise InputError(
-        f"{source}: Plot3D data sizes do not match the block dimensions "
-        f"{dims.tolist()} for single or double precision, with or without IBLANK"
-    )
-
-
-def _split_block(values: np.ndarray, iblank: np.ndarray | None, dims):
-    ni, nj, nk = (int(d) for d in dims)
-    xyz = values.reshape(3, nk, nj, ni).transpose(3, 2, 1, 0)  # (ni, nj, nk, 3), i fastest
-    ib = None if iblank is None else iblank.reshape(nk, nj, ni).transpose(2, 1, 0)
-    return np.ascontiguousarray(xyz, dtype=np.float64), ib
-
-
-def _parse_binary_plot3d(data: bytes, source: str):
-    recs, endian = _split_records(data)
-    if recs is not None:
-        header = 0
-        first = recs[0]
-        if len(first) == 4 and len(recs) >= 2:
-            nb = int(np.frombuffer(first, f"{endian}i4")[0])
-            dims = np.frombuffer(recs[1], f"{endian}i4")
-            header = 2
-        elif len(first) == 12:
-            nb, dims, header = 1, np.frombuffer(first, f"{endian}i4"), 1
-        else:
-            raise InputError(f"{source}: unrecognised Plot3D header record ({len(first)} bytes)")
-        if dims.size != 3 * nb or nb < 1:
-            raise InputError(
-                f"{source}: Plot3D header gives {nb} block(s) but {dims.size} dimensions "
-                "(only 3-D grids with ni, nj, nk are read)"
-            )
-        dims = dims.reshape(nb, 3).astype(np.int64)
-        if np.any(dims < 1):
-            raise InputError(f"{source}: non-positive Plot3D block dimensions {dims.tolist()}")
-        data_recs = recs[header:]
-        if len(data_recs) != nb:
-            raise InputError(
-                f"{source}: Plot3D header announces {nb} block(s), file holds "
-                f"{len(data_recs)} data record(s)"
-            )
-        real, has_ib = _block_layout(dims, [len(r) for r in data_recs], source)
-        blocks = []
-        for rec, d in zip(data_recs, dims, strict=True):  # loop over blocks
-            n = int(np.prod(d))
-            vals = np.frombuffer(rec, f"{endian}f{real}", 3 * n)
-            ib = np.frombuffer(rec, f"{endian}i4", n, 3 * n * real) if has_ib else None
-            blocks.append(_split_block(vals, ib, d))
-        return blocks, {"encoding": "fortran", "precision": real, "iblank": has_ib}
-    # raw stream (C binary, no record markers)
-    for endian in ("<", ">"):
-        ints = np.frombuffer(data[: (len(data) // 4) * 4], f"{endian}i4")
-        for multi in (True, False):
-            if multi:
-                if ints.size < 4 or not (1 <= ints[0] <= 100000):
-                    continue
-                nb, off = int(ints[0]), 1
-            else:
-                nb, off = 1, 0
-            if ints.size < off + 3 * nb:
-                continue
-            dims = ints[off:off + 3 * nb].reshape(nb, 3).astype(np.int64)
-            if np.any(dims < 1) or np.any(dims > 10**7):
-                continue
-            rest = len(data) - 4 * (off + 3 * nb)
-            try:
-                real, has_ib = _block_layout(dims, rest, source)
-            except InputError:
-                continue
-            blocks, pos = [], 4 * (off + 3 * nb)
-            for d in dims:
-                n = int(np.prod(d))
-                vals = np.frombuffer(data, f"{endian}f{real}", 3 * n, pos)
-                pos += 3 * n * real
-                ib = None
-                if has_ib:
-                    ib = np.frombuffer(data, f"{endian}i4", n, pos)
-                    pos += 4 * n
-                blocks.append(_split_block(vals, ib, d))
-            return blocks, {"encoding": "stream", "precision": real, "iblank": has_ib}
-    return None, None
-
-
-def _expand_repeats(tokens: list[str], source: str) -> np.ndarray:
-    """Fortran list-directed repeat counts ``n*value``, expanded without a Python loop over
-    the tokens."""
-    arr = np.array(tokens)
-    has = np.char.find(arr, "*") >= 0
-    counts = np.ones(arr.size, dtype=np.int64)
-    head, _, val = np.char.partition(arr[has], "*").T
-    try:
-        n = head.astype(np.int64)
-    except ValueError:
-        raise InputError(f"{source}: bad repeat count in '{arr[has][0]}'") from None
-    if np.any(n < 1):
-        raise InputError(f"{source}: repeat counts must be positive")
-    counts[has] = n
-    arr = arr.astype(val.dtype if val.dtype.itemsize > arr.dtype.itemsize else arr.dtype)
-    arr[has] = val
-    return np.repeat(arr, counts)
-
-
-def _parse_ascii_plot3d(text: str, source: str):
-    tokens = text.replace("D", "E").replace("d", "e").replace(",", " ").split()
-    if "*" in text:
-        tokens = _expand_repeats(tokens, source)
-    try:
-        v = np.array(tokens, dtype=np.float64)
-    except ValueError as exc:
-        raise InputError(f"{source}: not a Plot3D file (non-numeric entry: {exc})") from None
-    for multi in (True, False):
-        if multi:
-            if v.size < 4 or v[0] != int(v[0]) or v[0] < 1:
-                continue
-            nb, off = int(v[0]), 1
-        else:
-            nb, off = 1, 0
-        if v.size < off + 3 * nb:
-            continue
-        dims = v[off:off + 3 * nb]
-        if np.any(dims != np.round(dims)) or np.any(dims < 1):
-            continue
-        dims = dims.reshape(nb, 3).astype(np.int64)
-        npts = np.prod(dims, axis=1)
-        rest = v.size - off - 3 * nb
-        if rest == 3 * npts.sum():
-            has_ib = False
-        elif rest == 4 * npts.sum():
-            has_ib = True
-        else:
-            continue
-        blocks, pos = [], off + 3 * nb
-        for d, n in zip(dims, npts, strict=True):  # loop over blocks
-            vals = v[pos:pos + 3 * n]
-            pos += 3 * n
-            ib = None
-            if has_ib:
-                ib = v[pos:pos + n]
-                pos += n
-                if np.any(ib != np.round(ib)):
-                    raise InputError(f"{source}: Plot3D IBLANK values must be integers")
-                ib = ib.astype(np.int32)
-            blocks.append(_split_block(vals, ib, d))
-        return blocks, {"encoding": "ascii", "precision": 8, "iblank": has_ib}
-    raise InputError(
-        f"{source}: the number of values ({v.size}) does not fit a Plot3D grid "
-        "(multi- or single-block, 3 coordinates per point, optional IBLANK)"
-    )
-
-
-def _read_bytes(path: str, kind: str, empty: str) -> bytes:
-    """The whole file, or InputError naming it when it is missing or blank."""
-    try:
-        with open(path, "rb") as fh:
-            data = fh.read()
-    except FileNotFoundError:
-        raise InputError(f"{kind} file not found: {path}") from None
-    if not data.strip():
-        raise InputError(f"{path}: {empty}")
-    return data
-
-
-def read_plot3d(path: str | os.PathLike) -> list[tuple[np.ndarray, np.ndarray | None]]:
-    """Read a Plot3D grid file (format detected from its content).
-
-    Returns
-    -------
-    list of (xyz, iblank)
-        One entry per block: ``xyz`` (ni, nj, nk, 3) float64 and ``iblank`` (ni, nj, nk)
-        int or None.
-    """
-    path = os.fspath(path)
-    data = _read_bytes(path, "Plot3D", "empty file")
-    blocks = None
-    raw = np.frombuffer(data, np.uint8)
-    binary = bool(np.any((raw < 9) | ((raw > 13) & (raw < 32)) | (raw > 126)))
-    text = "" if binary else data.decode("ascii")
-    if binary:
-        blocks, _info = _parse_binary_plot3d(data, path)
-        if blocks is None:
-            raise InputError(f"{path}: not a readable Plot3D file (binary, no layout fits)")
-    else:
-        blocks, _info = _parse_ascii_plot3d(text, path)
-    for k, (xyz, _) in enumerate(blocks):
-        if not np.all(np.isfinite(xyz)):
-            raise InputError(f"{path}: block {k} holds NaN or infinite coordinates")
-    return blocks
-
-
 def plot3d_to_mesh(blocks, *, merge_vertices: bool = True,
                    source: str = "plot3d") -> trimesh.Trimesh:
     """Triangulate Plot3D surface blocks.
@@ -473,103 +341,10 @@ def plot3d_to_mesh(blocks, *, merge_vertices: bool = True,
     mesh.face_attributes["block"] = np.concatenate(blk).astype(np.int64)
     mesh.face_attributes["cell_i"] = np.concatenate(ci).astype(np.int64)
     mesh.face_attributes["cell_j"] = np.concatenate(cj).astype(np.int64)
+    mesh.metadata["plot3d_dims"] = [tuple(int(x) for x in (
+        (np.asarray(it[0] if isinstance(it, tuple) else it).shape[:3] + (1,))[:3]))
+        for it in blocks]
     return check_mesh(mesh, source)
-
-
-def write_plot3d(
-    path: str | os.PathLike,
-    blocks,
-    *,
-    iblank=None,
-    binary: bool = True,
-    precision: str = "double",
-    endian: str = "<",
-    multiblock: bool = True,
-    records: bool = True,
-) -> None:
-    """Write a Plot3D grid.
-
-    Parameters
-    ----------
-    blocks : list of (ni, nj, nk, 3) or (ni, nj, 3) arrays
-        Grid points (a 2-D array gets ``nk = 1``).
-    iblank : list of (ni, nj, nk) int arrays, optional
-    binary : bool
-        Unformatted binary (Fortran records unless ``records=False``: raw stream) or
-        formatted ASCII.
-    precision : {"single", "double"}
-    endian : {"<", ">"}
-    multiblock : bool
-        Write the number of blocks first (required for more than one block).
-    """
-    arrs = []
-    for k, b in enumerate(blocks):
-        try:
-            a = np.asarray(b, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise InputError(f"write_plot3d: block {k} is not a numeric array") from None
-        a = a[:, :, None, :] if a.ndim == 3 else a
-        if a.ndim != 4 or a.shape[3] != 3 or 0 in a.shape:
-            raise InputError(f"write_plot3d: block {k} has shape {np.shape(b)}, expected "
-                             "(ni, nj, nk, 3) or (ni, nj, 3)")
-        if not np.all(np.isfinite(a)):
-            raise InputError(f"write_plot3d: block {k} holds NaN or infinite coordinates")
-        arrs.append(a)
-    if not arrs:
-        raise InputError("write_plot3d: no blocks")
-    if not multiblock and len(arrs) != 1:
-        raise InputError("write_plot3d: several blocks need multiblock=True")
-    ibs = [None] * len(arrs)
-    if iblank is not None:
-        iblank = list(iblank)
-        if len(iblank) != len(arrs):
-            raise InputError(f"write_plot3d: {len(iblank)} IBLANK arrays for {len(arrs)} "
-                             "blocks")
-        for k, (ib, a) in enumerate(zip(iblank, arrs, strict=True)):
-            ib = np.asarray(ib)
-            if ib.size != np.prod(a.shape[:3]) or not np.issubdtype(ib.dtype, np.integer):
-                raise InputError(f"write_plot3d: IBLANK of block {k} must be integers of "
-                                 f"shape {a.shape[:3]}, got {ib.dtype} {ib.shape}")
-            ibs[k] = ib.reshape(a.shape[:3])
-    dims = np.array([a.shape[:3] for a in arrs], dtype=np.int64)
-    real = {"single": 4, "double": 8}.get(precision)
-    if real is None:
-        raise InputError(f"write_plot3d: precision must be 'single' or 'double', got {precision}")
-
-    def block_payload(a, ib):
-        vals = a.transpose(3, 2, 1, 0).ravel()  # x, y, z each with i fastest
-        out = np.asarray(vals, f"{endian}f{real}").tobytes()
-        if ib is not None:
-            out += np.asarray(ib.transpose(2, 1, 0).ravel(), f"{endian}i4").tobytes()
-        return out
-
-    path = os.fspath(path)
-    if binary:
-        def rec(payload: bytes) -> bytes:
-            if not records:
-                return payload
-            m = np.array([len(payload)], f"{endian}i4").tobytes()
-            return m + payload + m
-
-        parts = []
-        if multiblock:
-            parts.append(rec(np.array([len(arrs)], f"{endian}i4").tobytes()))
-        parts.append(rec(np.asarray(dims.ravel(), f"{endian}i4").tobytes()))
-        parts += [rec(block_payload(a, ib)) for a, ib in zip(arrs, ibs, strict=True)]
-        with open(path, "wb") as fh:
-            fh.write(b"".join(parts))
-        return
-    fmt = "%.8e" if real == 4 else "%.17e"
-    with open(path, "w", encoding="ascii") as fh:
-        if multiblock:
-            fh.write(f"{len(arrs)}\n")
-        for d in dims:
-            fh.write(f"{d[0]} {d[1]} {d[2]}\n")
-        for a, ib in zip(arrs, ibs, strict=True):
-            np.savetxt(fh, a.transpose(3, 2, 1, 0).reshape(-1, 4) if a.size % 4 == 0
-                       else a.transpose(3, 2, 1, 0).reshape(-1, 1), fmt=fmt)
-            if ib is not None:
-                np.savetxt(fh, ib.transpose(2, 1, 0).reshape(-1, 1), fmt="%d")
 
 
 # --------------------------------------------------------------------------- Cart3D
