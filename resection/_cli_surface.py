@@ -18,6 +18,7 @@ from .io.outputs import atomic_path, atomic_write
 from .merge import merge_views
 from .plots import frame_camera, plot_surface, virtual_camera
 from .surface import DEFAULT_MAX_OBLIQUENESS, SurfaceMap
+from .units import require_seen
 
 
 def register(sub) -> None:
@@ -140,6 +141,8 @@ def run_map(args: argparse.Namespace) -> int:
     mesh = load_mesh(args.mesh)
     camera = Camera.read(args.camera[0])
     smap = SurfaceMap(mesh, camera, max_obliqueness=args.max_obliqueness)
+    require_seen(smap.seen_faces.sum(), camera, mesh.vertices, "the mesh",
+                 f"map: {args.camera} sees none of the {len(mesh.faces)} faces of {args.mesh}")
     fields = {}
     for path in args.image:
         name = Path(path).stem

@@ -35,6 +35,7 @@ from scipy.spatial import cKDTree
 
 from .camera import Camera
 from .errors import InputError, SolveError
+from .units import nothing_seen_causes
 
 __all__ = ["MatchResult", "match_markers", "reference_frame"]
 
@@ -366,7 +367,10 @@ def match_markers(
     if cam is not None and ids3d is None:
         raise InputError("match_markers: the pose verification needs markers3d")
     if len(P) < 3:
-        raise SolveError(f"match_markers: only {len(P)} reference marker(s) in view; 3 are needed")
+        why = "" if ref_cam is None else \
+            "; likely causes: " + nothing_seen_causes(ref_cam, xyz, "the markers")
+        raise SolveError(f"match_markers: only {len(P)} reference marker(s) in view; 3 are "
+                         f"needed{why}")
     if len(Q) < 3:
         raise SolveError(f"match_markers: only {len(Q)} candidate(s); 3 are needed")
     tree = cKDTree(Q)

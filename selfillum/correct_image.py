@@ -202,9 +202,11 @@ def correct_image(
     seen = ~sample.unseen & ~grazing[None]
     if not seen.any(axis=1).all():
         t = int(np.flatnonzero(~seen.any(axis=1))[0])
-        raise InputError(
-            f"image: the camera sees no face of the model in frame {t} (check the pose)"
-        )
+        from resection.units import nothing_seen_causes
+
+        why = " (check the pose)" if smap.seen_faces.any() else \
+            ": likely causes: " + nothing_seen_causes(camera, mesh.vertices, "the mesh")
+        raise InputError(f"image: the camera sees no face of the model in frame {t}{why}")
     if F is None:
         F, _ = coupled_view_factors(
             mesh, seen.any(axis=0), rays_per_face=rays_per_face, seed=seed, progress=progress
@@ -270,9 +272,13 @@ def _check_painted_side(smap, mesh, camera) -> None:
     normals = np.asarray(mesh.face_normals, dtype=np.float64)[f]
     back = np.einsum("ij,ij->i", view, normals) < 0
     if back.mean() > 0.5:
+        from resection.units import camera_scale_hint
+
+        hint = camera_scale_hint(camera, mesh.vertices, "the mesh")  # camera inside it?
         raise InputError(
             f"mesh: {100 * back.mean():.0f}% of the pixels on the model see the back of "
-            "their face: face normals must point to the painted side (fix the winding)"
+            "their face: " + (hint or "face normals must point to the painted side (fix "
+                              "the winding)")
         )
 
 

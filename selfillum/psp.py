@@ -111,8 +111,11 @@ def tap_faces(mesh: trimesh.Trimesh, points, max_distance: float | None = None) 
         else float(max_distance)
     far = np.flatnonzero(dist > limit)
     if far.size:
+        from resection.units import spread_hint
+
+        hint = spread_hint(pts, mesh.vertices, "the taps", "the mesh") if len(pts) > 1 else None
         raise InputError(f"tap {int(far[0])} is {dist[far[0]]:.3g} from the surface "
-                         f"(more than {limit:.3g})")
+                         f"(more than {limit:.3g})" + (f": {hint}" if hint else ""))
     return np.asarray(faces, dtype=np.int64)
 
 

@@ -415,6 +415,9 @@ def test_pixel_memory_decision_against_a_stated_budget():
         check_pixel_memory(1001, 1000, 100, "x", available=100_000_000)
     with pytest.raises(InputError, match="positive"):
         check_pixel_memory(0, 10, 100, "x", available=100)
+
+
+# --------------------------------------------------------------------------------------
 # track: resume knows changed frames, the output folder is locked, failures name the file
 # --------------------------------------------------------------------------------------
 
@@ -565,7 +568,6 @@ def test_lock_is_exclusive_within_one_process_too(tmp_path):
         assert me["command"] == "third"
 
 
-
 # --------------------------------------------------------------------------------------
 # File parsing (io): meshes
 # --------------------------------------------------------------------------------------
@@ -641,3 +643,140 @@ def test_byte_swapped_plot3d_is_read_or_named(tmp_path):
     p.write_bytes(bytes(d))
     with pytest.raises(InputError, match=r"wing.x: block 0: .*implausible.*byte order"):
         load_mesh(p)
+
+
+# --------------------------------------------------------------------------------------
+# A run that sees nothing is not a success; unit mismatches named (issue 10 item 5)
+# --------------------------------------------------------------------------------------
+
+
+def _map_args(tmp_path, camera_file):
+    return ["map", "--mesh", str(tmp_path / "corner.ply"), "--camera", str(camera_file),
+            "--image", str(tmp_path / "img.npy"), "--out", str(tmp_path / "faces.csv")]
+
+
+def test_map_with_camera_facing_away_fails(tmp_path, capsys):
+    """``resection map`` with a camera that sees none of the mesh printed "0 of N faces
+    seen", exited 0 and wrote an all-NaN file."""
+    from resection import Camera
+    from resection.cli import main
+
+    sc, cam, _ = _corner_files(tmp_path)
+    centre = np.asarray(sc.mesh.vertices).mean(axis=0)
+    away = Camera.look_at(cam.center, 2 * cam.center - centre, [0, 0, 1], K=cam.K,
+                          width=cam.width, height=cam.height)
+    away.write(tmp_path / "away.json")
+    rc = main(_map_args(tmp_path, tmp_path / "away.json"))
+    err = capsys.readouterr().err
+    assert rc == 2 and "sees none of the" in err and "facing away" in err, err
+    assert len(err.splitlines()) == 1 and not (tmp_path / "faces.csv").exists()
+    # the camera that faces the model maps it
+    assert main(_map_args(tmp_path, tmp_path / "cam.json")) == 0
+    assert (tmp_path / "faces.csv").exists()
+
+
+def test_map_with_camera_in_mm_names_the_unit_mismatch(tmp_path, capsys):
+    """A camera solved with markers in mm looking at a mesh in m sees nothing: the
+    message says which units."""
+    from resection import Camera
+    from resection.cli import main
+
+    _, cam, _ = _corner_files(tmp_path)
+    Camera(cam.width, cam.height, cam.K, R=cam.R, t=1000.0 * cam.t).write(tmp_path / "mm.json")
+    rc = main(_map_args(tmp_path, tmp_path / "mm.json"))
+    err = capsys.readouterr().err
+    assert rc == 2 and "unit mismatch: the mesh in m and the camera in mm?" in err, err
+    assert not (tmp_path / "faces.csv").exists()
+
+
+def _markers_and_candidates(sc, cam, n=14, seed=2):
+    """Markers painted on the corner's faces (model units) and their detected
+    candidates in ``cam`` (the exact projections)."""
+    mesh = sc.mesh
+    rng = np.random.default_rng(seed)
+    from resection.surface import SurfaceMap
+
+    seen = np.flatnonzero(SurfaceMap(mesh, cam).seen_faces)
+    faces = rng.choice(seen, size=n, replace=False)
+    xyz = np.asarray(mesh.triangles_center)[faces]
+    uv = cam.project(xyz)
+    return xyz, uv
+
+
+def test_match_with_markers_in_mm_names_the_unit_mismatch(tmp_path, capsys):
+    """``match`` with the markers in mm and the camera in m said only "0 reference
+    markers in view"; the message now names the unit mismatch. The same files in one
+    unit match."""
+    from resection.cli import main
+    from resection.io.markers import write_markers
+
+    sc, cam, _ = _corner_files(tmp_path, resolution=8, size=(320, 240))
+    xyz, uv = _markers_and_candidates(sc, cam)
+    ids = [f"M{i}" for i in range(len(xyz))]
+    (tmp_path / "cand.csv").write_text("u,v,diameter,depth,merit,snr\n" + "".join(
+        f"{u:.6f},{v:.6f},6,20,50,30\n" for u, v in uv))
+    write_markers(tmp_path / "m_mm.csv", ids, 1000.0 * xyz)
+    write_markers(tmp_path / "m.csv", ids, xyz)
+    base = ["match", "--candidates", str(tmp_path / "cand.csv"), "--camera",
+            str(tmp_path / "cam.json"), "--out", str(tmp_path / "matched.csv")]
+    rc = main([*base, "--markers", str(tmp_path / "m_mm.csv")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "unit mismatch: the markers in mm and the camera in m?" in err, err
+    assert not (tmp_path / "matched.csv").exists()
+    rc = main([*base, "--markers", str(tmp_path / "m.csv")])
+    assert rc == 0, capsys.readouterr().err
+
+
+def test_correct_with_mesh_in_mm_names_units_not_winding(tmp_path, capsys):
+    """``selfillum correct`` with the mesh in mm and the camera in m advised fixing the
+    winding (the camera sits inside the model blown up 1000 times); or said only "check
+    the pose". Both messages now name the unit mismatch."""
+    import trimesh
+
+    from resection import Camera
+    from selfillum.cli import main
+
+    box = trimesh.creation.box(extents=(1.0, 0.6, 0.4))
+    cam = Camera.look_at([1.6, 1.3, 1.0], [0, 0, 0], [0, 0, 1],
+                         K=[[90.0, 0, 47.5], [0, 90.0, 35.5], [0, 0, 1]], width=96, height=72)
+    cam.write(tmp_path / "cam.json")
+    trimesh.Trimesh(box.vertices * 1000.0, box.faces).export(tmp_path / "box_mm.ply")
+    box.export(tmp_path / "box.ply")
+    np.save(tmp_path / "img.npy", np.ones((72, 96), np.float32))
+    args = ["correct", "--camera", str(tmp_path / "cam.json"), "--image",
+            str(tmp_path / "img.npy"), "--reflectance", "0.5", "--rays", "16", "--quiet",
+            "--out", str(tmp_path / "out.npy")]
+    rc = main([*args, "--mesh", str(tmp_path / "box_mm.ply")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "unit mismatch: the mesh in mm and the camera in m?" in err, err
+    assert "winding" not in err and not (tmp_path / "out.npy").exists()
+    # the same box in metres is corrected
+    assert main([*args, "--mesh", str(tmp_path / "box.ply")]) == 0, capsys.readouterr().err
+
+
+def test_taps_in_mm_name_the_units(tmp_path):
+    """Pressure taps in mm on a mesh in m: 'tap 0 is 480 from the surface' now says
+    why."""
+    from scenes.corner import corner
+    from selfillum.psp import tap_faces
+
+    mesh = corner(resolution=6).mesh
+    taps = np.asarray(mesh.triangles_center)[[3, 20, 40, 55]]
+    np.testing.assert_array_equal(tap_faces(mesh, taps), [3, 20, 40, 55])
+    with pytest.raises(InputError, match="units"):
+        tap_faces(mesh, 1000.0 * taps)
+
+
+def test_spread_hint_decisions():
+    """The spread comparison: a factor of 1000 or 25.4 between two point sets is named,
+    a subset of the same surface in the same units is not."""
+    from resection.units import spread_hint
+
+    rng = np.random.default_rng(0)
+    mesh_pts = rng.uniform(0, 1, (500, 3))
+    markers = mesh_pts[:40]
+    assert spread_hint(markers, mesh_pts, "the markers", "the mesh") is None
+    assert "in mm and the mesh in m" in spread_hint(markers * 1000, mesh_pts, "the markers",
+                                                    "the mesh")
+    assert "in mm and the mesh in inch" in spread_hint(markers * 25.4, mesh_pts,
+                                                       "the markers", "the mesh")
