@@ -6,28 +6,18 @@ from __future__ import annotations
 import os
 from collections.abc import Callable
 
-from ..errors import InputError
+from .outputs import atomic_path
 
 
 def atomic_write(path: str | os.PathLike, write: Callable[[str], None]) -> None:
     """Call ``write(tmp_path)`` and rename the temporary file to ``path``.
 
     The temporary file keeps ``path``'s extension (some writers choose the format by it).
-    A missing output folder is an :class:`InputError` naming it.
+    A missing output folder is an :class:`InputError` naming it. One implementation with
+    the commands' outputs: :func:`resection.io.outputs.atomic_path`.
     """
-    path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(folder):
-        raise InputError(f"{path}: output folder {folder} does not exist")
-    base = os.path.basename(path)
-    stem, ext = os.path.splitext(base)
-    tmp = os.path.join(folder, f".{stem}.{os.getpid()}.tmp{ext}")
-    try:
-        write(tmp)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    with atomic_path(path) as tmp:
+        write(os.fspath(tmp))
 
 
 def atomic_text(path: str | os.PathLike, text: str) -> None:

@@ -134,7 +134,7 @@ def atomic_path(path: str | os.PathLike | None) -> Iterator[Path | None]:
         raise InputError(f"{final}: is a folder, expected a file name")
     folder = final.parent
     if not folder.is_dir():
-        raise InputError(f"{final}: folder {folder} does not exist")
+        raise InputError(f"{final}: output folder {folder} does not exist")
     tmp = _temporary_name(final)
     try:
         yield tmp
