@@ -284,7 +284,35 @@ class Camera:
         if rvec is not None:
             rv = as_matrix(np.asarray(rvec, dtype=float).ravel(), (3,), "rvec")
             R = Rotation.from_rotvec(rv).as_matrix()
-        return self.replace(R=self.R if R is None else R, t=self.t if t is None else t)
+        new = self.replace(R=self.R if R is None else R, t=self.t if t is None else t)
+        # same intrinsics, same lines of sight: the copy shares this camera's cache
+        object.__setattr__(new, "_icache", self._intrinsics_cache())
+        return new
+
+    def _intrinsics_cache(self) -> dict:
+        """Per-instance store of what depends on the intrinsics only (shared with the
+        :meth:`with_pose` copies)."""
+        cache = self.__dict__.get("_icache")
+        if cache is None:
+            cache = {}
+            object.__setattr__(self, "_icache", cache)
+        return cache
+
+    def undistortion_map(self):
+        """Lines of sight of every pixel centre, camera frame
+        (:class:`resection.undistortion.UndistortionMap`), computed on first use and kept
+        on this instance (and shared with the copies :meth:`with_pose` makes)."""
+        cache = self._intrinsics_cache()
+        if "undistortion" not in cache:
+            from .undistortion import undistortion_map
+
+            cache["undistortion"] = undistortion_map(self)
+        return cache["undistortion"]
+
+    def __getstate__(self):  # pickles (Dask) carry the camera, not the cached map
+        state = dict(self.__dict__)
+        state.pop("_icache", None)
+        return state
 
     # ------------------------------------------------------------------ projection
     def to_camera_frame(self, points: np.ndarray) -> np.ndarray:
@@ -354,21 +382,26 @@ class Camera:
             undistort_normalized(self.pixels_to_normalized(uv), self.dist)
         )
 
-    def rays(self, uv) -> tuple[np.ndarray, np.ndarray]:
+    def rays(self, uv=None) -> tuple[np.ndarray, np.ndarray]:
         """Lines of sight through image points.
 
         Parameters
         ----------
-        uv : (N, 2) array_like
-            Pixel coordinates as imaged (distorted).
+        uv : (N, 2) array_like, optional
+            Pixel coordinates as imaged (distorted). None: every pixel centre of the image,
+            row-major (``v * W + u``), from the :meth:`undistortion_map` computed once.
 
         Returns
         -------
         origins : (N, 3) ndarray
-            The perspective centre, repeated (model frame).
+            The perspective centre, repeated (model frame); a read-only broadcast view when
+            ``uv`` is None.
         directions : (N, 3) ndarray
             Unit directions in the model frame (NaN where the pixel cannot be undistorted).
         """
+        if uv is None:
+            d = self.undistortion_map().rays(self.R)
+            return np.broadcast_to(self.center, d.shape), d
         uv = as_points(uv, 2, "uv", allow_nan=True)
         xy = undistort_normalized(self.pixels_to_normalized(uv), self.dist)
         d_cam = np.column_stack([xy, np.ones(len(xy))])

@@ -300,11 +300,8 @@ class SurfaceMap:
         if caster.n_faces != len(mesh.faces):
             raise InputError(f"caster: built for {caster.n_faces} faces, the mesh has "
                              f"{len(mesh.faces)}")
-        uv = np.empty((H * W, 2))
-        uv[:, 0] = np.tile(np.arange(W, dtype=np.float64), H)
-        uv[:, 1] = np.repeat(np.arange(H, dtype=np.float64), W)
-        _, dirs = camera.rays(uv)
-        face, dist, bary = caster.first_hit(camera.center, dirs)
+        _, dirs = camera.rays()  # every pixel, from the camera's undistortion map
+        face, dist, bary = caster.first_hit(camera.center, dirs, unit=True)
         self.oblique = oblique_faces(mesh, camera.center, self.max_obliqueness)
         if self.oblique.any():
             bad = np.flatnonzero(face >= 0)
@@ -319,8 +316,9 @@ class SurfaceMap:
         self._hit_face = face[self._hit]
         nf = len(mesh.faces)
         # face x (model pixel) matrix; the full face x pixel one is :attr:`matrix`
-        self._mhit = sp.csr_matrix(
-            (np.ones(self._hit.size), (self._hit_face, np.arange(self._hit.size))),
+        # (one entry per column: built as CSC directly, no sorting)
+        self._mhit = sp.csc_matrix(
+            (np.ones(self._hit.size), self._hit_face, np.arange(self._hit.size + 1)),
             shape=(nf, self._hit.size),
         )
         self.pixel_counts = np.bincount(self._hit_face, minlength=nf).astype(np.int64)

@@ -19,6 +19,7 @@ Face winding gives the normal: counter-clockwise seen from outside, as trimesh.
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 import trimesh
 from embreex import rtcore_scene
@@ -66,7 +67,7 @@ class RayCaster:
     def n_faces(self) -> int:
         return len(self._faces)
 
-    def first_hit(self, origins, directions):
+    def first_hit(self, origins, directions, *, unit: bool = False):
         """Cast rays and return the first face each one hits.
 
         Parameters
@@ -76,6 +77,8 @@ class RayCaster:
         directions : (N, 3) array_like
             Directions (need not be unit); rows with NaN are not cast and come back as
             misses.
+        unit : bool
+            The directions are already unit vectors (skips normalising them).
 
         Returns
         -------
@@ -109,7 +112,10 @@ class RayCaster:
             return face, dist, bary
         all_ok = bool(ok.all())
         idx = None if all_ok else np.flatnonzero(ok)
-        du = d / norm[:, None] if all_ok else d[idx] / norm[idx, None]
+        if unit:
+            du = d if all_ok else d[idx]
+        else:
+            du = d / norm[:, None] if all_ok else d[idx] / norm[idx, None]
         oo = o if single else (o if all_ok else o[idx])
         so = ((oo - self._origin) * self._scale).astype(np.float32)
         if single:
@@ -118,16 +124,14 @@ class RayCaster:
                                          du.astype(np.float32)), dtype=np.int64)
         sel = np.flatnonzero(hit >= 0)
         rows = sel if all_ok else idx[sel]
-        hit = hit[sel]
-        face[rows] = hit
-        t, b = self._plane_hits(oo if single else oo[sel], du[sel], hit)
-        dist[rows] = t
-        bary[rows] = b
+        face[rows] = hit[sel]
+        self._plane_hits(oo, du, sel, hit, rows, dist, bary)
         return face, dist, bary
 
-    def _plane_hits(self, o: np.ndarray, d: np.ndarray, face: np.ndarray):
-        """Float64 distance and barycentrics of the rays' crossing of their faces' planes,
-        from per-face data computed once (no cross product per ray)."""
+    def _plane_hits(self, o, d, sel, hit, rows, dist, bary) -> None:
+        """Float64 distance and barycentrics of rays ``sel`` of ``(o, d)`` on the planes of
+        their faces ``hit[sel]``, written to ``dist[rows]`` and ``bary[rows]``; per-face
+        data computed once, one compiled pass over the rays (no per-ray temporaries)."""
         if self._dual is None:
             tri = self._vertices[self._faces]
             v0 = tri[:, 0]
@@ -137,15 +141,36 @@ class RayCaster:
             with np.errstate(divide="ignore", invalid="ignore"):
                 a1 = np.cross(e2, nrm) / nn[:, None]  # w1 = (p - v0) . a1
                 a2 = np.cross(nrm, e1) / nn[:, None]  # w2 = (p - v0) . a2
-            self._dual = (v0, nrm, a1, a2)
-        v0, nrm, a1, a2 = (x[face] for x in self._dual)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            q = v0 - o  # (N, 3), o broadcast if one origin
-            t = np.einsum("ij,ij->i", nrm, q) / np.einsum("ij,ij->i", nrm, d)
-            p = t[:, None] * d - q  # hit point minus v0
-            w1 = np.einsum("ij,ij->i", p, a1)
-            w2 = np.einsum("ij,ij->i", p, a2)
-        return t, np.column_stack([1.0 - w1 - w2, w1, w2])
+            self._dual = np.ascontiguousarray(np.hstack([v0, nrm, a1, a2]))  # (F, 12)
+        o2 = np.ascontiguousarray(np.atleast_2d(o), dtype=np.float64)
+        _plane_hit_kernel(o2, np.ascontiguousarray(d, dtype=np.float64), sel, hit, rows,
+                          self._dual, dist, bary)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _plane_hit_kernel(o, d, sel, hit, rows, dual, dist, bary):  # pragma: no cover (compiled)
+    """For k in sel: ray (o[k] or o[0], d[k]) on the plane of face hit[k] (dual row:
+    v0, normal, a1, a2); distance t and barycentrics (1 - w1 - w2, w1, w2) to row rows[j]."""
+    one = o.shape[0] == 1
+    for j in range(sel.shape[0]):
+        k = sel[j]
+        f = hit[k]
+        r = rows[j]
+        ko = 0 if one else k
+        q0 = dual[f, 0] - o[ko, 0]
+        q1 = dual[f, 1] - o[ko, 1]
+        q2 = dual[f, 2] - o[ko, 2]
+        nd = dual[f, 3] * d[k, 0] + dual[f, 4] * d[k, 1] + dual[f, 5] * d[k, 2]
+        t = (dual[f, 3] * q0 + dual[f, 4] * q1 + dual[f, 5] * q2) / nd
+        p0 = t * d[k, 0] - q0
+        p1 = t * d[k, 1] - q1
+        p2 = t * d[k, 2] - q2
+        w1 = p0 * dual[f, 6] + p1 * dual[f, 7] + p2 * dual[f, 8]
+        w2 = p0 * dual[f, 9] + p1 * dual[f, 10] + p2 * dual[f, 11]
+        dist[r] = t
+        bary[r, 0] = 1.0 - w1 - w2
+        bary[r, 1] = w1
+        bary[r, 2] = w2
 
 
 def face_sample_points(mesh: trimesh.Trimesh, samples_per_face: int = 1) -> np.ndarray:

@@ -220,3 +220,34 @@ def test_opencv_round_trip_and_look_at():
     assert cam.project(target + [0, 0, 0.1])[0, 1] < K[1, 2]
     with pytest.raises(InputError, match="coincide"):
         Camera.look_at(eye, eye, [0, 0, 1], K=K, width=W, height=H)
+
+
+def test_rays_of_the_whole_image_from_the_undistortion_map():
+    """Camera.rays() (every pixel, from the map computed once) against OpenCV's
+    undistortPoints for the same pixels, after a pose change too; the map is kept on the
+    instance and on with_pose copies, and is not pickled."""
+    import pickle
+
+    w, h = 96, 72
+    k = np.array([[90.0, 0.0, 47.2], [0.0, 88.0, 35.9], [0.0, 0.0, 1.0]])
+    cam = Camera.from_opencv(k, DIST, [0.1, -0.25, 0.05], [0.05, -0.02, 2.0], w, h)
+    vv, uu = np.mgrid[0:h, 0:w]
+    uv = np.column_stack([uu.ravel(), vv.ravel()]).astype(np.float64)
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-15)
+    xy = cv2.undistortPoints(uv.reshape(-1, 1, 2), k, DIST, R=None, P=None,
+                             criteria=crit).reshape(-1, 2) if not hasattr(
+        cv2, "undistortPointsIter") else cv2.undistortPointsIter(
+        uv.reshape(-1, 1, 2), k, DIST, None, None, crit).reshape(-1, 2)
+    d_cam = np.column_stack([xy, np.ones(len(xy))])
+    d_cam /= np.linalg.norm(d_cam, axis=1, keepdims=True)
+    moved = cam.with_pose(rvec=[0.3, 0.2, -0.1], t=[0.2, 0.1, 1.5])
+    for c in (cam, moved):
+        o, d = c.rays()
+        Rm, _ = cv2.Rodrigues(c.rvec)
+        np.testing.assert_allclose(d, d_cam @ Rm, atol=1e-9)
+        np.testing.assert_allclose(o, np.broadcast_to(c.center, o.shape), atol=1e-12)
+        np.testing.assert_allclose(d, c.rays(uv)[1], atol=1e-12)  # the per-point path
+    assert moved.undistortion_map() is cam.undistortion_map()  # computed once
+    other = pickle.loads(pickle.dumps(moved))
+    assert other == moved and "_icache" not in other.__dict__
+    np.testing.assert_allclose(other.rays()[1], moved.rays()[1], atol=0)

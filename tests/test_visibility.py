@@ -102,3 +102,25 @@ def test_errors():
         visible_faces(mesh, cam(), samples_per_face=9)
     with pytest.raises(InputError, match="camera"):
         visible_faces(mesh, None)
+
+
+def test_first_hit_per_ray_origins_against_closed_form():
+    """Rays with their own origins (and NaN rows) on the plate z = 0: distance and
+    barycentrics in float64 against the closed-form plane crossing."""
+    from resection.visibility import RayCaster
+
+    pl = plate(-1.0, 1.0, -1.0, 1.0, 0.0)
+    rng = np.random.default_rng(5)
+    target = np.column_stack([rng.uniform(-0.9, 0.9, (500, 2)), np.zeros(500)])
+    o = target + rng.uniform(0.5, 3.0, (500, 1)) * rng.normal([0, 0, 1], 0.3, (500, 3))
+    d = target - o
+    d[::50] = np.nan
+    face, dist, bary = RayCaster(pl).first_hit(o, d)
+    ok = np.isfinite(d).all(axis=1)
+    assert np.all(face[~ok] == -1) and np.all(np.isnan(dist[~ok]))
+    np.testing.assert_allclose(dist[ok], np.linalg.norm(d[ok], axis=1), rtol=1e-12)
+    tri = pl.vertices[pl.faces[face[ok]]]
+    np.testing.assert_allclose(np.einsum("nk,nkj->nj", bary[ok], tri), target[ok], atol=1e-12)
+    # which triangle: the plate splits along the diagonal (-1, -1) -> (1, 1)
+    lower = target[ok, 0] > target[ok, 1]
+    np.testing.assert_array_equal(face[ok], np.where(lower, 0, 1))
