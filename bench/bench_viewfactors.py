@@ -34,32 +34,30 @@ from _timing import best_of  # noqa: E402
 from scenes.corner import corner  # noqa: E402
 from selfillum import correct, forward, view_factors  # noqa: E402
 from selfillum.mesh import face_normals  # noqa: E402
-from selfillum.viewfactors import _BLOCK, _OFFSET, RayScene, sample_rays  # noqa: E402
+from selfillum.viewfactors import _OFFSET, RayScene, sample_rays  # noqa: E402
 
 
 def same_rays(mesh, k, seed):
-    """The rays view_factors casts (same random blocks), as Embree's float32 arrays."""
+    """The rays view_factors casts (same RQMC points), as Embree's float32 arrays."""
     v = np.asarray(mesh.vertices, dtype=np.float64)
-    tri = v[np.asarray(mesh.faces)]
+    scene = RayScene(v, mesh.faces)
+    tri = (v - scene.origin)[np.asarray(mesh.faces)]
     nrm = face_normals(mesh)
     offset = _OFFSET * float(np.ptp(v, axis=0).max())
     o, d = [], []
-    for b0 in range(0, len(tri), _BLOCK):
-        b1 = min(b0 + _BLOCK, len(tri))
-        rng = np.random.default_rng([seed, b0 // _BLOCK])
-        p, dd, s = sample_rays(tri[b0:b1], nrm[b0:b1], k, rng)
-        o.append(p + (offset * s)[:, None] * np.repeat(nrm[b0:b1], k, axis=0))
+    step = max(1, (1 << 20) // k)
+    for b0 in range(0, len(tri), step):
+        ids = np.arange(b0, min(b0 + step, len(tri)))
+        p, dd, _ = sample_rays(tri[ids], nrm[ids], k, offset=offset, face_ids=ids, seed=seed)
+        o.append(p)
         d.append(dd)
-    return np.concatenate(o), np.concatenate(d)
+    return scene, np.concatenate(o), np.concatenate(d)
 
 
 def throughput(mesh, k, label):
     n = len(mesh.faces)
     t_vf, F = best_of(lambda: view_factors(mesh, k, seed=0))
-    origins, dirs = same_rays(mesh, k, 0)
-    scene = RayScene(mesh.vertices, mesh.faces)
-    o32 = np.ascontiguousarray(origins - scene.origin, dtype=np.float32)
-    d32 = np.ascontiguousarray(dirs, dtype=np.float32)
+    scene, o32, d32 = same_rays(mesh, k, 0)
     t_bare, hits = best_of(lambda: scene.scene.run(o32, d32))
     # the same rays: every ray of view_factors hits what the bare call hits
     assert np.count_nonzero(np.asarray(hits) >= 0) >= F.nnz

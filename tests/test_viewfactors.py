@@ -376,3 +376,47 @@ def test_far_from_the_origin():
     b = view_factors(far, rays_per_face=256, seed=3)
     assert group_factor(b, far, g, 0, 1) == pytest.approx(group_factor(a, mesh, g, 0, 1), rel=1e-3)
     assert abs(a - b).max() <= 2 / 256  # at most a ray or two a pair changes its hit
+
+
+# ---------------------------------------------------------------- rows, workers, RQMC
+
+
+def test_rows_subset_and_workers_give_the_full_rows():
+    """A row depends on its face only: computing a subset of rows, or sharing the chunks
+    among processes, gives the rows of the full computation (up to a ray or two that
+    float32 rounding may flip at an edge: 2/K per row at most)."""
+    mesh, _ = perpendicular_mesh(n=8)
+    k = 64
+    full = view_factors(mesh, k, seed=5, workers=1)
+    rows = np.array([3, 70, 71, 200, 255])
+    part = view_factors(mesh, k, seed=5, rows=rows, workers=1)
+    assert part.shape == full.shape
+    others = np.setdiff1d(np.arange(len(mesh.faces)), rows)
+    assert part[others].nnz == 0
+    diff = abs(part[rows] - full[rows]).sum(axis=1)
+    assert np.all(np.asarray(diff).ravel() <= 2.0 / k + 1e-12)
+    mask = np.zeros(len(mesh.faces), bool)
+    mask[rows] = True
+    assert abs(view_factors(mesh, k, seed=5, rows=mask, workers=1) - part).sum() <= 2.0 * 5 / k
+    par = view_factors(mesh, k, seed=5, workers=2, chunk_size=32)
+    assert np.all(np.asarray(abs(par - full).sum(axis=1)).ravel() <= 2.0 / k + 1e-12)
+    with pytest.raises(InputError, match="rows"):
+        view_factors(mesh, k, rows=[0, 10_000])
+    with pytest.raises(InputError, match="reciprocity"):
+        view_factors(mesh, k, rows=rows, reciprocity=True)
+
+
+def test_rqmc_points_are_uniform_and_unbiased():
+    """Every RQMC point is uniform on the unit cube: over many faces, each coordinate's
+    mean is 1/2 and its variance 1/12 within the sampling error (4 sigma)."""
+    from selfillum.viewfactors import rqmc_points
+
+    pts = rqmc_points(16, np.arange(20_000), seed=1, dims=4).reshape(-1, 4)
+    n = len(pts)
+    assert np.all((pts > 0) & (pts < 1))
+    assert np.all(np.abs(pts.mean(axis=0) - 0.5) < 4 * np.sqrt(1 / 12 / n))
+    assert np.all(np.abs(pts.var(axis=0) - 1 / 12) < 4 * np.sqrt(1 / 180 / n))
+    # and the 16 points of one face are a net: one in each of the 16 strata of [0, 1)
+    one = rqmc_points(16, np.array([7]), seed=1, dims=4)[0]
+    for d in range(4):
+        assert np.array_equal(np.sort(np.floor(one[:, d] * 16)), np.arange(16))
