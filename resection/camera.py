@@ -500,7 +500,8 @@ class Camera:
         target = as_matrix(np.asarray(target, float).ravel(), (3,), "target")
         up = as_matrix(np.asarray(up, float).ravel(), (3,), "up")
         z = target - eye
-        if np.linalg.norm(z) == 0:
+        # coincident up to rounding (relative 1e-12): no viewing direction
+        if np.linalg.norm(z) <= 1e-12 * max(np.linalg.norm(eye), np.linalg.norm(target)):
             raise InputError("look_at: eye and target coincide")
         z /= np.linalg.norm(z)
         y = -(up - np.dot(up, z) * z)

@@ -49,6 +49,21 @@ def test_falling_ratio_is_refused_as_negative():
         fit_stern_volmer(swapped[[0, -1]], p[[0, -1]], 100.0)
 
 
+def test_look_at_with_eye_on_target_up_to_rounding_is_refused():
+    """``Camera.look_at`` tested ``|target - eye| == 0``: an eye equal to the target up to
+    rounding gave a camera looking along the rounding error. Tolerance stated (1e-12)."""
+    from resection import Camera
+
+    K = [[500.0, 0, 99.5], [0, 500.0, 74.5], [0, 0, 1]]
+    target = np.array([0.1, 0.2, 0.3])
+    for eye in (target, target + 1e-17, target * (1 + 2e-16)):
+        with pytest.raises(InputError, match="coincide"):
+            Camera.look_at(eye, target, [0, 0, 1], K=K, width=200, height=150)
+    cam = Camera.look_at(target + [0, -1e-6, 0], target, [0, 0, 1], K=K, width=200,
+                         height=150)  # a micrometre away is a direction
+    np.testing.assert_allclose(cam.R[2], [0, 1, 0], atol=1e-9)
+
+
 # --------------------------------------------------------------------------------------
 # calibrate: intrinsics that the views do not determine are refused, and named
 # --------------------------------------------------------------------------------------
