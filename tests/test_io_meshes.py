@@ -309,30 +309,28 @@ def test_ply_round_trip(tmp_path):
 
 
 def _parse_legacy_vtk(path):
-    """Minimal independent reader of legacy VTK POLYDATA (ASCII or BINARY)."""
+    """Minimal independent reader of a binary legacy VTK 5.1 UNSTRUCTURED_GRID (the layout
+    of the VTK file-format document: OFFSETS/CONNECTIVITY, CELL_TYPES, CELL_DATA FIELD)."""
     blob = path.read_bytes()
     lines = blob.split(b"\n", 4)
     assert lines[0].startswith(b"# vtk DataFile Version")
-    binary = lines[2].strip() == b"BINARY"
-    assert lines[3].strip() == b"DATASET POLYDATA"
+    assert lines[2].strip() == b"BINARY"
+    assert lines[3].strip() == b"DATASET UNSTRUCTURED_GRID"
     rest = lines[4]
     out = {"fields": {}}
+    types = {"double": ">f8", "float": ">f4", "vtktypeint64": ">i8", "vtktypeint32": ">i4",
+             "int": ">i4", "long": ">i8", "unsigned_char": ">u1"}
 
     def take_line():
         nonlocal rest
         line, rest = rest.split(b"\n", 1)
         return line.decode().split()
 
-    def take(n, bdt, adt):
+    def take(n, bdt):
         nonlocal rest
-        if binary:
-            size = n * np.dtype(bdt).itemsize
-            arr = np.frombuffer(rest[:size], bdt)
-            rest = rest[size:].lstrip(b"\n")
-            return arr
-        toks = rest.split(None, n)
-        arr = np.array([t.decode() for t in toks[:n]], dtype=adt)
-        rest = toks[n] if len(toks) > n else b""
+        size = n * np.dtype(bdt).itemsize
+        arr = np.frombuffer(rest[:size], bdt)
+        rest = rest[size:].lstrip(b"\n")
         return arr
 
     while rest.strip():
@@ -341,32 +339,35 @@ def _parse_legacy_vtk(path):
             continue
         if head[0] == "POINTS":
             n = int(head[1])
-            out["points"] = take(3 * n, ">f8", float).reshape(n, 3)
-        elif head[0] == "POLYGONS":
-            n, size = int(head[1]), int(head[2])
-            out["polys"] = take(size, ">i4", int).reshape(n, 4)
+            out["points"] = take(3 * n, types[head[2]]).reshape(n, 3)
+        elif head[0] == "CELLS":
+            n_off, n_conn = int(head[1]), int(head[2])
+            h = take_line()
+            out["offsets"] = take(n_off, types[h[1]])
+            h = take_line()
+            out["connectivity"] = take(n_conn, types[h[1]])
+        elif head[0] == "CELL_TYPES":
+            out["cell_types"] = take(int(head[1]), ">i4")
         elif head[0] == "CELL_DATA":
             out["ncells"] = int(head[1])
         elif head[0] == "FIELD":
             for _ in range(int(head[2])):
                 name, nc, nt, typ = take_line()
-                bdt = ">f8" if typ == "double" else ">i4"
-                out["fields"][name] = take(int(nc) * int(nt), bdt,
-                                           float if typ == "double" else int)
+                out["fields"][name] = take(int(nc) * int(nt), types[typ])
         else:
             raise AssertionError(f"unexpected VTK section {head}")
     return out
 
 
-@pytest.mark.parametrize("binary", [True, False])
-def test_vtk_polydata_cell_data(tmp_path, binary):
+def test_vtk_cell_data_read_by_an_independent_parser(tmp_path):
     m, f = _mesh_and_fields()
     p = tmp_path / "out.vtk"
-    write_surface(p, m, f, vtk_binary=binary)
+    write_surface(p, m, f)
     v = _parse_legacy_vtk(p)
     np.testing.assert_allclose(v["points"], m.vertices, rtol=0, atol=0)
-    np.testing.assert_array_equal(v["polys"][:, 0], 3)
-    np.testing.assert_array_equal(v["polys"][:, 1:], m.faces)
+    np.testing.assert_array_equal(np.diff(v["offsets"]), 3)
+    np.testing.assert_array_equal(v["connectivity"].reshape(-1, 3), m.faces)
+    np.testing.assert_array_equal(v["cell_types"], 5)  # VTK_TRIANGLE
     assert v["ncells"] == len(m.faces)
     np.testing.assert_array_equal(v["fields"]["Cp"], f["Cp"])
     np.testing.assert_array_equal(v["fields"]["seen"], f["seen"].astype(int))
@@ -391,7 +392,7 @@ def test_writer_errors(tmp_path):
     m, _ = _mesh_and_fields()
     with pytest.raises(InputError, match="'p'.*faces"):
         write_surface(tmp_path / "x.vtk", m, {"p": np.zeros(3)})
-    with pytest.raises(InputError, match="unknown surface format"):
+    with pytest.raises(InputError, match="unknown field file format"):
         write_surface(tmp_path / "x.xyz", m, {})
 
 

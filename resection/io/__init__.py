@@ -6,6 +6,10 @@ accepts what any other writes.
 - :mod:`resection.io.meshes`: surface meshes (trimesh formats, Plot3D, Cart3D).
 - :mod:`resection.io.markers`: 3-D marker files and 2-D point files.
 - :mod:`resection.io.images`: single images (PNG, TIFF, NPY).
+- :mod:`resection.io.plot3d`: Plot3D grids (by content) and function files (``.f``).
+- :mod:`resection.io.tgts`: uPSP ``.tgts`` target files (read by ``read_markers``).
+- :mod:`resection.io.fields`: per-face / per-node fields (meshio VTK/VTU/XDMF, PLY, CSV,
+  NPY, Plot3D ``.f``).
 - :mod:`resection.io.cameras`: camera files (native JSON, uPSP JSON, OpenCV FileStorage).
 - :mod:`resection.io.video`: frame sequences read lazily (image lists, TIFF/NPY stacks,
   Photron .mraw/.cih, Phantom .cine): :func:`~resection.io.video.iter_frames`.

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
+from ._write import atomic_write
 
 __all__ = ["read_image", "write_image", "image_info", "saturation_level"]
 
@@ -190,12 +191,7 @@ def write_image(path: str | os.PathLike, array, *, dtype=None) -> None:
             arr = np.rint(arr).astype(dtype) if arr.dtype.kind == "f" else arr.astype(dtype)
         else:
             arr = arr.astype(dtype)
-    parent = path.parent if str(path.parent) else Path(".")
-    if not parent.is_dir():
-        raise InputError(f"{path}: output folder {parent} does not exist")
-    # a temporary name in the same folder, renamed into place: a crash never leaves half a file
-    tmp = parent / f".{path.stem}.{os.getpid()}.tmp{suf}"
-    try:
+    def write(tmp):
         if suf in _TIFF:
             import tifffile
 
@@ -207,7 +203,7 @@ def write_image(path: str | os.PathLike, array, *, dtype=None) -> None:
         else:
             with open(tmp, "wb") as fh:
                 np.save(fh, arr, allow_pickle=False)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+
+    # a temporary name in the same folder, renamed into place: a crash never leaves half a
+    # file; a missing folder is an InputError naming it
+    atomic_write(path, write)

@@ -19,18 +19,14 @@ so the face order is that of the file and every per-face array of the package fo
 Degenerate (zero-area) triangles, NaN or infinite coordinates and empty meshes are refused
 with :class:`~resection.errors.InputError`.
 
-Writing (:func:`write_surface`) puts per-face fields on the mesh as legacy VTK POLYDATA
-with CELL_DATA field arrays (the format for ParaView: checked to read back exactly, NaN
-included, with VTK 9.7's ``vtkPolyDataReader``), PLY (binary, one property per field on the
-face element: trimesh, MeshLab and :func:`load_mesh` read them; ParaView's PLY reader shows
-the geometry only) or CSV (face index, centroid, fields). :func:`write_plot3d` writes
-Plot3D grids in all the forms read here.
+Writing (:func:`write_surface`) puts per-face (and per-node) fields on the mesh through
+:mod:`resection.io.fields` (meshio: VTK, VTU, XDMF; plyfile: PLY; CSV, NPY; Plot3D ``.f``).
+Plot3D grids themselves live in :mod:`resection.io.plot3d` (re-exported here).
 """
 
 from __future__ import annotations
 
 import os
-import re
 from pathlib import Path
 
 import numpy as np
@@ -433,208 +429,22 @@ def write_cart3d_tri(path: str | os.PathLike, mesh: trimesh.Trimesh, components=
         np.savetxt(fh, comp.reshape(-1, 1).astype(np.int64), fmt="%d")
 
 
-# --------------------------------------------------------------------------- writing
-def _field_columns(mesh: trimesh.Trimesh, face_fields: dict | None,
-                   include_attributes: bool) -> list[tuple[str, np.ndarray]]:
-    """Flatten fields to (name, (F,) array) columns; (F, k) fields become name_0.."""
-    nf = len(mesh.faces)
-    fields: dict = {}
-    if include_attributes:
-        for k, v in mesh.face_attributes.items():
-            a = np.asarray(v)
-            if a.shape[:1] == (nf,) and a.ndim <= 2 and np.issubdtype(a.dtype, np.number):
-                fields[k] = a
-    for k, v in (face_fields or {}).items():
-        a = np.asarray(v)
-        if a.ndim == 0 or a.shape[0] != nf or a.ndim > 2:
-            raise InputError(
-                f"face field {k!r}: shape {a.shape} does not match the mesh's {nf} faces"
-            )
-        if not (np.issubdtype(a.dtype, np.number) or a.dtype == bool):
-            raise InputError(f"face field {k!r}: must be numeric, got dtype {a.dtype}")
-        fields[k] = a
-    cols = []
-    for k, a in fields.items():
-        name = re.sub(r"[^A-Za-z0-9_]", "_", str(k)) or "field"
-        if a.ndim == 1:
-            cols.append((name, a))
-        else:
-            cols += [(f"{name}_{c}", a[:, c]) for c in range(a.shape[1])]
-    names = [c[0] for c in cols]
-    dup = {n for n in names if names.count(n) > 1}
-    if dup:
-        raise InputError(f"face fields: duplicate name(s) after sanitising: {sorted(dup)}")
-    return cols
-
-
+# --------------------------------------------------------------------------- fields
 def write_surface(path: str | os.PathLike, mesh: trimesh.Trimesh, face_fields: dict | None = None,
-                  *, include_attributes: bool = True, vtk_binary: bool = True) -> None:
-    """Write the mesh with per-face fields.
+                  *, include_attributes: bool = True, node_fields: dict | None = None) -> None:
+    """Write the mesh with per-face (and per-node) fields: ``.vtk``, ``.vtu``, ``.xdmf``
+    (meshio), ``.ply`` (plyfile), ``.csv``, ``.npy`` or a Plot3D function file ``.f``.
 
-    Parameters
-    ----------
-    path : path-like
-        ``.ply`` (binary little-endian, per-face properties), ``.vtk`` (legacy POLYDATA with
-        CELL_DATA fields, binary by default; ParaView opens it) or ``.csv`` (columns
-        ``face, cx, cy, cz`` then the fields, one row per face).
-    mesh : trimesh.Trimesh
-    face_fields : dict of name -> (F,) or (F, k) array
-        Numeric per-face values (NaN allowed). Names are sanitised to ``[A-Za-z0-9_]``;
-        (F, k) arrays become ``name_0 .. name_{k-1}``.
-    include_attributes : bool
-        Also write the mesh's numeric ``face_attributes`` (e.g. ``block``, ``component``).
-    vtk_binary : bool
-        VTK only: binary (exact, NaN-safe) or ASCII.
+    See :func:`resection.io.fields.write_fields`, which this calls.
     """
-    path = os.fspath(path)
-    suffix = Path(path).suffix.lower()
-    cols = _field_columns(mesh, face_fields, include_attributes)
-    if suffix == ".ply":
-        _write_ply(path, mesh, cols)
-    elif suffix == ".vtk":
-        _write_vtk(path, mesh, cols, vtk_binary)
-    elif suffix == ".csv":
-        _write_csv(path, mesh, cols)
-    else:
-        raise InputError(f"{path}: unknown surface format {suffix!r} (use .ply, .vtk or .csv)")
+    from .fields import write_fields
 
-
-def _ply_type(a: np.ndarray) -> tuple[str, str]:
-    if a.dtype == bool:
-        return "uchar", "u1"
-    if np.issubdtype(a.dtype, np.integer):
-        return "int", "<i4"
-    return "double", "<f8"
-
-
-def _write_ply(path, mesh, cols):
-    V = np.asarray(mesh.vertices, dtype="<f8")
-    F = np.asarray(mesh.faces)
-    header = ["ply", "format binary_little_endian 1.0", "comment windtunnel-optics surface",
-              f"element vertex {len(V)}", "property double x", "property double y",
-              "property double z", f"element face {len(F)}",
-              "property list uchar int vertex_indices"]
-    dtype = [("n", "u1"), ("idx", "<i4", (3,))]
-    for name, a in cols:
-        pt, nt = _ply_type(a)
-        header.append(f"property {pt} {name}")
-        dtype.append((name, nt))
-    header.append("end_header")
-    rec = np.empty(len(F), dtype=dtype)
-    rec["n"] = 3
-    rec["idx"] = F
-    for name, a in cols:
-        rec[name] = a
-    with open(path, "wb") as fh:
-        fh.write(("\n".join(header) + "\n").encode("ascii"))
-        fh.write(V.tobytes())
-        fh.write(rec.tobytes())
-
-
-def _write_vtk(path, mesh, cols, binary: bool):
-    V = np.asarray(mesh.vertices, dtype=np.float64)
-    F = np.asarray(mesh.faces, dtype=np.int64)
-    nf = len(F)
-    poly = np.column_stack([np.full(nf, 3), F])
-    with open(path, "wb") as fh:
-        w = fh.write
-        w(b"# vtk DataFile Version 3.0\nwindtunnel-optics surface with per-face fields\n")
-        w(b"BINARY\n" if binary else b"ASCII\n")
-        w(b"DATASET POLYDATA\n")
-        w(f"POINTS {len(V)} double\n".encode())
-        if binary:
-            w(V.astype(">f8").tobytes() + b"\n")
-        else:
-            w(_ascii_rows(V, "%.17g"))
-        w(f"POLYGONS {nf} {4 * nf}\n".encode())
-        if binary:
-            w(poly.astype(">i4").tobytes() + b"\n")
-        else:
-            w(_ascii_rows(poly, "%d"))
-        if cols:
-            w(f"CELL_DATA {nf}\nFIELD FieldData {len(cols)}\n".encode())
-            for name, a in cols:
-                if np.issubdtype(a.dtype, np.integer) or a.dtype == bool:
-                    w(f"{name} 1 {nf} int\n".encode())
-                    arr, bt, fmt = a.astype(np.int64), ">i4", "%d"
-                else:
-                    w(f"{name} 1 {nf} double\n".encode())
-                    arr, bt, fmt = a.astype(np.float64), ">f8", "%.17g"
-                if binary:
-                    w(arr.astype(bt).tobytes() + b"\n")
-                else:
-                    w(_ascii_rows(arr.reshape(-1, 1), fmt))
-
-
-def _ascii_rows(a: np.ndarray, fmt: str) -> bytes:
-    import io
-
-    buf = io.StringIO()
-    np.savetxt(buf, a, fmt=fmt)
-    return buf.getvalue().encode("ascii")
-
-
-def _write_csv(path, mesh, cols):
-    cen = np.asarray(mesh.triangles_center, dtype=np.float64)
-    names = ["face", "cx", "cy", "cz"] + [c[0] for c in cols]
-    table = np.column_stack([np.arange(len(cen)), cen] + [c[1].astype(np.float64)
-                                                          for c in cols])
-    fmt = ["%d", "%.17g", "%.17g", "%.17g"] + [
-        "%d" if (np.issubdtype(a.dtype, np.integer) or a.dtype == bool) else "%.17g"
-        for _, a in cols
-    ]
-    np.savetxt(path, table, fmt=fmt, delimiter=",", header=",".join(names), comments="")
+    write_fields(path, mesh, face_fields, node_fields, include_attributes=include_attributes)
 
 
 def read_face_fields(path: str | os.PathLike, n_faces: int | None = None) -> dict:
-    """Per-face fields from a file written by :func:`write_surface` (.ply, .csv) or a
-    ``.npy`` array (one value per face, returned under the name ``"values"``).
+    """Per-face fields from any file :func:`write_surface` writes (``.npy``: one array,
+    returned as ``"values"``). See :func:`resection.io.fields.read_fields`."""
+    from .fields import read_fields
 
-    Parameters
-    ----------
-    n_faces : int, optional
-        Check that every field has this many values.
-
-    Returns
-    -------
-    dict of name -> (F,) float64 (CSV: every column but ``face, cx, cy, cz``).
-    """
-    path = Path(os.fspath(path))
-    if not path.exists():
-        raise InputError(f"face field file not found: {path}")
-    suffix = path.suffix.lower()
-    if suffix == ".npy":
-        try:
-            arr = np.load(path, allow_pickle=False)
-        except ValueError as exc:
-            raise InputError(f"{path}: not a numeric .npy array ({exc})") from None
-        if arr.ndim != 1:
-            raise InputError(f"{path}: expected one value per face (1-D), got shape {arr.shape}")
-        fields = {"values": arr.astype(np.float64)}
-    elif suffix == ".csv":
-        with open(path, encoding="utf-8") as fh:
-            header = fh.readline().strip().split(",")
-        if header[:1] != ["face"]:
-            raise InputError(f"{path}: expected a CSV whose first column is 'face'")
-        try:
-            table = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
-        except ValueError as exc:
-            raise InputError(f"{path}: non-numeric entry ({exc})") from None
-        if table.shape[1] != len(header):
-            raise InputError(f"{path}: {table.shape[1]} columns but {len(header)} names")
-        order = np.argsort(table[:, 0], kind="stable")
-        fields = {name: table[order, k] for k, name in enumerate(header)
-                  if name not in ("face", "cx", "cy", "cz")}
-    elif suffix == ".ply":
-        mesh = _load_trimesh(path, None)
-        fields = {k: np.asarray(v, dtype=np.float64) for k, v in mesh.face_attributes.items()
-                  if np.asarray(v).ndim == 1}
-    else:
-        raise InputError(f"{path}: unknown face field format {suffix!r} (use .csv, .ply, .npy)")
-    if n_faces is not None:
-        for name, v in fields.items():
-            if len(v) != n_faces:
-                raise InputError(
-                    f"{path}: field {name!r} has {len(v)} values but the mesh has {n_faces} faces"
-                )
-    return fields
+    return read_fields(path, n_faces)

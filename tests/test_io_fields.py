@@ -1,0 +1,160 @@
+"""Per-face / per-node field files (meshio: VTK, VTU, XDMF; plyfile: PLY; CSV; NPY; Plot3D
+.f): round trips, independent readers (XML parse of XDMF, trimesh for PLY, the VTK test
+parser in test_io_meshes), and the commands reading what ``map`` writes."""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+
+import numpy as np
+import pytest
+import trimesh
+
+from resection import InputError
+from resection.cli import main
+from resection.io.fields import read_fields, write_fields
+from resection.io.meshes import write_plot3d
+from resection.io.plot3d import read_plot3d_function
+
+
+def _mesh_and_fields():
+    m = trimesh.creation.icosphere(subdivisions=1)
+    m = trimesh.Trimesh(m.vertices, m.faces, process=False)
+    nf = len(m.faces)
+    rng = np.random.default_rng(3)
+    cp = rng.normal(size=nf)
+    cp[[2, 7]] = np.nan
+    return m, {"Cp": cp, "seen": rng.random(nf) > 0.3, "count": rng.integers(0, 50, nf),
+               "grad": rng.normal(size=(nf, 2))}
+
+
+@pytest.mark.parametrize("ext", [".vtk", ".vtu", ".xdmf", ".ply", ".csv"])
+def test_face_fields_round_trip(tmp_path, ext):
+    m, f = _mesh_and_fields()
+    p = tmp_path / f"surf{ext}"
+    write_fields(p, m, f)
+    got = read_fields(p, len(m.faces))
+    np.testing.assert_array_equal(got["Cp"], f["Cp"])  # NaN kept, values exact
+    np.testing.assert_array_equal(got["seen"], f["seen"].astype(float))
+    np.testing.assert_array_equal(got["count"], f["count"])
+    np.testing.assert_array_equal(got["grad_1"], f["grad"][:, 1])
+    assert not list(tmp_path.glob(".*tmp*"))  # no temporary file left behind
+
+
+@pytest.mark.parametrize("ext", [".vtu", ".xdmf", ".ply"])
+def test_node_fields_round_trip(tmp_path, ext):
+    m, _ = _mesh_and_fields()
+    z = np.asarray(m.vertices)[:, 2].copy()
+    p = tmp_path / f"nodes{ext}"
+    write_fields(p, m, node_fields={"height": z}, include_attributes=False)
+    got = read_fields(p, len(m.vertices), location="node")
+    np.testing.assert_array_equal(got["height"], z)
+
+
+def test_xdmf_read_by_an_xml_parser(tmp_path):
+    """The XDMF file holds its data inline: an XML parser finds the triangles and the
+    per-face values (Center="Cell") without meshio."""
+    m, f = _mesh_and_fields()
+    p = tmp_path / "surf.xdmf"
+    write_fields(p, m, {"Cp": f["Cp"]}, include_attributes=False)
+    root = ET.parse(p).getroot()
+    topo = root.find(".//Topology")
+    assert topo.get("TopologyType") == "Triangle"
+    conn = np.array(topo.find("DataItem").text.split(), dtype=np.int64).reshape(-1, 3)
+    np.testing.assert_array_equal(conn, m.faces)
+    att = [a for a in root.iter("Attribute") if a.get("Name") == "Cp"][0]
+    assert att.get("Center") == "Cell"
+    vals = np.array(att.find("DataItem").text.split(), dtype=np.float64)
+    np.testing.assert_array_equal(vals, f["Cp"])
+
+
+def test_ply_read_by_trimesh(tmp_path):
+    m, f = _mesh_and_fields()
+    p = tmp_path / "surf.ply"
+    write_fields(p, m, f)
+    raw = trimesh.load(p, process=False)
+    np.testing.assert_array_equal(raw.vertices, m.vertices)  # doubles: exact
+    data = raw.metadata["_ply_raw"]["face"]["data"]
+    np.testing.assert_array_equal(data["Cp"], f["Cp"])
+    np.testing.assert_array_equal(data["count"], f["count"])
+
+
+def test_npy_and_errors(tmp_path):
+    m, f = _mesh_and_fields()
+    write_fields(tmp_path / "cp.npy", m, {"Cp": f["Cp"]})
+    np.testing.assert_array_equal(read_fields(tmp_path / "cp.npy")["values"], f["Cp"])
+    with pytest.raises(InputError, match="holds one field"):
+        write_fields(tmp_path / "two.npy", m, {"a": f["Cp"], "b": f["Cp"]})
+    with pytest.raises(InputError, match="unknown field file format '.txt'"):
+        write_fields(tmp_path / "x.txt", m, f)
+    with pytest.raises(InputError, match="does not match"):
+        write_fields(tmp_path / "x.vtu", m, {"a": np.zeros(3)})
+    bad = tmp_path / "bad.vtu"
+    bad.write_text("<VTKFile><Unstructured")
+    with pytest.raises(InputError, match=r"bad.vtu: cannot be read as VTU"):
+        read_fields(bad)
+    with pytest.raises(InputError, match="has 20 faces|values but the mesh"):
+        read_fields(tmp_path / "cp.npy", 7)
+
+
+@pytest.fixture(scope="module")
+def plate(tmp_path_factory):
+    from scenes.psp_pair import HALF_X, HALF_Y, plane_hits, psp_pair
+
+    d = tmp_path_factory.mktemp("fields_cli")
+    pp = psp_pair(width=160, height=120, noise=0.0)
+    X, Y = np.meshgrid(np.linspace(-HALF_X, HALF_X, 25), np.linspace(-HALF_Y, HALF_Y, 17),
+                       indexing="ij")
+    write_plot3d(d / "panel.grid", [np.stack([X, Y, np.zeros_like(X)], -1)])  # by content
+    pp.camera_off.write(d / "off.json")
+    P, on = plane_hits(pp.camera_off)
+    np.save(d / "xcoord.npy", np.where(on, P[..., 0], np.nan))
+    return d, X
+
+
+@pytest.mark.parametrize("ext", [".vtk", ".vtu", ".xdmf", ".ply"])
+def test_view_and_backproject_read_what_map_writes(plate, ext, capsys):
+    d, _ = plate
+    out = d / f"surf{ext}"
+    assert main(["map", "--mesh", str(d / "panel.grid"), "--camera", str(d / "off.json"),
+                 "--image", str(d / "xcoord.npy"), "--out", str(out)]) == 0
+    fields = read_fields(out)
+    seen = fields["xcoord_seen"] > 0
+    assert seen.sum() > 50
+    assert main(["backproject", "--mesh", str(d / "panel.grid"), "--camera",
+                 str(d / "off.json"), "--values", str(out), "--field", "xcoord",
+                 "--out", str(d / f"back{ext}.npy")]) == 0
+    assert main(["view", "--mesh", str(d / "panel.grid"), "--values", str(out), "--field",
+                 "xcoord", "--size", "120x90", "--out", str(d / f"view{ext}.png")]) == 0
+    assert (d / f"view{ext}.png").stat().st_size > 0
+    capsys.readouterr()
+
+
+def test_map_writes_plot3d_function_file(plate):
+    """``--out P.f`` on a Plot3D grid: per-node values on the original grid, equal to a
+    plain loop over the grid's cells of the per-face values ``map`` writes to CSV (cell =
+    mean of its triangles, node = mean of its cells, both over the finite values)."""
+    from resection.io.meshes import load_mesh
+
+    d, X = plate
+    for out in ("P.f", "P.csv"):
+        assert main(["map", "--mesh", str(d / "panel.grid"), "--camera", str(d / "off.json"),
+                     "--image", str(d / "xcoord.npy"), "--out", str(d / out)]) == 0
+    (vals,) = read_plot3d_function(d / "P.f")
+    assert vals.shape == (25, 17, 1, 3)  # xcoord, xcoord_count, xcoord_seen
+    face = read_fields(d / "P.csv")["xcoord"]
+    mesh = load_mesh(d / "panel.grid")
+    ci, cj = mesh.face_attributes["cell_i"], mesh.face_attributes["cell_j"]
+    cells = {}
+    for f, (i, j) in enumerate(zip(ci, cj, strict=True)):
+        if np.isfinite(face[f]):
+            cells.setdefault((i, j), []).append(face[f])
+    ref = np.full((25, 17), np.nan)
+    for i in range(25):
+        for j in range(17):
+            around = [np.mean(cells[c]) for c in ((i - 1, j - 1), (i - 1, j), (i, j - 1),
+                                                   (i, j)) if c in cells]
+            if around:
+                ref[i, j] = np.mean(around)
+    np.testing.assert_allclose(vals[..., 0, 0], ref, rtol=0, atol=1e-12)
+    assert np.isfinite(ref).sum() > 40
