@@ -47,9 +47,10 @@ def register(sub) -> None:
                    metavar="DEG", help="faces seen more obliquely than this (degrees between "
                    "line of sight and normal, default %(default)g as uPSP; 90: none) count as "
                    "unseen")
-    m.add_argument("--feather", type=float, default=8.0, metavar="PX",
+    m.add_argument("--feather", type=float, default=None, metavar="PX",
                    help="several cameras: width of the weight ramp from image edges and "
-                   "occlusion boundaries, pixels (default %(default)g; 0: none)")
+                   "occlusion boundaries, pixels (default 4 %% of the image's smaller side; "
+                   "0: none)")
     m.add_argument("--no-gain-match", action="store_true",
                    help="several cameras: do not match the camera gains on the overlaps")
     m.set_defaults(func=run_map)

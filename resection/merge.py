@@ -9,7 +9,8 @@ therefore
 1. weights every pixel by its distance to the image's edge and to the nearest *boundary
    pixel* (the model's outline, a depth jump where one part hides another, or a crease
    between faces of very different orientation), ramping from 0 to 1 over ``feather_px``
-   pixels; pixels on a boundary (within ``edge_margin``) are dropped;
+   pixels (default 4 % of the image's smaller side); pixels on a boundary (within
+   ``edge_margin``) are dropped;
 2. averages each camera's pixels onto the faces with those weights; a camera's weight for
    a face is the sum of its pixel weights (proportional to the face's projected area)
    times a view-angle taper, 1 for a face seen square-on and 0 at the obliqueness cut-off
@@ -38,7 +39,7 @@ from scipy.ndimage import distance_transform_edt
 from .errors import InputError
 
 __all__ = ["MergedViews", "Overlap", "merge_views", "pixel_weights", "angle_weights",
-           "boundary_pixels", "match_gains"]
+           "boundary_pixels", "match_gains", "default_feather"]
 
 
 @dataclass(frozen=True)
@@ -147,24 +148,34 @@ def boundary_pixels(smap, *, depth_jump: float = 0.02, crease_deg: float = 45.0)
     H, W = mask.shape
     depth = np.where(mask, smap.depth, np.inf)
     n, _ = _face_normals_centres(smap.mesh)
-    nrm = np.where(mask[..., None], n[np.maximum(face, 0)], 0.0)
     cos_lim = np.cos(np.radians(crease_deg))
     bnd = np.zeros((H, W), dtype=bool)
     for dv, du in ((0, 1), (1, 0), (1, 1), (1, -1)):  # the 4 neighbour directions
         a = (slice(0, H - dv), slice(max(0, -du), W - max(0, du)))
         b = (slice(dv, H), slice(max(0, du), W - max(0, -du)))
         ma, mb = mask[a], mask[b]
+        fa, fb = face[a], face[b]
         da, db = depth[a], depth[b]
         with np.errstate(invalid="ignore"):
             jump = np.abs(da - db) > depth_jump * np.minimum(da, db)
-        crease = np.einsum("ijk,ijk->ij", nrm[a], nrm[b]) < cos_lim
-        edge = (ma != mb) | (ma & mb & (jump | crease))
+        edge = (ma != mb) | (ma & mb & jump)
+        other = np.flatnonzero((ma & mb & (fa != fb)).ravel())  # pixels on two faces
+        if other.size:
+            f1, f2 = fa.ravel()[other], fb.ravel()[other]
+            crease = np.einsum("ij,ij->i", n[f1], n[f2]) < cos_lim
+            edge.ravel()[other[crease]] = True
         bnd[a] |= edge
         bnd[b] |= edge
     return bnd & mask
 
 
-def pixel_weights(smap, *, feather_px: float = 8.0, edge_margin: int = 1,
+def default_feather(shape) -> float:
+    """Default feathering width: 4 % of the image's smaller side, at least 4 pixels
+    (vignetting and similar camera-to-camera differences vary on the image's scale)."""
+    return max(4.0, 0.04 * min(shape))
+
+
+def pixel_weights(smap, *, feather_px: float | None = None, edge_margin: int = 1,
                   depth_jump: float = 0.02, crease_deg: float = 45.0) -> np.ndarray:
     """(H, W) feathering weights in [0, 1] (0 off the model).
 
@@ -173,8 +184,10 @@ def pixel_weights(smap, *, feather_px: float = 8.0, edge_margin: int = 1,
     (1 for the first row or column), the weight is
     ``min(ramp(d_b - edge_margin + 1), ramp(d_e))`` with ``ramp(d) = clip(d / (feather_px
     + 1), 0, 1)``; pixels with ``d_b < edge_margin`` get 0. ``feather_px = 0`` gives 1
-    everywhere else (no feathering).
+    everywhere else (no feathering); None: :func:`default_feather`.
     """
+    if feather_px is None:
+        feather_px = default_feather(smap.shape)
     if not feather_px >= 0:
         raise InputError(f"feather_px must be >= 0, got {feather_px}")
     try:
@@ -273,7 +286,7 @@ def _restate(o: Overlap, vals, wts, gains) -> Overlap:
 
 
 def merge_views(maps: Sequence, images: Sequence, *, method: str = "weighted",
-                min_pixels: int = 1, edge_margin: int = 1, feather_px: float = 8.0,
+                min_pixels: int = 1, edge_margin: int = 1, feather_px: float | None = None,
                 max_obliqueness: float | None = None, match_gain: bool = True,
                 reference: int = 0, min_overlap: int = 10, depth_jump: float = 0.02,
                 crease_deg: float = 45.0, gains=None) -> MergedViews:
@@ -294,8 +307,9 @@ def merge_views(maps: Sequence, images: Sequence, *, method: str = "weighted",
     edge_margin : int
         Pixels closer than this to a boundary pixel are dropped (1: the boundary pixels
         themselves, whose square straddles the outline or an occlusion edge).
-    feather_px : float
-        Width of the weight ramp from image edges and boundaries, pixels (0: none).
+    feather_px : float, optional
+        Width of the weight ramp from image edges and boundaries, pixels (0: none; default
+        4 % of each image's smaller side, :func:`default_feather`).
     max_obliqueness : float, optional
         Obliqueness cut-off, degrees: faces seen more obliquely count as unseen by that
         camera; the weight tapers to 0 there. Default: each map's own cut-off
@@ -357,10 +371,10 @@ def merge_views(maps: Sequence, images: Sequence, *, method: str = "weighted",
             raise InputError(f"merge_views: {e}") from None
         finite = np.isfinite(arr)
         pw = np.where(finite, pw, 0.0).ravel()
-        M = m.matrix
-        wsum = M @ pw
-        vsum = M @ (pw * np.where(finite, arr, 0.0).ravel())
-        npx = M @ (pw > 0).astype(np.float64)
+        planes = np.stack([pw * np.where(finite, arr, 0.0).ravel(), pw,
+                           (pw > 0).astype(np.float64)]).reshape(3, *m.shape)
+        vsum, wsum, npx = m.to_surface(planes).values * m.pixel_counts[None, :]
+        vsum, wsum, npx = (np.nan_to_num(x) for x in (vsum, wsum, npx))
         ang = angle_weights(m, max_obliqueness)
         ok = (npx >= mp - 0.5) & (wsum > 0) & (ang > 0)
         with np.errstate(invalid="ignore", divide="ignore"):

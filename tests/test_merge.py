@@ -92,6 +92,9 @@ def test_pixel_and_angle_weights(scene):
     far = ~bnd[row - 12:row + 12, :12].any()
     assert far
     assert pw[row, 0] == pytest.approx(1 / 9) and pw[row, 4] == pytest.approx(5 / 9)
+    # default: 4 % of the smaller side (240 px -> 9.6 px)
+    pwd = pixel_weights(m)
+    assert pwd[row, 0] == pytest.approx(1 / 10.6) and pwd[row, 12] == 1.0
     assert pw[row, W // 4] == 1.0 or bnd[row, W // 4]
     # view-angle taper in closed form for the plate: cos t = z_cam / distance
     a = angle_weights(m, 70.0)
