@@ -8,6 +8,7 @@ import argparse
 
 import numpy as np
 
+from ._cliutil import add_acceptance_options
 from .camera import Camera
 from .errors import InputError
 from .io.outputs import atomic_write
@@ -82,8 +83,7 @@ def register(sub) -> None:
                    help="largest marker motion from the reference, px (default 25)")
     m.add_argument("--tolerance", type=float, default=3.0,
                    help="landing distance on a candidate, px (default 3)")
-    m.add_argument("--max-rms", type=float, default=1.0,
-                   help="refuse when the final RMS exceeds this, px (default 1)")
+    add_acceptance_options(m)
     m.add_argument("--out", "-o", required=True, help="output matched candidate CSV (with id)")
     m.add_argument("--pose", help="also write the solved camera JSON here")
     m.set_defaults(func=run_match)
@@ -160,7 +160,7 @@ def run_match(args: argparse.Namespace) -> int:
                          "matched frame)")
     res = match_markers(cand, markers, reference, camera=camera,
                         search_radius=args.search_radius, tolerance=args.tolerance,
-                        max_rms=args.max_rms)
+                        max_rms=args.max_rms, marker_accuracy=args.marker_accuracy)
     atomic_write(args.out, write_candidates, cand, ids=list(res.ids))
     print(f"match: {res.message}")
     if res.pose is not None:

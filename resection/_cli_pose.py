@@ -8,6 +8,7 @@ import math
 import os
 
 from ._cli_markers import add_detect_options, add_enhance_window_option
+from ._cliutil import add_acceptance_options
 from .calibrate import calibrate
 from .camera import Camera
 from .errors import InputError
@@ -54,7 +55,7 @@ def register(sub) -> None:
                    choices=("focal", "center", "all"),
                    help="also refine the focal length (default), focal and centre, or all "
                    "with distortion")
-    p.add_argument("--max-rms", type=float, help="refuse a pose whose RMS exceeds this (px)")
+    add_acceptance_options(p)
     p.add_argument("--ambiguity-px", type=float, default=0.5, metavar="PX",
                    help="assumed (upper) marker uncertainty when telling competing poses "
                    "apart; lowered automatically when the residuals prove the markers "
@@ -81,6 +82,7 @@ def register(sub) -> None:
     c.add_argument("--out", required=True, help="output camera JSON")
     c.add_argument("--residuals", help="also write the residual table (CSV) here, with a "
                    "view column")
+    add_acceptance_options(c)
     c.set_defaults(func=run_calibrate)
 
 
@@ -101,7 +103,8 @@ def pose_inputs(args: argparse.Namespace):
                            diameter=args.diameter, polarity=args.polarity,
                            template=args.template, roi=args.roi, threshold=args.threshold,
                            enhance=args.enhance, enhance_windows=args.enhance_window,
-                           links=args.links, candidates=args.candidates)
+                           links=args.links, candidates=args.candidates,
+                           marker_accuracy=args.marker_accuracy, max_rms=args.max_rms)
         print(f"image: {len(pts.candidates)} candidates, {len(pts.ids)} markers linked")
         return camera, pts.ids, pts.points3d, pts.points2d
     if not args.points:
@@ -116,12 +119,13 @@ def run_pose(args: argparse.Namespace) -> int:
     camera, ids, X, uv = pose_inputs(args)
     result = solve_pose(camera, X, uv, robust=args.robust, robust_scale=args.robust_scale,
                         refine_intrinsics=args.refine_intrinsics or False,
-                        max_rms=args.max_rms, ambiguity_px=args.ambiguity_px)
+                        max_rms=args.max_rms, marker_accuracy=args.marker_accuracy,
+                        ambiguity_px=args.ambiguity_px, ids=ids)
     print(f"pose: {result.message}")
     print(f"rms {result.rms:.4f} px")
     print(f"{'id':>12} {'du':>9} {'dv':>9} {'error':>9}")
-    for k, r, e in zip(ids, result.residuals, result.errors, strict=True):
-        print(f"{k:>12} {r[0]:9.4f} {r[1]:9.4f} {e:9.4f}")
+    for k, r, e, u in zip(ids, result.residuals, result.errors, result.used, strict=True):
+        print(f"{k:>12} {r[0]:9.4f} {r[1]:9.4f} {e:9.4f}" + ("" if u else "  outlier, dropped"))
     atomic_write(args.out, result.camera.write)
     if args.residuals:
         atomic_write(args.residuals, write_residuals, ids, uv, result.residuals)
@@ -168,7 +172,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
         views.append((X, uv))
         ids.append(i)
     initial = Camera.read(args.camera) if args.camera else None
-    result = calibrate(views, size, fix=args.fix, initial=initial)
+    result = calibrate(views, size, fix=args.fix, initial=initial,
+                       marker_accuracy=args.marker_accuracy, max_rms=args.max_rms)
     cam = result.camera
     print(f"calibrate: {result.message}")
     print(f"rms {result.rms:.4f} px")

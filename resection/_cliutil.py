@@ -51,3 +51,15 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None) -> int:
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())
         return 1
+
+
+def add_acceptance_options(p: argparse.ArgumentParser) -> None:
+    """``--marker-accuracy`` and ``--max-rms``: the acceptance rule's options, the same in
+    every command that fits a camera to markers (see docs/acceptance.md)."""
+    p.add_argument("--marker-accuracy", type=float, default=1.0, metavar="PX",
+                   help="stated accuracy of a marker position, survey + detection, px "
+                   "(RMS length; default 1): residuals are judged against it and gross "
+                   "outliers dropped")
+    p.add_argument("--max-rms", type=float, default=2.0, metavar="PX",
+                   help="refuse a fit whose RMS residual exceeds this whatever the "
+                   "accuracy, px (default 2)")

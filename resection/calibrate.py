@@ -28,6 +28,14 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ._checks import as_points
+from .acceptance import (
+    DEFAULT_MARKER_ACCURACY,
+    DEFAULT_MAX_RMS,
+    Acceptance,
+    check_accuracy,
+    judge,
+    require,
+)
 from .camera import Camera, undistort_normalized
 from .dlt import (
     COLLINEAR_RTOL,
@@ -76,6 +84,8 @@ class CalibrationResult:
         cy``, dimensionless for distortion), from the Jacobian at the solution scaled by the
         residual variance.
     message : str
+    acceptance : Acceptance
+        The acceptance rule's decision on all residuals (:mod:`resection.acceptance`).
     """
 
     camera: Camera
@@ -86,6 +96,7 @@ class CalibrationResult:
     parameters: tuple
     std: dict
     message: str = ""
+    acceptance: Acceptance | None = None
 
 
 def _check_views(views):
@@ -353,6 +364,8 @@ def calibrate(
     fix=(),
     initial: Camera | None = None,
     max_iter: int = 200,
+    marker_accuracy: float = DEFAULT_MARKER_ACCURACY,
+    max_rms: float | None = DEFAULT_MAX_RMS,
 ) -> CalibrationResult:
     """Calibrate a camera from one or more views of a planar or 3-D target.
 
@@ -373,6 +386,11 @@ def calibrate(
         intrinsics come from the data and the distortion starts at zero.
     max_iter : int
         Maximum number of Levenberg-Marquardt iterations of the joint refinement.
+    marker_accuracy, max_rms : float
+        The acceptance rule's options (px, :mod:`resection.acceptance`): the RMS of all
+        residuals must not exceed its 99.9 % bound for markers of this accuracy (with
+        ``2 N - 6 V - len(parameters)`` degrees of freedom), nor ``max_rms``. Calibration
+        drops no outliers: a bad marker is refused with the statistic and threshold.
 
     Returns
     -------
@@ -431,6 +449,7 @@ def calibrate(
             names = ["f"] + [p for p in names if p not in ("fx", "fy")]
     names = tuple(names)
     m = len(names)
+    check_accuracy(marker_accuracy, "calibrate")
     V = len(vw)
     n_obs = 2 * sum(len(X) for X, _, _ in vw)
     n_par = m + 6 * V
@@ -501,10 +520,14 @@ def calibrate(
         vrms.append(float(np.sqrt(np.mean(np.sum(r**2, axis=1)))))
     allr = np.concatenate(residuals)
     rms = float(np.sqrt(np.mean(np.sum(allr**2, axis=1))))
+    acc = judge(np.hypot(allr[:, 0], allr[:, 1]), n_par, marker_accuracy, max_rms,
+                what="calibration")
+    require(acc, "calibrate", "wrong pairing, wrong image size or a bad marker?")
     msg = (f"{V} view(s), {n_obs // 2} markers, rms {rms:.3f} px ({niter} iterations); "
            f"fx {K[0, 0]:.2f} "
-           f"fy {K[1, 1]:.2f} cx {K[0, 2]:.2f} cy {K[1, 2]:.2f} px")
+           f"fy {K[1, 1]:.2f} cx {K[0, 2]:.2f} cy {K[1, 2]:.2f} px; accepted: "
+           f"{acc.describe()}")
     return CalibrationResult(
         camera=poses[0], poses=poses, residuals=residuals, rms=rms,
-        view_rms=np.array(vrms), parameters=names, std=std, message=msg,
+        view_rms=np.array(vrms), parameters=names, std=std, message=msg, acceptance=acc,
     )

@@ -33,6 +33,13 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
+from .acceptance import (
+    DEFAULT_MARKER_ACCURACY,
+    DEFAULT_MAX_RMS,
+    check_accuracy,
+    judge,
+    require,
+)
 from .camera import Camera
 from .errors import InputError, SolveError
 from .units import nothing_seen_causes
@@ -67,6 +74,11 @@ class MatchResult:
     n_hypotheses : int
         Hypotheses scored.
     message : str
+    extra : dict
+        ``{"affine": (2, 3) array}``: the image-to-image affine map of the hypothesis.
+    acceptance : Acceptance
+        The acceptance rule's decision (:mod:`resection.acceptance`): statistic,
+        threshold, markers dropped as gross outliers.
     """
 
     ids: tuple
@@ -81,6 +93,7 @@ class MatchResult:
     n_hypotheses: int
     message: str = ""
     extra: dict = field(default_factory=dict)
+    acceptance: object = None
 
     def __len__(self) -> int:
         return len(self.marker_ids)
@@ -290,7 +303,8 @@ def match_markers(
     n_bases: int = 40,
     min_matches: int = 5,
     ambiguity_ratio: float = 0.7,
-    max_rms: float = 1.0,
+    max_rms: float | None = DEFAULT_MAX_RMS,
+    marker_accuracy: float = DEFAULT_MARKER_ACCURACY,
     gate: float | None = None,
     seed: int = 0,
     pose_kw: dict | None = None,
@@ -326,8 +340,14 @@ def match_markers(
     ambiguity_ratio : float
         Refuse when a distinct hypothesis explains at least this fraction of the best
         one's markers.
-    max_rms : float
-        Refuse when the final RMS residual exceeds this, px.
+    max_rms : float or None
+        Upper limit of the final RMS residual whatever the accuracy, px (default 2).
+    marker_accuracy : float
+        Stated accuracy of a marker position (survey + detection, RMS length, px; default
+        1). The match is judged by the acceptance rule (:mod:`resection.acceptance`), and
+        this accuracy and ``max_rms`` go down to the verifying pose solves (unless
+        ``pose_kw`` sets them): gross outliers are dropped within limits, and the RMS of
+        the matched markers must not exceed its 99.9 % bound for this accuracy.
     gate : float, optional
         Largest residual of a matched marker after the pose solve (px); default 6 times
         the position noise estimated from the median residual, at least 0.25 px, at most
@@ -357,9 +377,13 @@ def match_markers(
     ids3d, xyz = _markers(markers3d)
     pose_kw = _pose_options(pose_kw)
     for name, val in (("search_radius", search_radius), ("tolerance", tolerance),
-                      ("max_rms", max_rms)):
+                      ("max_rms", 1.0 if max_rms is None else max_rms)):
         if not (np.isfinite(val) and val > 0):
             raise InputError(f"match_markers: {name} must be positive, got {val}")
+    # one stated accuracy for the matcher and its pose solves (pose_kw may set it)
+    accuracy = check_accuracy(pose_kw.get("marker_accuracy", marker_accuracy), "match_markers")
+    max_rms = pose_kw.get("max_rms", max_rms)
+    pose_kw = {**pose_kw, "marker_accuracy": accuracy, "max_rms": max_rms}
     ref_ids, P, ref_cam = _predictions(reference, ids3d, xyz, search_radius)
     cam = camera if camera is not None else ref_cam
     if cam is not None and not isinstance(cam, Camera):
@@ -439,8 +463,10 @@ def match_markers(
         if unknown:
             raise InputError(f"reference: id(s) not in markers3d: {', '.join(unknown[:10])}")
         X = xyz[[pos3[k] for k in matched_ids]]
+        # the first solve is a start (its pairs may be wrong): no acceptance test on it
         pose = solve_pose(cam, X, Q[cand_idx],
-                          **{"robust": "huber", "robust_scale": 0.5, **pose_kw})
+                          **{"robust": "huber", "robust_scale": 0.5, **pose_kw,
+                             "marker_accuracy": 1e6, "max_rms": None})
         # reproject every marker (also those absent from the reference), keep those within
         # a statistical gate of their reprojection, resolve (twice: the first pose may
         # still carry a wrong pair)
@@ -454,20 +480,24 @@ def match_markers(
             if sel.size < max(min_matches, 4):
                 raise SolveError(f"match_markers: only {sel.size} markers within {g:.2g} px of "
                                  "their reprojection after the pose solve")
-            pose = solve_pose(cam, xyz[sel], Q[jj[sel]], **pose_kw)
+            pose = solve_pose(cam, xyz[sel], Q[jj[sel]], ids=[ids3d[i] for i in sel],
+                              **pose_kw)
+        sel = sel[pose.used]  # gross outliers dropped by the acceptance rule
         matched_ids = [ids3d[i] for i in sel]
         cand_idx = jj[sel]
-        res = pose.residuals
+        res = pose.residuals[pose.used]
     err = np.hypot(res[:, 0], res[:, 1])
     rms = float(np.sqrt(np.mean(err**2)))
-    if rms > max_rms:
-        raise SolveError(f"match_markers: residual RMS {rms:.3g} px exceeds max_rms={max_rms} px "
-                         f"({len(cand_idx)} markers): wrong match or wrong camera")
+    if pose is not None and pose.acceptance is not None:
+        acc = pose.acceptance
+    else:
+        acc = judge(err, 6, accuracy, max_rms, what="match")
+    require(acc, "match_markers", "wrong match or wrong camera")
     ids = [None] * len(Q)
     for k, c in zip(matched_ids, cand_idx, strict=True):
         ids[int(c)] = k
     msg = (f"matched {len(cand_idx)} of {len(Q)} candidates, rms {rms:.3g} px, "
            f"score {s1} vs {s2}, {nh} hypotheses")
     return MatchResult(tuple(ids), tuple(matched_ids), np.asarray(cand_idx, int),
-                       Q[cand_idx], pose, res, rms, s1, s2, nh, msg,
-                       {"affine": A})
+                       Q[cand_idx], pose, res, rms, s1, s2, nh,
+                       f"{msg}; accepted: {acc.describe()}", {"affine": A}, acc)

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .acceptance import DEFAULT_MARKER_ACCURACY, DEFAULT_MAX_RMS
 from .camera import Camera
 from .errors import InputError
 from .markers import Candidates, detect_markers, read_candidates
@@ -204,6 +205,8 @@ def image_points(
     reference=None,
     detect_options: dict | None = None,
     match_options: dict | None = None,
+    marker_accuracy: float = DEFAULT_MARKER_ACCURACY,
+    max_rms: float | None = DEFAULT_MAX_RMS,
 ) -> ImagePoints:
     """Detect the markers of an image and link them to the model's markers.
 
@@ -233,6 +236,9 @@ def image_points(
         An earlier matched frame as the matching reference.
     detect_options, match_options : dict, optional
         Further keyword arguments of ``detect_markers`` and ``match_markers``.
+    marker_accuracy, max_rms : float
+        The acceptance rule's options (px, :mod:`resection.acceptance`), passed to the
+        matcher and its pose solves.
     """
     image, markers, camera = _load(image, markers, camera)
     if candidates is None:
@@ -261,23 +267,29 @@ def image_points(
     if ref is None:
         raise InputError("image_points: automatic matching needs an approximate camera or "
                          "a reference frame (or give a linking file)")
-    m = match_markers(candidates, markers, ref, camera=camera, **(match_options or {}))
+    opts = {"marker_accuracy": marker_accuracy, "max_rms": max_rms, **(match_options or {})}
+    m = match_markers(candidates, markers, ref, camera=camera, **opts)
     return ImagePoints(tuple(m.marker_ids), markers.select(m.marker_ids), m.uv, candidates,
                        m.candidate_index, m)
 
 
-def pose_from_image(image, markers, camera, *, robust=None, max_rms=None,
-                    refine_intrinsics=False, **kwargs):
+def pose_from_image(image, markers, camera, *, robust=None, max_rms=DEFAULT_MAX_RMS,
+                    marker_accuracy=DEFAULT_MARKER_ACCURACY, refine_intrinsics=False,
+                    **kwargs):
     """Detect, link or match, and solve the camera's Point of View.
 
-    ``kwargs`` are those of :func:`image_points`. Returns ``(PoseResult, ImagePoints)``.
+    ``marker_accuracy`` and ``max_rms`` (px) are the acceptance rule's options
+    (:mod:`resection.acceptance`); they go to the matcher too. ``kwargs`` are those of
+    :func:`image_points`. Returns ``(PoseResult, ImagePoints)``.
     """
     from .pose import solve_pose
 
     image, markers, camera = _load(image, markers, camera)
     if camera is None:
         raise InputError("pose_from_image: a camera (intrinsics) is needed")
-    pts = image_points(image, markers, camera, **kwargs)
+    pts = image_points(image, markers, camera, marker_accuracy=marker_accuracy,
+                       max_rms=max_rms, **kwargs)
     res = solve_pose(camera, pts.points3d, pts.points2d, robust=robust, max_rms=max_rms,
-                     refine_intrinsics=refine_intrinsics)
+                     marker_accuracy=marker_accuracy, refine_intrinsics=refine_intrinsics,
+                     ids=pts.ids)
     return res, pts

@@ -25,7 +25,7 @@ for the rotation vector ``rvec`` (OpenCV's Rodrigues vector) and ``t``.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from itertools import combinations
 
 import numpy as np
@@ -34,6 +34,15 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
 
 from ._checks import as_points
+from .acceptance import (
+    DEFAULT_MARKER_ACCURACY,
+    DEFAULT_MAX_RMS,
+    Acceptance,
+    check_accuracy,
+    drop_outliers,
+    judge,
+    require,
+)
 from .camera import Camera, max_monotonic_radius, undistort_normalized
 from .dlt import COLLINEAR_RTOL, COPLANAR_RTOL, coplanarity, fit_dlt, fit_homography
 from .errors import DegenerateError, InputError, SolveError
@@ -386,7 +395,7 @@ class PoseResult:
     errors : (N,) ndarray
         Reprojection error of each marker, px.
     rms : float
-        RMS reprojection error over all markers, px (``sqrt(mean(errors**2))``).
+        RMS reprojection error over the used markers (gross outliers dropped), px.
     covariance : (6, 6) ndarray
         Covariance of ``[rvec, t]`` (radians, model units), scaled by the residual variance
         ``sum(res**2) / (2 N - p)`` (inliers only with a robust loss); marginal over the
@@ -405,6 +414,10 @@ class PoseResult:
         Standard deviations of the refined intrinsic parameters.
     message : str
         A one-line summary.
+    used : (N,) bool ndarray
+        Markers used by the final solve (False: dropped as gross outliers).
+    acceptance : Acceptance
+        The acceptance rule's decision: tested statistic, threshold, outliers dropped.
     """
 
     camera: Camera
@@ -418,6 +431,8 @@ class PoseResult:
     refined: tuple[str, ...] = ()
     intrinsics_std: np.ndarray = field(default_factory=lambda: np.zeros(0))
     message: str = ""
+    used: np.ndarray | None = None
+    acceptance: Acceptance | None = None
 
     @property
     def std(self) -> np.ndarray:
@@ -615,7 +630,7 @@ def _refine(X, uv, R0, t0, K0, dist0, names, robust, scale, max_nfev):
     return R, sol.x[3:6].copy(), K, dist, sol
 
 
-def solve_pose(
+def _solve_once(
     camera: Camera,
     points3d,
     points2d,
@@ -629,61 +644,8 @@ def solve_pose(
     max_refine: int = 4,
     max_nfev: int = 200,
 ) -> PoseResult:
-    """Camera pose (Point of View) from three or more markers, without an initial guess.
-
-    Parameters
-    ----------
-    camera : Camera
-        Intrinsics (``K``, ``dist``) and image size; its pose is ignored and replaced.
-    points3d : (N, 3) array_like
-        Marker coordinates in the model frame, model units, N >= 3, not collinear.
-    points2d : (N, 2) array_like
-        Their measured pixel positions as imaged (distorted), same order.
-    robust : {None, "huber", "soft_l1", "cauchy", "arctan"}
-        Robust loss of the reprojection errors (``scipy.optimize.least_squares`` losses),
-        to limit the pull of a wrong marker.
-    robust_scale : float
-        Error (px) where the robust loss starts to bend (``f_scale``); markers with errors
-        above three times this are reported as outliers in ``inliers``.
-    refine_intrinsics : False, "focal", "center", "all" or tuple of names
-        Also refine intrinsic parameters jointly with the pose: ``"focal"`` one focal length
-        (aspect ratio kept), ``"center"`` focal and perspective centre, ``"all"`` focal,
-        centre and distortion ``k1, k2, p1, p2, k3``, or a tuple from ``INTRINSIC_NAMES``.
-        Needs ``2 N > 6 + len(names)`` and a marker layout that determines them (deep,
-        spread over the image); an undetermined parameter raises :class:`SolveError`.
-    max_rms : float, optional
-        Refuse (``SolveError``) a pose whose RMS error (over inliers) exceeds this, px.
-    ambiguity_px : float
-        Assumed (upper) marker position uncertainty (px) used to decide whether two distinct
-        poses can be told apart: the pose is ambiguous when another pose's sum of squared
-        errors exceeds the best one's by less than ``16 sigma^2`` (a 4-sigma separation).
-        ``sigma`` is ``ambiguity_px``, except that it follows the measured noise: when the
-        best pose's residuals prove the markers better measured (their 99.99 % upper
-        confidence bound on the noise, from the ``2 N - 6`` degrees of freedom, lies below
-        ``ambiguity_px``) ``sigma`` is that bound (at least 0.001 px), so that markers
-        measured to a few thousandths of a pixel are not refused for a competitor a
-        fraction of a pixel away; when they show them worse measured, ``sigma`` is the
-        residual standard deviation. With three markers there is no noise estimate and
-        ``sigma = ambiguity_px``.
-    max_triplets, max_refine, max_nfev : int
-        Number of marker triplets tried by P3P, of distinct starts refined, and of
-        function evaluations per refinement.
-
-    Returns
-    -------
-    PoseResult
-
-    Raises
-    ------
-    InputError, DegenerateError
-        Fewer than 3 markers, NaN, mismatched lengths, collinear markers, pixel positions
-        more than 1 px outside the camera's image (``width x height``; a wrong camera
-        file) or outside the range where the lens distortion can be inverted.
-    SolveError
-        Several poses fit (the message names them), the best pose puts markers behind the
-        camera, the solver did not converge, the pose is not determined, or its RMS exceeds
-        ``max_rms``.
-    """
+    """One solve of :func:`solve_pose` on all the given markers (no outlier loop, no
+    acceptance test)."""
     if not isinstance(camera, Camera):
         raise InputError(f"solve_pose: camera must be a resection.Camera, got "
                          f"{type(camera).__name__}")
@@ -867,9 +829,6 @@ def solve_pose(
     cov = G @ cov_full[:6, :6] @ G.T
     istd = np.sqrt(np.diag(cov_full)[6:])
     in_rms = float(np.sqrt(np.mean(errors[inliers] ** 2))) if inliers.any() else math.inf
-    if max_rms is not None and in_rms > max_rms:
-        raise SolveError(f"solve_pose: RMS reprojection error {in_rms:.3g} px exceeds "
-                         f"max_rms = {max_rms:g} px")
     msg = (f"{n} markers, rms {rms:.3f} px"
            + (f" ({int(inliers.sum())} inliers, rms {in_rms:.3f} px)" if robust else "")
            + (f", refined {', '.join(names)}" if names else "")
@@ -880,3 +839,129 @@ def solve_pose(
         n_solutions=len(minima), alternative_rms=alt_rms, inliers=inliers, refined=names,
         intrinsics_std=istd, message=msg,
     )
+
+
+def solve_pose(
+    camera: Camera,
+    points3d,
+    points2d,
+    *,
+    robust: str | None = None,
+    robust_scale: float = 1.0,
+    refine_intrinsics=False,
+    max_rms: float | None = DEFAULT_MAX_RMS,
+    marker_accuracy: float = DEFAULT_MARKER_ACCURACY,
+    ids=None,
+    ambiguity_px: float = 0.5,
+    max_triplets: int = 8,
+    max_refine: int = 4,
+    max_nfev: int = 200,
+) -> PoseResult:
+    """Camera pose (Point of View) from three or more markers, without an initial guess.
+
+    Parameters
+    ----------
+    camera : Camera
+        Intrinsics (``K``, ``dist``) and image size; its pose is ignored and replaced.
+    points3d : (N, 3) array_like
+        Marker coordinates in the model frame, model units, N >= 3, not collinear.
+    points2d : (N, 2) array_like
+        Their measured pixel positions as imaged (distorted), same order.
+    robust : {None, "huber", "soft_l1", "cauchy", "arctan"}
+        Robust loss of the reprojection errors (``scipy.optimize.least_squares`` losses),
+        to limit the pull of a wrong marker.
+    robust_scale : float
+        Error (px) where the robust loss starts to bend (``f_scale``); markers with errors
+        above three times this are reported as outliers in ``inliers``.
+    refine_intrinsics : False, "focal", "center", "all" or tuple of names
+        Also refine intrinsic parameters jointly with the pose: ``"focal"`` one focal length
+        (aspect ratio kept), ``"center"`` focal and perspective centre, ``"all"`` focal,
+        centre and distortion ``k1, k2, p1, p2, k3``, or a tuple from ``INTRINSIC_NAMES``.
+        Needs ``2 N > 6 + len(names)`` and a marker layout that determines them (deep,
+        spread over the image); an undetermined parameter raises :class:`SolveError`.
+    max_rms : float or None
+        Upper limit of the RMS residual of the used markers whatever their accuracy, px
+        (default 2: the paper's "over 2 px something is wrong"; None: no limit).
+    marker_accuracy : float
+        Stated accuracy of a marker position, px (RMS length; survey error of the model
+        coordinates as imaged plus detection noise; default 1). The pose is judged by the
+        acceptance rule (:mod:`resection.acceptance`): gross outliers (errors beyond
+        :func:`~resection.acceptance.outlier_gate`) are dropped, the worst first and the
+        pose solved again, up to :func:`~resection.acceptance.outlier_limit`; then the RMS
+        of the used markers must not exceed its 99.9 % chi-square bound for this accuracy
+        nor ``max_rms``. ``PoseResult.acceptance`` reports the statistic and threshold.
+    ids : sequence of str, optional
+        Marker names for messages and ``acceptance.outliers`` (default: indices).
+    ambiguity_px : float
+        Assumed (upper) marker position uncertainty (px) used to decide whether two distinct
+        poses can be told apart: the pose is ambiguous when another pose's sum of squared
+        errors exceeds the best one's by less than ``16 sigma^2`` (a 4-sigma separation).
+        ``sigma`` is ``ambiguity_px``, except that it follows the measured noise: when the
+        best pose's residuals prove the markers better measured (their 99.99 % upper
+        confidence bound on the noise, from the ``2 N - 6`` degrees of freedom, lies below
+        ``ambiguity_px``) ``sigma`` is that bound (at least 0.001 px), so that markers
+        measured to a few thousandths of a pixel are not refused for a competitor a
+        fraction of a pixel away; when they show them worse measured, ``sigma`` is the
+        residual standard deviation. With three markers there is no noise estimate and
+        ``sigma = ambiguity_px``.
+    max_triplets, max_refine, max_nfev : int
+        Number of marker triplets tried by P3P, of distinct starts refined, and of
+        function evaluations per refinement.
+
+    Returns
+    -------
+    PoseResult
+
+    Raises
+    ------
+    InputError, DegenerateError
+        Fewer than 3 markers, NaN, mismatched lengths, collinear markers, pixel positions
+        more than 1 px outside the camera's image (``width x height``; a wrong camera
+        file) or outside the range where the lens distortion can be inverted.
+    SolveError
+        Several poses fit (the message names them), the best pose puts markers behind the
+        camera, the solver did not converge, the pose is not determined, too many gross
+        outliers, or the residuals fail the acceptance rule (message with the statistic and
+        its threshold).
+    """
+    a = check_accuracy(marker_accuracy, "solve_pose")
+    if max_rms is not None and not (np.isfinite(max_rms) and max_rms > 0):
+        raise InputError(f"solve_pose: max_rms must be positive, got {max_rms}")
+    X = as_points(points3d, 3, "points3d")
+    uv = as_points(points2d, 2, "points2d")
+    if len(uv) != len(X):
+        raise InputError(f"solve_pose: {len(X)} 3-D markers but {len(uv)} image points")
+    names = None if ids is None else [str(k) for k in ids]
+    if names is not None and len(names) != len(X):
+        raise InputError(f"solve_pose: {len(names)} ids for {len(X)} markers")
+    opts = dict(robust=robust, robust_scale=robust_scale, refine_intrinsics=refine_intrinsics,
+                ambiguity_px=ambiguity_px, max_triplets=max_triplets, max_refine=max_refine,
+                max_nfev=max_nfev)
+
+    def fit(used):
+        res = _solve_once(camera, X[used], uv[used], **opts)
+        if used.all():
+            return res, res.errors
+        proj = res.camera.project(X)
+        return res, np.hypot(*(uv - proj).T)
+
+    n = len(X)
+    n_params = 6 + len(_resolve_refine(refine_intrinsics, n))
+    res, used, dropped, derr = drop_outliers(fit, n, n_params, a, names, "solve_pose")
+    if not dropped:
+        used_err = res.errors[res.inliers]
+        residuals, errors, inliers = res.residuals, res.errors, res.inliers
+    else:
+        used_err = res.errors[res.inliers]
+        with np.errstate(invalid="ignore"):
+            residuals = uv - res.camera.project(X)
+        errors = np.hypot(residuals[:, 0], residuals[:, 1])
+        inliers = np.zeros(n, bool)
+        inliers[used] = res.inliers
+    acc = judge(used_err, n_params, a, max_rms, outliers=dropped, outlier_errors=derr,
+                n_total=n, what="pose")
+    require(acc, "solve_pose")
+    rms = float(np.sqrt(np.mean(res.errors ** 2)))
+    return replace(res, residuals=residuals, errors=errors, inliers=inliers, rms=rms,
+                   used=used, acceptance=acc,
+                   message=f"{res.message}; accepted: {acc.describe()}")

@@ -129,8 +129,12 @@ def test_wrong_camera_is_refused_by_residual_test():
     true = BASE.replace(K=np.array([[1650.0, 0, 512], [0, 1650.0, 384], [0, 0, 1]]),
                         dist=np.array([-0.6, 0.0, 0, 0, 0]))
     Q = true.project(X)
-    with pytest.raises(SolveError, match="residual RMS"):
+    with pytest.raises(SolveError, match="acceptance rule: rms .* > threshold 0.3 px"):
         match_markers(Q, (ids, X), BASE, search_radius=40, max_rms=0.3)
+    # the same through the stated marker accuracy: markers claimed good to 0.2 px cannot
+    # leave 1 px residuals (the option reaches the verifying pose solves)
+    with pytest.raises(SolveError, match="marker accuracy 0.2 px"):
+        match_markers(Q, (ids, X), BASE, search_radius=40, marker_accuracy=0.2)
 
 
 def test_too_few_candidates_and_bad_input():
