@@ -9,6 +9,7 @@ import json
 import os
 import sys
 
+from ._cliutil import add_acceptance_options
 from .camera import Camera
 from .errors import InputError
 
@@ -48,6 +49,7 @@ def register(sub) -> None:
                    help="solve_pose options as a JSON object, for every frame's pose and the "
                    "matcher's verifying solves, e.g. '{\"robust\": \"huber\", "
                    "\"max_rms\": 1.0}'")
+    add_acceptance_options(p)
     p.add_argument("--no-resume", action="store_true",
                    help="recompute every frame even if --out holds finished ones")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -83,7 +85,8 @@ def run_track(args: argparse.Namespace) -> int:
     from .motion_plots import plot_motion
     from .sequence import track
 
-    pose_kw = _json_options(args.pose_options, "--pose-options")
+    pose_kw = {"marker_accuracy": args.marker_accuracy, "max_rms": args.max_rms,
+               **(_json_options(args.pose_options, "--pose-options") or {})}
     camera = Camera.read(args.camera)
     frames = _expand(args.frames)
     try:

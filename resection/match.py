@@ -28,7 +28,7 @@ How the hypotheses are kept few (no search over all triples of triples):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -482,10 +482,14 @@ def match_markers(
                                  "their reprojection after the pose solve")
             pose = solve_pose(cam, xyz[sel], Q[jj[sel]], ids=[ids3d[i] for i in sel],
                               **pose_kw)
-        sel = sel[pose.used]  # gross outliers dropped by the acceptance rule
+        if not pose.used.all():  # gross outliers dropped by the acceptance rule: the
+            u = pose.used        # match and its pose keep the used markers only
+            sel = sel[u]
+            pose = replace(pose, residuals=pose.residuals[u], errors=pose.errors[u],
+                           inliers=pose.inliers[u], used=pose.used[u])
         matched_ids = [ids3d[i] for i in sel]
         cand_idx = jj[sel]
-        res = pose.residuals[pose.used]
+        res = pose.residuals
     err = np.hypot(res[:, 0], res[:, 1])
     rms = float(np.sqrt(np.mean(err**2)))
     if pose is not None and pose.acceptance is not None:

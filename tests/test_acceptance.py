@@ -169,3 +169,23 @@ def test_camera5_case_accepted_end_to_end(tmp_path, capsys):
     ref = truth.replace(R=Rotation.from_rotvec(rv.ravel()).as_matrix(), t=tv.ravel())
     assert np.linalg.norm(cam.center - ref.center) < 1e-3 * dist
     assert np.degrees(Rotation.from_matrix(cam.R @ ref.R.T).magnitude()) < 0.02  # 0.006 measured
+
+
+def test_track_judges_every_frame_with_the_same_option(tmp_path, capsys):
+    """``resection track --marker-accuracy`` reaches each frame's pose and the matcher's
+    verifying solves: markers claimed good to 0.001 px cannot leave the frames' few
+    hundredths of a pixel, every frame fails with the rule's statistic in its reason."""
+    from resection.sequence import read_track
+    from scenes.moving_model import pitch_oscillation, write_sequence
+
+    files = write_sequence(pitch_oscillation(3), tmp_path / "frames")
+    base = ["track", *files["frames"], "--camera", files["camera"], "--markers",
+            files["markers"], "--diameter", "5.6", "--no-progress", "--workers", "1"]
+    assert main([*base, "--out", str(tmp_path / "ok")]) == 0
+    good = read_track(tmp_path / "ok")
+    assert (good.status == "ok").all() and np.nanmax(good.rms) < 0.1
+    assert main([*base, "--out", str(tmp_path / "strict"), "--marker-accuracy", "0.001"]) == 1
+    back = read_track(tmp_path / "strict")
+    assert (back.status == "failed").all()
+    assert all("acceptance rule" in r and "marker accuracy 0.001 px" in r
+               for r in back.reason), back.reason
