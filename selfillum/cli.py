@@ -172,7 +172,7 @@ def build_parser() -> argparse.ArgumentParser:
         "Cart3D .tri); normals point to the painted side",
     )
     p.add_argument("--camera", required=True, help="camera JSON (resection.Camera)")
-    p.add_argument("--image", required=True, help="image to correct (.tif, .tiff, .npy)")
+    p.add_argument("--image", required=True, help="image to correct (.tif, .tiff, .png, .npy)")
     p.add_argument(
         "--reflectance",
         required=True,

@@ -32,6 +32,7 @@ import trimesh
 
 from resection.camera import Camera
 from resection.errors import InputError
+from resection.io.images import write_image
 from resection.surface import DEFAULT_MAX_OBLIQUENESS
 
 from .coupling import coupled_view_factors
@@ -393,9 +394,9 @@ def correct_image_file(
     from .summary import summarize, write_summary
 
     image_path, out_path = Path(image_path), Path(out_path)
-    for p in (image_path, out_path):
-        if p.suffix.lower() not in (".tif", ".tiff", ".npy"):
-            raise InputError(f"{p}: images must be TIFF (.tif, .tiff) or NPY (.npy)")
+    for p in (image_path, out_path):  # the one image reader's formats (resection.io.images)
+        if p.suffix.lower() not in (".tif", ".tiff", ".npy", ".png"):
+            raise InputError(f"{p}: images must be TIFF (.tif, .tiff), PNG or NPY (.npy)")
     if not image_path.exists():
         raise FileNotFoundError(f"{image_path}: no such image file")
     if not out_path.parent.exists():
@@ -438,6 +439,12 @@ def correct_image_file(
             atomic_path(summary_path) as tmp_summary:
         if out_path.suffix.lower() == ".npy":
             np.save(tmp, result.image, allow_pickle=False)
+        elif out_path.suffix.lower() == ".png":
+            if result.image.ndim != 2 or result.image.dtype not in (np.uint8, np.uint16):
+                raise InputError(f"{out_path}: PNG holds one 8/16-bit image; the corrected "
+                                 f"image is {result.image.dtype} {result.image.shape} (write "
+                                 ".tif or .npy)")
+            write_image(tmp, result.image)
         else:
             import tifffile
 
@@ -461,25 +468,8 @@ def correct_image_file(
 
 
 def _read_native(path: Path) -> np.ndarray:
-    """The image with its own dtype (not converted to float)."""
-    if path.suffix.lower() == ".npy":
-        try:
-            arr = np.load(path, allow_pickle=False)
-        except (ValueError, OSError) as exc:
-            raise InputError(f"{path}: not a readable .npy file ({exc})") from None
-    else:
-        import tifffile
+    """The image with its own dtype (not converted to float): PNG, TIFF (a multi-page TIFF
+    is a (T, H, W) stack) or NPY, through the package's one image reader."""
+    from resection.io.images import read_native
 
-        try:
-            arr = tifffile.imread(path)
-        except Exception as exc:  # tifffile raises several types on bad files
-            raise InputError(f"{path}: not a readable TIFF file ({exc})") from None
-    arr = np.asarray(arr)
-    if arr.ndim == 3 and arr.shape[0] == 1:
-        arr = arr[0]
-    if arr.ndim not in (2, 3):
-        raise InputError(
-            f"{path}: expected a 2-D single-channel image or a (T, H, W) stack, "
-            f"got shape {arr.shape}"
-        )
-    return arr
+    return read_native(path)

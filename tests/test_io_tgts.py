@@ -25,7 +25,8 @@ TGTS = """# uPSP targets, inches
 def test_read_tgts(tmp_path):
     p = tmp_path / "model.tgts"
     p.write_text(TGTS)
-    ms = read_markers(p)
+    assert read_markers(p).ids == ("T1", "T2", "T3")  # by default never a tap as target
+    ms = read_markers(p, include_taps=True)
     assert ms.ids == ("T1", "T2", "T3", "P1")
     np.testing.assert_array_equal(ms.xyz[2], [14.0, 0.0, 0.25])
     np.testing.assert_array_equal(ms.normals[0], [0.0, 0.0, 1.0])  # normalised
@@ -34,7 +35,7 @@ def test_read_tgts(tmp_path):
     assert ms.targets.ids == ("T1", "T2", "T3") and ms.tap_set.ids == ("P1",)
     other = tmp_path / "model.txt"  # recognised by content, not by extension
     other.write_text(TGTS)
-    assert read_markers(other).ids == ms.ids
+    assert read_markers(other, include_taps=True).ids == ms.ids
 
 
 def test_tgts_round_trip(tmp_path):

@@ -119,7 +119,7 @@ def test_mraw_bad_files(tmp_path):
 
 def test_tiff_stack_and_npy_stack_and_file_list(tmp_path):
     frames = _frames(bits=16)
-    tifffile.imwrite(tmp_path / "stack.tif", frames)
+    tifffile.imwrite(tmp_path / "stack.tif", frames, photometric="minisblack")
     np.save(tmp_path / "stack.npy", frames.astype(np.float32))
     files = []
     for k in range(N):

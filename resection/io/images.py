@@ -16,7 +16,7 @@ import numpy as np
 from ..errors import InputError
 from ._write import atomic_write
 
-__all__ = ["read_image", "write_image", "image_info", "saturation_level"]
+__all__ = ["read_image", "read_native", "write_image", "image_info", "saturation_level"]
 
 _TIFF = {".tif", ".tiff"}
 _PNG = {".png"}
@@ -33,7 +33,7 @@ def _suffix(path: Path) -> str:
     return suf
 
 
-def _read_raw(path: str | os.PathLike) -> np.ndarray:
+def _read_raw(path: str | os.PathLike, *, allow_stack: bool = False) -> np.ndarray:
     path = Path(path)
     suf = _suffix(path)
     if not path.exists():
@@ -51,7 +51,9 @@ def _read_raw(path: str | os.PathLike) -> np.ndarray:
             arr = iio.imread(path)
         else:
             arr = _load_npy(path)
-    except (OSError, ValueError, TypeError, EOFError) as exc:
+    except InputError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - PIL/tifffile raise many kinds (even SyntaxError)
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise InputError(f"{path}: cannot read image ({msg})") from None
     arr = np.asarray(arr)
@@ -63,10 +65,12 @@ def _read_raw(path: str | os.PathLike) -> np.ndarray:
         )
     if arr.ndim == 3 and arr.shape[0] == 1:
         arr = arr[0]
-    if arr.ndim == 3 and suf in _TIFF | _NPY:
+    if arr.ndim == 3 and suf in _TIFF | _NPY and allow_stack:
+        pass
+    elif arr.ndim == 3 and suf in _TIFF | _NPY:
         raise InputError(f"{path}: a stack of {arr.shape[0]} frames, not one image; read it "
                          "as a sequence (resection.io.video.iter_frames)")
-    if arr.ndim != 2:
+    if arr.ndim != 2 and not (allow_stack and arr.ndim == 3):
         raise InputError(f"{path}: expected a 2-D single-channel image, got shape {arr.shape}")
     if arr.dtype.kind not in "uif" and arr.dtype != np.bool_:
         raise InputError(f"{path}: unsupported pixel type {arr.dtype}")
@@ -133,6 +137,14 @@ def read_image(path: str | os.PathLike, *, mask_saturated: bool = False) -> np.n
     if sat is not None:
         img[raw >= sat] = np.nan
     return img
+
+
+def read_native(path: str | os.PathLike) -> np.ndarray:
+    """Read an image with its own pixel type (not converted to float): a 2-D image (PNG,
+    TIFF, NPY) or a ``(T, H, W)`` stack (multi-page TIFF, 3-D NPY). Same checks and
+    messages as :func:`read_image`; for commands that write their result in the input's
+    type (``selfillum correct``)."""
+    return _read_raw(path, allow_stack=True)
 
 
 def image_info(path: str | os.PathLike) -> dict:

@@ -194,7 +194,7 @@ def _ids(path, rows) -> tuple[str, ...]:
     return tuple(seen)
 
 
-def read_markers(path: str | os.PathLike, *, mesh=None) -> MarkerSet:
+def read_markers(path: str | os.PathLike, *, mesh=None, include_taps: bool = False) -> MarkerSet:
     """Read a marker file: CSV ``id,x,y,z[,diameter][,nx,ny,nz]`` or a uPSP ``.tgts`` file
     (recognised by its ``*Targets`` section, whatever the extension).
 
@@ -204,6 +204,10 @@ def read_markers(path: str | os.PathLike, *, mesh=None) -> MarkerSet:
         The model surface: targets lying under it (a known trap of uPSP target files) are
         moved out to it along their normals, with a warning naming them
         (:func:`resection.io.tgts.snap_to_surface`).
+    include_taps : bool
+        Also return the pressure taps of a ``.tgts`` file (flagged in
+        :attr:`MarkerSet.taps`). By default only the targets are returned, so that no
+        caller can take a tap for a target.
 
     Raises
     ------
@@ -215,6 +219,8 @@ def read_markers(path: str | os.PathLike, *, mesh=None) -> MarkerSet:
 
     if tgts.is_tgts(path):
         ms = tgts.read_tgts(path)
+        if not include_taps:
+            ms = ms.targets
     else:
         ms = _read_marker_csv(path)
     if mesh is not None:
