@@ -143,15 +143,15 @@ def test_interrupt_and_resume(run60, tmp_path, monkeypatch):
     assert len(mtimes) == 30
     # then an interruption (Ctrl-C) in the middle of the next run
     calls = {"n": 0}
-    detect = seq_process._detect
+    load = seq_process._load_image
 
-    def interrupted(img, setup, roi=None):
+    def interrupted(frame):  # Ctrl-C while the 12th frame of this run is read
         calls["n"] += 1
         if calls["n"] == 12:
             raise KeyboardInterrupt
-        return detect(img, setup, roi)
+        return load(frame)
 
-    monkeypatch.setattr(seq_process, "_detect", interrupted)
+    monkeypatch.setattr(seq_process, "_load_image", interrupted)
     with pytest.raises(KeyboardInterrupt):
         track(frames, cam, files["markers"], diameter=5.6, out_dir=out, progress=False)
     assert len(list((out / "frames").glob("*.json"))) == 30 + 11
@@ -340,10 +340,10 @@ def test_dask_interruption_keeps_every_finished_frame(run60, tmp_path, monkeypat
     n, stop = 20, 15
     process = seq_process._process_frame
 
-    def dies_at_frame(frame, index, setup, reference):
+    def dies_at_frame(frame, index, setup, reference, previous=None):
         if index == stop:  # the run is stopped while the chunk (frames 1..19) is in flight
             raise RuntimeError("interrupted")
-        return process(frame, index, setup, reference)
+        return process(frame, index, setup, reference, previous)
 
     monkeypatch.setattr(seq_process, "_process_frame", dies_at_frame)
     out = tmp_path / "o"
@@ -443,15 +443,15 @@ def test_pose_options_reach_every_solve(run60, tmp_path, capsys):
 def test_cli_ctrl_c_says_what_is_kept(run60, tmp_path, monkeypatch, capsys):
     model, files, cam, ref, _ = run60
     calls = {"n": 0}
-    detect = seq_process._detect
+    load = seq_process._load_image
 
-    def interrupted(img, setup, roi=None):
+    def interrupted(frame):
         calls["n"] += 1
         if calls["n"] == 3:  # Ctrl-C while frame 2 is being processed
             raise KeyboardInterrupt
-        return detect(img, setup, roi)
+        return load(frame)
 
-    monkeypatch.setattr(seq_process, "_detect", interrupted)
+    monkeypatch.setattr(seq_process, "_load_image", interrupted)
     out = tmp_path / "o"
     args = ["track", *files["frames"][:4], "--camera", files["camera"], "--markers",
             files["markers"], "--diameter", "5.6", "--out", str(out), "--no-progress",
@@ -459,7 +459,7 @@ def test_cli_ctrl_c_says_what_is_kept(run60, tmp_path, monkeypatch, capsys):
     assert main(args) == 130
     err = capsys.readouterr().err
     assert "interrupted: 2/4 frames finished are kept" in err and "again to resume" in err
-    monkeypatch.setattr(seq_process, "_detect", detect)
+    monkeypatch.setattr(seq_process, "_load_image", load)
     assert main(args) == 0
     assert "4/4 frames solved (2 computed now)" in capsys.readouterr().out
 

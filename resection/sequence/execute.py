@@ -103,7 +103,7 @@ def _on_chunk(frames_dir: Path, todo: set, note):
             except OSError:
                 same = False
             if not same:
-                _atomic_write_text(path, text)
+                _atomic_write_text(path, text, sync=False)
             todo.discard(i)
             note(dct)
     return on_chunk

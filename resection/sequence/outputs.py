@@ -15,13 +15,20 @@ from ..errors import InputError
 from .results import _FORMAT_VERSION, MARKER_COLUMNS, POSE_COLUMNS, FrameResult, TrackResult
 
 
-def _atomic_write_text(path: Path, text: str) -> None:
+def _atomic_write_text(path: Path, text: str, *, sync: bool = True) -> None:
+    """Write ``text`` to a temporary file next to ``path`` and rename it into place: a
+    crash of the process leaves the old file or the new one, never half of one. ``sync``
+    also flushes it to the disk first (against a crash of the machine); the per-frame
+    files skip that (it costs more than tracking the frame): after a power cut a frame
+    file may be empty or truncated, and a resumed run then reads it as missing and
+    computes the frame again."""
     fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
             fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
+            if sync:
+                fh.flush()
+                os.fsync(fh.fileno())
         os.replace(tmp, path)
     except BaseException:
         if os.path.exists(tmp):
@@ -38,7 +45,8 @@ def _frame_text(d: dict) -> str:
 
 
 def _write_frame(frames_dir: Path, res: FrameResult) -> None:
-    _atomic_write_text(_frame_path(frames_dir, res.frame), _frame_text(res.to_dict()))
+    _atomic_write_text(_frame_path(frames_dir, res.frame), _frame_text(res.to_dict()),
+                       sync=False)
 
 
 def _try_write_frame(frames_dir: Path, res: FrameResult) -> None:

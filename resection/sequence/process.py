@@ -15,6 +15,7 @@ from ..camera import Camera
 from ..errors import InputError, SolveError
 from .frames import _frame_name, _load_image, failure_reason, fingerprint
 from .outputs import _try_write_frame
+from .predict import track_predicted
 from .results import FrameResult
 
 
@@ -90,7 +91,7 @@ def _match(candidates, setup: _Setup, reference: FrameResult | None):
 
 
 def _solve(ids: np.ndarray, uv: np.ndarray, setup: _Setup, frame: int, file: str,
-           pose=None) -> FrameResult:
+           pose=None, method: str = "matched") -> FrameResult:
     """The frame's pose from matched markers (``pose``: the matcher's ``PoseResult`` for
     exactly these markers, solved with ``pose_kw``, reused)."""
     from ..pose import solve_pose
@@ -108,21 +109,24 @@ def _solve(ids: np.ndarray, uv: np.ndarray, setup: _Setup, frame: int, file: str
     return FrameResult(frame=frame, file=file, status="ok", rvec=np.asarray(pose.camera.rvec),
                        tvec=np.asarray(pose.camera.t, float), rms=float(pose.rms),
                        ids=np.asarray(ids, dtype=str), uv=np.asarray(uv, float),
-                       residuals=np.asarray(pose.residuals, float))
+                       residuals=np.asarray(pose.residuals, float), method=method)
 
 
-def _process_frame(frame_data, index: int, setup: _Setup,
-                   reference: FrameResult | None) -> FrameResult:
-    """Read, detect, match from ``reference`` and solve one frame; never raises for a bad
-    frame: the failure is returned with its reason."""
+def _process_frame(frame_data, index: int, setup: _Setup, reference: FrameResult | None,
+                   previous: FrameResult | None = None) -> FrameResult:
+    """Read one frame, track its markers by prediction from ``reference`` (and the good
+    frame before it, ``previous``) or, when the prediction's gate fails, detect and match
+    them from ``reference`` with the statistical matcher; solve the pose. Never raises for
+    a bad frame: the failure is returned with its reason."""
     source = fingerprint(frame_data)  # before reading: a later change is seen next time
-    res = _process_frame_unlabelled(frame_data, index, setup, reference)
+    res = _process_frame_unlabelled(frame_data, index, setup, reference, previous)
     return dataclasses.replace(res, matched_from=-1 if reference is None else reference.frame,
                                source=source)
 
 
 def _process_frame_unlabelled(frame_data, index: int, setup: _Setup,
-                              reference: FrameResult | None) -> FrameResult:
+                              reference: FrameResult | None,
+                              previous: FrameResult | None) -> FrameResult:
     name = _frame_name(frame_data)
     try:
         img = _load_image(frame_data)
@@ -131,6 +135,10 @@ def _process_frame_unlabelled(frame_data, index: int, setup: _Setup,
                              f"{setup.camera.width}x{setup.camera.height}")
         if not np.isfinite(img).any():
             raise InputError("image has no finite pixel (all NaN or infinite)")
+        if reference is not None:
+            res = track_predicted(img, setup, reference, previous, index, name)
+            if res is not None:
+                return res
         cands = _detect(img, setup, _search_roi(setup, reference, img.shape))
         if len(cands) < setup.min_markers:
             raise SolveError(f"only {len(cands)} marker candidates detected")
@@ -164,7 +172,7 @@ def _process_linked_unlabelled(frame_data, index: int, setup: _Setup,
                            reason=failure_reason(exc, name))
     ids, uv = _apply_link(cands, link, setup)
     try:
-        return _solve(ids, uv, setup, index, name)
+        return _solve(ids, uv, setup, index, name, method="linked")
     except Exception as exc:  # noqa: BLE001
         return FrameResult(frame=index, file=name, status="failed",
                            reason=failure_reason(exc, name))
@@ -201,19 +209,19 @@ def _run_chunk(setup: _Setup, items: list, seed: FrameResult | None,
     frame's result file is written there as soon as the frame is finished, so that an
     interruption loses at most the frame in progress. Returns the frames' dictionaries."""
     done = done or {}
-    ref = seed
+    ref, prev = seed, None
     out = []
     for index, frame in items:
         if index in done:
             res = FrameResult.from_dict(done[index])
         else:
-            res = _process_frame(frame, index, setup, ref)
+            res = _process_frame(frame, index, setup, ref, prev)
             if frames_dir is not None:
                 _try_write_frame(Path(frames_dir), res)
             if on_frame is not None:
                 on_frame(res)
         if res.ok:
-            ref = res
+            ref, prev = res, ref
         out.append(res.to_dict())
     return out
 

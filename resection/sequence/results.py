@@ -46,6 +46,10 @@ class FrameResult:
     source : list of int or None
         Fingerprint of the frame's file when it was read (see
         :func:`resection.sequence.frames.fingerprint`); None for an in-memory frame.
+    method : str
+        How the markers were associated: ``"predicted"`` (gated windows around the
+        positions predicted from the previous poses, :mod:`resection.sequence.predict`),
+        ``"matched"`` (the statistical matcher), ``"linked"`` (by hand); ``""`` if failed.
     """
 
     frame: int
@@ -60,6 +64,7 @@ class FrameResult:
     residuals: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     matched_from: int = -1
     source: list | None = None
+    method: str = ""
 
     @property
     def ok(self) -> bool:
@@ -79,6 +84,7 @@ class FrameResult:
             "residuals": np.asarray(self.residuals, float).tolist(),
             "matched_from": int(self.matched_from),
             "source": None if self.source is None else [int(x) for x in self.source],
+            "method": self.method,
         }
 
     @classmethod
@@ -92,7 +98,7 @@ class FrameResult:
             uv=np.array(d["uv"], float).reshape(n, 2),
             residuals=np.array(d["residuals"], float).reshape(n, 2),
             matched_from=int(d.get("matched_from", -1)),
-            source=d.get("source"),
+            source=d.get("source"), method=str(d.get("method", "")),
         )
 
 

@@ -1,0 +1,240 @@
+"""Tracking by prediction: the markers of a frame located where the previous poses put them.
+
+Between two frames of a run (50 frames/s or more) the model moves by a fraction of a pixel
+to a few pixels, smoothly. :func:`track_predicted` uses that:
+
+1. **Motion model.** The pose of frame ``k`` is extrapolated from the last two good frames
+   ``i < j < k`` at constant velocity, ``R_k = (R_j R_i^T)^s R_j`` and
+   ``t_k = t_j + s (t_j - t_i)`` with ``s = (k - j) / (j - i)`` (the rotation power through
+   its rotation vector), or held at frame ``j``'s pose when there is only one.
+2. **Gated association.** Every marker is projected with the predicted pose, and the
+   pixel-integrated disk model (:func:`resection.markers.refine_markers`) is fitted in a
+   small window around its prediction only; no search of the image, no candidate list.
+   A fit is kept when it converged, lies within the *gate* of its prediction, has the
+   expected size (``diameter_range``), enough contrast (``min_snr`` times the fit's own
+   residual RMS: a noise estimate local to the marker, and pessimistic) and few masked
+   pixels (``max_masked``). The gate is at most ``R + 1.5`` px (``R`` the marker radius)
+   and at most 0.3 times the distance to the nearest other predicted marker, so that a
+   window can catch another marker only if the prediction is off by more than 0.7 times the
+   marker spacing, a jump that leaves the gate failing elsewhere (below).
+3. **One pose solve**: Gauss-Newton from the predicted pose, then the same statistical
+   residual gate as :func:`resection.match.match_markers` (6 sigma of the position noise
+   estimated from the median residual, at least 0.25 px, at most the matcher's
+   ``tolerance``), markers outside it dropped once and the pose solved again, and the
+   matcher's ``max_rms``.
+
+The frame is refused (None: the caller runs the statistical matcher instead) when fewer
+than ``max(min_markers, min_matches, 0.8 n)`` of the ``n`` markers predicted in the image
+are found, or when the residual gate or the RMS fails: a jump, lost or hidden markers, the
+first frame of a run or of a chunk. A frame is thus right or refused as with the matcher:
+what the gate accepts, the matcher's own final test would accept too.
+"""
+
+from __future__ import annotations
+
+import inspect
+import math
+
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from ..camera import Camera, distort_normalized
+from .results import FrameResult
+
+__all__ = ["predict_pose", "project_poses", "refine_pose", "track_predicted"]
+
+#: fraction of the markers predicted in the image that must be found
+MIN_FOUND_FRACTION = 0.8
+#: the gate, as a fraction of the distance to the nearest other predicted marker
+GATE_SPACING_FRACTION = 0.3
+
+
+def predict_pose(reference: FrameResult, previous: FrameResult | None,
+                 index: int) -> tuple[np.ndarray, np.ndarray]:
+    """Camera pose ``(rvec, tvec)`` of frame ``index`` at constant velocity from the two
+    last good frames (``previous`` before ``reference``), or ``reference``'s pose."""
+    r1, t1 = np.asarray(reference.rvec, float), np.asarray(reference.tvec, float)
+    if previous is None or previous.frame >= reference.frame or not previous.ok:
+        return r1.copy(), t1.copy()
+    s = (index - reference.frame) / float(reference.frame - previous.frame)
+    R0 = Rotation.from_rotvec(np.asarray(previous.rvec, float))
+    R1 = Rotation.from_rotvec(r1)
+    step = (R1 * R0.inv()).as_rotvec()
+    rvec = (Rotation.from_rotvec(s * step) * R1).as_rotvec()
+    return rvec, t1 + s * (t1 - np.asarray(previous.tvec, float))
+
+
+def project_poses(camera: Camera, rvecs, tvecs, points3d) -> np.ndarray:
+    """Pixel positions ``(P, N, 2)`` of ``N`` model points under ``P`` poses at once, with
+    the camera's intrinsics and distortion (as :meth:`Camera.project`; NaN behind the
+    camera or beyond the distortion's monotonic radius)."""
+    rv = np.asarray(rvecs, float).reshape(-1, 3)
+    tv = np.asarray(tvecs, float).reshape(-1, 3)
+    X = np.asarray(points3d, float).reshape(-1, 3)
+    R = Rotation.from_rotvec(rv).as_matrix()
+    Xc = np.einsum("pij,nj->pni", R, X) + tv[:, None, :]
+    z = Xc[..., 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xy = Xc[..., :2] / np.where(z > 0, z, np.nan)[..., None]
+    bad = np.hypot(xy[..., 0], xy[..., 1]) > camera.max_radius
+    xy = distort_normalized(xy.reshape(-1, 2), camera.dist).reshape(xy.shape)
+    K = camera.K
+    u = K[0, 0] * xy[..., 0] + K[0, 1] * xy[..., 1] + K[0, 2]
+    v = K[1, 1] * xy[..., 1] + K[1, 2]
+    uv = np.stack([u, v], axis=-1)
+    uv[bad] = np.nan
+    return uv
+
+
+def refine_pose(camera: Camera, rvec, tvec, points3d, points2d, *, iterations: int = 10,
+                tol: float = 1e-9) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Least-squares camera pose from a close start (Gauss-Newton on the 6 pose parameters,
+    central-difference Jacobian, all perturbed poses projected in one batch).
+
+    Parameters
+    ----------
+    camera : Camera
+        Intrinsics and distortion (its pose is not used).
+    rvec, tvec : (3,) array_like
+        Starting pose (a prediction within a few pixels of the truth).
+    points3d : (N, 3) array_like
+        Model points, model units.
+    points2d : (N, 2) array_like
+        Measured pixel positions.
+    iterations : int
+        Most Gauss-Newton steps.
+    tol : float
+        Stop when the largest step component falls below this (radians, model units).
+
+    Returns
+    -------
+    rvec, tvec : (3,) ndarrays
+    residuals : (N, 2) ndarray
+        Observed minus reprojected, pixels (NaN where a point cannot be projected).
+    """
+    p = np.concatenate([np.asarray(rvec, float), np.asarray(tvec, float)])
+    X = np.asarray(points3d, float).reshape(-1, 3)
+    uv = np.asarray(points2d, float).reshape(-1, 2)
+    scale = max(float(np.linalg.norm(p[3:])), 1e-3)
+    h = np.r_[np.full(3, 1e-6), np.full(3, 1e-6 * scale)]
+    E = np.eye(6) * h
+    for _ in range(iterations):
+        P = np.vstack([p, p + E, p - E])
+        proj = project_poses(camera, P[:, :3], P[:, 3:], X)
+        r = (uv - proj[0]).ravel()
+        J = ((proj[1:7] - proj[7:13]).reshape(6, -1) / (2.0 * h[:, None])).T
+        if not (np.isfinite(r).all() and np.isfinite(J).all()):
+            break
+        step = np.linalg.lstsq(J, r, rcond=None)[0]
+        p = p + step
+        if np.abs(step).max() < tol:
+            break
+    res = uv - project_poses(camera, p[None, :3], p[None, 3:], X)[0]
+    return p[:3].copy(), p[3:].copy(), res
+
+
+def _match_default(name: str, match_kw: dict):
+    from ..match import match_markers
+
+    if name in match_kw:
+        return match_kw[name]
+    return inspect.signature(match_markers).parameters[name].default
+
+
+def residual_gate(errors, tolerance: float) -> float:
+    """The matcher's acceptance radius (px) around a reprojection: 6 sigma of the position
+    noise estimated from the median error (Rayleigh: median = 1.1774 sigma), at least
+    0.25 px, at most ``tolerance`` (as :func:`resection.match.match_markers` uses it)."""
+    e = np.asarray(errors, float)
+    e = e[np.isfinite(e)]
+    sigma = float(np.median(e)) / 1.1774 if e.size else tolerance
+    return float(min(tolerance, max(6.0 * sigma, 0.25)))
+
+
+def track_predicted(img: np.ndarray, setup, reference: FrameResult,
+                    previous: FrameResult | None, index: int, name: str) -> FrameResult | None:
+    """One frame tracked by prediction from ``reference`` (and ``previous``), or None when
+    the gate fails and the statistical matcher must decide (see the module docstring).
+
+    ``setup`` is the tracker's setup (camera, markers, diameter, polarity, options).
+    """
+    from ..markers import refine_markers
+
+    cam, X = setup.camera, setup.points3d
+    kw = setup.detect_kw
+    rvec0, tvec0 = predict_pose(reference, previous, index)
+    pred = project_poses(cam, rvec0, tvec0, X)[0]
+    d = setup.diameter
+    R = d / 2.0
+    blur = float(kw.get("blur", 0.6))
+    half = int(np.ceil(1.25 * R + 3.0 * blur + 3.0))
+    H, W = img.shape
+    u0, v0, u1, v1 = kw.get("roi") or (0, 0, W - 1, H - 1)
+    with np.errstate(invalid="ignore"):
+        vis = np.flatnonzero((pred[:, 0] >= u0 + half + 1) & (pred[:, 0] <= u1 - half - 1)
+                             & (pred[:, 1] >= v0 + half + 1) & (pred[:, 1] <= v1 - half - 1))
+    min_matches = int(_match_default("min_matches", setup.match_kw))
+    need = max(setup.min_markers, min_matches, math.ceil(MIN_FOUND_FRACTION * vis.size))
+    if vis.size < need or vis.size < 4:
+        return None
+    pv = pred[vis]
+    nn = cKDTree(pv).query(pv, k=2)[0][:, 1]
+    gate = np.minimum(R + 1.5, GATE_SPACING_FRACTION * nn)
+    # only the box around the predicted markers is read (and negated, for dark markers)
+    c0 = np.maximum(np.floor(pv.min(axis=0)).astype(int) - half - 1, 0)
+    c1 = np.minimum(np.ceil(pv.max(axis=0)).astype(int) + half + 2, (W, H))
+    box = img[c0[1]:c1[1], c0[0]:c1[0]]
+    signal = -box if setup.polarity == "dark" else box
+    bad = ~np.isfinite(signal)
+    if kw.get("mask") is not None:
+        bad |= np.asarray(kw["mask"], bool)[c0[1]:c1[1], c0[0]:c1[0]]
+    start = pv - c0
+    fit = refine_markers(signal, start, d, bad=bad, blur=blur, half=half)
+    # a window is centred on the pixel of its start: fits that moved to another pixel are
+    # fitted again in the window centred on theirs, so that the result does not depend on
+    # how far off the prediction was (the window is then the one detection would use)
+    moved = np.flatnonzero(fit["ok"] & np.any(np.rint(start) != np.rint(
+        np.column_stack([fit["u"], fit["v"]])), axis=1))
+    if moved.size:
+        again = refine_markers(signal, np.column_stack([fit["u"], fit["v"]])[moved], d,
+                               bad=bad, blur=blur, half=half)
+        for k in fit:
+            fit[k][moved] = again[k]
+    lo_d, hi_d = kw.get("diameter_range", (0.5, 2.0))
+    found = np.column_stack([fit["u"], fit["v"]]) + c0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ok = (fit["ok"] & (np.hypot(*(found - pv).T) <= gate)
+              & (fit["depth"] >= float(kw.get("min_snr", 3.0)) * fit["rms"])
+              & (2.0 * fit["radius"] >= lo_d * d) & (2.0 * fit["radius"] <= hi_d * d)
+              & (fit["masked_fraction"] <= float(kw.get("max_masked", 0.75))))
+    sel = np.flatnonzero(ok)
+    if sel.size > 1:  # two windows on one blob: neither is trusted
+        close = cKDTree(found[sel]).query_pairs(max(0.75 * d, 1.5), output_type="ndarray")
+        if close.size:
+            sel = np.setdiff1d(sel, sel[np.unique(close)])
+    if sel.size < need:
+        return None
+    idx, uv = vis[sel], found[sel]
+    tolerance = float(_match_default("tolerance", setup.match_kw))
+    max_rms = float(_match_default("max_rms", setup.match_kw))
+    if setup.pose_kw.get("max_rms") is not None:
+        max_rms = min(max_rms, float(setup.pose_kw["max_rms"]))
+    fixed_gate = setup.match_kw.get("gate")
+    rvec, tvec, res = refine_pose(cam, rvec0, tvec0, X[idx], uv)
+    for attempt in range(2):
+        err = np.hypot(res[:, 0], res[:, 1])
+        g = float(fixed_gate) if fixed_gate is not None else residual_gate(err, tolerance)
+        keep = err <= g
+        if keep.all():
+            break
+        if attempt == 1 or keep.sum() < need:
+            return None
+        idx, uv = idx[keep], uv[keep]
+        rvec, tvec, res = refine_pose(cam, rvec, tvec, X[idx], uv)
+    rms = float(np.sqrt(np.mean(np.sum(res**2, axis=1))))
+    if not np.isfinite(rms) or rms > max_rms:
+        return None
+    return FrameResult(frame=index, file=name, status="ok", rvec=rvec, tvec=tvec, rms=rms,
+                       ids=setup.ids[idx].astype(str), uv=uv, residuals=res,
+                       method="predicted")
