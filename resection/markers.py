@@ -34,7 +34,7 @@ from scipy import ndimage
 from scipy.signal import oaconvolve
 from scipy.spatial import cKDTree
 
-from . import _diskmodel
+from . import _diskfit, _diskmodel
 from .errors import InputError
 
 __all__ = [
@@ -374,67 +374,19 @@ def _refine_chunk(signal, bad, uv_all, strength, sel, R0, blur, iterations, half
     # parameters: x, y, R, a, background, its slopes along u and v (window-centred)
     NP = 7
     p = np.column_stack([cu, cv, np.full(n, R0), amp0 * 1.2, bg0, np.zeros(n), np.zeros(n)])
-    nodes = _diskmodel.default_nodes(max(R0 * 1.5, 1.0), max(blur, 0.3))
-    rmin = 0.3
-
-    def residual(idx, p, jac=False):
-        out = _diskmodel.windows(p[:, 0], p[:, 1], p[:, 2], blur, gu[idx], gv[idx], nodes,
-                                 jacobian=jac)
-        M = out[0] if jac else out
-        du = np.broadcast_to(ar[None, None, :], M.shape)
-        dv = np.broadcast_to(ar[None, :, None], M.shape)
-        model = (p[:, 3, None, None] * M + p[:, 4, None, None] + p[:, 5, None, None] * du
-                 + p[:, 6, None, None] * dv)
-        r = (win[idx] - model) * w[idx]
-        if not jac:
-            return r
-        dx, dy, dR = out[1]
-        a = p[:, 3, None, None]
-        J = np.stack([a * dx, a * dy, a * dR, M, np.ones_like(M), du, dv], axis=-1)
-        J = J * w[idx][..., None]
-        return r, J.reshape(len(idx), -1, NP)
-
-    # the residuals and Jacobian are evaluated once per iteration, at the trial point, and
-    # kept for the candidates whose step is accepted
-    all_idx = np.arange(n)
-    lam = np.full(n, 1e-3)
-    r_c, J_c = residual(all_idx, p, True)
-    r_c = r_c.reshape(n, -1)
-    cost = (r_c**2).sum(axis=1)
-    active = np.ones(n, bool)
-    eye = np.eye(NP)
-    for _ in range(iterations):
-        idx = np.flatnonzero(active)
-        if idx.size == 0:
-            break
-        pa = p[idx]
-        J = J_c[idx]
-        JT = np.swapaxes(J, 1, 2)
-        A = JT @ J
-        g = (JT @ r_c[idx][..., None])[..., 0]
-        diag = np.diagonal(A, axis1=1, axis2=2)
-        Ad = A + lam[idx, None, None] * (diag[:, None, :] * eye[None] + 1e-12 * eye)
-        try:
-            step = np.linalg.solve(Ad, g[..., None])[..., 0]
-        except np.linalg.LinAlgError:
-            step = np.zeros_like(g)
-            for k in range(idx.size):  # only on the rare singular batch
-                step[k] = np.linalg.lstsq(Ad[k], g[k], rcond=None)[0]
-        pt = pa + step
-        pt[:, 2] = np.clip(pt[:, 2], rmin, 3.0 * R0 + 2.0)
-        rt, Jt = residual(idx, pt, True)
-        rt = rt.reshape(idx.size, -1)
-        ct = (rt**2).sum(axis=1)
-        better = ct < cost[idx]
-        acc = idx[better]
-        p[acc] = pt[better]
-        cost[acc] = ct[better]
-        r_c[acc] = rt[better]
-        J_c[acc] = Jt[better]
-        lam[idx] = np.clip(np.where(better, lam[idx] * 0.3, lam[idx] * 10.0), 1e-9, 1e9)
-        # converged: a position step under 1e-4 px that was not forced small by damping
-        small = (np.abs(step[:, :2]).max(axis=1) < 1e-4) & (better | (lam[idx] < 1e2))
-        active[idx] = ~(small | (lam[idx] >= 1e9) | ~np.isfinite(ct))
+    rmin, rmax = 0.3, 3.0 * R0 + 2.0
+    # the fit runs in window coordinates (centre of the window's top-left pixel at 0, 0)
+    ox, oy = (iu - half).astype(float), (iv - half).astype(float)
+    p[:, 0] -= ox
+    p[:, 1] -= oy
+    s = max(float(blur), 1e-3)
+    tables = _diskfit.node_table(min(_diskfit.n_nodes(rmax, s), 2048))
+    p, cost, _ = _diskfit.fit_windows(np.ascontiguousarray(win, dtype=float),
+                                      np.ascontiguousarray(w, dtype=float), p,
+                                      *_diskfit.edge_table(s), rmin, rmax, int(iterations),
+                                      1e-4, *tables)
+    p[:, 0] += ox
+    p[:, 1] += oy
     npix = np.maximum(w.sum(axis=(1, 2)) - NP, 1)
     disk = rr <= R0 + 0.5
     masked_fraction = (wbad & disk[None]).sum(axis=(1, 2)) / disk.sum()
