@@ -12,6 +12,7 @@ from ._cliutil import add_acceptance_options
 from .calibrate import calibrate
 from .camera import Camera
 from .errors import InputError
+from .io.images import read_image
 from .io.markers import (
     link_points,
     read_markers,
@@ -19,9 +20,11 @@ from .io.markers import (
     write_residuals,
     write_view_residuals,
 )
+from .io.meshes import load_mesh
 from .io.outputs import atomic_write
 from .pipeline import image_points
 from .pose import solve_pose
+from .pose_plots import write_pose_plot
 
 _LOSSES = ("huber", "soft_l1", "cauchy", "arctan")
 
@@ -56,6 +59,14 @@ def register(sub) -> None:
                    help="also refine the focal length (default), focal and centre, or all "
                    "with distortion")
     add_acceptance_options(p)
+    p.add_argument("--plot", metavar="OUT.png", help="also draw the overlay (the paper's "
+                   "Figure 20): model outline (with --mesh), detected and reprojected markers "
+                   "with ids, residual arrows with their scale, RMS in the title; over the "
+                   "--image, or a blank frame with --points")
+    p.add_argument("--mesh", help="with --plot: model surface whose outline is drawn")
+    p.add_argument("--crease", type=float, default=30.0, metavar="DEG",
+                   help="with --plot --mesh: dihedral angle above which an edge is an "
+                   "outline (default 30)")
     p.add_argument("--ambiguity-px", type=float, default=0.5, metavar="PX",
                    help="assumed (upper) marker uncertainty when telling competing poses "
                    "apart; lowered automatically when the residuals prove the markers "
@@ -116,6 +127,9 @@ def pose_inputs(args: argparse.Namespace):
 
 
 def run_pose(args: argparse.Namespace) -> int:
+    if args.mesh and not args.plot:
+        raise InputError("--mesh is for the overlay: give --plot OUT.png too")
+    mesh = load_mesh(args.mesh) if args.mesh else None
     camera, ids, X, uv = pose_inputs(args)
     result = solve_pose(camera, X, uv, robust=args.robust, robust_scale=args.robust_scale,
                         refine_intrinsics=args.refine_intrinsics or False,
@@ -130,6 +144,11 @@ def run_pose(args: argparse.Namespace) -> int:
     if args.residuals:
         atomic_write(args.residuals, write_residuals, ids, uv, result.residuals)
     print(f"camera written to {args.out}")
+    if args.plot:
+        image = read_image(args.image, mask_saturated=True) if args.image else None
+        atomic_write(args.plot, write_pose_plot, result, X, uv, image=image, mesh=mesh,
+                     ids=ids, crease_deg=args.crease)
+        print(f"overlay written to {args.plot}")
     return 0
 
 
