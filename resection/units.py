@@ -108,24 +108,31 @@ def spread_hint(points, reference, what: str, reference_what: str) -> str | None
     """A sentence naming a unit mismatch between two point sets that should share units
     (markers and the mesh they are painted on), or None.
 
-    Given when the ratio of their spreads (RMS distance to the centroid) is within
-    :data:`FACTOR_RTOL` of a unit factor, or when ``points`` lie mostly farther than one
-    ``reference`` size from the ``reference`` bounding box.
+    Given when ``points`` spread wider than ``reference`` by a unit factor (ratio of the
+    RMS distances to the centroids within :data:`FACTOR_RTOL` of it); when they spread
+    less by a unit factor and lie mostly outside the ``reference`` bounding box (markers
+    may legitimately cover a small part of a model, but on it); or when they lie mostly
+    farther than one ``reference`` size from its bounding box.
     """
     A, B = _subsample(points), _subsample(reference)
+    lo, hi = B.min(axis=0), B.max(axis=0)
+    size = float(np.linalg.norm(hi - lo))
+    outside = np.linalg.norm(np.maximum(lo - A, 0) + np.maximum(A - hi, 0), axis=1)
     sa = float(np.sqrt(np.mean(np.sum((A - A.mean(axis=0)) ** 2, axis=1))))
     sb = float(np.sqrt(np.mean(np.sum((B - B.mean(axis=0)) ** 2, axis=1))))
     if sa > 0 and sb > 0:
         ratio = sa / sb
+        off_reference = np.mean(outside > 0.01 * size) > 0.5
         for f, (small, big) in UNIT_FACTORS.items():
-            for r, a_unit, b_unit in ((ratio, small, big), (1.0 / ratio, big, small)):
-                if abs(r / f - 1.0) < FACTOR_RTOL:
-                    return (f"{what} spread {ratio:.4g} times as far as {reference_what}: "
-                            f"{what} in {a_unit} and {reference_what} in {b_unit}? Convert "
-                            "them to one unit")
-    lo, hi = B.min(axis=0), B.max(axis=0)
-    size = float(np.linalg.norm(hi - lo))
-    outside = np.linalg.norm(np.maximum(lo - A, 0) + np.maximum(A - hi, 0), axis=1)
+            if abs(ratio / f - 1.0) < FACTOR_RTOL:
+                a_unit, b_unit = small, big
+            elif abs(1.0 / (ratio * f) - 1.0) < FACTOR_RTOL and off_reference:
+                a_unit, b_unit = big, small
+            else:
+                continue
+            return (f"{what} spread {ratio:.4g} times as far as {reference_what}: "
+                    f"{what} in {a_unit} and {reference_what} in {b_unit}? Convert "
+                    "them to one unit")
     far = outside > size
     if size > 0 and far.mean() > 0.5:
         return (f"{int(far.sum())} of {len(A)} of {what} lie farther than the size of "

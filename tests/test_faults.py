@@ -795,3 +795,31 @@ def test_spread_hint_decisions():
                                                     "the mesh")
     assert "in mm and the mesh in inch" in spread_hint(markers * 25.4, mesh_pts,
                                                        "the markers", "the mesh")
+    # markers clustered on a small part of the model (spread 1/25 of the model's): on it,
+    # so not a unit mismatch
+    cluster = 0.5 + (mesh_pts[:40] - 0.5) / 25.4
+    assert spread_hint(cluster, mesh_pts, "the markers", "the mesh") is None
+    # the same spread far off the model is one
+    assert "in inch and the mesh in mm" in spread_hint(cluster + 5.0, mesh_pts,
+                                                       "the markers", "the mesh")
+
+
+def test_markers_in_mm_on_a_mesh_in_m_are_not_snapped_to_it(tmp_path):
+    """``read_markers(path, mesh=...)`` moves targets under the surface out to it: markers
+    in mm on a mesh in m were all 'under' it and moved by hundreds of units with a
+    warning. A unit mismatch is refused, naming the units."""
+    import warnings
+
+    from resection.io.markers import read_markers, write_markers
+    from scenes.corner import corner
+
+    mesh = corner(resolution=6).mesh
+    xyz = np.asarray(mesh.triangles_center)[::7]
+    ids = [f"T{i}" for i in range(len(xyz))]
+    write_markers(tmp_path / "m.csv", ids, xyz)
+    write_markers(tmp_path / "mm.csv", ids, 1000.0 * xyz)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # markers on the surface: nothing to move
+        np.testing.assert_allclose(read_markers(tmp_path / "m.csv", mesh=mesh).xyz, xyz)
+    with pytest.raises(InputError, match=r"mm.csv: .*markers in mm and the mesh in m\?"):
+        read_markers(tmp_path / "mm.csv", mesh=mesh)

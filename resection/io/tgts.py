@@ -164,11 +164,22 @@ def snap_to_surface(markers: MarkerSet, mesh, *, source: str = "markers",
     markers : MarkerSet
     mesh : trimesh.Trimesh
         Outward-oriented surface, same units as the markers.
+
+    Raises
+    ------
+    InputError
+        Markers and mesh in different units (spreads differing by 1000, 25.4 or 39.37, or
+        markers far off the mesh: :func:`resection.units.spread_hint`).
     """
     import trimesh
 
     if len(markers) == 0:
         return markers
+    from ..units import spread_hint  # markers in mm on a mesh in m are not 'under' it
+
+    hint = spread_hint(markers.xyz, mesh.vertices, "the markers", "the mesh")
+    if hint:
+        raise InputError(f"{source}: {hint}")
     diag = float(np.linalg.norm(np.ptp(mesh.bounds, axis=0)))
     tol = 1e-6 * diag if tolerance is None else float(tolerance)
     closest, _, tri = trimesh.proximity.closest_point(mesh, markers.xyz)
