@@ -77,6 +77,8 @@ class ImageCorrection:
         at most).
     grazing : (N,) bool ndarray
         Faces the camera sees beyond ``max_obliqueness`` (counted as unseen).
+    unpainted : (N,) bool ndarray
+        Faces taken to emit nothing (all False when none was given).
     """
 
     image: np.ndarray
@@ -90,6 +92,7 @@ class ImageCorrection:
     assumption: str = ""
     warnings: tuple = ()
     grazing: np.ndarray | None = None
+    unpainted: np.ndarray | None = None
 
 
 def correct_image(
@@ -231,8 +234,9 @@ def correct_image(
     with np.errstate(divide="ignore", invalid="ignore"):
         si = np.where(seen & (B != 0), (B - E) / B, np.nan)
     warns = []
-    for t in range(len(B)):
-        w = unseen_warning(share[t], si[t], seen[t], areas)
+    painted = np.ones(n, bool) if unpainted is None else ~np.asarray(unpainted, bool)
+    for t in range(len(B)):  # unpainted faces have no emission to recover: left out
+        w = unseen_warning(share[t], si[t], seen[t] & painted, areas)
         if w is not None:
             warns.append(w if single else f"frame {t}: {w}")
     for w in warns:
@@ -254,9 +258,9 @@ def correct_image(
     out = _as_dtype(out, img.dtype)
     if single:
         return ImageCorrection(out[0], corr[0], B[0], E[0], seen[0], mode, infos[0],
-                               share[0], said, tuple(warns), grazing)
+                               share[0], said, tuple(warns), grazing, ~painted)
     return ImageCorrection(out, corr, B, E, seen, mode, tuple(infos), share, said,
-                           tuple(warns), grazing)
+                           tuple(warns), grazing, ~painted)
 
 
 class UnseenFacesWarning(UserWarning):

@@ -1,8 +1,8 @@
 """What a self-illumination correction did, in numbers a user can trust.
 
 The headline is the self-illumination share of the signal, ``(B - E) / B``, over the
-*well-seen* faces: faces with pixels, seen within the obliqueness cut-off (faces seen
-edge-on are unseen, :func:`selfillum.correct_image.correct_image`). It is given as
+*well-seen* faces: painted faces with pixels, seen within the obliqueness cut-off (faces
+seen edge-on are unseen, :func:`selfillum.correct_image.correct_image`). It is given as
 percentiles (median, 95th, 99th), not as a maximum: a maximum is set by the one worst
 face, usually one at the edge of the view. The summary also states what unseen and
 unpainted faces were taken to emit and how much of the correction rests on that.
@@ -31,7 +31,7 @@ class CorrectionSummary:
     faces : int
         Faces of the mesh.
     seen_min, seen_max : int
-        Well-seen faces per frame (least and most).
+        Well-seen (painted, seen) faces per frame (least and most).
     grazing : int
         Faces seen beyond the obliqueness cut-off (counted as unseen).
     coupled : int
@@ -72,6 +72,8 @@ class CorrectionSummary:
 def summarize(result) -> CorrectionSummary:
     """Summary of an :class:`selfillum.correct_image.ImageCorrection`."""
     seen = np.atleast_2d(result.seen)
+    if result.unpainted is not None:  # no emission to recover on unpainted faces
+        seen = seen & ~np.asarray(result.unpainted, bool)[None]
     B, E = np.atleast_2d(result.radiosity), np.atleast_2d(result.emission)
     share = np.atleast_2d(result.unseen_share) if result.unseen_share is not None \
         else np.where(seen, 0.0, np.nan)
