@@ -823,3 +823,25 @@ def test_markers_in_mm_on_a_mesh_in_m_are_not_snapped_to_it(tmp_path):
         np.testing.assert_allclose(read_markers(tmp_path / "m.csv", mesh=mesh).xyz, xyz)
     with pytest.raises(InputError, match=r"mm.csv: .*markers in mm and the mesh in m\?"):
         read_markers(tmp_path / "mm.csv", mesh=mesh)
+
+
+def test_pose_from_image_with_markers_in_mm_names_the_unit_mismatch(tmp_path, capsys):
+    """``resection pose --image`` (detect, match, solve) with the markers in mm and the
+    approximate camera in m said only "0 reference markers in view"."""
+    from resection.cli import main
+    from resection.io.markers import write_markers
+
+    sc, cam, _ = _corner_files(tmp_path, resolution=8, size=(320, 240))
+    xyz, uv = _markers_and_candidates(sc, cam)
+    write_markers(tmp_path / "m_mm.csv", [f"M{i}" for i in range(len(xyz))], 1000.0 * xyz)
+    vv, uu = np.mgrid[0:240, 0:320]
+    img = np.full((240, 320), 200.0, np.float32)
+    for u, v in uv:  # dark disks of 6 px where the markers are
+        img[(uu - u) ** 2 + (vv - v) ** 2 <= 9.0] = 40.0
+    np.save(tmp_path / "frame.npy", img)
+    rc = main(["pose", "--camera", str(tmp_path / "cam.json"), "--markers",
+               str(tmp_path / "m_mm.csv"), "--image", str(tmp_path / "frame.npy"),
+               "--diameter", "6", "--out", str(tmp_path / "pose.json")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "unit mismatch: the markers in mm and the camera in m?" in err, err
+    assert not (tmp_path / "pose.json").exists()
