@@ -295,6 +295,45 @@ def test_two_outputs_with_one_name_refused(tmp_path, capsys):
     assert rc == 2 and "same file as --out" in err
 
 
+@pytest.mark.parametrize("prog, argv, victim", [
+    ("resection", "map --mesh m.ply --camera c.json --image a.npy --out a.npy", "a.npy"),
+    ("resection", "backproject --mesh m.ply --camera c.json --values v.npy "
+                  "--background a.npy --out a.npy", "a.npy"),
+    ("resection", "align --mesh m.ply --source-camera c.json --target-camera c.json "
+                  "--image a.npy --out a.npy", "a.npy"),
+    ("resection", "view --mesh m.ply --values v.npy --camera c.json --out m.ply", "m.ply"),
+    ("resection", "link a.npy --candidates k.csv --png a.npy", "a.npy"),
+    ("resection", "match --candidates k.csv --markers p.csv --camera c.json --out k.csv",
+     "k.csv"),
+    ("resection", "match --candidates k.csv --markers p.csv --camera c.json --out o.csv "
+                  "--pose c.json", "c.json"),
+    ("resection", "pose --camera c.json --markers p.csv --points q.csv --out c.json",
+     "c.json"),
+    ("resection", "calibrate --markers p.csv --points q.csv --size 640x480 --out q.csv",
+     "q.csv"),
+    ("resection", "convert-camera c.json --out c.json", "c.json"),
+    ("selfillum", "correct --mesh m.ply --camera c.json --image a.npy --reflectance 0.5 "
+                  "--out o.npy --surface m.ply", "m.ply"),
+    ("selfillum", "render --mesh m.ply --camera c.json --emission v.npy --reflectance 0.5 "
+                  "--out v.npy", "v.npy"),
+])
+def test_every_writing_command_refuses_to_overwrite_an_input(tmp_path, capsys, monkeypatch,
+                                                             prog, argv, victim):
+    """The refusal is checked on the parsed command line before anything is read or
+    computed, for every command that writes: the input is left byte for byte."""
+    import importlib
+
+    monkeypatch.chdir(tmp_path)
+    for name in ("m.ply", "c.json", "a.npy", "v.npy", "k.csv", "p.csv", "q.csv"):
+        (tmp_path / name).write_bytes(f"input {name}".encode())
+    main = importlib.import_module(f"{prog}.cli").main
+    rc = main(argv.split())
+    err = capsys.readouterr().err
+    assert rc == 2 and "is an input of this command" in err and victim in err, err
+    assert len(err.splitlines()) == 1
+    assert (tmp_path / victim).read_bytes() == f"input {victim}".encode()
+
+
 def test_atomic_write_keeps_the_old_file_when_the_writer_fails(tmp_path):
     """A writer that dies half-way (disk full, bad value) leaves the previous file intact
     and no temporary file behind; a writer that succeeds replaces it whole."""
