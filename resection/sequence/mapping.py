@@ -1,0 +1,131 @@
+"""Per-frame mapping of a moving model: the image <-> surface map rebuilt in every frame.
+
+A model on a sting moves during a run (pitch, heave, bending). NASA's uPSP software maps the
+first frame only and warps every later frame onto it with an affine image transform
+(``cv2.findTransformECC``); what that cannot follow (perspective, parallax between parts at
+different depths, occlusion and the silhouette moving over the background) lands at the
+model's edges, its known error. Here every frame gets its own
+:class:`resection.SurfaceMap` from that frame's camera pose (e.g. the ``track`` output), so
+visibility, the obliqueness cut-off and the projection are exact per frame.
+
+What is shared between frames is what does not depend on the pose: the Embree scene of the
+grid and the camera's undistortion map (lines of sight of every pixel). A frame then costs
+one rotation of the pixel rays, one Embree call on them and one sparse product.
+
+Frames are consumed and results produced one at a time (:func:`map_frames` is a generator),
+so memory does not grow with the length of the run.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
+
+import numpy as np
+import trimesh
+
+from ..camera import Camera
+from ..errors import InputError
+from ..surface import DEFAULT_MAX_OBLIQUENESS, SurfaceMap
+from ..visibility import RayCaster
+
+__all__ = ["FrameValues", "map_frames"]
+
+
+@dataclass(frozen=True)
+class FrameValues:
+    """One frame mapped onto the grid.
+
+    Attributes
+    ----------
+    index : int
+        Frame number (position in the sequence).
+    values : (F,) or (V,) float64
+        Per-face mean of the frame's pixels (``per="face"``, :meth:`SurfaceMap.to_surface`)
+        or per-node values (``per="node"``, :meth:`SurfaceMap.to_nodes`); NaN where unseen.
+    seen : (F,) or (V,) bool
+        Finite values.
+    camera : Camera
+        The frame's camera (pose of the camera relative to the model).
+    """
+
+    index: int
+    values: np.ndarray
+    seen: np.ndarray
+    camera: Camera
+
+
+def _same_intrinsics(a: Camera, b: Camera) -> bool:
+    return (a.width == b.width and a.height == b.height and np.array_equal(a.K, b.K)
+            and np.array_equal(a.dist, b.dist))
+
+
+def map_frames(
+    mesh: trimesh.Trimesh,
+    cameras,
+    frames: Iterable,
+    *,
+    per: str = "face",
+    max_obliqueness: float | None = DEFAULT_MAX_OBLIQUENESS,
+) -> Iterator[FrameValues]:
+    """Map every frame of a sequence onto the grid with that frame's own camera pose.
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh
+        Model grid, model units (the model's own frame: the pose carries the motion).
+    cameras : Camera or iterable of Camera
+        One camera per frame (the camera relative to the model in that frame, e.g. the
+        cameras written by ``track``), or one camera for a model that does not move (the
+        map is then built once).
+    frames : iterable of (H, W) array_like
+        The images, read lazily (e.g. :func:`resection.io.video.iter_frames`).
+    per : {"face", "node"}
+        Per-face means, or per-node values (the grid's vertices).
+    max_obliqueness : float or None
+        Obliqueness cut-off, degrees (see :class:`resection.SurfaceMap`).
+
+    Yields
+    ------
+    FrameValues
+        One per frame, in order.
+
+    Raises
+    ------
+    InputError
+        Cameras of another image size or intrinsics than the first, fewer cameras than
+        frames, a frame of the wrong shape.
+    """
+    if per not in ("face", "node"):
+        raise InputError(f"per must be 'face' or 'node', got {per!r}")
+    fixed = isinstance(cameras, Camera)
+    cams = iter(()) if fixed else iter(cameras)
+    caster = RayCaster(mesh)
+    base = cameras if fixed else None
+    smap = None
+    for k, frame in enumerate(frames):
+        if fixed:
+            cam = cameras
+        else:
+            try:
+                cam = next(cams)
+            except StopIteration:
+                raise InputError(f"cameras: {k} cameras for more frames (one per frame, "
+                                 "or one for a model that does not move)") from None
+            if not isinstance(cam, Camera):
+                raise InputError(f"cameras: item {k} is a {type(cam).__name__}, not a Camera")
+            if base is None:
+                base = cam
+            elif not _same_intrinsics(base, cam):
+                raise InputError(f"cameras: frame {k}'s camera has other intrinsics or image "
+                                 "size than frame 0's (one camera per sequence)")
+            else:  # share frame 0's undistortion map: only the pose changes
+                cam = base.with_pose(R=cam.R, t=cam.t)
+        if smap is None or not fixed:
+            smap = SurfaceMap(mesh, cam, max_obliqueness=max_obliqueness, caster=caster)
+        img = np.asarray(frame)
+        if img.shape != smap.shape:
+            raise InputError(f"frame {k}: shape {img.shape} is not the camera's (H, W) = "
+                             f"{smap.shape}")
+        values = (smap.to_nodes(img) if per == "node" else smap.to_surface(img)).values
+        yield FrameValues(k, values, np.isfinite(values), cam)
