@@ -12,11 +12,15 @@ import numpy as np
 from .align import ViewWarp
 from .camera import Camera
 from .errors import InputError
+from .io.history import xdmf_path
 from .io.images import read_image, write_image
 from .io.meshes import load_mesh, read_face_fields, write_surface
 from .io.outputs import atomic_path, atomic_write
+from .io.video import open_frames
 from .merge import merge_views
 from .plots import frame_camera, plot_surface, virtual_camera
+from .sequence import read_track
+from .sequence.mapping import map_to_history
 from .surface import DEFAULT_MAX_OBLIQUENESS, SurfaceMap
 from .units import require_seen
 
@@ -42,7 +46,8 @@ def register(sub) -> None:
                    help="camera JSON with the solved pose; repeat for several cameras")
     m.add_argument("--image", required=True, nargs="+", action="extend",
                    help="image(s) of that camera; with several cameras, one per camera")
-    m.add_argument("--out", required=True, help="surface file: .ply, .vtk or .csv")
+    m.add_argument("--out", required=True, help="surface file: .ply, .vtk or .csv; .h5: a "
+                   "time history of a frame sequence (see below)")
     m.add_argument("--max-obliqueness", type=float, default=DEFAULT_MAX_OBLIQUENESS,
                    metavar="DEG", help="faces seen more obliquely than this (degrees between "
                    "line of sight and normal, default %(default)g as uPSP; 90: none) count as "
@@ -53,6 +58,19 @@ def register(sub) -> None:
                    "0: none)")
     m.add_argument("--no-gain-match", action="store_true",
                    help="several cameras: do not match the camera gains on the overlaps")
+    h = m.add_argument_group(
+        "time histories (--out P.h5)",
+        "--image is then a frame sequence (image files, a multi-page TIFF, a 3-D .npy, "
+        ".cine, .mraw): every frame is mapped with its own pose and written, as it "
+        "finishes, into one HDF5 file with an XDMF sidecar (P.xdmf) for ParaView")
+    h.add_argument("--track", metavar="DIR", help="track output folder: the pose of every "
+                   "frame it solved (the model moves; --camera gives the intrinsics)")
+    h.add_argument("--per", choices=("node", "face"), default="node",
+                   help="values per grid node or per face (default node)")
+    h.add_argument("--fps", type=float, help="frame rate for the frame times (default: "
+                   "the video's, else times are frame numbers)")
+    h.add_argument("--resume", action="store_true",
+                   help="continue the file of an interrupted run")
     m.set_defaults(func=run_map)
 
     b = sub.add_parser(
@@ -132,6 +150,10 @@ def _field(path: str, name: str | None, n_faces: int) -> tuple[str, np.ndarray]:
 
 
 def run_map(args: argparse.Namespace) -> int:
+    if Path(args.out).suffix.lower() in (".h5", ".hdf5"):
+        return _run_history(args)
+    if args.track or args.resume:
+        raise InputError("--track and --resume go with a time history (--out P.h5)")
     names = [Path(p).stem for p in args.image]
     repeated = sorted({n for n in names if names.count(n) > 1})
     if repeated:
@@ -154,6 +176,35 @@ def run_map(args: argparse.Namespace) -> int:
     atomic_write(args.out, write_surface, mesh, fields)
     print(f"map: {int(smap.seen_faces.sum())} of {len(mesh.faces)} faces seen by "
           f"{int(smap.mask.sum())} pixels; written to {args.out}")
+    return 0
+
+
+def _run_history(args: argparse.Namespace) -> int:
+    if len(args.camera) > 1:
+        raise InputError("--out .h5: one --camera (a time history is one camera's sequence)")
+    if args.fps is not None and not args.fps > 0:
+        raise InputError(f"--fps: must be positive, got {args.fps}")
+    mesh = load_mesh(args.mesh)
+    camera = Camera.read(args.camera[0])
+    src = open_frames(args.image if len(args.image) > 1 else args.image[0])
+    with src:
+        if args.track:
+            tr = read_track(args.track)
+            ok = np.flatnonzero(tr.status == "ok")
+            numbers = tr.frame[ok]
+            if numbers.size and numbers.max() >= len(src):
+                raise InputError(f"--track: {args.track} has frame {numbers.max()}, the "
+                                 f"sequence {len(src)} frames")
+            cameras = [camera.with_pose(rvec=tr.rvec[i], t=tr.tvec[i]) for i in ok]
+        else:
+            numbers, cameras = np.arange(len(src)), camera
+        fps = args.fps if args.fps is not None else src.frame_rate
+        times = numbers / fps if fps else numbers.astype(float)
+        n = map_to_history(args.out, mesh, cameras, src, frame_numbers=numbers, times=times,
+                           per=args.per, resume=args.resume,
+                           max_obliqueness=args.max_obliqueness)
+    print(f"map: {n} frames mapped per {args.per} ({len(numbers)} in the history); "
+          f"written to {args.out} and {xdmf_path(args.out)}")
     return 0
 
 

@@ -13,7 +13,9 @@ grid and the camera's undistortion map (lines of sight of every pixel). A frame 
 one rotation of the pixel rays, one Embree call on them and one sparse product.
 
 Frames are consumed and results produced one at a time (:func:`map_frames` is a generator),
-so memory does not grow with the length of the run.
+so memory does not grow with the length of the run; :func:`map_to_history` writes each
+frame to the run's time-history file (:mod:`resection.io.history`) as it finishes, and
+resumes an interrupted run.
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ from ..errors import InputError
 from ..surface import DEFAULT_MAX_OBLIQUENESS, SurfaceMap
 from ..visibility import RayCaster
 
-__all__ = ["FrameValues", "map_frames"]
+__all__ = ["FrameValues", "map_frames", "map_to_history"]
 
 
 @dataclass(frozen=True)
@@ -129,3 +131,66 @@ def map_frames(
                              f"{smap.shape}")
         values = (smap.to_nodes(img) if per == "node" else smap.to_surface(img)).values
         yield FrameValues(k, values, np.isfinite(values), cam)
+
+
+def map_to_history(
+    path,
+    mesh: trimesh.Trimesh,
+    cameras,
+    frames,
+    *,
+    frame_numbers=None,
+    times=None,
+    per: str = "node",
+    resume: bool = False,
+    max_obliqueness: float | None = DEFAULT_MAX_OBLIQUENESS,
+    progress=None,
+) -> int:
+    """Map a sequence frame by frame into one time-history file (HDF5 + XDMF sidecar).
+
+    Parameters
+    ----------
+    path : path-like
+        The ``.h5`` file (see :class:`resection.io.history.HistoryWriter`).
+    mesh : trimesh.Trimesh
+    cameras : Camera or sequence of Camera
+        One camera (a model that does not move) or one per entry of ``frame_numbers``.
+    frames : indexable of (H, W) arrays
+        ``frames[i]`` reads frame ``i`` (e.g. :func:`resection.io.video.open_frames`); only
+        the frames mapped are read, one at a time.
+    frame_numbers : sequence of int, optional
+        Which frames to map, in order (default all ``len(frames)``), e.g. the frames
+        ``track`` solved.
+    times : sequence of float, optional
+        Time of each entry of ``frame_numbers``, seconds (default: the frame numbers).
+    per : {"node", "face"}
+    resume : bool
+        Continue the file of an interrupted run: the frames it holds are not mapped again.
+    progress : callable, optional
+        Called as ``progress(done, total)`` after each frame.
+
+    Returns
+    -------
+    int
+        Frames mapped by this call.
+    """
+    from ..io.history import HistoryWriter
+
+    nums = np.arange(len(frames)) if frame_numbers is None else np.asarray(frame_numbers, int)
+    tms = nums.astype(float) if times is None else np.asarray(times, dtype=float)
+    if tms.shape != nums.shape:
+        raise InputError(f"times: {tms.size} times for {nums.size} frames")
+    fixed = isinstance(cameras, Camera)
+    if not fixed and len(cameras) != len(nums):
+        raise InputError(f"cameras: {len(cameras)} cameras for {len(nums)} frames")
+    with HistoryWriter(path, mesh, per=per, resume=resume) as writer:
+        todo = np.flatnonzero(~np.isin(nums, writer.done))
+        cams = cameras if fixed else [cameras[i] for i in todo]
+        images = (frames[int(nums[i])] for i in todo)
+        for j, res in enumerate(map_frames(mesh, cams, images, per=per,
+                                           max_obliqueness=max_obliqueness)):
+            i = todo[j]
+            writer.append(res.values, time=tms[i], camera=res.camera, index=int(nums[i]))
+            if progress is not None:
+                progress(writer.n_frames, len(nums))
+    return len(todo)
