@@ -21,13 +21,14 @@ to a few pixels, smoothly. :func:`track_predicted` uses that:
    residual gate as :func:`resection.match.match_markers` (6 sigma of the position noise
    estimated from the median residual, at least 0.25 px, at most the matcher's
    ``tolerance``), markers outside it dropped once and the pose solved again, and the
-   matcher's ``max_rms``.
+   package's acceptance rule (:func:`resection.acceptance.judge`, with the
+   ``marker_accuracy`` and ``max_rms`` that the matcher and ``solve_pose`` get).
 
 The frame is refused (None: the caller runs the statistical matcher instead) when fewer
 than ``max(min_markers, min_matches, 0.8 n)`` of the ``n`` markers predicted in the image
-are found, or when the residual gate or the RMS fails: a jump, lost or hidden markers, the
-first frame of a run or of a chunk. A frame is thus right or refused as with the matcher:
-what the gate accepts, the matcher's own final test would accept too.
+are found, or when the residual gate or the acceptance rule fails: a jump, lost or hidden
+markers, the first frame of a run or of a chunk. A frame is thus right or refused as with
+the matcher: what the gate accepts, the matcher's own final tests would accept too.
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from ..acceptance import judge
 from ..camera import Camera, distort_normalized
 from .results import FrameResult
 
@@ -217,9 +219,6 @@ def track_predicted(img: np.ndarray, setup, reference: FrameResult,
         return None
     idx, uv = vis[sel], found[sel]
     tolerance = float(_match_default("tolerance", setup.match_kw))
-    max_rms = float(_match_default("max_rms", setup.match_kw))
-    if setup.pose_kw.get("max_rms") is not None:
-        max_rms = min(max_rms, float(setup.pose_kw["max_rms"]))
     fixed_gate = setup.match_kw.get("gate")
     rvec, tvec, res = refine_pose(cam, rvec0, tvec0, X[idx], uv)
     for attempt in range(2):
@@ -232,9 +231,14 @@ def track_predicted(img: np.ndarray, setup, reference: FrameResult,
             return None
         idx, uv = idx[keep], uv[keep]
         rvec, tvec, res = refine_pose(cam, rvec, tvec, X[idx], uv)
-    rms = float(np.sqrt(np.mean(np.sum(res**2, axis=1))))
-    if not np.isfinite(rms) or rms > max_rms:
+    # the package's acceptance rule, with the accuracy and max_rms the matcher would use
+    accuracy = setup.pose_kw.get("marker_accuracy",
+                                 _match_default("marker_accuracy", setup.match_kw))
+    max_rms = setup.pose_kw.get("max_rms", _match_default("max_rms", setup.match_kw))
+    acc = judge(err, 6, accuracy, max_rms, what="track")
+    if not acc.accepted:
         return None
+    rms = acc.statistic
     return FrameResult(frame=index, file=name, status="ok", rvec=rvec, tvec=tvec, rms=rms,
                        ids=setup.ids[idx].astype(str), uv=uv, residuals=res,
                        method="predicted")
