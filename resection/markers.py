@@ -9,7 +9,8 @@ Markers are disks 3 to 10 pixels across, darker or brighter than the model aroun
 2. **Threshold**: by default ``k`` times the merit's noise, the image noise being estimated
    robustly (median absolute deviation of neighbour differences, insensitive to markers
    and smooth backgrounds).
-3. **Local maxima** of the merit above the threshold (``scipy.ndimage.maximum_filter``).
+3. **Local maxima** of the merit above the threshold (only the pixels above it are compared
+   with their neighbours).
 4. **Sub-pixel refinement**, all candidates at once: a weighted centroid, then a
    Levenberg-Marquardt fit of a pixel-integrated, Gaussian-blurred disk model (centre,
    radius, contrast, local background) on a window around each candidate. Candidates cut by
@@ -30,11 +31,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy import ndimage
 from scipy.signal import oaconvolve
 from scipy.spatial import cKDTree
 
-from . import _diskfit, _diskmodel
+from . import _diskfit, _diskmodel, _peaks
 from .errors import InputError
 
 __all__ = [
@@ -177,15 +177,21 @@ def estimate_noise(image, mask=None) -> float:
     linear and smooth backgrounds and to a few markers or defects. Masked (``True``), NaN
     and infinite pixels are left out.
     """
-    img = np.asarray(image, dtype=float)
-    bad = ~np.isfinite(img)
-    if mask is not None:
-        bad |= np.asarray(mask, bool)
-    img = np.where(bad, 0.0, img)
-    # on large images a regular subset of rows / columns (about 2 x 250 000 samples) is enough
-    k = max(1, int(img.size // 250_000))
-    rows, rbad = img[::k], bad[::k]
-    cols, cbad = img[:, ::k], bad[:, ::k]
+    img = np.asarray(image)
+    mask = None if mask is None else np.asarray(mask, bool)
+    # on large images a regular subset of rows / columns (about 2 x 65 000 samples, a
+    # relative error of the estimate of about 0.3 %) is enough
+    k = max(1, int(img.size // 65_000))
+
+    def valid(part, mpart):
+        part = np.asarray(part, dtype=float)
+        bad = ~np.isfinite(part)
+        if mpart is not None:
+            bad |= mpart
+        return np.where(bad, 0.0, part), bad
+
+    rows, rbad = valid(img[::k], None if mask is None else mask[::k])
+    cols, cbad = valid(img[:, ::k], None if mask is None else mask[:, ::k])
     d_h = rows[:, :-2] - 2.0 * rows[:, 1:-1] + rows[:, 2:]
     ok_h = ~(rbad[:, :-2] | rbad[:, 1:-1] | rbad[:, 2:])
     d_v = cols[:-2] - 2.0 * cols[1:-1] + cols[2:]
@@ -292,6 +298,7 @@ def refine_markers(
     half: int | None = None,
     strength=None,
     chunk: int = 1024,
+    tol: float = 1e-3,
 ) -> dict:
     """Sub-pixel centres of bright blobs by a least-squares disk fit, all at once.
 
@@ -317,6 +324,11 @@ def refine_markers(
         at least ``1.5 R + 1`` away are left out of a candidate's fit.
     chunk : int
         Candidates fitted together (memory grows with it).
+    tol : float
+        A candidate's iterations stop once its centre moves by less than ``tol`` pixels.
+        Gauss-Newton then converges quadratically: the default leaves the centres within
+        1e-5 px of a fit run to 1e-4 px, far under the Cramér-Rao bound (about 0.005 px
+        at SNR 100).
 
     Returns
     -------
@@ -331,14 +343,15 @@ def refine_markers(
         half = int(np.ceil(1.25 * R0 + 3.0 * blur + 3.0))
     strength = np.ones(n) if strength is None else np.asarray(strength, float)
     parts = [_refine_chunk(signal, bad, uv0, strength, np.arange(k, min(k + chunk, n)), R0,
-                           blur, iterations, half) for k in range(0, n, max(int(chunk), 1))]
+                           blur, iterations, half, tol)
+             for k in range(0, n, max(int(chunk), 1))]
     keys = ("u", "v", "radius", "depth", "background", "rms", "ok", "masked_fraction")
     if not parts:
         return {k: np.zeros(0, bool if k == "ok" else float) for k in keys}
     return {k: np.concatenate([p[k] for p in parts]) for k in keys}
 
 
-def _refine_chunk(signal, bad, uv_all, strength, sel, R0, blur, iterations, half) -> dict:
+def _refine_chunk(signal, bad, uv_all, strength, sel, R0, blur, iterations, half, tol) -> dict:
     """Levenberg-Marquardt fit of the windows of the starts ``sel`` (see refine_markers)."""
     uv0 = uv_all[sel]
     n = len(uv0)
@@ -384,7 +397,7 @@ def _refine_chunk(signal, bad, uv_all, strength, sel, R0, blur, iterations, half
     p, cost, _ = _diskfit.fit_windows(np.ascontiguousarray(win, dtype=float),
                                       np.ascontiguousarray(w, dtype=float), p,
                                       *_diskfit.edge_table(s), rmin, rmax, int(iterations),
-                                      1e-4, *tables)
+                                      float(tol), *tables)
     p[:, 0] += ox
     p[:, 1] += oy
     npix = np.maximum(w.sum(axis=(1, 2)) - NP, 1)
@@ -514,7 +527,7 @@ def detect_markers(
     signal = sign * sub
     if bad.all():
         raise InputError("image: every pixel of the roi is masked")
-    k = max(1, int(np.sqrt(signal.size / 250_000)))  # a regular subset is enough
+    k = max(1, int(np.sqrt(signal.size / 65_000)))  # a regular subset is enough
     sub_ok = ~bad[::k, ::k]
     fill = float(np.median(signal[::k, ::k][sub_ok] if sub_ok.any() else signal[~bad]))
     signal = np.where(bad, fill, signal)
@@ -526,9 +539,8 @@ def detect_markers(
     merit_noise = noise * float(np.sqrt((tmpl**2).sum()))
     thr = float(threshold) if threshold is not None else k_sigma * max(merit_noise, 1e-12)
     size = max(3, 2 * int(np.floor(R)) + 1)
-    peaks = (merit == ndimage.maximum_filter(merit, size=size, mode="nearest")) & (merit > thr)
+    pv, pu = _peaks.local_maxima(merit, size, thr)
     # candidates must lie inside the roi
-    pv, pu = np.nonzero(peaks)
     gu_, gv_ = pu + cu0, pv + cv0
     inside = (gu_ >= u0) & (gu_ <= u1) & (gv_ >= v0) & (gv_ <= v1)
     pu, pv = pu[inside], pv[inside]

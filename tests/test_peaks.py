@@ -1,0 +1,32 @@
+"""Local maxima above a threshold (resection._peaks) against scipy's maximum filter."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from resection import _peaks
+
+
+@pytest.mark.parametrize("size", [3, 5, 7, 11])
+@pytest.mark.parametrize("budget", [None, 0])  # 0: the dense branch
+def test_local_maxima_equal_maximum_filter(size, budget, monkeypatch):
+    rng = np.random.default_rng(size)
+    img = ndimage.gaussian_filter(rng.normal(size=(120, 97)), 1.5).astype(np.float32)
+    img[40:43, 50:53] = img.max() + 1.0  # a plateau: every pixel of it is a maximum
+    img[0, 0] = img.max() + 2.0  # on the border
+    thr = float(np.quantile(img, 0.9))
+    if budget is not None:
+        monkeypatch.setattr(_peaks, "_GATHER_BUDGET", budget)
+    rows, cols = _peaks.local_maxima(img, size, thr)
+    ref = (img == ndimage.maximum_filter(img, size=size, mode="nearest")) & (img > thr)
+    rr, rc = np.nonzero(ref)
+    assert len(rr) > 5
+    np.testing.assert_array_equal(rows, rr)
+    np.testing.assert_array_equal(cols, rc)
+
+
+def test_local_maxima_none_above():
+    rows, cols = _peaks.local_maxima(np.zeros((10, 10)), 3, 0.5)
+    assert rows.size == 0 and cols.size == 0
