@@ -7,6 +7,8 @@ import argparse
 import math
 import os
 
+import numpy as np
+
 from ._cli_markers import add_detect_options, add_enhance_window_option
 from ._cliutil import add_acceptance_options
 from .calibrate import calibrate
@@ -25,6 +27,7 @@ from .io.outputs import atomic_write
 from .pipeline import image_points
 from .pose import solve_pose
 from .pose_plots import write_pose_plot
+from .refind import refind_targets
 
 _LOSSES = ("huber", "soft_l1", "cauchy", "arctan")
 
@@ -63,7 +66,13 @@ def register(sub) -> None:
                    "Figure 20): model outline (with --mesh), detected and reprojected markers "
                    "with ids, residual arrows with their scale, RMS in the title; over the "
                    "--image, or a blank frame with --points")
-    p.add_argument("--mesh", help="with --plot: model surface whose outline is drawn")
+    p.add_argument("--mesh", help="model surface: with --image, targets it hides are not "
+                   "looked for (reported as occluded); with --plot, its outline is drawn")
+    p.add_argument("--no-refind", action="store_true",
+                   help="with --image: do not look again, after the first pose, for the "
+                   "targets it did not use (default: every target predicted in view, facing "
+                   "the camera and not hidden is searched for in a window with local "
+                   "enhancement, and those not used are listed with why)")
     p.add_argument("--crease", type=float, default=30.0, metavar="DEG",
                    help="with --plot --mesh: dihedral angle above which an edge is an "
                    "outline (default 30)")
@@ -127,14 +136,26 @@ def pose_inputs(args: argparse.Namespace):
 
 
 def run_pose(args: argparse.Namespace) -> int:
-    if args.mesh and not args.plot:
-        raise InputError("--mesh is for the overlay: give --plot OUT.png too")
+    if args.mesh and not (args.plot or args.image):
+        raise InputError("--mesh is for refinding (--image) and the overlay (--plot): give "
+                         "one of them too")
     mesh = load_mesh(args.mesh) if args.mesh else None
     camera, ids, X, uv = pose_inputs(args)
     result = solve_pose(camera, X, uv, robust=args.robust, robust_scale=args.robust_scale,
                         refine_intrinsics=args.refine_intrinsics or False,
                         max_rms=args.max_rms, marker_accuracy=args.marker_accuracy,
                         ambiguity_px=args.ambiguity_px, ids=ids)
+    if args.image and not args.links and not args.no_refind:
+        found = refind_targets(
+            read_image(args.image, mask_saturated=True), read_markers(args.markers),
+            result.camera, np.asarray(ids)[result.used], uv[result.used],
+            diameter=args.diameter, polarity=args.polarity, mesh=mesh,
+            marker_accuracy=args.marker_accuracy, max_rms=args.max_rms,
+            pose_kw=dict(robust=args.robust, robust_scale=args.robust_scale,
+                         refine_intrinsics=args.refine_intrinsics or False,
+                         ambiguity_px=args.ambiguity_px))
+        print("\n".join(found.report()))
+        result, ids, X, uv = found.pose, found.ids, found.points3d, found.points2d
     print(f"pose: {result.message}")
     print(f"rms {result.rms:.4f} px")
     print(f"{'id':>12} {'du':>9} {'dv':>9} {'error':>9}")

@@ -76,4 +76,4 @@ def test_pose_command_plot(tmp_path, capsys):
     # written through a temporary name: none left behind; --mesh alone is a one-line error
     assert not [p.name for p in tmp_path.iterdir() if p.name.startswith(".")]
     assert main([*base, "--mesh", str(tmp_path / "model.stl")]) == 2
-    assert "--mesh is for the overlay" in capsys.readouterr().err
+    assert "--mesh is for refinding (--image) and the overlay" in capsys.readouterr().err
