@@ -35,6 +35,7 @@ class ImagePoints:
     candidates: Candidates  #: all candidates of the image
     candidate_index: np.ndarray  #: (M,) candidate numbers of the linked markers
     match: object = None  #: MatchResult when matched automatically
+    refind: object = None  #: RefindResult when the targets were looked for again
 
 
 def expected_diameter(camera: Camera, markers) -> float:
@@ -275,11 +276,15 @@ def image_points(
 
 def pose_from_image(image, markers, camera, *, robust=None, max_rms=DEFAULT_MAX_RMS,
                     marker_accuracy=DEFAULT_MARKER_ACCURACY, refine_intrinsics=False,
-                    **kwargs):
+                    refind=False, mesh=None, **kwargs):
     """Detect, link or match, and solve the camera's Point of View.
 
     ``marker_accuracy`` and ``max_rms`` (px) are the acceptance rule's options
-    (:mod:`resection.acceptance`); they go to the matcher too. ``kwargs`` are those of
+    (:mod:`resection.acceptance`); they go to the matcher too. With ``refind`` (what
+    ``resection pose --image`` does by default), every target the first pose predicts in
+    view, facing the camera and not hidden by ``mesh`` is looked for again
+    (:func:`resection.refind.refind_targets`), the pose is solved from all those found, and
+    ``ImagePoints.refind`` lists the targets not used with why. ``kwargs`` are those of
     :func:`image_points`. Returns ``(PoseResult, ImagePoints)``.
     """
     from .pose import solve_pose
@@ -292,4 +297,18 @@ def pose_from_image(image, markers, camera, *, robust=None, max_rms=DEFAULT_MAX_
     res = solve_pose(camera, pts.points3d, pts.points2d, robust=robust, max_rms=max_rms,
                      marker_accuracy=marker_accuracy, refine_intrinsics=refine_intrinsics,
                      ids=pts.ids)
-    return res, pts
+    if not refind or kwargs.get("links") is not None:
+        return res, pts
+    from dataclasses import replace
+
+    from .refind import refind_targets
+
+    found = refind_targets(image, markers, res.camera, np.asarray(pts.ids)[res.used],
+                           pts.points2d[res.used], diameter=kwargs.get("diameter"),
+                           polarity=kwargs.get("polarity", "dark"), mesh=mesh,
+                           marker_accuracy=marker_accuracy, max_rms=max_rms,
+                           pose_kw={"robust": robust, "refine_intrinsics": refine_intrinsics})
+    cand = dict(zip(pts.ids, pts.candidate_index, strict=True))
+    return found.pose, replace(pts, ids=found.ids, points3d=found.points3d,
+                               points2d=found.points2d, refind=found,
+                               candidate_index=np.array([cand.get(k, -1) for k in found.ids]))

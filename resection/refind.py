@@ -225,8 +225,7 @@ def refind_targets(
 
     # ---- look again for the expected targets the first pose did not use
     found = np.full((n, 2), np.nan)
-    for k, p in zip(used_ids, used_uv, strict=True):
-        found[pos[k]] = p
+    found[[pos[k] for k in used_ids]] = used_uv
     look = np.flatnonzero(expected & ~np.isfinite(found[:, 0]))
     refound = []
     if look.size:
@@ -237,23 +236,18 @@ def refind_targets(
             from .match import _assign
 
             j, dist = _assign(uv[look], cKDTree(q), np.inf)
-            near = np.abs(q[np.maximum(j, 0)] - uv[look]).max(axis=1) <= half
-            for i, jj, dd, nr in zip(look, j, dist, near, strict=True):  # a few tens
-                if jj < 0 or not nr:
-                    continue
-                if dd <= gate:
-                    found[i] = q[jj]
-                    refound.append(ids[i])
-                else:
-                    reason[i] = (f"rejected as outlier: found {dd:.2g} px from its "
-                                 f"prediction (gate {gate:.2g} px)")
-        r = d / 2.0
-        cut = ~camera.in_image(uv, margin=r + 0.5)
-        for i in look:  # label the ones left
-            if reason[i] == "" and not np.isfinite(found[i, 0]):
-                reason[i] = "cut by the image border" if cut[i] else "not detected"
-    for i in np.flatnonzero(np.isfinite(found[:, 0]) & (reason != "")):
-        reason[i] = ""  # measured by the first pose: kept (e.g. a target on the edge)
+            ok = (j >= 0) & (np.abs(q[np.maximum(j, 0)] - uv[look]).max(axis=1) <= half)
+            take = ok & (dist <= gate)
+            found[look[take]] = q[j[take]]
+            refound = [ids[i] for i in look[take]]
+            far = ok & ~take
+            reason[look[far]] = [f"rejected as outlier: found {dd:.2g} px from its "
+                                 f"prediction (gate {gate:.2g} px)" for dd in dist[far]]
+        # the ones left: nothing in the window (a disk cut by the border may be too little)
+        cut = ~camera.in_image(uv, margin=d / 2.0 + 0.5)
+        left = look[(reason[look] == "") & ~np.isfinite(found[look, 0])]
+        reason[left] = np.where(cut[left], "cut by the image border", "not detected")
+    reason[np.isfinite(found[:, 0])] = ""  # measured by the first pose: kept
 
     # ---- the pose from every target used, under the acceptance rule
     sel = np.flatnonzero(np.isfinite(found[:, 0]))

@@ -131,3 +131,18 @@ def test_pose_command_refinds_with_the_mesh(scene, tmp_path, capsys):
     # --no-refind: the matcher's targets only, no list
     assert main([*argv, "--no-refind"]) == 0
     assert "targets: " not in capsys.readouterr().out
+
+
+def test_pose_from_image_refind(scene):
+    """The library form: ``pose_from_image(..., refind=True)`` adds the edge target that
+    the whole-image detection rejects as cut by the border, and lists the others."""
+    sc, start = scene
+    ms = MarkerSet(sc.marker_ids, sc.surveyed, np.full(len(sc.marker_ids), D))
+    img = sc.images[0].astype(float)
+    plain, p0 = pose_from_image(img, ms, start)
+    res, pts = pose_from_image(img, ms, start, refind=True, mesh=sc.mesh)
+    assert "TE" not in p0.ids and "TE" in pts.ids and "TE" in pts.refind.refound
+    assert len(pts.ids) == len(pts.points2d) == len(res.errors) == len(pts.candidate_index)
+    assert pts.candidate_index[list(pts.ids).index("TE")] == -1
+    assert all(v == "off the image" for v in pts.refind.not_used.values())
+    assert res.acceptance.accepted and res.acceptance.n_used == len(p0.ids) + 1
