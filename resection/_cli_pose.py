@@ -10,7 +10,7 @@ import os
 import numpy as np
 
 from ._cli_markers import add_detect_options, add_enhance_window_option
-from ._cliutil import add_acceptance_options
+from ._cliutil import add_acceptance_options, add_mesh_format
 from .calibrate import calibrate
 from .camera import Camera
 from .errors import InputError
@@ -42,7 +42,11 @@ def register(sub) -> None:
         "marker's residual, writes the camera JSON.",
     )
     p.add_argument("--camera", required=True, help="input camera JSON (intrinsics)")
-    p.add_argument("--markers", required=True, help="marker CSV: id,x,y,z[,diameter]")
+    p.add_argument("--markers", required=True, help="marker CSV id,x,y,z[,diameter][,nx,ny,nz] "
+                   "or uPSP .tgts (its taps are never taken for targets)")
+    p.add_argument("--mesh", help="model surface: targets lying under it are moved out to it "
+                   "along their normals, with a warning (uPSP .tgts trap)")
+    add_mesh_format(p)
     p.add_argument("--points", help="linked image points CSV: id,u,v (pixels)")
     p.add_argument("--image", help="image: detect its markers and match them automatically "
                    "(approximate pose in --camera) or link them by hand with --links")
@@ -106,8 +110,8 @@ def register(sub) -> None:
     c.set_defaults(func=run_calibrate)
 
 
-def _linked(markers_path: str, points_path: str):
-    markers = read_markers(markers_path)
+def _linked(markers_path: str, points_path: str, mesh=None):
+    markers = read_markers(markers_path, mesh=mesh)
     ids, uv = read_points(points_path)
     return link_points(markers, ids, uv, source=points_path)
 
@@ -116,10 +120,15 @@ def pose_inputs(args: argparse.Namespace):
     """Camera and linked ``(ids, points3d, points2d)`` of the ``pose`` command (the place
     where other sources of image points plug in)."""
     camera = Camera.read(args.camera)
+    mesh = None
+    if getattr(args, "mesh", None):
+        from .io.meshes import load_mesh
+
+        mesh = load_mesh(args.mesh, format=args.mesh_format)
     if getattr(args, "image", None):
         if args.points:
             raise InputError("give --points or --image, not both")
-        pts = image_points(args.image, read_markers(args.markers), camera,
+        pts = image_points(args.image, read_markers(args.markers, mesh=mesh), camera,
                            diameter=args.diameter, polarity=args.polarity,
                            template=args.template, roi=args.roi, threshold=args.threshold,
                            enhance=args.enhance, enhance_windows=args.enhance_window,
@@ -131,7 +140,7 @@ def pose_inputs(args: argparse.Namespace):
         if getattr(args, "links", None) or getattr(args, "candidates", None):
             raise InputError("--links/--candidates need --image IMAGE")
         raise InputError("no image points: give --points POINTS.csv or --image IMAGE")
-    ids, X, uv = _linked(args.markers, args.points)
+    ids, X, uv = _linked(args.markers, args.points, mesh)
     return camera, ids, X, uv
 
 

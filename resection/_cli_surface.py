@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ._cliutil import add_mesh_format
 from .align import ViewWarp
 from .camera import Camera
 from .errors import InputError
@@ -42,6 +43,7 @@ def register(sub) -> None:
     )
     m.add_argument("--mesh", required=True, help="model grid (STL/OBJ/PLY/GLB/OFF, Plot3D, "
                    "Cart3D .tri)")
+    add_mesh_format(m)
     m.add_argument("--camera", required=True, action="append",
                    help="camera JSON with the solved pose; repeat for several cameras")
     m.add_argument("--image", required=True, nargs="+", action="extend",
@@ -80,6 +82,7 @@ def register(sub) -> None:
         "faces; pixels off the model keep the background (NaN, a value or an image).",
     )
     b.add_argument("--mesh", required=True)
+    add_mesh_format(b)
     b.add_argument("--camera", required=True)
     b.add_argument("--values", required=True, help="per-face values: .csv/.ply written by "
                    "'map' or any .npy with one value per face")
@@ -97,6 +100,7 @@ def register(sub) -> None:
         "wind-off).",
     )
     a.add_argument("--mesh", required=True)
+    add_mesh_format(a)
     a.add_argument("--source-camera", required=True, help="camera JSON of --image")
     a.add_argument("--target-camera", required=True, help="camera JSON of the output view")
     a.add_argument("--image", required=True)
@@ -113,6 +117,7 @@ def register(sub) -> None:
         "with --zoom, or --box, frames a region of the same Point of View.",
     )
     v.add_argument("--mesh", required=True)
+    add_mesh_format(v)
     v.add_argument("--values", required=True, help="per-face values (.csv/.ply/.npy)")
     v.add_argument("--field", help="field name in --values")
     v.add_argument("--camera", help="camera JSON (default: a virtual camera)")
@@ -161,7 +166,7 @@ def run_map(args: argparse.Namespace) -> int:
                          "come from the file names; rename or map them separately)")
     if len(args.camera) > 1:
         return _run_merge(args, names)
-    mesh = load_mesh(args.mesh)
+    mesh = load_mesh(args.mesh, format=args.mesh_format)
     camera = Camera.read(args.camera[0])
     smap = SurfaceMap(mesh, camera, max_obliqueness=args.max_obliqueness)
     require_seen(smap.seen_faces.sum(), camera, mesh.vertices, "the mesh",
@@ -212,7 +217,7 @@ def _run_merge(args: argparse.Namespace, names: list) -> int:
     if len(args.image) != len(args.camera):
         raise InputError(f"--image: {len(args.image)} images for {len(args.camera)} cameras "
                          "(give one image per camera, in camera order)")
-    mesh = load_mesh(args.mesh)
+    mesh = load_mesh(args.mesh, format=args.mesh_format)
     cameras = [Camera.read(p) for p in args.camera]
     maps = [SurfaceMap(mesh, c, max_obliqueness=args.max_obliqueness) for c in cameras]
     images = [read_image(p, mask_saturated=True) for p in args.image]
@@ -230,7 +235,7 @@ def _run_merge(args: argparse.Namespace, names: list) -> int:
 
 
 def run_backproject(args: argparse.Namespace) -> int:
-    mesh = load_mesh(args.mesh)
+    mesh = load_mesh(args.mesh, format=args.mesh_format)
     camera = Camera.read(args.camera)
     _, values = _field(args.values, args.field, len(mesh.faces))
     background = None
@@ -247,7 +252,7 @@ def run_backproject(args: argparse.Namespace) -> int:
 
 
 def run_align(args: argparse.Namespace) -> int:
-    mesh = load_mesh(args.mesh)
+    mesh = load_mesh(args.mesh, format=args.mesh_format)
     warp = ViewWarp(mesh, Camera.read(args.source_camera), Camera.read(args.target_camera))
     out = warp(read_image(args.image), order=args.order)
     atomic_write(args.out, write_image, out.astype(np.float32))
@@ -256,7 +261,7 @@ def run_align(args: argparse.Namespace) -> int:
 
 
 def run_view(args: argparse.Namespace) -> int:
-    mesh = load_mesh(args.mesh)
+    mesh = load_mesh(args.mesh, format=args.mesh_format)
     name, values = _field(args.values, args.field, len(mesh.faces))
     if args.camera:
         camera = Camera.read(args.camera)

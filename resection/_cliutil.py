@@ -63,3 +63,13 @@ def add_acceptance_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-rms", type=float, default=2.0, metavar="PX",
                    help="refuse a fit whose RMS residual exceeds this whatever the "
                    "accuracy, px (default 2)")
+
+
+def add_mesh_format(parser: argparse.ArgumentParser) -> None:
+    """``--format``: the mesh file's format when its extension does not say it (Plot3D is
+    recognised by content; see :data:`resection.io.meshes.MESH_FORMATS`)."""
+    from .io.meshes import MESH_FORMATS
+
+    parser.add_argument("--format", dest="mesh_format", choices=MESH_FORMATS, default=None,
+                        help="format of --mesh (default: from the extension; Plot3D by "
+                        "content)")

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from resection._cliutil import add_mesh_format
 from resection.errors import InputError
 
 
@@ -32,7 +33,7 @@ def _cmd_psp(args) -> int:
     if len(ons) != len(cams):
         raise InputError(f"give one wind-on image per camera ({len(cams)} cameras, "
                          f"{len(ons)} wind-on images)")
-    mesh = load_mesh(args.mesh)
+    mesh = load_mesh(args.mesh, format=args.mesh_format)
     taps = read_taps(args.taps)
     maps = [SurfaceMap(mesh, Camera.read(c)) for c in cams]
     off_imgs = [read_image(p) for p in offs]
@@ -78,6 +79,7 @@ def register(sub) -> None:
         "pressure taps and write the pressure per face and per camera image.",
     )
     p.add_argument("--mesh", required=True, help="model surface (STL, OBJ, PLY, Plot3D, ...)")
+    add_mesh_format(p)
     p.add_argument("--camera", required=True, action="append",
                    help="camera JSON file; repeat for several cameras")
     p.add_argument("--wind-off", required=True, action="append",

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from resection._cliutil import add_mesh_format
 from resection.errors import InputError
 
 
@@ -55,7 +56,7 @@ def _cmd_render(args) -> int:
     if not out.parent.exists():
         raise InputError(f"--out: folder {out.parent} does not exist")
     png = side_path(out, "preview", ".png")  # a.tif -> a.preview.png, never an unrelated a.png
-    mesh = load_mesh(args.mesh)
+    mesh = load_mesh(args.mesh, format=args.mesh_format)
     camera = Camera.read(args.camera)
     emission = _per_face_arg(args.emission, "--emission")
     reflectance = _per_face_arg(args.reflectance, "--reflectance")
@@ -111,6 +112,7 @@ def register(sub) -> None:
         "3's path tracer. Writes OUT (.tif float32 or .npy) and a PNG preview next to it.",
     )
     p.add_argument("--mesh", required=True, help="model surface (STL, OBJ, PLY, Plot3D, ...)")
+    add_mesh_format(p)
     p.add_argument("--camera", required=True, help="camera JSON file (resection format)")
     p.add_argument("--emission", required=True,
                    help="emitted exitance: a number for every face, or a per-face file "

@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from resection._cliutil import OneLineParser, run
+from resection._cliutil import OneLineParser, add_mesh_format, run
 from resection.errors import InputError
 from resection.surface import DEFAULT_MAX_OBLIQUENESS
 
@@ -67,6 +67,7 @@ def _cmd_correct(args) -> int:
         unpainted=args.unpainted,
         max_obliqueness=args.max_obliqueness,
         progress=not args.quiet,
+        mesh_format=args.mesh_format,
     )
     s = summarize(result)
     seen = s.seen_min if s.seen_min == s.seen_max else f"{s.seen_min} to {s.seen_max}"
@@ -171,6 +172,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="model surface (STL, OBJ, PLY, ..., Plot3D, "
         "Cart3D .tri); normals point to the painted side",
     )
+    add_mesh_format(p)
     p.add_argument("--camera", required=True, help="camera JSON (resection.Camera)")
     p.add_argument("--image", required=True, help="image to correct (.tif, .tiff, .png, .npy)")
     p.add_argument(

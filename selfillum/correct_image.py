@@ -380,6 +380,7 @@ def correct_image_file(
     unpainted=None,
     max_obliqueness: float = DEFAULT_MAX_OBLIQUENESS,
     progress: bool = False,
+    mesh_format: str | None = None,
 ) -> ImageCorrection:
     """File-level :func:`correct_image`: read the mesh (any format of
     :func:`resection.io.meshes.load_mesh`), the camera JSON and the image (TIFF or NPY),
@@ -412,7 +413,7 @@ def correct_image_file(
          "--reflectance": [reflectance] if isinstance(reflectance, str | os.PathLike) else [],
          "--unseen": [unseen] if isinstance(unseen, str | os.PathLike) else [],
          "--unpainted": [unpainted] if isinstance(unpainted, str | os.PathLike) else []})
-    mesh = load_mesh(mesh_path)
+    mesh = load_mesh(mesh_path, format=mesh_format)
     camera = Camera.read(camera_path)
     image = _read_native(image_path)
     n = len(mesh.faces)
