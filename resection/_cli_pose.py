@@ -44,9 +44,6 @@ def register(sub) -> None:
     p.add_argument("--camera", required=True, help="input camera JSON (intrinsics)")
     p.add_argument("--markers", required=True, help="marker CSV id,x,y,z[,diameter][,nx,ny,nz] "
                    "or uPSP .tgts (its taps are never taken for targets)")
-    p.add_argument("--mesh", help="model surface: targets lying under it are moved out to it "
-                   "along their normals, with a warning (uPSP .tgts trap)")
-    add_mesh_format(p)
     p.add_argument("--points", help="linked image points CSV: id,u,v (pixels)")
     p.add_argument("--image", help="image: detect its markers and match them automatically "
                    "(approximate pose in --camera) or link them by hand with --links")
@@ -71,7 +68,10 @@ def register(sub) -> None:
                    "with ids, residual arrows with their scale, RMS in the title; over the "
                    "--image, or a blank frame with --points")
     p.add_argument("--mesh", help="model surface: with --image, targets it hides are not "
-                   "looked for (reported as occluded); with --plot, its outline is drawn")
+                   "looked for (reported as occluded) and targets lying under it are moved "
+                   "out to it along their normals, with a warning (uPSP .tgts trap); with "
+                   "--plot, its outline is drawn")
+    add_mesh_format(p)
     p.add_argument("--no-refind", action="store_true",
                    help="with --image: do not look again, after the first pose, for the "
                    "targets it did not use (default: every target predicted in view, facing "
@@ -116,15 +116,11 @@ def _linked(markers_path: str, points_path: str, mesh=None):
     return link_points(markers, ids, uv, source=points_path)
 
 
-def pose_inputs(args: argparse.Namespace):
+def pose_inputs(args: argparse.Namespace, mesh=None):
     """Camera and linked ``(ids, points3d, points2d)`` of the ``pose`` command (the place
-    where other sources of image points plug in)."""
+    where other sources of image points plug in). ``mesh``: the model surface, if given
+    (targets under it are moved out to it)."""
     camera = Camera.read(args.camera)
-    mesh = None
-    if getattr(args, "mesh", None):
-        from .io.meshes import load_mesh
-
-        mesh = load_mesh(args.mesh, format=args.mesh_format)
     if getattr(args, "image", None):
         if args.points:
             raise InputError("give --points or --image, not both")
@@ -148,15 +144,15 @@ def run_pose(args: argparse.Namespace) -> int:
     if args.mesh and not (args.plot or args.image):
         raise InputError("--mesh is for refinding (--image) and the overlay (--plot): give "
                          "one of them too")
-    mesh = load_mesh(args.mesh) if args.mesh else None
-    camera, ids, X, uv = pose_inputs(args)
+    mesh = load_mesh(args.mesh, format=args.mesh_format) if args.mesh else None
+    camera, ids, X, uv = pose_inputs(args, mesh)
     result = solve_pose(camera, X, uv, robust=args.robust, robust_scale=args.robust_scale,
                         refine_intrinsics=args.refine_intrinsics or False,
                         max_rms=args.max_rms, marker_accuracy=args.marker_accuracy,
                         ambiguity_px=args.ambiguity_px, ids=ids)
     if args.image and not args.links and not args.no_refind:
         found = refind_targets(
-            read_image(args.image, mask_saturated=True), read_markers(args.markers),
+            read_image(args.image, mask_saturated=True), read_markers(args.markers, mesh=mesh),
             result.camera, np.asarray(ids)[result.used], uv[result.used],
             diameter=args.diameter, polarity=args.polarity, mesh=mesh,
             marker_accuracy=args.marker_accuracy, max_rms=args.max_rms,
