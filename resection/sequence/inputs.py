@@ -58,7 +58,18 @@ def _check_options(kw, func, name: str, reserved: tuple) -> dict:
                 "the camera)" if why else "")
         raise InputError(f"{name}: unknown or reserved {func.__name__} option(s) {unknown}"
                          f"{note}; expected some of {sorted(allowed)}")
-    return dict(kw)
+    # options given at their default value are left out: a run with them resumes one
+    # without them (the CLI passes its acceptance options always)
+    return {k: v for k, v in kw.items() if not _is_default(v, params[k].default)}
+
+
+def _is_default(value, default) -> bool:
+    if default is inspect.Parameter.empty or isinstance(value, np.ndarray):
+        return False
+    try:
+        return type(value) in (int, float, str, bool, type(None)) and bool(value == default)
+    except (TypeError, ValueError):
+        return False
 
 
 def _as_link(link) -> dict | None:
