@@ -210,10 +210,12 @@ def corner_form_factors(scene: CornerScene, order: int = 4) -> np.ndarray:
     return F
 
 
-def exact_radiosity(scene: CornerScene, order: int = 4, tol: float = 1e-13) -> np.ndarray:
+def exact_radiosity(scene: CornerScene, order: int = 3, tol: float = 1e-13) -> np.ndarray:
     """Radiosity ``B = E + rho F B`` of the corner from its converged form factors
     (:func:`corner_form_factors`), solved by block Jacobi iteration to ``tol`` (relative):
-    an independent reference for ray-cast view factors and for the correction.
+    an independent reference for ray-cast view factors and for the correction. With the
+    default ``order = 3`` (9 points a face) it is within 2.2e-4 of the ``order = 6``
+    result at resolution 40 (``order = 4``: 2.9e-5), measured.
     """
     F = corner_form_factors(scene, order)
     m = F.shape[0]

@@ -29,14 +29,15 @@ def _cmd_corner(args) -> int:
         reflectance=args.reflectance,
         pattern=args.pattern,
         seed=args.seed,
+        reference=args.reference,
         progress=not args.quiet,
     )
     paths = write_corner(result, args.out)
     n = result.numbers
     print(f"faces                          {n.faces}")
-    print(
-        f"rays per face                  {n.rays_per_face} (reference {n.reference_rays_per_face})"
-    )
+    ref = ("closed-form kernel, no rays" if n.reference == "exact"
+           else f"{n.reference_rays_per_face} rays per face")
+    print(f"rays per face                  {n.rays_per_face} (measurement simulated: {ref})")
     print(f"reflectance                    {n.reflectance:g}")
     print(f"largest self-illumination      {100 * n.max_si_fraction:.1f} % of the signal")
     print(
@@ -139,8 +140,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--rays",
         type=_positive(int),
-        default=256,
-        help="rays per face for the view factors (default 256)",
+        default=4096,
+        help="rays per face for the working view factors (default 4096: largest residual "
+        "after correction about 0.2 %%)",
+    )
+    p.add_argument(
+        "--reference",
+        choices=("exact", "rays"),
+        default="exact",
+        help="how the measurement is simulated: 'exact' (default) converged form factors "
+        "from the closed-form point-to-triangle kernel; 'rays' ray-cast factors with 4x "
+        "the rays and another seed",
     )
     p.add_argument(
         "--reflectance",

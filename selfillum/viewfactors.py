@@ -25,6 +25,7 @@ import scipy.sparse as sp
 import trimesh
 from embreex import rtcore_scene
 from embreex.mesh_construction import TriangleMesh
+from numba import njit
 
 from resection.errors import InputError
 
@@ -122,50 +123,59 @@ def digital_shifts(seed: int, face_ids: np.ndarray, dims: int) -> np.ndarray:
         return (_mix64(_mix64(key)) >> np.uint64(32)).astype(np.uint32)
 
 
-def _reverse_bits(x: np.ndarray) -> np.ndarray:
-    """Bit reversal of uint32 values (element-wise)."""
-    for shift, mask in ((1, 0x55555555), (2, 0x33333333), (4, 0x0F0F0F0F), (8, 0x00FF00FF)):
-        sh, mk = np.uint32(shift), np.uint32(mask)
-        x = ((x >> sh) & mk) | ((x & mk) << sh)
-    return (x >> np.uint32(16)) | (x << np.uint32(16))
+_U = np.uint64  # numba: keep every operand uint64 (uint64 with int64 gives float64)
+_M1, _M2, _M4, _M8 = _U(0x55555555), _U(0x33333333), _U(0x0F0F0F0F), _U(0x00FF00FF)
+_M32 = _U(0xFFFFFFFF)
+_LK = (_U(0x6C50B47C), _U(0xB82F1E52), _U(0xC7AFE638), _U(0x8D22F6E6))
+_S1, _S2, _S4, _S8, _S16 = _U(1), _U(2), _U(4), _U(8), _U(16)
 
 
-def owen_scramble(x: np.ndarray, seeds: np.ndarray) -> np.ndarray:
-    """Hash-based nested uniform (Owen) scrambling of 32-bit Sobol integers.
+@njit(cache=True)
+def _rev32(x):  # pragma: no cover - compiled
+    """Bit reversal of a 32-bit value held in a uint64."""
+    x = ((x >> _S1) & _M1) | ((x & _M1) << _S1)
+    x = ((x >> _S2) & _M2) | ((x & _M2) << _S2)
+    x = ((x >> _S4) & _M4) | ((x & _M4) << _S4)
+    x = ((x >> _S8) & _M8) | ((x & _M8) << _S8)
+    return ((x >> _S16) | (x << _S16)) & _M32
 
-    Each bit of ``x`` is flipped by a hash of the bits above it and of the seed (the
-    Laine-Karras permutation applied to the bit-reversed value, as in Burley, "Practical
-    Hash-based Owen Scrambling", JCGT 2020). A scrambled net stays a net, every point is
-    uniform on ``[0, 1)``, and the variance of an estimate falls faster than with a
-    plain random shift.
-    """
-    with np.errstate(over="ignore"):
-        x = _reverse_bits(x)
-        x = x + seeds
-        x ^= x * np.uint32(0x6C50B47C)
-        x ^= x * np.uint32(0xB82F1E52)
-        x ^= x * np.uint32(0xC7AFE638)
-        x ^= x * np.uint32(0x8D22F6E6)
-        return _reverse_bits(x)
+
+@njit(cache=True)
+def _owen_points(base, keys, out):  # pragma: no cover - compiled
+    """``out[f, i, d]``: Sobol integer ``base[i, d]`` Owen-scrambled with ``keys[f, d]``,
+    as a float32 strictly inside (0, 1) (the top 24 bits, centred in their cell)."""
+    c0, c1, c2, c3 = _LK
+    for f in range(keys.shape[0]):
+        for d in range(keys.shape[1]):
+            key = _U(keys[f, d])
+            for i in range(base.shape[0]):
+                x = _rev32(_U(base[i, d]))
+                x = (x + key) & _M32
+                x ^= (x * c0) & _M32
+                x ^= (x * c1) & _M32
+                x ^= (x * c2) & _M32
+                x ^= (x * c3) & _M32
+                x = _rev32(x)
+                out[f, i, d] = (np.float32(x >> _S8) + np.float32(0.5)) * np.float32(2.0**-24)
 
 
 def rqmc_points(k: int, face_ids: np.ndarray, seed: int, dims: int = 4) -> np.ndarray:
     """Randomised quasi-Monte Carlo points of the unit cube, ``(n, k, dims)`` float32.
 
     Each face gets the first ``k`` points of the Sobol sequence, Owen-scrambled with its
-    own seeds (:func:`owen_scramble`, seeds from :func:`digital_shifts`). Every point is
-    uniformly distributed on ``[0, 1)^dims``, so every estimate built on these points is
-    unbiased, while the points of one face keep the net structure of the sequence: their
-    error falls faster than ``1/sqrt(k)`` (measured against Howell's closed forms in
-    ``bench/bench_viewfactors.py``).
+    own seeds (the seeds are :func:`digital_shifts`; each bit of a coordinate is flipped
+    by a hash of the bits above it, the Laine-Karras permutation applied to the
+    bit-reversed value, as in Burley, "Practical Hash-based Owen Scrambling", JCGT 2020).
+    A scrambled net stays a net and every point is uniformly distributed on
+    ``[0, 1)^dims`` (to 2**-24), so every estimate built on these points is unbiased,
+    while the error of one face's points falls faster than ``1/sqrt(k)`` (measured
+    against Howell's closed forms in ``bench/bench_viewfactors.py``).
     """
     base = _sobol_base(k, dims)
     keys = digital_shifts(seed, face_ids, dims)
-    x = owen_scramble(np.broadcast_to(base[None, :, :], (len(keys), k, dims)).copy(),
-                      keys[:, None, :])
-    out = x.astype(np.float32)
-    out *= np.float32(2.0**-32)
-    return np.minimum(out, np.float32(1.0 - 2**-24), out=out)
+    out = np.empty((len(keys), k, dims), dtype=np.float32)
+    _owen_points(base, keys, out)
+    return out
 
 
 def _tangent_frames(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -177,6 +187,49 @@ def _tangent_frames(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
     t2 = np.cross(normals, t1)
     return t1, t2
+
+
+@njit(cache=True)
+def _build_rays(tri, nrm, t1, t2, pts, side, offset, origins,
+                directions):  # pragma: no cover - compiled
+    """Rays from unit-square samples (float32 throughout, one ray a loop iteration).
+
+    ``pts[f, i, 0:2]`` place the ray, ``pts[f, i, 2:4]`` aim it. Position: the
+    area-preserving map of the square onto the triangle (``sqrt(u0)``), lifted by
+    ``offset`` on the side the ray leaves and moved as much towards the face's centre (a
+    point on an edge shared with a perpendicular face would otherwise lie in that face's
+    plane). Direction: cosine-weighted about the signed normal (Malley's method: a
+    uniform disk lifted to the hemisphere).
+    """
+    n, k = pts.shape[0], pts.shape[1]
+    two_pi = np.float32(2.0 * np.pi)
+    for f in range(n):
+        cx = (tri[f, 0, 0] + tri[f, 1, 0] + tri[f, 2, 0]) / np.float32(3.0)
+        cy = (tri[f, 0, 1] + tri[f, 1, 1] + tri[f, 2, 1]) / np.float32(3.0)
+        cz = (tri[f, 0, 2] + tri[f, 1, 2] + tri[f, 2, 2]) / np.float32(3.0)
+        for i in range(k):
+            r = f * k + i
+            sa = np.sqrt(pts[f, i, 0])
+            w2 = sa * pts[f, i, 1]
+            w1 = sa - w2
+            sd = np.float32(side[f, i])
+            for c in range(3):
+                origins[r, c] = (tri[f, 0, c] + w1 * (tri[f, 1, c] - tri[f, 0, c])
+                                 + w2 * (tri[f, 2, c] - tri[f, 0, c]))
+            if offset > 0:
+                ix, iy, iz = cx - origins[r, 0], cy - origins[r, 1], cz - origins[r, 2]
+                d = np.sqrt(ix * ix + iy * iy + iz * iz)
+                g = offset / max(d, offset)
+                origins[r, 0] += ix * g + sd * offset * nrm[f, 0]
+                origins[r, 1] += iy * g + sd * offset * nrm[f, 1]
+                origins[r, 2] += iz * g + sd * offset * nrm[f, 2]
+            rr = np.sqrt(pts[f, i, 2])
+            phi = two_pi * pts[f, i, 3]
+            lx = rr * np.cos(phi)
+            ly = rr * np.sin(phi)
+            lz = np.sqrt(max(np.float32(0.0), np.float32(1.0) - pts[f, i, 2])) * sd
+            for c in range(3):
+                directions[r, c] = lx * t1[f, c] + ly * t2[f, c] + lz * nrm[f, c]
 
 
 def sample_rays(
@@ -228,8 +281,7 @@ def sample_rays(
     n = triangles.shape[0]
     f32 = np.float32
     if rng is not None:
-        pos = _stratified_2d(rng, n, k)
-        dirs = _stratified_2d(rng, n, k)
+        pts = np.concatenate([_stratified_2d(rng, n, k), _stratified_2d(rng, n, k)], axis=2)
         if two_sided:
             flip = rng.integers(0, 2, size=(n, 1))
             side = np.where((np.arange(k)[None, :] + flip) % 2 == 0, 1, -1).astype(np.int8)
@@ -238,42 +290,14 @@ def sample_rays(
     else:
         ids = np.arange(n) if face_ids is None else np.asarray(face_ids)
         pts = rqmc_points(k, ids, seed, dims=5 if two_sided else 4)
-        pos, dirs = pts[..., 0:2], pts[..., 2:4]
         side = (np.where(pts[..., 4] < 0.5, 1, -1).astype(np.int8) if two_sided
                 else np.ones((n, k), dtype=np.int8))
-    tri = triangles.astype(f32)
-    nrm = normals.astype(f32)
-    # uniform point of a triangle from the unit square (area-preserving map), as the
-    # weights of [v0, v1 - v0, v2 - v0, offset * normal]: one batched 4x3 product a face
-    sa = np.sqrt(pos[..., 0])
-    w = np.empty((n, k, 4), dtype=f32)
-    w[..., 0] = 1.0
-    w[..., 2] = sa * pos[..., 1]
-    w[..., 1] = sa - w[..., 2]
-    w[..., 3] = side
-    basis = np.empty((n, 4, 3), dtype=f32)
-    basis[:, 0] = tri[:, 0]
-    basis[:, 1] = tri[:, 1] - tri[:, 0]
-    basis[:, 2] = tri[:, 2] - tri[:, 0]
-    basis[:, 3] = f32(offset) * nrm
-    origins = np.matmul(w, basis)
-    if offset:
-        # and off the face's edges by as much, towards its centre: a point on the edge
-        # shared with a perpendicular face would otherwise lie in that face's plane
-        inward = tri.mean(axis=1)[:, None, :] - origins
-        norm = np.linalg.norm(inward, axis=2, keepdims=True)
-        origins += inward * (f32(offset) / np.maximum(norm, f32(offset)))
-    # cosine-weighted hemisphere (Malley's method: uniform disk lifted to the hemisphere),
-    # local (x, y, z) times the face frame [t1, t2, n]
-    local = np.empty((n, k, 3), dtype=f32)
-    r = np.sqrt(dirs[..., 0])
-    phi = f32(2.0 * np.pi) * dirs[..., 1]
-    local[..., 0] = r * np.cos(phi)
-    local[..., 1] = r * np.sin(phi)
-    local[..., 2] = np.sqrt(np.maximum(f32(0.0), f32(1.0) - dirs[..., 0])) * side
     t1, t2 = _tangent_frames(normals)
-    frame = np.stack([t1, t2, normals], axis=1).astype(f32)
-    directions = np.matmul(local, frame)
+    origins = np.empty((n * k, 3), dtype=f32)
+    directions = np.empty((n * k, 3), dtype=f32)
+    _build_rays(np.ascontiguousarray(triangles, dtype=f32), np.ascontiguousarray(normals, f32),
+                np.ascontiguousarray(t1, f32), np.ascontiguousarray(t2, f32),
+                pts, side, f32(offset), origins, directions)
     return origins.reshape(-1, 3), directions.reshape(-1, 3), side.reshape(-1)
 
 
