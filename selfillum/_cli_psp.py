@@ -34,7 +34,7 @@ def _cmd_psp(args) -> int:
         raise InputError(f"give one wind-on image per camera ({len(cams)} cameras, "
                          f"{len(ons)} wind-on images)")
     mesh = load_mesh(args.mesh, format=args.mesh_format)
-    taps = read_taps(args.taps)
+    taps = read_taps(args.taps, positions=args.tap_positions)
     maps = [SurfaceMap(mesh, Camera.read(c)) for c in cams]
     off_imgs = [read_image(p) for p in offs]
     on_imgs = [read_image(p) for p in ons]
@@ -85,7 +85,11 @@ def register(sub) -> None:
     p.add_argument("--wind-off", required=True, action="append",
                    help="wind-off image (uniform p_ref), one per camera, in camera order")
     p.add_argument("--wind-on", action="append", help="wind-on image, one per camera")
-    p.add_argument("--taps", required=True, help="pressure taps CSV: id,x,y,z,p")
+    p.add_argument("--taps", required=True, help="pressure taps CSV: id,x,y,z,p, or id,p with "
+                   "--tap-positions")
+    p.add_argument("--tap-positions", metavar="MODEL.tgts",
+                   help="tap positions for an id,p tap file: a uPSP .tgts file (its *Taps) "
+                   "or a marker file")
     p.add_argument("--p-ref", required=True, type=float, help="pressure of the wind-off run")
     p.add_argument("--reflectance", default="0.6",
                    help="paint reflectance: a number or a per-face file (default 0.6)")

@@ -64,35 +64,63 @@ class Taps:
     pressure: np.ndarray
 
 
-def read_taps(path: str | os.PathLike) -> Taps:
-    """Read a tap CSV file with the header ``id,x,y,z,p``."""
+def read_taps(path: str | os.PathLike, positions=None) -> Taps:
+    """Read a tap CSV file with the header ``id,x,y,z,p``, or ``id,p`` with the positions
+    taken from ``positions``.
+
+    Parameters
+    ----------
+    positions : path-like or resection.io.markers.MarkerSet, optional
+        Where the taps are: a uPSP ``.tgts`` file (its ``*Taps`` section, or any of its
+        markers) or a marker CSV; needed when the tap file holds only ``id,p``.
+    """
     path = os.fspath(path)
     try:
-        with open(path, newline="", encoding="utf-8") as fh:
+        with open(path, newline="", encoding="utf-8-sig") as fh:
             rows = list(csv.DictReader(fh))
             header = rows[0].keys() if rows else []
     except FileNotFoundError:
         raise InputError(f"tap file not found: {path}") from None
-    need = ("id", "x", "y", "z", "p")
     if not rows:
         raise InputError(f"{path}: no taps")
+    need = ("id", "x", "y", "z", "p") if set(header) != {"id", "p"} else ("id", "p")
     missing = [k for k in need if k not in header]
     unknown = [k for k in header if k not in need]
     if missing or unknown:
-        raise InputError(f"{path}: expected the columns id,x,y,z,p"
+        raise InputError(f"{path}: expected the columns id,x,y,z,p (or id,p with tap "
+                         "positions from a .tgts file)"
                          + (f"; missing {missing}" if missing else "")
                          + (f"; unknown {unknown}" if unknown else ""))
+    ids = [r["id"] for r in rows]
+    if len(set(ids)) != len(ids):
+        raise InputError(f"{path}: duplicate tap ids")
     try:
-        pts = np.array([[float(r["x"]), float(r["y"]), float(r["z"])] for r in rows])
         p = np.array([float(r["p"]) for r in rows])
+        if need == ("id", "p"):
+            pts = _tap_positions(path, ids, positions)
+        else:
+            pts = np.array([[float(r["x"]), float(r["y"]), float(r["z"])] for r in rows])
     except (TypeError, ValueError) as exc:
         raise InputError(f"{path}: not a number ({exc})") from None
     if not (np.all(np.isfinite(pts)) and np.all(np.isfinite(p))):
         raise InputError(f"{path}: NaN or infinite coordinates or pressures")
-    ids = [r["id"] for r in rows]
-    if len(set(ids)) != len(ids):
-        raise InputError(f"{path}: duplicate tap ids")
     return Taps(ids, pts, p)
+
+
+def _tap_positions(path: str, ids: list, positions) -> np.ndarray:
+    from resection.io.markers import MarkerSet, read_markers
+
+    if positions is None:
+        raise InputError(f"{path}: holds id,p only; give the tap positions (a .tgts file "
+                         "with a *Taps section, or a marker file)")
+    ms = positions if isinstance(positions, MarkerSet) else \
+        read_markers(positions, include_taps=True)
+    pos = {k: i for i, k in enumerate(ms.ids)}
+    missing = [k for k in ids if k not in pos]
+    if missing:
+        raise InputError(f"{path}: tap id(s) not in the tap positions: "
+                         f"{', '.join(missing[:10])}")
+    return ms.xyz[[pos[k] for k in ids]]
 
 
 def tap_faces(mesh: trimesh.Trimesh, points, max_distance: float | None = None) -> np.ndarray:

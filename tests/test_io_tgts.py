@@ -108,3 +108,21 @@ def test_target_under_the_surface_moves_out_along_its_normal(tmp_path):
     with pytest.warns(UserWarning, match="m.csv"):
         again = read_markers(p, mesh=plate)
     np.testing.assert_allclose(again.xyz, out.xyz, atol=1e-12)
+
+
+def test_psp_taps_positions_from_tgts(tmp_path):
+    """``selfillum psp --taps P.csv --tap-positions MODEL.tgts``: the pressures come from an
+    id,p file, the positions from the .tgts *Taps section."""
+    from selfillum.psp import read_taps
+
+    (tmp_path / "model.tgts").write_text(TGTS)
+    (tmp_path / "p.csv").write_text("id,p\nP1,101.5\n")
+    taps = read_taps(tmp_path / "p.csv", positions=tmp_path / "model.tgts")
+    assert taps.ids == ["P1"]
+    np.testing.assert_array_equal(taps.points, [[11.0, 0.0, 0.5]])
+    np.testing.assert_array_equal(taps.pressure, [101.5])
+    with pytest.raises(InputError, match="give the tap positions"):
+        read_taps(tmp_path / "p.csv")
+    (tmp_path / "q.csv").write_text("id,p\nP9,100\n")
+    with pytest.raises(InputError, match="P9"):
+        read_taps(tmp_path / "q.csv", positions=tmp_path / "model.tgts")
