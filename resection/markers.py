@@ -28,6 +28,7 @@ from __future__ import annotations
 import csv
 import os
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -152,7 +153,17 @@ def _check_diameter(diameter) -> float:
     return d
 
 
-def _bad_pixels(img: np.ndarray, mask, saturation) -> np.ndarray:
+def _bad_pixels(img: np.ndarray, mask, saturation, box=None) -> np.ndarray:
+    """Masked pixels (NaN, infinite, saturated, user mask) of ``img``, or of its part
+    ``box = (u0, v0, u1, v1)`` (inclusive) only."""
+    if mask is not None:
+        mask = np.asarray(mask)
+        if mask.shape != img.shape:
+            raise InputError(f"mask: shape {mask.shape} differs from the image's {img.shape}")
+    if box is not None:
+        u0, v0, u1, v1 = box
+        img = img[v0:v1 + 1, u0:u1 + 1]
+        mask = None if mask is None else mask[v0:v1 + 1, u0:u1 + 1]
     bad = np.zeros(img.shape, bool)
     if img.dtype.kind == "f":
         bad |= ~np.isfinite(img)
@@ -162,10 +173,7 @@ def _bad_pixels(img: np.ndarray, mask, saturation) -> np.ndarray:
         with np.errstate(invalid="ignore"):
             bad |= img >= saturation
     if mask is not None:
-        m = np.asarray(mask)
-        if m.shape != img.shape:
-            raise InputError(f"mask: shape {m.shape} differs from the image's {img.shape}")
-        bad |= m.astype(bool)
+        bad |= mask.astype(bool)
     return bad
 
 
@@ -217,6 +225,12 @@ def marker_template(diameter: float, kind: str = "tophat") -> np.ndarray:
     d = _check_diameter(diameter)
     if kind not in ("tophat", "cone"):
         raise InputError(f"template: expected 'tophat' or 'cone', got {kind!r}")
+    return _template(d, kind).copy()
+
+
+@lru_cache(maxsize=32)
+def _template(d: float, kind: str) -> np.ndarray:
+    """marker_template's array, computed once per (diameter, kind); read-only."""
     R = d / 2.0
     r_out0 = R + 1.0
     r_out1 = r_out0 + max(2.0, R)
@@ -229,7 +243,9 @@ def marker_template(diameter: float, kind: str = "tophat") -> np.ndarray:
         inner = np.clip(1.0 - rr / (R + 0.5), 0.0, None)
     rr = np.hypot(ar[None, :], ar[:, None])
     ring = ((rr >= r_out0) & (rr <= r_out1)).astype(float)
-    return inner / inner.sum() - ring / ring.sum()
+    out = inner / inner.sum() - ring / ring.sum()
+    out.setflags(write=False)
+    return out
 
 
 def _parse_roi(roi, shape) -> tuple[int, int, int, int]:
@@ -371,11 +387,14 @@ def _refine_chunk(signal, bad, uv_all, strength, sel, R0, blur, iterations, half
     w = (~wbad_fit & (rr <= half + 0.5)[None]).astype(float)
     # local background from the window's outer ring, weighted centroid inside
     ring = (rr > R0 + 1.5)[None] & ~wbad
-    ringvals = np.where(ring, win, np.nan).reshape(n, -1)
-    has_ring = ring.any(axis=(1, 2))
+    # (the median of each window's ring pixels: sorted, NaN last, middle of the valid ones)
+    ringvals = np.sort(np.where(ring, win, np.nan).reshape(n, -1), axis=1)
+    cnt = ring.sum(axis=(1, 2))
+    has_ring = cnt > 0
     bg0 = np.zeros(n)
     if has_ring.any():
-        bg0[has_ring] = np.nanmedian(ringvals[has_ring], axis=1)
+        i, c = np.flatnonzero(has_ring), cnt[has_ring]
+        bg0[i] = 0.5 * (ringvals[i, (c - 1) // 2] + ringvals[i, c // 2])
     inner = (rr <= R0 + 1.0)[None] & ~wbad
     wc = np.clip(win - bg0[:, None, None], 0, None) * inner
     sw = wc.sum(axis=(1, 2))
@@ -508,30 +527,31 @@ def detect_markers(
                          f"{diameter_range!r}") from None
     if not (0.0 <= lo_d < hi_d):
         raise InputError(f"diameter_range: need 0 <= min < max, got {diameter_range!r}")
-    bad_full = _bad_pixels(img, mask, saturation)
-    n_masked_total = int(bad_full.sum())
-    if n_masked_total == img.size:
-        raise InputError("image: every pixel is masked (NaN, infinite or saturated)")
     u0, v0, u1, v1 = _parse_roi(roi, img.shape)
     R = d / 2.0
-    tmpl = marker_template(d, template)
+    tmpl = _template(d, template)
     th = tmpl.shape[0] // 2
     pad = th + int(np.ceil(R + 3 * blur + 3))
     # work on the roi plus a margin
     cu0, cv0 = max(u0 - pad, 0), max(v0 - pad, 0)
     cu1, cv1 = min(u1 + pad, img.shape[1] - 1), min(v1 + pad, img.shape[0] - 1)
-    sub = img[cv0:cv1 + 1, cu0:cu1 + 1].astype(np.float64)
-    bad = bad_full[cv0:cv1 + 1, cu0:cu1 + 1]
-    n_masked = int(bad_full[v0:v1 + 1, u0:u1 + 1].sum())
-    sign = -1.0 if polarity == "dark" else 1.0
-    signal = sign * sub
+    # only the roi and its margin are read (a small roi costs little on a large frame)
+    bad = _bad_pixels(img, mask, saturation, (cu0, cv0, cu1, cv1))
     if bad.all():
-        raise InputError("image: every pixel of the roi is masked")
+        raise InputError("image: every pixel is masked (NaN, infinite or saturated)"
+                         if roi is None else "image: every pixel of the roi is masked")
+    n_masked = int(bad[v0 - cv0:v1 - cv0 + 1, u0 - cu0:u1 - cu0 + 1].sum())
+    sign = -1.0 if polarity == "dark" else 1.0
+    signal = img[cv0:cv1 + 1, cu0:cu1 + 1].astype(np.float64)
+    if sign < 0:
+        np.negative(signal, out=signal)
     k = max(1, int(np.sqrt(signal.size / 65_000)))  # a regular subset is enough
     sub_ok = ~bad[::k, ::k]
     fill = float(np.median(signal[::k, ::k][sub_ok] if sub_ok.any() else signal[~bad]))
-    signal = np.where(bad, fill, signal)
-    noise = estimate_noise(signal, bad)
+    has_bad = bool(bad.any())
+    if has_bad:
+        signal[bad] = fill
+    noise = estimate_noise(signal, bad if has_bad else None)
     # reflect at the borders (zero padding would make the image edge look like a marker)
     # (float32 after removing the median level: the FFT rounding stays far under the noise)
     padded = np.pad((signal - fill).astype(np.float32), th, mode="symmetric")
