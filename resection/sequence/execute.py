@@ -7,7 +7,14 @@ import os
 from pathlib import Path
 
 from ..errors import InputError
-from .outputs import _atomic_write_text, _frame_path, _frame_text, _read_frame, _write_frame
+from .outputs import (
+    _atomic_write_text,
+    _frame_path,
+    _frame_text,
+    _read_frame,
+    _write_frame,
+    summary,
+)
 from .process import _process_frame, _process_linked, _repair, _run_chunk, _Setup
 from .results import FrameResult
 
@@ -15,8 +22,10 @@ from .results import FrameResult
 def run_frames(frames: list, setup: _Setup, link: dict | None, done: dict, *,
                chunk_size: int, workers: int, scheduler: str | None, frames_dir: Path,
                progress: bool) -> int:
-    """Compute every frame not in ``done`` (index -> frame dict, completed in place), each
-    written to ``frames_dir`` as soon as it is finished. Returns the number computed."""
+    """Compute every frame not in ``done`` (index -> ``(ok, matched_from)``, completed in
+    place), each written to ``frames_dir`` as soon as it is finished. Returns the number
+    computed. Memory does not grow with the frames: a finished frame is kept as its file
+    and those two numbers; the frames are read one at a time, where they are processed."""
     from tqdm.auto import tqdm
 
     bar = tqdm(total=len(frames), initial=len(done), desc="track", unit="frame",
@@ -26,7 +35,7 @@ def run_frames(frames: list, setup: _Setup, link: dict | None, done: dict, *,
     def note(d: dict) -> None:
         """A frame finished (its file is written)."""
         nonlocal computed
-        done[d["frame"]] = d
+        done[d["frame"]] = summary(d)
         computed += 1
         bar.update(1)
 
@@ -35,13 +44,14 @@ def run_frames(frames: list, setup: _Setup, link: dict | None, done: dict, *,
         note(res.to_dict())
 
     try:
-        if 0 in done:  # the reference frame, in this process
-            first = FrameResult.from_dict(done[0])
+        d0 = _read_frame(_frame_path(frames_dir, 0)) if 0 in done else None
+        if d0 is not None:  # the reference frame, in this process
+            first = FrameResult.from_dict(d0)
         else:
             first = (_process_linked(frames[0], 0, setup, link) if link is not None
                      else _process_frame(frames[0], 0, setup, None))
             record(first)
-        tasks = _chunks(frames, done, first if first.ok else None, chunk_size)
+        tasks = _chunks(frames, done, first if first.ok else None, chunk_size, frames_dir)
         n_local = min(workers, len(tasks))  # no idle local workers: start-up costs
         if tasks and scheduler is None and n_local == 1:
             _execute_local(setup, tasks, record)
@@ -54,25 +64,28 @@ def run_frames(frames: list, setup: _Setup, link: dict | None, done: dict, *,
         def rerecord(res: FrameResult) -> None:
             nonlocal computed
             _write_frame(frames_dir, res)
-            done[res.frame] = res.to_dict()
+            done[res.frame] = summary(res.to_dict())
             computed += 1
 
-        _repair(frames, setup, done, rerecord)
+        _repair(frames, setup, done, rerecord, frames_dir)
     finally:
         bar.close()
     return computed
 
 
-def _chunks(frames: list, done: dict, seed: FrameResult | None, chunk_size: int) -> list:
+def _chunks(frames: list, done: dict, seed: FrameResult | None, chunk_size: int,
+            frames_dir: Path) -> list:
     """``(items, seed, done)`` per chunk of consecutive frames (after frame 0) with at least
-    one frame to compute; ``items = [(index, frame), ...]``."""
+    one frame to compute; ``items = [(index, frame), ...]``, ``done`` the dicts of the
+    chunk's finished frames (read back from their files: they serve as references)."""
     tasks = []
     for start in range(1, len(frames), chunk_size):
         idx = range(start, min(start + chunk_size, len(frames)))
         if all(i in done for i in idx):
             continue
+        finished = {i: _read_frame(_frame_path(frames_dir, i)) for i in idx if i in done}
         tasks.append(([(i, frames[i]) for i in idx], seed,
-                      {i: done[i] for i in idx if i in done}))
+                      {i: d for i, d in finished.items() if d is not None}))
     return tasks
 
 

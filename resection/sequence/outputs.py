@@ -74,26 +74,51 @@ def _fmt(x: float) -> str:
 
 
 def _write_csvs(result: TrackResult, out: Path) -> None:
-    import io
+    """``poses.csv`` and ``markers.csv``, each streamed to a temporary file (in blocks of
+    rows, not built in memory) and renamed into place."""
+    def poses():
+        for i in range(len(result)):
+            yield [int(result.frame[i]), result.file[i], result.status[i], result.reason[i],
+                   *map(_fmt, result.angles[i]), *map(_fmt, result.translation[i]),
+                   _fmt(result.rms[i]), int(result.n_markers[i]),
+                   *map(_fmt, result.rvec[i]), *map(_fmt, result.tvec[i])]
 
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(POSE_COLUMNS)
-    for i in range(len(result)):
-        w.writerow([int(result.frame[i]), result.file[i], result.status[i], result.reason[i],
-                    *map(_fmt, result.angles[i]), *map(_fmt, result.translation[i]),
-                    _fmt(result.rms[i]), int(result.n_markers[i]),
-                    *map(_fmt, result.rvec[i]), *map(_fmt, result.tvec[i])])
-    _atomic_write_text(out / "poses.csv", buf.getvalue())
-    buf = io.StringIO()
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(MARKER_COLUMNS)
-    res = result.marker_residual
-    for k in range(len(result.marker_frame)):
-        w.writerow([int(result.marker_frame[k]), result.marker_id[k],
-                    f"{result.marker_uv[k, 0]:.6f}", f"{result.marker_uv[k, 1]:.6f}",
-                    f"{np.hypot(*res[k]):.6f}", f"{res[k, 0]:.6f}", f"{res[k, 1]:.6f}"])
-    _atomic_write_text(out / "markers.csv", buf.getvalue())
+    def markers():
+        res, uv = result.marker_residual, result.marker_uv
+        err = np.hypot(res[:, 0], res[:, 1])
+        for k in range(len(result.marker_frame)):
+            yield [int(result.marker_frame[k]), result.marker_id[k], f"{uv[k, 0]:.6f}",
+                   f"{uv[k, 1]:.6f}", f"{err[k]:.6f}", f"{res[k, 0]:.6f}", f"{res[k, 1]:.6f}"]
+
+    _atomic_write_rows(out / "poses.csv", POSE_COLUMNS, poses())
+    _atomic_write_rows(out / "markers.csv", MARKER_COLUMNS, markers())
+
+
+def _atomic_write_rows(path: Path, header, rows) -> None:
+    """CSV rows written to a temporary file next to ``path``, synced, renamed into place."""
+    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
+            w = csv.writer(fh, lineterminator="\n")
+            w.writerow(header)
+            w.writerows(rows)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _frames_from_files(frames_dir: Path, n: int):
+    """The finished frames ``0 .. n-1`` read back from their files, one at a time."""
+    for i in range(n):
+        d = _read_frame(_frame_path(frames_dir, i))
+        if d is None or d.get("frame") != i:
+            raise InputError(f"{_frame_path(frames_dir, i)}: missing or unreadable; another "
+                             "process changed the output folder during the run?")
+        yield FrameResult.from_dict(d)
 
 
 def read_track(out_dir: str | os.PathLike) -> TrackResult:
@@ -146,10 +171,11 @@ def read_track(out_dir: str | os.PathLike) -> TrackResult:
     )
 
 
-def _start_run(out: Path, frames: list, settings: dict, resume: bool) -> dict[int, dict]:
+def _start_run(out: Path, frames: list, settings: dict, resume: bool) -> dict[int, tuple]:
     """Prepare ``out`` (locked by the caller) for a run: check that a run there had the same
-    settings, write them, and return the frames already finished (index -> frame dict) of
-    files that have not changed since; the result files of changed frames are removed."""
+    settings, write them, and return the frames already finished, of files that have not
+    changed since, as ``index -> (ok, matched_from)``; the result files of changed frames
+    are removed."""
     from .frames import _frame_name, changed
 
     frames_dir = out / "frames"
@@ -168,7 +194,7 @@ def _start_run(out: Path, frames: list, settings: dict, resume: bool) -> dict[in
         for p in frames_dir.glob("frame_*.json"):
             p.unlink()
     _atomic_write_text(manifest, json.dumps(settings, indent=1))
-    done: dict[int, dict] = {}
+    done: dict[int, tuple] = {}
     if not resume:
         return done
     names = set(os.listdir(frames_dir))
@@ -185,5 +211,11 @@ def _start_run(out: Path, frames: list, settings: dict, resume: bool) -> dict[in
         if changed(f, d.get("source")):  # the file was written since: recompute it
             path.unlink()
             continue
-        done[i] = d
+        done[i] = summary(d)
     return done
+
+
+def summary(d: dict) -> tuple[bool, int]:
+    """What the run keeps in memory of a finished frame: ``(ok, matched_from)``; the rest
+    is in its file."""
+    return d["status"] == "ok", int(d.get("matched_from", -1))

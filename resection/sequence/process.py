@@ -226,22 +226,26 @@ def _run_chunk(setup: _Setup, items: list, seed: FrameResult | None,
     return out
 
 
-def _repair(frames: list, setup: _Setup, done: dict, record) -> None:
+def _repair(frames: list, setup: _Setup, done: dict, record, frames_dir: Path) -> None:
     """Second, sequential pass over the frames that failed while matched from a frame other
     than the last good one before them (a chunk's first frames are matched from frame 0:
     after a large excursion that can fail where matching from the previous frame works).
     Such a frame is processed again from the last good frame; a frame that failed although
     matched from it (a corrupt frame) is left as it is, so the pass is cheap and a resumed
-    run does not redo it. Deterministic: it depends only on the first pass' results."""
+    run does not redo it. Deterministic: it depends only on the first pass' results.
+    ``done``: index -> ``(ok, matched_from)``; the last good frame is read from its file."""
+    from .outputs import _frame_path, _read_frame
+
     last_good = None
     for i in range(len(frames)):
-        d = done[i]
-        if d["status"] == "ok":
+        ok, matched_from = done[i]
+        if ok:
             last_good = i
             continue
-        if last_good is None or d.get("matched_from", -1) == last_good:
+        if last_good is None or matched_from == last_good:
             continue
-        res = _process_frame(frames[i], i, setup, FrameResult.from_dict(done[last_good]))
+        ref = FrameResult.from_dict(_read_frame(_frame_path(frames_dir, last_good)))
+        res = _process_frame(frames[i], i, setup, ref)
         record(res)
         if res.ok:
             last_good = i

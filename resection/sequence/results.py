@@ -176,12 +176,24 @@ class TrackResult:
         return out
 
 
-def _assemble(results: list[FrameResult], fixed_camera: bool, n_computed: int,
+def _assemble(results, fixed_camera: bool, n_computed: int,
               out_dir: str | None) -> TrackResult:
-    F = len(results)
-    status = np.array([r.status for r in results], dtype=object).astype(str)
-    rvec = np.array([r.rvec for r in results], float).reshape(F, 3)
-    tvec = np.array([r.tvec for r in results], float).reshape(F, 3)
+    """The TrackResult of the frames ``results`` (an iterable of FrameResult in frame
+    order, consumed one at a time: only the compact arrays of the result are kept)."""
+    cols = {k: [] for k in ("frame", "file", "status", "reason", "rms", "rvec", "tvec",
+                            "ids", "uv", "residuals")}
+    for r in results:
+        for k in ("frame", "file", "status", "reason", "rms"):
+            cols[k].append(getattr(r, k))
+        cols["rvec"].append(np.asarray(r.rvec, float))
+        cols["tvec"].append(np.asarray(r.tvec, float))
+        cols["ids"].append(np.asarray(r.ids, str))
+        cols["uv"].append(np.asarray(r.uv, float).reshape(-1, 2))
+        cols["residuals"].append(np.asarray(r.residuals, float).reshape(-1, 2))
+    F = len(cols["frame"])
+    status = np.array(cols["status"], dtype=object).astype(str)
+    rvec = np.array(cols["rvec"], float).reshape(F, 3)
+    tvec = np.array(cols["tvec"], float).reshape(F, 3)
     good = np.flatnonzero(status == "ok")
     if good.size:
         ref = int(good[0])
@@ -189,17 +201,17 @@ def _assemble(results: list[FrameResult], fixed_camera: bool, n_computed: int,
     else:
         ref = -1
         angles = trans = np.full((F, 3), np.nan)
-    nm = np.array([len(r.ids) for r in results], int)
-    mf = np.repeat(np.array([r.frame for r in results], int), nm)
-    mid = np.concatenate([np.asarray(r.ids, str) for r in results]) if F else np.zeros(0, str)
-    muv = np.vstack([r.uv for r in results]) if F else np.zeros((0, 2))
-    mres = np.vstack([r.residuals for r in results]) if F else np.zeros((0, 2))
+    nm = np.array([len(i) for i in cols["ids"]], int)
+    frame = np.array(cols["frame"], int)
+    mid = np.concatenate(cols["ids"]) if F else np.zeros(0, str)
+    muv = np.vstack(cols["uv"]) if F else np.zeros((0, 2))
+    mres = np.vstack(cols["residuals"]) if F else np.zeros((0, 2))
     return TrackResult(
-        frame=np.array([r.frame for r in results], int),
-        file=np.array([r.file for r in results], dtype=object).astype(str),
-        status=status, reason=np.array([r.reason for r in results], dtype=object).astype(str),
-        angles=angles, translation=trans, rms=np.array([r.rms for r in results], float),
-        n_markers=nm, rvec=rvec, tvec=tvec, marker_frame=mf, marker_id=mid.astype(str),
-        marker_uv=muv.reshape(-1, 2), marker_residual=mres.reshape(-1, 2),
-        fixed_camera=fixed_camera, reference=ref, n_computed=n_computed, out_dir=out_dir,
+        frame=frame, file=np.array(cols["file"], dtype=object).astype(str),
+        status=status, reason=np.array(cols["reason"], dtype=object).astype(str),
+        angles=angles, translation=trans, rms=np.array(cols["rms"], float),
+        n_markers=nm, rvec=rvec, tvec=tvec, marker_frame=np.repeat(frame, nm),
+        marker_id=mid.astype(str), marker_uv=muv.reshape(-1, 2),
+        marker_residual=mres.reshape(-1, 2), fixed_camera=fixed_camera, reference=ref,
+        n_computed=n_computed, out_dir=out_dir,
     )

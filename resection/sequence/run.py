@@ -10,8 +10,8 @@ from ..camera import Camera
 from ..io.lock import lock_folder
 from .execute import run_frames
 from .inputs import _checked, _settings
-from .outputs import _start_run, _write_csvs
-from .results import FrameResult, TrackResult, _assemble
+from .outputs import _frames_from_files, _start_run, _write_csvs
+from .results import TrackResult, _assemble
 
 
 def track(
@@ -111,7 +111,7 @@ def track(
         computed = run_frames(frames, setup, link_d, done, chunk_size=chunk_size,
                               workers=workers, scheduler=scheduler, frames_dir=frames_dir,
                               progress=progress)
-        results = [FrameResult.from_dict(done[i]) for i in range(len(frames))]
-        result = _assemble(results, fixed_camera, computed, str(out))
+        result = _assemble(_frames_from_files(frames_dir, len(frames)), fixed_camera,
+                           computed, str(out))
         _write_csvs(result, out)
     return result
