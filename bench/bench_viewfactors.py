@@ -11,6 +11,14 @@ Run: ``.venv/bin/python bench/bench_viewfactors.py [--quick]``
 3. 100,000 faces end to end: view factors, simulated measurement (forward) and the
    correction (direct, all faces seen; and partial, a quarter hidden), with the peak
    memory of the process against the size of F.
+5. Error against time on Howell's C-14 (two unit squares at 90 degrees sharing an edge,
+   10 x 10 squares each): the stratified random rays of the previous release, the RQMC
+   rays of ``view_factors``, and the closed-form point-to-triangle kernel
+   (``selfillum.kernel``, unoccluded only). Per-face error of the factor to the other
+   plate against the converged kernel (its plate total checked against C-14).
+6. The corner main job (6400 faces): largest and rms residual after correction against
+   rays per face, stratified random against RQMC, the measurement simulated from the
+   converged closed-form reference.
 4. The same mesh at image level: :func:`selfillum.correct_image` on a 1024 x 768 image
    (surface map, view factors, inverse, per-pixel interpolated correction), the image
    made by backprojecting a finer forward model (128 rays a face, another seed).
@@ -143,10 +151,105 @@ def image_level(resolution, k):
     return t1 - t0
 
 
+def _stratified_factors(mesh, k, seed):
+    """The previous release's estimator: stratified random points and directions (one
+    random stream a block of 512 faces), the same hit counting."""
+    import scipy.sparse as sp
+
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    scene = RayScene(v, mesh.faces)
+    tri = (v - scene.origin)[np.asarray(mesh.faces)]
+    nrm = face_normals(mesh)
+    offset = _OFFSET * float(np.ptp(v, axis=0).max())
+    rows, cols = [], []
+    for b0 in range(0, len(tri), 512):
+        ids = np.arange(b0, min(b0 + 512, len(tri)))
+        rng = np.random.default_rng([seed, b0 // 512])
+        o, d, _ = sample_rays(tri[ids], nrm[ids], k, rng, offset=offset)
+        hit = np.asarray(scene.scene.run(o, d))
+        src = np.repeat(ids, k)
+        ok = (hit >= 0) & (hit != src)
+        front = np.einsum("ij,ij->i", d[ok], nrm[hit[ok]]) < 0
+        rows.append(src[ok][front])
+        cols.append(hit[ok][front])
+    r, c = np.concatenate(rows), np.concatenate(cols)
+    n = len(tri)
+    return sp.csr_matrix((np.full(r.size, 1.0 / k), (r, c)), shape=(n, n))
+
+
+def error_against_time(ks, seeds=4):
+    from selfillum.kernel import pair_factors
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+    from test_viewfactors import howell_perpendicular, perpendicular_mesh
+
+    mesh, g = perpendicular_mesh(n=10)
+    a, b = np.flatnonzero(g == 0), np.flatnonzero(g == 1)
+    nrm = face_normals(mesh)
+    ii, jj = np.meshgrid(a, b, indexing="ij")
+    exact = pair_factors(mesh.vertices, mesh.faces, nrm, ii.ravel(), jj.ravel(), order=8)
+    per_face = exact.reshape(ii.shape).sum(axis=1)
+    area = mesh.area_faces[a]
+    c14 = howell_perpendicular(1, 1, 1)
+    print(f"\n[5] error against time, perpendicular unit squares ({len(a)} + {len(b)} faces)")
+    print(f"    converged kernel total {area @ per_face / area.sum():.8f}, Howell C-14 "
+          f"{c14:.8f}")
+    print("    estimator          K   per-face rms err   plate total err   time (s)")
+    for k in ks:
+        for name, fn in (("stratified", lambda s, k=k: _stratified_factors(mesh, k, s)),
+                         ("RQMC", lambda s, k=k: view_factors(mesh, k, seed=s, workers=1))):
+            errs, tots, ts = [], [], []
+            for seed in range(seeds):
+                t0 = time.perf_counter()
+                F = fn(seed)
+                ts.append(time.perf_counter() - t0)
+                row = np.asarray(F[a][:, b].sum(axis=1)).ravel()
+                errs.append(np.sqrt(np.mean((row / per_face - 1) ** 2)))
+                tots.append(area @ row / area.sum() / c14 - 1)
+            print(f"    {name:12s} {k:6d}   {np.mean(errs):10.2e}        "
+                  f"{np.sqrt(np.mean(np.square(tots))):10.2e}      {np.median(ts):6.3f}")
+    for order in (2, 3, 4):
+        t0 = time.perf_counter()
+        f = pair_factors(mesh.vertices, mesh.faces, nrm, ii.ravel(), jj.ravel(), order=order)
+        t = time.perf_counter() - t0
+        row = f.reshape(ii.shape).sum(axis=1)
+        print(f"    kernel order {order} ({order * order:2d} pts)  "
+              f"{np.sqrt(np.mean((row / per_face - 1) ** 2)):10.2e}        "
+              f"{abs(area @ row / area.sum() / c14 - 1):10.2e}      {t:6.3f}  "
+              f"(unoccluded only; N^2 pairs)")
+
+
+def corner_residuals(ks):
+    from scenes.corner import exact_radiosity
+
+    sc = corner(resolution=40)
+    E, rho = sc.emission, sc.reflectance
+    t0 = time.perf_counter()
+    B = exact_radiosity(sc)
+    print(f"\n[6] corner main job ({len(E)} faces): residual after correction, measurement "
+          f"from the closed-form reference ({time.perf_counter() - t0:.1f} s)")
+    print("    estimator          K    max residual   rms residual   view factors (s)")
+    for k in ks:
+        for name, fn in (("stratified", lambda k=k: _stratified_factors(sc.mesh, k, 0)),
+                         ("RQMC", lambda k=k: view_factors(sc.mesh, k, seed=0))):
+            t0 = time.perf_counter()
+            F = fn()
+            t = time.perf_counter() - t0
+            r = np.abs(correct(F, B, rho) / E - 1)
+            print(f"    {name:12s} {k:6d}   {100 * r.max():8.3f} %     "
+                  f"{100 * np.sqrt(np.mean(r**2)):8.3f} %      {t:6.2f}")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="smaller sizes")
+    ap.add_argument("--only", type=int, nargs="*", help="run only these sections (1-6)")
     args = ap.parse_args()
+    if args.only:
+        for sec in args.only:
+            {5: lambda: error_against_time([64, 256, 1024, 4096]),
+             6: lambda: corner_residuals([256, 1024, 4096])}[sec]()
+        return
     sphere = trimesh.creation.icosphere(subdivisions=4 if args.quick else 5)
     sphere.invert()  # painted inside: every ray hits, Embree does the most work a ray
     if args.quick:
@@ -155,12 +258,15 @@ def main():
         scaling([10, 20, 40], 32)
         end_to_end(40, 64)
         image_level(40, 64)
+        error_against_time([64, 256, 1024], seeds=2)
     else:
         throughput(corner(resolution=60).mesh, 128, "open corner (most rays escape)")
         throughput(sphere, 128, "inside a sphere (every ray hits)")
         scaling([20, 40, 80, 160], 32)
         end_to_end(159, 64)
         image_level(159, 64)
+        error_against_time([64, 256, 1024, 4096])
+        corner_residuals([256, 1024, 4096])
 
 
 if __name__ == "__main__":
