@@ -43,6 +43,7 @@ def _fortran_records(data: bytes, marker: int, endian: str) -> list[bytes] | Non
     """Split unformatted sequential Fortran data into records, None if it is not that."""
     dt = np.dtype(f"{endian}i{marker}")
     pos, out, n = 0, [], len(data)
+    view = memoryview(data).cast("B")  # records as views of the file's bytes, not copies
     while pos < n:
         if pos + marker > n:
             return None
@@ -52,7 +53,7 @@ def _fortran_records(data: bytes, marker: int, endian: str) -> list[bytes] | Non
             return None
         if int(np.frombuffer(data, dt, 1, end)[0]) != length:
             return None
-        out.append(data[pos + marker:end])
+        out.append(view[pos + marker:end])
         pos = end + marker
     return out if out else None
 
@@ -130,7 +131,8 @@ def _parse_binary_plot3d(data: bytes, source: str):
         return blocks, {"encoding": "fortran", "precision": real, "iblank": has_ib}
     # raw stream (C binary, no record markers)
     for endian in ("<", ">"):
-        ints = np.frombuffer(data[: (len(data) // 4) * 4], f"{endian}i4")
+        # the header only (block count, 3 dimensions a block): no copy of the whole file
+        ints = np.frombuffer(data, f"{endian}i4", min(len(data) // 4, 1 + 3 * 100000))
         for multi in (True, False):
             if multi:
                 if ints.size < 4 or not (1 <= ints[0] <= 100000):
@@ -167,8 +169,8 @@ def _implausible(vals: np.ndarray) -> int:
     """How many coordinates no grid holds: NaN/inf, |x| > 1e30, or 0 < |x| < 1e-30 (what
     bytes read in the wrong order give)."""
     with np.errstate(invalid="ignore", over="ignore"):
-        a = np.abs(vals.astype(np.float64))
-        return int(np.count_nonzero(~np.isfinite(a) | (a > 1e30) | ((a > 0) & (a < 1e-30))))
+        a = np.abs(vals)
+        return int(np.count_nonzero(~(a <= 1e30) | ((a < 1e-30) & (a > 0))))
 
 
 def _byte_order(vals: np.ndarray, source: str, block: int) -> np.ndarray:
@@ -266,7 +268,7 @@ def _read_bytes(path: str, kind: str, empty: str) -> bytes:
             data = fh.read()
     except FileNotFoundError:
         raise InputError(f"{kind} file not found: {path}") from None
-    if not data.strip():
+    if not data[:4096].strip() and not data.strip():  # (no copy of a big file that is not)
         raise InputError(f"{path}: {empty}")
     return data
 
@@ -283,17 +285,24 @@ def read_plot3d(path: str | os.PathLike) -> list[tuple[np.ndarray, np.ndarray | 
     path = os.fspath(path)
     data = _read_bytes(path, "Plot3D", "empty file")
     blocks = None
-    raw = np.frombuffer(data, np.uint8)
+    # a binary grid has non-text bytes in its header (the block count and dimensions as
+    # 4-byte integers); an ASCII one is text throughout: the first 4 kB decide
+    raw = np.frombuffer(data[:4096], np.uint8)
     binary = bool(np.any((raw < 9) | ((raw > 13) & (raw < 32)) | (raw > 126)))
-    text = "" if binary else data.decode("ascii")
+    text = ""
+    if not binary:
+        try:
+            text = data.decode("ascii")
+        except UnicodeDecodeError:
+            binary = True  # text-like first 4 kB, binary after: try the binary layouts
     if binary:
         blocks, _info = _parse_binary_plot3d(data, path)
         if blocks is None:
             raise InputError(f"{path}: not a readable Plot3D file (binary, no layout fits)")
     else:
         blocks, _info = _parse_ascii_plot3d(text, path)
-    for k, (xyz, _) in enumerate(blocks):
-        if not np.all(np.isfinite(xyz)):
+    for k, (xyz, _) in enumerate(blocks):  # (binary blocks passed _byte_order already)
+        if not binary and not np.all(np.isfinite(xyz)):
             raise InputError(f"{path}: block {k} holds NaN or infinite coordinates")
     return blocks
 
