@@ -10,6 +10,7 @@ import os
 import sys
 
 from ._cliutil import add_acceptance_options
+from .acceptance import DEFAULT_MARKER_ACCURACY, DEFAULT_MAX_RMS
 from .camera import Camera
 from .errors import InputError
 
@@ -85,8 +86,12 @@ def run_track(args: argparse.Namespace) -> int:
     from .motion_plots import plot_motion
     from .sequence import track
 
-    pose_kw = {"marker_accuracy": args.marker_accuracy, "max_rms": args.max_rms,
-               **(_json_options(args.pose_options, "--pose-options") or {})}
+    # the acceptance options given (the defaults are solve_pose's: a run made without
+    # them, from the library or the CLI, resumes with the same settings)
+    rule = {k: v for k, v, d in (("marker_accuracy", args.marker_accuracy,
+                                  DEFAULT_MARKER_ACCURACY),
+                                 ("max_rms", args.max_rms, DEFAULT_MAX_RMS)) if v != d}
+    pose_kw = {**rule, **(_json_options(args.pose_options, "--pose-options") or {})} or None
     camera = Camera.read(args.camera)
     frames = _expand(args.frames)
     try:

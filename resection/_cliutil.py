@@ -56,11 +56,14 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None) -> int:
 def add_acceptance_options(p: argparse.ArgumentParser) -> None:
     """``--marker-accuracy`` and ``--max-rms``: the acceptance rule's options, the same in
     every command that fits a camera to markers (see docs/acceptance.md)."""
-    p.add_argument("--marker-accuracy", type=float, default=1.0, metavar="PX",
+    from .acceptance import DEFAULT_MARKER_ACCURACY, DEFAULT_MAX_RMS
+
+    p.add_argument("--marker-accuracy", type=float, default=DEFAULT_MARKER_ACCURACY,
+                   metavar="PX",
                    help="stated accuracy of a marker position, survey + detection, px "
                    "(RMS length; default 1): residuals are judged against it and gross "
                    "outliers dropped")
-    p.add_argument("--max-rms", type=float, default=2.0, metavar="PX",
+    p.add_argument("--max-rms", type=float, default=DEFAULT_MAX_RMS, metavar="PX",
                    help="refuse a fit whose RMS residual exceeds this whatever the "
                    "accuracy, px (default 2)")
 

@@ -34,7 +34,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.stats import chi2
+from scipy.special import chdtrc, chdtri
 
 from .errors import InputError, SolveError
 
@@ -84,7 +84,7 @@ def rms_threshold(n_used: int, n_params: int, marker_accuracy: float = DEFAULT_M
     dof = 2 * n_used - n_params
     bound = math.inf
     if dof > 0:
-        bound = marker_accuracy * math.sqrt(chi2.ppf(confidence, dof) / (2.0 * n_used))
+        bound = marker_accuracy * math.sqrt(chdtri(dof, 1.0 - confidence) / (2.0 * n_used))
     return min(bound, max_rms) if max_rms is not None else bound
 
 
@@ -205,7 +205,7 @@ def judge(errors, n_params: int, marker_accuracy: float = DEFAULT_MARKER_ACCURAC
     rms = float(np.sqrt(np.mean(e**2)))
     dof = 2 * n - n_params
     x2 = float(np.sum(e**2) / (a * a / 2.0))
-    p = float(chi2.sf(x2, dof)) if dof > 0 else 1.0
+    p = float(chdtrc(dof, x2)) if dof > 0 else 1.0
     thr = rms_threshold(n, n_params, a, max_rms)
     ok = rms <= thr
     return Acceptance(bool(ok), rms, thr, a, max_rms, n, n_params, dof, x2, p,

@@ -189,3 +189,33 @@ def test_track_judges_every_frame_with_the_same_option(tmp_path, capsys):
     assert (back.status == "failed").all()
     assert all("acceptance rule" in r and "marker accuracy 0.001 px" in r
                for r in back.reason), back.reason
+
+
+def test_calibrate_is_judged_by_the_same_rule():
+    """Four views of an 11 x 8 board with 0.1 px noise: accepted at the default accuracy
+    with ``2 N - 6 V - p`` degrees of freedom; refused when the markers are claimed good
+    to 0.05 px, or when two board points are exchanged in one view."""
+    from resection import calibrate
+
+    K0 = np.array([[1150.0, 0, 640.0], [0, 1150.0, 480.0], [0, 0, 1.0]])
+    gx, gy = np.meshgrid(np.arange(11) * 0.03, np.arange(8) * 0.03)
+    board = np.column_stack([gx.ravel() - 0.15, gy.ravel() - 0.105, np.zeros(88)])
+    rng = np.random.default_rng(4)
+    views = []
+    for eye in ([0.2, -0.15, -0.6], [-0.25, 0.1, -0.55], [0.05, 0.3, -0.6],
+                [-0.1, -0.3, -0.5]):
+        cam = Camera.look_at(eye, [0, 0, 0], [0, -1, 0.3], K=K0, width=1280, height=960,
+                             dist=[-0.2, 0.08, 0, 0, 0])
+        views.append((board, cam.project(board) + rng.normal(scale=0.1, size=(88, 2))))
+    res = calibrate(views, (1280, 960), fix=("k3",))
+    acc = res.acceptance
+    assert acc.accepted and acc.what == "calibration"
+    assert acc.dof == 2 * 4 * 88 - 6 * 4 - len(res.parameters)
+    assert acc.statistic == pytest.approx(res.rms) and "accepted: rms" in res.message
+    with pytest.raises(SolveError, match="calibrate: refused by the acceptance rule.*"
+                                         "marker accuracy 0.05 px"):
+        calibrate(views, (1280, 960), fix=("k3",), marker_accuracy=0.05)
+    swapped = views[2][1].copy()
+    swapped[[12, 13]] = swapped[[13, 12]]
+    with pytest.raises(SolveError, match="acceptance rule"):
+        calibrate([*views[:2], (board, swapped), views[3]], (1280, 960), fix=("k3",))
