@@ -315,6 +315,11 @@ def fit_windows(win, w, p0, tab, T, h, rmin, rmax, iterations, tol, sizes, sn, c
                 finite = finite and math.isfinite(pt[k])
             if not finite:
                 break
+            if lam <= 1e-2 and max(abs(step[0]), abs(step[1])) < tol:
+                # converged: a Gauss-Newton step (hardly damped) that moves the centre by
+                # less than tol is taken without evaluating the model once more
+                pc[:] = pt
+                break
             ct = _normal(wn, ww, pt, tab, T, h, sizes, sn, cs, wc, M, sA, sB,
                          JTJt, JTrt)
             nev[c] += 1
@@ -327,7 +332,7 @@ def fit_windows(win, w, p0, tab, T, h, rmin, rmax, iterations, tol, sizes, sn, c
                 lam = max(lam * 0.3, 1e-9)
             else:
                 lam = min(lam * 10.0, 1e9)
-            # converged: a small step of the centre that was not forced small by damping
+            # converged all the same: a small step that was not forced small by damping
             small = max(abs(step[0]), abs(step[1])) < tol and (better or lam < 1e2)
             if small or lam >= 1e9 or not math.isfinite(ct):
                 break

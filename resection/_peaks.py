@@ -3,40 +3,48 @@
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 from scipy import ndimage
 
-#: at most this many (pixel, neighbour) comparisons (memory); more: the dense filter
-_GATHER_BUDGET = 20_000_000
-#: cost model, nanoseconds: the dense filter per image pixel; the comparisons per (pixel,
-#: neighbour) and per neighbour offset (NumPy call overhead)
-_DENSE_NS, _PAIR_NS, _OFFSET_NS = 25.0, 3.0, 6000.0
+#: the dense maximum filter is used where the pixels above the threshold, times the
+#: neighbourhood's size, exceed this many times the image's pixels (a thresholded texture)
+_DENSE_RATIO = 50.0
+
+
+@njit(cache=True)
+def _is_max(image, rows, cols, r):
+    """True where ``image[rows[k], cols[k]]`` is >= every pixel within ``r`` (clipped)."""
+    H, W = image.shape
+    out = np.ones(rows.size, np.bool_)
+    for k in range(rows.size):
+        i, j = rows[k], cols[k]
+        v = image[i, j]
+        for a in range(max(i - r, 0), min(i + r, H - 1) + 1):
+            for b in range(max(j - r, 0), min(j + r, W - 1) + 1):
+                if image[a, b] > v:
+                    out[k] = False
+                    break
+            if not out[k]:
+                break
+    return out
 
 
 def local_maxima(image: np.ndarray, size: int, threshold: float) -> tuple[np.ndarray, np.ndarray]:
     """Rows and columns of the pixels above ``threshold`` that are the maximum of their
-    ``size`` x ``size`` neighbourhood (clipped at the image border; ties all kept).
+    ``size`` x ``size`` neighbourhood (``size`` odd; clipped at the image border; ties all
+    kept). Row-major order.
 
     The same set as ``(image == maximum_filter(image, size, mode="nearest")) &
     (image > threshold)``, found by comparing only the pixels above the threshold with their
-    neighbours: on an image of markers these are a few per cent of the pixels, so the cost
-    follows the markers, not the image. Row-major order.
+    neighbours (a compiled loop that stops at the first larger neighbour): on an image of
+    markers these are a few per cent of the pixels, so the cost follows the markers, not the
+    image.
     """
-    H, W = image.shape
     flat = np.flatnonzero(image > threshold)
-    r = size // 2
-    gather = size * size * (_OFFSET_NS + _PAIR_NS * flat.size)
-    if gather > _DENSE_NS * image.size or flat.size * size * size > _GATHER_BUDGET:
+    if flat.size * size * size > _DENSE_RATIO * image.size:
         peaks = image == ndimage.maximum_filter(image, size=size, mode="nearest")
         peaks &= image > threshold
         return np.nonzero(peaks)
-    flat_img = image.ravel()
-    rows, cols = np.divmod(flat, W)
-    val = flat_img[flat]
-    keep = np.ones(flat.size, bool)
-    rr = [np.minimum(np.maximum(rows + dv, 0), H - 1) * W for dv in range(-r, r + 1)]
-    cc = [np.minimum(np.maximum(cols + du, 0), W - 1) for du in range(-r, r + 1)]
-    for a, ra in enumerate(rr):  # a loop over the size^2 offsets, batched over the pixels
-        for b, cb in enumerate(cc):
-            if a != r or b != r:
-                keep &= flat_img[ra + cb] <= val
+    rows, cols = np.divmod(flat, image.shape[1])
+    keep = _is_max(np.ascontiguousarray(image), rows, cols, size // 2)
     return rows[keep], cols[keep]

@@ -18,7 +18,7 @@ def test_local_maxima_equal_maximum_filter(size, dense, monkeypatch):
     img[0, 0] = img.max() + 2.0  # on the border
     thr = float(np.quantile(img, 0.9))
     # force either branch (the cost model picks the dense one for such a small image)
-    monkeypatch.setattr(_peaks, "_DENSE_NS", 0.0 if dense else 1e9)
+    monkeypatch.setattr(_peaks, "_DENSE_RATIO", 0.0 if dense else 1e9)
     rows, cols = _peaks.local_maxima(img, size, thr)
     ref = (img == ndimage.maximum_filter(img, size=size, mode="nearest")) & (img > thr)
     rr, rc = np.nonzero(ref)
@@ -30,3 +30,19 @@ def test_local_maxima_equal_maximum_filter(size, dense, monkeypatch):
 def test_local_maxima_none_above():
     rows, cols = _peaks.local_maxima(np.zeros((10, 10)), 3, 0.5)
     assert rows.size == 0 and cols.size == 0
+
+
+@pytest.mark.parametrize("shape", [(41, 60), (300, 517)])
+@pytest.mark.parametrize("diameter,kind", [(3.0, "tophat"), (6.0, "cone"), (11.0, "tophat")])
+def test_merit_equals_direct_correlation(shape, diameter, kind):
+    # the detector's merit (one cached-spectrum FFT) against SciPy's direct correlation
+    from scipy.signal import correlate
+
+    from resection import markers
+
+    x = np.random.default_rng(1).normal(size=shape).astype(np.float32)
+    merit = markers._correlate(x, diameter, kind)
+    ref = correlate(x.astype(float), markers.marker_template(diameter, kind), mode="valid",
+                    method="direct")
+    assert merit.shape == ref.shape
+    assert np.abs(merit - ref).max() < 1e-5  # float32 FFT rounding of a unit-noise image
