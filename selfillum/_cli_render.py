@@ -26,7 +26,9 @@ def _per_face_arg(text: str, name: str):
         raise InputError(f"{name}: {text!r} is neither a number nor an existing file")
     try:
         if path.suffix.lower() == ".npy":
-            return np.load(path, allow_pickle=False)
+            from resection.io.images import load_npy
+
+            return load_npy(path)  # one-line errors, never advising allow_pickle
         return np.loadtxt(path, delimiter="," if path.suffix.lower() == ".csv" else None,
                           ndmin=1)
     except (ValueError, OSError) as exc:

@@ -325,10 +325,9 @@ def read_reflectance(spec, n_faces: int) -> np.ndarray:
         raise FileNotFoundError(f"{path}: no such reflectance file (nor a number)")
     suffix = path.suffix.lower()
     if suffix == ".npy":
-        try:
-            values = np.load(path, allow_pickle=False)
-        except (ValueError, OSError) as exc:
-            raise InputError(f"{path}: not a readable .npy file ({exc})") from None
+        from resection.io.images import load_npy
+
+        values = load_npy(path)  # one-line errors, never advising allow_pickle
     elif suffix in (".csv", ".txt"):
         values = _read_column(path)
     else:

@@ -45,10 +45,9 @@ def _per_face_file(path: Path, n_faces: int, what: str) -> np.ndarray:
     """One number per face from a ``.npy`` array or a one-column ``.csv``/``.txt``."""
     suffix = path.suffix.lower()
     if suffix == ".npy":
-        try:
-            values = np.load(path, allow_pickle=False)
-        except (ValueError, OSError) as exc:
-            raise InputError(f"{path}: not a readable .npy file ({exc})") from None
+        from resection.io.images import load_npy
+
+        values = load_npy(path)  # one-line errors, never advising allow_pickle
     elif suffix in (".csv", ".txt"):
         try:
             values = np.loadtxt(path, delimiter=",", ndmin=1, comments="#")

@@ -884,3 +884,19 @@ def test_pose_from_image_with_markers_in_mm_names_the_unit_mismatch(tmp_path, ca
     err = capsys.readouterr().err
     assert rc == 2 and "unit mismatch: the markers in mm and the camera in m?" in err, err
     assert not (tmp_path / "pose.json").exists()
+
+
+def test_no_npy_reader_advises_allow_pickle(tmp_path, capsys):
+    """Every .npy the commands read (reflectance, per-face values, images) goes through one
+    loader: an object array or an empty file is a one-line error that never advises
+    allow_pickle."""
+    from selfillum.correct_image import read_reflectance
+
+    obj = tmp_path / "rho.npy"
+    np.save(obj, np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    empty = tmp_path / "empty.npy"
+    empty.write_bytes(b"")
+    for path in (obj, empty):
+        with pytest.raises(InputError) as err:
+            read_reflectance(str(path), 4)
+        assert path.name in str(err.value) and "allow_pickle" not in str(err.value)

@@ -248,9 +248,9 @@ def read_fields(path: str | os.PathLike, n_faces: int | None = None, *,
     elif suffix == ".csv":
         fields = _read_csv(path, location)
     elif suffix == ".npy":
-        from .images import _load_npy
+        from .images import load_npy
 
-        arr = _load_npy(path)
+        arr = load_npy(path)
         if arr.ndim != 1:
             raise InputError(f"{path}: expected one value per {location} (1-D), got shape "
                              f"{arr.shape}")

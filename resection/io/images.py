@@ -16,7 +16,7 @@ import numpy as np
 from ..errors import InputError
 from ._write import atomic_write
 
-__all__ = ["read_image", "read_native", "write_image", "image_info", "saturation_level"]
+__all__ = ["read_image", "read_native", "load_npy", "write_image", "image_info", "saturation_level"]
 
 _TIFF = {".tif", ".tiff"}
 _PNG = {".png"}
@@ -50,7 +50,7 @@ def _read_raw(path: str | os.PathLike, *, allow_stack: bool = False) -> np.ndarr
 
             arr = iio.imread(path)
         else:
-            arr = _load_npy(path)
+            arr = load_npy(path)
     except InputError:
         raise
     except Exception as exc:  # noqa: BLE001 - PIL/tifffile raise many kinds (even SyntaxError)
@@ -77,7 +77,7 @@ def _read_raw(path: str | os.PathLike, *, allow_stack: bool = False) -> np.ndarr
     return arr
 
 
-def _load_npy(path, mmap_mode=None) -> np.ndarray:
+def load_npy(path, mmap_mode=None) -> np.ndarray:
     """``numpy.load`` of a numeric ``.npy`` file, with one-line errors.
 
     Object arrays are refused; the message never advises ``allow_pickle`` (loading pickles

@@ -225,9 +225,9 @@ def _tiff_stack(p: Path, mask_saturated: bool) -> FrameSource:
 
 
 def _npy_stack(p: Path, mask_saturated: bool) -> FrameSource:
-    from .images import _load_npy
+    from .images import load_npy
 
-    arr = _load_npy(p, mmap_mode="r")
+    arr = load_npy(p, mmap_mode="r")
     if arr.ndim == 2:
         return _image_files([p], mask_saturated)
     if arr.ndim != 3:
