@@ -316,7 +316,7 @@ class _Job:
 
 def _trace_rows(job: _Job, scene: RayScene, rows: np.ndarray):
     """Hits of the rays of faces ``rows``: ``(counts per row, hit faces)``, both int32,
-    the hits grouped by row and sorted within each row (duplicates kept)."""
+    the hits grouped by row in the order of ``rows`` (duplicates kept)."""
     k = job.k
     tri = (job.vertices - scene.origin)[job.faces[rows]]  # the scene's centred frame
     nrm = job.normals[rows]
@@ -331,10 +331,10 @@ def _trace_rows(job: _Job, scene: RayScene, rows: np.ndarray):
         # a ray arriving on the back (unpainted) side of a face is absorbed there
         front = np.einsum("ij,ij->i", d[idx], job.normals[hit].astype(np.float32)) < 0
         idx, hit = idx[front], hit[front]
-    local = idx // k
-    order = np.lexsort((hit, local))
-    counts = np.bincount(local, minlength=len(rows)).astype(np.int32)
-    return counts, hit[order].astype(np.int32)
+    # the rays of a face are consecutive, so the hits come grouped by row already (CSR's
+    # sum_duplicates sorts them within a row)
+    counts = np.bincount(idx // k, minlength=len(rows)).astype(np.int32)
+    return counts, hit.astype(np.int32)
 
 
 #: One scene per worker process (built by the pool's initializer).
