@@ -75,16 +75,55 @@ def undistortion_map(camera) -> UndistortionMap:
     -------
     UndistortionMap
     """
-    from .camera import undistort_normalized
+    from .camera import max_monotonic_radius
 
     H, W = camera.height, camera.width
-    uv = np.empty((H * W, 2))
-    uv[:, 0] = np.tile(np.arange(W, dtype=np.float64), H)
-    uv[:, 1] = np.repeat(np.arange(H, dtype=np.float64), W)
-    xy = undistort_normalized(camera.pixels_to_normalized(uv), camera.dist)
+    K = np.asarray(camera.K, dtype=np.float64)
+    dist = np.asarray(camera.dist, dtype=np.float64)
     d = np.empty((H * W, 3))
-    d[:, :2] = xy
-    d[:, 2] = 1.0
-    d /= np.sqrt(np.einsum("ij,ij->i", d, d))[:, None]
+    _undistort_grid(W, H, K, dist, float(max_monotonic_radius(dist)), d)
     d.setflags(write=False)
     return UndistortionMap(W, H, d)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _undistort_grid(W, H, K, dist, rmax, out):  # pragma: no cover (compiled)
+    """Unit camera-frame direction of every pixel centre into ``out`` (H*W, 3): the Newton
+    inversion of :func:`resection.camera.undistort_normalized`, point by point (same
+    step tolerance, residual check and monotonic-radius limit; NaN where they fail)."""
+    k1, k2, p1, p2, k3 = dist[0], dist[1], dist[2], dist[3], dist[4]
+    for v in range(H):
+        yd = (v - K[1, 2]) / K[1, 1]
+        for u in range(W):
+            xd = (u - K[0, 2] - K[0, 1] * yd) / K[0, 0]
+            x, y = xd, yd
+            for _ in range(50):
+                r2 = x * x + y * y
+                radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+                dr = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
+                rx = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x) - xd
+                ry = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y - yd
+                j11 = radial + 2.0 * x * x * dr + 2.0 * p1 * y + 6.0 * p2 * x
+                j12 = 2.0 * x * y * dr + 2.0 * p1 * x + 2.0 * p2 * y
+                j22 = radial + 2.0 * y * y * dr + 6.0 * p1 * y + 2.0 * p2 * x
+                det = j11 * j22 - j12 * j12
+                dx = (j22 * rx - j12 * ry) / det
+                dy = (j11 * ry - j12 * rx) / det
+                x -= dx
+                y -= dy
+                if max(abs(dx), abs(dy)) <= 1e-15 * (1.0 + max(abs(x), abs(y))):
+                    break
+            r2 = x * x + y * y
+            radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+            ex = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x) - xd
+            ey = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y - yd
+            i = v * W + u
+            if max(abs(ex), abs(ey)) < 1e-9 and np.sqrt(r2) <= rmax:
+                n = np.sqrt(r2 + 1.0)
+                out[i, 0] = x / n
+                out[i, 1] = y / n
+                out[i, 2] = 1.0 / n
+            else:
+                out[i, 0] = np.nan
+                out[i, 1] = np.nan
+                out[i, 2] = np.nan

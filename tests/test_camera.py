@@ -251,3 +251,20 @@ def test_rays_of_the_whole_image_from_the_undistortion_map():
     other = pickle.loads(pickle.dumps(moved))
     assert other == moved and "_icache" not in other.__dict__
     np.testing.assert_allclose(other.rays()[1], moved.rays()[1], atol=0)
+
+
+def test_whole_image_rays_nan_beyond_the_monotonic_radius():
+    """A wide lens with strong barrel distortion: the corner pixels lie beyond the radius
+    where the distortion folds back; the map gives NaN there, as the per-point path does,
+    and the same rays elsewhere."""
+    k = np.array([[70.0, 0.0, 47.5], [0.0, 70.0, 35.5], [0.0, 0.0, 1.0]])
+    cam = Camera(96, 72, k, [-0.3, 0.0, 0.0, 0.0, 0.0])
+    vv, uu = np.mgrid[0:72, 0:96]
+    uv = np.column_stack([uu.ravel(), vv.ravel()]).astype(np.float64)
+    grid, point = cam.rays()[1], cam.rays(uv)[1]
+    bad = np.isnan(point[:, 0])
+    assert 0 < bad.sum() < 0.5 * len(bad) and bad[0] and not bad[36 * 96 + 48]
+    np.testing.assert_array_equal(np.isnan(grid[:, 0]), bad)
+    np.testing.assert_allclose(grid[~bad], point[~bad], atol=1e-12)
+    # r_max of k1 = -0.3: 1 + 3 k1 r^2 = 0, r = 1 / sqrt(0.9)
+    assert cam.max_radius == pytest.approx(1 / math.sqrt(0.9), rel=1e-12)
