@@ -96,7 +96,7 @@ def test_partially_seen_model(renders):
     crop = cam.replace(width=150)  # same pinhole, the right-hand part cut off
     smap_c = SurfaceMap(sc.mesh, crop)
     r = correct_image(full[:, :150], sc.mesh, crop, sc.reflectance, surface_map=smap_c)
-    assert r.info.method == "lsmr" and 0 < r.info.n_hidden < len(sc.mesh.faces)
+    assert r.info.method == "pcg" and 0 < r.info.n_hidden < len(sc.mesh.faces)
     inn = inner[:, :150]
     err = (r.image - emit[:, :150])[inn] / emit[:, :150][inn]
     assert np.sqrt(np.mean(err**2)) < 1.5 * noise + 0.01
@@ -240,7 +240,7 @@ def test_stack_of_frames(renders):
     assert r.emission.shape == (2, len(sc.mesh.faces)) and len(r.info) == 2
     one = correct_image(full, sc.mesh, cam, sc.reflectance, F=F, surface_map=smap)
     np.testing.assert_allclose(r.image[0], one.image, rtol=1e-6, atol=1e-7)
-    assert r.info[0].method == "direct" and r.info[1].method == "lsmr"
+    assert r.info[0].method == "direct" and r.info[1].method == "pcg"
     assert np.all(np.isnan(r.image[1][:, 120:]))
     ok = inner & np.isfinite(second)
     err = (2 * r.image[1] - emit)[ok] / emit[ok]
@@ -262,7 +262,7 @@ def test_cli_correct_stack(renders, tmp_path, capsys):
     out = capsys.readouterr().out
     assert rc == 0
     n = len(sc.mesh.faces)
-    assert f"of {n}" in out and "2 frames" in out and "lsmr" in out
+    assert f"of {n}" in out and "2 frames" in out and "pcg" in out
     seen = int(out.split("faces seen")[1].split()[0])
     assert seen < n  # the smaller count, of the masked frame
     got = np.load(tmp_path / "o.npy")

@@ -132,7 +132,7 @@ def _corner_with_detached_plate():
 
 @pytest.mark.parametrize("with_unpainted", [False, True])
 def test_restriction_equals_full_solve_continue(with_unpainted):
-    """'continue': the restricted LSMR (coupled faces only, unpainted faces eliminated by
+    """'continue': the restricted least squares (coupled faces only, unpainted faces eliminated by
     their Neumann series) gives the seen faces' emission of the dense least squares over
     every hidden face."""
     sc, mesh, n0, e = _corner_with_detached_plate()
@@ -151,7 +151,7 @@ def test_restriction_equals_full_solve_continue(with_unpainted):
     assert not reach[n0:].any() and reach[:n0].all()
     E, info = correct(F, np.where(seen, B, np.nan), rho, seen, mesh=mesh,
                       unpainted=unpainted, regularization=1e-6, tol=1e-12, return_info=True)
-    assert info.method == "lsmr" and info.n_coupled == int((reach & ~seen).sum())
+    assert info.method == "pcg" and info.n_coupled == int((reach & ~seen).sum())
     ref = _dense_continue(F, B, rho, seen, unpainted, mesh, 1e-6)
     np.testing.assert_allclose(E[seen], ref[seen], rtol=1e-6)
     assert np.all(np.isnan(E[n0:]))  # not coupled: not estimated under 'continue'
