@@ -72,17 +72,21 @@ def accuracy(found, truth, gate=1.5):
     return float(np.sqrt(np.mean((found[i[ok]] - truth[ok]) ** 2))), float(ok.mean())
 
 
+def best_alternating(fns, repeat):
+    """Best wall times of functions called in turn, ``repeat`` rounds, and their results."""
+    best = [float("inf")] * len(fns)
+    out = [None] * len(fns)
+    for _ in range(repeat):
+        for k, fn in enumerate(fns):
+            t0 = time.perf_counter()
+            out[k] = fn()
+            best[k] = min(best[k], time.perf_counter() - t0)
+    return best, out
+
+
 def best_pair(fa, fb, repeat):
     """Best times of two functions called alternately, and their last results."""
-    ta = tb = float("inf")
-    ra = rb = None
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        ra = fa()
-        ta = min(ta, time.perf_counter() - t0)
-        t0 = time.perf_counter()
-        rb = fb()
-        tb = min(tb, time.perf_counter() - t0)
+    (ta, tb), (ra, rb) = best_alternating([fa, fb], repeat)
     return ta, ra, tb, rb
 
 
@@ -96,17 +100,24 @@ def measure(repeat):
     detect_markers(img, 6.0)  # first call: compiled kernels loaded (or compiled) here
     first = time.perf_counter() - t0
     print(f"\nfirst call (small frame, kernels loaded or compiled): {first:.2f} s\n")
+    coarse = _has_refine_option()
     print("| frame | detect_markers ms | SimpleBlobDetector ms | ratio | RMS error px "
-          "(ours / OpenCV) | found (ours / OpenCV) |")
-    print("|---|---|---|---|---|---|")
+          "(ours / OpenCV) | found (ours / OpenCV) |"
+          + (" coarse pass (refine=False): ms, ratio, RMS px |" if coarse else ""))
+    print("|---|---|---|---|---|---|" + ("---|" if coarse else ""))
     for k, (name, shape, n, d, snr) in enumerate(cases):
         img, uv = make_frame(shape, n, d, snr, k)
-        ta, cand, tb, pts = best_pair(lambda img=img, d=d: detect_markers(img, d),
-                                      lambda img=img: cv(img), repeat)
-        ea, fa = accuracy(cand.uv, uv)
-        eb, fb = accuracy(pts, uv)
-        print(f"| {name} | {1e3 * ta:.0f} | {1e3 * tb:.0f} | {ta / tb:.2f} | "
-              f"{ea:.4f} / {eb:.4f} | {fa:.0%} / {fb:.0%} |")
+        fns = [lambda img=img, d=d: detect_markers(img, d), lambda img=img: cv(img)]
+        if coarse:
+            fns.append(lambda img=img, d=d: detect_markers(img, d, refine=False))
+        t, out = best_alternating(fns, repeat)
+        ea, fa = accuracy(out[0].uv, uv)
+        eb, fb = accuracy(out[1], uv)
+        extra = ""
+        if coarse:
+            extra = f" {1e3 * t[2]:.0f}, {t[2] / t[1]:.2f}, {accuracy(out[2].uv, uv)[0]:.4f} |"
+        print(f"| {name} | {1e3 * t[0]:.0f} | {1e3 * t[1]:.0f} | {t[0] / t[1]:.2f} | "
+              f"{ea:.4f} / {eb:.4f} | {fa:.0%} / {fb:.0%} |" + extra)
         if k == 0:
             roi_img, roi_uv = img, uv
     # one marker in a 41 x 41 roi of the full frame, and OpenCV on the same crop
@@ -118,6 +129,12 @@ def measure(repeat):
     ea, _ = accuracy(cand.uv, roi_uv[:1])
     print(f"| one marker, 41 x 41 roi | {1e3 * ta:.2f} | {1e3 * tb:.2f} | {ta / tb:.2f} | "
           f"{ea:.4f} / - | {len(cand)} / {len(pts)} |")
+
+
+def _has_refine_option():
+    import inspect
+
+    return "refine" in inspect.signature(detect_markers).parameters
 
 
 def run_before(rev, repeat):

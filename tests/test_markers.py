@@ -536,3 +536,21 @@ def test_saturated_pixels_of_integer_files_stay_masked(tmp_path):
         cand = detect_in_image(tmp_path / "g.png", 6.0, enhance=enhance)
         assert cand.n_masked == int((img == 255).sum()) == 301
         assert _found_false(cand, sc.uv) == (20, 0)
+
+
+@pytest.mark.parametrize("diameter", [3.0, 6.0, 10.0])
+def test_coarse_pass_then_refine_equals_full_detection(diameter):
+    # refine=False: centroids only (against the truth); refine_markers on them afterwards
+    # gives the full detection's positions
+    from resection.markers import refine_markers
+
+    sc = make_scene((300, 300), 30, diameter, snr=30.0, blur=0.7, rng=1)
+    coarse = detect_markers(sc.image, diameter, refine=False)
+    full = detect_markers(sc.image, diameter)
+    e, hit = _errors(coarse.uv, sc.uv)
+    assert hit == 1.0 and len(coarse) == len(full) == 30
+    assert _rms(e) < 0.1 and np.abs(e).max() < 0.25
+    assert np.all(coarse.diameter == diameter)
+    fit = refine_markers(-sc.image.astype(float), coarse.uv, diameter)
+    d, _ = cKDTree(full.uv).query(np.column_stack([fit["u"], fit["v"]]))
+    assert d.max() < 1e-3
