@@ -48,8 +48,9 @@ def register(sub) -> None:
                    help="camera JSON with the solved pose; repeat for several cameras")
     m.add_argument("--image", required=True, nargs="+", action="extend",
                    help="image(s) of that camera; with several cameras, one per camera")
-    m.add_argument("--out", required=True, help="surface file: .ply, .vtk or .csv; .h5: a "
-                   "time history of a frame sequence (see below)")
+    m.add_argument("--out", required=True, help="surface file: .vtk, .vtu, .xdmf, .ply, .csv, "
+                   ".npy, or .f (Plot3D function file, per grid node, on a Plot3D grid); .h5: "
+                   "a time history of a frame sequence (see below)")
     m.add_argument("--max-obliqueness", type=float, default=DEFAULT_MAX_OBLIQUENESS,
                    metavar="DEG", help="faces seen more obliquely than this (degrees between "
                    "line of sight and normal, default %(default)g as uPSP; 90: none) count as "
@@ -84,8 +85,8 @@ def register(sub) -> None:
     b.add_argument("--mesh", required=True)
     add_mesh_format(b)
     b.add_argument("--camera", required=True)
-    b.add_argument("--values", required=True, help="per-face values: .csv/.ply written by "
-                   "'map' or any .npy with one value per face")
+    b.add_argument("--values", required=True, help="per-face values: any field file 'map' "
+                   "writes (.vtk/.vtu/.xdmf/.ply/.csv) or a .npy with one value per face")
     b.add_argument("--field", help="field name in --values (default: the only/first field)")
     b.add_argument("--background", help="image or number for pixels off the model")
     b.add_argument("--interpolation", choices=("linear", "mean", "nearest"), default="linear")
@@ -118,7 +119,8 @@ def register(sub) -> None:
     )
     v.add_argument("--mesh", required=True)
     add_mesh_format(v)
-    v.add_argument("--values", required=True, help="per-face values (.csv/.ply/.npy)")
+    v.add_argument("--values", required=True, help="per-face values (.vtk/.vtu/.xdmf/.ply/"
+                   ".csv/.npy)")
     v.add_argument("--field", help="field name in --values")
     v.add_argument("--camera", help="camera JSON (default: a virtual camera)")
     v.add_argument("--azimuth", type=float, default=30.0, help="virtual camera, degrees")
