@@ -29,6 +29,7 @@ pixels at the sensor's full scale (``2**bits - 1``) read as NaN, as
 from __future__ import annotations
 
 import os
+import struct
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
@@ -258,7 +259,7 @@ def _mraw(p: Path, mask_saturated: bool) -> FrameSource:
         n = int(info["Total Frame"])
         bits = int(info["Color Bit"])
         eff = int(info.get("EffectiveBit Depth", bits))
-    except (KeyError, ValueError, TypeError, OSError, Exception) as exc:  # noqa: BLE001
+    except Exception as exc:  # noqa: BLE001 - pyMRAW raises many kinds on a bad header
         raise InputError(f"{cih}: not a readable Photron header "
                          f"({type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''})"
                          ) from None
@@ -292,7 +293,7 @@ def _cine(p: Path, mask_saturated: bool) -> FrameSource:
         w, h_signed = int(hdr.biWidth), int(hdr.biHeight)
         bits = int(cine.camera_setup.RealBPP) or int(hdr.biBitCount)
         rate = float(cine.frame_rate)
-    except (OSError, ValueError, EOFError, IndexError, struct_error()) as exc:
+    except (OSError, ValueError, EOFError, IndexError, struct.error) as exc:
         raise InputError(f"{p}: not a readable Phantom .cine file ({exc})") from None
     if int(hdr.biBitCount) not in (8, 16):
         cine.close_file()
@@ -311,9 +312,3 @@ def _cine(p: Path, mask_saturated: bool) -> FrameSource:
     return FrameSource(p, n, (abs(h_signed), w), read, lambda i: f"{p}#{i}", bits=bits,
                        frame_rate=rate if rate > 0 else None, mask_saturated=mask_saturated,
                        closer=cine.close_file)
-
-
-def struct_error():
-    import struct
-
-    return struct.error
