@@ -24,7 +24,17 @@ def _frames(bits=12, seed=0):
     return f
 
 
-def _write_cine(path, frames, *, bits=12, bottom_up=True, first_no=-3):
+def _pack_p12l(f):
+    """Phantom P12L packing: two 12-bit pixels in three bytes, most significant first."""
+    v = f.astype(np.uint16).reshape(-1, 2)
+    out = np.empty((v.shape[0], 3), np.uint8)
+    out[:, 0] = v[:, 0] >> 4
+    out[:, 1] = ((v[:, 0] & 0x0F) << 4) | (v[:, 1] >> 8)
+    out[:, 2] = v[:, 1] & 0xFF
+    return out.tobytes()
+
+
+def _write_cine(path, frames, *, bits=12, bottom_up=True, first_no=-3, packed=False):
     """A grey 16-bit-container Phantom .cine laid out as the Vision Research "Cine File
     Format" document describes: CINEFILEHEADER (44 bytes), BITMAPINFOHEADER (40), SETUP
     (16 kB of zeros except RealBPP at byte 896 and dFrameRate at byte 10400 of the setup
@@ -39,20 +49,20 @@ def _write_cine(path, frames, *, bits=12, bottom_up=True, first_no=-3):
     setup[142:144] = struct.pack("<H", len(setup))
     off_offsets = off_setup + len(setup)
     data_start = off_offsets + 8 * n
-    img_bytes = h * w * 2
+    img_bytes = h * w * 3 // 2 if packed else h * w * 2
     ann = 8
     offsets = [data_start + k * (ann + img_bytes) for k in range(n)]
     header = struct.pack("<2sHHHiIiIIIIQ", b"CI", 44, 0, 1, first_no, n, first_no, n,
                          off_bih, off_setup, off_offsets, 0)
-    bih = struct.pack("<IiiHHIIiiII", 40, w, h if bottom_up else -h, 1, 16, 0, img_bytes,
-                      0, 0, 0, 0)
+    bih = struct.pack("<IiiHHIIiiII", 40, w, h if bottom_up else -h, 1, 16,
+                      1024 if packed else 0, img_bytes, 0, 0, 0, 0)
     with open(path, "wb") as fh:
         fh.write(header + bih + bytes(setup))
         fh.write(np.asarray(offsets, "<u8").tobytes())
         for f in frames:
             rows = f[::-1] if bottom_up else f
             fh.write(struct.pack("<II", ann, img_bytes))
-            fh.write(rows.astype("<u2").tobytes())
+            fh.write(_pack_p12l(rows) if packed else rows.astype("<u2").tobytes())
 
 
 @pytest.mark.parametrize("bottom_up", [True, False])
@@ -71,6 +81,17 @@ def test_cine_frames(tmp_path, bottom_up):
     assert src.bits == 12 and src.frame_rate == 25000.0
     assert np.isnan(src[2][0, 0]) and np.isfinite(src[2][0, 1])
     src.close()
+
+
+def test_cine_p12l_packed(tmp_path):
+    """12-bit packed frames (P12L, uPSP's usual recording) unpack to the written counts."""
+    frames = _frames()
+    p = tmp_path / "packed.cine"
+    _write_cine(p, frames, packed=True)
+    n, it = iter_frames(p)
+    got = np.stack([img for _, img in it])
+    assert n == N
+    np.testing.assert_array_equal(got, frames.astype(np.float32))
 
 
 def test_cine_truncated(tmp_path):

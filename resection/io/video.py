@@ -16,10 +16,13 @@ Readers
 * Photron ``.mraw`` (+ its ``.cih``/``.cihx`` header, found next to it with the same stem):
   ``pyMRAW.get_cih`` for the header, then ``pyMRAW.load_images`` which memory-maps the raw
   file (8/12/16-bit); a frame is read when it is indexed.
-* Phantom ``.cine``: the maintained ``cine-handler`` package (module ``cine_reader``, numpy
-  only), which seeks to one frame's offset and decodes it (8/16-bit, packed 10-bit).
-  Phantom stores rows bottom-up when the bitmap header's height is positive (the DIB
-  convention): such frames are flipped so that row 0 is the top of the image.
+* Phantom ``.cine``: headers, setup and frame offset table parsed by the ``cine-handler``
+  package (module ``cine_reader``, numpy only); a frame's payload is read when it is asked
+  for and decoded here (grey 8/16-bit; P12L 12-bit packed, uPSP's usual recording) or by
+  cine-handler's 10-bit unpacker (P10). Phantom stores rows bottom-up when the bitmap
+  header's height is positive (the DIB convention, as pycine also reads it): such frames are
+  flipped so that row 0 is the top of the image. Raw counts: no black/white level or
+  linearisation table is applied.
 
 Counts stay counts (a 12-bit pixel of 4095 reads 4095.0); with ``mask_saturated`` the
 pixels at the sensor's full scale (``2**bits - 1``) read as NaN, as
@@ -281,34 +284,74 @@ def _mraw(p: Path, mask_saturated: bool) -> FrameSource:
 
 
 def _cine(p: Path, mask_saturated: bool) -> FrameSource:
+    """Phantom .cine: headers, setup and the frame offset table parsed by cine-handler's
+    ``cine_reader.headers``; each frame's payload read on demand and decoded here
+    (uncompressed 8/16-bit; ``P12L`` 12-bit packed, ``biCompression`` 1024, uPSP's usual
+    format) or by cine-handler's 10-bit unpacker (``P10``, ``biCompression`` 256). Counts
+    are the raw sensor values (no black/white-level or linearisation table applied)."""
     try:
-        from cine_reader import Cine
+        from cine_reader.headers import (
+            read_bitmap_header,
+            read_cine_header,
+            read_image_offsets,
+            read_setup,
+        )
+        from cine_reader.unpack import unpack_10bit_data
     except ImportError:  # pragma: no cover - a runtime dependency
         raise InputError(f"{p}: reading .cine needs the 'cine-handler' package") from None
+    fh = open(p, "rb")  # noqa: SIM115 - kept open for the frames, closed by FrameSource.close
     try:
-        cine = Cine(p, keep_annotations=False)
-        first = int(cine.file_header.FirstImageNo)
-        n = int(cine.file_header.ImageCount)
-        hdr = cine.image_header
-        w, h_signed = int(hdr.biWidth), int(hdr.biHeight)
-        bits = int(cine.camera_setup.RealBPP) or int(hdr.biBitCount)
-        rate = float(cine.frame_rate)
+        head = read_cine_header(fh)
+        if head.Type != b"CI":
+            raise ValueError(f"signature {head.Type!r}, expected b'CI'")
+        bmp = read_bitmap_header(fh, off_image_header=int(head.OffImageHeader))
+        setup = read_setup(fh, off_setup=int(head.OffSetup),
+                           off_image_offsets=int(head.OffImageOffsets))
+        n = int(head.ImageCount)
+        offsets = read_image_offsets(fh, off_image_offsets=int(head.OffImageOffsets),
+                                     image_count=n, version=int(head.Version)).pImage
     except (OSError, ValueError, EOFError, IndexError, struct.error) as exc:
+        fh.close()
         raise InputError(f"{p}: not a readable Phantom .cine file ({exc})") from None
-    if int(hdr.biBitCount) not in (8, 16):
-        cine.close_file()
-        raise InputError(f"{p}: colour .cine ({hdr.biBitCount} bits a pixel) is not supported; "
-                         "record in grey")
-    flip = h_signed > 0  # DIB: positive height = rows stored bottom-up
+    w, h_signed = int(bmp.biWidth), int(bmp.biHeight)
+    h, comp, bitcount = abs(h_signed), int(bmp.biCompression), int(bmp.biBitCount)
+    if bitcount not in (8, 16) or comp not in (0, 256, 1024) or w <= 0 or h <= 0:
+        fh.close()
+        raise InputError(f"{p}: unsupported .cine image layout ({bitcount} bits a pixel, "
+                         f"compression {comp}, {w}x{h}); grey 8/16-bit, P10 or P12L are read")
+    bits = int(setup.RealBPP) or (12 if comp == 1024 else 10 if comp == 256 else bitcount)
+    need = {0: w * h * bitcount // 8, 256: w * h * 10 // 8, 1024: w * h * 3 // 2}[comp]
+    flip = h_signed > 0  # DIB convention: positive height = rows stored bottom-up
 
     def read(i):
         try:
-            cine.load_frame(first + i)
-        except (OSError, ValueError, EOFError) as exc:
+            fh.seek(int(offsets[i]))
+            ann = struct.unpack("<I", fh.read(4))[0]
+            fh.seek(int(offsets[i]) + ann)
+            data = fh.read(need)
+        except (OSError, struct.error) as exc:
             raise InputError(f"{p}#{i}: cannot read frame ({exc})") from None
-        img = cine.pixel_array
+        if len(data) != need:
+            raise InputError(f"{p}#{i}: truncated frame ({len(data)} of {need} bytes)")
+        if comp == 0:
+            img = np.frombuffer(data, "<u2" if bitcount == 16 else "u1").reshape(h, w)
+        elif comp == 1024:
+            img = _unpack_p12l(data, h, w)
+        else:
+            img = np.asarray(unpack_10bit_data(data))[: w * h].reshape(h, w)
         return img[::-1] if flip else img
 
-    return FrameSource(p, n, (abs(h_signed), w), read, lambda i: f"{p}#{i}", bits=bits,
+    rate = float(setup.frame_rate_hz)
+    return FrameSource(p, n, (h, w), read, lambda i: f"{p}#{i}", bits=bits,
                        frame_rate=rate if rate > 0 else None, mask_saturated=mask_saturated,
-                       closer=cine.close_file)
+                       closer=fh.close)
+
+
+def _unpack_p12l(data: bytes, h: int, w: int) -> np.ndarray:
+    """Phantom P12L: two 12-bit pixels in three bytes, most significant bits first
+    (``b0 b1_hi | b1_lo b2``)."""
+    b = np.frombuffer(data, np.uint8).reshape(-1, 3).astype(np.uint16)
+    out = np.empty((b.shape[0], 2), np.uint16)
+    out[:, 0] = (b[:, 0] << 4) | (b[:, 1] >> 4)
+    out[:, 1] = ((b[:, 1] & 0x0F) << 8) | b[:, 2]
+    return out.reshape(h, w)
