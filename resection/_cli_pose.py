@@ -218,7 +218,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
         ids.append(i)
     initial = Camera.read(args.camera) if args.camera else None
     result = calibrate(views, size, fix=args.fix, initial=initial,
-                       marker_accuracy=args.marker_accuracy, max_rms=args.max_rms)
+                       marker_accuracy=args.marker_accuracy, max_rms=args.max_rms, ids=ids)
     cam = result.camera
     print(f"calibrate: {result.message}")
     print(f"rms {result.rms:.4f} px")
@@ -230,9 +230,10 @@ def run_calibrate(args: argparse.Namespace) -> int:
                "p2": cam.dist[3], "k3": cam.dist[4]}[name]
         print(f"  {name:>3} = {val:.6g} +- {result.std[name]:.2g}")
     print(f"{'view':>4} {'id':>12} {'du':>9} {'dv':>9} {'error':>9}")
-    for v, (i, r) in enumerate(zip(ids, result.residuals, strict=True)):
-        for k, (du, dv) in zip(i, r, strict=True):
-            print(f"{v:>4} {k:>12} {du:9.4f} {dv:9.4f} {math.hypot(du, dv):9.4f}")
+    for v, (i, r, m) in enumerate(zip(ids, result.residuals, result.used, strict=True)):
+        for k, (du, dv), u in zip(i, r, m, strict=True):
+            print(f"{v:>4} {k:>12} {du:9.4f} {dv:9.4f} {math.hypot(du, dv):9.4f}"
+                  + ("" if u else "  outlier, dropped"))
     atomic_write(args.out, cam.write)
     if args.residuals:
         atomic_write(args.residuals, write_view_residuals, ids, [uv for _, uv in views],

@@ -247,7 +247,9 @@ def drop_outliers(fit, n: int, n_params: int,
     Raises
     ------
     SolveError
-        More gross outliers than :func:`outlier_limit` allows (they are named).
+        More gross outliers than :func:`outlier_limit` allows (they are named); refused at
+        once when more markers exceed the gate than ``max(2 r, r + 3)``, ``r`` the number
+        that may still be dropped.
     """
     a = check_accuracy(marker_accuracy, what)
     names = [str(i) for i in range(n)] if names is None else [str(k) for k in names]
@@ -261,7 +263,11 @@ def drop_outliers(fit, n: int, n_params: int,
         k = int(np.argmax(e))
         if e[k] <= gate:
             return result, used, tuple(dropped), tuple(derr)
-        if len(dropped) >= limit:
+        above = int(np.sum(e > gate))
+        left = limit - len(dropped)
+        # one gross outlier can pull a few others over the gate; far more than may still
+        # be dropped cannot all be cleared: refused at once rather than fit after fit
+        if left <= 0 or above > max(2 * left, left + 3):
             worst = np.flatnonzero(used & (e > gate))
             worst = worst[np.argsort(-e[worst])][:10]
             listed = ", ".join(f"{names[i]} ({e[i]:.3g} px)" for i in worst)

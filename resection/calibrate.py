@@ -22,7 +22,7 @@ then the pose of each view from its homography or DLT with those intrinsics (els
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -33,6 +33,7 @@ from .acceptance import (
     DEFAULT_MAX_RMS,
     Acceptance,
     check_accuracy,
+    drop_outliers,
     judge,
     require,
 )
@@ -85,7 +86,11 @@ class CalibrationResult:
         residual variance.
     message : str
     acceptance : Acceptance
-        The acceptance rule's decision on all residuals (:mod:`resection.acceptance`).
+        The acceptance rule's decision (:mod:`resection.acceptance`): statistic, threshold,
+        gross outliers dropped.
+    used : list of (N_i,) bool ndarray
+        Markers of each view used by the final fit (False: dropped as gross outliers;
+        ``residuals`` covers every marker, ``rms`` and ``view_rms`` the used ones).
     """
 
     camera: Camera
@@ -97,6 +102,7 @@ class CalibrationResult:
     std: dict
     message: str = ""
     acceptance: Acceptance | None = None
+    used: list | None = None
 
 
 def _check_views(views):
@@ -357,7 +363,7 @@ def _schur_lm(vw, names, K0, dist0, Rs, ts, max_iter):
     return theta, Rs, ts, None  # not converged: the caller names the cause
 
 
-def calibrate(
+def _calibrate_once(
     views,
     image_size: tuple[int, int],
     *,
@@ -367,46 +373,7 @@ def calibrate(
     marker_accuracy: float = DEFAULT_MARKER_ACCURACY,
     max_rms: float | None = DEFAULT_MAX_RMS,
 ) -> CalibrationResult:
-    """Calibrate a camera from one or more views of a planar or 3-D target.
-
-    Parameters
-    ----------
-    views : sequence of (points3d, points2d)
-        For each image, the target's marker coordinates ``(N_i, 3)`` (model units; a
-        planar target may lie in any plane) and their measured pixel positions
-        ``(N_i, 2)`` (pixel centres at integers).
-    image_size : (width, height)
-        Image size in pixels.
-    fix : iterable of str
-        Parameters held at their initial value: any of ``fx, fy, cx, cy, k1, k2, p1, p2,
-        k3``, and ``"aspect"`` to estimate one focal length with ``fy / fx`` fixed.
-        ``fix=("k3",)`` is common; a single view of a planar target needs ``("cx", "cy")``.
-    initial : Camera, optional
-        Starting (and fixed-parameter) intrinsics ``K`` and ``dist``. By default the
-        intrinsics come from the data and the distortion starts at zero.
-    max_iter : int
-        Maximum number of Levenberg-Marquardt iterations of the joint refinement.
-    marker_accuracy, max_rms : float
-        The acceptance rule's options (px, :mod:`resection.acceptance`): the RMS of all
-        residuals must not exceed its 99.9 % bound for markers of this accuracy (with
-        ``2 N - 6 V - len(parameters)`` degrees of freedom), nor ``max_rms``. Calibration
-        drops no outliers: a bad marker is refused with the statistic and threshold.
-
-    Returns
-    -------
-    CalibrationResult
-
-    Raises
-    ------
-    InputError, DegenerateError
-        No views, fewer than 4 markers in a view, NaN, collinear markers, bad sizes,
-        image points outside the ``image_size`` image (pixel edges at ``-0.5`` and
-        ``W - 0.5``), an ``initial`` camera of another size, unknown parameter names,
-        fewer observations than parameters.
-    SolveError
-        Non-convergence, or parameters the views do not determine (the message names
-        them: e.g. the principal point from one planar view).
-    """
+    """One calibration on all the given markers (no outlier loop, no acceptance test)."""
     try:
         w, h = (int(x) for x in image_size)
     except (TypeError, ValueError):
@@ -520,14 +487,108 @@ def calibrate(
         vrms.append(float(np.sqrt(np.mean(np.sum(r**2, axis=1)))))
     allr = np.concatenate(residuals)
     rms = float(np.sqrt(np.mean(np.sum(allr**2, axis=1))))
-    acc = judge(np.hypot(allr[:, 0], allr[:, 1]), n_par, marker_accuracy, max_rms,
-                what="calibration")
-    require(acc, "calibrate", "wrong pairing, wrong image size or a bad marker?")
     msg = (f"{V} view(s), {n_obs // 2} markers, rms {rms:.3f} px ({niter} iterations); "
            f"fx {K[0, 0]:.2f} "
-           f"fy {K[1, 1]:.2f} cx {K[0, 2]:.2f} cy {K[1, 2]:.2f} px; accepted: "
-           f"{acc.describe()}")
+           f"fy {K[1, 1]:.2f} cx {K[0, 2]:.2f} cy {K[1, 2]:.2f} px")
     return CalibrationResult(
         camera=poses[0], poses=poses, residuals=residuals, rms=rms,
-        view_rms=np.array(vrms), parameters=names, std=std, message=msg, acceptance=acc,
+        view_rms=np.array(vrms), parameters=names, std=std, message=msg,
     )
+
+
+def calibrate(
+    views,
+    image_size: tuple[int, int],
+    *,
+    fix=(),
+    initial: Camera | None = None,
+    max_iter: int = 200,
+    marker_accuracy: float = DEFAULT_MARKER_ACCURACY,
+    max_rms: float | None = DEFAULT_MAX_RMS,
+    ids=None,
+) -> CalibrationResult:
+    """Calibrate a camera from one or more views of a planar or 3-D target.
+
+    Parameters
+    ----------
+    views : sequence of (points3d, points2d)
+        For each image, the target's marker coordinates ``(N_i, 3)`` (model units; a
+        planar target may lie in any plane) and their measured pixel positions
+        ``(N_i, 2)`` (pixel centres at integers).
+    image_size : (width, height)
+        Image size in pixels.
+    fix : iterable of str
+        Parameters held at their initial value: any of ``fx, fy, cx, cy, k1, k2, p1, p2,
+        k3``, and ``"aspect"`` to estimate one focal length with ``fy / fx`` fixed.
+        ``fix=("k3",)`` is common; a single view of a planar target needs ``("cx", "cy")``.
+    initial : Camera, optional
+        Starting (and fixed-parameter) intrinsics ``K`` and ``dist``. By default the
+        intrinsics come from the data and the distortion starts at zero.
+    max_iter : int
+        Maximum number of Levenberg-Marquardt iterations of the joint refinement.
+    marker_accuracy, max_rms : float
+        The acceptance rule's options (px, :mod:`resection.acceptance`): gross outliers are
+        dropped, the worst first and the calibration repeated, within
+        :func:`~resection.acceptance.outlier_limit` (and never below 4 markers in a view);
+        then the RMS of the used residuals must not exceed its 99.9 % bound for markers of
+        this accuracy (``2 N - 6 V - len(parameters)`` degrees of freedom), nor ``max_rms``.
+    ids : list of sequences of str, optional
+        Marker names of each view, for messages and ``acceptance.outliers`` (default: their
+        indices); outliers are named ``view:name``.
+
+    Returns
+    -------
+    CalibrationResult
+
+    Raises
+    ------
+    InputError, DegenerateError
+        No views, fewer than 4 markers in a view, NaN, collinear markers, bad sizes,
+        image points outside the ``image_size`` image (pixel edges at ``-0.5`` and
+        ``W - 0.5``), an ``initial`` camera of another size, unknown parameter names,
+        fewer observations than parameters.
+    SolveError
+        Non-convergence, parameters the views do not determine (the message names them:
+        e.g. the principal point from one planar view), too many gross outliers, or
+        residuals that fail the acceptance rule (message with the statistic and threshold).
+    """
+    a = check_accuracy(marker_accuracy, "calibrate")
+    vw = _check_views(views)
+    sizes = [len(X) for X, _, _ in vw]
+    ends = np.cumsum(sizes)
+    starts = ends - np.array(sizes)
+    n = int(ends[-1])
+    if ids is None:
+        ids = [range(k) for k in sizes]
+    ids = [list(v) for v in ids]
+    if len(ids) != len(vw) or any(len(i) != k for i, k in zip(ids, sizes, strict=False)):
+        raise InputError("calibrate: ids must give one name per marker of every view")
+    names = [f"{v}:{k}" for v, i in enumerate(ids) for k in i]
+    opts = dict(fix=fix, initial=initial, max_iter=max_iter)
+
+    def fit(used):
+        parts = [used[s0:s1] for s0, s1 in zip(starts, ends, strict=True)]
+        short = [v for v, m in enumerate(parts) if m.sum() < 4]
+        if short:
+            raise SolveError(f"calibrate: dropping gross outliers would leave view(s) {short} "
+                             "with fewer than 4 markers: a bad view or a wrong pairing?")
+        res = _calibrate_once([(X[m], uv[m]) for (X, uv, _), m in zip(vw, parts, strict=True)],
+                              image_size, **opts)
+        err = np.concatenate([np.hypot(*(uv - c.project(X)).T)
+                              for (X, uv, _), c in zip(vw, res.poses, strict=True)])
+        return res, err
+
+    n_free = len(CALIBRATION_PARAMETERS) - len(set(fix) - {"aspect"})
+    res, used, dropped, derr = drop_outliers(fit, n, 6 * len(vw) + n_free, a, names,
+                                             "calibrate")
+    n_params = 6 * len(vw) + len(res.parameters)
+    acc = judge(np.sqrt(np.sum(np.concatenate(res.residuals) ** 2, axis=1)), n_params, a,
+                max_rms, outliers=dropped, outlier_errors=derr, n_total=n, what="calibration")
+    require(acc, "calibrate", "wrong pairing, wrong image size or a bad marker?")
+    if not dropped:
+        return replace(res, acceptance=acc, used=[np.ones(k, bool) for k in sizes],
+                       message=f"{res.message}; accepted: {acc.describe()}")
+    residuals = [uv - c.project(X) for (X, uv, _), c in zip(vw, res.poses, strict=True)]
+    return replace(res, residuals=residuals, acceptance=acc,
+                   used=[used[s0:s1] for s0, s1 in zip(starts, ends, strict=True)],
+                   message=f"{res.message}; accepted: {acc.describe()}")

@@ -215,7 +215,24 @@ def test_calibrate_is_judged_by_the_same_rule():
     with pytest.raises(SolveError, match="calibrate: refused by the acceptance rule.*"
                                          "marker accuracy 0.05 px"):
         calibrate(views, (1280, 960), fix=("k3",), marker_accuracy=0.05)
+    # two board points exchanged in one view: both named, dropped, the rest accepted and
+    # the intrinsics those of OpenCV's calibration without them
     swapped = views[2][1].copy()
     swapped[[12, 13]] = swapped[[13, 12]]
-    with pytest.raises(SolveError, match="acceptance rule"):
-        calibrate([*views[:2], (board, swapped), views[3]], (1280, 960), fix=("k3",))
+    bad = [*views[:2], (board, swapped), views[3]]
+    ids = [[f"B{i}" for i in range(88)]] * 4
+    res2 = calibrate(bad, (1280, 960), fix=("k3",), ids=ids)
+    assert set(res2.acceptance.outliers) == {"2:B12", "2:B13"}
+    assert res2.used[2].sum() == 86 and all(u.all() for k, u in enumerate(res2.used) if k != 2)
+    assert np.hypot(*res2.residuals[2][12]) > 20  # reported for every marker
+    keep = np.ones(88, bool)
+    keep[[12, 13]] = False
+    obj = [board.astype(np.float32)] * 2 + [board[keep].astype(np.float32), board.astype(
+        np.float32)]
+    img = [v[1].astype(np.float32) for v in views[:2]] + [
+        swapped[keep].astype(np.float32), views[3][1].astype(np.float32)]
+    _, Kcv, dcv, _, _ = cv2.calibrateCamera(
+        obj, img, (1280, 960), K0.copy(), np.zeros(5),
+        flags=cv2.CALIB_USE_INTRINSIC_GUESS | cv2.CALIB_FIX_K3,
+        criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 200, 1e-12))
+    np.testing.assert_allclose(res2.camera.K, Kcv, rtol=0, atol=1e-3)
