@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import numba
 import numpy as np
 import scipy.sparse as sp
 import trimesh
@@ -450,22 +451,13 @@ class SurfaceMap:
         if not np.issubdtype(arr.dtype, np.number) or np.issubdtype(arr.dtype, np.complexfloating):
             raise InputError(f"image: expected real numbers, got dtype {arr.dtype}")
         T = arr.shape[0]
-        interp = self._interpolation_matrix()  # (model pixels, V) barycentric weights
-        B = interp.T  # (V, model pixels), CSC: no conversion
-        pattern = sp.csc_matrix(((interp.data > 1e-12).astype(np.float64), interp.indices,
-                                 interp.indptr), shape=B.shape)
-        X = np.ascontiguousarray(arr.reshape(T, -1)[:, self._hit].T, dtype=np.float64)
-        finite = np.isfinite(X)
-        if finite.all():
-            sums, weights = (B @ X).T, np.broadcast_to(B @ np.ones(X.shape[0]), (T, B.shape[0]))
-            total = np.rint(pattern @ np.ones(X.shape[0])).astype(np.int64)
-            counts = np.broadcast_to(total, (T, B.shape[0])).copy()
-        else:
-            X[~finite] = 0.0
-            ok = finite.astype(np.float64)
-            sums, weights = (B @ X).T, (B @ ok).T
-            counts = np.rint((pattern @ ok).T).astype(np.int64)
-            total = np.rint(pattern @ np.ones(X.shape[0])).astype(np.int64)
+        X = np.ascontiguousarray(arr.reshape(T, -1)[:, self._hit], dtype=np.float64)
+        nv = len(self.mesh.vertices)
+        sums, weights = np.zeros((T, nv)), np.zeros((T, nv))
+        counts, total = np.zeros((T, nv), np.int64), np.zeros(nv, np.int64)
+        _splat_nodes(np.asarray(self.mesh.faces, dtype=np.int64)[self._hit_face],
+                     np.ascontiguousarray(self.barycentric.reshape(-1, 3)[self._hit]), X,
+                     sums, weights, counts, total)
         with np.errstate(invalid="ignore", divide="ignore"):
             values = np.where(weights > 1e-12, sums / weights, np.nan)
         unseen = ~np.isfinite(values)
@@ -549,3 +541,24 @@ class SurfaceMap:
             out[rows, hit[cols]] = vals[rows, cols]
         out = out.reshape(T, H, W)
         return out[0] if single else out
+
+
+@numba.njit(cache=True, nogil=True)
+def _splat_nodes(corners, bary, X, sums, weights, counts, total):  # pragma: no cover
+    """One pass over the model pixels of T frames: pixel j (corners, barycentrics) adds
+    ``w * X[t, j]`` and ``w`` to its face's three nodes (finite pixels only), and counts
+    the pixels with a weight above 1e-12 (``total``: finite or not)."""
+    for j in range(corners.shape[0]):
+        for c in range(3):
+            w = bary[j, c]
+            node = corners[j, c]
+            big = w > 1e-12
+            if big:
+                total[node] += 1
+            for t in range(X.shape[0]):
+                x = X[t, j]
+                if np.isfinite(x):
+                    sums[t, node] += w * x
+                    weights[t, node] += w
+                    if big:
+                        counts[t, node] += 1

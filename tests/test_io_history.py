@@ -56,6 +56,11 @@ def test_round_trip_h5py_and_meshio(tmp_path, mesh, per):
     assert h.cameras[5] == _camera(5)
     sub = read_history(path, frames=slice(2, 4))
     np.testing.assert_array_equal(sub.times, times[2:4])
+    pts = read_history(path, items=[7, 3, 7])  # time history of points, any order
+    np.testing.assert_array_equal(pts.values, np.array([_values(k, n) for k in range(7)])
+                                  [:, [7, 3, 7]])
+    with pytest.raises(InputError, match="items"):
+        read_history(path, items=[n])
     # meshio's XDMF time-series reader on the sidecar
     with meshio.xdmf.TimeSeriesReader(xdmf_path(path)) as r:
         points, cells = r.read_points_cells()

@@ -305,7 +305,7 @@ class History:
     cameras : list of Camera or None
         Each frame's camera (None where none was recorded).
     values : (T, N) float32
-        Every frame's values (NaN unseen).
+        Every frame's values (NaN unseen); (T, len(items)) when read for some items.
     """
 
     points: np.ndarray
@@ -321,7 +321,7 @@ class History:
         return len(self.times)
 
 
-def read_history(path: str | os.PathLike, *, frames=None) -> History:
+def read_history(path: str | os.PathLike, *, frames=None, items=None) -> History:
     """Read a time history (the committed frames of a finished or interrupted run).
 
     Parameters
@@ -329,6 +329,9 @@ def read_history(path: str | os.PathLike, *, frames=None) -> History:
     path : path-like
     frames : slice or array_like of int, optional
         Which frames to load (default all; the values of a long run can be large).
+    items : array_like of int, optional
+        Which nodes (or faces) to load: ``values`` is then (T, len(items)), the time
+        history of those points (default all).
     """
     p = Path(path)
     with _open(p) as f:
@@ -348,8 +351,17 @@ def read_history(path: str | os.PathLike, *, frames=None) -> History:
                                       cam["R"][k], cam["t"][k]))
         nv = f["grid/points"].shape[0] if f.attrs["per"] == "node" \
             else f["grid/triangles"].shape[0]
-        values = np.empty((len(sel), nv), dtype=np.float32)
-        for i, k in enumerate(sel):
-            values[i] = f["values"][f"{k:06d}"][()]
+        if items is None:
+            values = np.empty((len(sel), nv), dtype=np.float32)
+            for i, k in enumerate(sel):
+                values[i] = f["values"][f"{k:06d}"][()]
+        else:
+            it = np.asarray(items, dtype=np.int64).ravel()
+            if it.size and (it.min() < 0 or it.max() >= nv):
+                raise InputError(f"items: indices must be in [0, {nv}) for this history")
+            order, inverse = np.unique(it, return_inverse=True)  # h5py wants them sorted
+            values = np.empty((len(sel), it.size), dtype=np.float32)
+            for i, k in enumerate(sel):
+                values[i] = f["values"][f"{k:06d}"][order][inverse]
         return History(f["grid/points"][()], f["grid/triangles"][()], str(f.attrs["per"]),
                        fr["time"][:n][sel], fr["index"][:n][sel], cameras, values)
