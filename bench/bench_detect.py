@@ -73,21 +73,19 @@ def accuracy(found, truth, gate=1.5):
 
 
 def best_alternating(fns, repeat):
-    """Best wall times of functions called in turn, ``repeat`` rounds, and their results."""
-    best = [float("inf")] * len(fns)
+    """Functions called in turn, ``repeat`` rounds: their best wall times, best CPU times
+    (this process, the measure least disturbed by other processes on a loaded machine)
+    and results."""
+    wall = [float("inf")] * len(fns)
+    cpu = [float("inf")] * len(fns)
     out = [None] * len(fns)
     for _ in range(repeat):
         for k, fn in enumerate(fns):
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             out[k] = fn()
-            best[k] = min(best[k], time.perf_counter() - t0)
-    return best, out
-
-
-def best_pair(fa, fb, repeat):
-    """Best times of two functions called alternately, and their last results."""
-    (ta, tb), (ra, rb) = best_alternating([fa, fb], repeat)
-    return ta, ra, tb, rb
+            wall[k] = min(wall[k], time.perf_counter() - t0)
+            cpu[k] = min(cpu[k], time.process_time() - c0)
+    return wall, cpu, out
 
 
 def measure(repeat):
@@ -101,7 +99,8 @@ def measure(repeat):
     first = time.perf_counter() - t0
     print(f"\nfirst call (small frame, kernels loaded or compiled): {first:.2f} s\n")
     coarse = _has_refine_option()
-    print("| frame | detect_markers ms | SimpleBlobDetector ms | ratio | RMS error px "
+    print("wall-clock ms (CPU ms); ratio = detect_markers / SimpleBlobDetector, wall (CPU)\n")
+    print("| frame | detect_markers | SimpleBlobDetector | ratio | RMS error px "
           "(ours / OpenCV) | found (ours / OpenCV) |"
           + (" coarse pass (refine=False): ms, ratio, RMS px |" if coarse else ""))
     print("|---|---|---|---|---|---|" + ("---|" if coarse else ""))
@@ -110,13 +109,15 @@ def measure(repeat):
         fns = [lambda img=img, d=d: detect_markers(img, d), lambda img=img: cv(img)]
         if coarse:
             fns.append(lambda img=img, d=d: detect_markers(img, d, refine=False))
-        t, out = best_alternating(fns, repeat)
+        t, c, out = best_alternating(fns, repeat)
         ea, fa = accuracy(out[0].uv, uv)
         eb, fb = accuracy(out[1], uv)
         extra = ""
         if coarse:
-            extra = f" {1e3 * t[2]:.0f}, {t[2] / t[1]:.2f}, {accuracy(out[2].uv, uv)[0]:.4f} |"
-        print(f"| {name} | {1e3 * t[0]:.0f} | {1e3 * t[1]:.0f} | {t[0] / t[1]:.2f} | "
+            extra = (f" {1e3 * t[2]:.0f} ({1e3 * c[2]:.0f}), {t[2] / t[1]:.2f} "
+                     f"({c[2] / c[1]:.2f}), {accuracy(out[2].uv, uv)[0]:.4f} |")
+        print(f"| {name} | {1e3 * t[0]:.0f} ({1e3 * c[0]:.0f}) | {1e3 * t[1]:.0f} "
+              f"({1e3 * c[1]:.0f}) | {t[0] / t[1]:.2f} ({c[0] / c[1]:.2f}) | "
               f"{ea:.4f} / {eb:.4f} | {fa:.0%} / {fb:.0%} |" + extra)
         if k == 0:
             roi_img, roi_uv = img, uv
@@ -124,10 +125,11 @@ def measure(repeat):
     u, v = np.rint(roi_uv[0]).astype(int)
     roi = (u - 20, v - 20, u + 20, v + 20)
     crop = np.ascontiguousarray(roi_img[v - 20:v + 21, u - 20:u + 21])
-    ta, cand, tb, pts = best_pair(lambda: detect_markers(roi_img, 6.0, roi=roi),
-                                  lambda: cv(crop), 5 * repeat)
+    t, c, (cand, pts) = best_alternating([lambda: detect_markers(roi_img, 6.0, roi=roi),
+                                          lambda: cv(crop)], 5 * repeat)
     ea, _ = accuracy(cand.uv, roi_uv[:1])
-    print(f"| one marker, 41 x 41 roi | {1e3 * ta:.2f} | {1e3 * tb:.2f} | {ta / tb:.2f} | "
+    print(f"| one marker, 41 x 41 roi | {1e3 * t[0]:.2f} ({1e3 * c[0]:.2f}) | "
+          f"{1e3 * t[1]:.2f} ({1e3 * c[1]:.2f}) | {t[0] / t[1]:.2f} ({c[0] / c[1]:.2f}) | "
           f"{ea:.4f} / - | {len(cand)} / {len(pts)} |")
 
 

@@ -117,26 +117,34 @@ def _lookup(tab, T, h, t):
 def _model(x0, y0, R, tab, T, h, sn, cs, wc, Q, M, sA, sB):
     """Unit-contrast disk image and its derivatives in x0, y0, R, in place:
     ``M[j, i] = (image, d/dx0, d/dy0, d/dR)`` at row ``j``, column ``i`` (``M`` is
-    (W, W, 4)). ``sA`` and ``sB`` are (W + 1, 3) scratch arrays."""
+    (W, W, 4)). ``sA`` and ``sB`` are (W + 1, 3) scratch arrays.
+
+    The nodes come in pairs ``±θ`` (Gauss-Legendre is symmetric): the two chords of a pair
+    have the same half-length, so they share the row factors, and their column factors
+    are added before the product."""
     W = M.shape[0]
     M[:, :, :] = 0.0
-    for q in range(Q):
-        sq, cq, wq = sn[q], cs[q], wc[q]
-        xq = x0 + R * sq
+    for q in range((Q + 1) // 2):
+        sq, cq, wq = abs(sn[q]), cs[q], wc[q]
+        if 2 * q + 1 == Q:  # the middle node of an odd size: counted once
+            wq *= 0.5
+        xp = x0 + R * sq
+        xm = x0 - R * sq
         hq = R * cq
-        i0 = max(int(math.ceil(xq - T)), 0)
-        i1 = min(int(math.floor(xq + T)), W - 1)
+        i0 = max(int(math.ceil(xm - T)), 0)
+        i1 = min(int(math.floor(xp + T)), W - 1)
         j0 = max(int(math.ceil(y0 - hq - T)), 0)
         j1 = min(int(math.floor(y0 + hq + T)), W - 1)
         if i1 < i0 or j1 < j0:
             continue
         Rw = R * wq
-        # columns: A = g(u - xq) R w and its derivatives in x0 and R
+        # columns: A = (g(u - x+) + g(u - x-)) R w and its derivatives in x0 and R
         for k in range(i1 - i0 + 1):
-            _, gA, dgA = _lookup(tab, T, h, i0 + k - xq)
-            sA[k, 0] = gA * Rw
-            sA[k, 1] = -dgA * Rw
-            sA[k, 2] = gA * wq - dgA * sq * Rw
+            _, gp, dgp = _lookup(tab, T, h, i0 + k - xp)
+            _, gm, dgm = _lookup(tab, T, h, i0 + k - xm)
+            sA[k, 0] = (gp + gm) * Rw
+            sA[k, 1] = -(dgp + dgm) * Rw
+            sA[k, 2] = (gp + gm) * wq - (dgp - dgm) * sq * Rw
         # rows: B = C(v - y0 + h) - C(v - y0 - h) and its derivatives in y0 and R
         for k in range(j1 - j0 + 1):
             t = j0 + k - y0
@@ -148,7 +156,7 @@ def _model(x0, y0, R, tab, T, h, sn, cs, wc, Q, M, sA, sB):
             sB[k, 0] = Cp - Cm
             sB[k, 1] = gm - gp
             sB[k, 2] = (gp + gm) * cq
-        # the node's term of the quadrature: products of the row and column factors
+        # the pair's term of the quadrature: products of the row and column factors
         for k in range(j1 - j0 + 1):
             j = j0 + k
             B, By, BR = sB[k, 0], sB[k, 1], sB[k, 2]
