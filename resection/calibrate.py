@@ -47,13 +47,8 @@ from .dlt import (
     fit_homography,
 )
 from .errors import DegenerateError, InputError, SolveError
-from .pose import (
-    _apply_intrinsics,
-    _intrinsic_params,
-    _pose_from_plane,
-    _project_jac,
-    solve_pose,
-)
+from .pose import _pose_from_plane, solve_pose
+from .reprojection import _apply_intrinsics, _intrinsic_params, _project_jac
 
 __all__ = ["CalibrationResult", "calibrate", "CALIBRATION_PARAMETERS"]
 
