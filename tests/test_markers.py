@@ -328,7 +328,7 @@ def test_image_errors(tmp_path):
     with pytest.raises(InputError, match="extension"):
         read_image(tmp_path / "x.jpg")
     np.save(tmp_path / "cube.npy", np.zeros((3, 4, 5)))
-    with pytest.raises(InputError, match="2-D"):
+    with pytest.raises(InputError, match="cube.npy: a stack of 3 frames, not one image"):
         read_image(tmp_path / "cube.npy")
     (tmp_path / "junk.tif").write_bytes(b"not a tiff")
     with pytest.raises(InputError, match="cannot read"):
