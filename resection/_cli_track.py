@@ -42,7 +42,7 @@ def register(sub) -> None:
                    help="worker processes of the local Dask cluster started when no "
                    "--scheduler is given (default: one per CPU core; 1: in this process, "
                    "without Dask)")
-    p.add_argument("--chunk-size", type=int, default=20, help="frames per task (default 20)")
+    p.add_argument("--chunk-size", type=int, default=50, help="frames per task (default 50)")
     p.add_argument("--fps", type=float, help="frame rate, for the time axis of the plot")
     p.add_argument("--moving-camera", action="store_true",
                    help="the model is fixed and the camera moves (report the camera's motion)")

@@ -145,11 +145,11 @@ def test_interrupt_and_resume(run60, tmp_path, monkeypatch):
     calls = {"n": 0}
     load = seq_process._load_image
 
-    def interrupted(frame):  # Ctrl-C while the 12th frame of this run is read
+    def interrupted(frame, *args):  # Ctrl-C while the 12th frame of this run is read
         calls["n"] += 1
         if calls["n"] == 12:
             raise KeyboardInterrupt
-        return load(frame)
+        return load(frame, *args)
 
     monkeypatch.setattr(seq_process, "_load_image", interrupted)
     with pytest.raises(KeyboardInterrupt):
@@ -206,14 +206,16 @@ def test_dask_two_workers_same_as_one(run60, tmp_path):
 
     from dask.distributed import LocalCluster
 
-    model, files, cam, ref, _ = run60
-    n = 30  # the chunks (20 frames) do not depend on the length of the run
+    model, files, cam, _, _ = run60
+    n = 30  # three chunks of 10 frames, in this process and on two workers
+    ref = track(files["frames"][:n], cam, files["markers"], diameter=5.6,
+                out_dir=tmp_path / "one", progress=False, chunk_size=10)
     # an existing cluster, given by its scheduler address (the CLI test covers workers=2)
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                       dashboard_address=None, silence_logs=logging.ERROR) as cluster:
         res = track(files["frames"][:n], cam, files["markers"], diameter=5.6,
                     out_dir=tmp_path / "o", scheduler=cluster.scheduler_address,
-                    progress=False)
+                    progress=False, chunk_size=10)
     assert res.n_computed == n
     assert res.status.tolist() == ref.status[:n].tolist()
     np.testing.assert_allclose(res.angles, ref.angles[:n], atol=1e-9)
@@ -341,10 +343,10 @@ def test_dask_interruption_keeps_every_finished_frame(run60, tmp_path, monkeypat
     n, stop = 20, 15
     process = seq_process._process_frame
 
-    def dies_at_frame(frame, index, setup, reference, previous=None):
+    def dies_at_frame(frame, index, setup, reference, previous=None, **kw):
         if index == stop:  # the run is stopped while the chunk (frames 1..19) is in flight
             raise RuntimeError("interrupted")
-        return process(frame, index, setup, reference, previous)
+        return process(frame, index, setup, reference, previous, **kw)
 
     monkeypatch.setattr(seq_process, "_process_frame", dies_at_frame)
     out = tmp_path / "o"
@@ -446,11 +448,11 @@ def test_cli_ctrl_c_says_what_is_kept(run60, tmp_path, monkeypatch, capsys):
     calls = {"n": 0}
     load = seq_process._load_image
 
-    def interrupted(frame):
+    def interrupted(frame, *args):
         calls["n"] += 1
         if calls["n"] == 3:  # Ctrl-C while frame 2 is being processed
             raise KeyboardInterrupt
-        return load(frame)
+        return load(frame, *args)
 
     monkeypatch.setattr(seq_process, "_load_image", interrupted)
     out = tmp_path / "o"
@@ -476,3 +478,36 @@ def test_frames_of_integer_files_have_saturated_pixels_masked(tmp_path):
     out = _load_image(tmp_path / "f.tif")
     assert out.shape == (20, 30) and np.isnan(out).sum() == 12
     assert np.all(np.isnan(out[5:8, 10:14])) and np.all(out[~np.isnan(out)] == 1000)
+
+
+def test_frames_from_one_multi_frame_file(run60, tmp_path):
+    """A sequence given as one file holding every frame (a 3-D NPY stack and a multi-page
+    TIFF, read through resection.io.video one frame at a time) tracks as the same frames
+    given as files; a failed frame names the file and the frame; resume knows the file."""
+    import tifffile
+
+    model, files, cam, ref, _ = run60
+    n = 12
+    stack = np.stack([np.load(f) for f in files["frames"][:n]]).astype(np.float32)
+    stack[5] = np.nan  # a frame with nothing to see
+    np.save(tmp_path / "run.npy", stack)
+    tifffile.imwrite(tmp_path / "run.tif", stack)
+    good = np.arange(n) != 5
+    for name in ("run.npy", "run.tif"):
+        out = tmp_path / f"out_{name}"
+        res = track(tmp_path / name, cam, files["markers"], diameter=5.6, out_dir=out,
+                    progress=False, chunk_size=4)
+        assert len(res) == n and res.ok.tolist() == good.tolist()
+        np.testing.assert_allclose(res.angles[good], ref.angles[:n][good], atol=1e-6)
+        assert res.file[3] == f"{tmp_path / name}#3"
+        assert f"{tmp_path / name}#5" in res.reason[5]
+        again = track([str(tmp_path / name)], cam, files["markers"], diameter=5.6,
+                      out_dir=out, progress=False, chunk_size=4)
+        assert again.n_computed == 0
+    # the CLI takes the file as its one frame argument
+    rc = main(["track", str(tmp_path / "run.npy"), "--camera", files["camera"], "--markers",
+               files["markers"], "--diameter", "5.6", "--out", str(tmp_path / "cli"),
+               "--no-progress", "--workers", "1", "--chunk-size", "4"])
+    assert rc == 0
+    np.testing.assert_allclose(read_track(tmp_path / "cli").angles[good],
+                               ref.angles[:n][good], atol=1e-6)

@@ -1,9 +1,7 @@
 """Sequences: markers tracked and the Point of View solved in every frame of a run.
 
-:func:`track` runs, for every frame of a sequence (the paper: 500 frames at 50 fps), marker
-detection (:func:`resection.markers.detect_markers`), matching to the 3-D markers from the
-previous frame (:func:`resection.match.match_markers`) and the pose
-(:func:`resection.pose.solve_pose`), and writes
+:func:`track` follows the markers through every frame of a sequence (the paper: 500 frames
+at 50 fps) and solves the pose of each, and writes
 
 * ``poses.csv``: one row per frame: ``frame, file, status, reason, roll_deg, pitch_deg,
   yaw_deg, dx, dy, dz, rms_px, n_markers, rvec_x, rvec_y, rvec_z, tvec_x, tvec_y, tvec_z``;
@@ -23,6 +21,24 @@ of the model origin (model units). With ``fixed_camera=False`` (the model is fix
 camera moves) the same columns give the camera's attitude change ``R_k^T R_0`` (same Euler
 convention) and the displacement of its perspective centre ``C_k - C_0``, model frame.
 
+Tracking
+--------
+A frame is tracked *by prediction* (:mod:`resection.sequence.predict`): the pose is
+extrapolated from the two previous good frames, every marker is fitted in a small window
+around its predicted position, the pose is solved once from there and judged by the
+package's acceptance rule. When that gate fails (a jump, lost or hidden markers, the first
+frame of a run or of a chunk) the frame goes the long way: marker detection
+(:func:`resection.markers.detect_markers`) in the region where the markers can be, matching
+to the 3-D markers from the previous good frame (:func:`resection.match.match_markers`)
+and the pose (:func:`resection.pose.solve_pose`). Either way a frame is right or refused.
+
+The package is split by step: :mod:`~resection.sequence.frames` (reading frames, their
+fingerprints), :mod:`~resection.sequence.predict` (motion model, gated association, pose),
+:mod:`~resection.sequence.process` (one frame, a chunk of frames, the repair pass),
+:mod:`~resection.sequence.execute` (in this process or on Dask),
+:mod:`~resection.sequence.outputs` (per-frame files, CSVs, :func:`read_track`),
+:mod:`~resection.sequence.inputs` (checks), :mod:`~resection.sequence.run` (:func:`track`).
+
 Parallelism and resume
 ----------------------
 Frames are split into chunks of ``chunk_size`` consecutive frames. Within a chunk every frame
@@ -39,16 +55,28 @@ although matched from the previous good frame, are not redone). The chunking doe
 on the number of workers, so 1 and N workers give the same results.
 
 Every finished frame is written at once to ``out_dir/frames/frame_NNNNNN.json`` (written to
-a temporary file, flushed, fsync'ed and renamed, so a file is either complete or absent).
+a temporary file and renamed, so a file is either complete or absent; not fsync'ed: after a
+crash of the machine a truncated file reads as missing and the frame is computed again).
 A run that is interrupted and started again with ``resume=True`` loads these files and
-computes only the missing frames; ``poses.csv`` and ``markers.csv`` are merged from them at
-the end. On a Dask cluster the file is written by the worker, inside the task, as soon as
-the frame is finished (the workers of a local cluster share the filesystem), so an
-interruption loses at most the frames in progress, one per worker; the progress bar follows
-these files. A worker that cannot write there (a remote cluster without a shared
-filesystem) leaves the file to the client, which writes it when the chunk comes back.
-A failed frame is recorded (status ``failed`` and the reason) and the run goes on; the next
-frame is then matched from the last good one.
+computes only the missing frames, and the frames whose file has changed since (its size,
+modification and status-change times or inode differ from those recorded:
+:func:`~resection.sequence.frames.fingerprint`); ``poses.csv`` and ``markers.csv`` are
+merged from them at the end. On a Dask cluster the file is written by the worker, inside
+the task, as soon as the frame is finished (the workers of a local cluster share the
+filesystem), so an interruption loses at most the frames in progress, one per worker; the
+progress bar follows these files. A worker that cannot write there (a remote cluster
+without a shared filesystem) leaves the file to the client, which writes it when the chunk
+comes back. A failed frame is recorded (status ``failed`` and the reason, which names its
+file) and the run goes on; the next frame is then matched from the last good one.
+
+While a run writes into ``out_dir`` it holds the folder's lock
+(:func:`resection.io.lock.lock_folder`): a second run into the same folder is refused with
+the holder's process id, host and start time; the lock of a process that died is taken
+over. Memory does not grow with the length of the run: frames are read one at a time where
+they are processed, a finished frame is kept as its file (and two numbers), and the result
+is assembled from the files and the CSVs streamed at the end; only the returned
+:class:`TrackResult` (poses and matched markers, about 1.6 kB a frame with 34 markers) grows
+with the frames.
 """
 
 from __future__ import annotations

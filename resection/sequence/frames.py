@@ -1,26 +1,78 @@
 """Reading the frames of a sequence, and telling whether a frame's file has changed.
 
-A frame is a path to an image file (TIFF/PNG/NPY, :func:`resection.io.images.read_image`)
-or an in-memory ``(H, W)`` array. The *fingerprint* of a file frame is what a resumed run
-compares with the fingerprint recorded when the frame was computed: size, modification
-time, inode and status-change time (``st_ctime``, which no user can set back: a file copied
-over another one with ``cp -p``, or restored with ``touch -r``, still changes it). A
-different fingerprint recomputes the frame. No content hash: hashing a 1 Mpx frame costs
-as much as reading it, and every field above changes when a file is written.
+A frame is a path to an image file (TIFF/PNG/NPY, :func:`resection.io.images.read_image`),
+an in-memory ``(H, W)`` array, or a :class:`VideoFrame`: frame ``i`` of a file holding many
+(Phantom ``.cine``, Photron ``.mraw``, multi-page TIFF, 3-D NPY), read through
+:func:`resection.io.video.open_frames`. A sequence given as one such file is expanded by
+:func:`expand_frames` into its frames, which are read one at a time where they are
+processed (a worker opens the file once per chunk of frames).
+
+The *fingerprint* of a file frame is what a resumed run compares with the fingerprint
+recorded when the frame was computed: size, modification time, inode and status-change
+time (``st_ctime``, which no user can set back: a file copied over another one with
+``cp -p``, or restored with ``touch -r``, still changes it). A different fingerprint
+recomputes the frame. No content hash: hashing a 1 Mpx frame costs as much as reading it
+(CRC-32 of a 4 MB frame 1.2 ms, reading it 0.6 to 1.2 ms), and every field above changes
+when a file is written.
 """
 
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
 
+#: suffixes of files that may hold many frames
+_MULTI_SUFFIXES = (".cine", ".mraw", ".cih", ".cihx", ".tif", ".tiff", ".npy")
 
-def _load_image(frame) -> np.ndarray:
+
+@dataclass(frozen=True)
+class VideoFrame:
+    """Frame ``index`` (0-based) of the multi-frame file ``path``; ``label`` names it
+    (``"run.cine#12"``) in messages and result files."""
+
+    path: str
+    index: int
+    label: str
+
+
+def expand_frames(frames: list) -> list:
+    """``frames`` as given, or, when it is a single multi-frame file (``.cine``, ``.mraw``/
+    ``.cih``, multi-page TIFF, 3-D NPY), the :class:`VideoFrame` of each of its frames
+    (none is read here: only the file's header)."""
+    if len(frames) != 1 or not isinstance(frames[0], (str, os.PathLike)):
+        return frames
+    p = Path(frames[0])
+    if p.suffix.lower() not in _MULTI_SUFFIXES or not p.is_file():
+        return frames
+    from ..io.video import VIDEO_SUFFIXES, open_frames
+
+    with open_frames(p) as src:
+        if src.n == 1 and p.suffix.lower() not in VIDEO_SUFFIXES:
+            return frames  # one image
+        return [VideoFrame(str(p), i, src.label(i)) for i in range(src.n)]
+
+
+def _load_image(frame, sources: dict | None = None) -> np.ndarray:
+    """The frame's image (saturated pixels of integer files masked as NaN). ``sources``:
+    the multi-frame files already open (path -> FrameSource), kept open for the next
+    frames; without it a multi-frame file is opened and closed for this frame."""
     if isinstance(frame, np.ndarray):
         img = frame
+    elif isinstance(frame, VideoFrame):
+        from ..io.video import open_frames
+
+        if sources is None:
+            with open_frames(frame.path, mask_saturated=True) as src:
+                img = src[frame.index]
+        else:
+            if frame.path not in sources:
+                sources[frame.path] = open_frames(frame.path, mask_saturated=True)
+            img = sources[frame.path][frame.index]
     else:
         from ..io.images import read_image
 
@@ -31,17 +83,20 @@ def _load_image(frame) -> np.ndarray:
 
 
 def _frame_name(frame) -> str:
+    if isinstance(frame, VideoFrame):
+        return frame.label
     return "" if isinstance(frame, np.ndarray) else os.fspath(frame)
 
 
 def fingerprint(frame) -> list[int] | None:
-    """``[size, mtime_ns, ctime_ns, inode]`` of a file frame, taken before it is read;
+    """``[size, mtime_ns, ctime_ns, inode]`` of a file frame (of the whole file for a
+    :class:`VideoFrame`), taken before it is read;
     ``[-1, -1, -1, -1]`` for a path that cannot be examined (missing); None for an
     in-memory frame."""
     if isinstance(frame, np.ndarray):
         return None
     try:
-        st = os.stat(frame)
+        st = os.stat(frame.path if isinstance(frame, VideoFrame) else frame)
     except (OSError, ValueError):
         return [-1, -1, -1, -1]
     return [int(st.st_size), int(st.st_mtime_ns), int(st.st_ctime_ns), int(st.st_ino)]

@@ -11,6 +11,7 @@ import numpy as np
 
 from .._checks import as_points
 from ..errors import InputError
+from .frames import VideoFrame, expand_frames
 from .process import _Setup
 from .results import _FORMAT_VERSION
 
@@ -127,10 +128,11 @@ def _checked(frames, camera, markers3d, *, link, diameter, polarity, workers, ch
 
     if not isinstance(camera, Camera):
         raise InputError(f"camera: expected a resection.Camera, got {type(camera).__name__}")
-    if isinstance(frames, (str, os.PathLike, np.ndarray)) and not (
-            isinstance(frames, np.ndarray) and frames.ndim == 3):
+    if isinstance(frames, (str, os.PathLike)):
+        frames = [frames]  # one file: a multi-frame file, or a sequence of one image
+    elif isinstance(frames, np.ndarray) and frames.ndim != 3:
         raise InputError("frames: expected a sequence of frames (paths or 2-D arrays)")
-    frames = list(frames)
+    frames = expand_frames(list(frames))
     if not frames:
         raise InputError("frames: the sequence is empty")
     try:
@@ -156,7 +158,7 @@ def _checked(frames, camera, markers3d, *, link, diameter, polarity, workers, ch
     if roi_margin is not None and not (np.isfinite(roi_margin) and roi_margin > 0):
         raise InputError(f"roi_margin: must be positive or None, got {roi_margin!r}")
     for i, f in enumerate(frames):
-        if not isinstance(f, (str, os.PathLike, np.ndarray)):
+        if not isinstance(f, (str, os.PathLike, np.ndarray, VideoFrame)):
             raise InputError(f"frames[{i}]: expected a path or a 2-D array, got "
                              f"{type(f).__name__}")
     ids, pts = _as_markers(markers3d)

@@ -33,6 +33,7 @@ the matcher: what the gate accepts, the matcher's own final tests would accept t
 
 from __future__ import annotations
 
+import functools
 import inspect
 import math
 
@@ -67,10 +68,12 @@ def predict_pose(reference: FrameResult, previous: FrameResult | None,
     return rvec, t1 + s * (t1 - np.asarray(previous.tvec, float))
 
 
-def project_poses(camera: Camera, rvecs, tvecs, points3d) -> np.ndarray:
+def project_poses(camera: Camera, rvecs, tvecs, points3d, *,
+                  max_radius: float | None = None) -> np.ndarray:
     """Pixel positions ``(P, N, 2)`` of ``N`` model points under ``P`` poses at once, with
     the camera's intrinsics and distortion (as :meth:`Camera.project`; NaN behind the
-    camera or beyond the distortion's monotonic radius)."""
+    camera or beyond the distortion's monotonic radius, ``camera.max_radius`` unless
+    given: it costs a polynomial root finding, worth passing when projecting often)."""
     rv = np.asarray(rvecs, float).reshape(-1, 3)
     tv = np.asarray(tvecs, float).reshape(-1, 3)
     X = np.asarray(points3d, float).reshape(-1, 3)
@@ -79,7 +82,8 @@ def project_poses(camera: Camera, rvecs, tvecs, points3d) -> np.ndarray:
     z = Xc[..., 2]
     with np.errstate(divide="ignore", invalid="ignore"):
         xy = Xc[..., :2] / np.where(z > 0, z, np.nan)[..., None]
-    bad = np.hypot(xy[..., 0], xy[..., 1]) > camera.max_radius
+    rmax = camera.max_radius if max_radius is None else max_radius
+    bad = np.hypot(xy[..., 0], xy[..., 1]) > rmax
     xy = distort_normalized(xy.reshape(-1, 2), camera.dist).reshape(xy.shape)
     K = camera.K
     u = K[0, 0] * xy[..., 0] + K[0, 1] * xy[..., 1] + K[0, 2]
@@ -90,7 +94,8 @@ def project_poses(camera: Camera, rvecs, tvecs, points3d) -> np.ndarray:
 
 
 def refine_pose(camera: Camera, rvec, tvec, points3d, points2d, *, iterations: int = 10,
-                tol: float = 1e-9) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                tol: float = 1e-9, max_radius: float | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Least-squares camera pose from a close start (Gauss-Newton on the 6 pose parameters,
     central-difference Jacobian, all perturbed poses projected in one batch).
 
@@ -108,6 +113,8 @@ def refine_pose(camera: Camera, rvec, tvec, points3d, points2d, *, iterations: i
         Most Gauss-Newton steps.
     tol : float
         Stop when the largest step component falls below this (radians, model units).
+    max_radius : float, optional
+        ``camera.max_radius``, when the caller has it.
 
     Returns
     -------
@@ -117,13 +124,14 @@ def refine_pose(camera: Camera, rvec, tvec, points3d, points2d, *, iterations: i
     """
     p = np.concatenate([np.asarray(rvec, float), np.asarray(tvec, float)])
     X = np.asarray(points3d, float).reshape(-1, 3)
+    rmax = camera.max_radius if max_radius is None else max_radius
     uv = np.asarray(points2d, float).reshape(-1, 2)
     scale = max(float(np.linalg.norm(p[3:])), 1e-3)
     h = np.r_[np.full(3, 1e-6), np.full(3, 1e-6 * scale)]
     E = np.eye(6) * h
     for _ in range(iterations):
         P = np.vstack([p, p + E, p - E])
-        proj = project_poses(camera, P[:, :3], P[:, 3:], X)
+        proj = project_poses(camera, P[:, :3], P[:, 3:], X, max_radius=rmax)
         r = (uv - proj[0]).ravel()
         J = ((proj[1:7] - proj[7:13]).reshape(6, -1) / (2.0 * h[:, None])).T
         if not (np.isfinite(r).all() and np.isfinite(J).all()):
@@ -132,16 +140,20 @@ def refine_pose(camera: Camera, rvec, tvec, points3d, points2d, *, iterations: i
         p = p + step
         if np.abs(step).max() < tol:
             break
-    res = uv - project_poses(camera, p[None, :3], p[None, 3:], X)[0]
+    res = uv - project_poses(camera, p[None, :3], p[None, 3:], X, max_radius=rmax)[0]
     return p[:3].copy(), p[3:].copy(), res
 
 
 def _match_default(name: str, match_kw: dict):
+    """The matcher's option ``name``: as given in ``match_kw``, else its default."""
+    return match_kw[name] if name in match_kw else _matcher_defaults()[name]
+
+
+@functools.lru_cache(maxsize=1)
+def _matcher_defaults() -> dict:
     from ..match import match_markers
 
-    if name in match_kw:
-        return match_kw[name]
-    return inspect.signature(match_markers).parameters[name].default
+    return {k: p.default for k, p in inspect.signature(match_markers).parameters.items()}
 
 
 def residual_gate(errors, tolerance: float) -> float:
@@ -166,7 +178,8 @@ def track_predicted(img: np.ndarray, setup, reference: FrameResult,
     cam, X = setup.camera, setup.points3d
     kw = setup.detect_kw
     rvec0, tvec0 = predict_pose(reference, previous, index)
-    pred = project_poses(cam, rvec0, tvec0, X)[0]
+    rmax = cam.max_radius
+    pred = project_poses(cam, rvec0, tvec0, X, max_radius=rmax)[0]
     d = setup.diameter
     R = d / 2.0
     blur = float(kw.get("blur", 0.6))
@@ -220,7 +233,7 @@ def track_predicted(img: np.ndarray, setup, reference: FrameResult,
     idx, uv = vis[sel], found[sel]
     tolerance = float(_match_default("tolerance", setup.match_kw))
     fixed_gate = setup.match_kw.get("gate")
-    rvec, tvec, res = refine_pose(cam, rvec0, tvec0, X[idx], uv)
+    rvec, tvec, res = refine_pose(cam, rvec0, tvec0, X[idx], uv, max_radius=rmax)
     for attempt in range(2):
         err = np.hypot(res[:, 0], res[:, 1])
         g = float(fixed_gate) if fixed_gate is not None else residual_gate(err, tolerance)
@@ -230,7 +243,7 @@ def track_predicted(img: np.ndarray, setup, reference: FrameResult,
         if attempt == 1 or keep.sum() < need:
             return None
         idx, uv = idx[keep], uv[keep]
-        rvec, tvec, res = refine_pose(cam, rvec, tvec, X[idx], uv)
+        rvec, tvec, res = refine_pose(cam, rvec, tvec, X[idx], uv, max_radius=rmax)
     # the package's acceptance rule, with the accuracy and max_rms the matcher would use
     accuracy = setup.pose_kw.get("marker_accuracy",
                                  _match_default("marker_accuracy", setup.match_kw))

@@ -113,32 +113,34 @@ def _solve(ids: np.ndarray, uv: np.ndarray, setup: _Setup, frame: int, file: str
 
 
 def _process_frame(frame_data, index: int, setup: _Setup, reference: FrameResult | None,
-                   previous: FrameResult | None = None) -> FrameResult:
+                   previous: FrameResult | None = None, sources: dict | None = None
+                   ) -> FrameResult:
     """Read one frame, track its markers by prediction from ``reference`` (and the good
     frame before it, ``previous``) or, when the prediction's gate fails, detect and match
     them from ``reference`` with the statistical matcher; solve the pose. Never raises for
-    a bad frame: the failure is returned with its reason."""
+    a bad frame: the failure is returned with its reason. ``sources``: multi-frame files
+    kept open between frames (see :func:`resection.sequence.frames._load_image`)."""
     source = fingerprint(frame_data)  # before reading: a later change is seen next time
-    res = _process_frame_unlabelled(frame_data, index, setup, reference, previous)
+    res = _process_frame_unlabelled(frame_data, index, setup, reference, previous, sources)
     return dataclasses.replace(res, matched_from=-1 if reference is None else reference.frame,
                                source=source)
 
 
 def _process_frame_unlabelled(frame_data, index: int, setup: _Setup,
                               reference: FrameResult | None,
-                              previous: FrameResult | None) -> FrameResult:
+                              previous: FrameResult | None, sources) -> FrameResult:
     name = _frame_name(frame_data)
     try:
-        img = _load_image(frame_data)
+        img = _load_image(frame_data, sources)
         if img.shape != (setup.camera.height, setup.camera.width):
             raise InputError(f"image is {img.shape[1]}x{img.shape[0]} px, the camera "
                              f"{setup.camera.width}x{setup.camera.height}")
-        if not np.isfinite(img).any():
-            raise InputError("image has no finite pixel (all NaN or infinite)")
         if reference is not None:
             res = track_predicted(img, setup, reference, previous, index, name)
             if res is not None:
                 return res
+        if not np.isfinite(img).any():
+            raise InputError("image has no finite pixel (all NaN or infinite)")
         cands = _detect(img, setup, _search_roi(setup, reference, img.shape))
         if len(cands) < setup.min_markers:
             raise SolveError(f"only {len(cands)} marker candidates detected")
@@ -211,18 +213,23 @@ def _run_chunk(setup: _Setup, items: list, seed: FrameResult | None,
     done = done or {}
     ref, prev = seed, None
     out = []
-    for index, frame in items:
-        if index in done:
-            res = FrameResult.from_dict(done[index])
-        else:
-            res = _process_frame(frame, index, setup, ref, prev)
-            if frames_dir is not None:
-                _try_write_frame(Path(frames_dir), res)
-            if on_frame is not None:
-                on_frame(res)
-        if res.ok:
-            ref, prev = res, ref
-        out.append(res.to_dict())
+    sources: dict = {}  # multi-frame files, opened once for the chunk
+    try:
+        for index, frame in items:
+            if index in done:
+                res = FrameResult.from_dict(done[index])
+            else:
+                res = _process_frame(frame, index, setup, ref, prev, sources=sources)
+                if frames_dir is not None:
+                    _try_write_frame(Path(frames_dir), res)
+                if on_frame is not None:
+                    on_frame(res)
+            if res.ok:
+                ref, prev = res, ref
+            out.append(res.to_dict())
+    finally:
+        for src in sources.values():
+            src.close()
     return out
 
 

@@ -28,7 +28,7 @@ def track(
     out_dir: str | os.PathLike,
     resume: bool = True,
     progress: bool = True,
-    chunk_size: int = 20,
+    chunk_size: int = 50,
     min_markers: int = 4,
     roi_margin: float | None = 40.0,
     detect_kw: dict | None = None,
@@ -39,9 +39,11 @@ def track(
 
     Parameters
     ----------
-    frames : sequence of path-like or (H, W) arrays
-        The frames in time order (TIFF/PNG/NPY files, see :func:`resection.io.images.read_image`).
-        With a Dask cluster the paths must be readable by the workers.
+    frames : sequence of path-like or (H, W) arrays, or one path
+        The frames in time order (TIFF/PNG/NPY files, see :func:`resection.io.images.read_image`),
+        or one file holding them all (Phantom ``.cine``, Photron ``.mraw``/``.cih``,
+        multi-page TIFF, 3-D NPY: :mod:`resection.io.video`), read one frame at a time.
+        With a Dask cluster the files must be readable by the workers.
     camera : Camera
         Calibrated intrinsics. Without ``link``, its pose must also approximate the pose of
         the first frame (matching starts from it).
@@ -74,7 +76,9 @@ def track(
     progress : bool
         Show a tqdm progress bar.
     chunk_size : int
-        Consecutive frames per task.
+        Consecutive frames per task. The first frame of a chunk is matched from frame 0
+        (chunks run independently), usually by the statistical matcher, which costs tens of
+        tracked frames; the others are tracked by prediction.
     min_markers : int
         Frames with fewer matched markers fail.
     roi_margin : float or None
