@@ -114,8 +114,17 @@ def _windows_detect(image, uv, half, diameter, polarity, enhance, detect_options
     boxes = np.column_stack([c[:, 0] - half, c[:, 1] - half, c[:, 0] + half,
                              c[:, 1] + half])
     opts = {"max_masked": 0.6, **(detect_options or {})}
-    cand = detect_in_image(padded, diameter, polarity, enhance=enhance,
-                           enhance_windows=boxes, **opts)
+    if enhance is not None:
+        cand = detect_in_image(padded, diameter, polarity, enhance=enhance,
+                               enhance_windows=boxes, **opts)
+    else:  # the raw pixels, each window searched as a roi (as detect_in_image does)
+        from .markers import detect_markers
+        from .pipeline import _merge, _window_mask
+
+        outside = ~_window_mask(padded.shape, boxes)
+        parts = [detect_markers(padded, diameter, polarity, roi=tuple(b), mask=outside,
+                                **opts) for b in boxes.tolist()]  # a few tens of windows
+        cand = _merge(parts, diameter, opts.get("min_separation"))
     q = cand.uv - pad
     inside = ((q[:, 0] >= -0.5) & (q[:, 0] <= W - 0.5) & (q[:, 1] >= -0.5)
               & (q[:, 1] <= H - 0.5))

@@ -91,6 +91,11 @@ def test_every_target_found_or_reason_given(scene):
     assert lines[0].startswith(f"targets: {len(in_view)} used (2 found again) of "
                                f"{len(in_view) + 2} expected")
     assert "  TH: occluded" in lines
+    # the same search on the raw window pixels (no enhancement) finds them too here: the
+    # block's target has 15 counts of contrast on 8 bits against 1.2 of noise
+    raw = refind_targets(img, ms, first.camera, used_ids, pts.points2d[keep], mesh=sc.mesh,
+                         enhance=None)
+    assert set(raw.refound) == {"TB", "TE"}
 
 
 def test_a_target_off_its_prediction_is_rejected(scene):
