@@ -268,7 +268,8 @@ def transport_matrix(
         faces whose painted side does not face the camera are empty. For a Lambertian
         paint (``w = 0``) ``T = diag(rho) F`` as estimated by the same rays.
     """
-    from .viewfactors import RayScene, sample_rays
+    from .sampling import sample_rays
+    from .viewfactors import RayScene
 
     check_mesh(mesh)
     _check_paint(paint)
