@@ -236,3 +236,30 @@ def test_calibrate_is_judged_by_the_same_rule():
         flags=cv2.CALIB_USE_INTRINSIC_GUESS | cv2.CALIB_FIX_K3,
         criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 200, 1e-12))
     np.testing.assert_allclose(res2.camera.K, Kcv, rtol=0, atol=1e-3)
+
+
+def test_commands_share_the_option(tmp_path, capsys):
+    """``--marker-accuracy`` has the same name and meaning in pose and calibrate: markers
+    claimed good to 0.02 px cannot leave 0.1 px of noise: exit 2, one line with the rule's
+    statistic and threshold, nothing written."""
+    rng = np.random.default_rng(6)
+    truth = _truth()
+    X = _plate(rng)
+    ids = [f"Q{i}" for i in range(len(X))]
+    uv = truth.project(X) + rng.normal(scale=0.1, size=(len(X), 2))
+    write_markers(tmp_path / "m.csv", ids, X)
+    write_points(tmp_path / "p.csv", ids, uv)
+    truth.replace(R=np.eye(3), t=np.zeros(3)).write(tmp_path / "cam.json")
+    pose = ["pose", "--camera", str(tmp_path / "cam.json"), "--markers",
+            str(tmp_path / "m.csv"), "--points", str(tmp_path / "p.csv")]
+    cal = ["calibrate", "--markers", str(tmp_path / "m.csv"), "--points",
+           str(tmp_path / "p.csv"), "--size", f"{W}x{H}", "--camera", str(tmp_path / "cam.json"),
+           "--fix", "cx", "cy", "k1", "k2", "p1", "p2", "k3", "aspect"]
+    for argv in (pose, cal):
+        assert main([*argv, "--out", str(tmp_path / "ok.json")]) == 0
+        capsys.readouterr()
+        rc = main([*argv, "--out", str(tmp_path / "no.json"), "--marker-accuracy", "0.02"])
+        err = capsys.readouterr().err
+        assert rc == 2 and "refused by the acceptance rule" in err, err
+        assert "marker accuracy 0.02 px" in err and len(err.strip().splitlines()) == 1
+        assert not (tmp_path / "no.json").exists()
