@@ -100,7 +100,7 @@ def edge_table(blur: float) -> tuple[np.ndarray, float, float]:
     return table, float(T), float(h)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _lookup(tab, T, h, t):
     """``(C, g, dg/dt)`` at ``t`` by cubic Hermite interpolation of the table."""
     if t <= -T:
@@ -132,7 +132,7 @@ def _model(x0, y0, R, tab, T, h, sn, cs, wc, Q, M, sA, sB):
     have the same half-length, so they share the row factors, and their column factors
     are added before the product."""
     W = M.shape[0]
-    M[:, :, :] = 0.0
+    M.fill(0.0)
     for q in range((Q + 1) // 2):
         sq, cq, wq = abs(sn[q]), cs[q], wc[q]
         if 2 * q + 1 == Q:  # the middle node of an odd size: counted once
@@ -194,8 +194,8 @@ def _normal(win, w, p, tab, T, h, sizes, sn, cs, wc, M, sA, sB, JTJ, JTr):
     i1 = min(int(math.floor(x0 + R + T)), W - 1)
     j0 = max(int(math.ceil(y0 - R - T)), 0)
     j1 = min(int(math.floor(y0 + R + T)), W - 1)
-    JTJ[:, :] = 0.0
-    JTr[:] = 0.0
+    JTJ.fill(0.0)
+    JTr.fill(0.0)
     c = (W - 1) / 2.0
     J = np.empty(NP)
     cost = 0.0
@@ -255,7 +255,7 @@ def _solve_damped(JTJ, JTr, lam, step):
                 v -= L[i, k] * L[j, k]
             if i == j:
                 if not (v > 0.0):
-                    step[:] = 0.0
+                    step.fill(0.0)
                     return False
                 L[i, i] = math.sqrt(v)
             else:
@@ -335,17 +335,20 @@ def fit_windows(win, w, p0, tab, T, h, rmin, rmax, iterations, tol, sizes, sn, c
             if lam <= 1e-2 and max(abs(step[0]), abs(step[1])) < tol:
                 # converged: a Gauss-Newton step (hardly damped) that moves the centre by
                 # less than tol is taken without evaluating the model once more
-                pc[:] = pt
+                for k in range(NP):
+                    pc[k] = pt[k]
                 break
             ct = _normal(wn, ww, pt, tab, T, h, sizes, sn, cs, wc, M, sA, sB,
                          JTJt, JTrt)
             nev[c] += 1
             better = ct < cc
             if better:
-                pc[:] = pt
                 cc = ct
-                JTJ[:, :] = JTJt
-                JTr[:] = JTrt
+                for k in range(NP):
+                    pc[k] = pt[k]
+                    JTr[k] = JTrt[k]
+                    for kk in range(NP):
+                        JTJ[k, kk] = JTJt[k, kk]
                 lam = max(lam * 0.3, 1e-9)
             else:
                 lam = min(lam * 10.0, 1e9)
