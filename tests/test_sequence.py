@@ -511,3 +511,37 @@ def test_frames_from_one_multi_frame_file(run60, tmp_path):
     assert rc == 0
     np.testing.assert_allclose(read_track(tmp_path / "cli").angles[good],
                                ref.angles[:n][good], atol=1e-6)
+
+
+def test_memory_does_not_grow_with_the_frames(run60, tmp_path):
+    """Issue 13 item 4, the fast check (bench/bench_track_memory.py follows the RSS over
+    10,000 frames): while the frames are computed, the memory held grows by well under
+    1 kB a frame (a finished frame is kept as its file and two numbers: about 0.2 kB;
+    keeping each frame's whole record, as before, holds about 12 kB a frame here)."""
+    import tracemalloc
+
+    from resection.sequence.execute import run_frames
+    from resection.sequence.inputs import _checked
+
+    model, files, cam, _, _ = run60
+    held = {}
+    for n in (20, 80):
+        frames = [files["frames"][k % 20] for k in range(n)]  # 20 frames, again and again
+        frames, setup, _, _, _ = _checked(
+            frames, cam, files["markers"], link=None, diameter=5.6, polarity="dark",
+            workers=1, chunk_size=20, min_markers=4, roi_margin=40.0, detect_kw=None,
+            match_kw=None, pose_kw=None)
+        fdir = tmp_path / f"o{n}" / "frames"
+        fdir.mkdir(parents=True)
+        done: dict = {}
+        tracemalloc.start()
+        try:
+            base = tracemalloc.get_traced_memory()[0]
+            run_frames(frames, setup, None, done, chunk_size=20, workers=1, scheduler=None,
+                       frames_dir=fdir, progress=False)
+            held[n] = tracemalloc.get_traced_memory()[0] - base
+        finally:
+            tracemalloc.stop()
+        assert len(done) == n and all(v[0] for v in done.values())
+    per_frame = (held[80] - held[20]) / 60
+    assert per_frame < 1000, held
