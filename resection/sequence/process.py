@@ -106,10 +106,13 @@ def _solve(ids: np.ndarray, uv: np.ndarray, setup: _Setup, frame: int, file: str
     if pose is None:
         X = setup.points3d[[index[i] for i in ids]]
         pose = solve_pose(setup.camera, X, uv, **setup.pose_kw)
+    res = np.asarray(pose.residuals, float)
+    if pose.used is not None and not pose.used.all():  # outliers dropped by the rule
+        ids, uv, res = np.asarray(ids)[pose.used], np.asarray(uv)[pose.used], res[pose.used]
     return FrameResult(frame=frame, file=file, status="ok", rvec=np.asarray(pose.camera.rvec),
                        tvec=np.asarray(pose.camera.t, float), rms=float(pose.rms),
                        ids=np.asarray(ids, dtype=str), uv=np.asarray(uv, float),
-                       residuals=np.asarray(pose.residuals, float), method=method)
+                       residuals=res, method=method)
 
 
 def _process_frame(frame_data, index: int, setup: _Setup, reference: FrameResult | None,
