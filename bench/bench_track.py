@@ -108,11 +108,13 @@ def main() -> None:
                     "frame-0 pose (--no-link: match it from the approximate camera)")
     args = ap.parse_args()
 
+    import dask
     from dask.distributed import Client, LocalCluster
     from scipy.spatial import cKDTree
 
     from resection import Camera
     from resection.sequence import relative_motion, track
+    from resection.sequence.execute import LOCAL_WORKER_CONFIG
     from scenes.moving_model import pitch_oscillation, write_sequence
 
     n, size = args.frames, args.size
@@ -154,8 +156,9 @@ def main() -> None:
             model.ids))))
 
         t = time.perf_counter()
-        cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=logging.ERROR)
+        with dask.config.set(LOCAL_WORKER_CONFIG):  # as track's own local cluster
+            cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                   dashboard_address=None, silence_logs=logging.ERROR)
         with Client(cluster) as client:  # workers import the package before the timing
             client.run(_warm_up)
         t_start = time.perf_counter() - t

@@ -20,16 +20,19 @@ def register(sub) -> None:
     p = sub.add_parser(
         "track",
         help="markers and Point of View in every frame of a sequence",
-        description="Detect, match (from the previous frame) and solve the pose in every "
-        "frame; writes poses.csv (3 angles in degrees, 3 translations, RMS per frame), "
-        "markers.csv (marker positions per frame) and pose_vs_time.png to --out. With a "
-        "fixed camera (default) the motion reported is the model's, relative to the first "
-        "frame. A failed frame is recorded with its reason and the run goes on. Interrupted runs "
-        "resume (each finished frame is kept in --out/frames). Frames run in parallel on a "
-        "local Dask cluster (one worker per CPU core) or on --scheduler.",
+        description="Track the markers (by prediction from the previous frames, the "
+        "statistical matcher when that fails) and solve the pose in every frame; writes "
+        "poses.csv (3 angles in degrees, 3 translations, RMS per frame), markers.csv (marker "
+        "positions per frame) and pose_vs_time.png to --out. With a fixed camera (default) "
+        "the motion reported is the model's, relative to the first frame. A failed frame is "
+        "recorded with its reason and the run goes on. Interrupted runs resume (each "
+        "finished frame is kept in --out/frames; frames whose file changed are computed "
+        "again); one run at a time writes into --out. Frames run in parallel on a local "
+        "Dask cluster (one worker per CPU core) or on --scheduler. See docs/tracking.md.",
     )
     p.add_argument("frames", nargs="+", metavar="FRAME",
-                   help="frame images in time order (TIFF/PNG/NPY; glob patterns allowed)")
+                   help="frame images in time order (TIFF/PNG/NPY; glob patterns allowed), "
+                   "or one file holding the run (.cine, .mraw/.cih, multi-page TIFF, 3-D NPY)")
     p.add_argument("--camera", required=True, help="camera JSON (intrinsics; its pose "
                    "approximates the first frame's when --link is not given)")
     p.add_argument("--markers", required=True, help="marker CSV: id,x,y,z[,diameter]")

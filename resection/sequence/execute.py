@@ -18,6 +18,13 @@ from .outputs import (
 from .process import _process_frame, _process_linked, _repair, _run_chunk, _Setup
 from .results import FrameResult
 
+#: Dask configuration of the local cluster's workers. The nanny sets
+#: ``MALLOC_TRIM_THRESHOLD_`` by default, which freezes glibc's dynamic mmap threshold: every
+#: frame-sized array (4 MB) is then mmap'ed and faulted in afresh, which doubled the CPU time
+#: of a tracked frame in a worker (20 ms against 11 ms in this process, 1 Mpx frames,
+#: bench_track.py). Unset (None), the workers allocate as this process does.
+LOCAL_WORKER_CONFIG = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
+
 
 def run_frames(frames: list, setup: _Setup, link: dict | None, done: dict, *,
                chunk_size: int, workers: int, scheduler: str | None, frames_dir: Path,
@@ -135,12 +142,15 @@ def _execute_dask(setup, tasks, on_chunk, on_poll, scheduler, workers, frames_di
     import logging
     import time
 
+    import dask
     from dask.distributed import Client, LocalCluster, as_completed
 
     cluster = None
     if scheduler is None:
-        cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=logging.ERROR)
+        with dask.config.set(LOCAL_WORKER_CONFIG):
+            cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1,
+                                   processes=True, dashboard_address=None,
+                                   silence_logs=logging.ERROR)
         client = Client(cluster)
     else:
         try:
