@@ -25,6 +25,7 @@ import scipy.sparse as sp
 import trimesh
 from embreex import rtcore_scene
 from embreex.mesh_construction import TriangleMesh
+from numba import njit
 
 from resection.errors import InputError
 
@@ -74,6 +75,7 @@ class _Job:
     vertices: np.ndarray
     faces: np.ndarray
     normals: np.ndarray
+    normals32: np.ndarray
     k: int
     seed: int
     offset: float
@@ -88,19 +90,32 @@ def _trace_rows(job: _Job, scene: RayScene, rows: np.ndarray):
     nrm = job.normals[rows]
     o, d, _ = sample_rays(tri, nrm, k, two_sided=job.two_sided, offset=job.offset,
                           face_ids=rows, seed=job.seed)
-    hit = np.asarray(scene.scene.run(o, d), dtype=np.int64)
-    src = np.repeat(rows, k)
-    ok = (hit >= 0) & (hit != src)
-    idx = np.flatnonzero(ok)
-    hit = hit[idx]
-    if not job.two_sided:
-        # a ray arriving on the back (unpainted) side of a face is absorbed there
-        front = np.einsum("ij,ij->i", d[idx], job.normals[hit].astype(np.float32)) < 0
-        idx, hit = idx[front], hit[front]
-    # the rays of a face are consecutive, so the hits come grouped by row already (CSR's
-    # sum_duplicates sorts them within a row)
-    counts = np.bincount(idx // k, minlength=len(rows)).astype(np.int32)
-    return counts, hit.astype(np.int32)
+    hit = np.asarray(scene.scene.run(o, d))
+    return _keep_hits(hit, d, job.normals32, rows, k, job.two_sided)
+
+
+@njit(cache=True)
+def _keep_hits(hit, directions, normals, rows, k, two_sided):  # pragma: no cover - compiled
+    """Counts per row and the kept hits (grouped by row: a face's rays are consecutive),
+    dropping misses, hits on the ray's own face and, one-sided, hits on a face's back
+    (a ray arriving on the unpainted side is absorbed there)."""
+    counts = np.zeros(rows.shape[0], dtype=np.int32)
+    out = np.empty(hit.shape[0], dtype=np.int32)
+    m = 0
+    for r in range(hit.shape[0]):
+        h = hit[r]
+        row = r // k
+        if h < 0 or h == rows[row]:
+            continue
+        if not two_sided:
+            dn = (directions[r, 0] * normals[h, 0] + directions[r, 1] * normals[h, 1]
+                  + directions[r, 2] * normals[h, 2])
+            if dn >= 0:
+                continue
+        out[m] = h
+        m += 1
+        counts[row] += 1
+    return counts, out[:m]
 
 
 #: One scene per worker process (built by the pool's initializer).
@@ -204,7 +219,8 @@ def view_factors(
     if reciprocity and todo.size != n:
         raise InputError("view_factors: reciprocity needs every row (rows not given)")
     size = float(np.ptp(vertices, axis=0).max())
-    job = _Job(vertices, faces, face_normals(mesh), k, seed, _OFFSET * size,
+    normals = face_normals(mesh)
+    job = _Job(vertices, faces, normals, normals.astype(np.float32), k, seed, _OFFSET * size,
                bool(two_sided))
     chunks = [todo[i:i + chunk] for i in range(0, todo.size, chunk)]
     nproc = _workers(workers, len(chunks))
