@@ -900,3 +900,27 @@ def test_no_npy_reader_advises_allow_pickle(tmp_path, capsys):
         with pytest.raises(InputError) as err:
             read_reflectance(str(path), 4)
         assert path.name in str(err.value) and "allow_pickle" not in str(err.value)
+
+
+def test_lock_without_flock_uses_the_holder_pid(tmp_path, monkeypatch):
+    """Where flock is missing (Windows, some network filesystems) the lock file is created
+    exclusively: refused while its process lives, taken over once it is dead."""
+    import json
+    import socket
+    import subprocess
+    import sys
+
+    from resection.io import lock
+
+    monkeypatch.setattr(lock, "fcntl", None)
+    with lock.lock_folder(tmp_path, command="first"):
+        with pytest.raises(InputError, match=rf"in use by process {os.getpid()} "):
+            with lock.lock_folder(tmp_path, command="second"):
+                pass
+    assert not (tmp_path / lock.LOCK_NAME).exists()
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    (tmp_path / lock.LOCK_NAME).write_text(json.dumps(
+        {"pid": dead.pid, "host": socket.gethostname(), "started": "x", "command": "old"}))
+    with lock.lock_folder(tmp_path, command="third") as me:
+        assert lock.read_lock(tmp_path)["pid"] == os.getpid() == me["pid"]

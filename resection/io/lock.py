@@ -7,9 +7,9 @@ included): a lock left by a dead process is stale and is simply taken over. The 
 names the holder in JSON (``pid``, ``host``, ``started``: UTC ISO 8601 time, ``command``),
 so that a second run refused while the first is alive can say which process holds it.
 
-Where ``fcntl`` is not available (Windows) the lock falls back to creating the file
-exclusively; a lock file whose process is no longer alive on this host is then taken
-over.
+Where ``fcntl`` is not available (Windows), or the filesystem does not support ``flock``,
+the lock falls back to creating the file exclusively; a lock file whose process is no
+longer alive on this host is then taken over.
 """
 
 from __future__ import annotations
@@ -98,31 +98,11 @@ def lock_folder(folder: str | os.PathLike, *, command: str | None = None) -> Ite
     folder = Path(folder)
     path = folder / LOCK_NAME
     me = _me(command)
-    if fcntl is None:  # pragma: no cover - Windows
+    fd = None if fcntl is None else _flock(folder, path)
+    if fd is None:  # no fcntl (Windows), or a filesystem without flock
         with _exclusive_create(path, me):
             yield me
         return
-    while True:
-        try:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-        except OSError as exc:
-            raise InputError(f"{folder}: cannot create the lock file {LOCK_NAME} "
-                             f"({exc.strerror})") from None
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            os.close(fd)
-            raise InputError(f"{folder}: in use by {_holder_text(read_lock(folder))}; wait "
-                             "for it to finish or use another output folder") from None
-        # the holder before us may have removed the file between our open and our lock:
-        # then we hold a lock on a deleted file, and must start again
-        try:
-            same = os.fstat(fd).st_ino == os.stat(path).st_ino
-        except FileNotFoundError:
-            same = False
-        if same:
-            break
-        os.close(fd)
     try:
         os.ftruncate(fd, 0)
         os.write(fd, json.dumps(me).encode())
@@ -134,8 +114,37 @@ def lock_folder(folder: str | os.PathLike, *, command: str | None = None) -> Ite
         os.close(fd)
 
 
+def _flock(folder: Path, path: Path) -> int | None:
+    """A descriptor of ``path`` holding its exclusive ``flock``; None when the filesystem
+    does not support ``flock``; InputError when another process holds it."""
+    while True:
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:
+            raise InputError(f"{folder}: cannot create the lock file {LOCK_NAME} "
+                             f"({exc.strerror})") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            raise InputError(f"{folder}: in use by {_holder_text(read_lock(folder))}; wait "
+                             "for it to finish or use another output folder") from None
+        except OSError:  # e.g. ENOLCK, EOPNOTSUPP: no flock on this filesystem
+            os.close(fd)
+            return None
+        # the holder before us may have removed the file between our open and our lock:
+        # then we hold a lock on a deleted file, and must start again
+        try:
+            same = os.fstat(fd).st_ino == os.stat(path).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            return fd
+        os.close(fd)
+
+
 @contextlib.contextmanager
-def _exclusive_create(path: Path, me: dict) -> Iterator[None]:  # pragma: no cover - Windows
+def _exclusive_create(path: Path, me: dict) -> Iterator[None]:
     for _ in range(2):
         try:
             fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
