@@ -36,6 +36,7 @@ from scipy.sparse.csgraph import breadth_first_order
 
 from resection.errors import InputError
 
+from .mesh import check_mesh, face_normals
 from .viewfactors import view_factors
 
 __all__ = ["coupled_faces", "coupled_view_factors"]
@@ -107,7 +108,8 @@ def coupled_view_factors(
     rays_per_face, seed : int
         As for :func:`selfillum.view_factors`.
     progress : bool or callable
-        Passed on to :func:`selfillum.view_factors` (one bar a round).
+        ``True``: a ``tqdm`` bar over the faces traced; a callable is called after each
+        round with ``(faces traced, faces known to need a row)``.
 
     Returns
     -------
@@ -131,18 +133,103 @@ def coupled_view_factors(
     if not _supports_rows():  # pragma: no cover - only before view_factors has `rows`
         F = view_factors(mesh, rays_per_face=rays_per_face, seed=seed, progress=progress)
         return F, coupled_faces(F, mask)
-    done = np.zeros(n, dtype=bool)
-    todo = mask.copy()
-    parts = []
-    while todo.any():
-        rows = np.flatnonzero(todo)
-        part = view_factors(
-            mesh, rays_per_face=rays_per_face, seed=seed, rows=rows, progress=progress
-        )
-        parts.append(part)
-        done |= todo
-        hit = np.zeros(n, dtype=bool)
-        hit[part.indices] = True  # columns hit by this round's rays
-        todo = hit & ~done
+    bar = None
+    if progress is True:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=int(mask.sum()), desc="view factors (coupled rows)", unit="face",
+                   leave=False)
+    with _Rounds(mesh, rays_per_face, seed) as trace:
+        done = np.zeros(n, dtype=bool)
+        todo = mask.copy()
+        parts = []
+        while todo.any():
+            rows = np.flatnonzero(todo)
+            part = trace(rows)  # (N, N) with the rows of this round filled
+            parts.append(part)
+            done |= todo
+            hit = np.zeros(n, dtype=bool)
+            hit[part.indices] = True  # columns hit by this round's rays
+            todo = hit & ~done
+            if bar is not None:
+                bar.total = int((done | todo).sum())
+                bar.update(rows.size)
+            elif callable(progress):
+                progress(int(done.sum()), int((done | todo).sum()))
+    if bar is not None:
+        bar.close()
     F = parts[0] if len(parts) == 1 else sp.csr_matrix(sum(parts[1:], parts[0]))
     return F.tocsr(), done
+
+
+class _Rounds:
+    """Rows of ``F`` traced round after round with one Embree scene (or one pool of
+    worker processes, each with its scene) for all rounds.
+
+    :func:`selfillum.view_factors` with ``rows=`` builds its scene (and starts its pool)
+    at every call: over the 3 to 5 rounds of a closure that cost more than the rays of
+    the later rounds themselves (a 600,000-face scene takes seconds to build). The rows
+    are traced by :mod:`selfillum.viewfactors`'s own per-chunk function, so each is the
+    one ``view_factors`` gives (tests/test_unseen.py checks it against the full matrix).
+    Where that module offers no such function, each round calls ``view_factors``.
+    """
+
+    def __init__(self, mesh, k: int, seed: int):
+        from . import viewfactors as vf
+
+        self.mesh, self.k, self.seed = mesh, int(k), int(seed)
+        self.n = len(mesh.faces)
+        self.pool = self.scene = self.job = None
+        needed = ("_Job", "_trace_rows", "_worker_init", "_worker_trace", "_assemble",
+                  "_workers", "_RAYS_PER_CHUNK", "_OFFSET", "RayScene")
+        self.vf = vf if all(hasattr(vf, a) for a in needed) else None
+
+    def __enter__(self):
+        vf = self.vf
+        if vf is None:
+            return self._per_call
+        check_mesh(self.mesh)
+        if self.k < 1 or self.seed < 0:
+            raise InputError(f"rays_per_face must be >= 1 and seed >= 0, got {self.k}, "
+                             f"{self.seed}")
+        vertices = np.asarray(self.mesh.vertices, dtype=np.float64)
+        faces = np.asarray(self.mesh.faces, dtype=np.int64)
+        size = float(np.ptp(vertices, axis=0).max())
+        self.job = vf._Job(vertices, faces, face_normals(self.mesh), self.k, self.seed,
+                           vf._OFFSET * size, False)
+        self.chunk = max(1, vf._RAYS_PER_CHUNK // self.k)
+        nproc = vf._workers(None, 4)  # the usable CPUs (one scene each), once
+        if nproc > 1:
+            import multiprocessing as mp
+            from concurrent.futures import ProcessPoolExecutor
+
+            self.pool = ProcessPoolExecutor(nproc, mp_context=mp.get_context("fork"),
+                                            initializer=vf._worker_init,
+                                            initargs=(self.job,))
+        else:
+            self.scene = vf.RayScene(vertices, faces)
+        return self._traced
+
+    def __exit__(self, *exc):
+        if self.pool is not None:
+            self.pool.shutdown()
+        return False
+
+    def _per_call(self, rows):
+        return view_factors(self.mesh, rays_per_face=self.k, seed=self.seed, rows=rows)
+
+    def _traced(self, rows):
+        vf = self.vf
+        chunks = [rows[i:i + self.chunk] for i in range(0, rows.size, self.chunk)]
+        if self.pool is not None:  # the workers hold their scenes: even for one chunk
+            results = list(self.pool.map(vf._worker_trace, chunks))
+        else:
+            if self.scene is None:
+                self.scene = vf.RayScene(self.job.vertices, self.job.faces)
+            results = [vf._trace_rows(self.job, self.scene, c) for c in chunks]
+        counts = np.zeros(self.n, dtype=np.int64)
+        hits = []
+        for part, (c, h) in zip(chunks, results, strict=True):
+            counts[part] = c
+            hits.append((part, h))
+        return vf._assemble(self.n, self.k, counts, hits)

@@ -158,12 +158,14 @@ def test_restriction_equals_full_solve_continue(with_unpainted):
     np.testing.assert_array_equal(E[unpainted], 0.0)
 
 
-def test_coupled_rows_are_those_of_the_full_matrix(slab):
+@pytest.mark.parametrize("k", [128, 4096])  # 4096: several chunks a round, worker pool
+def test_coupled_rows_are_those_of_the_full_matrix(slab, k):
     """Rays cast from the seen and coupled faces only, round by round: the rows computed
     are exactly the coupled set of the full matrix, each row the full matrix's row."""
     sc, cam, smap, F_ref, F, B = slab
     seen = smap.pixel_counts > 0
-    Fc, rows = coupled_view_factors(sc.mesh, seen, rays_per_face=128, seed=0)
+    F = F if k == 128 else view_factors(sc.mesh, rays_per_face=k, seed=0)
+    Fc, rows = coupled_view_factors(sc.mesh, seen, rays_per_face=k, seed=0)
     np.testing.assert_array_equal(rows, coupled_faces(F, seen))
     assert rows.sum() < 0.5 * len(rows)
     diff = (Fc - sp.diags(rows.astype(float)) @ F).tocsr()
