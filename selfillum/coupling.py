@@ -195,8 +195,10 @@ class _Rounds:
         vertices = np.asarray(self.mesh.vertices, dtype=np.float64)
         faces = np.asarray(self.mesh.faces, dtype=np.int64)
         size = float(np.ptp(vertices, axis=0).max())
-        self.job = vf._Job(vertices, faces, face_normals(self.mesh), self.k, self.seed,
-                           vf._OFFSET * size, False)
+        self.job = self._job(vertices, faces, size)
+        if self.job is None:  # a job this module does not know how to fill
+            self.vf = None
+            return self._per_call
         self.chunk = max(1, vf._RAYS_PER_CHUNK // self.k)
         nproc = vf._workers(None, 4)  # the usable CPUs (one scene each), once
         if nproc > 1:
@@ -209,6 +211,20 @@ class _Rounds:
         else:
             self.scene = vf.RayScene(vertices, faces)
         return self._traced
+
+    def _job(self, vertices, faces, size):
+        """The per-chunk job of :mod:`selfillum.viewfactors`, filled by field name as
+        ``view_factors`` fills it (one-sided faces); None for an unknown field."""
+        import dataclasses
+
+        normals = face_normals(self.mesh)
+        values = {"vertices": vertices, "faces": faces, "normals": normals,
+                  "normals32": normals.astype(np.float32), "k": self.k, "seed": self.seed,
+                  "offset": self.vf._OFFSET * size, "two_sided": False}
+        names = [f.name for f in dataclasses.fields(self.vf._Job)]
+        if any(name not in values for name in names):
+            return None
+        return self.vf._Job(**{name: values[name] for name in names})
 
     def __exit__(self, *exc):
         if self.pool is not None:
