@@ -19,8 +19,10 @@ on the same frame files (NPY):
   (``--chunk-size``) from frame 0 with the statistical matcher, and tracks the others by
   prediction.
 
-It prints frames per second, the ratios, and the accuracy of both pipelines against the
-known motion (attitude error, marker position RMS).
+The three runs are interleaved (``--repeat`` rounds of 1 worker, OpenCV, 2 workers) and the
+best of each is kept, so that a change of the machine's load hits them alike. It prints
+frames per second (every run, and the best), the ratios, and the accuracy of both
+pipelines against the known motion (attitude error, marker position RMS).
 
 Run: ``.venv/bin/python bench/bench_track.py [--frames 200] [--size 1024] [--chunk-size 50]``
 """
@@ -103,6 +105,9 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=200)
     ap.add_argument("--size", type=int, default=1024)
     ap.add_argument("--chunk-size", type=int, default=50)
+    ap.add_argument("--repeat", type=int, default=2,
+                    help="interleaved repetitions (track 1 worker, OpenCV, track 2 workers); "
+                    "the best of each is reported")
     ap.add_argument("--link", action=argparse.BooleanOptionalAction, default=True,
                     help="link frame 0 by hand, as the OpenCV pipeline starts from the exact "
                     "frame-0 pose (--no-link: match it from the approximate camera)")
@@ -148,38 +153,50 @@ def main() -> None:
         dist, near = cKDTree(cands.uv).query(model.uv(0))
         link = {str(k): int(j) for k, j, e in zip(model.ids, near, dist, strict=True)
                 if e < 1.0} if args.link else None
-        t = time.perf_counter()
-        r1 = track(frames, cam, files["markers"], diameter=diameter, out_dir=tmp / "o1",
-                   workers=1, progress=False, chunk_size=args.chunk_size, link=link)
-        t1 = time.perf_counter() - t
-        rows.append(("track, 1 worker", n / t1, *accuracy(r1.angles, r1.marker_positions(
-            model.ids))))
+        cam0 = model.camera_at(0)
+
+        def run_one():
+            out = tmp / f"o{time.perf_counter_ns()}"
+            return track(frames, cam, files["markers"], diameter=diameter, out_dir=out,
+                         workers=1, progress=False, chunk_size=args.chunk_size, link=link)
+
+        def run_two():
+            out = tmp / f"o{time.perf_counter_ns()}"
+            return track(frames, cam, files["markers"], diameter=diameter, out_dir=out,
+                         scheduler=cluster.scheduler_address, progress=False,
+                         chunk_size=args.chunk_size, link=link)
+
+        def run_cv():
+            return opencv_pipeline(frames, cam, model.ids, model.points3d, cam0.rvec,
+                                   np.asarray(cam0.t), diameter)
 
         t = time.perf_counter()
         with dask.config.set(LOCAL_WORKER_CONFIG):  # as track's own local cluster
             cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                    dashboard_address=None, silence_logs=logging.ERROR)
-        with Client(cluster) as client:  # workers import the package before the timing
-            client.run(_warm_up)
-        t_start = time.perf_counter() - t
+        times = {"one": [], "two": [], "cv": []}
+        out = {}
         try:
-            t = time.perf_counter()
-            r2 = track(frames, cam, files["markers"], diameter=diameter, out_dir=tmp / "o2",
-                       scheduler=cluster.scheduler_address, progress=False,
-                       chunk_size=args.chunk_size, link=link)
-            t2 = time.perf_counter() - t
+            with Client(cluster) as client:  # workers import the package before the timing
+                client.run(_warm_up)
+            t_start = time.perf_counter() - t
+            # interleaved: the machine's load moves during the runs; best of each
+            for _ in range(args.repeat):
+                for key, fn in (("one", run_one), ("cv", run_cv), ("two", run_two)):
+                    t = time.perf_counter()
+                    out[key] = fn()
+                    times[key].append(time.perf_counter() - t)
         finally:
             cluster.close()
-        rows.append(("track, 2 workers (Dask)", n / t2, *accuracy(r2.angles,
-                     r2.marker_positions(model.ids))))
-
-        cam0 = model.camera_at(0)
-        t = time.perf_counter()
-        rv, tv, uv = opencv_pipeline(frames, cam, model.ids, model.points3d, cam0.rvec,
-                                     np.asarray(cam0.t), diameter)
-        t3 = time.perf_counter() - t
+        r1, r2, (rv, tv, uv) = out["one"], out["two"], out["cv"]
+        rows.append(("track, 1 worker", n / min(times["one"]),
+                     *accuracy(r1.angles, r1.marker_positions(model.ids))))
+        rows.append(("track, 2 workers (Dask)", n / min(times["two"]),
+                     *accuracy(r2.angles, r2.marker_positions(model.ids))))
         ang_cv, _ = relative_motion(rv, tv, 0)
-        rows.append(("OpenCV parts, 1 process", n / t3, *accuracy(ang_cv, uv)))
+        rows.append(("OpenCV parts, 1 process", n / min(times["cv"]), *accuracy(ang_cv, uv)))
+        print("all runs, frames/s: " + "; ".join(
+            f"{k} " + ", ".join(f"{n / x:.1f}" for x in v) for k, v in times.items()))
 
     print(f"\n{'pipeline':28s} {'frames/s':>9s} {'max att. err':>13s} {'marker RMS':>11s} "
           f"{'found':>6s}")
