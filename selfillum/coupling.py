@@ -26,7 +26,6 @@ those rays hit, and so on until no new face is hit: the rays cast are those of
 
 from __future__ import annotations
 
-import inspect
 from collections.abc import Callable
 
 import numpy as np
@@ -36,8 +35,7 @@ from scipy.sparse.csgraph import breadth_first_order
 
 from resection.errors import InputError
 
-from .mesh import check_mesh, face_normals
-from .viewfactors import view_factors
+from .viewfactors import RowTracer
 
 __all__ = ["coupled_faces", "coupled_view_factors"]
 
@@ -78,10 +76,6 @@ def coupled_faces(F, seen) -> np.ndarray:
     out = np.zeros(n + 1, dtype=bool)
     out[order] = True
     return out[:n] | mask
-
-
-def _supports_rows() -> bool:
-    return "rows" in inspect.signature(view_factors).parameters
 
 
 def coupled_view_factors(
@@ -130,9 +124,6 @@ def coupled_view_factors(
         raise InputError(f"seen: expected shape ({n},), got {mask.shape}")
     if not mask.any():
         raise InputError("seen: no face is seen, nothing to correct")
-    if not _supports_rows():  # pragma: no cover - only before view_factors has `rows`
-        F = view_factors(mesh, rays_per_face=rays_per_face, seed=seed, progress=progress)
-        return F, coupled_faces(F, mask)
     bar = None
     if progress is True:
         from tqdm.auto import tqdm
@@ -163,89 +154,18 @@ def coupled_view_factors(
 
 
 class _Rounds:
-    """Rows of ``F`` traced round after round with one Embree scene (or one pool of
-    worker processes, each with its scene) for all rounds.
-
-    :func:`selfillum.view_factors` with ``rows=`` builds its scene (and starts its pool)
-    at every call: over the 3 to 5 rounds of a closure that cost more than the rays of
-    the later rounds themselves (a 600,000-face scene takes seconds to build). The rows
-    are traced by :mod:`selfillum.viewfactors`'s own per-chunk function, so each is the
-    one ``view_factors`` gives (tests/test_unseen.py checks it against the full matrix).
-    Where that module offers no such function, each round calls ``view_factors``.
-    """
+    """Rows of ``F`` traced round after round with one :class:`RowTracer` (one Embree
+    scene, or one pool of worker processes, for all rounds): building a 600,000-face
+    scene and starting the workers at every round cost more than the rays of the later
+    rounds. Each row is the one :func:`view_factors` gives (tests/test_unseen.py checks
+    it against the full matrix)."""
 
     def __init__(self, mesh, k: int, seed: int):
-        from . import viewfactors as vf
-
-        self.mesh, self.k, self.seed = mesh, int(k), int(seed)
-        self.n = len(mesh.faces)
-        self.pool = self.scene = self.job = None
-        needed = ("_Job", "_trace_rows", "_worker_init", "_worker_trace", "_assemble",
-                  "_workers", "_RAYS_PER_CHUNK", "_OFFSET", "RayScene")
-        self.vf = vf if all(hasattr(vf, a) for a in needed) else None
+        self.tracer = RowTracer(mesh, k, seed)
 
     def __enter__(self):
-        vf = self.vf
-        if vf is None:
-            return self._per_call
-        check_mesh(self.mesh)
-        if self.k < 1 or self.seed < 0:
-            raise InputError(f"rays_per_face must be >= 1 and seed >= 0, got {self.k}, "
-                             f"{self.seed}")
-        vertices = np.asarray(self.mesh.vertices, dtype=np.float64)
-        faces = np.asarray(self.mesh.faces, dtype=np.int64)
-        size = float(np.ptp(vertices, axis=0).max())
-        self.job = self._job(vertices, faces, size)
-        if self.job is None:  # a job this module does not know how to fill
-            self.vf = None
-            return self._per_call
-        self.chunk = max(1, vf._RAYS_PER_CHUNK // self.k)
-        nproc = vf._workers(None, 4)  # the usable CPUs (one scene each), once
-        if nproc > 1:
-            import multiprocessing as mp
-            from concurrent.futures import ProcessPoolExecutor
-
-            self.pool = ProcessPoolExecutor(nproc, mp_context=mp.get_context("fork"),
-                                            initializer=vf._worker_init,
-                                            initargs=(self.job,))
-        else:
-            self.scene = vf.RayScene(vertices, faces)
-        return self._traced
-
-    def _job(self, vertices, faces, size):
-        """The per-chunk job of :mod:`selfillum.viewfactors`, filled by field name as
-        ``view_factors`` fills it (one-sided faces); None for an unknown field."""
-        import dataclasses
-
-        normals = face_normals(self.mesh)
-        values = {"vertices": vertices, "faces": faces, "normals": normals,
-                  "normals32": normals.astype(np.float32), "k": self.k, "seed": self.seed,
-                  "offset": self.vf._OFFSET * size, "two_sided": False}
-        names = [f.name for f in dataclasses.fields(self.vf._Job)]
-        if any(name not in values for name in names):
-            return None
-        return self.vf._Job(**{name: values[name] for name in names})
+        return self.tracer.rows
 
     def __exit__(self, *exc):
-        if self.pool is not None:
-            self.pool.shutdown()
+        self.tracer.close()
         return False
-
-    def _per_call(self, rows):
-        return view_factors(self.mesh, rays_per_face=self.k, seed=self.seed, rows=rows)
-
-    def _traced(self, rows):
-        vf = self.vf
-        chunks = [rows[i:i + self.chunk] for i in range(0, rows.size, self.chunk)]
-        if self.pool is not None:  # the workers hold their scenes: even for one chunk
-            results = list(self.pool.map(vf._worker_trace, chunks))
-        else:
-            if self.scene is None:
-                self.scene = vf.RayScene(self.job.vertices, self.job.faces)
-            results = [vf._trace_rows(self.job, self.scene, c) for c in chunks]
-        counts = np.zeros(self.n, dtype=np.int64)
-        hits = []
-        for part, (c, h) in zip(chunks, results, strict=True):
-            counts[part] = c
-            hits.append((part, h))
-        return vf._assemble(self.n, self.k, counts, hits)

@@ -32,8 +32,8 @@ from resection.errors import InputError
 from .mesh import check_mesh, face_areas, face_normals
 from .sampling import digital_shifts, rqmc_points, sample_rays
 
-__all__ = ["view_factors", "enforce_reciprocity", "RayScene", "sample_rays", "rqmc_points",
-           "digital_shifts"]
+__all__ = ["view_factors", "RowTracer", "enforce_reciprocity", "RayScene", "sample_rays",
+           "rqmc_points", "digital_shifts"]
 
 #: Ray origins are lifted off their face by this fraction of the mesh size.
 _OFFSET = 1e-6
@@ -201,70 +201,120 @@ def view_factors(
         Invalid mesh (see :func:`selfillum.mesh.check_mesh`) or parameters.
     """
     check_mesh(mesh)
-    k = _positive_int(rays_per_face, "rays_per_face")
-    if chunk_size is None:
-        chunk = max(1, _RAYS_PER_CHUNK // k)
-    else:
-        chunk = _positive_int(chunk_size, "chunk_size")
-    try:
-        seed = int(seed)
-    except (TypeError, ValueError):
-        raise InputError(f"seed: expected an integer, got {seed!r}") from None
-    if seed < 0:
-        raise InputError(f"seed: expected a non-negative integer, got {seed}")
-    vertices = np.asarray(mesh.vertices, dtype=np.float64)
-    faces = np.asarray(mesh.faces, dtype=np.int64)
-    n = len(faces)
+    n = len(mesh.faces)
     todo = _as_rows(rows, n)
     if reciprocity and todo.size != n:
         raise InputError("view_factors: reciprocity needs every row (rows not given)")
-    size = float(np.ptp(vertices, axis=0).max())
-    normals = face_normals(mesh)
-    job = _Job(vertices, faces, normals, normals.astype(np.float32), k, seed, _OFFSET * size,
-               bool(two_sided))
-    chunks = [todo[i:i + chunk] for i in range(0, todo.size, chunk)]
-    nproc = _workers(workers, len(chunks))
-
-    bar = None
-    if progress is True:
-        from tqdm.auto import tqdm
-
-        bar = tqdm(total=todo.size, desc="view factors", unit="face", leave=False)
-    done = 0
-    counts = np.zeros(n, dtype=np.int64)
-    hits = []
-
-    def collect(part, c):
-        nonlocal done
-        counts[part] = c[0]
-        hits.append((part, c[1]))
-        done += part.size
-        if bar is not None:
-            bar.update(part.size)
-        elif callable(progress):
-            progress(done, todo.size)
-
-    if nproc == 1:
-        scene = RayScene(vertices, faces)
-        for part in chunks:
-            collect(part, _trace_rows(job, scene, part))
-    else:
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor
-
-        # fork: the workers inherit the imported modules, and a user's script needs no
-        # ``if __name__ == "__main__"`` guard (spawn/forkserver would re-run it)
-        ctx = mp.get_context("fork")
-        with ProcessPoolExecutor(nproc, mp_context=ctx, initializer=_worker_init,
-                                 initargs=(job,)) as pool:
-            for part, c in zip(chunks, pool.map(_worker_trace, chunks), strict=True):
-                collect(part, c)
-    if bar is not None:
-        bar.close()
-    F = _assemble(n, k, counts, hits)
+    with RowTracer(mesh, rays_per_face, seed, two_sided=two_sided, chunk_size=chunk_size,
+                   workers=workers, n_rows=todo.size) as tracer:
+        F = tracer.rows(todo, progress=progress)
     if reciprocity:
         F = enforce_reciprocity(F, face_areas(mesh))
     return F
+
+
+class RowTracer:
+    """Rows of ``F`` traced on demand, with one Embree scene (or one pool of worker
+    processes, each with its own scene) kept for every call.
+
+    :func:`view_factors` is one call of this; callers that need rows in rounds (the
+    faces coupled to the seen ones, :mod:`selfillum.coupling`) keep one tracer, so that
+    the scene is built and the workers started once. Each row is the one the full
+    computation gives (the RQMC points of a face are keyed on its index).
+
+    Parameters
+    ----------
+    mesh, rays_per_face, seed, two_sided, chunk_size, workers
+        As in :func:`view_factors`.
+    n_rows : int, optional
+        Rows expected in all (decides whether a pool pays off; default all faces).
+
+    Use it as a context manager (the pool is shut down on exit), or call :meth:`close`.
+    """
+
+    def __init__(self, mesh: trimesh.Trimesh, rays_per_face: int = 256, seed: int = 0, *,
+                 two_sided: bool = False, chunk_size: int | None = None,
+                 workers: int | None = None, n_rows: int | None = None):
+        check_mesh(mesh)
+        k = _positive_int(rays_per_face, "rays_per_face")
+        self.chunk = (max(1, _RAYS_PER_CHUNK // k) if chunk_size is None
+                      else _positive_int(chunk_size, "chunk_size"))
+        try:
+            seed = int(seed)
+        except (TypeError, ValueError):
+            raise InputError(f"seed: expected an integer, got {seed!r}") from None
+        if seed < 0:
+            raise InputError(f"seed: expected a non-negative integer, got {seed}")
+        vertices = np.asarray(mesh.vertices, dtype=np.float64)
+        faces = np.asarray(mesh.faces, dtype=np.int64)
+        self.n, self.k = len(faces), k
+        size = float(np.ptp(vertices, axis=0).max())
+        normals = face_normals(mesh)
+        self.job = _Job(vertices, faces, normals, normals.astype(np.float32), k, seed,
+                        _OFFSET * size, bool(two_sided))
+        rows = self.n if n_rows is None else int(n_rows)
+        self.nproc = _workers(workers, -(-rows // self.chunk))
+        self._scene = self._pool = None
+
+    def __enter__(self) -> RowTracer:
+        return self
+
+    def __exit__(self, *exc) -> bool:
+        self.close()
+        return False
+
+    def close(self) -> None:
+        """Shut the worker processes down (if any)."""
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
+
+    def _start(self) -> None:
+        if self.nproc == 1:
+            self._scene = RayScene(self.job.vertices, self.job.faces)
+            return
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+
+        # compile (or load) the kernels here, once, before the workers are forked
+        _trace_rows(self.job, RayScene(self.job.vertices, self.job.faces), np.arange(1))
+        # fork: the workers inherit the imported modules, and a user's script needs no
+        # ``if __name__ == "__main__"`` guard (spawn/forkserver would re-run it)
+        self._pool = ProcessPoolExecutor(self.nproc, mp_context=mp.get_context("fork"),
+                                         initializer=_worker_init, initargs=(self.job,))
+
+    def rows(self, rows, progress: bool | Callable | None = None) -> sp.csr_matrix:
+        """``F`` with only ``rows`` filled (indices or a boolean mask), ``(N, N)`` CSR.
+
+        ``progress`` as in :func:`view_factors`.
+        """
+        todo = _as_rows(rows, self.n)
+        if self._scene is None and self._pool is None:
+            self._start()
+        chunks = [todo[i:i + self.chunk] for i in range(0, todo.size, self.chunk)]
+        bar = None
+        if progress is True:
+            from tqdm.auto import tqdm
+
+            bar = tqdm(total=todo.size, desc="view factors", unit="face", leave=False)
+        if self._pool is not None:
+            results = self._pool.map(_worker_trace, chunks)
+        else:
+            results = (_trace_rows(self.job, self._scene, c) for c in chunks)
+        done = 0
+        counts = np.zeros(self.n, dtype=np.int64)
+        hits = []
+        for part, (c, h) in zip(chunks, results, strict=True):
+            counts[part] = c
+            hits.append((part, h))
+            done += part.size
+            if bar is not None:
+                bar.update(part.size)
+            elif callable(progress):
+                progress(done, todo.size)
+        if bar is not None:
+            bar.close()
+        return _assemble(self.n, self.k, counts, hits)
 
 
 def _assemble(n: int, k: int, counts: np.ndarray, hits: list) -> sp.csr_matrix:
