@@ -153,12 +153,19 @@ def _execute_dask(setup, tasks, on_chunk, on_poll, scheduler, workers, frames_di
                                    silence_logs=logging.ERROR)
         client = Client(cluster)
     else:
+        msg = None
         try:
             client = Client(scheduler, timeout=connect_timeout)
         except (OSError, ValueError, TypeError) as exc:  # unreachable or malformed address
             msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        if msg is not None:
+            # the half-built Client must be collected now: left to a later garbage
+            # collection, its __del__ can run while another cluster starts and hang it
+            import gc
+
+            gc.collect()
             raise InputError(f"scheduler: cannot connect to the Dask scheduler at "
-                             f"{scheduler!r} ({msg})") from None
+                             f"{scheduler!r} ({msg})")
     try:
         s = client.scatter(setup, broadcast=True)
         futures = [client.submit(_run_chunk, s, items, seed, done, None, frames_dir,
