@@ -6,12 +6,12 @@ from __future__ import annotations
 import csv
 import json
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
+from ..io.outputs import atomic_path
 from .results import _FORMAT_VERSION, MARKER_COLUMNS, POSE_COLUMNS, FrameResult, TrackResult
 
 
@@ -22,18 +22,11 @@ def _atomic_write_text(path: Path, text: str, *, sync: bool = True) -> None:
     files skip that (it costs more than tracking the frame): after a power cut a frame
     file may be empty or truncated, and a resumed run then reads it as missing and
     computes the frame again."""
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
-            fh.write(text)
-            if sync:
-                fh.flush()
-                os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="") as fh:
+        fh.write(text)
+        if sync:
+            fh.flush()
+            os.fsync(fh.fileno())
 
 
 def _frame_path(frames_dir: Path, index: int) -> Path:
@@ -96,19 +89,12 @@ def _write_csvs(result: TrackResult, out: Path) -> None:
 
 def _atomic_write_rows(path: Path, header, rows) -> None:
     """CSV rows written to a temporary file next to ``path``, synced, renamed into place."""
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
-            w = csv.writer(fh, lineterminator="\n")
-            w.writerow(header)
-            w.writerows(rows)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="") as fh:
+        w = csv.writer(fh, lineterminator="\n")
+        w.writerow(header)
+        w.writerows(rows)
+        fh.flush()
+        os.fsync(fh.fileno())
 
 
 def _frames_from_files(frames_dir: Path, n: int):
