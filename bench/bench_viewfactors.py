@@ -45,13 +45,18 @@ from selfillum.mesh import face_normals  # noqa: E402
 from selfillum.viewfactors import _OFFSET, RayScene, sample_rays  # noqa: E402
 
 
-def same_rays(mesh, k, seed):
-    """The rays view_factors casts (same RQMC points), as Embree's float32 arrays."""
+def _scene_frame(mesh):
+    """Embree scene, triangles in its centred frame, normals and the ray-origin lift, as
+    view_factors prepares them."""
     v = np.asarray(mesh.vertices, dtype=np.float64)
     scene = RayScene(v, mesh.faces)
     tri = (v - scene.origin)[np.asarray(mesh.faces)]
-    nrm = face_normals(mesh)
-    offset = _OFFSET * float(np.ptp(v, axis=0).max())
+    return scene, tri, face_normals(mesh), _OFFSET * float(np.ptp(v, axis=0).max())
+
+
+def same_rays(mesh, k, seed):
+    """The rays view_factors casts (same RQMC points), as Embree's float32 arrays."""
+    scene, tri, nrm, offset = _scene_frame(mesh)
     o, d = [], []
     step = max(1, (1 << 20) // k)
     for b0 in range(0, len(tri), step):
@@ -156,11 +161,7 @@ def _stratified_factors(mesh, k, seed):
     random stream a block of 512 faces), the same hit counting."""
     import scipy.sparse as sp
 
-    v = np.asarray(mesh.vertices, dtype=np.float64)
-    scene = RayScene(v, mesh.faces)
-    tri = (v - scene.origin)[np.asarray(mesh.faces)]
-    nrm = face_normals(mesh)
-    offset = _OFFSET * float(np.ptp(v, axis=0).max())
+    scene, tri, nrm, offset = _scene_frame(mesh)
     rows, cols = [], []
     for b0 in range(0, len(tri), 512):
         ids = np.arange(b0, min(b0 + 512, len(tri)))
