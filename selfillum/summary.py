@@ -13,7 +13,6 @@ from __future__ import annotations
 import json
 import os
 from dataclasses import asdict, dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -110,12 +109,7 @@ def summarize(result) -> CorrectionSummary:
 def write_summary(path: str | os.PathLike, summary: CorrectionSummary, **extra) -> None:
     """Write the summary (and ``extra`` entries) as JSON, through a temporary file in the
     same folder renamed into place."""
-    path = Path(os.fspath(path))
+    from resection.io._write import atomic_text
+
     data = {**asdict(summary), **extra}
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    try:
-        tmp.write_text(json.dumps(data, indent=2, allow_nan=True) + "\n", encoding="utf-8")
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    atomic_text(path, json.dumps(data, indent=2, allow_nan=True) + "\n")
