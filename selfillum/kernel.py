@@ -28,31 +28,53 @@ from numba import njit, prange
 __all__ = ["point_polygon_factor", "triangle_rule", "pair_factors"]
 
 
-def _clip(points: np.ndarray, normals: np.ndarray, tri: np.ndarray) -> np.ndarray:
-    """Triangles clipped to the half-space in front of each point, as ``(m, 6, 3)``
-    polygons (Sutherland-Hodgman; empty slots repeat the previous vertex, which adds
-    zero-length edges that contribute nothing)."""
-    d = np.einsum("mkc,mc->mk", tri - points[:, None, :], normals)  # (m, 3)
-    m = len(tri)
-    out = np.empty((m, 6, 3))
-    valid = np.zeros((m, 6), dtype=bool)
-    for e in range(3):  # three edges: a fixed, tiny loop (vectorised over all pairs)
-        a, b = tri[:, e], tri[:, (e + 1) % 3]
-        da, db = d[:, e], d[:, (e + 1) % 3]
-        out[:, 2 * e] = a
-        valid[:, 2 * e] = da >= 0
-        cross = (da >= 0) != (db >= 0)
-        t = np.where(cross, da / np.where(cross, da - db, 1.0), 0.0)
-        out[:, 2 * e + 1] = a + t[:, None] * (b - a)
-        valid[:, 2 * e + 1] = cross
-    # forward-fill invalid slots with the last valid vertex (cyclically)
-    idx = np.where(valid, np.arange(6)[None, :], -1)
-    last = np.maximum.accumulate(idx, axis=1)
-    wrap = np.where(valid.any(axis=1), np.max(idx, axis=1), 0)
-    last = np.where(last < 0, wrap[:, None], last)
-    poly = np.take_along_axis(out, last[..., None], axis=1)
-    poly[~valid.any(axis=1)] = points[~valid.any(axis=1), None, :]
-    return poly
+@njit(cache=True)
+def _point_triangle(px, py, pz, nx, ny, nz, a, b, c, poly):  # pragma: no cover - compiled
+    """Exact factor from the point ``p`` (unit normal ``n``) to the triangle ``a, b, c``
+    (painted side by the right-hand rule): 0 when the point sees its back; the part
+    below the point's tangent plane clipped off first (Sutherland-Hodgman), then
+    Lambert's contour sum. ``poly`` is a (4, 3) scratch buffer."""
+    tx = (b[1] - a[1]) * (c[2] - a[2]) - (b[2] - a[2]) * (c[1] - a[1])
+    ty = (b[2] - a[2]) * (c[0] - a[0]) - (b[0] - a[0]) * (c[2] - a[2])
+    tz = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+    if (px - a[0]) * tx + (py - a[1]) * ty + (pz - a[2]) * tz <= 0.0:
+        return 0.0
+    nv = 0
+    for e in range(3):
+        ca = a if e == 0 else (b if e == 1 else c)
+        cb = b if e == 0 else (c if e == 1 else a)
+        da = (ca[0] - px) * nx + (ca[1] - py) * ny + (ca[2] - pz) * nz
+        db = (cb[0] - px) * nx + (cb[1] - py) * ny + (cb[2] - pz) * nz
+        if da >= 0.0:
+            poly[nv, 0] = ca[0] - px
+            poly[nv, 1] = ca[1] - py
+            poly[nv, 2] = ca[2] - pz
+            nv += 1
+        if (da >= 0.0) != (db >= 0.0):
+            t = da / (da - db)
+            poly[nv, 0] = ca[0] + t * (cb[0] - ca[0]) - px
+            poly[nv, 1] = ca[1] + t * (cb[1] - ca[1]) - py
+            poly[nv, 2] = ca[2] + t * (cb[2] - ca[2]) - pz
+            nv += 1
+    s = 0.0
+    for e in range(nv):
+        ax, ay, az = poly[e, 0], poly[e, 1], poly[e, 2]
+        bx, by, bz = poly[(e + 1) % nv, 0], poly[(e + 1) % nv, 1], poly[(e + 1) % nv, 2]
+        cx = ay * bz - az * by
+        cy = az * bx - ax * bz
+        cz = ax * by - ay * bx
+        cn = np.sqrt(cx * cx + cy * cy + cz * cz)
+        if cn > 0.0:
+            s += np.arctan2(cn, ax * bx + ay * by + az * bz) * (cx * nx + cy * ny + cz * nz) / cn
+    return abs(s) / (2.0 * np.pi)
+
+
+@njit(cache=True)
+def _points_kernel(p, n, tri, out):  # pragma: no cover - compiled
+    poly = np.empty((4, 3))
+    for m in range(p.shape[0]):
+        out[m] = _point_triangle(p[m, 0], p[m, 1], p[m, 2], n[m, 0], n[m, 1], n[m, 2],
+                                 tri[m, 0], tri[m, 1], tri[m, 2], poly)
 
 
 def point_polygon_factor(points, normals, triangles) -> np.ndarray:
@@ -74,29 +96,17 @@ def point_polygon_factor(points, normals, triangles) -> np.ndarray:
         ``F(dA_m -> T_m)`` in ``[0, 1]``: 0 for a triangle behind the point's tangent
         plane or showing the point its back. Occlusion by other faces is not included.
     """
-    p = np.asarray(points, dtype=np.float64)
-    n = np.asarray(normals, dtype=np.float64)
-    tri = np.asarray(triangles, dtype=np.float64)
-    nt = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    front = np.einsum("mc,mc->m", p - tri[:, 0], nt) > 0
-    poly = _clip(p, n, tri) - p[:, None, :]
-    ra = poly
-    rb = np.roll(poly, -1, axis=1)
-    c = np.cross(ra, rb)
-    cn = np.linalg.norm(c, axis=2)
-    theta = np.arctan2(cn, np.einsum("mkc,mkc->mk", ra, rb))
-    proj = np.einsum("mkc,mc->mk", c, n) / np.where(cn > 0, cn, 1.0)
-    s = np.sum(np.where(cn > 0, theta * proj, 0.0), axis=1)
-    return np.where(front, np.abs(s) / (2.0 * np.pi), 0.0)
+    p = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    n = np.ascontiguousarray(normals, dtype=np.float64).reshape(-1, 3)
+    tri = np.ascontiguousarray(triangles, dtype=np.float64).reshape(-1, 3, 3)
+    out = np.empty(len(p))
+    _points_kernel(p, n, tri, out)
+    return out
 
 
-def triangle_rule(order: int = 5, grading: int = 1) -> tuple[np.ndarray, np.ndarray]:
-    """Quadrature points on a triangle, graded towards its edges.
-
-    Tensor Gauss-Legendre of ``order`` points on the unit square, each coordinate mapped
-    by ``t -> t^g / (t^g + (1 - t)^g)`` (``g = grading``, clusters the points at both ends
-    with Jacobian weights), then collapsed onto the triangle (Duffy). With ``grading = 1``
-    it is the plain collapsed Gauss rule.
+def triangle_rule(order: int = 5) -> tuple[np.ndarray, np.ndarray]:
+    """Collapsed Gauss rule on a triangle: tensor Gauss-Legendre of ``order`` points on
+    the unit square, collapsed onto the triangle (Duffy).
 
     Returns
     -------
@@ -106,13 +116,8 @@ def triangle_rule(order: int = 5, grading: int = 1) -> tuple[np.ndarray, np.ndar
         Weights summing to 1 (integral over the triangle divided by its area).
     """
     x, w = np.polynomial.legendre.leggauss(int(order))
-    t = 0.5 * (x + 1.0)
+    s = 0.5 * (x + 1.0)
     w = 0.5 * w
-    g = float(grading)
-    num, den = t**g, t**g + (1.0 - t) ** g
-    s = num / den
-    ds = g * (t ** (g - 1) * den - num * (t ** (g - 1) - (1.0 - t) ** (g - 1))) / den**2
-    w = w * ds
     u, v = np.meshgrid(s, s, indexing="ij")
     wu, wv = np.meshgrid(w, w, indexing="ij")
     # Duffy: (u, v) in the square -> (l1, l2) = (u (1 - v), u v), Jacobian u, area 1/2
@@ -127,62 +132,22 @@ def triangle_rule(order: int = 5, grading: int = 1) -> tuple[np.ndarray, np.ndar
 def _pairs_kernel(v, f, nrm, src, dst, bary, w, out):  # pragma: no cover - compiled
     """Compiled core of :func:`pair_factors` (pairs in parallel; each pair's value
     depends on that pair only, so the result does not depend on the thread count)."""
-    q = w.shape[0]
     for m in prange(src.shape[0]):
-        poly = np.empty((6, 3))
         i, j = src[m], dst[m]
-        a0, a1, a2 = f[i, 0], f[i, 1], f[i, 2]
-        b = (f[j, 0], f[j, 1], f[j, 2])
-        nx, ny, nz = nrm[i, 0], nrm[i, 1], nrm[i, 2]
-        # normal of the receiving triangle (right-hand rule), for the back-face test
-        e1 = v[b[1]] - v[b[0]]
-        e2 = v[b[2]] - v[b[0]]
-        tx = e1[1] * e2[2] - e1[2] * e2[1]
-        ty = e1[2] * e2[0] - e1[0] * e2[2]
-        tz = e1[0] * e2[1] - e1[1] * e2[0]
+        a, b, c = v[f[j, 0]], v[f[j, 1]], v[f[j, 2]]
+        s0, s1, s2 = v[f[i, 0]], v[f[i, 1]], v[f[i, 2]]
+        poly = np.empty((4, 3))
         acc = 0.0
-        for k in range(q):
-            px = bary[k, 0] * v[a0, 0] + bary[k, 1] * v[a1, 0] + bary[k, 2] * v[a2, 0]
-            py = bary[k, 0] * v[a0, 1] + bary[k, 1] * v[a1, 1] + bary[k, 2] * v[a2, 1]
-            pz = bary[k, 0] * v[a0, 2] + bary[k, 1] * v[a1, 2] + bary[k, 2] * v[a2, 2]
-            c0 = v[b[0]]
-            if (px - c0[0]) * tx + (py - c0[1]) * ty + (pz - c0[2]) * tz <= 0.0:
-                continue  # the point sees the receiver's back
-            # clip the receiver to the point's front half-space (Sutherland-Hodgman)
-            nv = 0
-            for e in range(3):
-                ca = v[b[e]]
-                cb = v[b[(e + 1) % 3]]
-                da = (ca[0] - px) * nx + (ca[1] - py) * ny + (ca[2] - pz) * nz
-                db = (cb[0] - px) * nx + (cb[1] - py) * ny + (cb[2] - pz) * nz
-                if da >= 0.0:
-                    poly[nv, 0] = ca[0] - px
-                    poly[nv, 1] = ca[1] - py
-                    poly[nv, 2] = ca[2] - pz
-                    nv += 1
-                if (da >= 0.0) != (db >= 0.0):
-                    t = da / (da - db)
-                    poly[nv, 0] = ca[0] + t * (cb[0] - ca[0]) - px
-                    poly[nv, 1] = ca[1] + t * (cb[1] - ca[1]) - py
-                    poly[nv, 2] = ca[2] + t * (cb[2] - ca[2]) - pz
-                    nv += 1
-            s = 0.0
-            for e in range(nv):
-                ax, ay, az = poly[e, 0], poly[e, 1], poly[e, 2]
-                bx, by, bz = poly[(e + 1) % nv, 0], poly[(e + 1) % nv, 1], poly[(e + 1) % nv, 2]
-                cx = ay * bz - az * by
-                cy = az * bx - ax * bz
-                cz = ax * by - ay * bx
-                cn = np.sqrt(cx * cx + cy * cy + cz * cz)
-                if cn > 0.0:
-                    theta = np.arctan2(cn, ax * bx + ay * by + az * bz)
-                    s += theta * (cx * nx + cy * ny + cz * nz) / cn
-            acc += w[k] * abs(s)
-        out[m] = acc / (2.0 * np.pi)
+        for k in range(w.shape[0]):
+            b0, b1, b2 = bary[k, 0], bary[k, 1], bary[k, 2]
+            acc += w[k] * _point_triangle(
+                b0 * s0[0] + b1 * s1[0] + b2 * s2[0], b0 * s0[1] + b1 * s1[1] + b2 * s2[1],
+                b0 * s0[2] + b1 * s1[2] + b2 * s2[2], nrm[i, 0], nrm[i, 1], nrm[i, 2],
+                a, b, c, poly)
+        out[m] = acc
 
 
-def pair_factors(vertices, faces, normals, src, dst, *, order: int = 5,
-                 grading: int = 1) -> np.ndarray:
+def pair_factors(vertices, faces, normals, src, dst, *, order: int = 5) -> np.ndarray:
     """Unoccluded face-to-face form factors ``F[src, dst]`` by quadrature over ``src``.
 
     Parameters
@@ -195,7 +160,7 @@ def pair_factors(vertices, faces, normals, src, dst, *, order: int = 5,
         Unit face normals (painted side).
     src, dst : (m,) array_like of int
         Pairs of faces.
-    order, grading : int
+    order : int
         Quadrature over the source face (see :func:`triangle_rule`). The default
         (collapsed Gauss, 25 points) integrates perpendicular squares sharing an edge
         to about 1e-5 relative (Howell's C-14).
@@ -210,7 +175,7 @@ def pair_factors(vertices, faces, normals, src, dst, *, order: int = 5,
     nrm = np.ascontiguousarray(normals, dtype=np.float64)
     src = np.ascontiguousarray(src, dtype=np.int64).ravel()
     dst = np.ascontiguousarray(dst, dtype=np.int64).ravel()
-    bary, w = triangle_rule(order, grading)
+    bary, w = triangle_rule(order)
     out = np.empty(src.size)
     _pairs_kernel(v, f, nrm, src, dst, bary, w, out)
     return out
