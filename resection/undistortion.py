@@ -20,6 +20,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from ._threads import run_blocks, split_range
+
 __all__ = ["UndistortionMap", "undistortion_map"]
 
 
@@ -64,12 +66,15 @@ def _rotate_rows(d, R, out):  # pragma: no cover (compiled)
     return out
 
 
-def undistortion_map(camera) -> UndistortionMap:
+def undistortion_map(camera, *, workers: int | None = None) -> UndistortionMap:
     """Compute the lines of sight of every pixel centre of ``camera`` (its intrinsics only).
 
     Parameters
     ----------
     camera : resection.Camera
+    workers : int, optional
+        Threads over blocks of image rows (the compiled kernel releases the GIL). Default:
+        the cores this process may use.
 
     Returns
     -------
@@ -81,32 +86,43 @@ def undistortion_map(camera) -> UndistortionMap:
     K = np.asarray(camera.K, dtype=np.float64)
     dist = np.asarray(camera.dist, dtype=np.float64)
     d = np.empty((H * W, 3))
-    _undistort_grid(W, H, K, dist, float(max_monotonic_radius(dist)), d)
+    rmax = float(max_monotonic_radius(dist))
+    run_blocks(lambda b: _undistort_rows(W, b[0], b[1], K, dist, rmax, d),
+               split_range(H, workers, min_size=max(1, 65536 // max(W, 1))), workers)
     d.setflags(write=False)
     return UndistortionMap(W, H, d)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _undistort_grid(W, H, K, dist, rmax, out):  # pragma: no cover (compiled)
-    """Unit camera-frame direction of every pixel centre into ``out`` (H*W, 3): the Newton
-    inversion of :func:`resection.camera.undistort_normalized`, point by point (same
-    step tolerance, residual check and monotonic-radius limit; NaN where they fail)."""
+def _undistort_rows(W, v0, v1, K, dist, rmax, out):  # pragma: no cover (compiled)
+    """Unit camera-frame direction of every pixel centre of rows ``v0 <= v < v1`` into
+    ``out`` (H*W, 3): the Newton inversion of :func:`resection.camera.undistort_normalized`,
+    point by point (its residual check and monotonic-radius limit; NaN where they fail).
+
+    Each pixel starts from the cubic extrapolation of its three left neighbours' solutions
+    along the row (the map is smooth: the start is within about ``h^3 |d3x/du3|`` of the
+    root, ``h = 1/fx``, around 1e-9), from fewer neighbours near the row's start, and from
+    the distorted point itself for the row's first pixel. Newton stops once a step is
+    below 1e-8 (relative): the error left after that step is of order
+    ``|x''| / |x'| * 1e-16``, far under the 1e-12 the rays are good to, since the root
+    within the monotonic radius is simple and unique (the start does not change the
+    answer). About one Jacobian and one residual evaluation a pixel, against four."""
     k1, k2, p1, p2, k3 = dist[0], dist[1], dist[2], dist[3], dist[4]
-    # start each pixel from its left neighbour's solution (the first of a row from the row
-    # above's first) moved by the change of distorted coordinates: 2 or 3 Newton steps
-    # instead of 5 or 6 from the distorted point itself; the root within the monotonic
-    # radius is unique, so the start does not change the answer
-    xs = ys = np.nan
-    xr = yr = np.nan
-    for v in range(H):
+    for v in range(v0, v1):
         yd = (v - K[1, 2]) / K[1, 1]
+        # the last three accepted solutions of this row, n_prev of them valid
+        x1 = y1 = x2 = y2 = x3 = y3 = 0.0
+        n_prev = 0
         for u in range(W):
             xd = (u - K[0, 2] - K[0, 1] * yd) / K[0, 0]
-            if u == 0:
-                xs, ys = xr, yr + 1.0 / K[1, 1]
+            if n_prev >= 3:
+                x, y = 3.0 * (x1 - x2) + x3, 3.0 * (y1 - y2) + y3
+            elif n_prev == 2:
+                x, y = 2.0 * x1 - x2, 2.0 * y1 - y2
+            elif n_prev == 1:
+                x, y = x1 + 1.0 / K[0, 0], y1
             else:
-                xs = xs + 1.0 / K[0, 0]
-            x, y = (xs, ys) if np.isfinite(xs) and np.isfinite(ys) else (xd, yd)
+                x, y = xd, yd
             for _ in range(50):
                 r2 = x * x + y * y
                 radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
@@ -121,7 +137,7 @@ def _undistort_grid(W, H, K, dist, rmax, out):  # pragma: no cover (compiled)
                 dy = (j11 * ry - j12 * rx) / det
                 x -= dx
                 y -= dy
-                if max(abs(dx), abs(dy)) <= 1e-15 * (1.0 + max(abs(x), abs(y))):
+                if max(abs(dx), abs(dy)) <= 1e-8 * (1.0 + max(abs(x), abs(y))):
                     break
             r2 = x * x + y * y
             radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
@@ -129,17 +145,14 @@ def _undistort_grid(W, H, K, dist, rmax, out):  # pragma: no cover (compiled)
             ey = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y - yd
             i = v * W + u
             if max(abs(ex), abs(ey)) < 1e-9 and np.sqrt(r2) <= rmax:
-                xs, ys = x, y
-                if u == 0:
-                    xr, yr = x, y
+                x3, y3, x2, y2, x1, y1 = x2, y2, x1, y1, x, y
+                n_prev += 1
                 n = np.sqrt(r2 + 1.0)
                 out[i, 0] = x / n
                 out[i, 1] = y / n
                 out[i, 2] = 1.0 / n
             else:
-                xs = ys = np.nan
-                if u == 0:
-                    xr = yr = np.nan
+                n_prev = 0
                 out[i, 0] = np.nan
                 out[i, 1] = np.nan
                 out[i, 2] = np.nan

@@ -26,6 +26,7 @@ from embreex import rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 
 from ._checks import as_points
+from ._threads import run_blocks, split_range
 from .camera import Camera
 from .errors import InputError
 
@@ -62,12 +63,16 @@ class RayCaster:
         self._scene = rtcore_scene.EmbreeScene()
         TriangleMesh(scene=self._scene, vertices=scaled,
                      indices=self._faces.astype(np.int32))
+        # commit the scene now (Embree builds it on the first query), before any threads
+        # query it at once
+        self._scene.run(np.zeros((1, 3), np.float32), np.array([[0, 0, 1]], np.float32))
 
     @property
     def n_faces(self) -> int:
         return len(self._faces)
 
-    def first_hit(self, origins, directions, *, unit: bool = False):
+    def first_hit(self, origins, directions, *, unit: bool = False,
+                  workers: int | None = None):
         """Cast rays and return the first face each one hits.
 
         Parameters
@@ -79,6 +84,9 @@ class RayCaster:
             misses.
         unit : bool
             The directions are already unit vectors (skips normalising them).
+        workers : int, optional
+            Threads over blocks of rays (Embree's queries and the compiled passes release
+            the GIL). Default: the cores this process may use.
 
         Returns
         -------
@@ -91,47 +99,39 @@ class RayCaster:
             Barycentric coordinates of the hit point on the face's vertices ``(w0, w1, w2)``
             (sum 1), NaN for a miss.
         """
-        d = as_points(directions, 3, "ray directions", allow_nan=True)
+        d = np.ascontiguousarray(as_points(directions, 3, "ray directions", allow_nan=True),
+                                 dtype=np.float64)
         o_in = np.asarray(origins, dtype=np.float64)
         single = o_in.shape == (3,)  # one origin for every ray (a camera centre)
         o = o_in[None, :] if single else as_points(o_in, 3, "ray origins", allow_nan=True)
         if not single and o.shape != d.shape:
             raise InputError(f"rays: origins {o.shape} and directions {d.shape} differ")
+        o = np.ascontiguousarray(o, dtype=np.float64)
         n = len(d)
-        face = np.full(n, -1, dtype=np.int64)
-        dist = np.full(n, np.nan)
-        bary = np.full((n, 3), np.nan)
-        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-            norm = np.sqrt(np.einsum("ij,ij->i", d, d))
-            ok = np.isfinite(norm) & (norm > 0)
-            if single:
-                ok &= bool(np.all(np.isfinite(o)))
-            else:
-                ok &= np.all(np.isfinite(o), axis=1)
-        if not np.any(ok):
-            return face, dist, bary
-        all_ok = bool(ok.all())
-        idx = None if all_ok else np.flatnonzero(ok)
-        if unit:
-            du = d if all_ok else d[idx]
-        else:
-            du = d / norm[:, None] if all_ok else d[idx] / norm[idx, None]
-        oo = o if single else (o if all_ok else o[idx])
-        so = ((oo - self._origin) * self._scale).astype(np.float32)
-        if single:
-            so = np.broadcast_to(so, du.shape)
-        hit = np.asarray(self._scene.run(np.ascontiguousarray(so),
-                                         du.astype(np.float32)), dtype=np.int64)
-        sel = np.flatnonzero(hit >= 0)
-        rows = sel if all_ok else idx[sel]
-        face[rows] = hit[sel]
-        self._plane_hits(oo, du, sel, hit, rows, dist, bary)
+        face = np.empty(n, dtype=np.int64)
+        dist = np.empty(n)
+        bary = np.empty((n, 3))
+        dual = self._face_duals()
+        shift = np.ascontiguousarray(self._origin, dtype=np.float64)
+
+        def block(b: tuple[int, int]) -> None:
+            start, stop = b
+            o32 = np.empty((1 if single else stop - start, 3), np.float32)
+            d32 = np.empty((stop - start, 3), np.float32)
+            keep = np.empty(stop - start, np.int64)
+            k = _prepare_rays(o, d, start, stop, unit, shift, self._scale, o32, d32, keep,
+                              face, dist, bary)
+            if k == 0:
+                return
+            o_run = np.broadcast_to(o32, (k, 3)) if single else o32[:k]
+            hit = self._scene.run(np.ascontiguousarray(o_run), d32[:k])
+            _plane_hits(o, d, keep[:k], np.asarray(hit), unit, dual, face, dist, bary)
+
+        run_blocks(block, split_range(n, workers, min_size=16384), workers)
         return face, dist, bary
 
-    def _plane_hits(self, o, d, sel, hit, rows, dist, bary) -> None:
-        """Float64 distance and barycentrics of rays ``sel`` of ``(o, d)`` on the planes of
-        their faces ``hit[sel]``, written to ``dist[rows]`` and ``bary[rows]``; per-face
-        data computed once, one compiled pass over the rays (no per-ray temporaries)."""
+    def _face_duals(self) -> np.ndarray:
+        """Per-face data of the float64 plane hits (v0, normal, a1, a2), built once."""
         if self._dual is None:
             tri = self._vertices[self._faces]
             v0 = tri[:, 0]
@@ -142,35 +142,83 @@ class RayCaster:
                 a1 = np.cross(e2, nrm) / nn[:, None]  # w1 = (p - v0) . a1
                 a2 = np.cross(nrm, e1) / nn[:, None]  # w2 = (p - v0) . a2
             self._dual = np.ascontiguousarray(np.hstack([v0, nrm, a1, a2]))  # (F, 12)
-        o2 = np.ascontiguousarray(np.atleast_2d(o), dtype=np.float64)
-        _plane_hit_kernel(o2, np.ascontiguousarray(d, dtype=np.float64), sel, hit, rows,
-                          self._dual, dist, bary)
+        return self._dual
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _plane_hit_kernel(o, d, sel, hit, rows, dual, dist, bary):  # pragma: no cover (compiled)
-    """For k in sel: ray (o[k] or o[0], d[k]) on the plane of face hit[k] (dual row:
-    v0, normal, a1, a2); distance t and barycentrics (1 - w1 - w2, w1, w2) to row rows[j]."""
+def _prepare_rays(o, d, start, stop, unit, shift, scale, o32, d32, keep, face, dist,
+                  bary):  # pragma: no cover (compiled)
+    """Rays ``start <= k < stop`` with a finite origin and a finite non-zero direction:
+    their scaled float32 origins and unit float32 directions packed into ``o32``/``d32``
+    (one shared origin when ``o`` has one row), their indices into ``keep``; the others
+    written as misses. Returns how many were packed."""
     one = o.shape[0] == 1
-    for j in range(sel.shape[0]):
-        k = sel[j]
-        f = hit[k]
-        r = rows[j]
+    if one:
+        o_ok = np.isfinite(o[0, 0]) and np.isfinite(o[0, 1]) and np.isfinite(o[0, 2])
+        for c in range(3):
+            o32[0, c] = (o[0, c] - shift[c]) * scale
+    m = 0
+    for k in range(start, stop):
+        dx, dy, dz = d[k, 0], d[k, 1], d[k, 2]
+        nn = dx * dx + dy * dy + dz * dz
+        ok = np.isfinite(nn) and nn > 0.0
+        if not one:
+            ok = ok and np.isfinite(o[k, 0]) and np.isfinite(o[k, 1]) and np.isfinite(o[k, 2])
+        elif not o_ok:
+            ok = False
+        if not ok:
+            face[k] = -1
+            dist[k] = np.nan
+            bary[k, 0] = np.nan
+            bary[k, 1] = np.nan
+            bary[k, 2] = np.nan
+            continue
+        s = 1.0 if unit else 1.0 / np.sqrt(nn)
+        d32[m, 0] = dx * s
+        d32[m, 1] = dy * s
+        d32[m, 2] = dz * s
+        if not one:
+            for c in range(3):
+                o32[m, c] = (o[k, c] - shift[c]) * scale
+        keep[m] = k
+        m += 1
+    return m
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _plane_hits(o, d, keep, hit, unit, dual, face, dist, bary):  # pragma: no cover
+    """For ray ``keep[j]`` that Embree reports on face ``hit[j]`` (-1: a miss): the face,
+    and the float64 distance and barycentrics ``(1 - w1 - w2, w1, w2)`` of the ray
+    ``(o[k] or o[0], d[k] / |d[k]|)`` on that face's plane (dual row: v0, normal, a1, a2)."""
+    one = o.shape[0] == 1
+    for j in range(keep.shape[0]):
+        k = keep[j]
+        f = hit[j]
+        if f < 0:
+            face[k] = -1
+            dist[k] = np.nan
+            bary[k, 0] = np.nan
+            bary[k, 1] = np.nan
+            bary[k, 2] = np.nan
+            continue
         ko = 0 if one else k
+        s = 1.0 if unit else 1.0 / np.sqrt(d[k, 0] ** 2 + d[k, 1] ** 2 + d[k, 2] ** 2)
+        d0, d1, d2 = d[k, 0] * s, d[k, 1] * s, d[k, 2] * s
         q0 = dual[f, 0] - o[ko, 0]
         q1 = dual[f, 1] - o[ko, 1]
         q2 = dual[f, 2] - o[ko, 2]
-        nd = dual[f, 3] * d[k, 0] + dual[f, 4] * d[k, 1] + dual[f, 5] * d[k, 2]
+        nd = dual[f, 3] * d0 + dual[f, 4] * d1 + dual[f, 5] * d2
         t = (dual[f, 3] * q0 + dual[f, 4] * q1 + dual[f, 5] * q2) / nd
-        p0 = t * d[k, 0] - q0
-        p1 = t * d[k, 1] - q1
-        p2 = t * d[k, 2] - q2
+        p0 = t * d0 - q0
+        p1 = t * d1 - q1
+        p2 = t * d2 - q2
         w1 = p0 * dual[f, 6] + p1 * dual[f, 7] + p2 * dual[f, 8]
         w2 = p0 * dual[f, 9] + p1 * dual[f, 10] + p2 * dual[f, 11]
-        dist[r] = t
-        bary[r, 0] = 1.0 - w1 - w2
-        bary[r, 1] = w1
-        bary[r, 2] = w2
+        face[k] = f
+        dist[k] = t
+        bary[k, 0] = 1.0 - w1 - w2
+        bary[k, 1] = w1
+        bary[k, 2] = w2
 
 
 def face_sample_points(mesh: trimesh.Trimesh, samples_per_face: int = 1) -> np.ndarray:

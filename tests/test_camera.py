@@ -268,3 +268,30 @@ def test_whole_image_rays_nan_beyond_the_monotonic_radius():
     np.testing.assert_allclose(grid[~bad], point[~bad], atol=1e-12)
     # r_max of k1 = -0.3: 1 + 3 k1 r^2 = 0, r = 1 / sqrt(0.9)
     assert cam.max_radius == pytest.approx(1 / math.sqrt(0.9), rel=1e-12)
+
+
+def test_undistortion_map_of_a_large_image_over_threads_against_opencv():
+    """A 1280 x 960 image with strong distortion (thread blocks of rows, each row started
+    from its distorted first pixel, then from the cubic extrapolation of its neighbours):
+    a regular subsample of every row block against OpenCV's undistortPoints."""
+    from resection.undistortion import undistortion_map
+
+    w, h = 1280, 960
+    k = np.array([[1100.0, 0.0, 652.3], [0.0, 1090.0, 471.8], [0.0, 0.0, 1.0]])
+    dist = np.array([-0.32, 0.11, 0.0015, -0.0009, -0.012])
+    cam = Camera.from_opencv(k, dist, [0.1, -0.25, 0.05], [0.05, -0.02, 2.0], w, h)
+    m = undistortion_map(cam, workers=2)
+    rng = np.random.default_rng(3)
+    idx = np.unique(np.concatenate([rng.integers(0, w * h, 20_000),
+                                    np.arange(0, w * h, w)]))  # every row's first pixel
+    uv = np.column_stack([idx % w, idx // w]).astype(np.float64)
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-15)
+    xy = cv2.undistortPoints(uv.reshape(-1, 1, 2), k, dist, R=None, P=None,
+                             criteria=crit).reshape(-1, 2)
+    ref = np.column_stack([xy, np.ones(len(xy))])
+    ref /= np.linalg.norm(ref, axis=1, keepdims=True)
+    ok = np.isfinite(m.directions[idx]).all(axis=1)
+    assert ok.mean() > 0.99
+    np.testing.assert_allclose(m.directions[idx][ok], ref[ok], atol=1e-9)
+    np.testing.assert_allclose(m.directions, undistortion_map(cam, workers=1).directions,
+                               atol=1e-12, equal_nan=True)

@@ -124,3 +124,35 @@ def test_first_hit_per_ray_origins_against_closed_form():
     # which triangle: the plate splits along the diagonal (-1, -1) -> (1, 1)
     lower = target[ok, 0] > target[ok, 1]
     np.testing.assert_array_equal(face[ok], np.where(lower, 0, 1))
+
+
+def test_first_hit_threads_over_blocks_of_rays_against_closed_form():
+    """120,000 rays (NaN rows among them), split over 2 threads in several blocks, with
+    their own origins and with one shared origin: every ray's face, distance and hit point
+    against the closed-form plane crossing, and the same answer with one thread."""
+    from resection.visibility import RayCaster
+
+    pl = plate(-1.0, 1.0, -1.0, 1.0, 0.0)
+    caster = RayCaster(pl)
+    rng = np.random.default_rng(8)
+    n = 120_000
+    target = np.column_stack([rng.uniform(-0.95, 0.95, (n, 2)), np.zeros(n)])
+    shared = np.array([0.2, -0.1, 2.5])
+    for o in (target + rng.uniform(0.5, 3.0, (n, 1)) * rng.normal([0, 0, 1], 0.3, (n, 3)),
+              shared):
+        d = target - o
+        d[7::997] = np.nan
+        face, dist, bary = caster.first_hit(o, d, workers=2)
+        ok = np.isfinite(d).all(axis=1)
+        assert np.all(face[~ok] == -1) and np.all(np.isnan(bary[~ok]))
+        np.testing.assert_allclose(dist[ok], np.linalg.norm(d[ok], axis=1), rtol=1e-12)
+        tri = pl.vertices[pl.faces[face[ok]]]
+        np.testing.assert_allclose(np.einsum("nk,nkj->nj", bary[ok], tri), target[ok],
+                                   atol=1e-12)
+        # which triangle, away from the diagonal they share (Embree works in float32)
+        gap = target[ok, 0] - target[ok, 1]
+        clear = np.abs(gap) > 1e-4
+        np.testing.assert_array_equal(face[ok][clear], np.where(gap[clear] > 0, 0, 1))
+        one = caster.first_hit(o, d, workers=1)
+        np.testing.assert_array_equal(one[0], face)
+        np.testing.assert_allclose(one[1], dist, rtol=1e-12, equal_nan=True)

@@ -1,0 +1,60 @@
+"""Threads over blocks of independent work whose kernels release the GIL.
+
+Embree's ray queries (``embreex`` ``EmbreeScene.run``) and the package's numba kernels
+compiled with ``nogil=True`` run without Python's global interpreter lock, so a few threads
+over contiguous blocks of rays or image rows use every core with no copies and no process
+start-up. The thread count defaults to the cores this process may use; nothing is kept
+between calls.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from typing import TypeVar
+
+__all__ = ["available_cores", "split_range", "run_blocks"]
+
+T = TypeVar("T")
+
+
+def available_cores() -> int:
+    """Cores this process may run on (its CPU affinity where the OS reports one)."""
+    try:
+        return max(len(os.sched_getaffinity(0)), 1)
+    except (AttributeError, OSError):  # pragma: no cover - platforms without affinity
+        return max(int(os.cpu_count() or 1), 1)
+
+
+def _workers(workers: int | None) -> int:
+    return available_cores() if workers is None else max(int(workers), 1)
+
+
+def split_range(n: int, workers: int | None = None, *, min_size: int = 1,
+                per_worker: int = 4) -> list[tuple[int, int]]:
+    """Split ``range(n)`` into contiguous ``(start, stop)`` blocks.
+
+    About ``per_worker`` blocks a thread (so that a thread slowed by another process does
+    not hold up the end), none shorter than ``min_size`` unless ``n`` itself is; a single
+    block with one worker.
+    """
+    n = int(n)
+    if n <= 0:
+        return []
+    w = _workers(workers)
+    count = 1 if w == 1 else max(1, min(w * per_worker, n // max(int(min_size), 1)))
+    edges = [round(i * n / count) for i in range(count + 1)]
+    return [(a, b) for a, b in zip(edges[:-1], edges[1:], strict=True) if b > a]
+
+
+def run_blocks(fn: Callable[[tuple[int, int]], T], blocks: Sequence[tuple[int, int]],
+               workers: int | None = None) -> list[T]:
+    """``[fn(b) for b in blocks]``, on up to ``workers`` threads (default: the available
+    cores); in the calling thread when there is one block or one worker. ``fn`` must do its
+    work in GIL-free code to gain anything. The first exception raised is re-raised."""
+    w = min(_workers(workers), len(blocks))
+    if w <= 1:
+        return [fn(b) for b in blocks]
+    with ThreadPoolExecutor(max_workers=w) as pool:
+        return list(pool.map(fn, blocks))
