@@ -37,10 +37,9 @@ from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
-import scipy.fft as sfft
 from scipy.spatial import cKDTree
 
-from . import _diskmodel, _peaks
+from . import _diskmodel, _peaks, _prep
 from .errors import InputError
 from .refine import refine_markers
 
@@ -159,28 +158,12 @@ def _check_diameter(diameter) -> float:
     return d
 
 
-def _bad_pixels(img: np.ndarray, mask, saturation, box=None) -> np.ndarray:
-    """Masked pixels (NaN, infinite, saturated, user mask) of ``img``, or of its part
-    ``box = (u0, v0, u1, v1)`` (inclusive) only."""
-    if mask is not None:
-        mask = np.asarray(mask)
-        if mask.shape != img.shape:
-            raise InputError(f"mask: shape {mask.shape} differs from the image's {img.shape}")
-    if box is not None:
-        u0, v0, u1, v1 = box
-        img = img[v0:v1 + 1, u0:u1 + 1]
-        mask = None if mask is None else mask[v0:v1 + 1, u0:u1 + 1]
-    bad = np.zeros(img.shape, bool)
-    if img.dtype.kind == "f":
-        bad |= ~np.isfinite(img)
-    if saturation is None and img.dtype.kind in "ui":
-        saturation = np.iinfo(img.dtype).max
-    if saturation is not None:
-        with np.errstate(invalid="ignore"):
-            bad |= img >= saturation
-    if mask is not None:
-        bad |= mask.astype(bool)
-    return bad
+def _check_mask(mask, shape) -> np.ndarray:
+    """The user mask as a bool array of the image's ``shape``."""
+    mask = np.asarray(mask)
+    if mask.shape != shape:
+        raise InputError(f"mask: shape {mask.shape} differs from the image's {shape}")
+    return mask.astype(bool, copy=False)
 
 
 def estimate_noise(image, mask=None) -> float:
@@ -252,29 +235,6 @@ def _template(d: float, kind: str) -> np.ndarray:
     out = inner / inner.sum() - ring / ring.sum()
     out.setflags(write=False)
     return out
-
-
-@lru_cache(maxsize=4)
-def _template_spectrum(d: float, kind: str, shape: tuple[int, int]) -> np.ndarray:
-    """Real FFT of the (flipped, float32) template zero-padded to ``shape``; read-only."""
-    spec = sfft.rfft2(_template(d, kind)[::-1, ::-1].astype(np.float32), shape)
-    spec.setflags(write=False)
-    return spec
-
-
-def _correlate(x: np.ndarray, d: float, kind: str) -> np.ndarray:
-    """Correlation of the float32 image ``x`` with the template, ``"valid"`` part.
-
-    One real FFT of the whole image at a fast size at least its own (the template's
-    spectrum cached per size): the circular wrap then touches only the discarded border.
-    """
-    t = _template(d, kind).shape[0]
-    H, W = x.shape
-    shape = (sfft.next_fast_len(H, real=True), sfft.next_fast_len(W, real=True))
-    spec = sfft.rfft2(x, shape)
-    spec *= _template_spectrum(d, kind, shape)
-    out = sfft.irfft2(spec, shape, overwrite_x=True)
-    return out[t - 1:H, t - 1:W]
 
 
 def _parse_roi(roi, shape) -> tuple[int, int, int, int]:
@@ -399,26 +359,23 @@ def detect_markers(
     cu0, cv0 = max(u0 - pad, 0), max(v0 - pad, 0)
     cu1, cv1 = min(u1 + pad, img.shape[1] - 1), min(v1 + pad, img.shape[0] - 1)
     # only the roi and its margin are read (a small roi costs little on a large frame)
-    bad = _bad_pixels(img, mask, saturation, (cu0, cv0, cu1, cv1))
-    if bad.all():
+    part = img[cv0:cv1 + 1, cu0:cu1 + 1]
+    mpart = None if mask is None else _check_mask(mask, img.shape)[cv0:cv1 + 1, cu0:cu1 + 1]
+    if saturation is None and img.dtype.kind in "ui":
+        saturation = np.iinfo(img.dtype).max
+    sign = -1.0 if polarity == "dark" else 1.0
+    # one compiled pass: masked pixels, sign, fill level removed, float32 (masked pixels 0)
+    signal, work, bad, n_bad, fill = _prep.prepare(part, mpart, saturation, sign)
+    if n_bad == bad.size:
         raise InputError("image: every pixel is masked (NaN, infinite or saturated)"
                          if roi is None else "image: every pixel of the roi is masked")
-    n_masked = int(bad[v0 - cv0:v1 - cv0 + 1, u0 - cu0:u1 - cu0 + 1].sum())
-    sign = -1.0 if polarity == "dark" else 1.0
-    signal = img[cv0:cv1 + 1, cu0:cu1 + 1].astype(np.float64)
-    if sign < 0:
-        np.negative(signal, out=signal)
-    k = max(1, int(np.sqrt(signal.size / 16_000)))  # a regular subset is enough
-    sub_ok = ~bad[::k, ::k]
-    fill = float(np.median(signal[::k, ::k][sub_ok] if sub_ok.any() else signal[~bad]))
-    has_bad = bool(bad.any())
-    if has_bad:
-        signal[bad] = fill
+    has_bad = n_bad > 0
+    n_masked = int(bad[v0 - cv0:v1 - cv0 + 1, u0 - cu0:u1 - cu0 + 1].sum()) if has_bad else 0
     noise = estimate_noise(signal, bad if has_bad else None)
-    # reflect at the borders (zero padding would make the image edge look like a marker)
-    # (float32 after removing the median level: the FFT rounding stays far under the noise)
-    padded = np.pad((signal - fill).astype(np.float32), th, mode="symmetric")
-    merit = _correlate(padded, d, template)
+    # the merit, the frame mirrored at its borders (zero padding would make the image edge
+    # look like a marker); float32 after removing the fill level: the rounding of the
+    # transforms stays far under the noise
+    merit = _prep.merit(work, tmpl)
     merit_noise = noise * float(np.sqrt((tmpl**2).sum()))
     thr = float(threshold) if threshold is not None else k_sigma * max(merit_noise, 1e-12)
     size = max(3, 2 * int(np.floor(R)) + 1)

@@ -32,17 +32,22 @@ def test_local_maxima_none_above():
     assert rows.size == 0 and cols.size == 0
 
 
-@pytest.mark.parametrize("shape", [(41, 60), (300, 517)])
+@pytest.mark.parametrize("shape", [(41, 60), (300, 517), (1024, 64), (7, 9)])
 @pytest.mark.parametrize("diameter,kind", [(3.0, "tophat"), (6.0, "cone"), (11.0, "tophat")])
-def test_merit_equals_direct_correlation(shape, diameter, kind):
-    # the detector's merit (one cached-spectrum FFT) against SciPy's direct correlation
+def test_merit_equals_direct_correlation_of_the_mirrored_frame(shape, diameter, kind):
+    # the detector's merit (two discrete cosine transforms) against SciPy's direct
+    # correlation of the frame padded by NumPy's mirror symmetry (the (7, 9) frame is
+    # smaller than the 11 px template: reflected more than once)
     from scipy.signal import correlate
 
-    from resection import markers
+    from resection import _prep, markers
 
     x = np.random.default_rng(1).normal(size=shape).astype(np.float32)
-    merit = markers._correlate(x, diameter, kind)
-    ref = correlate(x.astype(float), markers.marker_template(diameter, kind), mode="valid",
-                    method="direct")
-    assert merit.shape == ref.shape
-    assert np.abs(merit - ref).max() < 1e-5  # float32 FFT rounding of a unit-noise image
+    tmpl = markers.marker_template(diameter, kind)
+    ref = correlate(np.pad(x.astype(float), tmpl.shape[0] // 2, mode="symmetric"), tmpl,
+                    mode="valid", method="direct")
+    work = np.empty((shape[0], shape[1] + 3), np.float32)[:, :shape[1]]  # a strided buffer
+    work[:] = x
+    merit = _prep.merit(work, tmpl)
+    assert merit.shape == ref.shape == shape
+    assert np.abs(merit - ref).max() < 1e-5  # float32 rounding of a unit-noise image

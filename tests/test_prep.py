@@ -1,0 +1,71 @@
+"""The compiled preparation of a frame for detection (resection._prep.prepare) against the
+NumPy expressions it replaces."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from resection import _prep
+
+
+def _reference(img, mask, saturation, sign):
+    """The NumPy preparation: masked pixels, fill level, signal (float64)."""
+    x = img.astype(np.float64)
+    bad = ~np.isfinite(x)
+    if saturation is not None:
+        with np.errstate(invalid="ignore"):
+            bad |= x >= saturation
+    if mask is not None:
+        bad |= mask
+    k = max(1, int(np.sqrt(img.size / 16_000)))
+    sub_ok = ~bad[::k, ::k]
+    fill = float(np.median(sign * x[::k, ::k][sub_ok]))
+    signal = np.where(bad, 0.0, sign * x - fill)
+    return signal, bad, fill
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.int32, np.float32, np.float64,
+                                   np.float16, ">u2"])
+@pytest.mark.parametrize("sign", [-1.0, 1.0])
+@pytest.mark.parametrize("with_mask", [False, True])
+def test_prepare_equals_numpy(dtype, sign, with_mask):
+    rng = np.random.default_rng(7)
+    shape = (300, 257)
+    dt = np.dtype(dtype)
+    top = 250 if dt.itemsize == 1 else 3000
+    img = rng.integers(0, top, shape).astype(dt)
+    if dt.kind == "f":
+        img = (img + rng.uniform(0, 1, shape)).astype(dt)
+        img[5, 7], img[9, 1], img[200, 3] = np.nan, np.inf, -np.inf
+    saturation = 240 if dt.itemsize == 1 else 2900
+    mask = rng.uniform(size=shape) < 0.05 if with_mask else None
+    signal, work, bad, n_bad, fill = _prep.prepare(img, mask, saturation, sign)
+    ref, ref_bad, ref_fill = _reference(img, mask, saturation, sign)
+    np.testing.assert_array_equal(bad, ref_bad)
+    assert n_bad == ref_bad.sum() > 0
+    assert fill == ref_fill
+    assert signal.dtype == work.dtype == np.float32
+    # float32 is exact for integers under 2^24 and the half-integer fill; float frames
+    # are rounded to float32 (relative 6e-8 of values under 4000)
+    tol = 0.0 if dt.kind in "ui" else 4e-4
+    assert np.abs(signal - ref).max() <= tol
+    np.testing.assert_array_equal(work, signal)
+    assert work.strides[0] != signal.strides[0]  # the transform's padded row stride
+
+
+def test_prepare_fill_when_the_subsample_is_masked():
+    # every pixel of the regular subsample masked: the fill level is the median of all
+    # unmasked pixels
+    img = np.full((400, 400), 1000, np.uint16)
+    k = int(np.sqrt(img.size / 16_000))
+    mask = np.zeros(img.shape, bool)
+    mask[::k, ::k] = True
+    img[1::2] = 3000
+    signal, work, bad, n_bad, fill = _prep.prepare(img, mask, None, 1.0)
+    good = ~mask
+    assert fill == np.median(img[good].astype(float))
+    assert n_bad == mask.sum()
+    np.testing.assert_array_equal(signal[good], img[good] - fill)
+    np.testing.assert_array_equal(work, signal)
+    assert np.all(signal[mask] == 0)
