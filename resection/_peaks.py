@@ -46,5 +46,5 @@ def local_maxima(image: np.ndarray, size: int, threshold: float) -> tuple[np.nda
         peaks &= image > threshold
         return np.nonzero(peaks)
     rows, cols = np.divmod(flat, image.shape[1])
-    keep = _is_max(np.ascontiguousarray(image), rows, cols, size // 2)
+    keep = _is_max(image, rows, cols, size // 2)  # any layout (the merit is strided)
     return rows[keep], cols[keep]

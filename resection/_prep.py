@@ -2,11 +2,12 @@
 :func:`resection.markers.detect_markers`.
 
 * :func:`prepare`: one compiled pass over the (integer or float) frame: the masked pixels
-  (NaN, infinite, saturated, user mask) are flagged, the sign of dark markers flipped, the
+  (NaN, infinite, saturated, user mask) are counted, the sign of dark markers flipped, the
   fill level subtracted (masked pixels read 0, the fill level), and the result written as
-  float32 twice: once for the fit, once as the input of the merit's transform (which
-  overwrites it). No float64 copy of the frame. The float32 values are exact for 8- and
-  16-bit frames (integers under 2^24, the fill level a half-integer).
+  float32, the input of the merit's transform (which overwrites it). No float64 copy of the
+  frame; the fit reads its windows from the frame itself. The float32 values are exact for
+  8- and 16-bit frames (integers under 2^24, the fill level a half-integer). The mask of
+  bad pixels is written only where there are some.
 * :func:`merit`: the correlation of the prepared frame with the marker template, the frame
   extended by mirror symmetry at its borders (``np.pad(mode="symmetric")``), at every pixel
   of the frame. The template is even in each axis, so this symmetric convolution is
@@ -19,7 +20,6 @@ Conventions: ``img[v, u]``, pixel ``(u, v)`` = (column, row).
 
 from __future__ import annotations
 
-import math
 from functools import lru_cache
 
 import numpy as np
@@ -33,51 +33,76 @@ _STRIDE_PAD = 16
 
 
 @njit(cache=True)
-def _prepare(img, mask, sat, sign, fill, out_a, out_b, bad):
-    """The compiled pass of :func:`prepare`; returns the number of masked pixels."""
+def _is_bad(x, sat):
+    """A masked value: NaN (fails both comparisons), infinite or ``>= sat``."""
+    return not ((x < sat) & (x > -np.inf))
+
+
+@njit(cache=True)
+def _prepare(img, mask, sat, sign, fill, out):
+    """The compiled pass of :func:`prepare`: ``out = sign * img - fill``, 0 where masked
+    (``mask`` of shape (0, 0): none); returns the number of masked pixels. Branch-free per
+    pixel, so that the rows vectorise."""
     H, W = img.shape
     use_mask = mask.shape[0] == H and mask.shape[1] == W
     n_bad = 0
     for i in range(H):
         for j in range(W):
             x = float(img[i, j])
-            b = not (math.isfinite(x) and x < sat)
-            if use_mask and mask[i, j]:
-                b = True
-            if b:
-                n_bad += 1
-                val = 0.0
-            else:
-                val = sign * x - fill
-            bad[i, j] = b
-            out_a[i, j] = val
-            out_b[i, j] = val
+            b = _is_bad(x, sat)
+            if use_mask:
+                b = b | mask[i, j]
+            n_bad += b
+            out[i, j] = np.float32(0.0) if b else np.float32(sign * x - fill)
     return n_bad
 
 
-def prepare(img: np.ndarray, mask: np.ndarray | None, saturation: float | None,
-            sign: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, float]:
-    """Masked pixels, fill level and the frame as float32, in one pass.
+@njit(cache=True)
+def _flag(img, mask, sat, bad):
+    """``bad`` = the masked pixels of ``img`` (as :func:`_prepare` counts them)."""
+    H, W = img.shape
+    use_mask = mask.shape[0] == H and mask.shape[1] == W
+    for i in range(H):
+        for j in range(W):
+            b = _is_bad(float(img[i, j]), sat)
+            if use_mask:
+                b = b | mask[i, j]
+            bad[i, j] = b
+
+
+def native(img: np.ndarray, mask: np.ndarray | None = None):
+    """``img`` in a type the compiled kernels take (half and long-double floats as float64,
+    byte-swapped types in the machine's order) and ``mask`` as a bool array (a (0, 0)
+    array for none)."""
+    if img.dtype.kind == "f" and img.dtype.itemsize not in (4, 8):
+        img = img.astype(np.float64)
+    elif not img.dtype.isnative:
+        img = img.astype(img.dtype.newbyteorder("="))
+    mask = np.zeros((0, 0), np.bool_) if mask is None else np.asarray(mask, dtype=np.bool_)
+    return img, mask
+
+
+def prepare(img: np.ndarray, mask: np.ndarray, sat: float,
+            sign: float) -> tuple[np.ndarray, np.ndarray | None, int, float]:
+    """Fill level and the frame as float32, masked pixels counted, in one pass.
 
     Parameters
     ----------
     img : (H, W) integer or float array
-        The searched part of the frame.
-    mask : (H, W) bool array or None
-        True where pixels must be ignored.
-    saturation : float or None
-        Pixels ``>=`` this value are masked (None: none; NaN and infinite pixels always).
+        The searched part of the frame, from :func:`native`.
+    mask : (H, W) bool array, or (0, 0) for none
+        True where pixels must be ignored, from :func:`native`.
+    sat : float
+        Pixels ``>=`` this value are masked (``inf``: none); NaN and infinite ones always.
     sign : float
         -1 for dark markers (the frame is negated), +1 for bright ones.
 
     Returns
     -------
-    signal : (H, W) float32 array
-        ``sign * img - fill``, 0 at masked pixels.
     work : (H, W) float32 array
-        The same values, in a buffer with a padded row stride (the input of :func:`merit`,
-        which overwrites it).
-    bad : (H, W) bool array
+        ``sign * img - fill``, 0 at masked pixels, in a buffer with a padded row stride
+        (the input of :func:`merit`, which overwrites it).
+    bad : (H, W) bool array, or None where no pixel is masked
         Masked pixels.
     n_bad : int
         Their number.
@@ -85,35 +110,30 @@ def prepare(img: np.ndarray, mask: np.ndarray | None, saturation: float | None,
         Fill level, image units after the sign: the median of a regular subsample of about
         16,000 unmasked pixels (of all unmasked pixels if the subsample has none).
     """
-    if img.dtype.kind == "f" and img.dtype.itemsize not in (4, 8):  # half, long double
-        img = img.astype(np.float64)
-    elif not img.dtype.isnative:
-        img = img.astype(img.dtype.newbyteorder("="))
-    if mask is not None:
-        mask = np.ascontiguousarray(mask, dtype=np.bool_)
     H, W = img.shape
-    sat = np.inf if saturation is None else float(saturation)
-    m = np.zeros((0, 0), np.bool_) if mask is None else mask
     # the fill level from a regular subsample (masked pixels of the subsample left out)
     k = max(1, int(np.sqrt(img.size / 16_000)))
     sub = np.asarray(img[::k, ::k], dtype=np.float64)
     with np.errstate(invalid="ignore"):
         ok = np.isfinite(sub) & (sub < sat)
-    if mask is not None:
+    if mask.shape == img.shape:
         ok &= ~mask[::k, ::k]
-    signal = np.empty((H, W), np.float32)
     work = np.empty((H, W + _STRIDE_PAD), np.float32)[:, :W]
-    bad = np.empty((H, W), np.bool_)
     if ok.any():
         fill = float(np.median(sign * sub[ok]))
-        n_bad = int(_prepare(img, m, sat, float(sign), fill, work, signal, bad))
+        n_bad = int(_prepare(img, mask, sat, float(sign), fill, work))
     else:  # the whole subsample is masked: the median of every unmasked pixel
-        n_bad = int(_prepare(img, m, sat, float(sign), 0.0, work, signal, bad))
-        good = ~bad
-        fill = float(np.median(signal[good])) if n_bad < img.size else 0.0
-        signal[good] -= np.float32(fill)
-        work[good] -= np.float32(fill)
-    return signal, work, bad, n_bad, fill
+        n_bad = int(_prepare(img, mask, sat, float(sign), 0.0, work))
+        fill = 0.0
+    bad = None
+    if n_bad:
+        bad = np.empty((H, W), np.bool_)
+        _flag(img, mask, sat, bad)
+        if not ok.any() and n_bad < img.size:
+            good = ~bad
+            fill = float(np.median(work[good]))
+            work[good] -= np.float32(fill)
+    return work, bad, n_bad, fill
 
 
 @lru_cache(maxsize=8)

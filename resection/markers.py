@@ -41,7 +41,7 @@ from scipy.spatial import cKDTree
 
 from . import _diskmodel, _peaks, _prep
 from .errors import InputError
-from .refine import refine_markers
+from .refine import fit_frame, refine_markers
 
 __all__ = [
     "Candidates",
@@ -359,19 +359,20 @@ def detect_markers(
     cu0, cv0 = max(u0 - pad, 0), max(v0 - pad, 0)
     cu1, cv1 = min(u1 + pad, img.shape[1] - 1), min(v1 + pad, img.shape[0] - 1)
     # only the roi and its margin are read (a small roi costs little on a large frame)
-    part = img[cv0:cv1 + 1, cu0:cu1 + 1]
-    mpart = None if mask is None else _check_mask(mask, img.shape)[cv0:cv1 + 1, cu0:cu1 + 1]
+    part, mpart = _prep.native(img[cv0:cv1 + 1, cu0:cu1 + 1], None if mask is None else
+                               _check_mask(mask, img.shape)[cv0:cv1 + 1, cu0:cu1 + 1])
     if saturation is None and img.dtype.kind in "ui":
         saturation = np.iinfo(img.dtype).max
+    sat = np.inf if saturation is None else float(saturation)
     sign = -1.0 if polarity == "dark" else 1.0
-    # one compiled pass: masked pixels, sign, fill level removed, float32 (masked pixels 0)
-    signal, work, bad, n_bad, fill = _prep.prepare(part, mpart, saturation, sign)
-    if n_bad == bad.size:
+    # one compiled pass: sign, fill level removed, float32 (masked pixels 0), masked
+    # pixels counted (and flagged, where there are some)
+    work, bad, n_bad, fill = _prep.prepare(part, mpart, sat, sign)
+    if n_bad == work.size:
         raise InputError("image: every pixel is masked (NaN, infinite or saturated)"
                          if roi is None else "image: every pixel of the roi is masked")
-    has_bad = n_bad > 0
-    n_masked = int(bad[v0 - cv0:v1 - cv0 + 1, u0 - cu0:u1 - cu0 + 1].sum()) if has_bad else 0
-    noise = estimate_noise(signal, bad if has_bad else None)
+    n_masked = 0 if bad is None else int(bad[v0 - cv0:v1 - cv0 + 1, u0 - cu0:u1 - cu0 + 1].sum())
+    noise = estimate_noise(work, bad)
     # the merit, the frame mirrored at its borders (zero padding would make the image edge
     # look like a marker); float32 after removing the fill level: the rounding of the
     # transforms stays far under the noise
@@ -392,8 +393,9 @@ def detect_markers(
                        threshold=thr, polarity=polarity, n_rejected=rejected)
     if pu.size == 0:
         return empty
-    fit = refine_markers(signal, np.column_stack([pu, pv]).astype(float), d, bad=bad, blur=blur,
-                         strength=m, iterations=30 if refine else 0)
+    # the fit reads its windows from the frame itself (sign and fill level applied there)
+    fit = fit_frame(part, mpart, sat, sign, fill, np.column_stack([pu, pv]).astype(float), d,
+                    blur=blur, strength=m, iterations=30 if refine else 0)
     if not refine:  # the merit is the better contrast estimate of an unfitted marker
         fit["depth"] = m
     fu, fv, fr = fit["u"], fit["v"], fit["radius"]
