@@ -20,6 +20,7 @@ Conventions: ``img[v, u]``, pixel ``(u, v)`` = (column, row).
 
 from __future__ import annotations
 
+import math
 from functools import lru_cache
 
 import numpy as np
@@ -82,6 +83,17 @@ def native(img: np.ndarray, mask: np.ndarray | None = None):
     return img, mask
 
 
+def median(x: np.ndarray) -> float:
+    """``np.median`` of a 1-D array of finite values (the mean of the two middle values for
+    an even size), by one partition: several times faster than ``np.median``'s two."""
+    n = x.size
+    part = np.partition(x, n // 2)
+    hi = float(part[n // 2])
+    if n % 2:
+        return hi
+    return (float(part[:n // 2].max()) + hi) / 2.0
+
+
 def prepare(img: np.ndarray, mask: np.ndarray, sat: float,
             sign: float) -> tuple[np.ndarray, np.ndarray | None, int, float]:
     """Fill level and the frame as float32, masked pixels counted, in one pass.
@@ -120,7 +132,7 @@ def prepare(img: np.ndarray, mask: np.ndarray, sat: float,
         ok &= ~mask[::k, ::k]
     work = np.empty((H, W + _STRIDE_PAD), np.float32)[:, :W]
     if ok.any():
-        fill = float(np.median(sign * sub[ok]))
+        fill = median(sign * sub[ok])
         n_bad = int(_prepare(img, mask, sat, float(sign), fill, work))
     else:  # the whole subsample is masked: the median of every unmasked pixel
         n_bad = int(_prepare(img, mask, sat, float(sign), 0.0, work))
@@ -131,9 +143,41 @@ def prepare(img: np.ndarray, mask: np.ndarray, sat: float,
         _flag(img, mask, sat, bad)
         if not ok.any() and n_bad < img.size:
             good = ~bad
-            fill = float(np.median(work[good]))
+            fill = median(work[good].astype(np.float64))
             work[good] -= np.float32(fill)
     return work, bad, n_bad, fill
+
+
+@njit(cache=True)
+def second_differences(img, mask, k):
+    """The second differences ``x[i-1] - 2 x[i] + x[i+1]`` along every ``k``-th row and
+    every ``k``-th column of ``img`` (float64), those touching a masked pixel (``mask``, or
+    NaN / infinite) left out: the samples of :func:`resection.markers.estimate_noise`.
+    ``mask`` of shape (0, 0): none."""
+    H, W = img.shape
+    use_mask = mask.shape[0] == H and mask.shape[1] == W
+    nr, nc = (H + k - 1) // k, (W + k - 1) // k
+    out = np.empty(nr * max(W - 2, 0) + nc * max(H - 2, 0))
+    n = 0
+    for i in range(0, H, k):  # along rows
+        for j in range(W - 2):
+            a, b, c = float(img[i, j]), float(img[i, j + 1]), float(img[i, j + 2])
+            ok = math.isfinite(a) and math.isfinite(b) and math.isfinite(c)
+            if use_mask:
+                ok = ok and not (mask[i, j] or mask[i, j + 1] or mask[i, j + 2])
+            if ok:
+                out[n] = a - 2.0 * b + c
+                n += 1
+    for i in range(H - 2):  # along columns
+        for j in range(0, W, k):
+            a, b, c = float(img[i, j]), float(img[i + 1, j]), float(img[i + 2, j])
+            ok = math.isfinite(a) and math.isfinite(b) and math.isfinite(c)
+            if use_mask:
+                ok = ok and not (mask[i, j] or mask[i + 1, j] or mask[i + 2, j])
+            if ok:
+                out[n] = a - 2.0 * b + c
+                n += 1
+    return out[:n]
 
 
 @lru_cache(maxsize=8)

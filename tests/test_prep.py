@@ -77,3 +77,25 @@ def test_prepare_fill_when_the_subsample_is_masked():
     np.testing.assert_array_equal(bad, mask)
     np.testing.assert_array_equal(work[good], img[good] - fill)
     assert np.all(work[mask] == 0)
+
+
+def test_median_equals_numpy_and_noise_samples_equal_numpy():
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 3, 10, 11, 1000, 50_001):
+        x = rng.normal(size=n)
+        assert _prep.median(x) == np.median(x)
+        xi = rng.integers(0, 7, n).astype(float)  # ties
+        assert _prep.median(xi) == np.median(xi)
+    # the second differences of every k-th row and column against NumPy slicing
+    img = rng.normal(100.0, 3.0, (61, 47))
+    img[5, 7] = np.nan
+    mask = rng.uniform(size=img.shape) < 0.05
+    for k in (1, 4):
+        d = _prep.second_differences(img, mask, k)
+        bad = mask | ~np.isfinite(img)
+        ref = []
+        for x, b in ((img[::k], bad[::k]), (img[:, ::k].T, bad[:, ::k].T)):
+            dd = x[:, :-2] - 2.0 * x[:, 1:-1] + x[:, 2:]
+            ok = ~(b[:, :-2] | b[:, 1:-1] | b[:, 2:])
+            ref.append(dd[ok])
+        np.testing.assert_allclose(np.sort(d), np.sort(np.concatenate(ref)), rtol=0, atol=1e-12)
