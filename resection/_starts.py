@@ -32,33 +32,47 @@ from ._prep import _is_bad
 @njit(cache=True)
 def _median(a, n):
     """Median of ``a[:n]`` (n > 0; the mean of the two middle values for even n), by
-    quickselect in place (``a[:n]`` is reordered)."""
+    quickselect in place (``a[:n]`` is reordered). The partitions are branch-free (a swap
+    and a counter per value, no mispredicted jumps): two passes, values below the pivot,
+    then equal to it (many ties in integer frames)."""
     k = n // 2
-    lo, hi = 0, n - 1
-    while lo < hi:  # Hoare partition around the median of three, until a[k] is in place
-        mid = (lo + hi) // 2
-        x, y, z = a[lo], a[mid], a[hi]
-        pivot = max(min(x, y), min(max(x, y), z))
-        i, j = lo, hi
-        while i <= j:
-            while a[i] < pivot:
-                i += 1
-            while a[j] > pivot:
-                j -= 1
-            if i <= j:
-                a[i], a[j] = a[j], a[i]
-                i += 1
-                j -= 1
-        if k <= j:
-            hi = j
-        elif k >= i:
-            lo = i
-        else:
+    lo, hi = 0, n
+    m = 0.0
+    while True:
+        if hi - lo <= 16:  # a few values left: insertion sort
+            for i in range(lo + 1, hi):
+                v = a[i]
+                j = i - 1
+                while j >= lo and a[j] > v:
+                    a[j + 1] = a[j]
+                    j -= 1
+                a[j + 1] = v
+            m = a[k]
             break
-    m = a[k]
+        x, y, z = a[lo], a[(lo + hi) // 2], a[hi - 1]
+        pivot = max(min(x, y), min(max(x, y), z))
+        store = lo
+        for i in range(lo, hi):
+            v = a[i]
+            a[i] = a[store]
+            a[store] = v
+            store += v < pivot
+        if k < store:
+            hi = store
+            continue
+        eq = store
+        for i in range(store, hi):
+            v = a[i]
+            a[i] = a[eq]
+            a[eq] = v
+            eq += v <= pivot
+        if k < eq:
+            m = pivot
+            break
+        lo = eq
     if n % 2 == 1:
         return m
-    below = a[0]  # the largest value left of k: the other middle value
+    below = a[0]  # the largest value left of k (all are <= a[k]): the other middle value
     for i in range(1, k):
         below = max(below, a[i])
     return 0.5 * (below + m)
