@@ -9,6 +9,13 @@ residual left after correction is the error of the working (ray-cast) view facto
   altogether (no rays), within about 3e-5 of the exact radiosity;
 - ``reference="rays"``: ray-cast factors with another seed and ``reference_factor`` times
   more rays (their own noise then adds to the residual).
+
+The working factors are ray-cast by :func:`selfillum.view_factors` (RQMC rays). With
+``symmetry=True`` (default) they are then averaged over the corner's exact symmetries
+(translation along the fold, reciprocity, the mirror ``x <-> z``;
+:func:`scenes.corner.symmetric_factors`): an unbiased estimate with the noise of about
+4 times the rays at 1024 rays a face. A general model has no such symmetry; ``symmetry=False``
+shows what the rays alone leave (measured in ``bench/README.md``).
 """
 
 from __future__ import annotations
@@ -22,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
+import scipy.sparse.linalg as spla
 
 from resection.errors import InputError
 from scenes.corner import (
@@ -30,6 +38,7 @@ from scenes.corner import (
     corner,
     corner_profile_line,
     exact_radiosity,
+    symmetric_factors,
 )
 
 from .radiosity import correct, forward
@@ -38,9 +47,10 @@ from .viewfactors import view_factors
 __all__ = ["CornerNumbers", "CornerResult", "run_corner", "plot_corner", "write_corner",
            "DEFAULT_RAYS"]
 
-#: Rays per face of the main job's working view factors: with the RQMC rays the largest
-#: residual after correction is then about 0.2 % (measured in bench/README.md).
-DEFAULT_RAYS = 4096
+#: Rays per face of the main job's working view factors: with the RQMC rays averaged over
+#: the corner's symmetries the largest residual after correction is then about 0.2 %
+#: (measured in bench/README.md; without the symmetry 4096 rays are needed for that).
+DEFAULT_RAYS = 1024
 
 
 @dataclass(frozen=True)
@@ -58,6 +68,8 @@ class CornerNumbers:
         ``"rays"``.
     reference_rays_per_face : int
         Rays of the reference view factors (0 for the closed-form reference).
+    symmetry : bool
+        Whether the working factors were averaged over the corner's symmetries.
     reflectance : float
         Paint reflectance.
     max_si_fraction : float
@@ -78,6 +90,7 @@ class CornerNumbers:
     rays_per_face: int
     reference: str
     reference_rays_per_face: int
+    symmetry: bool
     reflectance: float
     max_si_fraction: float
     max_si_fraction_profile: float
@@ -95,8 +108,10 @@ class CornerResult:
     ----------
     scene : CornerScene
         Mesh, true emission and reflectance.
-    F : scipy.sparse.csr_matrix
-        Working form factors (used for the correction).
+    F : scipy.sparse.csr_matrix or scipy.sparse.linalg.LinearOperator
+        Working form factors (used for the correction), ``(N, N)``: the ray-cast matrix,
+        or with ``symmetry=True`` an operator on its symmetric average (floor-to-wall
+        block and its transpose; ``F @ x`` works for both).
     radiosity : (N,) ndarray
         Simulated measurement: emission plus self-illumination (reference form factors).
     corrected : (N,) ndarray
@@ -109,7 +124,7 @@ class CornerResult:
     """
 
     scene: CornerScene
-    F: sp.csr_matrix
+    F: sp.csr_matrix | spla.LinearOperator
     radiosity: np.ndarray
     corrected: np.ndarray
     profile: dict
@@ -126,6 +141,7 @@ def run_corner(
     seed: int = 0,
     reference: str = "exact",
     reference_factor: int = 4,
+    symmetry: bool = True,
     profile_points: int = 801,
     progress: bool = False,
 ) -> CornerResult:
@@ -149,6 +165,9 @@ def run_corner(
         How the measurement is simulated (see the module's docstring).
     reference_factor : int
         A ray-cast reference uses this many times more rays (>= 1).
+    symmetry : bool
+        Average the working factors over the corner's symmetries
+        (:func:`scenes.corner.symmetric_factors`) before the correction.
     profile_points : int
         Samples along the profile line.
     progress : bool
@@ -179,9 +198,12 @@ def run_corner(
     t = time.perf_counter()
     with _bar(progress, "working view factors", len(E)) as bar:
         F = view_factors(scene.mesh, rays_per_face, seed, progress=bar)
+    if symmetry:
+        F = _block_operator(symmetric_factors(scene, F))
     seconds["view_factors"] = time.perf_counter() - t
     t = time.perf_counter()
-    E_corr = correct(F, B, scene.reflectance)
+    # every face is seen: correct() is E = B - rho F B, written out for the operator
+    E_corr = B - scene.reflectance * (F @ B) if symmetry else correct(F, B, scene.reflectance)
     seconds["correction"] = time.perf_counter() - t
 
     s, pts = corner_profile_line(scene, n=profile_points)
@@ -205,6 +227,7 @@ def run_corner(
         rays_per_face=int(rays_per_face),
         reference=reference,
         reference_rays_per_face=ref_rays,
+        symmetry=bool(symmetry),
         reflectance=scene.reflectance,
         max_si_fraction=float(si.max()),
         max_si_fraction_profile=float(si[face].max()),
@@ -214,6 +237,18 @@ def run_corner(
         seconds={k: round(v, 3) for k, v in seconds.items()},
     )
     return CornerResult(scene, F, B, E_corr, profile, numbers)
+
+
+def _block_operator(G: np.ndarray) -> spla.LinearOperator:
+    """``(N, N)`` operator of form factors with floor-to-wall block ``G`` (``(M, M)``,
+    ``N = 2 M``), wall-to-floor block ``G.T`` and nothing within a plate."""
+    m = G.shape[0]
+
+    def mv(x):
+        x = np.asarray(x, dtype=np.float64).ravel()
+        return np.concatenate([G @ x[m:], G.T @ x[:m]])
+
+    return spla.LinearOperator((2 * m, 2 * m), matvec=mv, rmatvec=mv, dtype=np.float64)
 
 
 @contextmanager
@@ -297,7 +332,8 @@ def plot_corner(result: CornerResult, path) -> Path:
     ax2.set_ylabel("% of signal")
     ax2.set_xlabel("distance from the corner along the surface (floor < 0 < wall)")
     ax2.legend(loc="upper left", fontsize=8, frameon=False)
-    fig.tight_layout()
+    # fixed margins: tight_layout measured every tick label again (half the plot's time)
+    fig.subplots_adjust(left=0.085, right=0.985, top=0.945, bottom=0.085, hspace=0.07)
     path = Path(path)
     fig.savefig(path, dpi=130)
     plt.close(fig)

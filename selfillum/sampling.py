@@ -89,23 +89,39 @@ def _rev32(x):  # pragma: no cover - compiled
     return ((x >> _S16) | (x << _S16)) & _M32
 
 
+@njit(cache=True, inline="always")
+def _owen(xr, key):  # pragma: no cover - compiled
+    """One Owen-scrambled coordinate from a bit-reversed Sobol integer ``xr`` (uint64
+    holding 32 bits) and a face's key: a float32 strictly inside (0, 1) (the top 24 bits,
+    centred in their cell)."""
+    x = (xr + key) & _M32
+    x ^= (x * _LK[0]) & _M32
+    x ^= (x * _LK[1]) & _M32
+    x ^= (x * _LK[2]) & _M32
+    x ^= (x * _LK[3]) & _M32
+    x = _rev32(x)
+    return (np.float32(x >> _S8) + np.float32(0.5)) * np.float32(2.0**-24)
+
+
 @njit(cache=True)
-def _owen_points(base, keys, out):  # pragma: no cover - compiled
-    """``out[f, i, d]``: Sobol integer ``base[i, d]`` Owen-scrambled with ``keys[f, d]``,
-    as a float32 strictly inside (0, 1) (the top 24 bits, centred in their cell)."""
-    c0, c1, c2, c3 = _LK
+def _reversed_base(base):  # pragma: no cover - compiled
+    """Bit-reversed Sobol integers, ``(k, dims)`` uint64 (the scramble works on them)."""
+    out = np.empty(base.shape, dtype=np.uint64)
+    for i in range(base.shape[0]):
+        for d in range(base.shape[1]):
+            out[i, d] = _rev32(_U(base[i, d]))
+    return out
+
+
+@njit(cache=True)
+def _owen_points(rbase, keys, out):  # pragma: no cover - compiled
+    """``out[f, i, d]``: Sobol point ``i`` (bit-reversed integers ``rbase[i, d]``)
+    Owen-scrambled with ``keys[f, d]`` (see :func:`_owen`)."""
     for f in range(keys.shape[0]):
         for d in range(keys.shape[1]):
             key = _U(keys[f, d])
-            for i in range(base.shape[0]):
-                x = _rev32(_U(base[i, d]))
-                x = (x + key) & _M32
-                x ^= (x * c0) & _M32
-                x ^= (x * c1) & _M32
-                x ^= (x * c2) & _M32
-                x ^= (x * c3) & _M32
-                x = _rev32(x)
-                out[f, i, d] = (np.float32(x >> _S8) + np.float32(0.5)) * np.float32(2.0**-24)
+            for i in range(rbase.shape[0]):
+                out[f, i, d] = _owen(rbase[i, d], key)
 
 
 def rqmc_points(k: int, face_ids: np.ndarray, seed: int, dims: int = 4) -> np.ndarray:
@@ -120,10 +136,10 @@ def rqmc_points(k: int, face_ids: np.ndarray, seed: int, dims: int = 4) -> np.nd
     while the error of one face's points falls faster than ``1/sqrt(k)`` (measured
     against Howell's closed forms in ``bench/bench_viewfactors.py``).
     """
-    base = _sobol_base(k, dims)
+    rbase = _reversed_base(_sobol_base(k, dims))
     keys = digital_shifts(seed, face_ids, dims)
     out = np.empty((len(keys), k, dims), dtype=np.float32)
-    _owen_points(base, keys, out)
+    _owen_points(rbase, keys, out)
     return out
 
 
@@ -177,6 +193,54 @@ def _build_rays(tri, nrm, t1, t2, pts, side, offset, origins,
             lx = rr * np.cos(phi)
             ly = rr * np.sin(phi)
             lz = np.sqrt(max(np.float32(0.0), np.float32(1.0) - pts[f, i, 2])) * sd
+            for c in range(3):
+                directions[r, c] = lx * t1[f, c] + ly * t2[f, c] + lz * nrm[f, c]
+
+
+@njit(cache=True)
+def _rqmc_rays(rbase, keys, tri, nrm, t1, t2, offset, origins, directions,
+               side):  # pragma: no cover - compiled
+    """The rays of :func:`_build_rays` from the RQMC points of :func:`rqmc_points`, made
+    in one pass (no ``(n, k, dims)`` array of points in between): the same points, the
+    same arithmetic. ``keys`` has 5 columns for two-sided faces (the 5th coordinate
+    picks the side) and 4 otherwise."""
+    n, k = keys.shape[0], rbase.shape[0]
+    two_sided = keys.shape[1] > 4
+    two_pi = np.float32(2.0 * np.pi)
+    for f in range(n):
+        k0, k1, k2, k3 = _U(keys[f, 0]), _U(keys[f, 1]), _U(keys[f, 2]), _U(keys[f, 3])
+        k4 = _U(keys[f, 4]) if two_sided else _U(0)
+        cx = (tri[f, 0, 0] + tri[f, 1, 0] + tri[f, 2, 0]) / np.float32(3.0)
+        cy = (tri[f, 0, 1] + tri[f, 1, 1] + tri[f, 2, 1]) / np.float32(3.0)
+        cz = (tri[f, 0, 2] + tri[f, 1, 2] + tri[f, 2, 2]) / np.float32(3.0)
+        for i in range(k):
+            r = f * k + i
+            p0 = _owen(rbase[i, 0], k0)
+            p1 = _owen(rbase[i, 1], k1)
+            p2 = _owen(rbase[i, 2], k2)
+            p3 = _owen(rbase[i, 3], k3)
+            sd = np.float32(1.0)
+            if two_sided and _owen(rbase[i, 4], k4) >= np.float32(0.5):
+                sd = np.float32(-1.0)
+            side[r] = np.int8(sd)
+            sa = np.sqrt(p0)
+            w2 = sa * p1
+            w1 = sa - w2
+            for c in range(3):
+                origins[r, c] = (tri[f, 0, c] + w1 * (tri[f, 1, c] - tri[f, 0, c])
+                                 + w2 * (tri[f, 2, c] - tri[f, 0, c]))
+            if offset > 0:
+                ix, iy, iz = cx - origins[r, 0], cy - origins[r, 1], cz - origins[r, 2]
+                d = np.sqrt(ix * ix + iy * iy + iz * iz)
+                g = offset / max(d, offset)
+                origins[r, 0] += ix * g + sd * offset * nrm[f, 0]
+                origins[r, 1] += iy * g + sd * offset * nrm[f, 1]
+                origins[r, 2] += iz * g + sd * offset * nrm[f, 2]
+            rr = np.sqrt(p2)
+            phi = two_pi * p3
+            lx = rr * np.cos(phi)
+            ly = rr * np.sin(phi)
+            lz = np.sqrt(max(np.float32(0.0), np.float32(1.0) - p2)) * sd
             for c in range(3):
                 directions[r, c] = lx * t1[f, c] + ly * t2[f, c] + lz * nrm[f, c]
 
@@ -236,15 +300,17 @@ def sample_rays(
             side = np.where((np.arange(k)[None, :] + flip) % 2 == 0, 1, -1).astype(np.int8)
         else:
             side = np.ones((n, k), dtype=np.int8)
-    else:
-        ids = np.arange(n) if face_ids is None else np.asarray(face_ids)
-        pts = rqmc_points(k, ids, seed, dims=5 if two_sided else 4)
-        side = (np.where(pts[..., 4] < 0.5, 1, -1).astype(np.int8) if two_sided
-                else np.ones((n, k), dtype=np.int8))
     t1, t2 = _tangent_frames(normals)
+    frame = (np.ascontiguousarray(triangles, dtype=f32), np.ascontiguousarray(normals, f32),
+             np.ascontiguousarray(t1, f32), np.ascontiguousarray(t2, f32))
     origins = np.empty((n * k, 3), dtype=f32)
     directions = np.empty((n * k, 3), dtype=f32)
-    _build_rays(np.ascontiguousarray(triangles, dtype=f32), np.ascontiguousarray(normals, f32),
-                np.ascontiguousarray(t1, f32), np.ascontiguousarray(t2, f32),
-                pts, side, f32(offset), origins, directions)
-    return origins.reshape(-1, 3), directions.reshape(-1, 3), side.reshape(-1)
+    if rng is not None:
+        _build_rays(*frame, pts, side, f32(offset), origins, directions)
+        return origins, directions, side.reshape(-1)
+    dims = 5 if two_sided else 4
+    ids = np.arange(n) if face_ids is None else np.asarray(face_ids)
+    side = np.empty(n * k, dtype=np.int8)
+    _rqmc_rays(_reversed_base(_sobol_base(k, dims)), digital_shifts(seed, ids, dims), *frame,
+               f32(offset), origins, directions, side)
+    return origins, directions, side

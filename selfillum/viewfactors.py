@@ -276,8 +276,13 @@ class RowTracer:
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor
 
-        # compile (or load) the kernels here, once, before the workers are forked
-        _trace_rows(self.job, RayScene(self.job.vertices, self.job.faces), np.arange(1))
+        # compile (or load) the kernels here, once, before the workers are forked (on
+        # one face and one ray: no scene of the whole mesh in this process)
+        j = self.job
+        o, d, _ = sample_rays(j.vertices[j.faces[:1]], j.normals[:1], 1,
+                              two_sided=j.two_sided, offset=j.offset, face_ids=[0])
+        _keep_hits(np.full(1, -1, dtype=np.int32), d, j.normals32, np.arange(1), 1,
+                   j.two_sided)
         # fork: the workers inherit the imported modules, and a user's script needs no
         # ``if __name__ == "__main__"`` guard (spawn/forkserver would re-run it)
         self._pool = ProcessPoolExecutor(self.nproc, mp_context=mp.get_context("fork"),
@@ -291,7 +296,13 @@ class RowTracer:
         todo = _as_rows(rows, self.n)
         if self._scene is None and self._pool is None:
             self._start()
-        chunks = [todo[i:i + self.chunk] for i in range(0, todo.size, self.chunk)]
+        # as many chunks of at most ``chunk`` faces as it takes, a multiple of the
+        # workers, of equal size: no worker idles while another traces a last chunk
+        n_chunks = -(-todo.size // self.chunk)
+        if self._pool is not None:
+            n_chunks = -(-n_chunks // self.nproc) * self.nproc
+        step = max(1, -(-todo.size // max(1, n_chunks)))
+        chunks = [todo[i:i + step] for i in range(0, todo.size, step)]
         bar = None
         if progress is True:
             from tqdm.auto import tqdm

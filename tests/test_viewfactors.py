@@ -305,7 +305,10 @@ def test_progress_callback():
     mesh, _ = perpendicular_mesh(n=20)
     calls = []
     view_factors(mesh, rays_per_face=4, chunk_size=512, progress=lambda d, t: calls.append((d, t)))
-    assert calls == [(512, 1600), (1024, 1600), (1536, 1600), (1600, 1600)]
+    # chunks of at most 512 faces, as many as the workers share evenly
+    done = [d for d, _ in calls]
+    assert all(t == 1600 for _, t in calls) and done[-1] == 1600 and len(calls) >= 4
+    assert all(0 < b - a <= 512 for a, b in zip([0, *done], done, strict=False))
 
 
 # ---------------------------------------------------------------- bad input
