@@ -335,7 +335,9 @@ def plot_corner(result: CornerResult, path) -> Path:
     # fixed margins: tight_layout measured every tick label again (half the plot's time)
     fig.subplots_adjust(left=0.085, right=0.985, top=0.945, bottom=0.085, hspace=0.07)
     path = Path(path)
-    fig.savefig(path, dpi=130)
+    # PNG: light compression (a third less time to write, a tenth more bytes)
+    png = {"pil_kwargs": {"compress_level": 1}} if path.suffix.lower() == ".png" else {}
+    fig.savefig(path, dpi=130, **png)
     plt.close(fig)
     return path
 

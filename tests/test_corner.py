@@ -14,6 +14,7 @@ from resection.errors import InputError
 from scenes.corner import corner, corner_form_factors, corner_profile_line, symmetric_factors
 from selfillum import forward, view_factors
 from selfillum.cli import main
+from selfillum.kernel import pair_factors
 from selfillum.corner import run_corner
 from selfillum.mesh import face_areas, face_normals
 
@@ -155,15 +156,24 @@ def test_main_job_residual_within_target():
     assert raw.max_residual_fraction > 1.5 * n.max_residual_fraction
 
 
-def test_symmetric_factors_keep_exact_factors():
-    """Averaging over the symmetries leaves exact factors as they are: the mapping of
-    pairs onto classes (translation, reciprocity, mirror x <-> z) is right."""
-    sc = corner(resolution=5)
-    G = corner_form_factors(sc, order=8)
+def test_symmetry_classes_hold_for_exact_factors():
+    """Every floor-to-wall pair integrated directly (no symmetry used): the reference's
+    classes (translation along the fold, mirror x <-> z with reciprocity) reproduce it,
+    and averaging it over the classes leaves it as it is."""
+    sc = corner(resolution=3)
+    m = 18
+    i, j = np.meshgrid(np.arange(m), m + np.arange(m), indexing="ij")
+    G = pair_factors(sc.mesh.vertices, sc.mesh.faces, face_normals(sc.mesh), i.ravel(),
+                     j.ravel(), order=10).reshape(m, m)
+    # what is left is the quadrature's own error (about 1e-6 at 100 points a face)
+    np.testing.assert_allclose(corner_form_factors(sc, 10, far_order=10), G, atol=1e-5)
     F = sp.bmat([[None, sp.csr_matrix(G)], [sp.csr_matrix(G.T), None]]).tocsr()
-    Gs = symmetric_factors(sc, F)
-    # what is left is the quadrature's own asymmetry (1e-5 at order 6, 1.5e-6 at 10)
-    np.testing.assert_allclose(Gs, G, atol=1e-5)
+    np.testing.assert_allclose(symmetric_factors(sc, F), G, atol=1e-5)
+    # a matrix without the symmetry is not left as it is (the test can fail)
+    G2 = G.copy()
+    G2[0, 0] += 0.01
+    F2 = sp.bmat([[None, sp.csr_matrix(G2)], [sp.csr_matrix(G2.T), None]]).tocsr()
+    assert np.abs(symmetric_factors(sc, F2) - G2).max() > 1e-3
     with pytest.raises(InputError, match="faces"):
         symmetric_factors(sc, F[:10, :10])
 
