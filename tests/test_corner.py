@@ -14,8 +14,8 @@ from resection.errors import InputError
 from scenes.corner import corner, corner_form_factors, corner_profile_line, symmetric_factors
 from selfillum import forward, view_factors
 from selfillum.cli import main
-from selfillum.kernel import pair_factors
 from selfillum.corner import run_corner
+from selfillum.kernel import pair_factors
 from selfillum.mesh import face_areas, face_normals
 
 
