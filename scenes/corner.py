@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 from numba import njit
+from threadpoolctl import threadpool_limits
 
 from resection.errors import InputError
 
@@ -244,14 +245,17 @@ def exact_radiosity(scene: CornerScene, tol: float = 1e-6) -> np.ndarray:
     e_floor, e_wall = scene.emission[:m], scene.emission[m:]
     f32 = np.float32
     b_floor = e_floor.copy()
-    for _ in range(200):  # converges as (rho^2 |F|^2)^n, about 0.1 a sweep
-        b_wall = e_wall + rho * (F.T @ b_floor.astype(f32))
-        new = e_floor + rho * (F @ b_wall.astype(f32))
-        done = np.max(np.abs(new - b_floor)) <= tol * np.max(np.abs(new))
-        b_floor = new
-        if done:
-            break
-    return np.concatenate([b_floor, e_wall + rho * (F.T @ b_floor.astype(f32))])
+    # one BLAS thread: the products are memory-bound, and OpenBLAS's idle threads spin
+    # on the cores for a while after each call (slowing whatever runs next)
+    with threadpool_limits(limits=1, user_api="blas"):
+        for _ in range(200):  # converges as (rho^2 |F|^2)^n, about 0.1 a sweep
+            b_wall = e_wall + rho * (F.T @ b_floor.astype(f32))
+            new = e_floor + rho * (F @ b_wall.astype(f32))
+            done = np.max(np.abs(new - b_floor)) <= tol * np.max(np.abs(new))
+            b_floor = new
+            if done:
+                break
+        return np.concatenate([b_floor, e_wall + rho * (F.T @ b_floor.astype(f32))])
 
 
 def _expand(g: np.ndarray) -> np.ndarray:
@@ -297,7 +301,7 @@ def _pool_pairs(indptr, indices, data, res, sums):  # pragma: no cover - compile
             sums[min(c1, c2)] += data[e]
 
 
-def symmetric_factors(scene: CornerScene, F) -> np.ndarray:
+def symmetric_factors(scene: CornerScene, F, dtype=np.float64) -> np.ndarray:
     """The floor-to-wall block of ray-cast form factors, averaged over the corner's
     symmetries.
 
@@ -317,6 +321,8 @@ def symmetric_factors(scene: CornerScene, F) -> np.ndarray:
     F : (N, N) sparse matrix
         Form factors of ``scene.mesh`` (every row), e.g. from
         :func:`selfillum.view_factors`.
+    dtype : numpy dtype
+        Of the returned matrix (the averages are computed in float64).
 
     Returns
     -------
@@ -338,6 +344,5 @@ def symmetric_factors(scene: CornerScene, F) -> np.ndarray:
     count = np.bincount(code.ravel(), weights=2.0 * (res - np.abs(d)).ravel(),
                         minlength=code.size)
     sums = np.zeros(code.size)
-    _pool_pairs(F.indptr.astype(np.int64), F.indices.astype(np.int64),
-                F.data.astype(np.float64), res, sums)
-    return _expand((sums / np.maximum(count, 1.0))[code])
+    _pool_pairs(F.indptr, F.indices, F.data.astype(np.float64, copy=False), res, sums)
+    return _expand((sums / np.maximum(count, 1.0))[code].astype(dtype, copy=False))

@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+from threadpoolctl import threadpool_limits
 
 from resection.errors import InputError
 from scenes.corner import (
@@ -199,7 +200,7 @@ def run_corner(
     with _bar(progress, "working view factors", len(E)) as bar:
         F = view_factors(scene.mesh, rays_per_face, seed, progress=bar)
     if symmetry:
-        F = _block_operator(symmetric_factors(scene, F))
+        F = _block_operator(symmetric_factors(scene, F, dtype=np.float32))
     seconds["view_factors"] = time.perf_counter() - t
     t = time.perf_counter()
     # every face is seen: correct() is E = B - rho F B, written out for the operator
@@ -241,12 +242,14 @@ def run_corner(
 
 def _block_operator(G: np.ndarray) -> spla.LinearOperator:
     """``(N, N)`` operator of form factors with floor-to-wall block ``G`` (``(M, M)``,
-    ``N = 2 M``), wall-to-floor block ``G.T`` and nothing within a plate."""
+    ``N = 2 M``), wall-to-floor block ``G.T`` and nothing within a plate. The products
+    run in ``G``'s precision (float32: about 1e-7 relative) and return float64."""
     m = G.shape[0]
 
     def mv(x):
-        x = np.asarray(x, dtype=np.float64).ravel()
-        return np.concatenate([G @ x[m:], G.T @ x[:m]])
+        x = np.asarray(x).ravel().astype(G.dtype)
+        with threadpool_limits(limits=1, user_api="blas"):  # see exact_radiosity
+            return np.concatenate([G @ x[m:], G.T @ x[:m]]).astype(np.float64)
 
     return spla.LinearOperator((2 * m, 2 * m), matvec=mv, rmatvec=mv, dtype=np.float64)
 
@@ -350,7 +353,8 @@ def write_corner(result: CornerResult, out_dir) -> dict:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     png = out / "corner_profile.png"
-    with atomic_path(png) as tmp:
+    # one BLAS thread: OpenBLAS's idle threads would spin on the cores meanwhile
+    with atomic_path(png) as tmp, threadpool_limits(limits=1, user_api="blas"):
         plot_corner(result, tmp)
     csv_path = out / "corner_profile.csv"
     p = result.profile
