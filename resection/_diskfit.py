@@ -19,8 +19,8 @@ other axis), evaluated by a compiled (numba) kernel one window at a time:
   contrast, against ~1e-2 for the noise of an SNR-100 image);
 * a Gauss-Newton step whose error left in the centre (its size times its ratio to the
   step before) is under ``tol`` ends the iterations without one more evaluation: from the
-  starts of :mod:`resection._starts` (the contrast from the marker's volume), two
-  evaluations a marker.
+  starts of :mod:`resection._starts` (the contrast from the marker's volume), 2 or 3
+  evaluations a marker (3.5 from the former starts with a bare step-size rule).
 
 The result agrees with :func:`resection._diskmodel.windows` to ~1e-7 (tests/test_diskfit.py).
 
@@ -394,8 +394,7 @@ def fit_windows(win, w, p0, tab, T, h, rmin, rmax, iterations, tol, sizes, sn, c
             if lam <= 1e-2 and left < tol:
                 # converged: a Gauss-Newton step (hardly damped) that leaves an error under
                 # the tolerance is taken without evaluating the model once more (from a
-                # start within 0.1 px: two evaluations, the second step ~20 times smaller
-                # than the first)
+                # start within 0.1 px the second step is ~20 times smaller than the first)
                 for k in range(NP):
                     pc[k] = pt[k]
                 break
