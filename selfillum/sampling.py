@@ -103,7 +103,7 @@ def _owen(xr, key):  # pragma: no cover - compiled
     return (np.float32(x >> _S8) + np.float32(0.5)) * np.float32(2.0**-24)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _reversed_base(base):  # pragma: no cover - compiled
     """Bit-reversed Sobol integers, ``(k, dims)`` uint64 (the scramble works on them)."""
     out = np.empty(base.shape, dtype=np.uint64)
@@ -113,7 +113,7 @@ def _reversed_base(base):  # pragma: no cover - compiled
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _owen_points(rbase, keys, out):  # pragma: no cover - compiled
     """``out[f, i, d]``: Sobol point ``i`` (bit-reversed integers ``rbase[i, d]``)
     Owen-scrambled with ``keys[f, d]`` (see :func:`_owen`)."""
@@ -154,7 +154,7 @@ def _tangent_frames(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return t1, t2
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _build_rays(tri, nrm, t1, t2, pts, side, offset, origins,
                 directions):  # pragma: no cover - compiled
     """Rays from unit-square samples (float32 throughout, one ray a loop iteration).
@@ -197,7 +197,7 @@ def _build_rays(tri, nrm, t1, t2, pts, side, offset, origins,
                 directions[r, c] = lx * t1[f, c] + ly * t2[f, c] + lz * nrm[f, c]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _rqmc_rays(rbase, keys, tri, nrm, t1, t2, offset, origins, directions,
                side):  # pragma: no cover - compiled
     """The rays of :func:`_build_rays` from the RQMC points of :func:`rqmc_points`, made

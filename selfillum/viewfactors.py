@@ -94,7 +94,7 @@ def _trace_rows(job: _Job, scene: RayScene, rows: np.ndarray):
     return _keep_hits(hit, d, job.normals32, rows, k, job.two_sided)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _keep_hits(hit, directions, normals, rows, k, two_sided):  # pragma: no cover - compiled
     """Counts per row and the kept hits (grouped by row: a face's rays are consecutive),
     dropping misses, hits on the ray's own face and, one-sided, hits on a face's back
@@ -116,19 +116,6 @@ def _keep_hits(hit, directions, normals, rows, k, two_sided):  # pragma: no cove
         m += 1
         counts[row] += 1
     return counts, out[:m]
-
-
-#: One scene per worker process (built by the pool's initializer).
-_WORKER: dict = {}
-
-
-def _worker_init(job: _Job) -> None:
-    _WORKER["job"] = job
-    _WORKER["scene"] = RayScene(job.vertices, job.faces)
-
-
-def _worker_trace(rows: np.ndarray):
-    return _trace_rows(_WORKER["job"], _WORKER["scene"], rows)
 
 
 def view_factors(
@@ -181,10 +168,10 @@ def view_factors(
         other rows of ``F`` are empty. Each computed row is the one the full
         computation gives.
     workers : int, optional
-        Processes tracing chunks in parallel (each with its own Embree scene: the
-        embreex call holds Python's GIL, so threads cannot share the work). Default: the
-        CPUs this process may use, when there are at least 4 chunks; ``1`` traces in
-        this process.
+        Threads tracing chunks in parallel over one Embree scene (Embree's queries and
+        the compiled sampling and filtering release Python's GIL). Default: the CPUs
+        this process may use, when there are at least 2 chunks; ``1`` traces in the
+        calling thread.
     progress : bool or callable
         ``True`` shows a ``tqdm`` bar over chunks; a callable is called with
         ``(faces_done, faces_total)`` after each chunk.
@@ -214,8 +201,8 @@ def view_factors(
 
 
 class RowTracer:
-    """Rows of ``F`` traced on demand, with one Embree scene (or one pool of worker
-    processes, each with its own scene) kept for every call.
+    """Rows of ``F`` traced on demand, with one Embree scene (and a pool of threads
+    querying it) kept for every call.
 
     :func:`view_factors` is one call of this; callers that need rows in rounds (the
     faces coupled to the seen ones, :mod:`selfillum.coupling`) keep one tracer, so that
@@ -227,9 +214,9 @@ class RowTracer:
     mesh, rays_per_face, seed, two_sided, chunk_size, workers
         As in :func:`view_factors`.
     n_rows : int, optional
-        Rows expected in all (decides whether a pool pays off; default all faces).
+        Rows expected in all (decides whether threads pay off; default all faces).
 
-    Use it as a context manager (the pool is shut down on exit), or call :meth:`close`.
+    Use it as a context manager (the threads are stopped on exit), or call :meth:`close`.
     """
 
     def __init__(self, mesh: trimesh.Trimesh, rays_per_face: int = 256, seed: int = 0, *,
@@ -264,29 +251,24 @@ class RowTracer:
         return False
 
     def close(self) -> None:
-        """Shut the worker processes down (if any)."""
+        """Stop the worker threads (if any)."""
         if self._pool is not None:
             self._pool.shutdown()
             self._pool = None
 
     def _start(self) -> None:
-        if self.nproc == 1:
-            self._scene = RayScene(self.job.vertices, self.job.faces)
-            return
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor
-
-        # compile (or load) the kernels here, once, before the workers are forked (on
-        # one face and one ray: no scene of the whole mesh in this process)
+        self._scene = RayScene(self.job.vertices, self.job.faces)
+        # Embree builds the scene on its first query: do it now, before threads query it
+        # at once; and compile (or load) the kernels once, before the threads call them
         j = self.job
-        o, d, _ = sample_rays(j.vertices[j.faces[:1]], j.normals[:1], 1,
+        o, d, _ = sample_rays(j.vertices[j.faces[:1]] - self._scene.origin, j.normals[:1], 1,
                               two_sided=j.two_sided, offset=j.offset, face_ids=[0])
-        _keep_hits(np.full(1, -1, dtype=np.int32), d, j.normals32, np.arange(1), 1,
+        _keep_hits(np.asarray(self._scene.scene.run(o, d)), d, j.normals32, np.arange(1), 1,
                    j.two_sided)
-        # fork: the workers inherit the imported modules, and a user's script needs no
-        # ``if __name__ == "__main__"`` guard (spawn/forkserver would re-run it)
-        self._pool = ProcessPoolExecutor(self.nproc, mp_context=mp.get_context("fork"),
-                                         initializer=_worker_init, initargs=(self.job,))
+        if self.nproc > 1:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._pool = ThreadPoolExecutor(self.nproc, thread_name_prefix="view_factors")
 
     def rows(self, rows, progress: bool | Callable | None = None) -> sp.csr_matrix:
         """``F`` with only ``rows`` filled (indices or a boolean mask), ``(N, N)`` CSR.
@@ -294,7 +276,7 @@ class RowTracer:
         ``progress`` as in :func:`view_factors`.
         """
         todo = _as_rows(rows, self.n)
-        if self._scene is None and self._pool is None:
+        if self._scene is None:
             self._start()
         # as many chunks of at most ``chunk`` faces as it takes, a multiple of the
         # workers, of equal size: no worker idles while another traces a last chunk
@@ -309,7 +291,7 @@ class RowTracer:
 
             bar = tqdm(total=todo.size, desc="view factors", unit="face", leave=False)
         if self._pool is not None:
-            results = self._pool.map(_worker_trace, chunks)
+            results = self._pool.map(lambda c: _trace_rows(self.job, self._scene, c), chunks)
         else:
             results = (_trace_rows(self.job, self._scene, c) for c in chunks)
         done = 0
@@ -363,14 +345,11 @@ def _as_rows(rows, n: int) -> np.ndarray:
 
 
 def _workers(workers, n_chunks: int) -> int:
-    """Number of tracing processes: ``workers`` if given, else the usable CPUs when
-    there are at least 4 chunks to share (a pool costs about a second to start)."""
+    """Number of tracing threads: ``workers`` if given, else the usable CPUs when there
+    are at least 2 chunks to share."""
     if workers is not None:
         return min(_positive_int(workers, "workers"), max(1, n_chunks))
-    import multiprocessing as mp
-
-    if (n_chunks < 4 or mp.current_process().daemon  # a daemon (Dask worker) cannot fork
-            or "fork" not in mp.get_all_start_methods()):
+    if n_chunks < 2:
         return 1
     try:
         cpus = len(os.sched_getaffinity(0))
