@@ -233,7 +233,9 @@ def error_against_time(ks, seeds=4):
 
 
 def corner_residuals(ks):
-    from scenes.corner import exact_radiosity
+    import scipy.sparse as sp
+
+    from scenes.corner import exact_radiosity, symmetric_factors
 
     sc = corner(resolution=40)
     E, rho = sc.emission, sc.reflectance
@@ -241,15 +243,20 @@ def corner_residuals(ks):
     B = exact_radiosity(sc)
     print(f"\n[6] corner main job ({len(E)} faces): residual after correction, measurement "
           f"from the closed-form reference ({time.perf_counter() - t0:.1f} s)")
-    print("    estimator          K    max residual   rms residual   view factors (s)")
+    print("    estimator              K    max residual   rms residual   view factors (s)")
+    def symmetric(k):
+        G = symmetric_factors(sc, view_factors(sc.mesh, k, seed=0))
+        return sp.bmat([[None, sp.csr_matrix(G)], [sp.csr_matrix(G.T), None]]).tocsr()
+
     for k in ks:
         for name, fn in (("stratified", lambda k=k: _stratified_factors(sc.mesh, k, 0)),
-                         ("RQMC", lambda k=k: view_factors(sc.mesh, k, seed=0))):
+                         ("RQMC", lambda k=k: view_factors(sc.mesh, k, seed=0)),
+                         ("RQMC + symmetry", lambda k=k: symmetric(k))):
             t0 = time.perf_counter()
             F = fn()
             t = time.perf_counter() - t0
             r = np.abs(correct(F, B, rho) / E - 1)
-            print(f"    {name:12s} {k:6d}   {100 * r.max():8.3f} %     "
+            print(f"    {name:16s} {k:6d}   {100 * r.max():8.3f} %     "
                   f"{100 * np.sqrt(np.mean(r**2)):8.3f} %      {t:6.2f}")
 
 
@@ -271,7 +278,7 @@ def main():
                                     "open corner (most rays escape)"),
                          throughput(_sphere(5), 128, "inside a sphere (every ray hits)")),
              5: lambda: error_against_time([64, 256, 1024, 4096]),
-             6: lambda: corner_residuals([256, 1024, 4096])}[sec]()
+             6: lambda: corner_residuals([256, 512, 1024, 2048, 4096])}[sec]()
         return
     sphere = _sphere(4 if args.quick else 5)
     if args.quick:
