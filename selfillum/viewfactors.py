@@ -67,6 +67,24 @@ class RayScene:
         d = np.ascontiguousarray(directions, dtype=np.float32)
         return np.asarray(self.scene.run(o, d), dtype=np.int64)
 
+    def run(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
+        """First face hit by rays already in the scene's centred frame, float32
+        ``(M, 3)`` arrays (``-1`` for a miss), ``(M,)`` int32."""
+        return np.asarray(self.scene.run(origins, directions))
+
+
+#: The ray tracers :func:`view_factors` can use.
+TRACERS = ("embree", "mitsuba")
+
+
+def _scene(tracer: str, vertices: np.ndarray, faces: np.ndarray):
+    """The scene of ``tracer``: Embree's, or Mitsuba's (OptiX on a GPU, else LLVM)."""
+    if tracer == "mitsuba":
+        from .mitsuba_rays import MitsubaRayScene
+
+        return MitsubaRayScene(vertices, faces)
+    return RayScene(vertices, faces)
+
 
 @dataclass(frozen=True)
 class _Job:
@@ -90,7 +108,7 @@ def _trace_rows(job: _Job, scene: RayScene, rows: np.ndarray):
     nrm = job.normals[rows]
     o, d, _ = sample_rays(tri, nrm, k, two_sided=job.two_sided, offset=job.offset,
                           face_ids=rows, seed=job.seed)
-    hit = np.asarray(scene.scene.run(o, d))
+    hit = scene.run(o, d)
     return _keep_hits(hit, d, job.normals32, rows, k, job.two_sided)
 
 
@@ -129,6 +147,7 @@ def view_factors(
     rows=None,
     workers: int | None = None,
     progress: bool | Callable | None = False,
+    tracer: str = "embree",
 ) -> sp.csr_matrix:
     """Form factors between the faces of a mesh, with occlusion, by Embree ray casting.
 
@@ -175,6 +194,11 @@ def view_factors(
     progress : bool or callable
         ``True`` shows a ``tqdm`` bar over chunks; a callable is called with
         ``(faces_done, faces_total)`` after each chunk.
+    tracer : {"embree", "mitsuba"}
+        Who traces the rays: Embree through ``embreex`` (the default, CPU), or Mitsuba /
+        Dr.Jit (:mod:`selfillum.mitsuba_rays`: OptiX on a CUDA GPU when one works, else
+        Dr.Jit's LLVM backend on every CPU core, in this process). The rays are the same;
+        the two differ only for rays that graze an edge in float32.
 
     Returns
     -------
@@ -193,8 +217,8 @@ def view_factors(
     if reciprocity and todo.size != n:
         raise InputError("view_factors: reciprocity needs every row (rows not given)")
     with RowTracer(mesh, rays_per_face, seed, two_sided=two_sided, chunk_size=chunk_size,
-                   workers=workers, n_rows=todo.size) as tracer:
-        F = tracer.rows(todo, progress=progress)
+                   workers=workers, n_rows=todo.size, tracer=tracer) as rt:
+        F = rt.rows(todo, progress=progress)
     if reciprocity:
         F = enforce_reciprocity(F, face_areas(mesh))
     return F
@@ -211,8 +235,9 @@ class RowTracer:
 
     Parameters
     ----------
-    mesh, rays_per_face, seed, two_sided, chunk_size, workers
-        As in :func:`view_factors`.
+    mesh, rays_per_face, seed, two_sided, chunk_size, workers, tracer
+        As in :func:`view_factors` (with ``tracer="mitsuba"`` the rays are traced in this
+        process: Dr.Jit spreads them over the device itself).
     n_rows : int, optional
         Rows expected in all (decides whether threads pay off; default all faces).
 
@@ -221,8 +246,12 @@ class RowTracer:
 
     def __init__(self, mesh: trimesh.Trimesh, rays_per_face: int = 256, seed: int = 0, *,
                  two_sided: bool = False, chunk_size: int | None = None,
-                 workers: int | None = None, n_rows: int | None = None):
+                 workers: int | None = None, n_rows: int | None = None,
+                 tracer: str = "embree"):
         check_mesh(mesh)
+        if tracer not in TRACERS:
+            raise InputError(f"tracer: expected one of {', '.join(TRACERS)}, got {tracer!r}")
+        self.tracer = tracer
         k = _positive_int(rays_per_face, "rays_per_face")
         self.chunk = (max(1, _RAYS_PER_CHUNK // k) if chunk_size is None
                       else _positive_int(chunk_size, "chunk_size"))
@@ -240,7 +269,7 @@ class RowTracer:
         self.job = _Job(vertices, faces, normals, normals.astype(np.float32), k, seed,
                         _OFFSET * size, bool(two_sided))
         rows = self.n if n_rows is None else int(n_rows)
-        self.nproc = _workers(workers, -(-rows // self.chunk))
+        self.nproc = 1 if tracer == "mitsuba" else _workers(workers, -(-rows // self.chunk))
         self._scene = self._pool = None
 
     def __enter__(self) -> RowTracer:
@@ -257,14 +286,13 @@ class RowTracer:
             self._pool = None
 
     def _start(self) -> None:
-        self._scene = RayScene(self.job.vertices, self.job.faces)
+        self._scene = _scene(self.tracer, self.job.vertices, self.job.faces)
         # Embree builds the scene on its first query: do it now, before threads query it
         # at once; and compile (or load) the kernels once, before the threads call them
         j = self.job
         o, d, _ = sample_rays(j.vertices[j.faces[:1]] - self._scene.origin, j.normals[:1], 1,
                               two_sided=j.two_sided, offset=j.offset, face_ids=[0])
-        _keep_hits(np.asarray(self._scene.scene.run(o, d)), d, j.normals32, np.arange(1), 1,
-                   j.two_sided)
+        _keep_hits(self._scene.run(o, d), d, j.normals32, np.arange(1), 1, j.two_sided)
         if self.nproc > 1:
             from concurrent.futures import ThreadPoolExecutor
 
