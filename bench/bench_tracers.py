@@ -27,6 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_viewfactors import same_rays  # noqa: E402
 
 from scenes.corner import corner  # noqa: E402
+from selfillum import view_factors  # noqa: E402
 from selfillum.mitsuba_rays import MitsubaRayScene  # noqa: E402
 
 
@@ -70,6 +71,26 @@ def compare(mesh, k, label, variant, repeat):
     print(f"    same first hit on {100 * same:.4f} % of the rays")
 
 
+def whole_factors(mesh, k, label, repeat):
+    """view_factors with each tracer: time, and the F they give on the same rays."""
+    best = {"embree": float("inf"), "mitsuba": float("inf")}
+    F = {}
+    for tracer in best:
+        view_factors(mesh, k, seed=0, tracer=tracer)  # warm-up (pool, compilation)
+    for _ in range(repeat):
+        for tracer in best:
+            t0 = time.perf_counter()
+            F[tracer] = view_factors(mesh, k, seed=0, tracer=tracer)
+            best[tracer] = min(best[tracer], time.perf_counter() - t0)
+    diff = abs(F["embree"] - F["mitsuba"])
+    rows = np.abs(np.asarray(F["embree"].sum(axis=1)) - np.asarray(F["mitsuba"].sum(axis=1)))
+    print(f"\nview_factors, {label}, K = {k}: embree (default workers) {best['embree']:.3f} s, "
+          f"mitsuba {best['mitsuba']:.3f} s: mitsuba / embree speed "
+          f"{best['embree'] / best['mitsuba']:.2f}x")
+    print(f"    |F_embree - F_mitsuba|: largest entry {diff.max():.2e} (one ray = {1 / k:.2e}), "
+          f"entries that differ {diff.nnz}, largest row-sum difference {rows.max():.2e}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")
@@ -83,6 +104,7 @@ def main() -> None:
             args.repeat)
     compare(sphere, 64 if args.quick else 128, "inside a sphere (every ray hits)",
             args.variant, args.repeat)
+    whole_factors(corner(resolution=res).mesh, 4 * k, "open corner", args.repeat)
 
 
 if __name__ == "__main__":
