@@ -155,7 +155,7 @@ def coupled_view_factors(
 
 class _Rounds:
     """Rows of ``F`` traced round after round with one :class:`RowTracer` (one Embree
-    scene, or one pool of worker processes, for all rounds): building a 600,000-face
+    scene, or one set of worker threads, for all rounds): building a 600,000-face
     scene and starting the workers at every round cost more than the rays of the later
     rounds. Each row is the one :func:`view_factors` gives (tests/test_unseen.py checks
     it against the full matrix)."""

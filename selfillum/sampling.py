@@ -4,7 +4,7 @@ from a random stream (stratified).
 
 The RQMC points of a face are keyed on its index and a seed (counter-based), so a face's
 rays are the same whatever else is computed with it: chunks, row subsets and worker
-processes give the same rows.
+threads give the same rows.
 """
 
 from __future__ import annotations
