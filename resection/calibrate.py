@@ -47,7 +47,8 @@ from .dlt import (
     fit_homography,
 )
 from .errors import DegenerateError, InputError, SolveError
-from .pose import _pose_from_plane, solve_pose
+from .pose import solve_pose
+from .pose_starts import pose_from_plane
 from .reprojection import _apply_intrinsics, _intrinsic_params, _project_jac
 
 __all__ = ["CalibrationResult", "calibrate", "CALIBRATION_PARAMETERS"]
@@ -258,7 +259,7 @@ def _initial_pose(cam: Camera, X, uv, planar):
     xy = undistort_normalized(cam.pixels_to_normalized(uv), cam.dist)
     try:
         if planar:
-            return _pose_from_plane(X, xy)
+            return pose_from_plane(X, xy)
         if len(X) >= 6:
             P = fit_dlt(X, xy)
             U, S, Vt = np.linalg.svd(P[:, :3])
