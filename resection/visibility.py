@@ -145,6 +145,16 @@ class RayCaster:
         return self._dual
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _miss(k, face, dist, bary):  # pragma: no cover - compiled
+    """Ray ``k`` hits nothing: face -1, distance and barycentrics NaN."""
+    face[k] = -1
+    dist[k] = np.nan
+    bary[k, 0] = np.nan
+    bary[k, 1] = np.nan
+    bary[k, 2] = np.nan
+
+
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _prepare_rays(o, d, start, stop, unit, shift, scale, o32, d32, keep, face, dist,
                   bary):  # pragma: no cover (compiled)
@@ -167,11 +177,7 @@ def _prepare_rays(o, d, start, stop, unit, shift, scale, o32, d32, keep, face, d
         elif not o_ok:
             ok = False
         if not ok:
-            face[k] = -1
-            dist[k] = np.nan
-            bary[k, 0] = np.nan
-            bary[k, 1] = np.nan
-            bary[k, 2] = np.nan
+            _miss(k, face, dist, bary)
             continue
         s = 1.0 if unit else 1.0 / np.sqrt(nn)
         d32[m, 0] = dx * s
@@ -195,11 +201,7 @@ def _plane_hits(o, d, keep, hit, unit, dual, face, dist, bary):  # pragma: no co
         k = keep[j]
         f = hit[j]
         if f < 0:
-            face[k] = -1
-            dist[k] = np.nan
-            bary[k, 0] = np.nan
-            bary[k, 1] = np.nan
-            bary[k, 2] = np.nan
+            _miss(k, face, dist, bary)
             continue
         ko = 0 if one else k
         s = 1.0 if unit else 1.0 / np.sqrt(d[k, 0] ** 2 + d[k, 1] ** 2 + d[k, 2] ** 2)
