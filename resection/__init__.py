@@ -6,32 +6,66 @@ Conventions are those of DESIGN.md: OpenCV camera frame (x right, y down, z forw
 top-left pixel, images indexed ``img[v, u]``.
 """
 
-from .align import ViewWarp, warp_image
-from .calibrate import CalibrationResult, calibrate
-from .camera import Camera, effective_focal_length
-from .deformation import displacements_3d, marker_displacements, triangulate
-from .dlt import (
-    apply_homography,
-    camera_from_dlt,
-    decompose_projection,
-    dewarp,
-    dlt_project,
-    fit_dlt,
-    fit_homography,
-)
-from .errors import DegenerateError, InputError, SolveError
-from .io.images import read_image, write_image
-from .io.markers import MarkerSet, read_markers, read_points, write_markers, write_points
-from .io.meshes import load_mesh, read_plot3d, write_plot3d, write_surface
-from .markers import Candidates, detect_markers, read_candidates, write_candidates
-from .match import MatchResult, match_markers
-from .motion_plots import plot_motion
-from .pipeline import pose_from_image
-from .plots import plot_resection, plot_surface, virtual_camera
-from .pose import PoseResult, solve_pose
-from .sequence import TrackResult, read_track, relative_motion, track
-from .surface import SurfaceMap, SurfaceSample, vertex_values
-from .visibility import RayCaster, visible_faces
+from __future__ import annotations
+
+import importlib
+
+#: Public name -> the submodule that defines it. Submodules are imported on first use
+#: (PEP 562), so a command pays only for what it calls (as scikit-image's lazy loading).
+_EXPORTS: dict[str, str] = {
+    "ViewWarp": ".align",
+    "warp_image": ".align",
+    "CalibrationResult": ".calibrate",
+    "calibrate": ".calibrate",
+    "Camera": ".camera",
+    "effective_focal_length": ".camera",
+    "displacements_3d": ".deformation",
+    "marker_displacements": ".deformation",
+    "triangulate": ".deformation",
+    "apply_homography": ".dlt",
+    "camera_from_dlt": ".dlt",
+    "decompose_projection": ".dlt",
+    "dewarp": ".dlt",
+    "dlt_project": ".dlt",
+    "fit_dlt": ".dlt",
+    "fit_homography": ".dlt",
+    "DegenerateError": ".errors",
+    "InputError": ".errors",
+    "SolveError": ".errors",
+    "read_image": ".io.images",
+    "write_image": ".io.images",
+    "MarkerSet": ".io.markers",
+    "read_markers": ".io.markers",
+    "read_points": ".io.markers",
+    "write_markers": ".io.markers",
+    "write_points": ".io.markers",
+    "load_mesh": ".io.meshes",
+    "read_plot3d": ".io.meshes",
+    "write_plot3d": ".io.meshes",
+    "write_surface": ".io.meshes",
+    "Candidates": ".markers",
+    "detect_markers": ".markers",
+    "read_candidates": ".markers",
+    "write_candidates": ".markers",
+    "MatchResult": ".match",
+    "match_markers": ".match",
+    "plot_motion": ".motion_plots",
+    "pose_from_image": ".pipeline",
+    "plot_resection": ".plots",
+    "plot_surface": ".plots",
+    "virtual_camera": ".plots",
+    "PoseResult": ".pose",
+    "solve_pose": ".pose",
+    "TrackResult": ".sequence",
+    "read_track": ".sequence",
+    "relative_motion": ".sequence",
+    "track": ".sequence",
+    "SurfaceMap": ".surface",
+    "SurfaceSample": ".surface",
+    "vertex_values": ".surface",
+    "RayCaster": ".visibility",
+    "visible_faces": ".visibility",
+}
 
 __all__ = [
     "Camera",
@@ -87,3 +121,16 @@ __all__ = [
     "marker_displacements",
     "displacements_3d",
 ]
+
+
+def __getattr__(name: str):
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(module, __name__), name)
+    globals()[name] = value  # later lookups do not come back here
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_EXPORTS))

@@ -14,13 +14,39 @@ radiosity ``B`` (what a camera sees) to the emission ``E`` (what the paint emits
 * :mod:`selfillum.corner`: the corner case end to end.
 """
 
-from .brdf import GlossyPaint, GlossyTransport, glossy_correct, glossy_forward, transport_matrix
+from __future__ import annotations
+
+import importlib
+
+# a function named as its module: bound here, before any import of the module could
+# make the package attribute the module itself
 from .correct_image import ImageCorrection, correct_image
-from .multiview import MergedViews, merge_views
-from .psp import PSPResult, SternVolmer, fit_stern_volmer, psp_images, psp_pressure, read_taps
-from .radiosity import SolveInfo, correct, forward
-from .rendering import RenderResult, choose_variant, render
-from .viewfactors import enforce_reciprocity, view_factors
+
+#: Public name -> the submodule that defines it. Submodules are imported on first use
+#: (PEP 562), so a command pays only for what it calls (as scikit-image's lazy loading).
+_EXPORTS: dict[str, str] = {
+    "GlossyPaint": ".brdf",
+    "GlossyTransport": ".brdf",
+    "glossy_correct": ".brdf",
+    "glossy_forward": ".brdf",
+    "transport_matrix": ".brdf",
+    "MergedViews": ".multiview",
+    "merge_views": ".multiview",
+    "PSPResult": ".psp",
+    "SternVolmer": ".psp",
+    "fit_stern_volmer": ".psp",
+    "psp_images": ".psp",
+    "psp_pressure": ".psp",
+    "read_taps": ".psp",
+    "SolveInfo": ".radiosity",
+    "correct": ".radiosity",
+    "forward": ".radiosity",
+    "RenderResult": ".rendering",
+    "choose_variant": ".rendering",
+    "render": ".rendering",
+    "enforce_reciprocity": ".viewfactors",
+    "view_factors": ".viewfactors",
+}
 
 __all__: list[str] = [
     "view_factors",
@@ -47,3 +73,16 @@ __all__: list[str] = [
     "psp_images",
     "PSPResult",
 ]
+
+
+def __getattr__(name: str):
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(module, __name__), name)
+    globals()[name] = value  # later lookups do not come back here
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_EXPORTS))
