@@ -9,7 +9,6 @@ import argparse
 import numpy as np
 
 from ._cliutil import add_acceptance_options
-from .camera import Camera
 from .errors import InputError
 from .io.outputs import atomic_write
 
@@ -105,6 +104,7 @@ def run_detect(args: argparse.Namespace) -> int:
 
 
 def run_link(args: argparse.Namespace) -> int:
+    from .camera import Camera
     from .io.images import read_image
     from .io.markers import read_markers
     from .link import draw_links, read_links, suggest_links, write_links
@@ -141,6 +141,7 @@ def run_link(args: argparse.Namespace) -> int:
 
 
 def run_match(args: argparse.Namespace) -> int:
+    from .camera import Camera
     from .io.markers import read_markers
     from .markers import read_candidates, write_candidates
     from .match import match_markers

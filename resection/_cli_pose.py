@@ -11,23 +11,8 @@ import numpy as np
 
 from ._cli_markers import add_detect_options, add_enhance_window_option
 from ._cliutil import add_acceptance_options, add_mesh_format
-from .calibrate import calibrate
-from .camera import Camera
 from .errors import InputError
-from .io.images import read_image
-from .io.markers import (
-    link_points,
-    read_markers,
-    read_points,
-    write_residuals,
-    write_view_residuals,
-)
-from .io.meshes import load_mesh
 from .io.outputs import atomic_write
-from .pipeline import image_points
-from .pose import solve_pose
-from .pose_plots import write_pose_plot
-from .refind import refind_targets
 
 _LOSSES = ("huber", "soft_l1", "cauchy", "arctan")
 
@@ -111,6 +96,8 @@ def register(sub) -> None:
 
 
 def _linked(markers_path: str, points_path: str, mesh=None):
+    from .io.markers import link_points, read_markers, read_points
+
     markers = read_markers(markers_path, mesh=mesh)
     ids, uv = read_points(points_path)
     return link_points(markers, ids, uv, source=points_path)
@@ -120,6 +107,10 @@ def pose_inputs(args: argparse.Namespace, mesh=None):
     """Camera and linked ``(ids, points3d, points2d)`` of the ``pose`` command (the place
     where other sources of image points plug in). ``mesh``: the model surface, if given
     (targets under it are moved out to it)."""
+    from .camera import Camera
+    from .io.markers import read_markers
+    from .pipeline import image_points
+
     camera = Camera.read(args.camera)
     if getattr(args, "image", None):
         if args.points:
@@ -141,6 +132,13 @@ def pose_inputs(args: argparse.Namespace, mesh=None):
 
 
 def run_pose(args: argparse.Namespace) -> int:
+    from .io.images import read_image
+    from .io.markers import read_markers, write_residuals
+    from .io.meshes import load_mesh
+    from .pose import solve_pose
+    from .pose_plots import write_pose_plot
+    from .refind import refind_targets
+
     if args.mesh and not (args.plot or args.image):
         raise InputError("--mesh is for refinding (--image) and the overlay (--plot): give "
                          "one of them too")
@@ -187,6 +185,10 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def run_calibrate(args: argparse.Namespace) -> int:
+    from .calibrate import calibrate
+    from .camera import Camera
+    from .io.markers import write_view_residuals
+
     size = _size(args.size)
     pairs = []
     points = list(args.points)

@@ -10,20 +10,9 @@ from pathlib import Path
 import numpy as np
 
 from ._cliutil import add_mesh_format
-from .align import ViewWarp
-from .camera import Camera
+from .defaults import DEFAULT_MAX_OBLIQUENESS
 from .errors import InputError
-from .io.history import xdmf_path
-from .io.images import read_image, write_image
-from .io.meshes import load_mesh, read_face_fields, write_surface
 from .io.outputs import atomic_path, atomic_write
-from .io.video import open_frames
-from .merge import merge_views
-from .plots import frame_camera, plot_surface, virtual_camera
-from .sequence import read_track
-from .sequence.mapping import map_to_history
-from .surface import DEFAULT_MAX_OBLIQUENESS, SurfaceMap
-from .units import require_seen
 
 
 def register(sub) -> None:
@@ -146,6 +135,8 @@ def register(sub) -> None:
 
 
 def _field(path: str, name: str | None, n_faces: int) -> tuple[str, np.ndarray]:
+    from .io.meshes import read_face_fields
+
     fields = read_face_fields(path, n_faces)
     if not fields:
         raise InputError(f"{path}: holds no per-face field")
@@ -157,6 +148,12 @@ def _field(path: str, name: str | None, n_faces: int) -> tuple[str, np.ndarray]:
 
 
 def run_map(args: argparse.Namespace) -> int:
+    from .camera import Camera
+    from .io.images import read_image
+    from .io.meshes import load_mesh, write_surface
+    from .surface import SurfaceMap
+    from .units import require_seen
+
     if Path(args.out).suffix.lower() in (".h5", ".hdf5"):
         return _run_history(args)
     if args.track or args.resume:
@@ -187,6 +184,13 @@ def run_map(args: argparse.Namespace) -> int:
 
 
 def _run_history(args: argparse.Namespace) -> int:
+    from .camera import Camera
+    from .io.history import xdmf_path
+    from .io.meshes import load_mesh
+    from .io.video import open_frames
+    from .sequence import read_track
+    from .sequence.mapping import map_to_history
+
     if len(args.camera) > 1:
         raise InputError("--out .h5: one --camera (a time history is one camera's sequence)")
     if args.fps is not None and not args.fps > 0:
@@ -216,6 +220,12 @@ def _run_history(args: argparse.Namespace) -> int:
 
 
 def _run_merge(args: argparse.Namespace, names: list) -> int:
+    from .camera import Camera
+    from .io.images import read_image
+    from .io.meshes import load_mesh, write_surface
+    from .merge import merge_views
+    from .surface import SurfaceMap
+
     if len(args.image) != len(args.camera):
         raise InputError(f"--image: {len(args.image)} images for {len(args.camera)} cameras "
                          "(give one image per camera, in camera order)")
@@ -237,6 +247,11 @@ def _run_merge(args: argparse.Namespace, names: list) -> int:
 
 
 def run_backproject(args: argparse.Namespace) -> int:
+    from .camera import Camera
+    from .io.images import read_image, write_image
+    from .io.meshes import load_mesh
+    from .surface import SurfaceMap
+
     mesh = load_mesh(args.mesh, format=args.mesh_format)
     camera = Camera.read(args.camera)
     _, values = _field(args.values, args.field, len(mesh.faces))
@@ -254,6 +269,11 @@ def run_backproject(args: argparse.Namespace) -> int:
 
 
 def run_align(args: argparse.Namespace) -> int:
+    from .align import ViewWarp
+    from .camera import Camera
+    from .io.images import read_image, write_image
+    from .io.meshes import load_mesh
+
     mesh = load_mesh(args.mesh, format=args.mesh_format)
     warp = ViewWarp(mesh, Camera.read(args.source_camera), Camera.read(args.target_camera))
     out = warp(read_image(args.image), order=args.order)
@@ -263,6 +283,10 @@ def run_align(args: argparse.Namespace) -> int:
 
 
 def run_view(args: argparse.Namespace) -> int:
+    from .camera import Camera
+    from .io.meshes import load_mesh
+    from .plots import frame_camera, plot_surface, virtual_camera
+
     mesh = load_mesh(args.mesh, format=args.mesh_format)
     name, values = _field(args.values, args.field, len(mesh.faces))
     if args.camera:

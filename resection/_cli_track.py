@@ -10,8 +10,7 @@ import os
 import sys
 
 from ._cliutil import add_acceptance_options
-from .acceptance import DEFAULT_MARKER_ACCURACY, DEFAULT_MAX_RMS
-from .camera import Camera
+from .defaults import DEFAULT_MARKER_ACCURACY, DEFAULT_MAX_RMS
 from .errors import InputError
 
 
@@ -86,6 +85,7 @@ def _json_options(text: str | None, option: str) -> dict | None:
 
 
 def run_track(args: argparse.Namespace) -> int:
+    from .camera import Camera
     from .motion_plots import plot_motion
     from .sequence import track
 

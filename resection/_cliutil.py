@@ -56,7 +56,7 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None) -> int:
 def add_acceptance_options(p: argparse.ArgumentParser) -> None:
     """``--marker-accuracy`` and ``--max-rms``: the acceptance rule's options, the same in
     every command that fits a camera to markers (see docs/acceptance.md)."""
-    from .acceptance import DEFAULT_MARKER_ACCURACY, DEFAULT_MAX_RMS
+    from .defaults import DEFAULT_MARKER_ACCURACY, DEFAULT_MAX_RMS
 
     p.add_argument("--marker-accuracy", type=float, default=DEFAULT_MARKER_ACCURACY,
                    metavar="PX",
@@ -71,7 +71,7 @@ def add_acceptance_options(p: argparse.ArgumentParser) -> None:
 def add_mesh_format(parser: argparse.ArgumentParser) -> None:
     """``--format``: the mesh file's format when its extension does not say it (Plot3D is
     recognised by content; see :data:`resection.io.meshes.MESH_FORMATS`)."""
-    from .io.meshes import MESH_FORMATS
+    from .defaults import MESH_FORMATS
 
     parser.add_argument("--format", dest="mesh_format", choices=MESH_FORMATS, default=None,
                         help="format of --mesh (default: from the extension; Plot3D by "

@@ -36,16 +36,13 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import chdtrc, chdtri
 
+from .defaults import DEFAULT_MARKER_ACCURACY, DEFAULT_MAX_RMS
 from .errors import InputError, SolveError
 
 __all__ = ["Acceptance", "DEFAULT_MARKER_ACCURACY", "DEFAULT_MAX_RMS", "CONFIDENCE",
            "OUTLIER_RISK", "check_accuracy", "rms_threshold", "outlier_gate",
            "outlier_limit", "grade", "judge", "require", "drop_outliers"]
 
-#: Default stated accuracy of a marker's position (survey + detection), px (RMS length).
-DEFAULT_MARKER_ACCURACY = 1.0
-#: Default upper limit of the RMS residual whatever the accuracy, px (the paper's guide).
-DEFAULT_MAX_RMS = 2.0
 #: Confidence of the residual test (probability that a correct fit passes).
 CONFIDENCE = 0.999
 #: Probability that one of the ``n`` correct markers is taken for a gross outlier.

@@ -25,6 +25,7 @@ import scipy.sparse as sp
 import trimesh
 
 from .camera import Camera
+from .defaults import DEFAULT_MAX_OBLIQUENESS
 from .errors import InputError
 from .memory import SURFACE_MAP_BYTES_PER_PIXEL, check_pixel_memory
 from .visibility import RayCaster
@@ -32,9 +33,6 @@ from .visibility import RayCaster
 __all__ = ["DEFAULT_MAX_OBLIQUENESS", "SurfaceMap", "SurfaceSample", "oblique_faces",
            "vertex_values"]
 
-#: Default obliqueness cut-off (degrees between the line of sight and the face normal), as
-#: NASA's uPSP software uses: paint seen more obliquely is not measured reliably.
-DEFAULT_MAX_OBLIQUENESS = 70.0
 
 
 def _as_float(a, name: str) -> np.ndarray:

@@ -11,8 +11,8 @@ import argparse
 import sys
 
 from resection._cliutil import OneLineParser, add_mesh_format, run
+from resection.defaults import DEFAULT_MAX_OBLIQUENESS
 from resection.errors import InputError
-from resection.surface import DEFAULT_MAX_OBLIQUENESS
 
 
 def _cmd_corner(args) -> int:

@@ -46,3 +46,10 @@ def test_light_imports_do_not_load_the_heavy_stacks():
     assert not heavy & _modules_after("from resection import Camera, InputError")
     # a light name gives a usable object
     assert "resection.camera" in _modules_after("from resection import Camera")
+
+
+def test_resection_command_line_builds_without_the_numerical_stacks():
+    """``resection --help`` and argument errors come at once: the parser's defaults
+    (:mod:`resection.defaults`) need none of the libraries the commands call."""
+    loaded = _modules_after("from resection.cli import build_parser\nbuild_parser()")
+    assert not {"matplotlib", "dask", "trimesh", "embreex", "numba", "scipy.stats"} & loaded

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from ..defaults import MESH_FORMATS
 from ..errors import InputError
 from .plot3d import (  # noqa: F401 - re-exported: Plot3D lives in io/plot3d.py
     PLOT3D_SUFFIXES,
@@ -179,8 +180,6 @@ def load_mesh(path: str | os.PathLike, *, format: str | None = None,
     return check_mesh(mesh, str(path))
 
 
-#: What ``format=`` (and the commands' ``--format``) accepts.
-MESH_FORMATS = ("plot3d", "cart3d", "stl", "obj", "ply", "off", "glb", "gltf")
 
 
 def _format_by_content(path: Path, suffix: str) -> str:
