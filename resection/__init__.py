@@ -8,7 +8,7 @@ top-left pixel, images indexed ``img[v, u]``.
 
 from __future__ import annotations
 
-import importlib
+from ._lazy import attach
 
 #: Public name -> the submodule that defines it. Submodules are imported on first use
 #: (PEP 562), so a command pays only for what it calls (as scikit-image's lazy loading).
@@ -122,15 +122,4 @@ __all__ = [
     "displacements_3d",
 ]
 
-
-def __getattr__(name: str):
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(module, __name__), name)
-    globals()[name] = value  # later lookups do not come back here
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_EXPORTS))
+__getattr__, __dir__ = attach(__name__, _EXPORTS)

@@ -16,7 +16,7 @@ radiosity ``B`` (what a camera sees) to the emission ``E`` (what the paint emits
 
 from __future__ import annotations
 
-import importlib
+from resection._lazy import attach
 
 # a function named as its module: bound here, before any import of the module could
 # make the package attribute the module itself
@@ -74,15 +74,4 @@ __all__: list[str] = [
     "PSPResult",
 ]
 
-
-def __getattr__(name: str):
-    module = _EXPORTS.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(importlib.import_module(module, __name__), name)
-    globals()[name] = value  # later lookups do not come back here
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_EXPORTS))
+__getattr__, __dir__ = attach(__name__, _EXPORTS)
