@@ -16,7 +16,6 @@ at most ``K`` non-zeros a row, so memory grows as ``N K``, not ``N^2``.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -27,6 +26,7 @@ from embreex import rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 from numba import njit
 
+from resection._threads import available_cores
 from resection.errors import InputError
 
 from .mesh import check_mesh, face_areas, face_normals
@@ -379,11 +379,7 @@ def _workers(workers, n_chunks: int) -> int:
         return min(_positive_int(workers, "workers"), max(1, n_chunks))
     if n_chunks < 2:
         return 1
-    try:
-        cpus = len(os.sched_getaffinity(0))
-    except AttributeError:  # pragma: no cover - not Linux
-        cpus = os.cpu_count() or 1
-    return max(1, min(cpus, n_chunks))
+    return max(1, min(available_cores(), n_chunks))
 
 
 def enforce_reciprocity(F, areas, *, tol: float = 1e-10, maxiter: int = 500) -> sp.csr_matrix:
