@@ -20,10 +20,12 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from resection.io.cameras import write_camera
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from resection import Camera, write_markers  # noqa: E402
-from resection.cli import main as cli  # noqa: E402
+from resection.cli.main import main as cli  # noqa: E402
 from resection.io.images import write_image  # noqa: E402
 from scenes.marker_images import render_markers  # noqa: E402
 
@@ -50,7 +52,7 @@ def one_case(seed: int, folder: str) -> tuple[int, str]:
     R0 = Rotation.from_rotvec(np.radians(0.4) * np.array([0.6, 0.0, 0.8])).as_matrix() @ truth.R
     start = truth.replace(R=R0, t=-R0 @ (truth.center + 0.02 * dist * np.array([0.6, -0.64,
                                                                                 0.48])))
-    start.write(os.path.join(folder, "s.json"))
+    write_camera(os.path.join(folder, "s.json"), start)
     out, err = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
         rc = cli(["pose", "--camera", os.path.join(folder, "s.json"), "--markers",

@@ -31,7 +31,7 @@ from scipy.spatial import cKDTree
 ROOT = Path(os.environ.get("BENCH_DETECT_ROOT", Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(ROOT))
 
-from resection.markers import detect_markers  # noqa: E402
+from resection.markers.detect import detect_markers  # noqa: E402
 from scenes.marker_images import random_positions, render_markers  # noqa: E402
 
 

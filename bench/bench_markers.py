@@ -28,9 +28,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from _timing import best_of  # noqa: E402  (bench/ is on sys.path when run as a script)
 
-from resection.camera import Camera  # noqa: E402
-from resection.markers import detect_markers, position_crb  # noqa: E402
-from resection.match import match_markers  # noqa: E402
+from resection.camera.model import Camera  # noqa: E402
+from resection.markers.detect import detect_markers, position_crb  # noqa: E402
+from resection.markers.match import match_markers  # noqa: E402
 from scenes.marker_images import make_scene  # noqa: E402
 
 

@@ -1,4 +1,4 @@
-"""Multi-camera merge (resection.merge) on the real-traits scene: speed against the plain
+"""Multi-camera merge (resection.surface.merge) on the real-traits scene: speed against the plain
 per-camera mapping (SurfaceMap.to_surface, the sparse product every merge needs anyway),
 and the seam level against the scene's truth for the merge's variants.
 
@@ -20,8 +20,8 @@ sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "tests"))
 from _timing import best_of  # noqa: E402
 from test_merge import seam_level  # noqa: E402
 
-from resection.merge import merge_views  # noqa: E402
-from resection.surface import SurfaceMap  # noqa: E402
+from resection.surface.merge import merge_views  # noqa: E402
+from resection.surface.surface_map import SurfaceMap  # noqa: E402
 from scenes.real_traits import real_traits  # noqa: E402
 
 

@@ -233,7 +233,7 @@ def main(argv=None):
     print("| | time ratio (ours / OpenCV) | rms (px) | max intrinsic error (px) | "
           "k1 error |")
     print("|---|---|---|---|---|")
-    print(f"| resection.calibrate | {c['t_ours'] / c['t_cv']:.1f} | {c['rms']:.4f} | "
+    print(f"| resection.pose.calibration | {c['t_ours'] / c['t_cv']:.1f} | {c['rms']:.4f} | "
           f"{c['kerr']:.3f} | {c['k1']:.2e} |")
     print(f"| cv2.calibrateCamera | 1 | {c['rms_cv']:.4f} | {c['kerr_cv']:.3f} | "
           f"{c['k1_cv']:.2e} |")

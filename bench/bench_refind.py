@@ -11,7 +11,7 @@ Markdown table (the section of bench/README.md).
   (``pose_from_image``: detection over the whole image, matching, pose) against
   ``refind_targets`` after it (windows, local enhancement, fit, pose again).
 * Acceptance overhead: ``solve_pose`` (rule included) against one bare solve of the same
-  markers (``resection.pose._solve_once``: no outlier loop, no test), 15 markers, no outlier.
+  markers (``resection.pose.solve._solve_once``: no outlier loop, no test), 15 markers, no outlier.
 """
 
 from __future__ import annotations
@@ -30,9 +30,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _timing import best_of  # noqa: E402
 
 from resection.io.markers import MarkerSet  # noqa: E402
-from resection.pipeline import pose_from_image  # noqa: E402
-from resection.pose import _solve_once, solve_pose  # noqa: E402
-from resection.refind import refind_targets  # noqa: E402
+from resection.markers.from_image import pose_from_image  # noqa: E402
+from resection.markers.refind import refind_targets  # noqa: E402
+from resection.pose.solve import _solve_once, solve_pose  # noqa: E402
 from scenes.real_traits import real_traits  # noqa: E402
 
 

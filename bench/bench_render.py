@@ -4,8 +4,8 @@
    ratio to the time of the model's image (Embree view factors + radiosity solve +
    backprojection through a SurfaceMap), with the agreement of the two images.
 2. Against the number of faces N: view factors, the correction of a measured radiosity
-   (``selfillum.radiosity.correct``), and one render with the fastest variant.
-3. Glossy paint (``selfillum.brdf``): the view-dependent transport (T and T2) and the
+   (``selfillum.solve.radiosity.correct``), and one render with the fastest variant.
+3. Glossy paint (``selfillum.solve.brdf``): the view-dependent transport (T and T2) and the
    glossy inverse against a glossy Mitsuba render, with the per-face agreement.
 
 Run:  .venv/bin/python bench/bench_render.py [--resolution 20] [--spp 256] [--width 320]
@@ -20,11 +20,11 @@ import numpy as np
 from scipy.ndimage import maximum_filter, minimum_filter
 
 from resection import Camera
-from resection.surface import SurfaceMap
+from resection.surface.surface_map import SurfaceMap
 from scenes.corner import corner
-from selfillum.radiosity import correct, forward
-from selfillum.rendering import available_variants, render
-from selfillum.viewfactors import view_factors
+from selfillum.rendering.mitsuba_render import available_variants, render
+from selfillum.solve.radiosity import correct, forward
+from selfillum.transport.viewfactors import view_factors
 
 
 def main() -> None:
@@ -102,7 +102,7 @@ def main() -> None:
 
 
 def glossy(cam, variant, spp):
-    from selfillum.brdf import GlossyPaint, glossy_correct, glossy_forward, transport_matrix
+    from selfillum.solve.brdf import GlossyPaint, glossy_correct, glossy_forward, transport_matrix
 
     paint, rho = GlossyPaint(0.4, 0.3), 0.5
     sc = corner(resolution=10, reflectance=rho, pattern="smooth")

@@ -28,7 +28,7 @@ import cv2
 import numpy as np
 
 from resection.sequence.mapping import map_frames
-from resection.surface import SurfaceMap
+from resection.surface.surface_map import SurfaceMap
 from scenes.moving_model import pitch_oscillation
 from scenes.moving_surface import edge_nodes, model_surface, paint_field, render_surface
 

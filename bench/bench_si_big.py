@@ -13,7 +13,7 @@ Measured in the same run, interleaved (peer, ours, peer):
 * **peer**: a bare Embree pass of 256 cosine-distributed rays from every face of the mesh
   (``embreex``: the scene build and ``EmbreeScene.run`` on prepared float32 arrays,
   chunks of 1 M rays, one thread; the making of the rays is not timed);
-* **ours**: :func:`selfillum.correct_image.correct_image`, 256 rays a face: surface map,
+* **ours**: :func:`selfillum.images.image_correction.correct_image`, 256 rays a face: surface map,
   view factors of the seen and coupled faces only, the unseen-face solve, the per-pixel
   correction, timed stage by stage (map, coupled view factors, the rest). Peak memory:
   the process's maximum resident size after it.
@@ -40,12 +40,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from embreex import rtcore_scene  # noqa: E402
 from embreex.mesh_construction import TriangleMesh  # noqa: E402
 
-from resection.surface import SurfaceMap  # noqa: E402
+from resection.surface.surface_map import SurfaceMap  # noqa: E402
 from scenes.slab_block import slab_block, slab_camera  # noqa: E402
-from selfillum.correct_image import correct_image  # noqa: E402
-from selfillum.coupling import coupled_view_factors  # noqa: E402
+from selfillum.images.image_correction import correct_image  # noqa: E402
 from selfillum.mesh import face_normals  # noqa: E402
-from selfillum.viewfactors import view_factors  # noqa: E402
+from selfillum.transport.coupling import coupled_view_factors  # noqa: E402
+from selfillum.transport.viewfactors import view_factors  # noqa: E402
 
 #: Requested face counts give about 0.93 times as many triangles (see slab_block).
 _FACE_FACTOR = 1.076

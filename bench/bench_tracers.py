@@ -1,5 +1,5 @@
 """Ray tracers for the view factors on the same rays: Embree (``embreex``, one call, and
-the same rays over threads) against Mitsuba / Dr.Jit (``selfillum.mitsuba_rays``: OptiX
+the same rays over threads) against Mitsuba / Dr.Jit (``selfillum.transport.mitsuba_rays``: OptiX
 with the ``cuda_ad_rgb`` variant on a GPU, Dr.Jit's LLVM backend on the CPU otherwise).
 
 Issue 14 item 6 asks for the GPU comparison: speed ratio, and the same ``F`` within the
@@ -28,7 +28,7 @@ from bench_viewfactors import same_rays  # noqa: E402
 
 from scenes.corner import corner  # noqa: E402
 from selfillum import view_factors  # noqa: E402
-from selfillum.mitsuba_rays import MitsubaRayScene  # noqa: E402
+from selfillum.transport.mitsuba_rays import MitsubaRayScene  # noqa: E402
 
 
 def compare(mesh, k, label, variant, repeat):

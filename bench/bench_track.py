@@ -37,6 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
+from resection.io.cameras import read_camera
+
 
 def opencv_pipeline(frames, camera, ids, points3d, rvec0, tvec0, diameter):
     """The same job from OpenCV parts; returns (rvecs, tvecs, uv (F, K, 2))."""
@@ -90,10 +92,10 @@ def opencv_pipeline(frames, camera, ids, points3d, rvec0, tvec0, diameter):
 def _warm_up() -> None:
     """Import the package and load its compiled kernels (numba, from the on-disk cache) in
     a worker, as a long run amortises them."""
-    import resection.match  # noqa: F401
-    import resection.pose  # noqa: F401
+    import resection.markers.match  # noqa: F401
+    import resection.pose.solve  # noqa: F401
     import resection.sequence  # noqa: F401
-    from resection.markers import refine_markers
+    from resection.markers.detect import refine_markers
 
     yy, xx = np.mgrid[0:32, 0:32]
     img = 100.0 * (np.hypot(xx - 15.3, yy - 16.1) < 4.0)
@@ -117,7 +119,6 @@ def main() -> None:
     from dask.distributed import Client, LocalCluster
     from scipy.spatial import cKDTree
 
-    from resection import Camera
     from resection.sequence import relative_motion, track
     from resection.sequence.execute import LOCAL_WORKER_CONFIG
     from scenes.moving_model import pitch_oscillation, write_sequence
@@ -140,14 +141,14 @@ def main() -> None:
         files = write_sequence(model, tmp / "frames")
         print(f"{n} frames {size}x{size}, {len(model.ids)} markers of {diameter:.1f} px, "
               f"rendered in {time.perf_counter() - t:.1f} s")
-        cam = Camera.read(files["camera"])
+        cam = read_camera(files["camera"])
         frames = files["frames"]
         rows = []
 
         # frame 0 linked by hand (candidate numbers of detect_markers on it, paired with the
         # true projections): the same start as the OpenCV pipeline's exact frame-0 pose
         from resection.io.images import read_image
-        from resection.markers import detect_markers
+        from resection.markers.detect import detect_markers
 
         cands = detect_markers(read_image(frames[0], mask_saturated=True), diameter)
         dist, near = cKDTree(cands.uv).query(model.uv(0))

@@ -26,6 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
+from resection.io.cameras import read_camera
+
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -35,7 +37,6 @@ def main() -> None:
 
     import psutil
 
-    from resection import Camera
     from resection.sequence import track
     from scenes.moving_model import pitch_oscillation, write_sequence
 
@@ -45,7 +46,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         files = write_sequence(model, tmp / "frames")
-        cam = Camera.read(files["camera"])
+        cam = read_camera(files["camera"])
         frames = [files["frames"][k % period] for k in range(args.frames)]
         out = tmp / "out"
         samples = []  # (seconds, frames finished, rss bytes)

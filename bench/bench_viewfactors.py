@@ -14,12 +14,12 @@ Run: ``.venv/bin/python bench/bench_viewfactors.py [--quick]``
 5. Error against time on Howell's C-14 (two unit squares at 90 degrees sharing an edge,
    10 x 10 squares each): the stratified random rays of the previous release, the RQMC
    rays of ``view_factors``, and the closed-form point-to-triangle kernel
-   (``selfillum.kernel``, unoccluded only). Per-face error of the factor to the other
+   (``selfillum.transport.kernel``, unoccluded only). Per-face error of the factor to the other
    plate against the converged kernel (its plate total checked against C-14).
 6. The corner main job (6400 faces): largest and rms residual after correction against
    rays per face, stratified random against RQMC, the measurement simulated from the
    converged closed-form reference.
-4. The same mesh at image level: :func:`selfillum.correct_image` on a 1024 x 768 image
+4. The same mesh at image level: :func:`selfillum.images.image_correction` on a 1024 x 768 image
    (surface map, view factors, inverse, per-pixel interpolated correction), the image
    made by backprojecting a finer forward model (128 rays a face, another seed).
 """
@@ -42,7 +42,7 @@ from _timing import best_of  # noqa: E402
 from scenes.corner import corner  # noqa: E402
 from selfillum import correct, forward, view_factors  # noqa: E402
 from selfillum.mesh import face_normals  # noqa: E402
-from selfillum.viewfactors import _OFFSET, RayScene, sample_rays  # noqa: E402
+from selfillum.transport.viewfactors import _OFFSET, RayScene, sample_rays  # noqa: E402
 
 
 def _scene_frame(mesh):
@@ -140,7 +140,7 @@ def end_to_end(resolution, k):
 
 def image_level(resolution, k):
     from resection import Camera
-    from resection.surface import SurfaceMap
+    from resection.surface.surface_map import SurfaceMap
     from selfillum import correct_image
 
     sc = corner(resolution=resolution)
@@ -191,7 +191,7 @@ def _stratified_factors(mesh, k, seed):
 
 
 def error_against_time(ks, seeds=4):
-    from selfillum.kernel import pair_factors
+    from selfillum.transport.kernel import pair_factors
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
     from test_viewfactors import howell_perpendicular, perpendicular_mesh

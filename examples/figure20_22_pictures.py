@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from resection.plots import plot_resection, plot_surface, virtual_camera
+from resection.surface.plots import plot_resection, plot_surface, virtual_camera
 from scenes.psp_pair import HALF_X, HALF_Y, psp_pair, render
 
 

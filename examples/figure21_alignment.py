@@ -10,7 +10,7 @@ import sys
 import numpy as np
 from matplotlib.figure import Figure
 
-from resection.align import ViewWarp
+from resection.surface.align import ViewWarp
 from scenes.psp_pair import plane_hits, pressure_factor, psp_pair
 
 

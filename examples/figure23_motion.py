@@ -6,16 +6,15 @@ wide grey bands, one corrupt frame in the middle recorded as failed.
 Run: ``.venv/bin/python examples/figure23_motion.py [OUTDIR] [--frames N] [--workers W]``
 (default 100 frames; ``--workers 1`` runs in this process, more start a local Dask cluster).
 """
-
 import argparse
 import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from resection import Camera
-from resection.motion_plots import plot_motion
+from resection.io.cameras import read_camera
 from resection.sequence import track
+from resection.sequence.motion_plots import plot_motion
 from scenes.moving_model import pitch_oscillation, write_sequence
 
 
@@ -33,7 +32,7 @@ def main() -> None:
         frames = list(files["frames"])
         bad = len(frames) // 2
         np.save(frames[bad], np.full((256, 256), np.nan, np.float32))  # a corrupt frame
-        res = track(frames, Camera.read(files["camera"]), files["markers"], diameter=5.6,
+        res = track(frames, read_camera(files["camera"]), files["markers"], diameter=5.6,
                     out_dir=Path(tmp) / "track", workers=args.workers)
     ok = res.ok
     err = np.abs(res.angles[ok] - np.degrees(model.angles[ok])).max()

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import InputError
+from resection.errors import InputError
 
 
 def as_points(a, dim: int, name: str, *, allow_nan: bool = False) -> np.ndarray:

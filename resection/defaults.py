@@ -2,7 +2,7 @@
 
 They live here, away from the modules that use them, so that a command line can print
 them in its ``--help`` without importing the numerical stacks; each is re-exported by the
-module of its concept (:mod:`resection.surface`, :mod:`resection.acceptance`,
+module of its concept (:mod:`resection.surface.surface_map`, :mod:`resection.pose.acceptance`,
 :mod:`resection.io.meshes`).
 """
 

@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import os
 
-from .errors import InputError
+from resection.errors import InputError
 
 __all__ = ["available_memory", "check_pixel_memory"]
 
-#: Bytes a pixel at least costs in :class:`resection.surface.SurfaceMap` (pixel grid,
+#: Bytes a pixel at least costs in :class:`resection.surface.surface_map.SurfaceMap` (pixel grid,
 #: ray directions, hit face, depth and barycentric coordinates: 80 bytes in float64/int64,
 #: with the temporaries of the ray set-up and the hit test about twice that).
 SURFACE_MAP_BYTES_PER_PIXEL = 160

@@ -177,7 +177,7 @@ def corner_form_factors(scene: CornerScene, order: int = 6, *, far_order: int = 
 
     Every floor face sees the whole wall (nothing lies between two plates at 90
     degrees), so ``F_ij`` is the exact point-to-triangle factor (Lambert's contour
-    integral, :func:`selfillum.kernel.pair_factors`) integrated over the floor face by a
+    integral, :func:`selfillum.transport.kernel.pair_factors`) integrated over the floor face by a
     collapsed Gauss rule: ``order**2`` points for pairs near the fold (columns ``ix``
     and ``jz`` and offset ``d`` along it with ``ix + jz + |d| <= near``, where the
     integrand varies fastest), ``far_order**2`` points for the others. The corner is
@@ -196,8 +196,8 @@ def corner_form_factors(scene: CornerScene, order: int = 6, *, far_order: int = 
         ``F[i, j]``, floor face ``i`` (0..M-1) to wall face ``M + j``, ``M = 2 res^2``.
         Wall to floor is its transpose (all triangles have the same area).
     """
-    from selfillum.kernel import pair_factors
     from selfillum.mesh import face_normals
+    from selfillum.transport.kernel import pair_factors
 
     res = scene.resolution
     m = 2 * res * res

@@ -2,7 +2,7 @@
 
 Each marker is a uniform disk, blurred by a Gaussian PSF and integrated exactly over each
 square pixel (closed form along one axis, Gauss-Legendre quadrature along the other; see
-``resection._diskmodel``), added to a uniform background, then noised. Only a small window
+``resection.markers._diskmodel``), added to a uniform background, then noised. Only a small window
 around each disk is rendered, all disks at once (no Python loop over disks or pixels), so a
 sequence of hundreds of frames renders in seconds.
 
@@ -21,8 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from resection import _diskmodel
 from resection.errors import InputError
+from resection.markers import _diskmodel
 
 __all__ = ["MarkerScene", "render_markers", "random_positions", "make_scene"]
 

@@ -25,8 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from resection.camera import Camera
+from resection.camera.model import Camera
 from resection.errors import InputError
+from resection.io.cameras import write_camera
 from scenes.marker_images import render_markers
 
 __all__ = ["MovingModel", "pitch_oscillation", "write_sequence", "rotation_zyx"]
@@ -252,7 +253,7 @@ def write_sequence(
         dR = Rotation.from_rotvec(np.radians([0.3, -0.4, 0.25])).as_matrix()
         cam = cam.with_pose(R=dR @ cam.R, t=cam.t + np.array([0.005, -0.004, 0.006]))
     cam_path = out / "camera.json"
-    cam.write(cam_path)
+    write_camera(cam_path, cam)
     m_path = out / "markers.csv"
     write_markers(m_path, model.ids, model.points3d,
                   np.full(len(model.ids), model.marker_diameter))

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from resection.camera import Camera
+from resection.camera.model import Camera
 
 __all__ = ["PSPPair", "panel_mesh", "paint", "pressure_factor", "render", "psp_pair",
            "HALF_X", "HALF_Y"]

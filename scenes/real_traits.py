@@ -40,13 +40,14 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from resection.camera import Camera
+from resection.camera.model import Camera
 from resection.errors import InputError
+from resection.io.cameras import write_camera
 from resection.io.images import write_image
 from resection.io.markers import write_markers
 from resection.io.meshes import plot3d_to_mesh, write_plot3d
-from resection.surface import SurfaceMap
-from resection.visibility import RayCaster
+from resection.surface.surface_map import SurfaceMap
+from resection.surface.visibility import RayCaster
 
 from .marker_images import render_markers
 
@@ -316,6 +317,6 @@ def write_scene(scene: RealTraits, folder: str | os.PathLike) -> dict:
     for c, (cam, img) in enumerate(zip(scene.cameras, scene.images, strict=True)):
         paths[f"camera{c}"] = os.path.join(folder, f"cam{c}.json")
         paths[f"image{c}"] = os.path.join(folder, f"cam{c}.png")
-        cam.write(paths[f"camera{c}"])
+        write_camera(paths[f"camera{c}"], cam)
         write_image(paths[f"image{c}"], img)
     return paths

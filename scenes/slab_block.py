@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from resection.camera import Camera
+from resection.camera.model import Camera
 from resection.errors import InputError
 
 __all__ = ["SlabBlock", "slab_block", "paint", "write_slab_block", "slab_camera",

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from resection.camera import Camera
+from resection.camera.model import Camera
 from resection.errors import InputError
 
 __all__ = ["WingBody", "wing_body", "default_camera", "write_markers", "PART_NAMES"]

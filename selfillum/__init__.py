@@ -18,34 +18,32 @@ from __future__ import annotations
 
 from resection._lazy import attach
 
-# a function named as its module: bound here, before any import of the module could
-# make the package attribute the module itself
-from .correct_image import ImageCorrection, correct_image
-
 #: Public name -> the submodule that defines it. Submodules are imported on first use
 #: (PEP 562), so a command pays only for what it calls (as scikit-image's lazy loading).
 _EXPORTS: dict[str, str] = {
-    "GlossyPaint": ".brdf",
-    "GlossyTransport": ".brdf",
-    "glossy_correct": ".brdf",
-    "glossy_forward": ".brdf",
-    "transport_matrix": ".brdf",
-    "MergedViews": ".multiview",
-    "merge_views": ".multiview",
-    "PSPResult": ".psp",
-    "SternVolmer": ".psp",
-    "fit_stern_volmer": ".psp",
-    "psp_images": ".psp",
-    "psp_pressure": ".psp",
-    "read_taps": ".psp",
-    "SolveInfo": ".radiosity",
-    "correct": ".radiosity",
-    "forward": ".radiosity",
-    "RenderResult": ".rendering",
-    "choose_variant": ".rendering",
-    "render": ".rendering",
-    "enforce_reciprocity": ".viewfactors",
-    "view_factors": ".viewfactors",
+    "ImageCorrection": ".images.image_correction",
+    "correct_image": ".images.image_correction",
+    "GlossyPaint": ".solve.brdf",
+    "GlossyTransport": ".solve.brdf",
+    "glossy_correct": ".solve.brdf",
+    "glossy_forward": ".solve.brdf",
+    "transport_matrix": ".solve.brdf",
+    "MergedViews": ".images.multiview",
+    "merge_views": ".images.multiview",
+    "PSPResult": ".images.psp",
+    "SternVolmer": ".images.psp",
+    "fit_stern_volmer": ".images.psp",
+    "psp_images": ".images.psp",
+    "psp_pressure": ".images.psp",
+    "read_taps": ".images.psp",
+    "SolveInfo": ".solve.radiosity",
+    "correct": ".solve.radiosity",
+    "forward": ".solve.radiosity",
+    "RenderResult": ".rendering.mitsuba_render",
+    "choose_variant": ".mitsuba_variants",
+    "render": ".rendering.mitsuba_render",
+    "enforce_reciprocity": ".transport.viewfactors",
+    "view_factors": ".transport.viewfactors",
 }
 
 __all__: list[str] = [

@@ -41,9 +41,8 @@ from scenes.corner import (
     exact_radiosity,
     symmetric_factors,
 )
-
-from .radiosity import correct, forward
-from .viewfactors import view_factors
+from selfillum.solve.radiosity import correct, forward
+from selfillum.transport.viewfactors import view_factors
 
 __all__ = ["CornerNumbers", "CornerResult", "run_corner", "plot_corner", "write_corner",
            "DEFAULT_RAYS"]

@@ -2,7 +2,7 @@
 
 The headline is the self-illumination share of the signal, ``(B - E) / B``, over the
 *well-seen* faces: painted faces with pixels, seen within the obliqueness cut-off (faces
-seen edge-on are unseen, :func:`selfillum.correct_image.correct_image`). It is given as
+seen edge-on are unseen, :func:`selfillum.images.image_correction.correct_image`). It is given as
 percentiles (median, 95th, 99th), not as a maximum: a maximum is set by the one worst
 face, usually one at the edge of the view. The summary also states what unseen and
 unpainted faces were taken to emit and how much of the correction rests on that.
@@ -69,7 +69,7 @@ class CorrectionSummary:
 
 
 def summarize(result) -> CorrectionSummary:
-    """Summary of an :class:`selfillum.correct_image.ImageCorrection`."""
+    """Summary of an :class:`selfillum.images.image_correction.ImageCorrection`."""
     seen = np.atleast_2d(result.seen)
     if result.unpainted is not None:  # no emission to recover on unpainted faces
         seen = seen & ~np.asarray(result.unpainted, bool)[None]

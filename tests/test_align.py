@@ -8,7 +8,7 @@ import pytest
 import trimesh
 
 from resection import Camera, InputError, SurfaceMap
-from resection.align import ViewWarp, warp_image
+from resection.surface.align import ViewWarp, warp_image
 from scenes.psp_pair import panel_mesh, plane_hits, pressure_factor, psp_pair, render
 
 

@@ -1,4 +1,4 @@
-"""Glossy paint (selfillum.brdf) against Mitsuba 3: its BSDF evaluation and sampling, and
+"""Glossy paint (selfillum.solve.brdf) against Mitsuba 3: its BSDF evaluation and sampling, and
 renders of the corner painted with it."""
 
 from __future__ import annotations
@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 
 from resection import Camera, InputError
-from selfillum.brdf import (
+from selfillum.rendering.mitsuba_render import choose_variant, render
+from selfillum.solve.brdf import (
     GlossyPaint,
     GlossyTransport,
     glossy_correct,
     glossy_forward,
     transport_matrix,
 )
-from selfillum.rendering import choose_variant, render
 
 PAINT = GlossyPaint(specular_weight=0.4, roughness=0.3)
 
@@ -102,7 +102,7 @@ def test_bad_paint_and_inputs():
         transport_matrix(sc.mesh, 0.3, 0.5, cam)
     with pytest.raises(InputError, match="reflectance"):
         transport_matrix(sc.mesh, PAINT, 1.0, cam)
-    from selfillum.viewfactors import view_factors
+    from selfillum.transport.viewfactors import view_factors
 
     F = view_factors(sc.mesh, rays_per_face=64)
     tr = transport_matrix(sc.mesh, PAINT, 0.5, cam, rays_per_face=64)
@@ -133,9 +133,9 @@ def test_bad_paint_and_inputs():
 def glossy_corner():
     from scipy.ndimage import maximum_filter, minimum_filter
 
-    from resection.surface import SurfaceMap
+    from resection.surface.surface_map import SurfaceMap
     from scenes.corner import corner
-    from selfillum.viewfactors import view_factors
+    from selfillum.transport.viewfactors import view_factors
 
     rho = 0.5
     sc = corner(resolution=10, reflectance=rho, pattern="smooth")

@@ -1,13 +1,13 @@
 """``resection map --out P.h5``: a frame sequence mapped into one time history, with
 ``--track`` (the poses solved by ``resection track``) and ``--resume``; checked against the
 scene's truth (paint field at the nodes, true poses), read back by h5py and meshio."""
-
 import h5py
 import meshio
 import numpy as np
 import pytest
 
-from resection.cli import main
+from resection.cli.main import main
+from resection.io.cameras import write_camera
 from resection.io.history import read_history, xdmf_path
 from scenes.moving_model import pitch_oscillation, write_sequence
 from scenes.moving_surface import model_surface, paint_field, render_surface
@@ -19,7 +19,7 @@ def scene(tmp_path_factory):
     model = pitch_oscillation(25, shape=(160, 160))
     mesh = model_surface(face_size=0.02)
     mesh.export(d / "model.ply")
-    model.camera.write(d / "camera.json")
+    write_camera(d / "camera.json", model.camera)
     return d, model, mesh
 
 

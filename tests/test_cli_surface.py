@@ -1,12 +1,12 @@
 """``resection map / backproject / align / view`` end to end on files, checked against
 closed-form plane geometry."""
-
 import imageio.v3 as iio
 import numpy as np
 import pandas as pd
 import pytest
 
-from resection.cli import main
+from resection.cli.main import main
+from resection.io.cameras import write_camera
 from resection.io.meshes import write_plot3d
 from scenes.psp_pair import HALF_X, HALF_Y, plane_hits, psp_pair, render
 
@@ -18,8 +18,8 @@ def files(tmp_path_factory):
     xs, ys = np.linspace(-HALF_X, HALF_X, 25), np.linspace(-HALF_Y, HALF_Y, 17)
     X, Y = np.meshgrid(xs, ys, indexing="ij")
     write_plot3d(d / "panel.xyz", [np.stack([X, Y, np.zeros_like(X)], axis=-1)], binary=False)
-    pp.camera_off.write(d / "off.json")
-    pp.camera_on.write(d / "on.json")
+    write_camera(d / "off.json", pp.camera_off)
+    write_camera(d / "on.json", pp.camera_on)
     P, on = plane_hits(pp.camera_off)
     np.save(d / "xcoord.npy", np.where(on, P[..., 0], np.nan))
     np.save(d / "tex.npy", render(pp.camera_on))
@@ -109,7 +109,7 @@ def test_map_max_obliqueness(tmp_path, capsys):
     K = [[300.0, 0.0, 159.5], [0.0, 300.0, 119.5], [0.0, 0.0, 1.0]]
     cam = Camera.look_at([0.0, -0.8, 2.0], [0.0, 0.0, 0.0], [0, 1, 0], K=K, width=320,
                          height=240)
-    cam.write(tmp_path / "cam.json")
+    write_camera(tmp_path / "cam.json", cam)
     np.save(tmp_path / "img.npy", np.ones((240, 320)))
     # angle between the -y side's normal and the view from its centre line (y = -0.3)
     side_angle = np.degrees(np.arctan2(2.0, 0.5))

@@ -13,10 +13,10 @@ from test_viewfactors import howell_perpendicular
 from resection.errors import InputError
 from scenes.corner import corner, corner_form_factors, corner_profile_line, symmetric_factors
 from selfillum import forward, view_factors
-from selfillum.cli import main
+from selfillum.cli.main import main
 from selfillum.corner import run_corner
-from selfillum.kernel import pair_factors
 from selfillum.mesh import face_areas, face_normals
+from selfillum.transport.kernel import pair_factors
 
 
 def test_corner_scene_geometry():

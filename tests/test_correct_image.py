@@ -11,12 +11,13 @@ from scipy.ndimage import binary_erosion
 
 from resection import Camera
 from resection.errors import InputError
-from resection.surface import SurfaceMap
+from resection.io.cameras import write_camera
+from resection.surface.surface_map import SurfaceMap
 from scenes.corner import corner
 from selfillum import view_factors
-from selfillum.cli import main
-from selfillum.correct_image import UnseenFacesWarning, correct_image, read_reflectance
-from selfillum.rendering import render
+from selfillum.cli.main import main
+from selfillum.images.image_correction import UnseenFacesWarning, correct_image, read_reflectance
+from selfillum.rendering.mitsuba_render import render
 
 
 def corner_camera() -> Camera:
@@ -106,7 +107,7 @@ def test_cli_correct_tiff_round_trip(renders, tmp_path, capsys):
     sc, cam, smap, full, emit, inner, noise = renders
     mesh_path, cam_path = tmp_path / "corner.ply", tmp_path / "cam.json"
     sc.mesh.export(mesh_path)
-    cam.write(cam_path)
+    write_camera(cam_path, cam)
     counts = np.rint(full * 4000).astype(np.uint16)
     tifffile.imwrite(tmp_path / "img.tif", counts)
     np.savetxt(
@@ -171,7 +172,7 @@ def test_cli_correct_tiff_round_trip(renders, tmp_path, capsys):
 def test_cli_correct_bad_input(renders, tmp_path, capsys):
     sc, cam, *_ = renders
     sc.mesh.export(tmp_path / "m.ply")
-    cam.write(tmp_path / "c.json")
+    write_camera(tmp_path / "c.json", cam)
     np.save(tmp_path / "small.npy", np.zeros((10, 10), np.float32))
     base = [
         "correct",
@@ -252,7 +253,7 @@ def test_cli_correct_stack(renders, tmp_path, capsys):
     frame, the summary counts faces per frame (not over the stack)."""
     sc, cam, smap, full, emit, inner, noise = renders
     sc.mesh.export(tmp_path / "m.ply")
-    cam.write(tmp_path / "c.json")
+    write_camera(tmp_path / "c.json", cam)
     second = 0.5 * full
     second[:, 120:] = np.nan  # part of the wall masked in this frame
     np.save(tmp_path / "stack.npy", np.stack([full, second]))

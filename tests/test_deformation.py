@@ -9,7 +9,7 @@ import pytest
 from scipy.optimize import least_squares
 
 from resection import Camera, DegenerateError, InputError
-from resection.deformation import (
+from resection.sequence.deformation import (
     displacements_3d,
     marker_displacements,
     pair_by_id,

@@ -1,4 +1,4 @@
-"""The compiled disk-model fit (resection._diskfit) against independent references."""
+"""The compiled disk-model fit (resection.markers._diskfit) against independent references."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.ndimage import gaussian_filter
 
-from resection import _diskfit, _diskmodel
+from resection.markers import _diskfit, _diskmodel
 
 
 def _model(x0, y0, R, blur, W, R_nodes=None):
@@ -87,7 +87,7 @@ def test_fit_recovers_noiseless_disks_exactly():
 def test_fit_reaches_the_cramer_rao_bound():
     # 400 noisy windows at SNR 20: RMS error per coordinate within sampling noise of the
     # bound of the same model (5 unknowns), computed independently from _diskmodel
-    from resection.markers import position_crb
+    from resection.markers.detect import position_crb
 
     rng = np.random.default_rng(4)
     win, p0, x0, y0 = _windows(400, 3.0, 0.6, 20.0, rng)

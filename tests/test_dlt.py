@@ -17,7 +17,7 @@ from resection import (
     fit_dlt,
     fit_homography,
 )
-from resection.dlt import dlt_coefficients
+from resection.pose.dlt import dlt_coefficients
 
 W, H = 1024, 768
 

@@ -12,6 +12,7 @@ import pytest
 from fault_files import corner_files
 
 from resection import InputError
+from resection.io.cameras import write_camera
 
 # --------------------------------------------------------------------------------------
 # Decisions on computed floats: a stated tolerance, not the sign of a rounding error
@@ -23,7 +24,7 @@ def test_constant_ratio_is_not_significant_whatever_the_rounding(tiny):
     """A ratio that does not vary with the pressure is 'not significant', whether the
     least-squares slope comes out as +1e-16, -1e-16 or exactly 0 (the CI failure of
     issue 10 item 1 was B = -8.3e-17 read as 'negative')."""
-    from selfillum.psp import fit_stern_volmer
+    from selfillum.images.psp import fit_stern_volmer
 
     p = np.array([80.0, 95.0, 110.0, 130.0])
     # the ratio is 1 up to one or two units in the last place, growing or falling with p:
@@ -40,7 +41,7 @@ def test_constant_ratio_is_not_significant_whatever_the_rounding(tiny):
 def test_falling_ratio_is_refused_as_negative():
     """A ratio that clearly falls with the pressure (wind-on and wind-off swapped) gets the
     'must grow' message, not the 'not significant' one."""
-    from selfillum.psp import SternVolmer, fit_stern_volmer
+    from selfillum.images.psp import SternVolmer, fit_stern_volmer
 
     p = np.array([80.0, 95.0, 110.0, 130.0])
     swapped = 1.0 / SternVolmer(0.15, 0.85, 100.0).ratio(p)
@@ -88,7 +89,7 @@ def test_calibrate_single_planar_view_refused_naming_the_centre(tmp_path, capsys
     """One view of a planar card with the principal point free: on today's main this
     exited 0 with the focal length 3 % off (reported error 8 %) and no warning. It is
     refused, naming cx, cy, and nothing is written."""
-    from resection.cli import main
+    from resection.cli.main import main
     from resection.io.markers import write_markers, write_points
 
     board, uv, _ = _planar_view([0.25, 0.2, -0.45])
@@ -133,13 +134,13 @@ def test_map_with_camera_facing_away_fails(tmp_path, capsys):
     """``resection map`` with a camera that sees none of the mesh printed "0 of N faces
     seen", exited 0 and wrote an all-NaN file."""
     from resection import Camera
-    from resection.cli import main
+    from resection.cli.main import main
 
     sc, cam, _ = corner_files(tmp_path)
     centre = np.asarray(sc.mesh.vertices).mean(axis=0)
     away = Camera.look_at(cam.center, 2 * cam.center - centre, [0, 0, 1], K=cam.K,
                           width=cam.width, height=cam.height)
-    away.write(tmp_path / "away.json")
+    write_camera(tmp_path / "away.json", away)
     rc = main(_map_args(tmp_path, tmp_path / "away.json"))
     err = capsys.readouterr().err
     assert rc == 2 and "sees none of the" in err and "facing away" in err, err
@@ -153,10 +154,11 @@ def test_map_with_camera_in_mm_names_the_unit_mismatch(tmp_path, capsys):
     """A camera solved with markers in mm looking at a mesh in m sees nothing: the
     message says which units."""
     from resection import Camera
-    from resection.cli import main
+    from resection.cli.main import main
 
     _, cam, _ = corner_files(tmp_path)
-    Camera(cam.width, cam.height, cam.K, R=cam.R, t=1000.0 * cam.t).write(tmp_path / "mm.json")
+    write_camera(tmp_path / "mm.json",
+                 Camera(cam.width, cam.height, cam.K, R=cam.R, t=1000.0 * cam.t))
     rc = main(_map_args(tmp_path, tmp_path / "mm.json"))
     err = capsys.readouterr().err
     assert rc == 2 and "unit mismatch: the mesh in m and the camera in mm?" in err, err
@@ -168,7 +170,7 @@ def _markers_and_candidates(sc, cam, n=14, seed=2):
     candidates in ``cam`` (the exact projections)."""
     mesh = sc.mesh
     rng = np.random.default_rng(seed)
-    from resection.surface import SurfaceMap
+    from resection.surface.surface_map import SurfaceMap
 
     seen = np.flatnonzero(SurfaceMap(mesh, cam).seen_faces)
     faces = rng.choice(seen, size=n, replace=False)
@@ -181,7 +183,7 @@ def test_match_with_markers_in_mm_names_the_unit_mismatch(tmp_path, capsys):
     """``match`` with the markers in mm and the camera in m said only "0 reference
     markers in view"; the message now names the unit mismatch. The same files in one
     unit match."""
-    from resection.cli import main
+    from resection.cli.main import main
     from resection.io.markers import write_markers
 
     sc, cam, _ = corner_files(tmp_path, resolution=8, size=(320, 240))
@@ -208,12 +210,12 @@ def test_correct_with_mesh_in_mm_names_units_not_winding(tmp_path, capsys):
     import trimesh
 
     from resection import Camera
-    from selfillum.cli import main
+    from selfillum.cli.main import main
 
     box = trimesh.creation.box(extents=(1.0, 0.6, 0.4))
     cam = Camera.look_at([1.6, 1.3, 1.0], [0, 0, 0], [0, 0, 1],
                          K=[[90.0, 0, 47.5], [0, 90.0, 35.5], [0, 0, 1]], width=96, height=72)
-    cam.write(tmp_path / "cam.json")
+    write_camera(tmp_path / "cam.json", cam)
     trimesh.Trimesh(box.vertices * 1000.0, box.faces).export(tmp_path / "box_mm.ply")
     box.export(tmp_path / "box.ply")
     np.save(tmp_path / "img.npy", np.ones((72, 96), np.float32))
@@ -232,7 +234,7 @@ def test_taps_in_mm_name_the_units(tmp_path):
     """Pressure taps in mm on a mesh in m: 'tap 0 is 480 from the surface' now says
     why."""
     from scenes.corner import corner
-    from selfillum.psp import tap_faces
+    from selfillum.images.psp import tap_faces
 
     mesh = corner(resolution=6).mesh
     taps = np.asarray(mesh.triangles_center)[[3, 20, 40, 55]]
@@ -244,7 +246,7 @@ def test_taps_in_mm_name_the_units(tmp_path):
 def test_spread_hint_decisions():
     """The spread comparison: a factor of 1000 or 25.4 between two point sets is named,
     a subset of the same surface in the same units is not."""
-    from resection.units import spread_hint
+    from resection.camera.units import spread_hint
 
     rng = np.random.default_rng(0)
     mesh_pts = rng.uniform(0, 1, (500, 3))
@@ -287,7 +289,7 @@ def test_markers_in_mm_on_a_mesh_in_m_are_not_snapped_to_it(tmp_path):
 def test_pose_from_image_with_markers_in_mm_names_the_unit_mismatch(tmp_path, capsys):
     """``resection pose --image`` (detect, match, solve) with the markers in mm and the
     approximate camera in m said only "0 reference markers in view"."""
-    from resection.cli import main
+    from resection.cli.main import main
     from resection.io.markers import write_markers
 
     sc, cam, _ = corner_files(tmp_path, resolution=8, size=(320, 240))

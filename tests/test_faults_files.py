@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from resection import InputError
+from resection.io.cameras import read_camera
 
 # --------------------------------------------------------------------------------------
 # File parsing (io): camera JSON
@@ -22,13 +23,12 @@ def _camera_dict() -> dict:
 
 
 def test_camera_json_with_byte_order_mark_is_accepted(tmp_path):
-    from resection import Camera
 
     p = tmp_path / "cam.json"
     import json
 
     p.write_bytes(b"\xef\xbb\xbf" + json.dumps(_camera_dict()).encode())
-    cam = Camera.read(p)
+    cam = read_camera(p)
     assert (cam.width, cam.height) == (256, 192) and cam.K[0, 0] == 800.0
 
 
@@ -47,14 +47,13 @@ def test_camera_json_wrong_types_and_shapes_are_errors(tmp_path, key, value, mat
     distortion error, or as 'got 256, 256'): each is now a one-line error naming the key."""
     import json
 
-    from resection import Camera
 
     d = _camera_dict()
     d[key] = value
     p = tmp_path / "cam.json"
     p.write_text(json.dumps(d))
     with pytest.raises(InputError, match=match) as err:
-        Camera.read(p)
+        read_camera(p)
     msg = str(err.value)
     assert msg.startswith(str(p)) and "\n" not in msg
     assert "256, 256" not in msg
@@ -66,7 +65,7 @@ def test_camera_json_wrong_types_and_shapes_are_errors(tmp_path, key, value, mat
 
 
 def test_detect_on_an_empty_npy_is_a_one_line_error(tmp_path, capsys):
-    from resection.cli import main
+    from resection.cli.main import main
 
     p = tmp_path / "empty.npy"
     p.write_bytes(b"")
@@ -184,7 +183,7 @@ def test_no_npy_reader_advises_allow_pickle(tmp_path, capsys):
     """Every .npy the commands read (reflectance, per-face values, images) goes through one
     loader: an object array or an empty file is a one-line error that never advises
     allow_pickle."""
-    from selfillum.correct_image import read_reflectance
+    from selfillum.images.image_correction import read_reflectance
 
     obj = tmp_path / "rho.npy"
     np.save(obj, np.array([{"a": 1}], dtype=object), allow_pickle=True)

@@ -11,6 +11,7 @@ import pytest
 from fault_files import corner_files
 
 from resection import InputError
+from resection.io.cameras import write_camera
 
 # --------------------------------------------------------------------------------------
 # Outputs never destroy inputs; files appear whole or not at all (issue 10 item 4)
@@ -21,7 +22,7 @@ def test_correct_refuses_out_equal_to_image(tmp_path, capsys):
     """``selfillum correct --image X --out X`` destroyed the raw image on today's main:
     refused before any work, through any spelling of the same file (a hard link too)."""
 
-    from selfillum.cli import main
+    from selfillum.cli.main import main
 
     corner_files(tmp_path)
     raw = (tmp_path / "img.npy").read_bytes()
@@ -36,7 +37,7 @@ def test_correct_refuses_out_equal_to_image(tmp_path, capsys):
         assert rc == 2 and "is an input" in err and len(err.splitlines()) == 1, err
         assert (tmp_path / "img.npy").read_bytes() == raw
     # the library function refuses it as well
-    from selfillum.correct_image import correct_image_file
+    from selfillum.images.image_correction import correct_image_file
 
     with pytest.raises(InputError, match="is an input"):
         correct_image_file(tmp_path / "corner.ply", tmp_path / "cam.json",
@@ -46,7 +47,7 @@ def test_correct_refuses_out_equal_to_image(tmp_path, capsys):
 
 def test_detect_refuses_out_equal_to_frame(tmp_path, capsys):
     """``resection detect X.npy --out X.npy`` wrote CSV text over the frame."""
-    from resection.cli import main
+    from resection.cli.main import main
 
     frame = np.full((40, 50), 100.0, dtype=np.float32)
     frame[18:23, 20:25] = 10.0
@@ -64,14 +65,15 @@ def test_two_outputs_with_one_name_refused(tmp_path, capsys):
     """Two outputs of one command naming the same file: the second would replace the
     first."""
     from resection import Camera
-    from resection.cli import main
+    from resection.cli.main import main
     from resection.io.markers import write_markers, write_points
 
     board = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0.2], [0.5, 0.3, 0.1]])
     ids = [f"M{i}" for i in range(5)]
     write_markers(tmp_path / "m.csv", ids, board)
     write_points(tmp_path / "p.csv", ids, np.arange(10.0).reshape(5, 2) * 20 + 100)
-    Camera(640, 480, [[600, 0, 319.5], [0, 600, 239.5], [0, 0, 1]]).write(tmp_path / "c.json")
+    write_camera(tmp_path / "c.json",
+                 Camera(640, 480, [[600, 0, 319.5], [0, 600, 239.5], [0, 0, 1]]))
     rc = main(["pose", "--camera", str(tmp_path / "c.json"), "--markers",
                str(tmp_path / "m.csv"), "--points", str(tmp_path / "p.csv"),
                "--out", str(tmp_path / "r.csv"), "--residuals", str(tmp_path / "r.csv")])
@@ -153,7 +155,7 @@ def test_render_preview_never_replaces_an_unrelated_png(tmp_path, capsys):
     The preview is named from --out (``a.preview.png``); an existing preview that no
     ``a.tif`` goes with is refused before rendering."""
     from resection.io.images import read_image, write_image
-    from selfillum.cli import main
+    from selfillum.cli.main import main
 
     corner_files(tmp_path)
     photo = np.arange(12, dtype=np.uint8).reshape(3, 4)
@@ -183,7 +185,7 @@ def test_failing_psp_leaves_no_output_folder(tmp_path, capsys):
     """A ``selfillum psp`` run that fails (here: wind-on = wind-off, so the ratio does
     not follow the taps' pressures) left an empty output folder behind on today's main."""
     from resection.io.images import write_image
-    from selfillum.cli import main
+    from selfillum.cli.main import main
 
     sc, _, img = corner_files(tmp_path)
     write_image(tmp_path / "off.tif", img)
@@ -228,7 +230,7 @@ def test_output_folder_removed_only_when_this_run_made_it(tmp_path):
 def test_view_size_that_cannot_be_allocated_is_refused(tmp_path, capsys):
     """``resection view --size 100000x100000`` ended in a MemoryError traceback: 1e10
     pixels need terabytes for the per-pixel rays; refused in one line, nothing written."""
-    from resection.cli import main
+    from resection.cli.main import main
 
     sc, _, _ = corner_files(tmp_path)
     np.save(tmp_path / "v.npy", np.arange(len(sc.mesh.faces), dtype=float))

@@ -41,7 +41,7 @@ def test_track_resume_recomputes_frames_whose_files_were_replaced(two_sequences,
     reported A's motion; it recomputes every frame and reports B's."""
     import shutil
 
-    from resection.cli import main
+    from resection.cli.main import main
     from resection.sequence import read_track
 
     a, fa, b, fb = two_sequences
@@ -69,7 +69,7 @@ def test_track_resume_recomputes_a_repaired_frame_and_names_failed_files(two_seq
     item 6 (a failed frame's reason did not name its file)."""
     import shutil
 
-    from resection.cli import main
+    from resection.cli.main import main
     from resection.sequence import read_track
 
     a, fa, _, _ = two_sequences
@@ -122,7 +122,7 @@ def test_track_refuses_an_output_folder_in_use_and_takes_over_a_stale_lock(two_s
     import signal
     import socket
 
-    from resection.cli import main
+    from resection.cli.main import main
     from resection.io.lock import LOCK_NAME, read_lock
 
     _, fa, _, _ = two_sequences

@@ -11,7 +11,8 @@ import pytest
 import trimesh
 
 from resection import InputError
-from resection.cli import main
+from resection.cli.main import main
+from resection.io.cameras import write_camera
 from resection.io.fields import read_fields, write_fields
 from resection.io.meshes import write_plot3d
 from resection.io.plot3d import read_plot3d_function
@@ -106,7 +107,7 @@ def plate(tmp_path_factory):
     X, Y = np.meshgrid(np.linspace(-HALF_X, HALF_X, 25), np.linspace(-HALF_Y, HALF_Y, 17),
                        indexing="ij")
     write_plot3d(d / "panel.grid", [np.stack([X, Y, np.zeros_like(X)], -1)])  # by content
-    pp.camera_off.write(d / "off.json")
+    write_camera(d / "off.json", pp.camera_off)
     P, on = plane_hits(pp.camera_off)
     np.save(d / "xcoord.npy", np.where(on, P[..., 0], np.nan))
     return d, X

@@ -9,6 +9,7 @@ import pytest
 import tifffile
 
 from resection import InputError, read_image, write_image
+from resection.io.cameras import write_camera
 from resection.io.images import read_native
 
 
@@ -66,13 +67,14 @@ def test_selfillum_correct_takes_png(tmp_path, capsys):
     serves both, and an 8-bit PNG comes back as an 8-bit PNG of the same shape."""
     from resection import Camera
     from scenes.corner import corner
-    from selfillum.cli import main
+    from selfillum.cli.main import main
 
     sc = corner(resolution=4)
     sc.mesh.export(tmp_path / "corner.ply")
     K = [[60.0, 0.0, 31.5], [0.0, 60.0, 23.5], [0.0, 0.0, 1.0]]
-    Camera.look_at([1.6, 0.5, 1.3], [0.3, 0.5, 0.3], [0.0, 1.0, 0.0], K=K, width=64,
-                   height=48).write(tmp_path / "cam.json")
+    write_camera(tmp_path / "cam.json",
+                 Camera.look_at([1.6, 0.5, 1.3], [0.3, 0.5, 0.3], [0.0, 1.0, 0.0], K=K,
+                                width=64, height=48))
     img = np.full((48, 64), 120, np.uint8)
     iio.imwrite(tmp_path / "frame.png", img)
     rc = main(["correct", "--mesh", str(tmp_path / "corner.ply"), "--camera",

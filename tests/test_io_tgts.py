@@ -113,7 +113,7 @@ def test_target_under_the_surface_moves_out_along_its_normal(tmp_path):
 def test_psp_taps_positions_from_tgts(tmp_path):
     """``selfillum psp --taps P.csv --tap-positions MODEL.tgts``: the pressures come from an
     id,p file, the positions from the .tgts *Taps section."""
-    from selfillum.psp import read_taps
+    from selfillum.images.psp import read_taps
 
     (tmp_path / "model.tgts").write_text(TGTS)
     (tmp_path / "p.csv").write_text("id,p\nP1,101.5\n")

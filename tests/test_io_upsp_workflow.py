@@ -8,9 +8,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from resection import Camera
-from resection.cli import main
-from resection.io.cameras import write_camera
+from resection.cli.main import main
+from resection.io.cameras import read_camera, write_camera
 from resection.io.images import write_image
 from resection.io.markers import MarkerSet
 from resection.io.plot3d import read_plot3d_function, write_plot3d
@@ -46,7 +45,7 @@ def test_pose_then_map_to_plot3d_function(upsp_files, capsys):
     assert rc == 0, out
     assert not any(line.split()[0].startswith("P") for line in out.splitlines()[3:-1]
                    if line.split())  # no tap was taken for a target
-    cam = Camera.read(d / "pose.json")
+    cam = read_camera(d / "pose.json")
     ok = np.all(np.isfinite(sc.uv[0]), axis=1)
     err = np.linalg.norm(cam.project(sc.markers[ok]) - sc.uv[0][ok], axis=1)
     assert np.median(err) < 0.6  # survey errors are 0.5 to 1.5 px

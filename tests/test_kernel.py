@@ -1,4 +1,4 @@
-"""Exact unoccluded form factors (selfillum.kernel) against closed forms, and the
+"""Exact unoccluded form factors (selfillum.transport.kernel) against closed forms, and the
 corner's converged reference built on them."""
 
 import numpy as np
@@ -7,8 +7,8 @@ from test_viewfactors import howell_perpendicular, perpendicular_mesh
 
 from scenes.corner import corner, corner_form_factors, exact_radiosity
 from selfillum import forward, view_factors
-from selfillum.kernel import pair_factors, point_polygon_factor, triangle_rule
 from selfillum.mesh import face_normals
+from selfillum.transport.kernel import pair_factors, point_polygon_factor, triangle_rule
 
 
 def dA_to_rectangle_corner(a: float, b: float, c: float) -> float:

@@ -10,7 +10,7 @@ from scipy.spatial import cKDTree
 
 from resection.errors import InputError
 from resection.io.images import read_image, write_image
-from resection.markers import (
+from resection.markers.detect import (
     Candidates,
     detect_markers,
     marker_template,
@@ -234,7 +234,7 @@ def test_border_roi_and_doubles():
 
 
 def test_refine_in_chunks_equals_one_batch():
-    from resection.markers import refine_markers
+    from resection.markers.detect import refine_markers
 
     sc = make_scene((200, 200), 25, 5.0, snr=30.0, rng=8)
     start = np.rint(sc.uv) + 0.0
@@ -350,7 +350,7 @@ def _ir_scene():
 
 @pytest.mark.parametrize("method", ["median", "gaussian"])
 def test_subtract_background_removes_background_keeps_positions(method):
-    from resection.enhance import subtract_background
+    from resection.markers.enhancement import subtract_background
 
     sc, bg = _ir_scene()
     img = sc.image + bg
@@ -365,7 +365,7 @@ def test_subtract_background_removes_background_keeps_positions(method):
 
 
 def test_normalize_contrast_equalises_gain():
-    from resection.enhance import normalize_contrast
+    from resection.markers.enhancement import normalize_contrast
 
     rng = np.random.default_rng(0)
     gain = np.linspace(0.1, 1.0, 300)[None, :] * np.ones((100, 1))
@@ -380,7 +380,7 @@ def test_normalize_contrast_equalises_gain():
 def test_clahe_against_empirical_cdf_and_windows():
     from scipy.stats import rankdata
 
-    from resection.enhance import clahe, enhance
+    from resection.markers.enhancement import clahe, enhance
 
     rng = np.random.default_rng(1)
     img = rng.gamma(2.0, 50.0, (64, 80))
@@ -404,7 +404,7 @@ def test_clahe_against_empirical_cdf_and_windows():
 
 
 def test_enhance_bad_input():
-    from resection.enhance import clahe, enhance, subtract_background
+    from resection.markers.enhancement import clahe, enhance, subtract_background
 
     with pytest.raises(InputError, match="method"):
         enhance(np.zeros((10, 10)), "sharpen")
@@ -463,7 +463,7 @@ def _found_false(cand, truth):
 
 
 def test_background_enhancement_helps_on_hot_low_contrast_ir_image():
-    from resection.pipeline import detect_in_image
+    from resection.markers.from_image import detect_in_image
 
     raw_missed = raw_false = 0
     for seed in range(3):
@@ -479,7 +479,7 @@ def test_background_enhancement_helps_on_hot_low_contrast_ir_image():
 
 
 def test_enhancement_in_windows_searches_only_there():
-    from resection.pipeline import _window_mask, detect_in_image
+    from resection.markers.in_image import detect_in_image, window_mask
 
     wins = [(10, 10, 129, 119), (180, 20, 309, 139), (40, 145, 199, 229)]
     raw_missed = 0
@@ -492,10 +492,10 @@ def test_enhancement_in_windows_searches_only_there():
         cand = detect_in_image(img, 6.0, enhance="background", enhance_windows=wins)
         assert _found_false(cand, sc.uv[inside])[0] == inside.sum()
         assert _found_false(cand, sc.uv)[1] == 0
-        assert np.all(_window_mask(img.shape, wins)[np.rint(cand.v).astype(int),
+        assert np.all(window_mask(img.shape, wins)[np.rint(cand.v).astype(int),
                                                     np.rint(cand.u).astype(int)])
         assert _rms(_errors(cand.uv, sc.uv[inside])[0]) <= 0.05
-        mask = ~_window_mask(img.shape, wins)
+        mask = ~window_mask(img.shape, wins)
         raw_missed += inside.sum() - _found_false(detect_markers(img, 6.0, mask=mask),
                                                   sc.uv[inside])[0]
     assert raw_missed >= 2
@@ -521,7 +521,7 @@ def test_blobs_of_another_size_are_rejected():
 
 
 def test_saturated_pixels_of_integer_files_stay_masked(tmp_path):
-    from resection.pipeline import detect_in_image
+    from resection.markers.from_image import detect_in_image
 
     sc = make_scene((200, 200), 20, 6.0, snr=30.0, contrast=60.0, background=150.0,
                     dtype=np.uint8, rng=3)
@@ -542,7 +542,7 @@ def test_saturated_pixels_of_integer_files_stay_masked(tmp_path):
 def test_coarse_pass_then_refine_equals_full_detection(diameter):
     # refine=False: centroids only (against the truth); refine_markers on them afterwards
     # gives the full detection's positions
-    from resection.markers import refine_markers
+    from resection.markers.detect import refine_markers
 
     sc = make_scene((300, 300), 30, diameter, snr=30.0, blur=0.7, rng=1)
     coarse = detect_markers(sc.image, diameter, refine=False)

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from resection.camera import Camera
+from resection.camera.model import Camera
 from resection.errors import InputError, SolveError
-from resection.match import MatchResult, match_markers
+from resection.markers.match import MatchResult, match_markers
 
 K = [[1500.0, 0, 512], [0, 1500.0, 384], [0, 0, 1]]
 BASE = Camera.look_at([0.2, -0.3, 1.6], [0, 0, 0], [0, 1, 0], K=K, width=1024, height=768)

@@ -1,4 +1,4 @@
-"""Several cameras merged onto one grid (resection.merge) on the real-traits scene: gains
+"""Several cameras merged onto one grid (resection.surface.merge) on the real-traits scene: gains
 matched on the overlap against the scene's true gains, and the seam level at the images'
 edges measured against the true paint luminescence."""
 
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from resection import InputError
-from resection.merge import angle_weights, boundary_pixels, merge_views, pixel_weights
-from resection.surface import SurfaceMap
+from resection.surface.merge import angle_weights, boundary_pixels, merge_views, pixel_weights
+from resection.surface.surface_map import SurfaceMap
 from scenes.real_traits import real_traits
 
 
@@ -133,7 +133,7 @@ def test_cli_map_merges_two_cameras(scene, tmp_path, capsys):
     PNGs with a saturated glare, Plot3D grid) is the library's merge, in camera 0's counts."""
     import pandas as pd
 
-    from resection.cli import main
+    from resection.cli.main import main
     from scenes.real_traits import write_scene
 
     sc, maps, images = scene

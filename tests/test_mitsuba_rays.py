@@ -8,9 +8,9 @@ import pytest
 import trimesh
 
 from resection import InputError
-from selfillum.mitsuba_rays import MitsubaRayScene, tracing_variant
-from selfillum.rendering import _import_mitsuba
-from selfillum.viewfactors import RayScene
+from selfillum.mitsuba_variants import import_mitsuba
+from selfillum.transport.mitsuba_rays import MitsubaRayScene, tracing_variant
+from selfillum.transport.viewfactors import RayScene
 
 
 def plate() -> trimesh.Trimesh:
@@ -59,7 +59,7 @@ def test_same_first_hits_as_embree_inside_a_sphere():
 
 
 def test_variant_is_restored_and_bad_variants_refused():
-    mi, _ = _import_mitsuba()
+    mi, _ = import_mitsuba()
     mi.set_variant("scalar_rgb")
     scene = MitsubaRayScene(plate().vertices, plate().faces)
     scene.first_hit(np.array([[0.2, -0.5, 1.0]]), np.array([[0.0, 0.0, -1.0]]))

@@ -1,4 +1,4 @@
-"""Several cameras merged before the self-illumination inverse (selfillum.multiview),
+"""Several cameras merged before the self-illumination inverse (selfillum.images.multiview),
 checked on Mitsuba renders of the corner against the true emission."""
 
 from __future__ import annotations
@@ -7,15 +7,15 @@ import numpy as np
 import pytest
 
 from resection import Camera, InputError
-from selfillum.multiview import merge_views
-from selfillum.rendering import render
+from selfillum.images.multiview import merge_views
+from selfillum.rendering.mitsuba_render import render
 
 
 @pytest.fixture(scope="module")
 def two_cameras():
-    from resection.surface import SurfaceMap
+    from resection.surface.surface_map import SurfaceMap
     from scenes.corner import corner
-    from selfillum.viewfactors import view_factors
+    from selfillum.transport.viewfactors import view_factors
 
     sc = corner(resolution=10, reflectance=0.6, pattern="smooth")
     F = view_factors(sc.mesh, rays_per_face=2048, seed=1)
@@ -32,7 +32,7 @@ def two_cameras():
 
 
 def _corrected(sc, F, mv):
-    from selfillum.radiosity import correct
+    from selfillum.solve.radiosity import correct
 
     B = np.where(mv.seen, mv.values * np.pi, np.nan)
     return correct(F, B, sc.reflectance, mv.seen, mesh=sc.mesh)
@@ -81,7 +81,7 @@ def test_cameras_agree_on_common_faces(two_cameras):
 def test_silhouette_pixels_are_dropped(two_cameras):
     """Pixels straddling the outline mix in the background: keeping them biases the
     faces along the plates' free edges low."""
-    from selfillum.radiosity import forward
+    from selfillum.solve.radiosity import forward
 
     sc, F, maps, images = two_cameras
     B = forward(F, sc.emission, sc.reflectance) / np.pi
@@ -106,7 +106,7 @@ def test_bad_input(two_cameras):
         merge_views([], [])
     with pytest.raises(InputError, match="silhouette_margin"):
         merge_views(maps, images, silhouette_margin=-1)
-    from resection.surface import SurfaceMap
+    from resection.surface.surface_map import SurfaceMap
     from scenes.corner import corner
 
     other = SurfaceMap(corner(resolution=3).mesh, maps[0].camera)

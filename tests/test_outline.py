@@ -10,8 +10,8 @@ import trimesh
 
 from resection import Camera, InputError
 from resection.io.meshes import load_mesh
-from resection.outline import outline_edges, visible_segments
-from resection.plots import frame_camera
+from resection.surface.outline import outline_edges, visible_segments
+from resection.surface.plots import frame_camera
 from scenes.real_traits import BOX, HALF_X, HALF_Y, real_traits, write_scene
 
 
@@ -119,7 +119,7 @@ def test_frame_camera_target_zoom_and_box(scene):
 def test_cli_view_frames_a_region(scene, tmp_path, capsys):
     import imageio.v3 as iio
 
-    from resection.cli import main
+    from resection.cli.main import main
 
     sc, p = scene
     vals = tmp_path / "v.npy"

@@ -26,11 +26,13 @@ def test_every_exported_name_resolves_to_its_definition(package):
 
 def test_correct_image_stays_the_function_after_its_module_is_imported():
     import selfillum
-    from selfillum.correct_image import read_reflectance  # noqa: F401 - imports the module
+    import selfillum.images
+    from selfillum.images.image_correction import read_reflectance  # noqa: F401 - imports the module
 
-    module = sys.modules["selfillum.correct_image"]
-    assert callable(selfillum.correct_image)
+    module = sys.modules["selfillum.images.image_correction"]
+    assert callable(selfillum.correct_image) and callable(selfillum.images.correct_image)
     assert selfillum.correct_image is module.correct_image
+    assert selfillum.images.correct_image is module.correct_image
 
 
 def _modules_after(code: str) -> set[str]:
@@ -45,11 +47,11 @@ def test_light_imports_do_not_load_the_heavy_stacks():
     assert not heavy & _modules_after("import resection")
     assert not heavy & _modules_after("from resection import Camera, InputError")
     # a light name gives a usable object
-    assert "resection.camera" in _modules_after("from resection import Camera")
+    assert "resection.camera.model" in _modules_after("from resection import Camera")
 
 
 def test_resection_command_line_builds_without_the_numerical_stacks():
     """``resection --help`` and argument errors come at once: the parser's defaults
     (:mod:`resection.defaults`) need none of the libraries the commands call."""
-    loaded = _modules_after("from resection.cli import build_parser\nbuild_parser()")
+    loaded = _modules_after("from resection.cli.main import build_parser\nbuild_parser()")
     assert not {"matplotlib", "dask", "trimesh", "embreex", "numba", "scipy.stats"} & loaded

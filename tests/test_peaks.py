@@ -1,4 +1,4 @@
-"""Local maxima above a threshold (resection._peaks) against scipy's maximum filter."""
+"""Local maxima above a threshold (resection.markers._peaks) against scipy's maximum filter."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from resection import _peaks
+from resection.markers import _peaks
 
 
 @pytest.mark.parametrize("size", [3, 5, 7, 11])
@@ -40,7 +40,8 @@ def test_merit_equals_direct_correlation_of_the_mirrored_frame(shape, diameter, 
     # smaller than the 11 px template: reflected more than once)
     from scipy.signal import correlate
 
-    from resection import _prep, markers
+    from resection.markers import _prep
+    from resection.markers import detect as markers
 
     x = np.random.default_rng(1).normal(size=shape).astype(np.float32)
     tmpl = markers.marker_template(diameter, kind)

@@ -9,7 +9,7 @@ from matplotlib.collections import PolyCollection
 from matplotlib.quiver import Quiver
 
 from resection import Camera, InputError
-from resection.plots import plot_resection, plot_surface, virtual_camera
+from resection.surface.plots import plot_resection, plot_surface, virtual_camera
 
 
 def plane(n=12):

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from resection import Camera, DegenerateError, InputError, SolveError, solve_pose
-from resection.pose import p3p
+from resection.pose.solve import p3p
 
 W, H = 1280, 960
 

@@ -1,5 +1,4 @@
 """``resection pose --plot``: the overlay of the paper's Figure 20 from the command line."""
-
 import cv2
 import numpy as np
 import trimesh
@@ -7,9 +6,10 @@ from matplotlib.image import imread
 from matplotlib.quiver import Quiver
 
 from resection import Camera, write_markers, write_points
-from resection.cli import main
-from resection.pose import solve_pose
-from resection.pose_plots import plot_pose
+from resection.cli.main import main
+from resection.io.cameras import write_camera
+from resection.pose.figure20 import plot_pose
+from resection.pose.solve import solve_pose
 
 W, H = 640, 480
 K = np.array([[900.0, 0, 319.5], [0, 900.0, 239.5], [0, 0, 1.0]])
@@ -63,7 +63,7 @@ def test_pose_command_plot(tmp_path, capsys):
     mesh.export(tmp_path / "model.stl")
     write_markers(tmp_path / "m.csv", ids, X)
     write_points(tmp_path / "p.csv", ids, uv)
-    cam.replace(R=np.eye(3), t=np.zeros(3)).write(tmp_path / "cam.json")
+    write_camera(tmp_path / "cam.json", cam.replace(R=np.eye(3), t=np.zeros(3)))
     base = ["pose", "--camera", str(tmp_path / "cam.json"), "--markers",
             str(tmp_path / "m.csv"), "--points", str(tmp_path / "p.csv"), "--out",
             str(tmp_path / "out.json")]

@@ -14,6 +14,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from resection import Camera
+from resection.io.cameras import read_camera
 from resection.sequence import track
 from resection.sequence.predict import predict_pose, project_poses, refine_pose
 from resection.sequence.results import FrameResult
@@ -97,7 +98,7 @@ def seq40(tmp_path_factory):
     base = tmp_path_factory.mktemp("pred40")
     model = pitch_oscillation(40)
     files = write_sequence(model, base / "frames")
-    return model, files, Camera.read(files["camera"])
+    return model, files, read_camera(files["camera"])
 
 
 def test_smooth_motion_is_tracked_by_prediction(seq40, tmp_path):
@@ -125,7 +126,7 @@ def test_a_jump_goes_to_the_matcher_and_is_right(tmp_path):
     every frame is right, never matched wrong."""
     model = pitch_oscillation(40, amplitude_deg=6.0)
     files = write_sequence(model, tmp_path / "frames", frames=[*range(0, 14), 30, 31, 32])
-    cam = Camera.read(files["camera"])
+    cam = read_camera(files["camera"])
     order = [*range(0, 8), 30, 31, 32, *range(8, 14)]
     paths = {int(Path(p).stem.split("_")[1]): p for p in files["frames"]}
     res = track([paths[i] for i in order], cam, files["markers"], diameter=5.6,

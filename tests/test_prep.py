@@ -1,4 +1,4 @@
-"""The compiled preparation of a frame for detection (resection._prep.prepare) against the
+"""The compiled preparation of a frame for detection (resection.markers._prep.prepare) against the
 NumPy expressions it replaces."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from resection import _prep
+from resection.markers import _prep
 
 
 def _reference(img, mask, saturation, sign):

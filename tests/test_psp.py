@@ -1,4 +1,4 @@
-"""PSP workflow (selfillum.psp) on a synthetic corner rendered by Mitsuba: the pressure
+"""PSP workflow (selfillum.images.psp) on a synthetic corner rendered by Mitsuba: the pressure
 error that self-illumination causes near the corner disappears once both images are
 corrected. References: the pressure field and Stern-Volmer law the images were made with."""
 
@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from resection import Camera, InputError
-from selfillum.psp import (
+from resection.io.cameras import write_camera
+from selfillum.images.psp import (
     SternVolmer,
     Taps,
     fit_stern_volmer,
@@ -23,11 +24,11 @@ LAW = SternVolmer(0.15, 0.85, P_REF)
 
 @pytest.fixture(scope="module")
 def psp_case():
-    from resection.surface import SurfaceMap
+    from resection.surface.surface_map import SurfaceMap
     from scenes.corner import corner
-    from selfillum.multiview import merge_views
-    from selfillum.rendering import render
-    from selfillum.viewfactors import view_factors
+    from selfillum.images.multiview import merge_views
+    from selfillum.rendering.mitsuba_render import render
+    from selfillum.transport.viewfactors import view_factors
 
     sc = corner(resolution=12, reflectance=0.6, pattern="uniform")
     mesh = sc.mesh
@@ -123,8 +124,8 @@ def test_psp_images_and_cli(psp_case, tmp_path, capsys):
     import json
 
     from resection.io.images import read_image, write_image
-    from selfillum.cli import main
-    from selfillum.psp import psp_images
+    from selfillum.cli.main import main
+    from selfillum.images.psp import psp_images
 
     sc, F, off, on, taps, p_true, near, smap, images = psp_case
     res, (pimg,) = psp_images([smap], [images[0]], [images[1]], taps, P_REF, F=F,
@@ -137,7 +138,7 @@ def test_psp_images_and_cli(psp_case, tmp_path, capsys):
     assert np.all(np.isnan(pimg[face < 0]))
     # the command line on the same data
     sc.mesh.export(tmp_path / "corner.ply")
-    smap.camera.write(tmp_path / "cam.json")
+    write_camera(tmp_path / "cam.json", smap.camera)
     write_image(tmp_path / "off.tif", images[0].astype(np.float32))
     write_image(tmp_path / "on.tif", images[1].astype(np.float32))
     (tmp_path / "taps.csv").write_text("id,x,y,z,p\n" + "".join(

@@ -183,7 +183,7 @@ def test_iterative_solves_keep_blas_on_one_thread():
     cores); short vectors and the state after the solve are left alone."""
     from threadpoolctl import threadpool_info
 
-    from selfillum.radiosity import _single_blas_thread
+    from selfillum.solve.radiosity import _single_blas_thread
 
     def blas_threads():
         return [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"]
@@ -203,7 +203,7 @@ def test_iterative_solves_keep_blas_on_one_thread():
 def test_cg_and_bicgstab_run_under_the_blas_limit(small_corner, monkeypatch):
     import contextlib
 
-    import selfillum.radiosity as rad
+    import selfillum.solve.radiosity as rad
 
     sizes = []
 

@@ -5,18 +5,17 @@ with a low-contrast target on its top, a target at u ~ 1 cut by the image edge, 
 taps as distractors, survey errors of 0.5 to 1.5 px), plus a few targets added to the marker
 file to exercise every reason: hidden behind the block, facing away, nothing painted there,
 cut by the image border."""
-
 import math
 
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from resection import Camera
-from resection.cli import main
+from resection.cli.main import main
+from resection.io.cameras import read_camera, write_camera
 from resection.io.markers import MarkerSet
-from resection.pipeline import pose_from_image
-from resection.refind import refind_targets
+from resection.markers.from_image import pose_from_image
+from resection.markers.refind import refind_targets
 from scenes.real_traits import real_traits, write_scene
 
 D = 0.006  # target diameter, m
@@ -116,7 +115,7 @@ def test_a_target_off_its_prediction_is_rejected(scene):
 def test_pose_command_refinds_with_the_mesh(scene, tmp_path, capsys):
     sc, start = scene
     paths = write_scene(sc, tmp_path)
-    start.write(tmp_path / "start.json")
+    write_camera(tmp_path / "start.json", start)
     argv = ["pose", "--camera", str(tmp_path / "start.json"), "--markers", paths["markers"],
             "--image", paths["image0"], "--mesh", paths["grid"], "--out",
             str(tmp_path / "out.json")]
@@ -128,7 +127,7 @@ def test_pose_command_refinds_with_the_mesh(scene, tmp_path, capsys):
     head = [ln for ln in out.splitlines() if ln.startswith("targets: ")][0]
     assert head.startswith(f"targets: {n_view} used") and f"of {n_view} expected" in head
     assert "off the image" in out and "TE: " not in out  # the edge target is used
-    cam = Camera.read(tmp_path / "out.json")
+    cam = read_camera(tmp_path / "out.json")
     true = sc.cameras[0]
     assert np.linalg.norm(cam.center - true.center) < 0.01 * np.linalg.norm(true.center)
     ang = math.degrees(Rotation.from_matrix(cam.R @ true.R.T).magnitude())

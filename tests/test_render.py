@@ -1,4 +1,4 @@
-"""Mitsuba renders (selfillum.render, module selfillum.rendering) against independent references.
+"""Mitsuba renders (:mod:`selfillum.rendering`) against independent references.
 
 * pixel convention and camera mapping: the centroid of a small emitting square lands on
   ``Camera.project`` of its centre (the lead's camera model), and its flux equals
@@ -17,7 +17,8 @@ import pytest
 import trimesh
 
 from resection import Camera, InputError
-from selfillum.rendering import available_variants, choose_variant, render
+from resection.io.cameras import write_camera
+from selfillum.rendering.mitsuba_render import available_variants, choose_variant, render
 
 # ----------------------------------------------------------------------------- helpers
 
@@ -138,7 +139,7 @@ def test_variant_choice_is_reported():
 
 
 def test_llvm_variant_available_when_libllvm_installed():
-    from selfillum.rendering import _find_libllvm
+    from selfillum.mitsuba_variants import _find_libllvm
 
     if _find_libllvm() is not None:  # libLLVM >= 16 on this machine (tools/setup.sh)
         assert "llvm_ad_rgb" in VARIANTS
@@ -148,7 +149,7 @@ def test_llvm_variant_available_when_libllvm_installed():
 def test_libllvm_lookup_picks_newest_supported(monkeypatch, tmp_path):
     import subprocess
 
-    import selfillum.rendering as render_mod
+    import selfillum.mitsuba_variants as render_mod
 
     libs = {name: tmp_path / name for name in
             ("libLLVM-14.so.1", "libLLVM-15.so", "libLLVM.so.19.1", "libLLVM-17.so.1")}
@@ -370,10 +371,10 @@ def corner_case():
     radiosity, a surface map and the all-bounce and emission-only Mitsuba renders."""
     from scipy.ndimage import maximum_filter, minimum_filter
 
-    from resection.surface import SurfaceMap
+    from resection.surface.surface_map import SurfaceMap
     from scenes.corner import corner
-    from selfillum.radiosity import forward
-    from selfillum.viewfactors import view_factors
+    from selfillum.solve.radiosity import forward
+    from selfillum.transport.viewfactors import view_factors
 
     sc = corner(resolution=10, reflectance=0.6, pattern="smooth")
     F = view_factors(sc.mesh, rays_per_face=2048, seed=1)
@@ -413,7 +414,7 @@ def test_correction_of_all_bounce_render_gives_emission_only_render(corner_case)
     """correct() applied to the faces' radiosity measured on the all-bounce render,
     backprojected, against the emission-only render: median within 1 %, 95th
     percentile within 3 % (uncorrected: about 10 % and 27 %)."""
-    from selfillum.radiosity import correct
+    from selfillum.solve.radiosity import correct
 
     sc, F, B, smap, full, emitted, away = corner_case
     meas = smap.to_surface(full * np.pi)
@@ -432,11 +433,11 @@ def test_cli_correct_on_all_bounce_render_gives_emission_only_render(corner_case
     """``selfillum correct`` (image level: per-pixel correction interpolated over the
     surface) on the all-bounce render, against the emission-only render: median within
     1 %, 95th percentile within 3 % over model pixels away from edges."""
-    from selfillum.cli import main
+    from selfillum.cli.main import main
 
     sc, F, B, smap, full, emitted, away = corner_case
     sc.mesh.export(tmp_path / "corner.ply")
-    smap.camera.write(tmp_path / "cam.json")
+    write_camera(tmp_path / "cam.json", smap.camera)
     np.save(tmp_path / "full.npy", full)
     rc = main(["correct", "--mesh", str(tmp_path / "corner.ply"), "--camera",
                str(tmp_path / "cam.json"), "--image", str(tmp_path / "full.npy"),
@@ -457,11 +458,11 @@ def test_cli_correct_on_all_bounce_render_gives_emission_only_render(corner_case
 def test_forward_model_matches_render_closely():
     """Finer corner, more rays and samples: per-face agreement of the Lambertian model and
     the all-bounce render within 0.3 % median and 1 % at the 95th percentile."""
-    from resection.surface import SurfaceMap
+    from resection.surface.surface_map import SurfaceMap
     from scenes.corner import corner
-    from selfillum.multiview import merge_views
-    from selfillum.radiosity import forward
-    from selfillum.viewfactors import view_factors
+    from selfillum.images.multiview import merge_views
+    from selfillum.solve.radiosity import forward
+    from selfillum.transport.viewfactors import view_factors
 
     sc = corner(resolution=16, reflectance=0.6, pattern="smooth")
     F = view_factors(sc.mesh, rays_per_face=8192, seed=3)
@@ -478,12 +479,12 @@ def test_forward_model_matches_render_closely():
 # ----------------------------------------------------------------------------- CLI
 def test_cli_render_writes_image_and_preview(tmp_path, capsys):
     from resection.io.images import read_image
-    from selfillum.cli import main
+    from selfillum.cli.main import main
 
     mesh = corner_mesh(4)
     mesh.export(tmp_path / "corner.ply")
     cam = corner_camera()
-    cam.write(tmp_path / "cam.json")
+    write_camera(tmp_path / "cam.json", cam)
     E = np.linspace(1.0, 2.0, len(mesh.faces))
     np.save(tmp_path / "E.npy", E)
     out = tmp_path / "render.tif"

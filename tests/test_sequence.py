@@ -14,9 +14,10 @@ import os
 import numpy as np
 import pytest
 
-from resection import Camera, InputError
+from resection import InputError
 from resection import sequence as seq
-from resection.cli import main
+from resection.cli.main import main
+from resection.io.cameras import read_camera
 from resection.sequence import execute as seq_execute
 from resection.sequence import process as seq_process
 from resection.sequence import read_track, relative_motion
@@ -42,7 +43,7 @@ def run60(tmp_path_factory):
     base = tmp_path_factory.mktemp("seq60")
     model = _model(N_FAST)
     files = write_sequence(model, base / "frames")
-    cam = Camera.read(files["camera"])
+    cam = read_camera(files["camera"])
     res = track(files["frames"], cam, files["markers"], diameter=5.6, out_dir=base / "out",
                 progress=False)
     return model, files, cam, res, base
@@ -86,7 +87,7 @@ def test_track_recovers_known_motion(run60):
 def test_track_500_frames(tmp_path):
     model = _model(500)
     files = write_sequence(model, tmp_path / "frames")
-    cam = Camera.read(files["camera"])
+    cam = read_camera(files["camera"])
     res = track(files["frames"], cam, files["markers"], diameter=5.6, out_dir=tmp_path / "out",
                 progress=False)
     _check_against_truth(model, res, 500)
@@ -97,7 +98,7 @@ def test_large_excursion_chunks_repaired(tmp_path):
     # sequential repair pass matches them from the previous good frame instead
     model = pitch_oscillation(24, amplitude_deg=16.0, frequency_hz=2.0)
     files = write_sequence(model, tmp_path / "frames")
-    cam = Camera.read(files["camera"])
+    cam = read_camera(files["camera"])
     res = track(files["frames"], cam, files["markers"], diameter=5.6, out_dir=tmp_path / "o",
                 progress=False, chunk_size=8)
     assert res.ok.all(), res.reason[~res.ok]
@@ -182,7 +183,7 @@ def test_corrupt_frames_are_recorded_and_skipped(tmp_path):
     np.save(frames[10], np.full((256, 256), np.nan, np.float32))  # all-NaN image
     frames[15] = str(tmp_path / "frames" / "missing.npy")  # file that does not exist
     np.save(frames[17], np.full((200, 256), 1000.0, np.float32))  # wrong size
-    cam = Camera.read(files["camera"])
+    cam = read_camera(files["camera"])
     res = track(frames, cam, files["markers"], diameter=5.6, out_dir=tmp_path / "out",
                 progress=False, chunk_size=8)
     bad = [9, 10, 15, 17]
@@ -248,8 +249,8 @@ def test_cli_track_and_plot(run60, tmp_path, capsys):
 
 def test_first_frame_linked_by_hand(run60, tmp_path):
     from resection.io.images import read_image
-    from resection.link import suggest_links, write_links
-    from resection.markers import detect_markers
+    from resection.markers.detect import detect_markers
+    from resection.markers.link import suggest_links, write_links
 
     model, files, cam, ref, _ = run60
     # the person's linking of frame 0 (candidate numbers as `resection detect` writes them)
@@ -281,7 +282,7 @@ def test_first_frame_linked_by_hand(run60, tmp_path):
 
 
 def test_plot_motion_draws_the_result(run60, tmp_path):
-    from resection.motion_plots import plot_motion
+    from resection.sequence.motion_plots import plot_motion
 
     model, files, cam, ref, _ = run60
     fig = plot_motion(ref, tmp_path / "m.png", fps=50, length_unit="mm", length_scale=1000,

@@ -1,4 +1,4 @@
-"""The compiled windows and starts of the disk fit (resection._starts) against the NumPy
+"""The compiled windows and starts of the disk fit (resection.markers._starts) against the NumPy
 expressions they replace, and its median against NumPy's."""
 
 from __future__ import annotations
@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from resection import _starts
-from resection.refine import _neighbours
+from resection.markers import _starts
+from resection.markers.refine import _neighbours
 
 
 def _reference(signal, bad, uv, strength, half, R0, near_r, min_dist):

@@ -7,7 +7,7 @@ import pytest
 import trimesh
 
 from resection import Camera, InputError, SurfaceMap
-from resection.visibility import RayCaster
+from resection.surface.visibility import RayCaster
 
 N = 16  # grid cells per side
 H, W = 120, 160

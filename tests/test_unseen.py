@@ -19,15 +19,16 @@ import scipy.sparse as sp
 import trimesh
 
 from resection.errors import InputError
-from resection.surface import SurfaceMap
+from resection.io.cameras import write_camera
+from resection.surface.surface_map import SurfaceMap
 from scenes.corner import corner
 from scenes.slab_block import BOX_BLOCKS, slab_block, slab_camera, write_slab_block
 from selfillum import correct, forward, view_factors
-from selfillum.cli import main
-from selfillum.correct_image import correct_image
-from selfillum.coupling import coupled_faces, coupled_view_factors
+from selfillum.cli.main import main
+from selfillum.images.image_correction import correct_image
 from selfillum.mesh import face_adjacency_weights
-from selfillum.unseen import read_unpainted
+from selfillum.solve.unseen import read_unpainted
+from selfillum.transport.coupling import coupled_faces, coupled_view_factors
 
 
 # ---------------------------------------------------------------- coupling
@@ -228,7 +229,7 @@ def _write_case(tmp_path, sc, cam, smap, B):
     the per-face mean is B exactly) and the per-face reflectance."""
     grid = tmp_path / "grid.xyz"
     write_slab_block(sc, grid)
-    cam.write(tmp_path / "cam.json")
+    write_camera(tmp_path / "cam.json", cam)
     img = np.where(smap.mask, B[np.maximum(smap.face_index, 0)], 0.0).astype(np.float32)
     np.save(tmp_path / "img.npy", img)
     np.savetxt(tmp_path / "rho.csv", sc.reflectance)

@@ -412,7 +412,7 @@ def test_rows_subset_and_workers_give_the_full_rows():
 def test_rqmc_points_are_uniform_and_unbiased():
     """Every RQMC point is uniform on the unit cube: over many faces, each coordinate's
     mean is 1/2 and its variance 1/12 within the sampling error (4 sigma)."""
-    from selfillum.viewfactors import rqmc_points
+    from selfillum.transport.viewfactors import rqmc_points
 
     pts = rqmc_points(16, np.arange(20_000), seed=1, dims=4).reshape(-1, 4)
     n = len(pts)

@@ -107,7 +107,7 @@ def test_errors():
 def test_first_hit_per_ray_origins_against_closed_form():
     """Rays with their own origins (and NaN rows) on the plate z = 0: distance and
     barycentrics in float64 against the closed-form plane crossing."""
-    from resection.visibility import RayCaster
+    from resection.surface.visibility import RayCaster
 
     pl = plate(-1.0, 1.0, -1.0, 1.0, 0.0)
     rng = np.random.default_rng(5)
@@ -130,7 +130,7 @@ def test_first_hit_threads_over_blocks_of_rays_against_closed_form():
     """120,000 rays (NaN rows among them), split over 2 threads in several blocks, with
     their own origins and with one shared origin: every ray's face, distance and hit point
     against the closed-form plane crossing, and the same answer with one thread."""
-    from resection.visibility import RayCaster
+    from resection.surface.visibility import RayCaster
 
     pl = plate(-1.0, 1.0, -1.0, 1.0, 0.0)
     caster = RayCaster(pl)

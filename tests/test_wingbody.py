@@ -40,7 +40,7 @@ def test_geometry_and_orientation(scene):
 
 def test_markers_on_the_surface_and_seen(scene, tmp_path):
     from resection.io.markers import read_markers
-    from selfillum.viewfactors import RayScene
+    from selfillum.transport.viewfactors import RayScene
 
     _, dist, face = trimesh.proximity.closest_point(scene.mesh, scene.markers)
     assert np.all(dist < 1e-9)
@@ -74,11 +74,11 @@ def test_self_illumination_at_the_junction_against_mitsuba(scene):
     """Forward model (Embree F) vs Mitsuba all-bounce render per seen face: median within
     0.5 %, 95 % within 2 %; the correction of the render recovers the emission within
     2 % on 95 % of the seen faces, where the uncorrected error reaches 15 % and more."""
-    from resection.surface import SurfaceMap
-    from selfillum.multiview import merge_views
-    from selfillum.radiosity import correct, forward
-    from selfillum.rendering import render
-    from selfillum.viewfactors import view_factors
+    from resection.surface.surface_map import SurfaceMap
+    from selfillum.images.multiview import merge_views
+    from selfillum.rendering.mitsuba_render import render
+    from selfillum.solve.radiosity import correct, forward
+    from selfillum.transport.viewfactors import view_factors
 
     cam = default_camera(scene)
     F = view_factors(scene.mesh, rays_per_face=1024, seed=1)

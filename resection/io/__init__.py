@@ -4,7 +4,8 @@ Every command reads and writes its files through these modules, so every command
 accepts what any other writes.
 
 - :mod:`resection.io.meshes`: surface meshes (trimesh formats, Plot3D, Cart3D).
-- :mod:`resection.io.markers`: 3-D marker files and 2-D point files.
+- :mod:`resection.io.markers`: 3-D marker files and 2-D point files
+  (:class:`~resection.io.marker_set.MarkerSet`).
 - :mod:`resection.io.images`: single images (PNG, TIFF, NPY).
 - :mod:`resection.io.plot3d`: Plot3D grids (by content) and function files (``.f``).
 - :mod:`resection.io.tgts`: uPSP ``.tgts`` target files (read by ``read_markers``).

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import os
 
-from .outputs import atomic_write
+from resection.io.outputs import atomic_write
 
 __all__ = ["atomic_write", "atomic_text"]
 

@@ -1,8 +1,8 @@
 """Camera files: the package's JSON, NASA uPSP's JSON and OpenCV's FileStorage (YAML/XML).
 
 One reader, :func:`read_camera`, recognises the family by content (not by extension) and
-returns a :class:`resection.Camera`; :meth:`resection.Camera.read` calls it, so every command
-that reads a camera reads all three. :func:`write_camera` writes any of them.
+returns a :class:`resection.Camera`; every command reads its cameras through it, so
+every command that reads a camera reads all three. :func:`write_camera` writes any of them.
 
 Formats
 -------
@@ -38,10 +38,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._checks import json_array
-from ..camera import Camera
-from ..errors import InputError
-from ._write import atomic_text
+from resection._checks import json_array
+from resection.camera.model import Camera
+from resection.errors import InputError
+from resection.io._write import atomic_text
 
 __all__ = ["CameraFile", "read_camera", "read_camera_file", "write_camera", "camera_format"]
 

@@ -34,8 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
-from ._write import atomic_write
+from resection.errors import InputError
+from resection.io._write import atomic_write
 
 __all__ = ["write_fields", "read_fields", "FIELD_SUFFIXES"]
 
@@ -207,7 +207,7 @@ def _write_npy(path, face_fields, node_fields):
 
 
 def _write_function(path, mesh, face_fields, node_fields):
-    from .plot3d import faces_to_grid_nodes, write_plot3d_function
+    from resection.io.plot3d import faces_to_grid_nodes, write_plot3d_function
 
     if node_fields:
         raise InputError(f"{path}: a Plot3D function file is written from face fields (the "
@@ -248,7 +248,7 @@ def read_fields(path: str | os.PathLike, n_faces: int | None = None, *,
     elif suffix == ".csv":
         fields = _read_csv(path, location)
     elif suffix == ".npy":
-        from .images import load_npy
+        from resection.io.images import load_npy
 
         arr = load_npy(path)
         if arr.ndim != 1:

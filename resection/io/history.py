@@ -37,9 +37,9 @@ from xml.sax.saxutils import escape, quoteattr
 import h5py
 import numpy as np
 
-from ..camera import Camera
-from ..errors import InputError
-from .outputs import atomic_path
+from resection.camera.model import Camera
+from resection.errors import InputError
+from resection.io.outputs import atomic_path
 
 __all__ = ["FORMAT", "HistoryWriter", "History", "read_history", "write_xdmf", "xdmf_path"]
 

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
-from ._write import atomic_write
+from resection.errors import InputError
+from resection.io._write import atomic_write
 
 __all__ = ["read_image", "read_native", "load_npy", "write_image", "image_info", "saturation_level"]
 

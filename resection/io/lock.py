@@ -23,7 +23,7 @@ import sys
 from collections.abc import Iterator
 from pathlib import Path
 
-from ..errors import InputError
+from resection.errors import InputError
 
 __all__ = ["LOCK_NAME", "lock_folder", "read_lock"]
 

@@ -32,9 +32,9 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from ..defaults import MESH_FORMATS
-from ..errors import InputError
-from .plot3d import (  # noqa: F401 - re-exported: Plot3D lives in io/plot3d.py
+from resection.defaults import MESH_FORMATS
+from resection.errors import InputError
+from resection.io.plot3d import (  # noqa: F401 - re-exported: Plot3D lives in io/plot3d.py
     PLOT3D_SUFFIXES,
     _read_bytes,
     _split_records,
@@ -436,7 +436,7 @@ def write_surface(path: str | os.PathLike, mesh: trimesh.Trimesh, face_fields: d
 
     See :func:`resection.io.fields.write_fields`, which this calls.
     """
-    from .fields import write_fields
+    from resection.io.fields import write_fields
 
     write_fields(path, mesh, face_fields, node_fields, include_attributes=include_attributes)
 
@@ -444,6 +444,6 @@ def write_surface(path: str | os.PathLike, mesh: trimesh.Trimesh, face_fields: d
 def read_face_fields(path: str | os.PathLike, n_faces: int | None = None) -> dict:
     """Per-face fields from any file :func:`write_surface` writes (``.npy``: one array,
     returned as ``"values"``). See :func:`resection.io.fields.read_fields`."""
-    from .fields import read_fields
+    from resection.io.fields import read_fields
 
     return read_fields(path, n_faces)

@@ -23,7 +23,7 @@ import shutil
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 
-from ..errors import InputError
+from resection.errors import InputError
 
 __all__ = [
     "OUTPUT_OPTIONS",

@@ -22,8 +22,8 @@ import os
 
 import numpy as np
 
-from ..errors import InputError
-from ._write import atomic_write
+from resection.errors import InputError
+from resection.io._write import atomic_write
 
 __all__ = [
     "read_plot3d",

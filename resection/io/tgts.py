@@ -28,9 +28,9 @@ import warnings
 
 import numpy as np
 
-from ..errors import InputError
-from ._write import atomic_text
-from .markers import MarkerSet
+from resection.errors import InputError
+from resection.io._write import atomic_text
+from resection.io.marker_set import MarkerSet
 
 __all__ = ["is_tgts", "read_tgts", "write_tgts", "snap_to_surface"]
 
@@ -169,13 +169,15 @@ def snap_to_surface(markers: MarkerSet, mesh, *, source: str = "markers",
     ------
     InputError
         Markers and mesh in different units (spreads differing by 1000, 25.4 or 39.37, or
-        markers far off the mesh: :func:`resection.units.spread_hint`).
+        markers far off the mesh: :func:`resection.camera.units.spread_hint`).
     """
     import trimesh
 
     if len(markers) == 0:
         return markers
-    from ..units import spread_hint  # markers in mm on a mesh in m are not 'under' it
+    from resection.camera.units import (
+        spread_hint,  # markers in mm on a mesh in m are not 'under' it
+    )
 
     hint = spread_hint(markers.xyz, mesh.vertices, "the markers", "the mesh")
     if hint:

@@ -38,8 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
-from .images import read_image
+from resection.errors import InputError
+from resection.io.images import read_image
 
 __all__ = ["FrameSource", "open_frames", "iter_frames", "VIDEO_SUFFIXES"]
 
@@ -229,7 +229,7 @@ def _tiff_stack(p: Path, mask_saturated: bool) -> FrameSource:
 
 
 def _npy_stack(p: Path, mask_saturated: bool) -> FrameSource:
-    from .images import load_npy
+    from resection.io.images import load_npy
 
     arr = load_npy(p, mmap_mode="r")
     if arr.ndim == 2:

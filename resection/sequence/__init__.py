@@ -28,9 +28,9 @@ extrapolated from the two previous good frames, every marker is fitted in a smal
 around its predicted position, the pose is solved once from there and judged by the
 package's acceptance rule. When that gate fails (a jump, lost or hidden markers, the first
 frame of a run or of a chunk) the frame goes the long way: marker detection
-(:func:`resection.markers.detect_markers`) in the region where the markers can be, matching
-to the 3-D markers from the previous good frame (:func:`resection.match.match_markers`)
-and the pose (:func:`resection.pose.solve_pose`). Either way a frame is right or refused.
+(:func:`resection.markers.detect.detect_markers`) in the region where the markers can be, matching
+to the 3-D markers from the previous good frame (:func:`resection.markers.match.match_markers`)
+and the pose (:func:`resection.pose.solve.solve_pose`). Either way a frame is right or refused.
 
 The package is split by step: :mod:`~resection.sequence.frames` (reading frames, their
 fingerprints), :mod:`~resection.sequence.predict` (motion model, gated association, pose),
@@ -81,10 +81,10 @@ with the frames.
 
 from __future__ import annotations
 
-from .motion import relative_motion
-from .outputs import read_track
-from .results import MARKER_COLUMNS, POSE_COLUMNS, FrameResult, TrackResult
-from .run import track
+from resection.sequence.motion import relative_motion
+from resection.sequence.outputs import read_track
+from resection.sequence.results import MARKER_COLUMNS, POSE_COLUMNS, FrameResult, TrackResult
+from resection.sequence.run import track
 
 __all__ = [
     "FrameResult",

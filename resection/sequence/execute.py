@@ -6,8 +6,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from ..errors import InputError
-from .outputs import (
+from resection.errors import InputError
+from resection.sequence.outputs import (
     _atomic_write_text,
     _frame_path,
     _frame_text,
@@ -15,8 +15,8 @@ from .outputs import (
     _write_frame,
     summary,
 )
-from .process import _process_frame, _process_linked, _repair, _run_chunk, _Setup
-from .results import FrameResult
+from resection.sequence.process import _process_frame, _process_linked, _repair, _run_chunk, _Setup
+from resection.sequence.results import FrameResult
 
 #: Dask configuration of the local cluster's workers. The nanny sets
 #: ``MALLOC_TRIM_THRESHOLD_`` by default, which freezes glibc's dynamic mmap threshold: every

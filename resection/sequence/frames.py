@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
+from resection.errors import InputError
 
 #: suffixes of files that may hold many frames
 _MULTI_SUFFIXES = (".cine", ".mraw", ".cih", ".cihx", ".tif", ".tiff", ".npy")
@@ -49,7 +49,7 @@ def expand_frames(frames: list) -> list:
     p = Path(frames[0])
     if p.suffix.lower() not in _MULTI_SUFFIXES or not p.is_file():
         return frames
-    from ..io.video import VIDEO_SUFFIXES, open_frames
+    from resection.io.video import VIDEO_SUFFIXES, open_frames
 
     with open_frames(p) as src:
         if src.n == 1 and p.suffix.lower() not in VIDEO_SUFFIXES:
@@ -64,7 +64,7 @@ def _load_image(frame, sources: dict | None = None) -> np.ndarray:
     if isinstance(frame, np.ndarray):
         img = frame
     elif isinstance(frame, VideoFrame):
-        from ..io.video import open_frames
+        from resection.io.video import open_frames
 
         if sources is None:
             with open_frames(frame.path, mask_saturated=True) as src:
@@ -74,7 +74,7 @@ def _load_image(frame, sources: dict | None = None) -> np.ndarray:
                 sources[frame.path] = open_frames(frame.path, mask_saturated=True)
             img = sources[frame.path][frame.index]
     else:
-        from ..io.images import read_image
+        from resection.io.images import read_image
 
         img = read_image(frame, mask_saturated=True)  # saturated pixels -> NaN, masked
     if img.ndim != 2:

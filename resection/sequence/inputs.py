@@ -9,18 +9,18 @@ import os
 
 import numpy as np
 
-from .._checks import as_points
-from ..errors import InputError
-from .frames import VideoFrame, expand_frames
-from .process import _Setup
-from .results import _FORMAT_VERSION
+from resection._checks import as_points
+from resection.errors import InputError
+from resection.sequence.frames import VideoFrame, expand_frames
+from resection.sequence.process import _Setup
+from resection.sequence.results import _FORMAT_VERSION
 
 
 def _as_markers(markers3d) -> tuple[np.ndarray, np.ndarray]:
     """``(ids, points)`` from a marker file path, an ``(ids, points)`` pair, or an object
     with ``ids`` and ``points``/``xyz`` attributes."""
     if isinstance(markers3d, (str, os.PathLike)):
-        from ..io.markers import read_markers
+        from resection.io.markers import read_markers
 
         markers3d = read_markers(markers3d)
     if isinstance(markers3d, tuple) and len(markers3d) == 2:
@@ -120,11 +120,11 @@ def _checked(frames, camera, markers3d, *, link, diameter, polarity, workers, ch
              min_markers, roi_margin, detect_kw, match_kw, pose_kw):
     """Checked inputs of :func:`track`: ``(frames list, _Setup, link dict or None,
     workers, chunk_size)``; InputError for the first bad one, before any file is made."""
-    from ..camera import Camera
-    from ..markers import detect_markers
-    from ..match import match_markers
-    from ..pose import solve_pose
-    from .execute import _default_workers
+    from resection.camera.model import Camera
+    from resection.markers.detect import detect_markers
+    from resection.markers.match import match_markers
+    from resection.pose.solve import solve_pose
+    from resection.sequence.execute import _default_workers
 
     if not isinstance(camera, Camera):
         raise InputError(f"camera: expected a resection.Camera, got {type(camera).__name__}")

@@ -26,10 +26,10 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from ..camera import Camera
-from ..errors import InputError
-from ..surface import DEFAULT_MAX_OBLIQUENESS, SurfaceMap
-from ..visibility import RayCaster
+from resection.camera.model import Camera
+from resection.errors import InputError
+from resection.surface.surface_map import DEFAULT_MAX_OBLIQUENESS, SurfaceMap
+from resection.surface.visibility import RayCaster
 
 __all__ = ["FrameValues", "map_frames", "map_to_history"]
 
@@ -174,7 +174,7 @@ def map_to_history(
     int
         Frames mapped by this call.
     """
-    from ..io.history import HistoryWriter
+    from resection.io.history import HistoryWriter
 
     nums = np.arange(len(frames)) if frame_numbers is None else np.asarray(frame_numbers, int)
     tms = nums.astype(float) if times is None else np.asarray(times, dtype=float)

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .._checks import as_points
-from ..errors import InputError
+from resection._checks import as_points
+from resection.errors import InputError
 
 
 def relative_motion(rvecs, tvecs, reference: int = 0, *,

@@ -10,9 +10,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError
-from ..io.outputs import atomic_path
-from .results import _FORMAT_VERSION, MARKER_COLUMNS, POSE_COLUMNS, FrameResult, TrackResult
+from resection.errors import InputError
+from resection.io.outputs import atomic_path
+from resection.sequence.results import (
+    _FORMAT_VERSION,
+    MARKER_COLUMNS,
+    POSE_COLUMNS,
+    FrameResult,
+    TrackResult,
+)
 
 
 def _atomic_write_text(path: Path, text: str, *, sync: bool = True) -> None:
@@ -162,7 +168,7 @@ def _start_run(out: Path, frames: list, settings: dict, resume: bool) -> dict[in
     settings, write them, and return the frames already finished, of files that have not
     changed since, as ``index -> (ok, matched_from)``; the result files of changed frames
     are removed."""
-    from .frames import _frame_name, changed
+    from resection.sequence.frames import _frame_name, changed
 
     frames_dir = out / "frames"
     manifest = out / "track.json"

@@ -8,7 +8,7 @@ to a few pixels, smoothly. :func:`track_predicted` uses that:
    ``t_k = t_j + s (t_j - t_i)`` with ``s = (k - j) / (j - i)`` (the rotation power through
    its rotation vector), or held at frame ``j``'s pose when there is only one.
 2. **Gated association.** Every marker is projected with the predicted pose, and the
-   pixel-integrated disk model (:func:`resection.markers.refine_markers`) is fitted in a
+   pixel-integrated disk model (:func:`resection.markers.detect.refine_markers`) is fitted in a
    small window around its prediction only; no search of the image, no candidate list.
    A fit is kept when it converged, lies within the *gate* of its prediction, has the
    expected size (``diameter_range``), enough contrast (``min_snr`` times the fit's own
@@ -18,10 +18,10 @@ to a few pixels, smoothly. :func:`track_predicted` uses that:
    window can catch another marker only if the prediction is off by more than 0.7 times the
    marker spacing, a jump that leaves the gate failing elsewhere (below).
 3. **One pose solve**: Gauss-Newton from the predicted pose, then the same statistical
-   residual gate as :func:`resection.match.match_markers` (6 sigma of the position noise
+   residual gate as :func:`resection.markers.match.match_markers` (6 sigma of the position noise
    estimated from the median residual, at least 0.25 px, at most the matcher's
    ``tolerance``), markers outside it dropped once and the pose solved again, and the
-   package's acceptance rule (:func:`resection.acceptance.judge`, with the
+   package's acceptance rule (:func:`resection.pose.acceptance.judge`, with the
    ``marker_accuracy`` and ``max_rms`` that the matcher and ``solve_pose`` get).
 
 The frame is refused (None: the caller runs the statistical matcher instead) when fewer
@@ -41,9 +41,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from ..acceptance import judge
-from ..camera import Camera, distort_normalized
-from .results import FrameResult
+from resection.camera.model import Camera, distort_normalized
+from resection.pose.acceptance import judge
+from resection.sequence.results import FrameResult
 
 __all__ = ["predict_pose", "project_poses", "refine_pose", "track_predicted"]
 
@@ -151,7 +151,7 @@ def _match_default(name: str, match_kw: dict):
 
 @functools.lru_cache(maxsize=1)
 def _matcher_defaults() -> dict:
-    from ..match import match_markers
+    from resection.markers.match import match_markers
 
     return {k: p.default for k, p in inspect.signature(match_markers).parameters.items()}
 
@@ -159,7 +159,7 @@ def _matcher_defaults() -> dict:
 def residual_gate(errors, tolerance: float) -> float:
     """The matcher's acceptance radius (px) around a reprojection: 6 sigma of the position
     noise estimated from the median error (Rayleigh: median = 1.1774 sigma), at least
-    0.25 px, at most ``tolerance`` (as :func:`resection.match.match_markers` uses it)."""
+    0.25 px, at most ``tolerance`` (as :func:`resection.markers.match.match_markers` uses it)."""
     e = np.asarray(errors, float)
     e = e[np.isfinite(e)]
     sigma = float(np.median(e)) / 1.1774 if e.size else tolerance
@@ -173,7 +173,7 @@ def track_predicted(img: np.ndarray, setup, reference: FrameResult,
 
     ``setup`` is the tracker's setup (camera, markers, diameter, polarity, options).
     """
-    from ..markers import refine_markers
+    from resection.markers.detect import refine_markers
 
     cam, X = setup.camera, setup.points3d
     kw = setup.detect_kw

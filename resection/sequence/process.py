@@ -11,12 +11,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import Camera
-from ..errors import InputError, SolveError
-from .frames import _frame_name, _load_image, failure_reason, fingerprint
-from .outputs import _try_write_frame
-from .predict import track_predicted
-from .results import FrameResult
+from resection.camera.model import Camera
+from resection.errors import InputError, SolveError
+from resection.sequence.frames import _frame_name, _load_image, failure_reason, fingerprint
+from resection.sequence.outputs import _try_write_frame
+from resection.sequence.predict import track_predicted
+from resection.sequence.results import FrameResult
 
 
 @dataclass(frozen=True)
@@ -57,7 +57,7 @@ def _search_roi(setup: _Setup, reference: FrameResult | None, shape) -> tuple | 
 
 
 def _detect(img: np.ndarray, setup: _Setup, roi=None):
-    from ..markers import detect_markers
+    from resection.markers.detect import detect_markers
 
     kw = dict(setup.detect_kw)
     if roi is not None:
@@ -69,7 +69,7 @@ def _match(candidates, setup: _Setup, reference: FrameResult | None):
     """Match the candidates to the 3-D markers, from the reference frame's markers (their
     pixel positions) or, without a reference, from the approximate camera. Returns the
     matched ``(ids, uv)`` and the matcher's pose solve (a ``PoseResult``)."""
-    from ..match import match_markers
+    from resection.markers.match import match_markers
 
     markers3d = (setup.ids, setup.points3d)
     ref = setup.camera if reference is None else (tuple(reference.ids), reference.uv)
@@ -94,7 +94,7 @@ def _solve(ids: np.ndarray, uv: np.ndarray, setup: _Setup, frame: int, file: str
            pose=None, method: str = "matched") -> FrameResult:
     """The frame's pose from matched markers (``pose``: the matcher's ``PoseResult`` for
     exactly these markers, solved with ``pose_kw``, reused)."""
-    from ..pose import solve_pose
+    from resection.pose.solve import solve_pose
 
     index = {k: i for i, k in enumerate(setup.ids)}
     unknown = [i for i in ids if i not in index]
@@ -186,7 +186,7 @@ def _process_linked_unlabelled(frame_data, index: int, setup: _Setup,
 def _apply_link(candidates, link: dict, setup: _Setup) -> tuple[np.ndarray, np.ndarray]:
     markers = (setup.ids, setup.points3d)
     if link["path"] is not None:
-        from ..link import read_links
+        from resection.markers.link import read_links
 
         ids, uv, _ = read_links(link["path"], candidates, markers)
         return np.asarray(ids).astype(str), np.asarray(uv, float).reshape(-1, 2)
@@ -244,7 +244,7 @@ def _repair(frames: list, setup: _Setup, done: dict, record, frames_dir: Path) -
     matched from it (a corrupt frame) is left as it is, so the pass is cheap and a resumed
     run does not redo it. Deterministic: it depends only on the first pass' results.
     ``done``: index -> ``(ok, matched_from)``; the last good frame is read from its file."""
-    from .outputs import _frame_path, _read_frame
+    from resection.sequence.outputs import _frame_path, _read_frame
 
     last_good = None
     for i in range(len(frames)):

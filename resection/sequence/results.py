@@ -6,8 +6,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..camera import Camera
-from .motion import relative_motion
+from resection.camera.model import Camera
+from resection.sequence.motion import relative_motion
 
 POSE_COLUMNS = ("frame", "file", "status", "reason", "roll_deg", "pitch_deg", "yaw_deg",
                 "dx", "dy", "dz", "rms_px", "n_markers", "rvec_x", "rvec_y", "rvec_z",

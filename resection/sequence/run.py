@@ -6,12 +6,12 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 
-from ..camera import Camera
-from ..io.lock import lock_folder
-from .execute import run_frames
-from .inputs import _checked, _settings
-from .outputs import _frames_from_files, _start_run, _write_csvs
-from .results import TrackResult, _assemble
+from resection.camera.model import Camera
+from resection.io.lock import lock_folder
+from resection.sequence.execute import run_frames
+from resection.sequence.inputs import _checked, _settings
+from resection.sequence.outputs import _frames_from_files, _start_run, _write_csvs
+from resection.sequence.results import TrackResult, _assemble
 
 
 def track(
@@ -51,7 +51,7 @@ def track(
         The 3-D markers (DESIGN marker CSV ``id,x,y,z[,diameter]``), model units.
     link : path-like or dict, optional
         Linking of the first frame by hand: CSV ``id,candidate`` (see
-        :mod:`resection.link`) or ``{id: candidate}``, the candidate numbers being the
+        :mod:`resection.markers.link`) or ``{id: candidate}``, the candidate numbers being the
         order of ``detect_markers`` on the whole first frame with this ``diameter``,
         ``polarity`` and ``detect_kw`` (as ``resection detect`` writes them).
     diameter : float

@@ -1,0 +1,10 @@
+"""The ``resection`` command line: each command's parser and runner, nothing else.
+
+Every runner parses its arguments and calls the library; bad input is one line on stderr and
+exit status 2 (:func:`~resection.cli.util.run`). :func:`main` is the console script."""
+
+from __future__ import annotations
+
+from resection.cli.main import main
+
+__all__ = ["main"]

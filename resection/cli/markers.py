@@ -1,0 +1,177 @@
+"""``resection detect``, ``resection link`` and ``resection match``: argument parsing only;
+the work is in :mod:`resection.markers.detect`, :mod:`~resection.markers.link`,
+:mod:`~resection.markers.match` and :mod:`resection.markers.from_image`."""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+from resection.cli.util import add_acceptance_options
+from resection.errors import InputError
+from resection.io.cameras import read_camera, write_camera
+from resection.io.outputs import atomic_write
+
+
+def add_enhance_window_option(parser) -> None:
+    """``--enhance-window``: enhance (and search) only inside boxes; shared by ``detect``
+    and ``pose --image``."""
+    parser.add_argument("--enhance-window", type=float, nargs=4, action="append",
+                        metavar=("UMIN", "VMIN", "UMAX", "VMAX"),
+                        help="with --enhance: enhance only inside this box (pixels, "
+                        "inclusive; repeat for several boxes)")
+
+
+def add_detect_options(p: argparse.ArgumentParser, *, required_diameter: bool = True) -> None:
+    """Detection options shared by ``detect`` and ``pose --image``."""
+    p.add_argument("--diameter", type=float, required=required_diameter,
+                   help="marker diameter in pixels" + ("" if required_diameter else
+                   " (default: from the marker file's diameters and the camera)"))
+    p.add_argument("--polarity", choices=("dark", "bright"), default="dark",
+                   help="markers darker (default) or brighter than the model")
+    p.add_argument("--template", choices=("tophat", "cone"), default="tophat",
+                   help="correlation template (default tophat)")
+    p.add_argument("--roi", type=float, nargs=4, metavar=("UMIN", "VMIN", "UMAX", "VMAX"),
+                   help="search only inside this box (pixels, inclusive)")
+    p.add_argument("--threshold", type=float,
+                   help="merit threshold (image units; default 5 noise sigmas)")
+    p.add_argument("--enhance", choices=("background", "normalize", "clahe"),
+                   help="enhance the image first (low-contrast infrared images)")
+
+
+def register(sub) -> None:
+    """Add ``detect``, ``link`` and ``match`` to an argparse sub-parser set."""
+    d = sub.add_parser(
+        "detect", help="find marker candidates in an image",
+        description="Detect circular markers with sub-pixel accuracy; writes the candidate "
+        "CSV u,v,diameter,depth,merit,snr (numbered from 0 in file order).")
+    d.add_argument("image", help="image file (.tif/.tiff, .png, .npy)")
+    add_detect_options(d)
+    add_enhance_window_option(d)
+    d.add_argument("--out", "-o", required=True, help="output candidate CSV")
+    d.set_defaults(func=run_detect)
+
+    k = sub.add_parser(
+        "link", help="draw candidates for linking by hand; read a linking file",
+        description="Draw the numbered candidates over the image, with the markers projected "
+        "from an approximate camera (PNG); optionally write a suggested linking CSV; with "
+        "--links, read a linking CSV id,candidate and write the linked markers (unlinked "
+        "candidates are thrown away).")
+    k.add_argument("image", help="image file")
+    k.add_argument("--candidates", required=True, help="candidate CSV from 'resection detect'")
+    k.add_argument("--camera", help="approximate camera JSON (to draw the markers)")
+    k.add_argument("--markers", help="marker CSV id,x,y,z[,diameter]")
+    k.add_argument("--png", help="output PNG to read the candidate numbers from")
+    k.add_argument("--suggest", help="write a suggested linking CSV (nearest projected "
+                   "markers) here, to be checked and edited")
+    k.add_argument("--links", help="linking CSV id,candidate to read")
+    k.add_argument("--out", "-o", help="output linked candidates CSV (with --links)")
+    k.set_defaults(func=run_link)
+
+    m = sub.add_parser(
+        "match", help="link candidates to markers automatically",
+        description="Match candidates to markers (statistical method: triples, transform, "
+        "count, verify by a pose solve); refuses with the reason when the answer is not "
+        "certain.")
+    m.add_argument("--candidates", required=True, help="candidate CSV")
+    m.add_argument("--markers", required=True, help="marker CSV id,x,y,z[,diameter]")
+    m.add_argument("--camera", help="approximate camera JSON (reference, and intrinsics for "
+                   "the pose verification)")
+    m.add_argument("--reference", help="matched candidate CSV of an earlier frame (id,u,v,...)")
+    m.add_argument("--search-radius", type=float, default=25.0,
+                   help="largest marker motion from the reference, px (default 25)")
+    m.add_argument("--tolerance", type=float, default=3.0,
+                   help="landing distance on a candidate, px (default 3)")
+    add_acceptance_options(m)
+    m.add_argument("--out", "-o", required=True, help="output matched candidate CSV (with id)")
+    m.add_argument("--pose", help="also write the solved camera JSON here")
+    m.set_defaults(func=run_match)
+
+
+def run_detect(args: argparse.Namespace) -> int:
+    from resection.markers.detect import write_candidates
+    from resection.markers.from_image import detect_in_image
+
+    cand = detect_in_image(args.image, args.diameter, args.polarity, args.template, args.roi,
+                           args.threshold, enhance=args.enhance,
+                           enhance_windows=args.enhance_window)
+    atomic_write(args.out, write_candidates, cand)
+    print(f"detect: {len(cand)} candidates (noise {cand.noise:.3g}, threshold "
+          f"{cand.threshold:.3g}, {cand.n_masked} masked pixels, rejected "
+          + ", ".join(f"{k} {v}" for k, v in cand.n_rejected.items()) + ")")
+    print(f"candidates written to {args.out}")
+    return 0
+
+
+def run_link(args: argparse.Namespace) -> int:
+    from resection.io.images import read_image
+    from resection.io.markers import read_markers
+    from resection.markers.detect import read_candidates, write_candidates
+    from resection.markers.link import draw_links, read_links, suggest_links, write_links
+
+    cand, _ = read_candidates(args.candidates)
+    camera = read_camera(args.camera) if args.camera else None
+    markers = read_markers(args.markers) if args.markers else None
+    if (camera is None) != (markers is None) and (args.png or args.suggest):
+        raise InputError("--camera and --markers go together (to draw or suggest links)")
+    if not (args.png or args.suggest or args.links):
+        raise InputError("nothing to do: give --png, --suggest and/or --links")
+    if args.png:
+        atomic_write(args.png, draw_links, read_image(args.image, mask_saturated=True), cand,
+                     camera=camera, markers=markers)
+        print(f"drawing written to {args.png}")
+    if args.suggest:
+        if camera is None:
+            raise InputError("--suggest needs --camera and --markers")
+        ids, index = suggest_links(cand, camera, markers)
+        atomic_write(args.suggest, write_links, ids, index)
+        print(f"{len(ids)} suggested links written to {args.suggest}")
+    if args.links:
+        if not args.out:
+            raise InputError("--links needs --out for the linked candidates")
+        ids, _, index = read_links(args.links, cand, markers)
+        labels = [None] * len(cand)
+        for k, i in zip(ids, index, strict=True):
+            labels[int(i)] = k
+        atomic_write(args.out, write_candidates, cand, ids=labels)
+        print(f"link: {len(ids)} markers linked, {len(cand) - len(ids)} candidates thrown "
+              f"away; written to {args.out}")
+    return 0
+
+
+def run_match(args: argparse.Namespace) -> int:
+    from resection.io.markers import read_markers
+    from resection.markers.detect import read_candidates, write_candidates
+    from resection.markers.match import match_markers
+
+    cand, _ = read_candidates(args.candidates)
+    markers = read_markers(args.markers)
+    camera = read_camera(args.camera) if args.camera else None
+    if args.reference:
+        rc, rids = read_candidates(args.reference)
+        if rids is None:
+            raise InputError(f"{args.reference}: no 'id' column (not a matched file)")
+        reference = (tuple(rids), rc.uv)
+    elif camera is not None:
+        reference = camera
+    else:
+        raise InputError("give --camera (approximate camera) and/or --reference (earlier "
+                         "matched frame)")
+    res = match_markers(cand, markers, reference, camera=camera,
+                        search_radius=args.search_radius, tolerance=args.tolerance,
+                        max_rms=args.max_rms, marker_accuracy=args.marker_accuracy)
+    atomic_write(args.out, write_candidates, cand, ids=list(res.ids))
+    print(f"match: {res.message}")
+    if res.pose is not None:
+        errs = np.hypot(res.residuals[:, 0], res.residuals[:, 1])
+        print(f"{'id':>12} {'error':>9}")
+        for k, e in zip(res.marker_ids, errs, strict=True):
+            print(f"{k:>12} {e:9.4f}")
+        if args.pose:
+            atomic_write(args.pose, write_camera, res.pose.camera)
+            print(f"camera written to {args.pose}")
+    elif args.pose:
+        raise InputError("--pose needs --camera")
+    print(f"matched candidates written to {args.out}")
+    return 0

@@ -1,0 +1,78 @@
+"""What the two command lines (``resection``, ``selfillum``) share: one-line errors.
+
+Bad input (an :class:`~resection.errors.InputError`, an untrustworthy solve, a missing or
+unwritable file, a bad argument, an output that is one of the inputs) is printed as one
+line naming the problem, with exit status 2, never as a traceback. A closed output pipe
+(``... | head``) ends quietly.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+from resection.errors import InputError, SolveError
+from resection.io.outputs import check_command_outputs
+
+#: Exceptions reported as one line with exit status 2.
+USER_ERRORS = (
+    InputError,
+    SolveError,
+    FileNotFoundError,
+    FileExistsError,
+    IsADirectoryError,
+    NotADirectoryError,
+    PermissionError,
+)
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """Argument errors as one line (``prog: error: message``, exit status 2), without the
+    usage block; ``--help`` still shows it. Sub-command parsers inherit the class."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+def run(parser: argparse.ArgumentParser, argv: list[str] | None) -> int:
+    """Parse ``argv`` and call the chosen sub-command's ``func(args)``; return the exit
+    status."""
+    args = parser.parse_args(argv)
+    try:
+        check_command_outputs(args)  # no output may be one of the inputs
+        return int(args.func(args) or 0)
+    except USER_ERRORS as exc:
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        print(f"{parser.prog} {args.command}: error: {msg}", file=sys.stderr)
+        return 2
+    except BrokenPipeError:
+        # the reader went away (e.g. `| head`): stop quietly, as Unix tools do
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 1
+
+
+def add_acceptance_options(p: argparse.ArgumentParser) -> None:
+    """``--marker-accuracy`` and ``--max-rms``: the acceptance rule's options, the same in
+    every command that fits a camera to markers (see docs/acceptance.md)."""
+    from resection.defaults import DEFAULT_MARKER_ACCURACY, DEFAULT_MAX_RMS
+
+    p.add_argument("--marker-accuracy", type=float, default=DEFAULT_MARKER_ACCURACY,
+                   metavar="PX",
+                   help="stated accuracy of a marker position, survey + detection, px "
+                   "(RMS length; default 1): residuals are judged against it and gross "
+                   "outliers dropped")
+    p.add_argument("--max-rms", type=float, default=DEFAULT_MAX_RMS, metavar="PX",
+                   help="refuse a fit whose RMS residual exceeds this whatever the "
+                   "accuracy, px (default 2)")
+
+
+def add_mesh_format(parser: argparse.ArgumentParser) -> None:
+    """``--format``: the mesh file's format when its extension does not say it (Plot3D is
+    recognised by content; see :data:`resection.io.meshes.MESH_FORMATS`)."""
+    from resection.defaults import MESH_FORMATS
+
+    parser.add_argument("--format", dest="mesh_format", choices=MESH_FORMATS, default=None,
+                        help="format of --mesh (default: from the extension; Plot3D by "
+                        "content)")

@@ -1,0 +1,562 @@
+"""Image <-> model surface mapping through the face-index image.
+
+:class:`SurfaceMap` casts one Embree ray per pixel (the camera's line of sight through the
+pixel centre, lens distortion included) and records which face every pixel sees and where
+on it (barycentric coordinates). That is stored as a sparse face x pixel matrix, so that
+mapping one frame, or every frame of a run at once, onto the surface is one sparse product:
+
+* :meth:`SurfaceMap.to_surface`: image(s) -> per-face mean of the pixels that see the face,
+  the number of (finite) pixels used, and the faces not seen;
+* :meth:`SurfaceMap.to_image`: per-face values -> image, interpolated within faces (face
+  values -> vertex values -> barycentric interpolation at each pixel's hit point), pixels
+  that do not see the model left as a given background.
+
+Conventions (DESIGN.md): pixel centres at integer ``(u, v)``, images indexed ``img[v, u]``,
+model units of the mesh.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numba
+import numpy as np
+import scipy.sparse as sp
+import trimesh
+
+from resection.camera.model import Camera
+from resection.defaults import DEFAULT_MAX_OBLIQUENESS
+from resection.errors import InputError
+from resection.memory import SURFACE_MAP_BYTES_PER_PIXEL, check_pixel_memory
+from resection.surface.visibility import RayCaster
+
+__all__ = ["DEFAULT_MAX_OBLIQUENESS", "SurfaceMap", "SurfaceSample", "oblique_faces",
+           "vertex_values"]
+
+
+
+def _as_float(a, name: str) -> np.ndarray:
+    """float64 array of real numbers, or InputError naming ``name``."""
+    arr = np.asarray(a)
+    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.number)
+                                   or arr.dtype == bool) \
+            or np.issubdtype(arr.dtype, np.complexfloating):
+        raise InputError(f"{name}: expected real numbers, got dtype {arr.dtype}")
+    return arr.astype(np.float64, copy=False)
+
+
+class SurfaceSample(NamedTuple):
+    """Result of :meth:`SurfaceMap.to_surface`.
+
+    Attributes
+    ----------
+    values : (F,) or (T, F) float64
+        Mean of the finite pixels seeing each face (NaN where none).
+    counts : (F,) or (T, F) int64
+        Number of finite pixels averaged.
+    unseen : (F,) or (T, F) bool
+        Faces with no finite pixel (``counts == 0``).
+    nan_counts : (F,) or (T, F) int64
+        Number of pixels seeing the face that were NaN (or infinite) and ignored.
+    """
+
+    values: np.ndarray
+    counts: np.ndarray
+    unseen: np.ndarray
+    nan_counts: np.ndarray
+
+
+def _face_geometry(mesh: trimesh.Trimesh):
+    """Face centroids and areas, from trimesh's cache (computed once per mesh state)."""
+    return (np.asarray(mesh.triangles_center, dtype=np.float64),
+            np.asarray(mesh.area_faces, dtype=np.float64))
+
+
+def _check_obliqueness(max_obliqueness) -> float | None:
+    if max_obliqueness is None:
+        return None
+    try:
+        lim = float(max_obliqueness)
+    except (TypeError, ValueError):
+        raise InputError(f"max_obliqueness: expected degrees, got {max_obliqueness!r}") from None
+    if not (0.0 < lim <= 90.0):
+        raise InputError(f"max_obliqueness must be in (0, 90] degrees, got {max_obliqueness}")
+    return lim
+
+
+def oblique_faces(
+    mesh: trimesh.Trimesh, center, max_obliqueness: float | None = DEFAULT_MAX_OBLIQUENESS
+) -> np.ndarray:
+    """Faces seen from ``center`` more obliquely than a cut-off.
+
+    The obliqueness of a face is the angle between its normal and the line from its
+    centroid to the perspective centre, whichever side of the face is seen (grids' winding
+    is not always consistent across blocks; back faces are the visibility test's business).
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh
+    center : (3,) array_like
+        Perspective centre (``Camera.center``), model units.
+    max_obliqueness : float or None
+        Cut-off in degrees, in (0, 90]. None: no cut-off (no face is oblique).
+
+    Returns
+    -------
+    (F,) bool
+        True where the angle exceeds the cut-off (such faces count as unseen).
+    """
+    lim = _check_obliqueness(max_obliqueness)
+    nf = len(mesh.faces)
+    if lim is None:
+        return np.zeros(nf, dtype=bool)
+    cen, _ = _face_geometry(mesh)
+    view = np.asarray(center, dtype=np.float64)[None, :] - cen
+    n = np.asarray(mesh.face_normals, dtype=np.float64)
+    cosang = np.abs(np.einsum("ij,ij->i", n, view)) / np.linalg.norm(view, axis=1)
+    return cosang < np.cos(np.radians(lim)) - 1e-12
+
+
+def _fit_pairs(vid, fid, w, cen, verts, nv, linear):
+    """Coefficients of the (vertex, face) pairs and the number of directions the centroids
+    span around each vertex (see :func:`_vertex_matrix`)."""
+    W = np.bincount(vid, weights=w, minlength=nv)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        coef = w / W[vid]
+    rank = np.zeros(nv, dtype=np.int64)
+    if linear:
+        Wsafe = np.where(W > 0, W, 1.0)
+        cbar = np.column_stack(
+            [np.bincount(vid, weights=w * cen[fid, k], minlength=nv) / Wsafe for k in range(3)]
+        )
+        dc = cen[fid] - cbar[vid]  # (P, 3)
+        cov = np.empty((nv, 3, 3))
+        for i in range(3):  # 3 x 3 entries, each one bincount over all pairs
+            for j in range(i, 3):
+                cov[:, i, j] = cov[:, j, i] = np.bincount(
+                    vid, weights=w * dc[:, i] * dc[:, j], minlength=nv)
+        evals, evecs = np.linalg.eigh(cov)
+        scale = evals[:, -1:]
+        keep = evals > 1e-2 * scale
+        rank = keep.sum(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            inv = np.where(keep, 1.0 / evals, 0.0)
+        cinv = np.einsum("vij,vj,vkj->vik", evecs, inv, evecs)
+        lever = np.einsum("vi,vij->vj", verts - cbar, cinv)  # (x_v - cbar)^T C^+
+        coef = coef + w * np.einsum("pj,pj->p", lever[vid], dc)
+    coef = np.where(np.isfinite(coef) & (w > 0), coef, 0.0)
+    return coef, rank, W
+
+
+def _vertex_matrix(mesh: trimesh.Trimesh, face_weight: np.ndarray, linear: bool) -> sp.csr_matrix:
+    """Sparse (V, F) matrix turning face values into vertex values.
+
+    Each vertex gets the area-weighted mean of the face values around it; with ``linear``
+    it is corrected by an area-weighted least-squares gradient fitted to the face centroids
+    (``f_v = mean + g . (x_v - c_mean)``), which makes the reconstruction exact for fields
+    linear in space wherever the centroids around a vertex span the needed directions.
+    Directions in which the centroids spread less than a tenth of their largest spread
+    (eigenvalue ratio 1e-2 of the weighted covariance) get no gradient: the normal
+    direction of a smooth curved fan, where a fitted normal gradient would only amplify
+    noise. Across a crease (e.g. a 90-degree corner) the centroids spread in 3-D and the
+    full gradient is used. Vertices whose faces span fewer than 2 directions (a grid
+    corner with one or two faces) use the faces around their neighbours too (2-ring).
+    """
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    verts = np.asarray(mesh.vertices, dtype=np.float64)
+    nv, nf = len(verts), len(faces)
+    cen, _ = _face_geometry(mesh)
+    vid = faces.ravel()  # incidence pairs (vertex, face)
+    fid = np.repeat(np.arange(nf), 3)
+    w = face_weight[fid]
+    coef, rank, W = _fit_pairs(vid, fid, w, cen, verts, nv, linear)
+    M = sp.csr_matrix((coef, (vid, fid)), shape=(nv, nf))
+    poor = np.flatnonzero((rank < 2) & (W > 0)) if linear else np.array([], dtype=int)
+    if poor.size:
+        inc = sp.csr_matrix((np.ones(vid.size), (vid, fid)), shape=(nv, nf))
+        ring2 = (inc[poor] @ inc.T) @ inc  # faces around the neighbours of poor vertices
+        ring2 = ring2.tocoo()
+        v2, f2 = poor[ring2.row], ring2.col
+        c2, r2, _ = _fit_pairs(v2, f2, face_weight[f2], cen, verts, nv, True)
+        better = r2[poor] >= 2
+        if better.any():
+            sel = np.isin(v2, poor[better])
+            keep_rows = np.ones(nv)
+            keep_rows[poor[better]] = 0.0
+            M = sp.diags(keep_rows) @ M + sp.csr_matrix(
+                (c2[sel], (v2[sel], f2[sel])), shape=(nv, nf))
+    return M.tocsr()
+
+
+def vertex_values(
+    mesh: trimesh.Trimesh, face_values, *, interpolation: str = "linear"
+) -> np.ndarray:
+    """Per-vertex values from per-face values (see :meth:`SurfaceMap.to_image`).
+
+    Parameters
+    ----------
+    face_values : (F,) or (F, K) array_like
+        NaN faces are left out of the vertex values.
+    interpolation : {"linear", "mean"}
+        ``"mean"``: area-weighted mean of the faces around the vertex; ``"linear"``: that
+        mean corrected by an area-weighted least-squares gradient (exact for linear fields).
+
+    Returns
+    -------
+    (V,) or (V, K) float64, NaN for vertices whose faces are all NaN.
+    """
+    fv = _as_float(face_values, "face_values")
+    nf = len(mesh.faces)
+    if fv.ndim not in (1, 2) or fv.shape[0] != nf:
+        raise InputError(f"face_values: expected ({nf},) or ({nf}, K) for the mesh's {nf} "
+                         f"faces, got shape {fv.shape}")
+    if interpolation not in ("linear", "mean"):
+        raise InputError(f"interpolation must be 'linear' or 'mean', got {interpolation!r}")
+    _, area = _face_geometry(mesh)
+    return _apply_vertex(mesh, area, fv, interpolation == "linear", cache=None)
+
+
+def _apply_vertex(mesh, area, fv, linear, cache):
+    """Vertex values of (F,) or (F, K) face values; columns are handled in groups sharing
+    the same set of NaN faces (each group gets its own reconstruction matrix)."""
+    flat = fv.reshape(len(fv), -1)
+    finite = np.isfinite(flat)
+    faces = np.asarray(mesh.faces)
+    nv = len(mesh.vertices)
+    out = np.empty((nv, flat.shape[1]))
+    if finite.all():  # the usual case: one group, no sorting of NaN patterns
+        patterns, group = np.ones((1, len(flat)), dtype=bool), np.zeros(flat.shape[1], int)
+    else:  # distinct NaN patterns as byte strings (np.unique(axis=0) on F-wide boolean
+        # rows builds an F-field dtype: 28 s for one 600,000-face frame)
+        packed = np.ascontiguousarray(np.packbits(finite.T, axis=1))
+        keys = packed.view(np.dtype((np.void, packed.shape[1]))).ravel()
+        _, first, group = np.unique(keys, return_index=True, return_inverse=True)
+        patterns = finite.T[first]
+    for g, pattern in enumerate(patterns):  # loop over distinct NaN patterns, not faces
+        cols = np.flatnonzero(group.ravel() == g)
+        if pattern.all() and cache is not None and linear in cache:
+            M = cache[linear]
+        else:
+            M = _vertex_matrix(mesh, area * pattern, linear)
+            if pattern.all() and cache is not None:
+                cache[linear] = M
+        res = M @ np.where(pattern[:, None], flat[:, cols], 0.0)
+        has = np.bincount(faces[pattern].ravel(), minlength=nv) > 0
+        res[~has] = np.nan  # vertices with no finite face around them
+        out[:, cols] = res
+    return out.reshape((nv,) + fv.shape[1:])
+
+
+class SurfaceMap:
+    """Which face, and where on it, every pixel of a camera sees.
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh
+        Model surface (model units). Its face order indexes every per-face array.
+    camera : Camera
+        Calibrated camera with its pose; one ray per pixel centre through
+        :meth:`Camera.rays` (distortion included).
+    max_obliqueness : float or None, optional
+        Obliqueness cut-off, degrees in (0, 90] (default 70, as uPSP): a face whose normal
+        makes a larger angle with the line of sight from the perspective centre to its
+        centroid (:func:`oblique_faces`) counts as unseen, and the pixels that hit it are
+        background. None keeps every hit.
+
+    Attributes
+    ----------
+    face_index : (H, W) int64
+        Face seen by each pixel, -1 for background.
+    barycentric : (H, W, 3) float64
+        Barycentric coordinates of the hit point on the face's vertices (NaN background).
+    depth : (H, W) float64
+        Distance from the perspective centre to the hit point, model units (NaN background).
+    matrix : scipy.sparse.csr_matrix, shape (F, H*W)
+        1 where pixel (flattened ``v * W + u``) sees face.
+    pixel_counts : (F,) int64
+        Pixels seeing each face (before removing NaN pixels of an image).
+    oblique : (F,) bool
+        Faces beyond the obliqueness cut-off (unseen whether or not a pixel hits them).
+    max_obliqueness : float or None
+        The cut-off used, degrees.
+    """
+
+    def __init__(
+        self,
+        mesh: trimesh.Trimesh,
+        camera: Camera,
+        *,
+        max_obliqueness: float | None = DEFAULT_MAX_OBLIQUENESS,
+        caster: RayCaster | None = None,
+    ):
+        if not isinstance(camera, Camera):
+            raise InputError(f"camera: expected a resection.Camera, got {type(camera).__name__}")
+        if not isinstance(mesh, trimesh.Trimesh):
+            raise InputError(f"mesh: expected a trimesh.Trimesh, got {type(mesh).__name__}")
+        self.mesh = mesh
+        self.camera = camera
+        self.max_obliqueness = _check_obliqueness(max_obliqueness)
+        H, W = camera.height, camera.width
+        check_pixel_memory(W, H, SURFACE_MAP_BYTES_PER_PIXEL, "SurfaceMap")
+        self.shape = (H, W)
+        caster = RayCaster(mesh) if caster is None else caster
+        if caster.n_faces != len(mesh.faces):
+            raise InputError(f"caster: built for {caster.n_faces} faces, the mesh has "
+                             f"{len(mesh.faces)}")
+        _, dirs = camera.rays()  # every pixel, from the camera's undistortion map
+        face, dist, bary = caster.first_hit(camera.center, dirs, unit=True)
+        self.oblique = oblique_faces(mesh, camera.center, self.max_obliqueness)
+        if self.oblique.any():
+            bad = np.flatnonzero(face >= 0)
+            bad = bad[self.oblique[face[bad]]]
+            face[bad] = -1
+            dist[bad] = np.nan
+            bary[bad] = np.nan
+        self.face_index = face.reshape(H, W)
+        self.barycentric = bary.reshape(H, W, 3)
+        self.depth = dist.reshape(H, W)
+        self._hit = np.flatnonzero(face >= 0)  # flattened pixel indices on the model
+        self._hit_face = face[self._hit]
+        nf = len(mesh.faces)
+        # face x (model pixel) matrix; the full face x pixel one is :attr:`matrix`
+        # (one entry per column: built as CSC directly, no sorting)
+        self._mhit = sp.csc_matrix(
+            (np.ones(self._hit.size), self._hit_face, np.arange(self._hit.size + 1)),
+            shape=(nf, self._hit.size),
+        )
+        self.pixel_counts = np.bincount(self._hit_face, minlength=nf).astype(np.int64)
+        _, self._area = _face_geometry(mesh)
+        self._vcache: dict = {}
+        self._interp = None
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def n_faces(self) -> int:
+        return len(self.mesh.faces)
+
+    @property
+    def matrix(self) -> sp.csr_matrix:
+        """(F, H*W) sparse: 1 where pixel (flattened ``v * W + u``) sees the face."""
+        H, W = self.shape
+        return sp.csr_matrix(
+            (np.ones(self._hit.size), (self._hit_face, self._hit)), shape=(self.n_faces, H * W)
+        )
+
+    def _interpolation_matrix(self) -> sp.csr_matrix:
+        """(model pixels, V) sparse: barycentric weights of each pixel's hit face corners."""
+        if self._interp is None:
+            corners = np.asarray(self.mesh.faces, dtype=np.int64)[self._hit_face]
+            b = self.barycentric.reshape(-1, 3)[self._hit]
+            n = self._hit.size
+            self._interp = sp.csr_matrix(
+                (b.ravel(), corners.ravel(), np.arange(0, 3 * n + 1, 3)),
+                shape=(n, len(self.mesh.vertices)),
+            )
+        return self._interp
+
+    @property
+    def mask(self) -> np.ndarray:
+        """(H, W) bool: pixels that see the model."""
+        return self.face_index >= 0
+
+    @property
+    def seen_faces(self) -> np.ndarray:
+        """(F,) bool: faces seen by at least one pixel."""
+        return self.pixel_counts > 0
+
+    @property
+    def points(self) -> np.ndarray:
+        """(H, W, 3) model coordinates of each pixel's hit point (NaN background)."""
+        out = np.full((self.shape[0] * self.shape[1], 3), np.nan)
+        f = self.face_index.ravel()[self._hit]
+        tri = np.asarray(self.mesh.vertices, dtype=np.float64)[np.asarray(self.mesh.faces)[f]]
+        b = self.barycentric.reshape(-1, 3)[self._hit]
+        out[self._hit] = np.einsum("pk,pkj->pj", b, tri)
+        return out.reshape(self.shape + (3,))
+
+    # ------------------------------------------------------------------ mapping
+    def _check_images(self, image, name: str = "image") -> tuple[np.ndarray, bool]:
+        arr = np.asarray(image)
+        H, W = self.shape
+        if arr.ndim == 2 and arr.shape == (H, W):
+            return arr[None], True
+        if arr.ndim == 3 and arr.shape[1:] == (H, W):
+            if arr.shape[0] == 0:
+                raise InputError(f"{name}: empty stack (0 frames)")
+            return arr, False
+        raise InputError(
+            f"{name}: shape {arr.shape} does not match the camera image (H, W) = ({H}, {W})"
+            " (or a stack (T, H, W))"
+        )
+
+    def to_surface(self, image) -> SurfaceSample:
+        """Average image pixels onto the faces they see.
+
+        Parameters
+        ----------
+        image : (H, W) or (T, H, W) array_like
+            One image or a stack of T frames of this camera. NaN pixels are ignored (and
+            not counted in ``counts``).
+
+        Returns
+        -------
+        SurfaceSample
+            ``(values, counts, unseen, nan_counts)``, each (F,) for one image or (T, F)
+            for a stack.
+        """
+        arr, single = self._check_images(image)
+        if not np.issubdtype(arr.dtype, np.number) or np.issubdtype(arr.dtype, np.complexfloating):
+            raise InputError(f"image: expected real numbers, got dtype {arr.dtype}")
+        T = arr.shape[0]
+        # model pixels of every frame as (pixels, frames) for one sparse product
+        X = np.ascontiguousarray(arr.reshape(T, -1)[:, self._hit].T, dtype=np.float64)
+        finite = np.isfinite(X)
+        if finite.all():
+            sums = (self._mhit @ X).T
+            counts = np.broadcast_to(self.pixel_counts, (T, self.n_faces)).copy()
+        else:
+            X[~finite] = 0.0
+            sums = (self._mhit @ X).T
+            counts = np.rint((self._mhit @ finite.astype(np.float64)).T).astype(np.int64)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            values = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
+        unseen = counts == 0
+        nan_counts = self.pixel_counts[None, :] - counts
+        if single:
+            return SurfaceSample(values[0], counts[0], unseen[0], nan_counts[0])
+        return SurfaceSample(values, counts, unseen, nan_counts)
+
+    def to_nodes(self, image) -> SurfaceSample:
+        """Image pixels onto the grid's nodes (vertices), from the pixels around each node.
+
+        A node's value is the mean of the finite pixels that see a face around it, each
+        weighted by the barycentric coordinate of its hit point on that node (1 on the node,
+        0 on the opposite edge): only pixels that see the model enter, never the background
+        next to a silhouette. Accurate to first order in the face size (second order where
+        the pixels surround the node evenly).
+
+        Parameters
+        ----------
+        image : (H, W) or (T, H, W) array_like
+
+        Returns
+        -------
+        SurfaceSample
+            Per node: ``values`` (NaN where no pixel contributes), ``counts`` (pixels with a
+            non-zero weight), ``unseen``, ``nan_counts``; (V,) or (T, V).
+        """
+        arr, single = self._check_images(image)
+        if not np.issubdtype(arr.dtype, np.number) or np.issubdtype(arr.dtype, np.complexfloating):
+            raise InputError(f"image: expected real numbers, got dtype {arr.dtype}")
+        T = arr.shape[0]
+        X = np.ascontiguousarray(arr.reshape(T, -1)[:, self._hit], dtype=np.float64)
+        nv = len(self.mesh.vertices)
+        sums, weights = np.zeros((T, nv)), np.zeros((T, nv))
+        counts, total = np.zeros((T, nv), np.int64), np.zeros(nv, np.int64)
+        _splat_nodes(np.asarray(self.mesh.faces, dtype=np.int64)[self._hit_face],
+                     np.ascontiguousarray(self.barycentric.reshape(-1, 3)[self._hit]), X,
+                     sums, weights, counts, total)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            values = np.where(weights > 1e-12, sums / weights, np.nan)
+        unseen = ~np.isfinite(values)
+        counts[unseen] = 0
+        nan_counts = total[None, :] - counts
+        nan_counts[unseen] = np.broadcast_to(total, unseen.shape)[unseen]
+        if single:
+            return SurfaceSample(values[0], counts[0], unseen[0], nan_counts[0])
+        return SurfaceSample(values, counts, unseen, nan_counts)
+
+    def vertex_values(self, face_values, interpolation: str = "linear") -> np.ndarray:
+        """Per-vertex values of per-face values (see :func:`vertex_values`)."""
+        fv = _as_float(face_values, "face_values")
+        if fv.ndim not in (1, 2) or fv.shape[0] != self.n_faces:
+            raise InputError(f"face_values: expected ({self.n_faces},) or ({self.n_faces}, K) "
+                             f"for the mesh's faces, got shape {fv.shape}")
+        if interpolation not in ("linear", "mean"):
+            raise InputError(f"interpolation must be 'linear' or 'mean', got {interpolation!r}")
+        return _apply_vertex(self.mesh, self._area, fv, interpolation == "linear", self._vcache)
+
+    def to_image(self, face_values, background=None, *, interpolation: str = "linear"):
+        """Backproject per-face values into this camera's image.
+
+        Parameters
+        ----------
+        face_values : (F,) or (T, F) array_like
+            Value(s) per face. NaN faces are left out of the interpolation, and pixels on a
+            NaN face take the background.
+        background : None, float or (H, W) / (T, H, W) array_like
+            What pixels that do not see the model (or see a NaN face) get: NaN (default), a
+            constant, or the matching pixels of an image (e.g. the original camera image).
+        interpolation : {"linear", "mean", "nearest"}
+            ``"nearest"``: each pixel gets its face's value. Otherwise face values are
+            turned into vertex values (``"mean"``: area-weighted mean of the faces around a
+            vertex; ``"linear"``: that mean plus an area-weighted least-squares gradient
+            correction, exact for fields linear in space) and interpolated barycentrically
+            at the pixel's hit point.
+
+        Returns
+        -------
+        (H, W) or (T, H, W) float64
+        """
+        fv = _as_float(face_values, "face_values")
+        nf = self.n_faces
+        if fv.ndim == 1 and fv.shape[0] == nf:
+            fv2, single = fv[None], True
+        elif fv.ndim == 2 and fv.shape[1] == nf:
+            fv2, single = fv, False
+        else:
+            raise InputError(
+                f"face_values: shape {fv.shape} does not match the mesh's {nf} faces "
+                "(expected (F,) or (T, F))"
+            )
+        if interpolation not in ("linear", "mean", "nearest"):
+            raise InputError(
+                f"interpolation must be 'linear', 'mean' or 'nearest', got {interpolation!r}"
+            )
+        T = fv2.shape[0]
+        H, W = self.shape
+        if background is None:
+            out = np.full((T, H * W), np.nan)
+        elif np.ndim(background) == 0:
+            out = np.full((T, H * W), float(_as_float(background, "background")))
+        else:
+            bg, _ = self._check_images(_as_float(background, "background"), "background")
+            if bg.shape[0] not in (1, T):
+                raise InputError(f"background: {bg.shape[0]} images for {T} sets of face "
+                                 "values (give one image, or one per set)")
+            out = np.broadcast_to(bg.reshape(bg.shape[0], -1), (T, H * W)).astype(np.float64)
+        hit, f = self._hit, self._hit_face
+        if interpolation == "nearest":
+            vals = fv2[:, f]
+        else:
+            vert = self.vertex_values(fv2.T, interpolation)  # (V, T)
+            vals = (self._interpolation_matrix() @ np.nan_to_num(vert)).T  # (T, pixels)
+        good = np.isfinite(fv2[:, f])
+        if good.all():
+            out[:, hit] = vals
+        else:
+            rows, cols = np.nonzero(good)
+            out[rows, hit[cols]] = vals[rows, cols]
+        out = out.reshape(T, H, W)
+        return out[0] if single else out
+
+
+@numba.njit(cache=True, nogil=True)
+def _splat_nodes(corners, bary, X, sums, weights, counts, total):  # pragma: no cover
+    """One pass over the model pixels of T frames: pixel j (corners, barycentrics) adds
+    ``w * X[t, j]`` and ``w`` to its face's three nodes (finite pixels only), and counts
+    the pixels with a weight above 1e-12 (``total``: finite or not)."""
+    for j in range(corners.shape[0]):
+        for c in range(3):
+            w = bary[j, c]
+            node = corners[j, c]
+            big = w > 1e-12
+            if big:
+                total[node] += 1
+            for t in range(X.shape[0]):
+                x = X[t, j]
+                if np.isfinite(x):
+                    sums[t, node] += w * x
+                    weights[t, node] += w
+                    if big:
+                        counts[t, node] += 1

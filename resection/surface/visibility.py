@@ -1,0 +1,336 @@
+"""Which faces of a model surface a camera sees, with Embree ray casting.
+
+A face is *visible* from a camera when
+
+1. it faces the camera (its normal points towards the perspective centre),
+2. the angle between its normal and the line of sight is at most an obliqueness limit
+   (paint seen too obliquely is not measured reliably),
+3. its sample points project inside the image, and
+4. the ray from the perspective centre to its sample points hits that face first (no other
+   part of the model in between).
+
+Ray casting goes through Embree (``embreex``, the binding trimesh uses for
+``trimesh.ray.ray_pyembree``). Embree works in float32; hit distances and barycentric
+coordinates are recomputed here in float64 from the face Embree reports, so that they are
+exact to double precision for the face that was hit.
+
+Face winding gives the normal: counter-clockwise seen from outside, as trimesh.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import trimesh
+from embreex import rtcore_scene
+from embreex.mesh_construction import TriangleMesh
+
+from resection._checks import as_points
+from resection._threads import run_blocks, split_range
+from resection.camera.model import Camera
+from resection.errors import InputError
+
+__all__ = ["RayCaster", "visible_faces", "face_sample_points"]
+
+
+class RayCaster:
+    """First-hit ray casting on a triangle mesh with Embree.
+
+    The scene is built once (float32, shifted and scaled to a box of about 100 units to use
+    the float32 range well, as trimesh does) and can be queried many times.
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh
+        The surface; its face order defines the face indices returned.
+    """
+
+    def __init__(self, mesh: trimesh.Trimesh):
+        if not isinstance(mesh, trimesh.Trimesh):
+            raise InputError(f"mesh: expected a trimesh.Trimesh, got {type(mesh).__name__}")
+        if len(mesh.faces) == 0:
+            raise InputError("mesh: has no faces")
+        vertices = np.asarray(mesh.vertices, dtype=np.float64)
+        if not np.all(np.isfinite(vertices)):
+            raise InputError("mesh: vertices contain NaN or infinite values")
+        self._vertices = vertices
+        self._faces = np.asarray(mesh.faces, dtype=np.int64)
+        self._origin = vertices.min(axis=0)
+        extent = float(np.linalg.norm(vertices.max(axis=0) - self._origin))
+        self._scale = 100.0 / extent if extent > 0 else 1.0
+        scaled = ((vertices - self._origin) * self._scale).astype(np.float32)
+        self._dual = None  # per-face data of _plane_hits, built on first use
+        self._scene = rtcore_scene.EmbreeScene()
+        TriangleMesh(scene=self._scene, vertices=scaled,
+                     indices=self._faces.astype(np.int32))
+        # commit the scene now (Embree builds it on the first query), before any threads
+        # query it at once
+        self._scene.run(np.zeros((1, 3), np.float32), np.array([[0, 0, 1]], np.float32))
+
+    @property
+    def n_faces(self) -> int:
+        return len(self._faces)
+
+    def first_hit(self, origins, directions, *, unit: bool = False,
+                  workers: int | None = None):
+        """Cast rays and return the first face each one hits.
+
+        Parameters
+        ----------
+        origins : (N, 3) or (3,) array_like
+            Ray origins in model coordinates, or one origin shared by every ray.
+        directions : (N, 3) array_like
+            Directions (need not be unit); rows with NaN are not cast and come back as
+            misses.
+        unit : bool
+            The directions are already unit vectors (skips normalising them).
+        workers : int, optional
+            Threads over blocks of rays (Embree's queries and the compiled passes release
+            the GIL). Default: the cores this process may use.
+
+        Returns
+        -------
+        face : (N,) int64
+            Index of the face hit first, -1 for a miss.
+        distance : (N,) float64
+            Distance along the unit direction to the hit point (model units), NaN for a
+            miss; recomputed in float64 on the hit face's plane.
+        bary : (N, 3) float64
+            Barycentric coordinates of the hit point on the face's vertices ``(w0, w1, w2)``
+            (sum 1), NaN for a miss.
+        """
+        d = np.ascontiguousarray(as_points(directions, 3, "ray directions", allow_nan=True),
+                                 dtype=np.float64)
+        o_in = np.asarray(origins, dtype=np.float64)
+        single = o_in.shape == (3,)  # one origin for every ray (a camera centre)
+        o = o_in[None, :] if single else as_points(o_in, 3, "ray origins", allow_nan=True)
+        if not single and o.shape != d.shape:
+            raise InputError(f"rays: origins {o.shape} and directions {d.shape} differ")
+        o = np.ascontiguousarray(o, dtype=np.float64)
+        n = len(d)
+        face = np.empty(n, dtype=np.int64)
+        dist = np.empty(n)
+        bary = np.empty((n, 3))
+        dual = self._face_duals()
+        shift = np.ascontiguousarray(self._origin, dtype=np.float64)
+
+        def block(b: tuple[int, int]) -> None:
+            start, stop = b
+            o32 = np.empty((1 if single else stop - start, 3), np.float32)
+            d32 = np.empty((stop - start, 3), np.float32)
+            keep = np.empty(stop - start, np.int64)
+            k = _prepare_rays(o, d, start, stop, unit, shift, self._scale, o32, d32, keep,
+                              face, dist, bary)
+            if k == 0:
+                return
+            o_run = np.broadcast_to(o32, (k, 3)) if single else o32[:k]
+            hit = self._scene.run(np.ascontiguousarray(o_run), d32[:k])
+            _plane_hits(o, d, keep[:k], np.asarray(hit), unit, dual, face, dist, bary)
+
+        run_blocks(block, split_range(n, workers, min_size=16384), workers)
+        return face, dist, bary
+
+    def _face_duals(self) -> np.ndarray:
+        """Per-face data of the float64 plane hits (v0, normal, a1, a2), built once."""
+        if self._dual is None:
+            tri = self._vertices[self._faces]
+            v0 = tri[:, 0]
+            e1, e2 = tri[:, 1] - v0, tri[:, 2] - v0
+            nrm = np.cross(e1, e2)
+            nn = np.einsum("ij,ij->i", nrm, nrm)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                a1 = np.cross(e2, nrm) / nn[:, None]  # w1 = (p - v0) . a1
+                a2 = np.cross(nrm, e1) / nn[:, None]  # w2 = (p - v0) . a2
+            self._dual = np.ascontiguousarray(np.hstack([v0, nrm, a1, a2]))  # (F, 12)
+        return self._dual
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _miss(k, face, dist, bary):  # pragma: no cover - compiled
+    """Ray ``k`` hits nothing: face -1, distance and barycentrics NaN."""
+    face[k] = -1
+    dist[k] = np.nan
+    bary[k, 0] = np.nan
+    bary[k, 1] = np.nan
+    bary[k, 2] = np.nan
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _prepare_rays(o, d, start, stop, unit, shift, scale, o32, d32, keep, face, dist,
+                  bary):  # pragma: no cover (compiled)
+    """Rays ``start <= k < stop`` with a finite origin and a finite non-zero direction:
+    their scaled float32 origins and unit float32 directions packed into ``o32``/``d32``
+    (one shared origin when ``o`` has one row), their indices into ``keep``; the others
+    written as misses. Returns how many were packed."""
+    one = o.shape[0] == 1
+    if one:
+        o_ok = np.isfinite(o[0, 0]) and np.isfinite(o[0, 1]) and np.isfinite(o[0, 2])
+        for c in range(3):
+            o32[0, c] = (o[0, c] - shift[c]) * scale
+    m = 0
+    for k in range(start, stop):
+        dx, dy, dz = d[k, 0], d[k, 1], d[k, 2]
+        nn = dx * dx + dy * dy + dz * dz
+        ok = np.isfinite(nn) and nn > 0.0
+        if not one:
+            ok = ok and np.isfinite(o[k, 0]) and np.isfinite(o[k, 1]) and np.isfinite(o[k, 2])
+        elif not o_ok:
+            ok = False
+        if not ok:
+            _miss(k, face, dist, bary)
+            continue
+        s = 1.0 if unit else 1.0 / np.sqrt(nn)
+        d32[m, 0] = dx * s
+        d32[m, 1] = dy * s
+        d32[m, 2] = dz * s
+        if not one:
+            for c in range(3):
+                o32[m, c] = (o[k, c] - shift[c]) * scale
+        keep[m] = k
+        m += 1
+    return m
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _plane_hits(o, d, keep, hit, unit, dual, face, dist, bary):  # pragma: no cover
+    """For ray ``keep[j]`` that Embree reports on face ``hit[j]`` (-1: a miss): the face,
+    and the float64 distance and barycentrics ``(1 - w1 - w2, w1, w2)`` of the ray
+    ``(o[k] or o[0], d[k] / |d[k]|)`` on that face's plane (dual row: v0, normal, a1, a2)."""
+    one = o.shape[0] == 1
+    for j in range(keep.shape[0]):
+        k = keep[j]
+        f = hit[j]
+        if f < 0:
+            _miss(k, face, dist, bary)
+            continue
+        ko = 0 if one else k
+        s = 1.0 if unit else 1.0 / np.sqrt(d[k, 0] ** 2 + d[k, 1] ** 2 + d[k, 2] ** 2)
+        d0, d1, d2 = d[k, 0] * s, d[k, 1] * s, d[k, 2] * s
+        q0 = dual[f, 0] - o[ko, 0]
+        q1 = dual[f, 1] - o[ko, 1]
+        q2 = dual[f, 2] - o[ko, 2]
+        nd = dual[f, 3] * d0 + dual[f, 4] * d1 + dual[f, 5] * d2
+        t = (dual[f, 3] * q0 + dual[f, 4] * q1 + dual[f, 5] * q2) / nd
+        p0 = t * d0 - q0
+        p1 = t * d1 - q1
+        p2 = t * d2 - q2
+        w1 = p0 * dual[f, 6] + p1 * dual[f, 7] + p2 * dual[f, 8]
+        w2 = p0 * dual[f, 9] + p1 * dual[f, 10] + p2 * dual[f, 11]
+        face[k] = f
+        dist[k] = t
+        bary[k, 0] = 1.0 - w1 - w2
+        bary[k, 1] = w1
+        bary[k, 2] = w2
+
+
+def face_sample_points(mesh: trimesh.Trimesh, samples_per_face: int = 1) -> np.ndarray:
+    """Sample points inside every face at fixed barycentric positions.
+
+    Sample 0 is the centroid; samples 1-3 lean towards each vertex (barycentric weight 0.6
+    on it, 0.2 on the others) and samples 4-6 towards each edge (0.4, 0.4 on its ends, 0.2
+    on the opposite vertex), so that every sample is strictly inside the face.
+
+    Parameters
+    ----------
+    samples_per_face : int
+        1 to 7.
+
+    Returns
+    -------
+    (F, S, 3) array of model points.
+    """
+    s = int(samples_per_face)
+    if s < 1 or s > 7:
+        raise InputError(f"samples_per_face must be in 1..7, got {samples_per_face}")
+    third = 1.0 / 3.0
+    weights = [[third, third, third]]
+    for k in range(3):  # towards each vertex: 0.6 on it, 0.2 on the others
+        w = [0.2, 0.2, 0.2]
+        w[k] = 0.6
+        weights.append(w)
+    for k in range(3):  # towards each edge midpoint: 0.4, 0.4 on its ends, 0.2 on the other
+        w = [0.4, 0.4, 0.4]
+        w[k] = 0.2
+        weights.append(w)
+    W = np.asarray(weights[:s])  # (S, 3)
+    tri = np.asarray(mesh.vertices, dtype=np.float64)[np.asarray(mesh.faces)]  # (F, 3, 3)
+    return np.einsum("sk,fkj->fsj", W, tri)
+
+
+def visible_faces(
+    mesh: trimesh.Trimesh,
+    camera: Camera,
+    max_obliqueness_deg: float = 80.0,
+    samples_per_face: int = 1,
+    *,
+    require: str = "any",
+    in_image: bool = True,
+    caster: RayCaster | None = None,
+) -> np.ndarray:
+    """Faces of ``mesh`` that ``camera`` sees.
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh
+        Model surface, model units; normals from the face winding.
+    camera : Camera
+        Camera with its pose.
+    max_obliqueness_deg : float
+        Largest angle, in degrees, between a face normal and the direction from the face
+        centroid to the perspective centre (0 = seen head-on, 90 = edge-on).
+    samples_per_face : int
+        Number of sample points per face (1..7, see :func:`face_sample_points`) tested for
+        occlusion and for falling inside the image.
+    require : {"any", "all"}
+        A face is visible when any (partially seen) or all (fully seen) of its samples are
+        unoccluded and inside the image.
+    in_image : bool
+        Also require the samples to project inside the image (with distortion).
+    caster : RayCaster, optional
+        A prebuilt ray caster for ``mesh`` (saves rebuilding the Embree scene).
+
+    Returns
+    -------
+    (F,) bool ndarray
+    """
+    if not isinstance(camera, Camera):
+        raise InputError(f"camera: expected a resection.Camera, got {type(camera).__name__}")
+    lim = float(max_obliqueness_deg)
+    if not (0.0 < lim <= 90.0):
+        raise InputError(f"max_obliqueness_deg must be in (0, 90], got {max_obliqueness_deg}")
+    if require not in ("any", "all"):
+        raise InputError(f"require must be 'any' or 'all', got {require!r}")
+    caster = RayCaster(mesh) if caster is None else caster
+    if caster.n_faces != len(mesh.faces):
+        raise InputError(f"caster: built for {caster.n_faces} faces, the mesh has "
+                         f"{len(mesh.faces)}")
+    tri = np.asarray(mesh.vertices, dtype=np.float64)[np.asarray(mesh.faces)]
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    nlen = np.linalg.norm(normal, axis=1)
+    C = camera.center
+    to_cam = C - tri.mean(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cosang = np.einsum("ij,ij->i", normal, to_cam) / (nlen * np.linalg.norm(to_cam, axis=1))
+    facing = cosang >= np.cos(np.radians(lim)) - 1e-12
+    facing &= cosang > 0
+    cand = np.flatnonzero(facing)
+    vis = np.zeros(len(tri), dtype=bool)
+    if cand.size == 0:
+        return vis
+    pts = face_sample_points(mesh, samples_per_face)[cand]  # (M, S, 3)
+    m, s = pts.shape[:2]
+    flat = pts.reshape(-1, 3)
+    d = flat - C
+    target = np.linalg.norm(d, axis=1)
+    face_hit, dist, _ = caster.first_hit(C, d)
+    own = np.repeat(cand, s)
+    # the ray reaches the sample on its own face, or on a face at the same distance
+    # (coplanar duplicate / edge): nothing lies in front of it
+    tol = 1e-6 * target
+    ok = (face_hit == own) | ((face_hit >= 0) & (dist >= target - tol))
+    if in_image:
+        uv = camera.project(flat)
+        ok &= camera.in_image(uv)
+    ok = ok.reshape(m, s)
+    vis[cand] = ok.any(axis=1) if require == "any" else ok.all(axis=1)
+    return vis

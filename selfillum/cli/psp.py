@@ -1,0 +1,102 @@
+"""``selfillum psp``: pressure from wind-off / wind-on PSP images, SI removed first.
+
+Only parses arguments, reads the inputs, calls :func:`selfillum.images.psp.psp_images` and writes
+the results.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from resection.cli.util import add_mesh_format
+from resection.errors import InputError
+from resection.io.cameras import read_camera
+
+
+def _cmd_psp(args) -> int:
+    from resection.io.images import read_image, write_image
+    from resection.io.meshes import load_mesh
+    from resection.io.outputs import atomic_write, output_folder
+    from resection.surface.surface_map import SurfaceMap
+    from selfillum.cli.render import _per_face_arg
+    from selfillum.images.psp import psp_images, read_taps
+    from selfillum.transport.viewfactors import view_factors
+
+    cams, offs, ons = args.camera, args.wind_off, args.wind_on or []
+    if len(offs) != len(cams):
+        raise InputError(f"give one wind-off image per camera ({len(cams)} cameras, "
+                         f"{len(offs)} wind-off images)")
+    if len(ons) != len(cams):
+        raise InputError(f"give one wind-on image per camera ({len(cams)} cameras, "
+                         f"{len(ons)} wind-on images)")
+    mesh = load_mesh(args.mesh, format=args.mesh_format)
+    taps = read_taps(args.taps, positions=args.tap_positions)
+    maps = [SurfaceMap(mesh, read_camera(c)) for c in cams]
+    off_imgs = [read_image(p) for p in offs]
+    on_imgs = [read_image(p) for p in ons]
+    F = rho = None
+    if not args.no_correction:
+        rho = _per_face_arg(args.reflectance, "--reflectance")
+        F = view_factors(mesh, rays_per_face=args.rays, seed=args.seed,
+                         progress=not args.quiet)
+    res, images = psp_images(maps, off_imgs, on_imgs, taps, args.p_ref, F=F,
+                             reflectance=rho, correct_si=not args.no_correction)
+    law = res.stern_volmer
+    info = {
+        "A": law.A, "B": law.B, "p_ref": law.p_ref, "si_corrected": res.corrected,
+        "taps": {tid: {"face": int(f), "residual": float(r)}
+                 for tid, f, r in zip(taps.ids, res.tap_faces, res.tap_residuals,
+                                      strict=True)},
+    }
+    table = np.column_stack([np.arange(len(res.pressure)), res.pressure, res.ratio])
+    # the folder exists only once there is something to write (removed if writing fails)
+    with output_folder(args.out) as out:
+        for k, img in enumerate(images):
+            atomic_write(out / f"pressure_{k}.tif", write_image, img.astype(np.float32))
+        atomic_write(out / "pressure_faces.csv", np.savetxt, table, fmt=["%d", "%.9g", "%.9g"],
+                     delimiter=",", header="face,pressure,ratio", comments="")
+        atomic_write(out / "stern_volmer.json", Path.write_text,
+                     json.dumps(info, indent=2) + "\n")
+    rms = float(np.sqrt(np.nanmean(res.tap_residuals**2)))
+    print(f"Stern-Volmer   I_ref/I = {law.A:.4f} + {law.B:.4f} p/p_ref (p_ref {law.p_ref:g})")
+    print(f"taps           {len(taps.ids)}, rms residual {rms:.4g}")
+    print(f"SI corrected   {'yes' if res.corrected else 'no'}")
+    print(f"wrote {out}/pressure_*.tif, pressure_faces.csv, stern_volmer.json")
+    return 0
+
+
+def register(sub) -> None:
+    """Add the ``psp`` sub-command to ``sub`` (an argparse sub-parsers object)."""
+    p = sub.add_parser(
+        "psp",
+        help="pressure from wind-off/wind-on PSP images (Stern-Volmer on taps, SI removed)",
+        description="Map wind-off and wind-on images of one or several cameras onto the "
+        "model, remove the self-illumination from both, fit I_ref/I = A + B p/p_ref on the "
+        "pressure taps and write the pressure per face and per camera image.",
+    )
+    p.add_argument("--mesh", required=True, help="model surface (STL, OBJ, PLY, Plot3D, ...)")
+    add_mesh_format(p)
+    p.add_argument("--camera", required=True, action="append",
+                   help="camera JSON file; repeat for several cameras")
+    p.add_argument("--wind-off", required=True, action="append",
+                   help="wind-off image (uniform p_ref), one per camera, in camera order")
+    p.add_argument("--wind-on", action="append", help="wind-on image, one per camera")
+    p.add_argument("--taps", required=True, help="pressure taps CSV: id,x,y,z,p, or id,p with "
+                   "--tap-positions")
+    p.add_argument("--tap-positions", metavar="MODEL.tgts",
+                   help="tap positions for an id,p tap file: a uPSP .tgts file (its *Taps) "
+                   "or a marker file")
+    p.add_argument("--p-ref", required=True, type=float, help="pressure of the wind-off run")
+    p.add_argument("--reflectance", default="0.6",
+                   help="paint reflectance: a number or a per-face file (default 0.6)")
+    p.add_argument("--rays", type=int, default=1024,
+                   help="rays per face for the view factors (default 1024)")
+    p.add_argument("--seed", type=int, default=0, help="view-factor seed (default 0)")
+    p.add_argument("--no-correction", action="store_true",
+                   help="do not remove the self-illumination (for comparison)")
+    p.add_argument("--out", required=True, help="output folder (created if needed)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_psp)

@@ -1,0 +1,344 @@
+"""Pressure-sensitive paint: wind-off / wind-on ratio, Stern-Volmer calibration on pressure
+taps, pressure, with the self-illumination removed from both images first.
+
+The luminescence ``I`` of PSP falls with the oxygen partial pressure, hence with the air
+pressure ``p``. Against a *wind-off* image ``I_ref`` taken at a uniform reference pressure
+``p_ref`` (same camera, same excitation), the Stern-Volmer law reads
+
+``I_ref / I = A + B p / p_ref``,
+
+which cancels the excitation non-uniformity and the paint thickness. ``A`` and ``B`` are
+fitted by linear least squares to the ratio read at pressure taps (model positions with
+known pressures), then every face gets ``p = p_ref (I_ref / I - A) / B``.
+
+Self-illumination breaks the cancellation: a face also shows light emitted elsewhere, at
+another pressure. Both images are therefore corrected to the faces' emission
+(:func:`selfillum.solve.radiosity.correct`) before the ratio; ``correct_si=False`` gives the
+uncorrected result for comparison.
+
+Tap file (CSV with header): ``id,x,y,z,p`` (model units, pressure in any unit, the same as
+``p_ref``).
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+from dataclasses import dataclass
+
+import numpy as np
+import trimesh
+
+from resection.errors import InputError
+from selfillum.mesh import check_mesh
+from selfillum.solve.radiosity import check_reflectance, correct
+
+__all__ = ["SternVolmer", "Taps", "fit_stern_volmer", "read_taps", "tap_faces", "PSPResult",
+           "psp_pressure", "psp_images"]
+
+
+@dataclass(frozen=True)
+class SternVolmer:
+    """``I_ref / I = A + B p / p_ref``."""
+
+    A: float
+    B: float
+    p_ref: float
+
+    def pressure(self, ratio) -> np.ndarray:
+        """Pressure from the intensity ratio ``I_ref / I``."""
+        return self.p_ref * (np.asarray(ratio, dtype=np.float64) - self.A) / self.B
+
+    def ratio(self, pressure) -> np.ndarray:
+        """Intensity ratio ``I_ref / I`` at a pressure."""
+        return self.A + self.B * np.asarray(pressure, dtype=np.float64) / self.p_ref
+
+
+@dataclass(frozen=True)
+class Taps:
+    """Pressure taps: ``ids`` (str), ``points`` (M, 3) model coordinates, ``pressure`` (M,)."""
+
+    ids: list
+    points: np.ndarray
+    pressure: np.ndarray
+
+
+def read_taps(path: str | os.PathLike, positions=None) -> Taps:
+    """Read a tap CSV file with the header ``id,x,y,z,p``, or ``id,p`` with the positions
+    taken from ``positions``.
+
+    Parameters
+    ----------
+    positions : path-like or resection.io.markers.MarkerSet, optional
+        Where the taps are: a uPSP ``.tgts`` file (its ``*Taps`` section, or any of its
+        markers) or a marker CSV; needed when the tap file holds only ``id,p``.
+    """
+    path = os.fspath(path)
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as fh:
+            rows = list(csv.DictReader(fh))
+            header = rows[0].keys() if rows else []
+    except FileNotFoundError:
+        raise InputError(f"tap file not found: {path}") from None
+    if not rows:
+        raise InputError(f"{path}: no taps")
+    need = ("id", "x", "y", "z", "p") if set(header) != {"id", "p"} else ("id", "p")
+    missing = [k for k in need if k not in header]
+    unknown = [k for k in header if k not in need]
+    if missing or unknown:
+        raise InputError(f"{path}: expected the columns id,x,y,z,p (or id,p with tap "
+                         "positions from a .tgts file)"
+                         + (f"; missing {missing}" if missing else "")
+                         + (f"; unknown {unknown}" if unknown else ""))
+    ids = [r["id"] for r in rows]
+    if len(set(ids)) != len(ids):
+        raise InputError(f"{path}: duplicate tap ids")
+    try:
+        p = np.array([float(r["p"]) for r in rows])
+        if need == ("id", "p"):
+            pts = _tap_positions(path, ids, positions)
+        else:
+            pts = np.array([[float(r["x"]), float(r["y"]), float(r["z"])] for r in rows])
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{path}: not a number ({exc})") from None
+    if not (np.all(np.isfinite(pts)) and np.all(np.isfinite(p))):
+        raise InputError(f"{path}: NaN or infinite coordinates or pressures")
+    return Taps(ids, pts, p)
+
+
+def _tap_positions(path: str, ids: list, positions) -> np.ndarray:
+    from resection.io.markers import MarkerSet, read_markers
+
+    if positions is None:
+        raise InputError(f"{path}: holds id,p only; give the tap positions (a .tgts file "
+                         "with a *Taps section, or a marker file)")
+    ms = positions if isinstance(positions, MarkerSet) else \
+        read_markers(positions, include_taps=True)
+    pos = {k: i for i, k in enumerate(ms.ids)}
+    missing = [k for k in ids if k not in pos]
+    if missing:
+        raise InputError(f"{path}: tap id(s) not in the tap positions: "
+                         f"{', '.join(missing[:10])}")
+    return ms.xyz[[pos[k] for k in ids]]
+
+
+def tap_faces(mesh: trimesh.Trimesh, points, max_distance: float | None = None) -> np.ndarray:
+    """Face under each tap: the face of the closest point of the surface.
+
+    Raises
+    ------
+    InputError
+        A tap farther than ``max_distance`` (default 1 % of the mesh's size) from the
+        surface.
+    """
+    check_mesh(mesh)
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    closest, dist, faces = trimesh.proximity.closest_point(mesh, pts)
+    limit = 0.01 * float(np.ptp(mesh.vertices, axis=0).max()) if max_distance is None \
+        else float(max_distance)
+    far = np.flatnonzero(dist > limit)
+    if far.size:
+        from resection.camera.units import spread_hint
+
+        hint = spread_hint(pts, mesh.vertices, "the taps", "the mesh") if len(pts) > 1 else None
+        raise InputError(f"tap {int(far[0])} is {dist[far[0]]:.3g} from the surface "
+                         f"(more than {limit:.3g})" + (f": {hint}" if hint else ""))
+    return np.asarray(faces, dtype=np.int64)
+
+
+_ROUNDING_TOL = 1e-9  # a slope below this share of the ratios is rounding, not signal
+
+
+def fit_stern_volmer(ratio, pressure, p_ref: float) -> SternVolmer:
+    """Least-squares ``A, B`` of ``ratio = A + B p / p_ref`` at the taps.
+
+    Raises
+    ------
+    InputError
+        Fewer than 2 taps with a finite ratio, all at the same pressure, ``p_ref <= 0``,
+        a fitted ``B`` that is not significantly positive (``B <= 3`` standard errors with
+        3 taps or more, or a ratio that does not vary).
+    """
+    r = np.asarray(ratio, dtype=np.float64).ravel()
+    p = np.asarray(pressure, dtype=np.float64).ravel()
+    if r.shape != p.shape:
+        raise InputError(f"fit_stern_volmer: {r.size} ratios for {p.size} pressures")
+    if not (np.isfinite(p_ref) and p_ref > 0):
+        raise InputError(f"fit_stern_volmer: p_ref must be > 0, got {p_ref}")
+    ok = np.isfinite(r) & np.isfinite(p)
+    if ok.sum() < 2:
+        raise InputError(f"fit_stern_volmer: need at least 2 taps with a ratio, got {ok.sum()}")
+    x = p[ok] / p_ref
+    if np.ptp(x) <= 1e-9 * max(1.0, np.abs(x).max()):
+        raise InputError("fit_stern_volmer: all taps at the same pressure, B is undetermined")
+    M = np.column_stack([np.ones_like(x), x])
+    (A, B), *_ = np.linalg.lstsq(M, r[ok], rcond=None)
+    # B must stand out of the scatter of the taps (3 standard errors, >= 3 taps) and of
+    # the rounding of the fit itself: a ratio that does not vary at all (wind-on =
+    # wind-off) gives B = +-1e-16, which is zero, not a sign. Tolerance stated here:
+    # ROUNDING_TOL relative to the size of the ratios.
+    se = 0.0
+    if x.size > 2:
+        res = r[ok] - (A + B * x)
+        s2 = float(res @ res) / (x.size - 2)
+        se = float(np.sqrt(s2 / np.sum((x - x.mean()) ** 2)))
+    noise = max(3.0 * se, _ROUNDING_TOL * max(1.0, float(np.abs(r[ok]).max())))
+    if B < -noise:
+        raise InputError(f"fit_stern_volmer: fitted B = {B:.3g} < 0 (standard error "
+                         f"{se:.2g}): the ratio must grow with p (images swapped?)")
+    if B <= noise:
+        raise InputError(
+            f"fit_stern_volmer: fitted B = {B:.3g} (standard error {se:.2g}) is not "
+            "significantly > 0: the intensity ratio at the taps does not follow their "
+            "pressures (wrong images, taps or p_ref?)"
+        )
+    return SternVolmer(float(A), float(B), float(p_ref))
+
+
+@dataclass(frozen=True)
+class PSPResult:
+    """Pressure on the faces and what it came from.
+
+    Attributes
+    ----------
+    pressure : (F,) ndarray
+        Pressure per face (NaN where unknown).
+    ratio : (F,) ndarray
+        ``I_ref / I`` per face (SI-corrected when ``corrected``).
+    stern_volmer : SternVolmer
+        The fitted law.
+    tap_faces : (M,) ndarray
+        Face of each tap.
+    tap_residuals : (M,) ndarray
+        Fitted minus tap pressure at the taps.
+    corrected : bool
+        Whether the self-illumination was removed.
+    """
+
+    pressure: np.ndarray
+    ratio: np.ndarray
+    stern_volmer: SternVolmer
+    tap_faces: np.ndarray
+    tap_residuals: np.ndarray
+    corrected: bool
+
+
+def psp_pressure(
+    mesh: trimesh.Trimesh,
+    wind_off,
+    wind_on,
+    taps: Taps,
+    p_ref: float,
+    *,
+    F=None,
+    reflectance=None,
+    seen=None,
+    correct_si: bool = True,
+) -> PSPResult:
+    """Pressure on the faces from wind-off and wind-on per-face intensities.
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh
+        The model.
+    wind_off, wind_on : (F,) array_like
+        Per-face intensity (e.g. :meth:`resection.surface.surface_map.SurfaceMap.to_surface` of the
+        images, or :func:`resection.surface.merge.merge_views`), proportional to radiance.
+        NaN on faces not seen.
+    taps : Taps
+        Tap positions and pressures.
+    p_ref : float
+        Pressure of the wind-off image.
+    F : sparse (F, F), optional
+        Form factors; required with ``correct_si``.
+    reflectance : float or (F,) array_like, optional
+        Paint reflectance; required with ``correct_si``.
+    seen : (F,) bool, optional
+        Faces with a measurement in both images (default: finite in both).
+    correct_si : bool
+        Remove the self-illumination from both images before the ratio.
+
+    Returns
+    -------
+    PSPResult
+    """
+    check_mesh(mesh)
+    n = len(mesh.faces)
+    off = np.asarray(wind_off, dtype=np.float64)
+    on = np.asarray(wind_on, dtype=np.float64)
+    if off.shape != (n,) or on.shape != (n,):
+        raise InputError(f"psp_pressure: wind_off and wind_on must have one value per face "
+                         f"({n}), got {off.shape} and {on.shape}")
+    if not isinstance(taps, Taps):
+        raise InputError(f"psp_pressure: taps must be a Taps, got {type(taps).__name__}")
+    mask = np.isfinite(off) & np.isfinite(on) if seen is None else np.asarray(seen, bool)
+    if mask.shape != (n,):
+        raise InputError(f"psp_pressure: seen must have shape ({n},)")
+    if not mask.any():
+        raise InputError("psp_pressure: no face is seen in both images")
+    if correct_si:
+        if F is None or reflectance is None:
+            raise InputError("psp_pressure: correct_si needs the form factors F and the "
+                             "reflectance")
+        rho = check_reflectance(reflectance, n)
+        kw = {} if mask.all() else {"mesh": mesh}
+        e_off = correct(F, np.where(mask, off, np.nan), rho, mask, **kw)
+        e_on = correct(F, np.where(mask, on, np.nan), rho, mask, **kw)
+    else:
+        e_off, e_on = off, on
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(mask & (e_on > 0), e_off / e_on, np.nan)
+    tf = tap_faces(mesh, taps.points)
+    law = fit_stern_volmer(ratio[tf], taps.pressure, p_ref)
+    pressure = law.pressure(ratio)
+    return PSPResult(pressure, ratio, law, tf, pressure[tf] - taps.pressure, bool(correct_si))
+
+
+def psp_images(
+    maps,
+    wind_off_images,
+    wind_on_images,
+    taps: Taps,
+    p_ref: float,
+    *,
+    F=None,
+    reflectance=None,
+    correct_si: bool = True,
+) -> tuple[PSPResult, list]:
+    """The PSP workflow from camera images: one or several cameras, wind-off and wind-on.
+
+    Each camera's images are mapped onto the faces and merged over the cameras
+    (:func:`resection.surface.merge.merge_views`: feathered weights, obliqueness cut-off, camera
+    gains matched on the wind-off overlaps and reused wind-on), the pressure is
+    computed on the faces seen in both merged images (:func:`psp_pressure`) and
+    backprojected into every camera (interpolated over the surface).
+
+    Parameters
+    ----------
+    maps : sequence of resection.surface.surface_map.SurfaceMap
+        One per camera, all of the same mesh. The model is assumed not to move between
+        wind-off and wind-on (align the images first otherwise).
+    wind_off_images, wind_on_images : sequence of (H_c, W_c) arrays
+        One image per camera each, dark level removed.
+    taps, p_ref, F, reflectance, correct_si
+        As in :func:`psp_pressure`.
+
+    Returns
+    -------
+    result : PSPResult
+        Per-face pressure and the fitted law.
+    images : list of (H_c, W_c) float64 arrays
+        Pressure seen by each camera (NaN off the model and on faces without pressure).
+    """
+    from resection.surface.merge import merge_views
+
+    maps = list(maps)
+    if not maps:
+        raise InputError("psp_images: no camera given")
+    off = merge_views(maps, wind_off_images)
+    on = merge_views(maps, wind_on_images, gains=off.gains)
+    mesh = maps[0].mesh
+    res = psp_pressure(mesh, off.values, on.values, taps, p_ref, F=F, reflectance=reflectance,
+                       seen=off.seen & on.seen, correct_si=correct_si)
+    images = [m.to_image(res.pressure) for m in maps]
+    return res, images
