@@ -148,7 +148,7 @@ def _as_image(image) -> np.ndarray:
     return img
 
 
-def _check_diameter(diameter) -> float:
+def check_diameter(diameter) -> float:
     try:
         d = float(diameter)
     except (TypeError, ValueError):
@@ -198,7 +198,7 @@ def marker_template(diameter: float, kind: str = "tophat") -> np.ndarray:
     ``R + 1 + max(2, R)``) to sum -1, so a constant or linear background gives 0 and, for
     the top-hat, a marker of contrast ``c`` gives about ``c``.
     """
-    d = _check_diameter(diameter)
+    d = check_diameter(diameter)
     if kind not in ("tophat", "cone"):
         raise InputError(f"template: expected 'tophat' or 'cone', got {kind!r}")
     return _template(d, kind).copy()
@@ -323,7 +323,7 @@ def detect_markers(
         diameter_range, a mask of another shape, or no valid pixel.
     """
     img = _as_image(image)
-    d = _check_diameter(diameter)
+    d = check_diameter(diameter)
     if polarity not in ("dark", "bright"):
         raise InputError(f"polarity: expected 'dark' or 'bright', got {polarity!r}")
     if template not in ("tophat", "cone"):

@@ -70,13 +70,13 @@ def detect_in_image(
     -------
     Candidates
     """
-    from resection.markers.detect import _check_diameter
+    from resection.markers.detect import check_diameter
 
     if isinstance(image, str | os.PathLike):
         from resection.io.images import read_image
 
         image = read_image(image, mask_saturated=True)
-    d = _check_diameter(diameter)
+    d = check_diameter(diameter)
     if enhance_windows is not None and enhance is None:
         raise InputError("enhance_windows: give an enhancement method too")
     img = image

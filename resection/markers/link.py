@@ -108,9 +108,9 @@ def draw_links(
         ax.text(u + d / 2 + 2, v - d / 2 - 2, str(k), color="orangered", fontsize=fs,
                 fontweight="bold", path_effects=outline)
     if camera is not None and markers is not None:
-        from resection.markers.match import _markers
+        from resection.markers.match import marker_table
 
-        ids, xyz = _markers(markers)
+        ids, xyz = marker_table(markers)
         proj = camera.project(xyz)
         ok = np.isfinite(proj).all(axis=1) & camera.in_image(proj)
         ax.plot(proj[ok, 0], proj[ok, 1], "+", color="cyan", ms=10, mew=1.5,
@@ -189,9 +189,9 @@ def read_links(path: str | os.PathLike, candidates, markers=None):
         dup = sorted({c for c in index if index.count(c) > 1})
         raise InputError(f"{path}: candidate(s) linked twice: {dup[:10]}")
     if markers is not None:
-        from resection.markers.match import _markers
+        from resection.markers.match import marker_table
 
-        known = set(_markers(markers)[0])
+        known = set(marker_table(markers)[0])
         unknown = [k for k in ids if k not in known]
         if unknown:
             raise InputError(f"{path}: id(s) not in the marker file: {', '.join(unknown[:10])}")
@@ -217,15 +217,15 @@ def suggest_links(candidates, camera: Camera, markers, *, max_distance: float = 
 
     Returns ``(ids, index)`` as :func:`write_links` takes them.
     """
-    from resection.markers.match import _assign, _markers
+    from resection.markers.match import assign_nearest, marker_table
 
     uv = _uv_of(candidates)
-    ids, xyz = _markers(markers)
+    ids, xyz = marker_table(markers)
     proj = camera.project(xyz)
     ok = np.isfinite(proj).all(axis=1)
     if len(uv) == 0 or not ok.any():
         return (), np.zeros(0, int)
     j = np.full(len(ids), -1)
-    j[ok], _ = _assign(proj[ok], cKDTree(uv), max_distance)
+    j[ok], _ = assign_nearest(proj[ok], cKDTree(uv), max_distance)
     sel = np.flatnonzero(j >= 0)
     return tuple(ids[i] for i in sel), j[sel]

@@ -100,7 +100,7 @@ class MatchResult:
 
 
 # ----------------------------------------------------------------------------- inputs
-def _markers(markers3d):
+def marker_table(markers3d):
     """(ids, xyz) from a MarkerSet, a dict {id: xyz} or a pair (ids, xyz); None passes."""
     if markers3d is None:
         return None, None
@@ -240,7 +240,7 @@ def _hypotheses(P, Q, tree, basis, radius, tol, max_scale, max_rot):
     return np.concatenate(out_a), np.concatenate(out_b)
 
 
-def _assign(pred, tree, tol):
+def assign_nearest(pred, tree, tol):
     """Assignment of predicted points to their nearest candidate within ``tol``; a candidate
     claimed by several predictions goes to the nearest. Returns (candidate index or -1,
     distance)."""
@@ -374,7 +374,7 @@ def match_markers(
         large. The message says which.
     """
     Q = _candidates_uv(candidates)
-    ids3d, xyz = _markers(markers3d)
+    ids3d, xyz = marker_table(markers3d)
     pose_kw = _pose_options(pose_kw)
     for name, val in (("search_radius", search_radius), ("tolerance", tolerance),
                       ("max_rms", 1.0 if max_rms is None else max_rms)):
@@ -434,7 +434,7 @@ def match_markers(
     A = _fit_affine(P[mk], Q[jb[mk]]) if mk.sum() >= 4 else np.array(
         [[a[best].real, -a[best].imag, b[best].real], [a[best].imag, a[best].real, b[best].imag]])
     for _ in range(2):
-        jb, _ = _assign(_apply_affine(A, P), tree, tolerance)
+        jb, _ = assign_nearest(_apply_affine(A, P), tree, tolerance)
         mk = jb >= 0
         if mk.sum() < max(min_matches, 4):
             raise SolveError(f"match_markers: only {mk.sum()} markers left after refinement")
@@ -475,7 +475,7 @@ def match_markers(
             inview = np.isfinite(proj).all(axis=1)
             g = gate if gate is not None else _gate(pose.errors, tolerance)
             jj = np.full(len(xyz), -1)
-            jj[inview], _ = _assign(proj[inview], tree, g)
+            jj[inview], _ = assign_nearest(proj[inview], tree, g)
             sel = np.flatnonzero(jj >= 0)
             if sel.size < max(min_matches, 4):
                 raise SolveError(f"match_markers: only {sel.size} markers within {g:.2g} px of "

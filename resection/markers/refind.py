@@ -247,9 +247,9 @@ def refind_targets(
         if len(q):
             from scipy.spatial import cKDTree
 
-            from resection.markers.match import _assign
+            from resection.markers.match import assign_nearest
 
-            j, dist = _assign(uv[look], cKDTree(q), np.inf)
+            j, dist = assign_nearest(uv[look], cKDTree(q), np.inf)
             ok = (j >= 0) & (np.abs(q[np.maximum(j, 0)] - uv[look]).max(axis=1) <= half)
             take = ok & (dist <= gate)
             found[look[take]] = q[j[take]]

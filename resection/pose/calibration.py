@@ -47,7 +47,7 @@ from resection.pose.dlt import (
     fit_dlt,
     fit_homography,
 )
-from resection.pose.reprojection import _apply_intrinsics, _intrinsic_params, _project_jac
+from resection.pose.reprojection import apply_intrinsics, intrinsic_params, project_with_jacobians
 from resection.pose.solve import solve_pose
 from resection.pose.starts import pose_from_plane
 
@@ -287,7 +287,7 @@ def _normal_blocks(vw, names, K, dist, K0, Rs, ts, *, schur=True):
     g_p = np.zeros((len(vw), 6))
     ss = 0.0
     for v, (X, uv, _) in enumerate(vw):
-        proj, Jp, Ji, _ = _project_jac(K, dist, Rs[v], ts[v], X, names, K0)
+        proj, Jp, Ji, _ = project_with_jacobians(K, dist, Rs[v], ts[v], X, names, K0)
         r = (proj - uv).ravel()
         A = Ji.reshape(-1, m)
         B = Jp.reshape(-1, 6)
@@ -307,13 +307,13 @@ def _schur_lm(vw, names, K0, dist0, Rs, ts, max_iter):
     """Levenberg-Marquardt on intrinsics + view poses, solving each damped step through
     the Schur complement of the 6x6 pose blocks (cost linear in the number of views)."""
     m = len(names)
-    theta = _intrinsic_params(names, K0, dist0)
+    theta = intrinsic_params(names, K0, dist0)
 
     def sumsq(theta, Rs, ts):
-        K, dist = _apply_intrinsics(names, theta, K0, dist0)
+        K, dist = apply_intrinsics(names, theta, K0, dist0)
         total = 0.0
         for v, (X, uv, _) in enumerate(vw):
-            proj, _, _, z = _project_jac(K, dist, Rs[v], ts[v], X, jac=False)
+            proj, _, _, z = project_with_jacobians(K, dist, Rs[v], ts[v], X, jac=False)
             if np.any(z <= 0):
                 return math.inf
             total += float(np.sum((proj - uv) ** 2))
@@ -321,7 +321,7 @@ def _schur_lm(vw, names, K0, dist0, Rs, ts, max_iter):
 
     lam = 1e-3
     for it in range(1, max_iter + 1):
-        K, dist = _apply_intrinsics(names, theta, K0, dist0)
+        K, dist = apply_intrinsics(names, theta, K0, dist0)
         ss, _, Vb, Wb, g_t, g_p, U = _normal_blocks(vw, names, K, dist, K0, Rs, ts,
                                                     schur=False)
         while True:
@@ -431,7 +431,7 @@ def _calibrate_once(
     theta, Rs, ts, niter = _schur_lm(vw, names, K0, dist0, np.array(R0s), np.array(t0s),
                                      max_iter)
     converged = niter is not None
-    K, dist = _apply_intrinsics(names, theta, K0, dist0)
+    K, dist = apply_intrinsics(names, theta, K0, dist0)
     if K[0, 0] <= 0 or K[1, 1] <= 0:
         raise SolveError("calibrate: the refinement gave a negative focal length")
     # marginal covariance of the intrinsics: inverse of the Schur complement at the solution

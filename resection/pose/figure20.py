@@ -19,7 +19,7 @@ from matplotlib.figure import Figure
 from resection._checks import as_points
 from resection.errors import InputError
 from resection.pose.solve import PoseResult
-from resection.surface.plots import _finish, plot_resection
+from resection.surface.plots import finish_figure, plot_resection
 
 __all__ = ["plot_pose", "write_pose_plot"]
 
@@ -86,7 +86,7 @@ def plot_pose(
             ax.annotate(f"{k} (dropped)", p, xytext=(6, -10), textcoords="offset points",
                         color="orange", fontsize=8)
         ax.legend(loc="upper right", fontsize=8, framealpha=0.6)
-    return _finish(fig, path)
+    return finish_figure(fig, path)
 
 
 def write_pose_plot(path: str | os.PathLike, result: PoseResult, points3d, points2d,

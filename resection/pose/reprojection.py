@@ -43,13 +43,13 @@ def _rotvec_from_left(rvec: np.ndarray) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- projection
-def _intrinsic_params(names: tuple[str, ...], K: np.ndarray, dist: np.ndarray) -> np.ndarray:
+def intrinsic_params(names: tuple[str, ...], K: np.ndarray, dist: np.ndarray) -> np.ndarray:
     vals = {"f": K[0, 0], "fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2],
             "k1": dist[0], "k2": dist[1], "p1": dist[2], "p2": dist[3], "k3": dist[4]}
     return np.array([vals[n] for n in names], dtype=float)
 
 
-def _apply_intrinsics(names, theta, K0, dist0):
+def apply_intrinsics(names, theta, K0, dist0):
     """K, dist with the refined parameters ``theta`` substituted."""
     K = np.array(K0, dtype=float)
     dist = np.array(dist0, dtype=float)
@@ -71,7 +71,7 @@ def _apply_intrinsics(names, theta, K0, dist0):
     return K, dist
 
 
-def _project_jac(K, dist, R, t, X, names=(), K0=None, w=None, jac=True):
+def project_with_jacobians(K, dist, R, t, X, names=(), K0=None, w=None, jac=True):
     """Projection with distortion and its Jacobians, for one pose or a batch.
 
     ``R`` (3, 3) or (C, 3, 3), ``t`` (3,) or (C, 3). Returns ``uv (.., N, 2)``,
@@ -197,7 +197,7 @@ def _batch_refine(X, uv, Rs, ts, K, dist, robust, scale, iterations=40):
     C = len(R)
 
     def evaluate(Rc, tc):
-        proj, Jp, _, z = _project_jac(K, dist, Rc, tc, X)
+        proj, Jp, _, z = project_with_jacobians(K, dist, Rc, tc, X)
         res = proj - uv
         c = np.array(_sq_cost(np.sum(res**2, axis=-1), robust, scale), dtype=float)
         c[np.any(z <= 0, axis=1)] = np.inf

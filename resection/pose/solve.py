@@ -50,12 +50,12 @@ from resection.pose.acceptance import (
 )
 from resection.pose.dlt import COLLINEAR_RTOL, COPLANAR_RTOL, coplanarity
 from resection.pose.reprojection import (
-    _apply_intrinsics,
     _batch_refine,
-    _intrinsic_params,
-    _project_jac,
     _rotvec_from_left,
     _sq_cost,
+    apply_intrinsics,
+    intrinsic_params,
+    project_with_jacobians,
 )
 from resection.pose.starts import initial_poses
 from resection.pose.three_point import p3p
@@ -204,7 +204,7 @@ def _ambiguity_sigma(cost: float, dof: int, ambiguity_px: float) -> float:
 
 def _refine(X, uv, R0, t0, K0, dist0, names, robust, scale, max_nfev):
     """Levenberg-Marquardt (or trust-region with a robust loss) from ``(R0, t0)``."""
-    p0 = np.concatenate([np.zeros(3), t0, _intrinsic_params(names, K0, dist0)])
+    p0 = np.concatenate([np.zeros(3), t0, intrinsic_params(names, K0, dist0)])
     cache = {}
 
     def evaluate(p):
@@ -212,8 +212,8 @@ def _refine(X, uv, R0, t0, K0, dist0, names, robust, scale, max_nfev):
         if key not in cache:
             cache.clear()
             R = Rotation.from_rotvec(p[:3]).as_matrix() @ R0
-            K, dist = _apply_intrinsics(names, p[6:], K0, dist0) if names else (K0, dist0)
-            proj, Jp, Ji, _ = _project_jac(K, dist, R, p[3:6], X, names, K0, w=p[:3])
+            K, dist = apply_intrinsics(names, p[6:], K0, dist0) if names else (K0, dist0)
+            proj, Jp, Ji, _ = project_with_jacobians(K, dist, R, p[3:6], X, names, K0, w=p[:3])
             J = np.concatenate([Jp, Ji], axis=2).reshape(-1, 6 + len(names))
             cache[key] = ((proj - uv).ravel(), J)
         return cache[key]
@@ -226,7 +226,7 @@ def _refine(X, uv, R0, t0, K0, dist0, names, robust, scale, max_nfev):
         sol = least_squares(lambda p: evaluate(p)[0], p0, jac=lambda p: evaluate(p)[1],
                             method="trf", loss=robust, f_scale=scale, **kw)
     R = Rotation.from_rotvec(sol.x[:3]).as_matrix() @ R0
-    K, dist = _apply_intrinsics(names, sol.x[6:], K0, dist0) if names else (K0, dist0)
+    K, dist = apply_intrinsics(names, sol.x[6:], K0, dist0) if names else (K0, dist0)
     return R, sol.x[3:6].copy(), K, dist, sol
 
 
@@ -297,7 +297,7 @@ def _solve_once(
                          "(wrong marker/point pairing?)")
     Rc = np.array([c[0] for c in cands])
     tc = np.array([c[1] for c in cands])
-    proj, _, _, z = _project_jac(K0, dist0, Rc, tc, X, jac=False)
+    proj, _, _, z = project_with_jacobians(K0, dist0, Rc, tc, X, jac=False)
     costs = _sq_cost(np.sum((proj - uv) ** 2, axis=-1), robust, scale)
     costs[np.any(z <= 0, axis=1)] = np.inf
     order = np.argsort(costs)
@@ -404,7 +404,7 @@ def _solve_once(
     inliers = errors < 3.0 * scale if robust is not None else np.ones(n, bool)
 
     # ---- covariance from the Jacobian at the solution (w = 0 around the final R)
-    _, Jp, Ji, _ = _project_jac(K, dist, R, t, X, names, K0 if names else None)
+    _, Jp, Ji, _ = project_with_jacobians(K, dist, R, t, X, names, K0 if names else None)
     J = np.concatenate([Jp, Ji], axis=2)[inliers].reshape(-1, 6 + len(names))
     p = 6 + len(names)
     m_obs = 2 * int(inliers.sum())

@@ -16,7 +16,7 @@ import numpy as np
 
 from resection.errors import InputError, SolveError
 from resection.pose.dlt import fit_dlt, fit_homography
-from resection.pose.three_point import _p3p_batch
+from resection.pose.three_point import p3p_batch
 
 
 def pick_triplets(X: np.ndarray, uv: np.ndarray, max_triplets: int,
@@ -60,7 +60,7 @@ def initial_poses(X, xy, planar: bool, max_triplets: int):
     if tris:
         idx = np.array(tris)
         bu = bear / np.linalg.norm(bear, axis=1, keepdims=True)
-        Rs, ts, _ = _p3p_batch(X[idx], bu[idx])
+        Rs, ts, _ = p3p_batch(X[idx], bu[idx])
         cands.extend(zip(Rs, ts, strict=True))
     if n >= 6 and not planar:
         try:

@@ -32,7 +32,7 @@ def _pval(c: np.ndarray, x: np.ndarray) -> np.ndarray:
     return out
 
 
-def _p3p_batch(X: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def p3p_batch(X: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """P3P for T triplets at once: ``X (T, 3, 3)`` model points, ``b (T, 3, 3)`` unit
     bearings. Returns ``R (M, 3, 3)``, ``t (M, 3)`` and the triplet index ``(M,)`` of the
     solutions that put their three points in front of the camera."""
@@ -118,6 +118,6 @@ def p3p(points3d, bearings) -> list[tuple[np.ndarray, np.ndarray]]:
            np.linalg.norm(X[0] - X[1])) <= 0:
         raise DegenerateError("p3p: two of the three points coincide")
     b = b / np.linalg.norm(b, axis=1, keepdims=True)
-    R, t, _ = _p3p_batch(X[None], b[None])
+    R, t, _ = p3p_batch(X[None], b[None])
     return list(zip(R, t, strict=True))
 

@@ -94,6 +94,6 @@ def plot_motion(
     head = title or f"{who} motion relative to frame {ref}"
     fig.suptitle(f"{head}: {n_ok}/{len(result)} frames solved, median RMS "
                  f"{np.nanmedian(result.rms) if n_ok else float('nan'):.3f} px", fontsize=10)
-    from resection.surface.plots import _finish
+    from resection.surface.plots import finish_figure
 
-    return _finish(fig, path, dpi)
+    return finish_figure(fig, path, dpi)

@@ -161,7 +161,7 @@ def _draw_outline(ax, mesh, camera, crease_deg, color, width, label) -> None:
     ax.add_collection(LineCollection(uv, colors=color, linewidths=width, label=label))
 
 
-def _finish(fig: Figure, path, dpi: float | None = None) -> Figure:
+def finish_figure(fig: Figure, path, dpi: float | None = None) -> Figure:
     """Save ``fig`` to ``path`` (format from the suffix) when given; return it."""
     if path is not None:
         path = os.fspath(path)
@@ -291,7 +291,7 @@ def plot_surface(
         cb.set_label(label)
     if title is not None:
         ax.set_title(title)
-    return _finish(fig, path)
+    return finish_figure(fig, path)
 
 
 def plot_resection(
@@ -386,4 +386,4 @@ def plot_resection(
     head = f"{title}: " if title else ""
     ax.set_title(f"{head}RMS residual {rms:.3f} px ({int(ok.sum())} markers)")
     ax.legend(loc="upper right", fontsize=8, framealpha=0.6)
-    return _finish(fig, path)
+    return finish_figure(fig, path)

@@ -21,7 +21,7 @@ def _cmd_psp(args) -> int:
     from resection.io.meshes import load_mesh
     from resection.io.outputs import atomic_write, output_folder
     from resection.surface.surface_map import SurfaceMap
-    from selfillum.cli.render import _per_face_arg
+    from selfillum.cli.render import per_face_arg
     from selfillum.images.psp import psp_images, read_taps
     from selfillum.transport.viewfactors import view_factors
 
@@ -39,7 +39,7 @@ def _cmd_psp(args) -> int:
     on_imgs = [read_image(p) for p in ons]
     F = rho = None
     if not args.no_correction:
-        rho = _per_face_arg(args.reflectance, "--reflectance")
+        rho = per_face_arg(args.reflectance, "--reflectance")
         F = view_factors(mesh, rays_per_face=args.rays, seed=args.seed,
                          progress=not args.quiet)
     res, images = psp_images(maps, off_imgs, on_imgs, taps, args.p_ref, F=F,

@@ -16,7 +16,7 @@ from resection.errors import InputError
 from resection.io.cameras import read_camera
 
 
-def _per_face_arg(text: str, name: str):
+def per_face_arg(text: str, name: str):
     """A number, or a file of per-face values (.npy, or text/CSV with one value a line)."""
     try:
         return float(text)
@@ -59,8 +59,8 @@ def _cmd_render(args) -> int:
     png = side_path(out, "preview", ".png")  # a.tif -> a.preview.png, never an unrelated a.png
     mesh = load_mesh(args.mesh, format=args.mesh_format)
     camera = read_camera(args.camera)
-    emission = _per_face_arg(args.emission, "--emission")
-    reflectance = _per_face_arg(args.reflectance, "--reflectance")
+    emission = per_face_arg(args.emission, "--emission")
+    reflectance = per_face_arg(args.reflectance, "--reflectance")
     paint = None
     if args.specular_weight > 0:
         from selfillum.solve.brdf import GlossyPaint
