@@ -2,7 +2,9 @@
 # Set up everything this project needs in ./.venv (idempotent, safe to re-run).
 # - a Python >= 3.11 virtual environment with the package (editable) and its test peers;
 # - on Debian as root: libllvm19, which Mitsuba's CPU `llvm_ad_rgb` variant needs
-#   (without it the renders fall back to the slower `scalar_rgb` variant).
+#   (without it the renders fall back to the slower `scalar_rgb` variant);
+# - on Debian as root: chromium and chromium-driver, which the browser test of the linking
+#   page (tests/test_link_page.py, selenium) drives headless.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
@@ -13,6 +15,12 @@ if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1 \
         && ! ldconfig -p 2>/dev/null | grep -q 'libLLVM-19\|libLLVM.so.19'; then
     (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libllvm19) \
         >/dev/null 2>&1 || echo "setup: could not install libllvm19; Mitsuba will use scalar_rgb" >&2
+fi
+if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1 \
+        && ! { command -v chromium >/dev/null 2>&1 && command -v chromedriver >/dev/null 2>&1; }; then
+    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
+        chromium chromium-driver) >/dev/null 2>&1 \
+        || echo "setup: could not install chromium and chromium-driver; the browser test will fail" >&2
 fi
 stamp=.venv/.installed-$(sha1sum pyproject.toml | cut -c1-12)
 if [ ! -f "$stamp" ]; then

@@ -8,7 +8,7 @@ import argparse
 
 import numpy as np
 
-from resection.cli.util import add_acceptance_options
+from resection.cli.util import add_acceptance_options, add_mesh_format
 from resection.errors import InputError
 from resection.io.cameras import read_camera, write_camera
 from resection.io.outputs import atomic_write
@@ -53,20 +53,47 @@ def register(sub) -> None:
     d.set_defaults(func=run_detect)
 
     k = sub.add_parser(
-        "link", help="draw candidates for linking by hand; read a linking file",
-        description="Draw the numbered candidates over the image, with the markers projected "
-        "from an approximate camera (PNG); optionally write a suggested linking CSV; with "
-        "--links, read a linking CSV id,candidate and write the linked markers (unlinked "
-        "candidates are thrown away).")
+        "link", help="link candidates to targets by hand: a page to click in, or a PNG",
+        description="With --serve: a local page (127.0.0.1 only, a random token in its "
+        "address) shows the frame, its candidates and the targets; click a candidate, then "
+        "its target; from 4 links (3 with an approximate pose) the pose is solved live, the "
+        "other targets are predicted and their candidates offered; Save writes --save-links, "
+        "--pose and --out (docs/linking.md). Without it: draw the numbered candidates over "
+        "the image, with the markers projected from an approximate camera (PNG); optionally "
+        "write a suggested linking CSV; with --links, read a linking CSV id,candidate and "
+        "write the linked markers (unlinked candidates are thrown away).")
     k.add_argument("image", help="image file")
-    k.add_argument("--candidates", required=True, help="candidate CSV from 'resection detect'")
-    k.add_argument("--camera", help="approximate camera JSON (to draw the markers)")
-    k.add_argument("--markers", help="marker CSV id,x,y,z[,diameter]")
+    k.add_argument("--candidates", help="candidate CSV from 'resection detect' (with "
+                   "--serve: default, detect on the image)")
+    k.add_argument("--camera", help="camera file: intrinsics, and an approximate pose if it "
+                   "has one (to draw, suggest or predict the markers)")
+    k.add_argument("--markers", help="marker CSV id,x,y,z[,diameter] or uPSP .tgts")
     k.add_argument("--png", help="output PNG to read the candidate numbers from")
     k.add_argument("--suggest", help="write a suggested linking CSV (nearest projected "
                    "markers) here, to be checked and edited")
-    k.add_argument("--links", help="linking CSV id,candidate to read")
-    k.add_argument("--out", "-o", help="output linked candidates CSV (with --links)")
+    k.add_argument("--links", help="linking CSV id,candidate to read (with --serve: the "
+                   "links to start from)")
+    k.add_argument("--out", "-o", help="output linked candidates CSV (with --links, or "
+                   "written by Save with --serve)")
+    k.add_argument("--serve", action="store_true", help="link by clicking in a local page "
+                   "(needs --camera and --markers)")
+    k.add_argument("--save-links", metavar="LINKS.csv", help="with --serve: the linking CSV "
+                   "id,candidate that Save writes (read by pose --links and track --link)")
+    k.add_argument("--pose", metavar="CAMERA.json", help="with --serve: the solved camera "
+                   "that Save writes")
+    k.add_argument("--diameter", type=float, help="with --serve: marker diameter in pixels "
+                   "for the detection (default: from the marker file and the camera's pose; "
+                   "needed when the camera has none); give pose/track the same value")
+    k.add_argument("--polarity", choices=("dark", "bright"), default="dark",
+                   help="with --serve: markers darker (default) or brighter than the model")
+    k.add_argument("--mesh", help="with --serve: model surface; targets it hides are not "
+                   "predicted")
+    add_mesh_format(k)
+    k.add_argument("--port", type=int, default=0, help="with --serve: port (default: a free "
+                   "one)")
+    k.add_argument("--open", action="store_true", help="with --serve: open the page in the "
+                   "default browser")
+    add_acceptance_options(k)
     k.set_defaults(func=run_link)
 
     m = sub.add_parser(
@@ -110,6 +137,13 @@ def run_link(args: argparse.Namespace) -> int:
     from resection.markers.detect import read_candidates, write_candidates
     from resection.markers.link import draw_links, read_links, suggest_links, write_links
 
+    if args.serve:
+        return run_link_serve(args)
+    if args.save_links or args.pose:
+        raise InputError("--save-links and --pose go with --serve")
+    if not args.candidates:
+        raise InputError("give --candidates (the candidate CSV from 'resection detect'), "
+                         "or --serve to link by clicking")
     cand, _ = read_candidates(args.candidates)
     camera = read_camera(args.camera) if args.camera else None
     markers = read_markers(args.markers) if args.markers else None
@@ -137,6 +171,35 @@ def run_link(args: argparse.Namespace) -> int:
         atomic_write(args.out, write_candidates, cand, ids=labels)
         print(f"link: {len(ids)} markers linked, {len(cand) - len(ids)} candidates thrown "
               f"away; written to {args.out}")
+    return 0
+
+
+def run_link_serve(args: argparse.Namespace) -> int:
+    from .link_server import LinkServer
+    from .link_session import open_session
+
+    if not (args.camera and args.markers):
+        raise InputError("--serve needs --camera (intrinsics at least) and --markers")
+    if args.png or args.suggest:
+        raise InputError("--png and --suggest do not go with --serve")
+    if not (args.save_links or args.pose or args.out):
+        raise InputError("--serve: name what Save writes: --save-links LINKS.csv and/or "
+                         "--pose CAMERA.json (and --out LINKED.csv)")
+    session = open_session(args.image, args.markers, args.camera, mesh=args.mesh,
+                           mesh_format=args.mesh_format, candidates=args.candidates,
+                           links=args.links, diameter=args.diameter, polarity=args.polarity,
+                           save_links=args.save_links, save_camera=args.pose,
+                           save_linked=args.out, marker_accuracy=args.marker_accuracy,
+                           max_rms=args.max_rms)
+    server = LinkServer(session, args.port)
+    d = session.diameter
+    print(f"link: {len(session.candidates)} candidates"
+          + (f" (diameter {d:.3g} px: give pose and track --diameter {d:.3g})" if d == d
+             else "") + f", {len(session.markers.ids)} targets; camera "
+          + ("with an approximate pose" if session.has_pose else "without a pose"))
+    print(f"open {server.url}", flush=True)
+    print("(Ctrl+C stops the server)", flush=True)
+    server.run(open_browser=args.open)
     return 0
 
 

@@ -38,7 +38,8 @@ __all__ = [
 
 #: Command-line options (argparse ``dest``) that name files a command writes; every other
 #: option whose value names an existing file is taken as an input.
-OUTPUT_OPTIONS = ("out", "residuals", "png", "suggest", "pose", "surface", "plot")
+OUTPUT_OPTIONS = ("out", "residuals", "png", "suggest", "pose", "surface", "plot",
+                  "save_links")
 
 
 def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:

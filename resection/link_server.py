@@ -1,0 +1,208 @@
+"""The local page of ``resection link --serve``: link a frame's targets by clicking.
+
+A :class:`LinkServer` serves one :class:`~resection.link_session.LinkSession` from the
+standard library's :class:`http.server.ThreadingHTTPServer`:
+
+* it binds to ``127.0.0.1`` only, on a free port unless one is given;
+* every request must carry the session's random token (``?token=`` in the URL, or the
+  ``X-Link-Token`` header for the page's requests) and a ``Host`` header naming the
+  loopback address (a page of another site cannot reach it through DNS rebinding); others
+  get ``403``;
+* the page (``resection/link_page/``: plain HTML, CSS and JavaScript, an SVG overlay, no
+  build step, nothing fetched from the network) comes from the package; the only files
+  read are those the session was opened with, and no path ever arrives from the browser;
+* JSON endpoints: ``GET /api/session``, ``/api/candidates``, ``/api/plan``, ``/api/frame``
+  (the frame as uint16), ``POST /api/solve`` and ``/api/save`` with ``{"links": [[id,
+  candidate], ...]}``.
+
+:func:`serve_links` starts it (and a browser only when asked); :meth:`LinkServer.url` is
+the address to open.
+"""
+
+from __future__ import annotations
+
+import hmac
+import json
+import secrets
+import threading
+from http import HTTPStatus
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from importlib import resources
+from urllib.parse import parse_qs, urlsplit
+
+from .errors import InputError, SolveError
+from .link_session import LinkSession
+
+__all__ = ["LinkServer", "serve_links", "PAGE_FILES"]
+
+#: The page's files (package data in ``resection/link_page/``) and their content types.
+PAGE_FILES = {"index.html": "text/html; charset=utf-8",
+              "link.js": "text/javascript; charset=utf-8",
+              "link.css": "text/css; charset=utf-8"}
+_MAX_BODY = 1 << 20  # bytes of a POST body
+_HOSTS = ("127.0.0.1", "localhost")
+
+
+def _page_file(name: str) -> bytes:
+    return resources.files("resection").joinpath("link_page", name).read_bytes()
+
+
+class _Handler(BaseHTTPRequestHandler):
+    server: LinkServer  # type: ignore[assignment]
+    protocol_version = "HTTP/1.1"
+
+    def log_message(self, format, *args):  # noqa: A002 - the base class's name
+        if self.server.verbose:
+            super().log_message(format, *args)
+
+    # ---------------------------------------------------------------- replies
+    def _send(self, status: int, body: bytes, ctype: str, extra: dict | None = None):
+        self.send_response(status)
+        self.send_header("Content-Type", ctype)
+        self.send_header("Content-Length", str(len(body)))
+        self.send_header("Cache-Control", "no-store")
+        self.send_header("X-Content-Type-Options", "nosniff")
+        self.send_header("Content-Security-Policy",
+                         "default-src 'self'; img-src 'self' data: blob:; "
+                         "connect-src 'self'; style-src 'self'; script-src 'self'")
+        for k, v in (extra or {}).items():
+            self.send_header(k, v)
+        self.end_headers()
+        if self.command != "HEAD":
+            self.wfile.write(body)
+
+    def _json(self, obj, status: int = 200):
+        self._send(status, json.dumps(obj, allow_nan=False).encode(), "application/json")
+
+    def _error(self, status: int, message: str):
+        self._json({"error": message}, status)
+
+    # ---------------------------------------------------------------- checks
+    def _allowed(self) -> bool:
+        """Loopback host header and the session's token, else 403."""
+        host = (self.headers.get("Host") or "").rsplit(":", 1)[0].strip("[]")
+        query = parse_qs(urlsplit(self.path).query)
+        token = self.headers.get("X-Link-Token") or (query.get("token") or [""])[0]
+        if host not in _HOSTS or not hmac.compare_digest(token.encode(),
+                                                         self.server.token.encode()):
+            self._error(HTTPStatus.FORBIDDEN, "forbidden: this page answers only on "
+                        "127.0.0.1 with its token (the address printed by resection link "
+                        "--serve)")
+            return False
+        return True
+
+    # ---------------------------------------------------------------- methods
+    def do_GET(self):  # noqa: N802 - http.server's name
+        if not self._allowed():
+            return
+        s = self.server.session
+        route = urlsplit(self.path).path
+        if route in ("/", "/index.html"):
+            html = _page_file("index.html").replace(b"__TOKEN__",
+                                                    self.server.token.encode())
+            self._send(200, html, PAGE_FILES["index.html"])
+        elif route.lstrip("/") in PAGE_FILES:
+            name = route.lstrip("/")
+            self._send(200, _page_file(name), PAGE_FILES[name])
+        elif route == "/api/session":
+            self._json(s.info())
+        elif route == "/api/candidates":
+            self._json(s.candidates_json())
+        elif route == "/api/plan":
+            self._json(s.plan())
+        elif route == "/api/frame":
+            data, lo, hi = s.frame_u16()
+            self._send(200, data, "application/octet-stream",
+                       {"X-Frame-Low": repr(lo), "X-Frame-High": repr(hi)})
+        else:
+            self._error(HTTPStatus.NOT_FOUND, f"no such page: {route}")
+
+    def do_POST(self):  # noqa: N802
+        if not self._allowed():
+            return
+        route = urlsplit(self.path).path
+        if route not in ("/api/solve", "/api/save"):
+            self._error(HTTPStatus.NOT_FOUND, f"no such endpoint: {route}")
+            return
+        n = int(self.headers.get("Content-Length") or 0)
+        if not 0 < n <= _MAX_BODY:
+            self._error(HTTPStatus.BAD_REQUEST, "expected a JSON body {\"links\": [...]}")
+            return
+        try:
+            body = json.loads(self.rfile.read(n))
+            links = body["links"]
+            if not isinstance(links, list):
+                raise TypeError
+        except (ValueError, KeyError, TypeError):
+            self._error(HTTPStatus.BAD_REQUEST, "expected a JSON body {\"links\": [...]}")
+            return
+        try:
+            with self.server.lock:  # one solve at a time: the session is shared
+                if route == "/api/solve":
+                    self._json(self.server.session.solve(links))
+                else:
+                    self._json(self.server.session.save(links))
+        except (InputError, SolveError, OSError) as exc:
+            self._error(HTTPStatus.CONFLICT if isinstance(exc, SolveError)
+                        else HTTPStatus.BAD_REQUEST, str(exc).splitlines()[0])
+
+
+class LinkServer(ThreadingHTTPServer):
+    """An HTTP server of one linking session, on ``127.0.0.1`` only.
+
+    Parameters
+    ----------
+    session : LinkSession
+    port : int
+        0 (default): a free port.
+    token : str, optional
+        The secret the URL carries (default: 32 random URL-safe characters).
+    verbose : bool
+        Log each request to stderr.
+    """
+
+    daemon_threads = True
+    allow_reuse_address = False
+
+    def __init__(self, session: LinkSession, port: int = 0, *, token: str | None = None,
+                 verbose: bool = False):
+        if not isinstance(session, LinkSession):
+            raise InputError("LinkServer: session must be a LinkSession")
+        self.session = session
+        self.token = token or secrets.token_urlsafe(24)
+        self.verbose = verbose
+        self.lock = threading.Lock()
+        super().__init__(("127.0.0.1", int(port)), _Handler)
+
+    @property
+    def url(self) -> str:
+        """The page's address, token included."""
+        return f"http://127.0.0.1:{self.server_address[1]}/?token={self.token}"
+
+    def run(self, *, open_browser: bool = False) -> None:
+        """Serve until interrupted (Ctrl+C), then close; ``open_browser`` opens the page in
+        the default browser first (:mod:`webbrowser`)."""
+        if open_browser:
+            import webbrowser
+
+            webbrowser.open(self.url)
+        try:
+            self.serve_forever()
+        except KeyboardInterrupt:
+            pass
+        finally:
+            self.server_close()
+
+
+def serve_links(session: LinkSession, *, port: int = 0, open_browser: bool = False,
+                verbose: bool = False) -> LinkServer:
+    """Serve ``session`` on ``127.0.0.1`` from a daemon thread and return the server at once
+    (its :attr:`~LinkServer.url` is the page; ``shutdown()`` then ``server_close()`` stop
+    it). ``open_browser`` opens the page in the default browser."""
+    server = LinkServer(session, port, verbose=verbose)
+    if open_browser:
+        import webbrowser
+
+        webbrowser.open(server.url)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    return server

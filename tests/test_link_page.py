@@ -1,0 +1,154 @@
+"""Linking by clicking (``resection link --serve``), tested in a real browser.
+
+Debian's chromium, headless, driven by selenium through chromium-driver (``tools/setup.sh``
+installs both, so ``.ci/run`` runs this test). The frame is the real-looking one of
+:mod:`scenes.real_traits` (camera 0), the camera file an intrinsics-only uPSP file (an
+internal calibration: no pose). The truth is the scene's: true target positions in the
+image and the true camera.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from resection.io.cameras import read_camera, write_camera
+from resection.link_server import serve_links
+from resection.link_session import open_session
+from scenes.real_traits import real_traits, write_scene
+
+LINKED = ("T01", "T04", "T09", "T14", "T07")  # spread over the frame: a well-posed start
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    s = real_traits(scale=1.0)
+    folder = tmp_path_factory.mktemp("link_page")
+    paths = write_scene(s, folder)
+    paths["intrinsics"] = str(folder / "internal.json")
+    write_camera(paths["intrinsics"], s.cameras[0], format="upsp", intrinsics_only=True)
+    return s, paths, folder
+
+
+def _browser():
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    opts = webdriver.ChromeOptions()
+    opts.binary_location = shutil.which("chromium") or "/usr/bin/chromium"
+    for a in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--disable-gpu",
+              "--window-size=1400,900", "--no-first-run", "--disable-extensions"):
+        opts.add_argument(a)
+    service = Service(shutil.which("chromedriver") or "/usr/bin/chromedriver")
+    return webdriver.Chrome(options=opts, service=service)
+
+
+def _truth_candidates(session, scene_):
+    """Candidate number of each target seen by camera 0 (nearest to its true position)."""
+    uv = scene_.uv[0]
+    d, j = cKDTree(session.candidates.uv).query(np.nan_to_num(uv, nan=-1e6))
+    return {k: int(j[i]) for i, k in enumerate(scene_.marker_ids) if d[i] < 1.0}
+
+
+def test_link_page_in_chromium(scene, tmp_path):
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    s, paths, _ = scene
+    out_links, out_cam, out_linked = (tmp_path / "links.csv", tmp_path / "camera.json",
+                                      tmp_path / "linked.csv")
+    session = open_session(paths["image0"], paths["markers"], paths["intrinsics"],
+                           diameter=5.0, save_links=out_links, save_camera=out_cam,
+                           save_linked=out_linked)
+    assert not session.has_pose
+    truth = _truth_candidates(session, s)
+    assert set(LINKED) <= set(truth)
+    server = serve_links(session)
+    driver = _browser()
+    wait = WebDriverWait(driver, 20)
+    clicks = 0
+    try:
+        driver.get(server.url)
+        wait.until(lambda d: d.find_element(By.TAG_NAME, "body").get_attribute("data-ready"))
+
+        def settled(_d):
+            return driver.find_element(By.TAG_NAME, "body").get_attribute("data-pending") == "0"
+
+        def click(css):
+            nonlocal clicks
+            ActionChains(driver).move_to_element(driver.find_element(By.CSS_SELECTOR, css)) \
+                .click().perform()
+            clicks += 1
+
+        status = driver.find_element(By.ID, "status")
+        for n, k in enumerate(LINKED, start=1):
+            click(f'circle.cand[data-index="{truth[k]}"]')  # the candidate ...
+            click(f'#targets li[data-id="{k}"]')  # ... then its target
+            wait.until(settled)
+            wait.until(lambda _d, n=n: status.text.startswith(f"{n} link(s)"))
+            if n < 4:  # no pose before four links (no approximate pose here)
+                assert "more for a pose" in status.text
+                assert not driver.find_elements(By.CSS_SELECTOR, "#preds g.pred")
+        assert "accepted" in status.get_attribute("class"), status.text
+        assert not driver.find_element(By.ID, "save").get_attribute("disabled")
+        # every other target in view is drawn where the pose predicts it
+        preds = {e.get_attribute("data-id"): e for e in
+                 driver.find_elements(By.CSS_SELECTOR, "#preds g.pred")}
+        in_view = set(truth) - set(LINKED)
+        assert in_view <= set(preds), sorted(in_view - set(preds))
+        # each link shows its residual, none is rejected
+        for k in LINKED:
+            li = driver.find_element(By.CSS_SELECTOR, f'#targets li[data-id="{k}"]')
+            assert "linked" in li.get_attribute("class")
+            res = li.find_element(By.CSS_SELECTOR, ".res").text
+            assert res.endswith(" px") and float(res.split()[0]) < 2.0
+        # an offered candidate is linked with one click, and undone from the keyboard
+        offered = driver.find_elements(By.CSS_SELECTOR, "#offers circle.offer-hit")
+        assert len(offered) >= len(in_view) - 2
+        k6 = next(iter(sorted(in_view)))
+        click(f'#offers circle.offer-hit[data-offer="{k6}"]')
+        wait.until(settled)
+        li6 = driver.find_element(By.CSS_SELECTOR, f'#targets li[data-id="{k6}"]')
+        assert "linked" in li6.get_attribute("class")
+        assert li6.find_element(By.CSS_SELECTOR, ".state").text == f"#{truth[k6]}"
+        ActionChains(driver).send_keys("u").perform()
+        wait.until(settled)
+        wait.until(lambda _d: status.text.startswith(f"{len(LINKED)} link(s)"))
+        shot = tmp_path / "link_page.png"
+        driver.save_screenshot(str(shot))
+        click("#save")
+        wait.until(lambda d: "saved" in d.find_element(By.ID, "saved").text)
+    finally:
+        driver.quit()
+        server.shutdown()
+        server.server_close()
+    assert clicks == 2 * len(LINKED) + 2
+    # the screenshot is kept as an artifact (pytest's tmp folder, and out/ when it exists)
+    assert shot.stat().st_size > 10_000 and shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    keep = Path(os.environ.get("LINK_PAGE_SCREENSHOT_DIR", "out"))
+    if keep.is_dir():
+        shutil.copy(shot, keep / "link_page.png")
+    # the files pose --links and track read, against the truth
+    with open(out_links, newline="") as fh:
+        rows = list(csv.reader(fh))
+    assert rows[0] == ["id", "candidate"]
+    assert {(k, int(c)) for k, c in rows[1:]} == {(k, truth[k]) for k in LINKED}
+    cam, true = read_camera(out_cam), s.cameras[0]
+    angle = np.degrees(Rotation.from_matrix(cam.R @ true.R.T).magnitude())
+    assert angle < 0.5
+    dist = np.linalg.norm(true.center - s.markers.mean(axis=0))
+    assert np.linalg.norm(cam.center - true.center) < 0.02 * dist
+    seen = np.array([s.marker_ids.index(k) for k in truth])
+    err = np.linalg.norm(cam.project(s.markers[seen]) - s.uv[0][seen], axis=1)
+    assert err.max() < 2.5, err  # survey errors are 0.5 to 1.5 px
+    with open(out_linked, newline="") as fh:
+        lk = {r["id"]: (float(r["u"]), float(r["v"])) for r in csv.DictReader(fh) if r["id"]}
+    assert set(lk) == set(LINKED)
