@@ -115,7 +115,8 @@ def pose_inputs(args: argparse.Namespace, mesh=None):
     if getattr(args, "image", None):
         if args.points:
             raise InputError("give --points or --image, not both")
-        pts = image_points(args.image, read_markers(args.markers, mesh=mesh), camera,
+        markers = read_markers(args.markers, mesh=mesh) if mesh is not None else args.markers
+        pts = image_points(args.image, markers, args.camera,
                            diameter=args.diameter, polarity=args.polarity,
                            template=args.template, roi=args.roi, threshold=args.threshold,
                            enhance=args.enhance, enhance_windows=args.enhance_window,
@@ -148,7 +149,7 @@ def run_pose(args: argparse.Namespace) -> int:
                         refine_intrinsics=args.refine_intrinsics or False,
                         max_rms=args.max_rms, marker_accuracy=args.marker_accuracy,
                         ambiguity_px=args.ambiguity_px, ids=ids)
-    if args.image and not args.links and not args.no_refind:
+    if args.image and not args.no_refind:  # after --links too: every other target
         found = refind_targets(
             read_image(args.image, mask_saturated=True), read_markers(args.markers, mesh=mesh),
             result.camera, np.asarray(ids)[result.used], uv[result.used],

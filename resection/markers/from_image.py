@@ -57,14 +57,48 @@ def _load(image, markers, camera):
 
     if isinstance(image, str | os.PathLike):
         image = read_image(image, mask_saturated=True)
+    markers_path = None
     if isinstance(markers, str | os.PathLike):
+        markers_path = os.fspath(markers)
         markers = read_markers(markers)
+    meta = {"has_pose": True, "source": None}
     if isinstance(camera, str | os.PathLike):
-        camera = read_camera(camera)
+        camera, meta = _read_posed(camera)
+    meta["markers"] = markers_path
     if camera is not None and not isinstance(camera, Camera):
         raise InputError("camera: expected a resection.Camera or a camera JSON path")
     _check_size(image, camera)
-    return image, markers, camera
+    return image, markers, camera, meta
+
+
+def _read_posed(path) -> tuple[Camera, dict]:
+    """A camera file's camera, and what the file says of its pose (an intrinsics-only
+    file has none) and its name, for the messages of :func:`image_points`."""
+    from resection.io.cameras import read_camera_file
+
+    cf = read_camera_file(path)
+    return cf.camera, {"has_pose": bool(cf.has_pose), "source": os.fspath(path)}
+
+
+def _pose_check(image, markers, camera, meta, has_pose, need_diameter: bool):
+    """A camera without a pose is named as such (:mod:`resection.pose_needed`), before the
+    matcher or the diameter estimate would blame the markers or the camera's direction."""
+    from resection.pose_needed import is_identity_pose, no_pose_message, require_pose
+
+    if has_pose is None:
+        has_pose = meta["has_pose"]
+    names = dict(camera_path=meta["source"], markers_path=meta["markers"],
+                 image_path=os.fspath(image) if isinstance(image, str | os.PathLike) else None)
+    if not need_diameter:
+        require_pose(camera, markers, has_pose=has_pose, **names)
+    elif not has_pose or is_identity_pose(camera):
+        raise InputError(no_pose_message(
+            "intrinsics only" if not has_pose else "the identity pose",
+            camera=names["camera_path"], image=names["image_path"],
+            markers=names["markers_path"],
+            what="the size of the markers in the image is unknown: give the marker diameter "
+            "in pixels (--diameter PX, the value resection link --serve printed) or the "
+            "candidates (--candidates)").split(". Link a few")[0])
 
 
 def image_points(
@@ -86,6 +120,7 @@ def image_points(
     match_options: dict | None = None,
     marker_accuracy: float = DEFAULT_MARKER_ACCURACY,
     max_rms: float | None = DEFAULT_MAX_RMS,
+    has_pose: bool | None = None,
 ) -> ImagePoints:
     """Detect the markers of an image and link them to the model's markers.
 
@@ -118,8 +153,16 @@ def image_points(
     marker_accuracy, max_rms : float
         The acceptance rule's options (px, :mod:`resection.pose.acceptance`), passed to the
         matcher and its pose solves.
+    has_pose : bool, optional
+        False when ``camera`` holds intrinsics only (default: what its file says when
+        ``camera`` is a path, else True). A camera without a pose (or with the identity
+        pose and fewer than three targets in view) cannot be matched from: the error says
+        so and names ``resection link --serve`` (:mod:`resection.pose_needed`).
     """
-    image, markers, camera = _load(image, markers, camera)
+    image_arg = image
+    image, markers, camera, meta = _load(image, markers, camera)
+    if links is None and reference is None and camera is not None:
+        _pose_check(image_arg, markers, camera, meta, has_pose, need_diameter=False)
     if candidates is None:
         if image is None:
             raise InputError("image_points: give an image or candidates")
@@ -127,6 +170,7 @@ def image_points(
             if camera is None:
                 raise InputError("image_points: give the marker diameter in pixels (or a "
                                  "camera and marker diameters)")
+            _pose_check(image_arg, markers, camera, meta, has_pose, need_diameter=True)
             diameter = expected_diameter(camera, markers)
         candidates = detect_in_image(image, diameter, polarity, template, roi, threshold,
                                      enhance=enhance, enhance_windows=enhance_windows,
@@ -167,15 +211,16 @@ def pose_from_image(image, markers, camera, *, robust=None, max_rms=DEFAULT_MAX_
     """
     from resection.pose.solve import solve_pose
 
-    image, markers, camera = _load(image, markers, camera)
+    image, markers, camera, meta = _load(image, markers, camera)
     if camera is None:
         raise InputError("pose_from_image: a camera (intrinsics) is needed")
+    kwargs.setdefault("has_pose", meta["has_pose"])
     pts = image_points(image, markers, camera, marker_accuracy=marker_accuracy,
                        max_rms=max_rms, **kwargs)
     res = solve_pose(camera, pts.points3d, pts.points2d, robust=robust, max_rms=max_rms,
                      marker_accuracy=marker_accuracy, refine_intrinsics=refine_intrinsics,
                      ids=pts.ids)
-    if not refind or kwargs.get("links") is not None:
+    if not refind:  # after hand links too: every other target in view is looked for
         return res, pts
     from dataclasses import replace
 

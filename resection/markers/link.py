@@ -24,7 +24,14 @@ from resection.camera.model import Camera
 from resection.errors import InputError
 from resection.markers.detect import Candidates
 
-__all__ = ["draw_links", "read_links", "write_links", "suggest_links"]
+__all__ = ["draw_links", "read_links", "write_links", "suggest_links", "numbered",
+           "LIKELY_SNR", "MAX_LABELS"]
+
+#: Below this contrast-to-noise ratio the detector's own fit ranks a candidate unlikely (the
+#: detector keeps down to ``min_snr = 3``); such candidates get no number without a camera.
+LIKELY_SNR = 5.0
+#: Most numbers drawn without a camera (the strongest candidates by merit).
+MAX_LABELS = 150
 
 
 def _uv_of(candidates) -> np.ndarray:
@@ -33,6 +40,45 @@ def _uv_of(candidates) -> np.ndarray:
     if uv.ndim != 2 or uv.shape[1] != 2:
         raise InputError(f"candidates: expected (N, 2) positions, got shape {uv.shape}")
     return uv
+
+
+def numbered(candidates, *, camera: Camera | None = None, markers=None,
+             near: float | None = None, max_labels: int = MAX_LABELS) -> np.ndarray:
+    """The candidates :func:`draw_links` numbers (sorted indices), so that the numbers
+    stay legible.
+
+    With ``camera`` and ``markers``: only those within ``near`` px (default ``max(3 d,
+    10)``, ``d`` the median candidate diameter) of a marker projected into the image. Without:
+    those the detector ranks as likely (``snr >= LIKELY_SNR`` when the candidates carry
+    their SNR), at most ``max_labels`` of them, the strongest by merit.
+    """
+    uv = _uv_of(candidates)
+    n = len(uv)
+    if n == 0:
+        return np.zeros(0, int)
+    is_cand = isinstance(candidates, Candidates)
+    if camera is not None and markers is not None:
+        from .match import _markers
+
+        _, xyz = _markers(markers)
+        proj, valid = camera.project(xyz, return_valid=True)
+        proj = proj[valid & camera.in_image(np.where(valid[:, None], proj, 0.0))]
+        if near is None:
+            dia = candidates.diameter if is_cand else np.full(n, np.nan)
+            dm = float(np.nanmedian(dia)) if np.isfinite(dia).any() else 8.0
+            near = max(3.0 * dm, 10.0)
+        if not len(proj):
+            return np.zeros(0, int)
+        d, _ = cKDTree(proj).query(uv)
+        return np.flatnonzero(d <= near)
+    keep = np.ones(n, bool)
+    if is_cand and np.isfinite(candidates.snr).any():
+        keep &= ~(candidates.snr < LIKELY_SNR)
+    idx = np.flatnonzero(keep)
+    if is_cand and len(idx) > max_labels:
+        merit = np.nan_to_num(candidates.merit[idx], nan=-np.inf)
+        idx = np.sort(idx[np.argsort(-merit, kind="stable")[:max_labels]])
+    return idx[:max_labels]
 
 
 def draw_links(
@@ -44,8 +90,13 @@ def draw_links(
     markers=None,
     diameter: float | None = None,
     dpi: int = 100,
-) -> None:
+) -> np.ndarray:
     """Write a PNG of the image with numbered candidates and projected markers.
+
+    Only some candidates are numbered, so that the numbers can be read (:func:`numbered`):
+    with a camera, those near a projected marker (every candidate keeps its ring); without,
+    those the detector ranks as likely, the strongest first (the others are left out). The numbers stay the candidates' row
+    numbers. The image is enlarged until the drawn candidates lie about two labels apart.
 
     Parameters
     ----------
@@ -64,6 +115,11 @@ def draw_links(
     dpi : int
         The figure is one image pixel per screen pixel at this dpi (larger images are
         drawn at their size, up to 4000 px).
+
+    Returns
+    -------
+    (K,) int array
+        The candidate numbers drawn (numbered).
     """
     import matplotlib
 
@@ -83,9 +139,17 @@ def draw_links(
     if not path.parent.exists():
         raise FileNotFoundError(f"{path.parent}: output directory does not exist")
     H, W = img.shape
-    # small images are enlarged (to 1600 px) so that the labels, whose size is fixed in
-    # points, do not cover each other; large ones are drawn at most 4000 px wide
-    scale = min(1.0, 4000.0 / max(H, W)) if max(H, W) > 4000 else max(1.0, 1600.0 / max(H, W))
+    show = numbered(candidates, camera=camera, markers=markers)
+    fs = 11.0
+    # enlarged (to 1600 px at least) until the drawn candidates lie two labels apart (a
+    # label is about 2.2 fs px wide at 100 dpi), at most 4000 px
+    gap = 2.0 * 2.2 * fs * dpi / 72.0
+    if len(show) > 1:
+        nn = cKDTree(uv[show]).query(uv[show], k=2)[0][:, 1]
+        want = gap / max(float(np.median(nn)), 1e-6)
+    else:
+        want = 1.0
+    scale = min(max(1.0, 1600.0 / max(H, W), want), 4000.0 / max(H, W))
     fig = plt.figure(figsize=(W * scale / dpi, H * scale / dpi), dpi=dpi)
     ax = fig.add_axes((0, 0, 1, 1))
     fin = img[np.isfinite(img)]
@@ -98,13 +162,15 @@ def draw_links(
         dia = np.full(len(uv), 8.0)
     if diameter is not None:
         dia = np.full(len(uv), float(diameter))
-    fs = 9.0
     outline = [pe.withStroke(linewidth=2.5, foreground="black")]
-    ring = 2.0 * (dia / 2 + 2.0)  # circle diameter, image pixels
-    ax.add_collection(EllipseCollection(ring, ring, 0.0, units="xy", offsets=uv,
+    # with a camera every candidate keeps its ring (only the numbers are thinned out)
+    ringed = np.arange(len(uv)) if camera is not None and markers is not None else show
+    ring = 2.0 * (dia[ringed] / 2 + 2.0)  # circle diameter, image pixels
+    ax.add_collection(EllipseCollection(ring, ring, 0.0, units="xy", offsets=uv[ringed],
                                         offset_transform=ax.transData, facecolors="none",
                                         edgecolors="orangered", linewidths=1.2))
-    for k, ((u, v), d) in enumerate(zip(uv, dia, strict=True)):  # one label per candidate
+    for k in show.tolist():  # one label per drawn candidate
+        u, v, d = uv[k, 0], uv[k, 1], dia[k]
         ax.text(u + d / 2 + 2, v - d / 2 - 2, str(k), color="orangered", fontsize=fs,
                 fontweight="bold", path_effects=outline)
     if camera is not None and markers is not None:
@@ -118,9 +184,13 @@ def draw_links(
         for k in np.flatnonzero(ok):
             ax.text(proj[k, 0] - 3, proj[k, 1] + 3, ids[k], color="cyan", fontsize=fs,
                     ha="right", va="top", path_effects=outline)
-    key = "orange-red circle + number: candidate"
+    key = f"orange-red circle + number: candidate ({len(show)} of {len(uv)} numbered: "
     if camera is not None and markers is not None:
-        key += "     cyan cross + id: marker projected by the approximate camera"
+        key += "those near a projected marker)     cyan cross + id: marker projected by " \
+            "the approximate camera"
+    else:
+        key += f"SNR >= {LIKELY_SNR:g}, the strongest)     or link by clicking: " \
+            "resection link --serve"
     ax.text(0.01, 0.01, key, transform=ax.transAxes, color="white", fontsize=fs,
             va="bottom", ha="left", path_effects=outline,
             bbox={"facecolor": "black", "alpha": 0.6, "edgecolor": "none"})
@@ -129,6 +199,7 @@ def draw_links(
     ax.axis("off")
     fig.savefig(path, dpi=dpi)
     plt.close(fig)
+    return show
 
 
 def read_links(path: str | os.PathLike, candidates, markers=None):
