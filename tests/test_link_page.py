@@ -122,6 +122,20 @@ def test_link_page_in_chromium(scene, tmp_path):
         ActionChains(driver).send_keys("u").perform()
         wait.until(settled)
         wait.until(lambda _d: status.text.startswith(f"{len(LINKED)} link(s)"))
+        wait.until(lambda d: "linked" not in d.find_element(
+            By.CSS_SELECTOR, f'#targets li[data-id="{k6}"]').get_attribute("class"))
+        # next target from the keyboard, then its candidate; delete it from the keyboard
+        first_free = next(k for k in s.marker_ids if k not in LINKED)
+        ActionChains(driver).send_keys("n").perform()
+        wait.until(lambda d: "selected" in d.find_element(
+            By.CSS_SELECTOR, f'#targets li[data-id="{first_free}"]').get_attribute("class"))
+        click(f'circle.cand[data-index="{truth[first_free]}"]')
+        wait.until(settled)
+        wait.until(lambda _d: status.text.startswith(f"{len(LINKED) + 1} link(s)"))
+        click(f'#targets li[data-id="{first_free}"]')
+        ActionChains(driver).send_keys("\ue017").perform()  # the Delete key
+        wait.until(settled)
+        wait.until(lambda _d: status.text.startswith(f"{len(LINKED)} link(s)"))
         shot = tmp_path / "link_page.png"
         driver.save_screenshot(str(shot))
         click("#save")
@@ -130,7 +144,7 @@ def test_link_page_in_chromium(scene, tmp_path):
         driver.quit()
         server.shutdown()
         server.server_close()
-    assert clicks == 2 * len(LINKED) + 2
+    assert clicks == 2 * len(LINKED) + 4  # + one offer, next target's candidate, delete, save
     # the screenshot is kept as an artifact (pytest's tmp folder, and out/ when it exists)
     assert shot.stat().st_size > 10_000 and shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     keep = Path(os.environ.get("LINK_PAGE_SCREENSHOT_DIR", "out"))

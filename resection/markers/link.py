@@ -95,8 +95,9 @@ def draw_links(
 
     Only some candidates are numbered, so that the numbers can be read (:func:`numbered`):
     with a camera, those near a projected marker (every candidate keeps its ring); without,
-    those the detector ranks as likely, the strongest first (the others are left out). The numbers stay the candidates' row
-    numbers. The image is enlarged until the drawn candidates lie about two labels apart.
+    those the detector ranks as likely, the strongest first (the others are left out). The
+    numbers stay the candidates' row numbers. The image is enlarged until the drawn
+    candidates lie about two labels apart.
 
     Parameters
     ----------
