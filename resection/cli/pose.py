@@ -33,7 +33,9 @@ def register(sub) -> None:
     p.add_argument("--points", help="linked image points CSV: id,u,v (pixels)")
     p.add_argument("--image", help="image: detect its markers and match them automatically "
                    "(approximate pose in --camera) or link them by hand with --links")
-    p.add_argument("--links", help="with --image: linking CSV id,candidate")
+    p.add_argument("--links", help="with --image: linking CSV id,candidate (e.g. saved by "
+                   "'resection link --serve'); every other target in view is then looked "
+                   "for too (see --no-refind)")
     p.add_argument("--candidates", help="with --links: the candidate CSV it numbers (default: "
                    "detect on --image)")
     add_detect_options(p, required_diameter=False)
