@@ -380,6 +380,7 @@ def open_session(
     from .io.outputs import refuse_overwriting_inputs
     from .markers import read_candidates
     from .pipeline import detect_in_image, expected_diameter
+    from .pose_needed import has_usable_pose
 
     inputs = {"image": image, "markers": markers, "camera": camera, "mesh": mesh,
               "candidates": candidates, "links": links}
@@ -398,7 +399,7 @@ def open_session(
 
         surface = load_mesh(mesh, format=mesh_format)
     ms = read_markers(markers, mesh=surface).targets
-    has_pose = bool(cf.has_pose) and bool(np.any(cam.to_camera_frame(ms.xyz)[:, 2] > 0))
+    has_pose = has_usable_pose(cam, ms.xyz, cf.has_pose)
     d = float("nan")
     if candidates is not None:
         cand = read_candidates(candidates)[0]

@@ -16,8 +16,8 @@ import numpy as np
 from .camera import Camera
 from .errors import InputError
 
-__all__ = ["targets_in_view", "is_identity_pose", "require_pose", "no_pose_message",
-           "MIN_IN_VIEW"]
+__all__ = ["targets_in_view", "is_identity_pose", "has_usable_pose", "require_pose",
+           "no_pose_message", "MIN_IN_VIEW"]
 
 #: Fewest targets an approximate pose must put in the image for automatic matching.
 MIN_IN_VIEW = 3
@@ -34,15 +34,29 @@ def targets_in_view(camera: Camera, xyz) -> int:
 
 def no_pose_message(why: str, *, camera: str | None = None, image: str | None = None,
                     markers: str | None = None, what: str = "the targets cannot be "
-                    "predicted in the image, so they cannot be matched automatically") -> str:
-    """One line: ``CAMERA: this camera has no pose (why): what; the way forward``."""
+                    "predicted in the image, so they cannot be matched automatically",
+                    way_forward: bool = True) -> str:
+    """One line: ``CAMERA: this camera has no pose (why): what`` and, with
+    ``way_forward``, how to link a few targets by hand and solve the pose from them."""
     cam = camera or "CAMERA"
     img = image or "IMAGE"
     mk = markers or "MARKERS"
-    return (f"{cam}: this camera has no pose ({why}): {what}. Link a few targets by hand "
-            f"first: resection link --serve {img} --markers {mk} --camera {cam} --diameter PX "
-            f"--save-links LINKS.csv, then resection pose --image {img} --markers {mk} "
-            f"--camera {cam} --links LINKS.csv --diameter PX (docs/linking.md)")
+    text = f"{cam}: this camera has no pose ({why}): {what}"
+    if not way_forward:
+        return text
+    return (f"{text}. Link a few targets by hand first: resection link --serve {img} "
+            f"--markers {mk} --camera {cam} --diameter PX --save-links LINKS.csv, then "
+            f"resection pose --image {img} --markers {mk} --camera {cam} --links LINKS.csv "
+            "--diameter PX (docs/linking.md)")
+
+
+def has_usable_pose(camera: Camera, xyz, has_pose: bool = True) -> bool:
+    """False when the camera holds no pose to predict the points ``xyz`` from: its file has
+    none (``has_pose`` False), or its pose is the identity and puts fewer than
+    :data:`MIN_IN_VIEW` of them in the image (what an intrinsics-only camera reads as)."""
+    if not has_pose:
+        return False
+    return not (is_identity_pose(camera) and targets_in_view(camera, xyz) < MIN_IN_VIEW)
 
 
 def is_identity_pose(camera: Camera) -> bool:

@@ -58,6 +58,7 @@ def _truth_candidates(session, scene_):
 
 
 def test_link_page_in_chromium(scene, tmp_path):
+    from selenium.common.exceptions import StaleElementReferenceException
     from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.common.by import By
     from selenium.webdriver.support.ui import WebDriverWait
@@ -73,7 +74,8 @@ def test_link_page_in_chromium(scene, tmp_path):
     assert set(LINKED) <= set(truth)
     server = serve_links(session)
     driver = _browser()
-    wait = WebDriverWait(driver, 20)
+    # the page redraws its marks after each solve: an element found just before may be gone
+    wait = WebDriverWait(driver, 20, ignored_exceptions=(StaleElementReferenceException,))
     clicks = 0
     try:
         driver.get(server.url)
@@ -84,9 +86,22 @@ def test_link_page_in_chromium(scene, tmp_path):
 
         def click(css):
             nonlocal clicks
-            ActionChains(driver).move_to_element(driver.find_element(By.CSS_SELECTOR, css)) \
-                .click().perform()
+            for attempt in range(3):  # found, then redrawn before the pointer got there
+                try:
+                    ActionChains(driver).move_to_element(
+                        driver.find_element(By.CSS_SELECTOR, css)).click().perform()
+                    break
+                except StaleElementReferenceException:
+                    if attempt == 2:
+                        raise
             clicks += 1
+
+        def read(css, what="class"):
+            """An attribute (or the text) of the element now on the page."""
+            def get(d):
+                e = d.find_element(By.CSS_SELECTOR, css)
+                return (e.text if what == "text" else e.get_attribute(what)) or ""
+            return wait.until(lambda d: (get(d),))[0]
 
         status = driver.find_element(By.ID, "status")
         for n, k in enumerate(LINKED, start=1):
@@ -100,15 +115,14 @@ def test_link_page_in_chromium(scene, tmp_path):
         assert "accepted" in status.get_attribute("class"), status.text
         assert not driver.find_element(By.ID, "save").get_attribute("disabled")
         # every other target in view is drawn where the pose predicts it
-        preds = {e.get_attribute("data-id"): e for e in
-                 driver.find_elements(By.CSS_SELECTOR, "#preds g.pred")}
+        preds = wait.until(lambda d: {e.get_attribute("data-id") for e in
+                                      d.find_elements(By.CSS_SELECTOR, "#preds g.pred")})
         in_view = set(truth) - set(LINKED)
         assert in_view <= set(preds), sorted(in_view - set(preds))
         # each link shows its residual, none is rejected
         for k in LINKED:
-            li = driver.find_element(By.CSS_SELECTOR, f'#targets li[data-id="{k}"]')
-            assert "linked" in li.get_attribute("class")
-            res = li.find_element(By.CSS_SELECTOR, ".res").text
+            assert "linked" in read(f'#targets li[data-id="{k}"]')
+            res = read(f'#targets li[data-id="{k}"] .res', "text")
             assert res.endswith(" px") and float(res.split()[0]) < 2.0
         # an offered candidate is linked with one click, and undone from the keyboard
         offered = driver.find_elements(By.CSS_SELECTOR, "#offers circle.offer-hit")
@@ -116,9 +130,8 @@ def test_link_page_in_chromium(scene, tmp_path):
         k6 = next(iter(sorted(in_view)))
         click(f'#offers circle.offer-hit[data-offer="{k6}"]')
         wait.until(settled)
-        li6 = driver.find_element(By.CSS_SELECTOR, f'#targets li[data-id="{k6}"]')
-        assert "linked" in li6.get_attribute("class")
-        assert li6.find_element(By.CSS_SELECTOR, ".state").text == f"#{truth[k6]}"
+        assert "linked" in read(f'#targets li[data-id="{k6}"]')
+        assert read(f'#targets li[data-id="{k6}"] .state', "text") == f"#{truth[k6]}"
         ActionChains(driver).send_keys("u").perform()
         wait.until(settled)
         wait.until(lambda _d: status.text.startswith(f"{len(LINKED)} link(s)"))

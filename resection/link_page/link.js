@@ -190,7 +190,8 @@
       const res = await api("api/solve", { links: st.links });
       if (seq !== st.seq) return; // a newer set of links is on its way
       st.result = res;
-      if (res.plan) st.plan = res.plan;
+      // the plan follows the last accepted pose (not back to the normals' view on a refusal)
+      if (res.plan && (res.status === "accepted" || st.plan.source !== "camera")) st.plan = res.plan;
     } catch (err) {
       if (seq !== st.seq) return;
       st.result = { status: "refused", message: String(err.message), links: [], offers: [],

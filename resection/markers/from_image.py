@@ -83,7 +83,7 @@ def _read_posed(path) -> tuple[Camera, dict]:
 def _pose_check(image, markers, camera, meta, has_pose, need_diameter: bool):
     """A camera without a pose is named as such (:mod:`resection.pose_needed`), before the
     matcher or the diameter estimate would blame the markers or the camera's direction."""
-    from resection.pose_needed import is_identity_pose, no_pose_message, require_pose
+    from resection.pose_needed import has_usable_pose, no_pose_message, require_pose
 
     if has_pose is None:
         has_pose = meta["has_pose"]
@@ -91,14 +91,14 @@ def _pose_check(image, markers, camera, meta, has_pose, need_diameter: bool):
                  image_path=os.fspath(image) if isinstance(image, str | os.PathLike) else None)
     if not need_diameter:
         require_pose(camera, markers, has_pose=has_pose, **names)
-    elif not has_pose or is_identity_pose(camera):
+    elif not has_usable_pose(camera, getattr(markers, "targets", markers).xyz, has_pose):
         raise InputError(no_pose_message(
             "intrinsics only" if not has_pose else "the identity pose",
             camera=names["camera_path"], image=names["image_path"],
-            markers=names["markers_path"],
+            markers=names["markers_path"], way_forward=False,
             what="the size of the markers in the image is unknown: give the marker diameter "
             "in pixels (--diameter PX, the value resection link --serve printed) or the "
-            "candidates (--candidates)").split(". Link a few")[0])
+            "candidates (--candidates)"))
 
 
 def image_points(
