@@ -20,8 +20,8 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from resection.io.cameras import read_camera, write_camera
-from resection.link_server import serve_links
-from resection.link_session import open_session
+from resection.markers.link_server import serve_links
+from resection.markers.link_session import open_session
 from scenes.real_traits import real_traits, write_scene
 
 LINKED = ("T01", "T04", "T09", "T14", "T07")  # spread over the frame: a well-posed start

@@ -21,13 +21,14 @@ import pytest
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from resection.camera.model import Camera
 from resection.cli import main
 from resection.errors import InputError, SolveError
 from resection.io.cameras import read_camera, write_camera
-from resection.link import numbered, read_links
-from resection.link_server import serve_links
-from resection.link_session import open_session, plan_axes
-from resection.markers import Candidates
+from resection.markers.detect import Candidates
+from resection.markers.link import numbered, read_links
+from resection.markers.link_server import serve_links
+from resection.markers.link_session import open_session, plan_axes
 from scenes.real_traits import real_traits, write_scene
 
 START = ("T01", "T04", "T09", "T14")
@@ -117,7 +118,7 @@ def test_three_links_with_an_approximate_pose(scene, tmp_path):
     r = ses.solve([[k, truth[k]] for k in START[:3]])
     assert r["status"] == "accepted", r["message"]
     assert max(lk["residual"] for lk in r["links"]) < 1e-6  # exact: no redundancy
-    cam = read_camera(paths["camera0"]).from_dict(r["camera"])
+    cam = Camera.from_dict(r["camera"])
     assert np.linalg.norm(cam.center - true.center) < 0.02 * np.linalg.norm(true.center)
 
 
@@ -296,7 +297,7 @@ def test_plan_axes_look_from_the_normals_side():
 def test_png_numbers_only_what_can_be_read(scene, tmp_path):
     """Item 5: with a camera, only candidates near a projected target are numbered; without,
     the candidates the detector ranks unlikely (SNR < 5) are left out, the rest capped."""
-    from resection.link import LIKELY_SNR, MAX_LABELS, draw_links
+    from resection.markers.link import LIKELY_SNR, MAX_LABELS, draw_links
 
     s, paths = scene
     cam = s.cameras[0]

@@ -175,8 +175,8 @@ def run_link(args: argparse.Namespace) -> int:
 
 
 def run_link_serve(args: argparse.Namespace) -> int:
-    from .link_server import LinkServer
-    from .link_session import open_session
+    from resection.markers.link_server import LinkServer
+    from resection.markers.link_session import open_session
 
     if not (args.camera and args.markers):
         raise InputError("--serve needs --camera (intrinsics at least) and --markers")

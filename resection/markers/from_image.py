@@ -17,7 +17,6 @@ import numpy as np
 
 from resection.camera.model import Camera
 from resection.errors import InputError
-from resection.io.cameras import read_camera
 from resection.markers.detect import Candidates, read_candidates
 from resection.markers.in_image import (  # re-exported
     detect_in_image,
@@ -81,9 +80,9 @@ def _read_posed(path) -> tuple[Camera, dict]:
 
 
 def _pose_check(image, markers, camera, meta, has_pose, need_diameter: bool):
-    """A camera without a pose is named as such (:mod:`resection.pose_needed`), before the
+    """A camera without a pose is named as such (:mod:`resection.pose.pose_needed`), before the
     matcher or the diameter estimate would blame the markers or the camera's direction."""
-    from resection.pose_needed import has_usable_pose, no_pose_message, require_pose
+    from resection.pose.pose_needed import has_usable_pose, no_pose_message, require_pose
 
     if has_pose is None:
         has_pose = meta["has_pose"]
@@ -157,7 +156,7 @@ def image_points(
         False when ``camera`` holds intrinsics only (default: what its file says when
         ``camera`` is a path, else True). A camera without a pose (or with the identity
         pose and fewer than three targets in view) cannot be matched from: the error says
-        so and names ``resection link --serve`` (:mod:`resection.pose_needed`).
+        so and names ``resection link --serve`` (:mod:`resection.pose.pose_needed`).
     """
     image_arg = image
     image, markers, camera, meta = _load(image, markers, camera)

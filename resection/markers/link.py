@@ -58,9 +58,9 @@ def numbered(candidates, *, camera: Camera | None = None, markers=None,
         return np.zeros(0, int)
     is_cand = isinstance(candidates, Candidates)
     if camera is not None and markers is not None:
-        from .match import _markers
+        from resection.markers.match import marker_table
 
-        _, xyz = _markers(markers)
+        _, xyz = marker_table(markers)
         proj, valid = camera.project(xyz, return_valid=True)
         proj = proj[valid & camera.in_image(np.where(valid[:, None], proj, 0.0))]
         if near is None:

@@ -1,6 +1,6 @@
 """The local page of ``resection link --serve``: link a frame's targets by clicking.
 
-A :class:`LinkServer` serves one :class:`~resection.link_session.LinkSession` from the
+A :class:`LinkServer` serves one :class:`~resection.markers.link_session.LinkSession` from the
 standard library's :class:`http.server.ThreadingHTTPServer`:
 
 * it binds to ``127.0.0.1`` only, on a free port unless one is given;
@@ -8,7 +8,7 @@ standard library's :class:`http.server.ThreadingHTTPServer`:
   ``X-Link-Token`` header for the page's requests) and a ``Host`` header naming the
   loopback address (a page of another site cannot reach it through DNS rebinding); others
   get ``403``;
-* the page (``resection/link_page/``: plain HTML, CSS and JavaScript, an SVG overlay, no
+* the page (``resection/markers/link_page/``: plain HTML, CSS and JavaScript, an SVG overlay, no
   build step, nothing fetched from the network) comes from the package; the only files
   read are those the session was opened with, and no path ever arrives from the browser;
 * JSON endpoints: ``GET /api/session``, ``/api/candidates``, ``/api/plan``, ``/api/frame``
@@ -30,12 +30,12 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
 from urllib.parse import parse_qs, urlsplit
 
-from .errors import InputError, SolveError
-from .link_session import LinkSession
+from resection.errors import InputError, SolveError
+from resection.markers.link_session import LinkSession
 
 __all__ = ["LinkServer", "serve_links", "PAGE_FILES"]
 
-#: The page's files (package data in ``resection/link_page/``) and their content types.
+#: The page's files (package data in ``resection/markers/link_page/``) and their content types.
 PAGE_FILES = {"index.html": "text/html; charset=utf-8",
               "link.js": "text/javascript; charset=utf-8",
               "link.css": "text/css; charset=utf-8"}
@@ -44,7 +44,7 @@ _HOSTS = ("127.0.0.1", "localhost")
 
 
 def _page_file(name: str) -> bytes:
-    return resources.files("resection").joinpath("link_page", name).read_bytes()
+    return resources.files("resection.markers").joinpath("link_page", name).read_bytes()
 
 
 class _Handler(BaseHTTPRequestHandler):

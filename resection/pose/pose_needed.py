@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .camera import Camera
-from .errors import InputError
+from resection.camera.model import Camera
+from resection.errors import InputError
 
 __all__ = ["targets_in_view", "is_identity_pose", "has_usable_pose", "require_pose",
            "no_pose_message", "MIN_IN_VIEW"]

@@ -9,8 +9,8 @@ line (:func:`open_session`). The page sends only links, ``[(marker id, candidate
   when it has a pose, else along the targets' mean normal or their flattest direction), so
   that a person can tell which target is which;
 * :meth:`LinkSession.solve`: from four links (three with an approximate pose) the pose, solved
-  by :func:`resection.pose.solve_pose` and judged by the acceptance rule
-  (:mod:`resection.acceptance`); each link's residual, the links the rule rejects, every
+  by :func:`resection.pose.solve.solve_pose` and judged by the acceptance rule
+  (:mod:`resection.pose.acceptance`); each link's residual, the links the rule rejects, every
   other target predicted in view, and the candidates within the rule's outlier gate of a
   prediction, offered as links;
 * :meth:`LinkSession.save`: the linking CSV ``id,candidate`` (what ``pose --links`` and
@@ -18,7 +18,7 @@ line (:func:`open_session`). The page sends only links, ``[(marker id, candidate
   ids (what ``pose --candidates`` reads), each written to a temporary name and renamed.
 
 Candidate numbers are the row indices (from 0) of the candidate list, as in
-:mod:`resection.link`: detected with the default options and the given diameter, they are
+:mod:`resection.markers.link`: detected with the default options and the given diameter, they are
 the numbers ``pose --image --diameter D --links`` and ``track --diameter D --link`` find.
 Conventions: DESIGN.md (pixel centres at integer ``(u, v)``, ``x_cam = R X + t``).
 """
@@ -31,10 +31,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .acceptance import DEFAULT_MARKER_ACCURACY, DEFAULT_MAX_RMS, judge, outlier_gate
-from .camera import Camera
-from .errors import InputError, SolveError
-from .markers import Candidates
+from resection.camera.model import Camera
+from resection.errors import InputError, SolveError
+from resection.markers.detect import Candidates
+from resection.pose.acceptance import (
+    DEFAULT_MARKER_ACCURACY,
+    DEFAULT_MAX_RMS,
+    judge,
+    outlier_gate,
+)
 
 __all__ = ["LinkSession", "open_session", "plan_axes"]
 
@@ -193,7 +198,7 @@ class LinkSession:
     def _fit(self, ids, idx):
         """Pose of the links: ``(camera, errors, used, acceptance text, accepted)``;
         raises SolveError when refused."""
-        from .pose import _refine, solve_pose
+        from resection.pose.solve import _refine, solve_pose
 
         X = self.markers.select(ids)
         uv = self.candidates.uv[idx]
@@ -272,7 +277,7 @@ class LinkSession:
         uv, valid = cam.project(ms.xyz, return_valid=True)
         ok = valid & cam.in_image(np.where(valid[:, None], uv, 0.0)) & ms.facing(cam.center)
         if self.mesh is not None and ok.any():
-            from .refind import _occluded
+            from resection.markers.refind import _occluded
 
             d = self.diameter if math.isfinite(self.diameter) else 5.0
             z = np.maximum(cam.to_camera_frame(ms.xyz)[:, 2], 1e-12)
@@ -283,7 +288,7 @@ class LinkSession:
     def _predict(self, cam: Camera, ids, idx, n_used: int):
         from scipy.spatial import cKDTree
 
-        from .match import _assign
+        from resection.markers.match import assign_nearest
 
         ms = self.markers
         linked = np.isin(np.asarray(ms.ids, dtype=object), np.asarray(ids, dtype=object))
@@ -295,7 +300,7 @@ class LinkSession:
         free = np.setdiff1d(np.arange(len(self.candidates)), idx)
         offers = []
         if look.size and free.size:
-            j, dist = _assign(uv, cKDTree(self.candidates.uv[free]), gate)
+            j, dist = assign_nearest(uv, cKDTree(self.candidates.uv[free]), gate)
             offers = [{"id": ms.ids[look[i]], "candidate": int(free[j[i]]),
                        "distance": float(dist[i])} for i in np.flatnonzero(j >= 0)]
         return predicted, offers, float(gate)
@@ -307,9 +312,9 @@ class LinkSession:
         Returns ``{"written": [basenames], "message"}``; raises :class:`SolveError` (nothing
         written) when the pose is refused or not yet determined, :class:`InputError` when
         no output is named or one would overwrite an input."""
-        from .io.cameras import write_camera
-        from .io.outputs import atomic_write, refuse_overwriting_inputs
-        from .link import write_links
+        from resection.io.cameras import write_camera
+        from resection.io.outputs import atomic_write, refuse_overwriting_inputs
+        from resection.markers.link import write_links
 
         res = self.solve(links)
         if res["status"] != "accepted":
@@ -331,7 +336,7 @@ class LinkSession:
             write_camera(self.save_camera, cam, format="json")
             written.append(self.save_camera)
         if self.save_linked:
-            from .markers import write_candidates
+            from resection.markers.detect import write_candidates
 
             labels = [None] * len(self.candidates)
             for k, c in zip(ids, idx, strict=True):
@@ -374,13 +379,13 @@ def open_session(
     camera needs ``diameter``). ``links``: a linking CSV to start from. The outputs are
     checked against the inputs here, before anything is served.
     """
-    from .io.cameras import read_camera_file
-    from .io.images import read_image
-    from .io.markers import read_markers
-    from .io.outputs import refuse_overwriting_inputs
-    from .markers import read_candidates
-    from .pipeline import detect_in_image, expected_diameter
-    from .pose_needed import has_usable_pose
+    from resection.io.cameras import read_camera_file
+    from resection.io.images import read_image
+    from resection.io.markers import read_markers
+    from resection.io.outputs import refuse_overwriting_inputs
+    from resection.markers.detect import read_candidates
+    from resection.markers.in_image import detect_in_image, expected_diameter
+    from resection.pose.pose_needed import has_usable_pose
 
     inputs = {"image": image, "markers": markers, "camera": camera, "mesh": mesh,
               "candidates": candidates, "links": links}
@@ -395,7 +400,7 @@ def open_session(
                          f"{camera} is {cam.width}x{cam.height} (wrong image or camera file?)")
     surface = None
     if mesh is not None:
-        from .io.meshes import load_mesh
+        from resection.io.meshes import load_mesh
 
         surface = load_mesh(mesh, format=mesh_format)
     ms = read_markers(markers, mesh=surface).targets
@@ -415,7 +420,7 @@ def open_session(
         raise InputError(f"{image}: no candidates found (check --diameter/--polarity)")
     init = []
     if links is not None:
-        from .link import read_links
+        from resection.markers.link import read_links
 
         lids, _, lidx = read_links(links, cand, ms)
         init = [(k, int(c)) for k, c in zip(lids, lidx, strict=True)]
