@@ -330,3 +330,58 @@ def test_png_numbers_only_what_can_be_read(scene, tmp_path):
     assert png.shape[1] > 1600  # enlarged until the drawn candidates lie two labels apart
     drawn = draw_links(tmp_path / "b.png", img, cand, camera=cam, markers=ms)
     np.testing.assert_array_equal(drawn, near)
+
+
+def test_the_page_is_package_data():
+    """A non-editable install ships the page: every file of ``link_page/`` matches the
+    package-data globs of pyproject.toml, and the server reads them through the package."""
+    import fnmatch
+    import tomllib
+    from pathlib import Path
+
+    from resection.markers import link_server
+
+    root = Path(__file__).resolve().parents[1]
+    conf = tomllib.loads((root / "pyproject.toml").read_text())
+    globs = conf["tool"]["setuptools"]["package-data"]["resection.markers"]
+    page = Path(link_server.__file__).parent / "link_page"
+    files = sorted(p.name for p in page.iterdir() if p.is_file())
+    assert files == sorted(link_server.PAGE_FILES)
+    for name in files:
+        assert any(fnmatch.fnmatch(f"link_page/{name}", g) for g in globs), name
+        assert link_server._page_file(name) == (page / name).read_bytes()
+
+
+def _segment_meets_box(C, P, lo, hi) -> bool:
+    """Closed form (slab method): does the segment C -> P cross the box [lo, hi] before P?"""
+    d = np.asarray(P, float) - C
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1, t2 = (lo - C) / d, (hi - C) / d
+    tmin, tmax = np.max(np.minimum(t1, t2)), np.min(np.maximum(t1, t2))
+    return bool(tmin < tmax and 0 < tmax and tmin < 0.999)
+
+
+def test_targets_hidden_by_the_mesh_are_not_predicted(scene, tmp_path):
+    """With ``--mesh``, a target behind the black block (hidden from camera 0 by the slab
+    test, yet inside its image) is neither predicted nor offered; without it, it is."""
+    from resection.io.markers import read_markers, write_markers
+    from scenes.real_traits import BOX
+
+    s, paths = scene
+    ms = read_markers(paths["markers"])
+    hidden = np.array([0.045, 0.04, 0.0])
+    a, b, h = BOX
+    cam = s.cameras[0]
+    assert _segment_meets_box(cam.center, hidden, np.array([-a, -b, 0]), np.array([a, b, h]))
+    assert cam.in_image(cam.project(hidden[None]))[0]
+    write_markers(tmp_path / "m.csv", [*ms.ids, "TH"], np.vstack([ms.xyz, hidden]),
+                  np.append(ms.diameter, 0.006))
+    common = dict(diameter=5.0, save_links=tmp_path / "l.csv")
+    plain = open_session(paths["image0"], tmp_path / "m.csv", paths["intrinsics"], **common)
+    meshed = open_session(paths["image0"], tmp_path / "m.csv", paths["intrinsics"],
+                          mesh=paths["grid"], **common)
+    truth = _truth(plain, s)
+    links = [[k, truth[k]] for k in START]
+    p0 = {p["id"] for p in plain.solve(links)["predicted"]}
+    p1 = {p["id"] for p in meshed.solve(links)["predicted"]}
+    assert "TH" in p0 and p0 - p1 == {"TH"}

@@ -11,6 +11,8 @@ and an approximate camera or a hand-made linking; gives out sub-pixel candidates
 - :mod:`~resection.markers.enhancement`: IR image enhancement before detection;
 - :mod:`~resection.markers.match`: automatic matching (verified by a pose; right or refused);
 - :mod:`~resection.markers.link`: linking by hand (``id,candidate`` files, numbered pictures);
+- :mod:`~resection.markers.link_session`, :mod:`~resection.markers.link_server`: linking by
+  clicking in a local page (``resection link --serve``), the pose solved live;
 - :mod:`~resection.markers.in_image`: one image file read and its markers detected;
 - :mod:`~resection.markers.from_image`: one image's linked markers and its pose;
 - :mod:`~resection.markers.refind`: every target in view looked for again.
@@ -23,6 +25,8 @@ from resection._lazy import attach
 _EXPORTS: dict[str, str] = {
     "Candidates": ".detect",
     "ImagePoints": ".from_image",
+    "LinkServer": ".link_server",
+    "LinkSession": ".link_session",
     "MatchResult": ".match",
     "REASONS": ".refind",
     "RefindResult": ".refind",
@@ -37,6 +41,8 @@ _EXPORTS: dict[str, str] = {
     "marker_template": ".detect",
     "match_markers": ".match",
     "normalize_contrast": ".enhancement",
+    "numbered": ".link",
+    "open_session": ".link_session",
     "pose_from_image": ".from_image",
     "position_crb": ".detect",
     "read_candidates": ".detect",
@@ -44,6 +50,7 @@ _EXPORTS: dict[str, str] = {
     "reference_frame": ".match",
     "refind_targets": ".refind",
     "refine_markers": ".refine",
+    "serve_links": ".link_server",
     "subtract_background": ".enhancement",
     "suggest_links": ".link",
     "write_candidates": ".detect",

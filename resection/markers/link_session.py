@@ -198,7 +198,10 @@ class LinkSession:
     def _fit(self, ids, idx):
         """Pose of the links: ``(camera, errors, used, acceptance text, accepted)``;
         raises SolveError when refused."""
-        from resection.pose.solve import _refine, solve_pose
+        from scipy.spatial.transform import Rotation
+
+        from resection.pose.solve import solve_pose
+        from resection.pose.three_point import p3p
 
         X = self.markers.select(ids)
         uv = self.candidates.uv[idx]
@@ -206,17 +209,21 @@ class LinkSession:
             res = solve_pose(self.camera, X, uv, ids=ids, marker_accuracy=self.marker_accuracy,
                              max_rms=self.max_rms)
             return res.camera, res.errors, res.used, res.message
-        # three links from the approximate pose: the P3P root nearest it, exact (dof 0)
+        # three links: the P3P root nearest the approximate pose (in rotation), exact (dof 0)
         c0 = self.camera
-        R, t, _, _, sol = _refine(X, uv, c0.R, c0.t, c0.K, c0.dist, (), None, 1.0, 200)
+        xy = c0.pixels_to_normalized(c0.undistort(uv))
+        roots = p3p(X, np.column_stack([xy, np.ones(len(xy))])) if np.isfinite(xy).all() \
+            else []
+        if not roots:
+            raise SolveError("3 links: no pose puts the three targets on their candidates")
+        turn = [Rotation.from_matrix(R @ c0.R.T).magnitude() for R, _ in roots]  # <= 4
+        R, t = roots[int(np.argmin(turn))]
         cam = c0.with_pose(R=R, t=t)
-        if not sol.success or np.any(cam.to_camera_frame(X)[:, 2] <= 0):
-            raise SolveError("3 links: no pose near the approximate one fits them")
         err = np.hypot(*(cam.project(X) - uv).T)
         acc = judge(err, 6, self.marker_accuracy, self.max_rms)
         return cam, err, np.ones(len(ids), bool), (
-            f"3 links fitted exactly from the approximate pose (no redundancy to judge: "
-            f"{acc.describe()})")
+            "3 links fitted exactly, the pose nearest the approximate one (no redundancy "
+            f"to judge: {acc.describe()})")
 
     def solve(self, links) -> dict:
         """The live answer to a set of links (see the module docstring).
@@ -277,12 +284,12 @@ class LinkSession:
         uv, valid = cam.project(ms.xyz, return_valid=True)
         ok = valid & cam.in_image(np.where(valid[:, None], uv, 0.0)) & ms.facing(cam.center)
         if self.mesh is not None and ok.any():
-            from resection.markers.refind import _occluded
+            from resection.markers.refind import occluded_targets
 
             d = self.diameter if math.isfinite(self.diameter) else 5.0
             z = np.maximum(cam.to_camera_frame(ms.xyz)[:, 2], 1e-12)
             sel = np.flatnonzero(ok)
-            ok[sel] &= ~_occluded(self.mesh, cam, ms.xyz[sel], d * z[sel] / cam.K[0, 0])
+            ok[sel] &= ~occluded_targets(self.mesh, cam, ms.xyz[sel], d * z[sel] / cam.K[0, 0])
         return ok
 
     def _predict(self, cam: Camera, ids, idx, n_used: int):

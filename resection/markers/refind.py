@@ -41,7 +41,7 @@ from resection.pose.acceptance import (
 )
 from resection.pose.solve import PoseResult, solve_pose
 
-__all__ = ["RefindResult", "REASONS", "refind_targets"]
+__all__ = ["RefindResult", "REASONS", "refind_targets", "occluded_targets"]
 
 #: Why a target of the marker file is not used, in the order they are decided.
 REASONS = ("off the image", "facing away", "occluded", "cut by the image border",
@@ -92,7 +92,7 @@ class RefindResult:
         return out
 
 
-def _occluded(mesh, camera: Camera, X: np.ndarray, sizes: np.ndarray) -> np.ndarray:
+def occluded_targets(mesh, camera: Camera, X: np.ndarray, sizes: np.ndarray) -> np.ndarray:
     """Targets whose line of sight meets ``mesh`` before them (by more than their size)."""
     from resection.surface.visibility import RayCaster
 
@@ -230,7 +230,7 @@ def refind_targets(
     if mesh is not None:
         z = np.maximum(camera.to_camera_frame(X)[:, 2], 1e-12)
         size = d * z / camera.K[0, 0]  # model units a marker spans
-        hidden = _occluded(mesh, camera, X, size)
+        hidden = occluded_targets(mesh, camera, X, size)
         reason[(reason == "") & hidden] = "occluded"
     expected = reason == ""
     n_exp = int(expected.sum())

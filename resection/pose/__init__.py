@@ -11,7 +11,9 @@ calibrated intrinsics, and the one acceptance rule that judges them all.
 - :mod:`~resection.pose.calibration`: intrinsics and distortion from one or several views;
 - :mod:`~resection.pose.acceptance`: the acceptance rule (marker accuracy, outliers, threshold);
 - :mod:`~resection.pose.reprojection`: residuals and their Jacobians;
-- :mod:`~resection.pose.figure20`: the residual overlay (the paper's Figure 20).
+- :mod:`~resection.pose.figure20`: the residual overlay (the paper's Figure 20);
+- :mod:`~resection.pose.pose_needed`: a camera without a pose named as such, with the way
+  forward (link a few targets by hand).
 """
 
 from __future__ import annotations
@@ -41,12 +43,14 @@ _EXPORTS: dict[str, str] = {
     "fit_dlt": ".dlt",
     "fit_homography": ".dlt",
     "grade": ".acceptance",
+    "has_usable_pose": ".pose_needed",
     "judge": ".acceptance",
     "outlier_gate": ".acceptance",
     "outlier_limit": ".acceptance",
     "p3p": ".three_point",
     "plot_pose": ".figure20",
     "require": ".acceptance",
+    "require_pose": ".pose_needed",
     "rms_threshold": ".acceptance",
     "solve_pose": ".solve",
     "write_pose_plot": ".figure20",
