@@ -385,3 +385,17 @@ def test_targets_hidden_by_the_mesh_are_not_predicted(scene, tmp_path):
     p0 = {p["id"] for p in plain.solve(links)["predicted"]}
     p1 = {p["id"] for p in meshed.solve(links)["predicted"]}
     assert "TH" in p0 and p0 - p1 == {"TH"}
+
+
+def test_a_taken_port_is_one_line(scene, tmp_path):
+    _, paths = scene
+    ses = _session(paths, tmp_path)
+    server = serve_links(ses)
+    try:
+        from resection.markers.link_server import LinkServer
+
+        with pytest.raises(InputError, match=r"port \d+: cannot listen on 127.0.0.1"):
+            LinkServer(ses, server.server_address[1])
+    finally:
+        server.shutdown()
+        server.server_close()

@@ -5,6 +5,7 @@ the work is in :mod:`resection.markers.detect`, :mod:`~resection.markers.link`,
 from __future__ import annotations
 
 import argparse
+import math
 
 import numpy as np
 
@@ -194,8 +195,8 @@ def run_link_serve(args: argparse.Namespace) -> int:
     server = LinkServer(session, args.port)
     d = session.diameter
     print(f"link: {len(session.candidates)} candidates"
-          + (f" (diameter {d:.3g} px: give pose and track --diameter {d:.3g})" if d == d
-             else "") + f", {len(session.markers.ids)} targets; camera "
+          + (f" (diameter {d:g} px: give pose and track --diameter {d:g})"
+             if math.isfinite(d) else "") + f", {len(session.markers.ids)} targets; camera "
           + ("with an approximate pose" if session.has_pose else "without a pose"))
     print(f"open {server.url}", flush=True)
     print("(Ctrl+C stops the server)", flush=True)

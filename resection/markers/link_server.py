@@ -172,7 +172,12 @@ class LinkServer(ThreadingHTTPServer):
         self.token = token or secrets.token_urlsafe(24)
         self.verbose = verbose
         self.lock = threading.Lock()
-        super().__init__(("127.0.0.1", int(port)), _Handler)
+        try:
+            super().__init__(("127.0.0.1", int(port)), _Handler)
+        except OSError as exc:  # port taken, or not ours to take
+            raise InputError(f"port {port}: cannot listen on 127.0.0.1 "
+                             f"({exc.strerror or exc}); give another --port, or 0 for a free "
+                             "one") from None
 
     @property
     def url(self) -> str:

@@ -420,7 +420,8 @@ def open_session(
             if not has_pose:
                 raise InputError(f"{camera}: the camera has no pose, so the marker size in "
                                  "the image is unknown: give --diameter PX (or --candidates)")
-            diameter = expected_diameter(cam, ms)
+            # rounded, so that the value printed for pose and track detects the same
+            diameter = round(expected_diameter(cam, ms), 2)
         d = float(diameter)
         cand = detect_in_image(img, d, polarity)
     if len(cand) == 0:
