@@ -399,3 +399,18 @@ def test_a_taken_port_is_one_line(scene, tmp_path):
     finally:
         server.shutdown()
         server.server_close()
+
+
+def test_links_that_cannot_give_a_pose_are_refused_not_an_error(scene, tmp_path):
+    """Four links on one line of targets: the page is told why, nothing breaks."""
+    from resection.io.markers import write_markers
+
+    s, paths = scene
+    ids = ["L1", "L2", "L3", "L4"]
+    xyz = np.array([[-0.2, -0.1, 0.0], [-0.1, -0.1, 0.0], [0.0, -0.1, 0.0], [0.1, -0.1, 0.0]])
+    write_markers(tmp_path / "line.csv", ids, xyz, np.full(4, 0.006))
+    ses = open_session(paths["image0"], tmp_path / "line.csv", paths["intrinsics"],
+                       diameter=5.0, save_links=tmp_path / "l.csv")
+    r = ses.solve([[k, i] for i, k in enumerate(ids)])
+    assert r["status"] == "refused" and "collinear" in r["message"], r["message"]
+    assert not r["predicted"] and not r["offers"]

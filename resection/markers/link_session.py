@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from resection.camera.model import Camera
-from resection.errors import InputError, SolveError
+from resection.errors import DegenerateError, InputError, SolveError
 from resection.markers.detect import Candidates
 from resection.pose.acceptance import (
     DEFAULT_MARKER_ACCURACY,
@@ -196,8 +196,8 @@ class LinkSession:
         return ids, np.asarray(idx, dtype=int)
 
     def _fit(self, ids, idx):
-        """Pose of the links: ``(camera, errors, used, acceptance text, accepted)``;
-        raises SolveError when refused."""
+        """Pose of the links: ``(camera, errors px, used, message)``; raises SolveError when
+        the rule refuses it, DegenerateError when the links cannot determine one."""
         from scipy.spatial.transform import Rotation
 
         from resection.pose.solve import solve_pose
@@ -241,12 +241,12 @@ class LinkSession:
                          for k, c in zip(ids, idx, strict=True)],
                "predicted": [], "offers": [], "gate": None}
         if len(ids) < need:
-            out.update(status="waiting", message=f"{len(ids)} link(s): link {need - len(ids)} "
-                       f"more for a pose", plan=self.plan())
+            out.update(status="waiting", message=f"link {need - len(ids)} more for a pose",
+                       plan=self.plan())
             return out
         try:
             cam, err, used, message = self._fit(ids, idx)
-        except SolveError as exc:
+        except (SolveError, DegenerateError) as exc:  # e.g. links on one line
             out.update(status="refused", message=str(exc).splitlines()[0], plan=self.plan())
             bad = self._leave_one_out(ids, idx)
             if bad is not None:
@@ -272,7 +272,7 @@ class LinkSession:
             keep = np.arange(len(ids)) != i
             try:
                 self._fit([k for k, m in zip(ids, keep, strict=True) if m], idx[keep])
-            except (SolveError, InputError):
+            except (SolveError, DegenerateError):
                 continue
             good.append(i)
         return good[0] if len(good) == 1 else None
