@@ -131,7 +131,12 @@
   }
   function clickFrame(p) {
     const c = nearestCandidate(p);
-    if (c < 0) return;
+    // the nearest candidate within 30 screen pixels (or three diameters): else a click in
+    // an empty place clears the selection
+    const reach = Math.max(30 * unitsPerPixel(), 3 * (st.info.diameter || 6));
+    if (c < 0 || Math.hypot(st.cands.u[c] - p.x, st.cands.v[c] - p.y) > reach) {
+      st.selCand = -1; draw(); return;
+    }
     const offer = offerOf("candidate", c);
     if (st.selTarget !== null) { link(st.selTarget, c); st.selTarget = null; st.selCand = -1; }
     else if (offer && !st.links.some(([, j]) => j === c)) { link(offer.id, c); st.selCand = c; }
