@@ -414,3 +414,22 @@ def test_links_that_cannot_give_a_pose_are_refused_not_an_error(scene, tmp_path)
     r = ses.solve([[k, i] for i, k in enumerate(ids)])
     assert r["status"] == "refused" and "collinear" in r["message"], r["message"]
     assert not r["predicted"] and not r["offers"]
+
+
+def test_link_png_with_a_camera_without_a_pose(scene, tmp_path, capsys):
+    """``link --png`` with an internal calibration numbers the likely candidates (not the few
+    near targets projected through the identity pose); ``--suggest`` names the missing pose."""
+    s, paths = scene
+    ses = _session(paths, tmp_path)
+    from resection.markers.detect import write_candidates
+
+    write_candidates(tmp_path / "c.csv", ses.candidates)
+    base = ["link", paths["image0"], "--candidates", str(tmp_path / "c.csv"), "--camera",
+            paths["intrinsics"], "--markers", paths["markers"]]
+    assert main([*base, "--png", str(tmp_path / "a.png")]) == 0
+    assert "has no pose" in capsys.readouterr().out
+    assert (tmp_path / "a.png").stat().st_size > 0
+    rc = main([*base, "--suggest", str(tmp_path / "s.csv")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "this camera has no pose" in err and "link --serve" in err
+    assert not (tmp_path / "s.csv").exists()

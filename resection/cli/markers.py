@@ -152,7 +152,18 @@ def run_link(args: argparse.Namespace) -> int:
         raise InputError("--camera and --markers go together (to draw or suggest links)")
     if not (args.png or args.suggest or args.links):
         raise InputError("nothing to do: give --png, --suggest and/or --links")
-    if args.png:
+    if camera is not None and markers is not None and (args.png or args.suggest):
+        from resection.io.cameras import read_camera_file
+        from resection.pose.pose_needed import has_usable_pose, no_pose_message
+
+        if not has_usable_pose(camera, markers.xyz, read_camera_file(args.camera).has_pose):
+            if args.suggest:
+                raise InputError(no_pose_message(
+                    "intrinsics only", camera=args.camera, image=args.image,
+                    markers=args.markers, what="no links can be suggested from it"))
+            print(f"link: {args.camera} has no pose: the PNG numbers the likely candidates, "
+                  "no projected markers (or link by clicking: resection link --serve)")
+            camera = None
         atomic_write(args.png, draw_links, read_image(args.image, mask_saturated=True), cand,
                      camera=camera, markers=markers)
         print(f"drawing written to {args.png}")
