@@ -100,7 +100,7 @@ def test_link_page_in_chromium(scene, tmp_path):
             """An attribute (or the text) of the element now on the page."""
             def get(d):
                 e = d.find_element(By.CSS_SELECTOR, css)
-                return (e.text if what == "text" else e.get_attribute(what)) or ""
+                return (e.text if what == "text" else e.get_dom_attribute(what)) or ""
             return wait.until(lambda d: (get(d),))[0]
 
         status = driver.find_element(By.ID, "status")
@@ -149,6 +149,31 @@ def test_link_page_in_chromium(scene, tmp_path):
         ActionChains(driver).send_keys("\ue017").perform()  # the Delete key
         wait.until(settled)
         wait.until(lambda _d: status.text.startswith(f"{len(LINKED)} link(s)"))
+        # zoom (wheel), pan (drag) and the contrast stretch; then fit the frame again
+        from selenium.webdriver.common.actions.wheel_input import ScrollOrigin
+        from selenium.webdriver.common.keys import Keys
+
+        def view_box():
+            return [float(x) for x in read("#frame", "viewBox").split()]
+
+        vb0 = view_box()
+        assert vb0 == [-0.5, -0.5, 320.0, 240.0]
+        frame = driver.find_element(By.ID, "frame")
+        ActionChains(driver).scroll_from_origin(ScrollOrigin.from_element(frame), 0, -300) \
+            .perform()
+        wait.until(lambda _d: view_box()[2] < 0.9 * vb0[2])
+        vb1 = view_box()
+        assert vb1[3] / vb1[2] == pytest.approx(0.75)  # the aspect kept
+        ActionChains(driver).move_to_element(frame).click_and_hold().move_by_offset(120, 0) \
+            .release().perform()
+        wait.until(lambda _d: view_box()[0] < vb1[0] - 1.0)  # dragged right: view moves left
+        assert view_box()[1] == pytest.approx(vb1[1]) and view_box()[2] == vb1[2]
+        href = read("#img", "href")
+        driver.find_element(By.ID, "lo").send_keys(Keys.ARROW_RIGHT * 20)
+        wait.until(lambda _d: read("#img", "href") != href)
+        click("#status")  # away from the slider, so that the keys reach the page
+        ActionChains(driver).send_keys("f").perform()
+        wait.until(lambda _d: view_box() == vb0)
         shot = tmp_path / "link_page.png"
         driver.save_screenshot(str(shot))
         click("#save")
@@ -157,7 +182,8 @@ def test_link_page_in_chromium(scene, tmp_path):
         driver.quit()
         server.shutdown()
         server.server_close()
-    assert clicks == 2 * len(LINKED) + 4  # + one offer, next target's candidate, delete, save
+    # + one offer, next target's candidate, its target (to delete), the status line, save
+    assert clicks == 2 * len(LINKED) + 5
     # the screenshot is kept as an artifact (pytest's tmp folder, and out/ when it exists)
     assert shot.stat().st_size > 10_000 and shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     keep = Path(os.environ.get("LINK_PAGE_SCREENSHOT_DIR", "out"))
