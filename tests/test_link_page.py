@@ -149,6 +149,8 @@ def test_link_page_in_chromium(scene, tmp_path):
         ActionChains(driver).send_keys("\ue017").perform()  # the Delete key
         wait.until(settled)
         wait.until(lambda _d: status.text.startswith(f"{len(LINKED)} link(s)"))
+        shot = tmp_path / "link_page.png"
+        driver.save_screenshot(str(shot))
         # zoom (wheel), pan (drag) and the contrast stretch; then fit the frame again
         from selenium.webdriver.common.actions.wheel_input import ScrollOrigin
         from selenium.webdriver.common.keys import Keys
@@ -174,8 +176,6 @@ def test_link_page_in_chromium(scene, tmp_path):
         click("#status")  # away from the slider, so that the keys reach the page
         ActionChains(driver).send_keys("f").perform()
         wait.until(lambda _d: view_box() == vb0)
-        shot = tmp_path / "link_page.png"
-        driver.save_screenshot(str(shot))
         click("#save")
         wait.until(lambda d: "saved" in d.find_element(By.ID, "saved").text)
     finally:
