@@ -41,10 +41,10 @@ def test_read_tgts(tmp_path):
 def test_tgts_round_trip(tmp_path):
     src = tmp_path / "a.tgts"
     src.write_text(TGTS)
-    ms = read_tgts(src)
+    ms = read_tgts(src).markers
     out = tmp_path / "b.tgts"
     write_tgts(out, ms)
-    back = read_tgts(out)
+    back = read_tgts(out).markers
     assert back.ids == ms.ids
     for attr in ("xyz", "normals", "diameter", "taps"):
         np.testing.assert_array_equal(getattr(back, attr), getattr(ms, attr))
@@ -67,7 +67,10 @@ def test_marker_csv_normals_round_trip_and_facing(tmp_path):
     "body, match",
     [
         ("*Targets\n1 1 2 3 0 0 1 0.2 1 1 1\n", r":2: 11 columns, expected 12"),
-        ("*Targets\n1 1 2 3 0 0 1 0.2 1 1 1 T1\n*Other\n", r":3: unknown section"),
+        ("*Targets\n1 1 2 3 0 0 1 0.2 1 1 1 T1\n*Virtuals\n1 1 2 3 0 0 1 0.2 1 1 1\n",
+         r":4: 11 columns, expected 12"),
+        ("*Targets\n1 1 2 3 0 0 1 0.2 1 1 1 T1\n*Kulites\n1 1 2 3 0 0 1 0.2 1 1 1 T1\n",
+         r":4: duplicate name 'T1' \(first on line 2\)"),
         ("*Targets\n1 1 2 x 0 0 1 0.2 1 1 1 T1\n", r":2: a numeric column"),
         ("*Targets\n1 1 2 3 0 0 0 0.2 1 1 1 T1\n", r":2: zero normal"),
         ("*Targets\n1 1 2 3 0 0 1 0.2 1 1 1 T1\n2 1 2 3 0 0 1 0.2 1 1 1 T1\n", "duplicate"),
@@ -126,3 +129,96 @@ def test_psp_taps_positions_from_tgts(tmp_path):
     (tmp_path / "q.csv").write_text("id,p\nP9,100\n")
     with pytest.raises(InputError, match="P9"):
         read_taps(tmp_path / "q.csv", positions=tmp_path / "model.tgts")
+
+
+# NASA's TC3 volume file layout: targets, then *Virtuals (the Kulites), then a section we
+# do not know; uPSP reads one section at a time and ignores the others
+TC3 = """# fml tc3 volume targets (inches)
+*Targets
+1  10.0  2.0  0.5   0.0 0.0 1.0   0.25  1 10 4  st01
+2  12.5 -1.0  0.5   0.0 0.0 1.0   0.25  1 20 7  st02
+3  14.0  0.0  0.25  1.0 0.0 0.0   0.30  2  3 3  st03
+*Virtuals
+1  20.0  1.0  0.5   0.0 0.0 1.0   0.10  3 40 9  K01
+2  21.0 -1.0  0.5   0.0 1.0 0.0   0.10  3 41 2  K02
+*Oilflow
+12 lines of something else entirely
+*Taps
+1  11.0  0.0  0.5   0.0 0.0 1.0   0.05  1 15 5  CP01
+"""
+
+
+def test_tgts_every_section_read(tmp_path):
+    p = tmp_path / "fml_tc3_volume.tgts"
+    p.write_text(TC3)
+    with pytest.warns(UserWarning) as rec:
+        tf = read_tgts(p)
+    msgs = [str(w.message) for w in rec]
+    assert len(msgs) == 1 and "\n" not in msgs[0]
+    assert f"{p}:9: section '*Oilflow'" in msgs[0] and "kept" in msgs[0]
+    assert [s.name for s in tf.sections] == ["Targets", "Virtuals", "Oilflow", "Taps"]
+    assert [s.kind for s in tf.sections] == ["targets", "virtuals", "unknown", "taps"]
+    assert tf.unknown == ("Oilflow",)
+    assert tf.section("*oilflow")[0].rows == ("12 lines of something else entirely",)
+    assert tf.targets.ids == ("st01", "st02", "st03") and not tf.targets.taps.any()
+    assert tf.taps.ids == ("CP01",) and tf.taps.taps.all()
+    v = tf.virtuals
+    assert v.ids == ("K01", "K02") and v.taps.all()  # dark spots, not targets
+    np.testing.assert_array_equal(v.xyz, [[20.0, 1.0, 0.5], [21.0, -1.0, 0.5]])
+    np.testing.assert_array_equal(v.normals, [[0, 0, 1.0], [0, 1.0, 0]])
+    np.testing.assert_array_equal(v.diameter, [0.1, 0.1])
+    np.testing.assert_array_equal(tf.section("Virtuals")[0].grid_nodes, [[3, 40, 9], [3, 41, 2]])
+    assert tf.markers.ids == ("st01", "st02", "st03", "CP01", "K01", "K02")
+    assert tf.markers.taps.tolist() == [False] * 3 + [True] * 3
+    # what pose and matching are given: the targets only, never a tap or a Kulite
+    with pytest.warns(UserWarning, match="Oilflow"):
+        assert read_markers(p).ids == ("st01", "st02", "st03")
+    with pytest.warns(UserWarning, match="Oilflow"):
+        ms = read_markers(p, include_taps=True)
+    assert ms.ids == tf.markers.ids and ms.targets.ids == ("st01", "st02", "st03")
+    assert ms.tap_set.ids == ("CP01", "K01", "K02")
+
+
+def test_tgts_kulites_alias_and_no_targets(tmp_path):
+    p = tmp_path / "k.tgts"
+    p.write_text("*Kulites\n1 1 2 3 0 0 1 0.1 1 1 1 K7\n")
+    tf = read_tgts(p)  # a transducer-only file is read (the unsteady run needs no target)
+    assert tf.virtuals.ids == ("K7",) and len(tf.targets) == 0
+    with pytest.raises(InputError, match="no targets"):
+        read_markers(p)  # pose needs targets and says so
+
+
+def test_tgts_round_trip_keeps_every_section(tmp_path):
+    src = tmp_path / "a.tgts"
+    src.write_text(TC3)
+    with pytest.warns(UserWarning):
+        tf = read_tgts(src)
+    out = tmp_path / "b.tgts"
+    write_tgts(out, tf)
+    with pytest.warns(UserWarning, match="Oilflow"):
+        back = read_tgts(out)
+    assert [(s.name, s.kind, s.rows if s.kind == "unknown" else s.markers.ids)
+            for s in back.sections] == \
+        [(s.name, s.kind, s.rows if s.kind == "unknown" else s.markers.ids) for s in tf.sections]
+    for a, b in zip(tf.sections, back.sections, strict=True):
+        np.testing.assert_array_equal(a.grid_nodes, b.grid_nodes)
+        np.testing.assert_array_equal(a.markers.xyz, b.markers.xyz)
+        np.testing.assert_array_equal(a.markers.diameter, b.markers.diameter)
+
+
+def test_psp_tap_positions_from_virtuals_and_blame(tmp_path):
+    """Kulite positions from *Virtuals serve ``--tap-positions``; a bad .tgts is named as
+    the culprit, not the tap CSV."""
+    from selfillum.psp import read_taps
+
+    (tmp_path / "model.tgts").write_text(TC3)
+    (tmp_path / "p.csv").write_text("id,p\nK02,99.0\nCP01,101.5\n")
+    with pytest.warns(UserWarning, match="Oilflow"):
+        taps = read_taps(tmp_path / "p.csv", positions=tmp_path / "model.tgts")
+    assert taps.ids == ["K02", "CP01"]
+    np.testing.assert_array_equal(taps.points, [[21.0, -1.0, 0.5], [11.0, 0.0, 0.5]])
+    bad = tmp_path / "bad.tgts"
+    bad.write_text("*Targets\n1 1 2 3 0 0 1 0.2 1 1 1 T1\n*Virtuals\n1 1 2 x 0 0 1 0.1 1 1 1 K1\n")
+    with pytest.raises(InputError) as err:
+        read_taps(tmp_path / "p.csv", positions=bad)
+    assert str(err.value).startswith(f"{bad}:4:")

@@ -8,7 +8,8 @@ accepts what any other writes.
   (:class:`~resection.io.marker_set.MarkerSet`).
 - :mod:`resection.io.images`: single images (PNG, TIFF, NPY).
 - :mod:`resection.io.plot3d`: Plot3D grids (by content) and function files (``.f``).
-- :mod:`resection.io.tgts`: uPSP ``.tgts`` target files (read by ``read_markers``).
+- :mod:`resection.io.tgts`: uPSP ``.tgts`` target files, every section (``read_tgts``;
+  their targets read by ``read_markers``).
 - :mod:`resection.io.fields`: per-face / per-node fields (meshio VTK/VTU/XDMF, PLY, CSV,
   NPY, Plot3D ``.f``).
 - :mod:`resection.io.cameras`: camera files (native JSON, uPSP JSON, OpenCV FileStorage).

@@ -32,8 +32,8 @@ class MarkerSet:
         whose normal faces away from a camera is not expected in its image
         (:meth:`facing`).
     taps : (N,) bool ndarray
-        True for pressure taps (``*Taps`` of a ``.tgts`` file): known dark spots that are
-        *not* targets. Matching and pose must not take them for targets (use
+        True for pressure taps and transducers (``*Taps``, ``*Virtuals``/``*Kulites`` of a
+        ``.tgts`` file): known dark spots that are *not* targets. Matching and pose must not take them for targets (use
         :attr:`targets`); ``selfillum psp`` may use their positions for the in-situ fit.
     """
 

@@ -4,7 +4,7 @@ Formats (DESIGN.md):
 
 * marker file: CSV with a header ``id,x,y,z`` and optionally ``diameter`` (model units)
   and ``nx,ny,nz`` (the outward surface normal at the marker; all three or none); ids are
-  strings, unique. A uPSP ``.tgts`` file (``*Targets`` / ``*Taps`` sections, see
+  strings, unique. A uPSP ``.tgts`` file (``*Targets``, ``*Taps``, ``*Virtuals`` sections, see
   :mod:`resection.io.tgts`) is recognised by content and read by the same
   :func:`read_markers`.
 * linked image points: CSV ``id,u,v`` (pixels, centre of the top-left pixel at (0, 0));
@@ -124,9 +124,9 @@ def read_markers(path: str | os.PathLike, *, mesh=None, include_taps: bool = Fal
         moved out to it along their normals, with a warning naming them
         (:func:`resection.io.tgts.snap_to_surface`).
     include_taps : bool
-        Also return the pressure taps of a ``.tgts`` file (flagged in
-        :attr:`MarkerSet.taps`). By default only the targets are returned, so that no
-        caller can take a tap for a target.
+        Also return the pressure taps and transducers of a ``.tgts`` file (``*Taps``,
+        ``*Virtuals``/``*Kulites``, flagged in :attr:`MarkerSet.taps`). By default only
+        the targets are returned, so that no caller can take one for a target.
 
     Raises
     ------
@@ -137,9 +137,11 @@ def read_markers(path: str | os.PathLike, *, mesh=None, include_taps: bool = Fal
     from resection.io import tgts
 
     if tgts.is_tgts(path):
-        ms = tgts.read_tgts(path)
-        if not include_taps:
-            ms = ms.targets
+        tf = tgts.read_tgts(path)
+        ms = tf.markers if include_taps else tf.targets
+        if not include_taps and len(ms) == 0:
+            raise InputError(f"{os.fspath(path)}: no targets (expected a *Targets section "
+                             "with rows index x y z nx ny nz diameter block i j name)")
     else:
         ms = _read_marker_csv(path)
     if mesh is not None:

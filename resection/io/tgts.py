@@ -1,4 +1,4 @@
-"""uPSP target files (``.tgts``): painted targets and pressure taps with their normals.
+"""uPSP target files (``.tgts``): painted targets, pressure taps and transducers.
 
 Format (NASA uPSP)::
 
@@ -9,12 +9,31 @@ Format (NASA uPSP)::
     *Taps
     index  x  y  z  nx  ny  nz  diameter  block  i  j  name
     ...
+    *Virtuals
+    index  x  y  z  nx  ny  nz  diameter  block  i  j  name
+    ...
 
-Fields are separated by white space; coordinates and diameters in model units; the normal is
-the outward surface normal at the target; ``block i j`` locate the nearest grid node (kept
-for the writer only). The ``name`` is the marker id (unique over both sections). Taps are
-flagged in :attr:`resection.io.markers.MarkerSet.taps`: they are dark spots that are not
-targets.
+A file is a list of labelled sections, each opened by a ``*Name`` line. Fields are separated
+by white space; coordinates and diameters in model units; the normal is the outward surface
+normal at the point; ``block i j`` locate the nearest grid node (kept and written back). The
+``name`` is the point's id, unique over the known sections.
+
+Sections (:func:`read_tgts` reads every one):
+
+``*Targets``
+    Painted registration targets: what detection, matching and pose use.
+``*Taps``
+    Pressure taps (static orifices): dark spots in the image that are *not* targets.
+``*Virtuals`` (also spelled ``*Kulites``)
+    Unsteady pressure transducers (Kulites): dark spots that are not targets either; their
+    positions serve the unsteady run (``selfillum psp --tap-positions``).
+any other ``*Name``
+    Reported in one warning line, kept (written back verbatim by :func:`write_tgts`), not used.
+    uPSP reads one section at a time and ignores the others; we say so instead of silently.
+
+:func:`read_markers <resection.io.markers.read_markers>` returns the targets of a ``.tgts``
+(``include_taps=True``: also taps and transducers, flagged in
+:attr:`~resection.io.markers.MarkerSet.taps`, so that no caller takes one for a target).
 
 A target lying under the grid surface (a known trap of uPSP files, whose targets are often
 surveyed on the bare model before painting) is moved out to the surface along its normal by
@@ -25,6 +44,7 @@ from __future__ import annotations
 
 import os
 import warnings
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -32,15 +52,126 @@ from resection.errors import InputError
 from resection.io._write import atomic_text
 from resection.io.marker_set import MarkerSet
 
-__all__ = ["is_tgts", "read_tgts", "write_tgts", "snap_to_surface"]
+__all__ = ["TgtsFile", "TgtsSection", "is_tgts", "read_tgts", "write_tgts", "snap_to_surface",
+           "KNOWN_SECTIONS"]
 
 _NCOLS = 12
 _COLUMNS = "index x y z nx ny nz diameter block i j name"
+#: canonical kind of each known section name (lower case, without the ``*``)
+KNOWN_SECTIONS = {"targets": "targets", "taps": "taps", "virtuals": "virtuals",
+                  "kulites": "virtuals"}
+
+
+def _empty_markers() -> MarkerSet:
+    return MarkerSet((), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)), np.zeros(0, bool))
+
+
+@dataclass(frozen=True)
+class TgtsSection:
+    """One ``*Name`` section of a ``.tgts`` file.
+
+    Attributes
+    ----------
+    name : str
+        The section's name as written, without the ``*`` (``"Targets"``, ``"Virtuals"``).
+    kind : str
+        ``"targets"``, ``"taps"``, ``"virtuals"`` (``*Virtuals`` or ``*Kulites``), or
+        ``"unknown"``.
+    line : int
+        Line number (from 1) of the section's header.
+    rows : tuple of str
+        The section's data lines as written (what :func:`write_tgts` writes back for an
+        unknown section).
+    markers : MarkerSet
+        The points of a known section (empty for an unknown one); ``taps`` is True for every
+        point that is not a target.
+    grid_nodes : (N, 3) int ndarray
+        ``block i j`` of each point, as written (blocks counted from 1, as uPSP does).
+    """
+
+    name: str
+    kind: str
+    line: int
+    rows: tuple[str, ...]
+    markers: MarkerSet = field(default_factory=_empty_markers)
+    grid_nodes: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), int))
+
+
+@dataclass(frozen=True)
+class TgtsFile:
+    """Every section of a ``.tgts`` file, in file order.
+
+    Attributes
+    ----------
+    path : str
+    sections : tuple of TgtsSection
+        In file order; a section name written twice gives two entries (both read).
+    """
+
+    path: str
+    sections: tuple[TgtsSection, ...]
+
+    def section(self, name: str) -> tuple[TgtsSection, ...]:
+        """The sections called ``name`` (case-insensitive, with or without ``*``)."""
+        key = name.lstrip("*").strip().lower()
+        return tuple(s for s in self.sections if s.name.lower() == key)
+
+    def _kind(self, kind: str) -> MarkerSet:
+        parts = [s.markers for s in self.sections if s.kind == kind]
+        return _concat(parts) if parts else _empty_markers()
+
+    @property
+    def targets(self) -> MarkerSet:
+        """The ``*Targets`` points (what matching and pose use)."""
+        return self._kind("targets")
+
+    @property
+    def taps(self) -> MarkerSet:
+        """The ``*Taps`` points (pressure taps; ``MarkerSet.taps`` all True)."""
+        return self._kind("taps")
+
+    @property
+    def virtuals(self) -> MarkerSet:
+        """The ``*Virtuals`` / ``*Kulites`` points (unsteady transducers; ``MarkerSet.taps``
+        all True: dark spots that are not targets)."""
+        return self._kind("virtuals")
+
+    @property
+    def markers(self) -> MarkerSet:
+        """Every known point: targets, then taps, then transducers (non-targets flagged in
+        ``MarkerSet.taps``): every dark spot the file knows of."""
+        return _concat([self.targets, self.taps, self.virtuals])
+
+    @property
+    def unknown(self) -> tuple[str, ...]:
+        """Names of the sections that are not known (kept, not used)."""
+        return tuple(s.name for s in self.sections if s.kind == "unknown")
+
+    @property
+    def grid_nodes(self) -> np.ndarray:
+        """``(N, 3)`` ``block i j`` of :attr:`markers`, in the same order."""
+        parts = [s.grid_nodes for k in ("targets", "taps", "virtuals")
+                 for s in self.sections if s.kind == k]
+        return np.concatenate(parts) if parts else np.zeros((0, 3), int)
+
+
+def _concat(parts) -> MarkerSet:
+    parts = [p for p in parts if len(p)]
+    if not parts:
+        return _empty_markers()
+    if len(parts) == 1:
+        return parts[0]
+    return MarkerSet(tuple(k for p in parts for k in p.ids),
+                     np.concatenate([p.xyz for p in parts]),
+                     np.concatenate([p.diameter for p in parts]),
+                     np.concatenate([p.normals for p in parts]),
+                     np.concatenate([p.taps for p in parts]))
 
 
 def is_tgts(path: str | os.PathLike) -> bool:
     """True when the file's first line that is not blank or a ``#`` comment is a ``*``
-    section header (``*Targets`` / ``*Taps``): a uPSP target file, whatever its extension."""
+    section header (``*Targets``, ``*Taps``, ...): a uPSP target file, whatever its
+    extension."""
     try:
         with open(os.fspath(path), encoding="utf-8-sig", errors="replace") as fh:
             for line in fh:
@@ -52,15 +183,26 @@ def is_tgts(path: str | os.PathLike) -> bool:
     return False
 
 
-def read_tgts(path: str | os.PathLike) -> MarkerSet:
-    """Read a uPSP ``.tgts`` file into a :class:`MarkerSet` (taps flagged).
+def read_tgts(path: str | os.PathLike) -> TgtsFile:
+    """Read every section of a uPSP ``.tgts`` file.
+
+    Known sections (``*Targets``, ``*Taps``, ``*Virtuals``/``*Kulites``, any case) are parsed
+    into marker tables; another section is kept as written and reported in one warning line
+    (:class:`UserWarning` naming the file, line and section).
+
+    Returns
+    -------
+    TgtsFile
+        ``.targets``, ``.taps``, ``.virtuals``: :class:`MarkerSet` each; ``.markers``: all of
+        them (non-targets flagged); ``.sections``: every section in file order.
 
     Raises
     ------
     InputError
-        Missing file, unknown section, a row with missing or extra columns, a non-numeric
-        field, a zero normal, a duplicate name, no targets: the message names the file and
-        the line.
+        Missing file, data before the first section, a row of a known section with missing
+        or extra columns, a non-numeric field, a zero normal, a non-positive diameter, a name
+        given twice: the message names the file and the line. A file without targets is
+        read (the caller that needs targets says so).
     """
     path = os.fspath(path)
     try:
@@ -68,24 +210,43 @@ def read_tgts(path: str | os.PathLike) -> MarkerSet:
             lines = fh.read().splitlines()
     except FileNotFoundError:
         raise InputError(f"marker file not found: {path}") from None
+    except IsADirectoryError:
+        raise InputError(f"marker file is a directory: {path}") from None
     except UnicodeDecodeError:
         raise InputError(f"{path}: not a text (UTF-8) target file") from None
-    section = None
-    ids, xyz, nrm, diam, taps = [], [], [], [], []
-    seen: dict[str, int] = {}
+    heads: list[tuple[str, int]] = []
+    bodies: list[list[tuple[int, str]]] = []
     for lineno, line in enumerate(lines, 1):
         s = line.strip()
         if not s or s.startswith("#"):
             continue
         if s.startswith("*"):
-            name = s[1:].strip().lower()
-            if name not in ("targets", "taps"):
-                raise InputError(f"{path}:{lineno}: unknown section {s!r} (expected *Targets "
-                                 "or *Taps)")
-            section = name
+            heads.append((s[1:].strip(), lineno))
+            bodies.append([])
+        elif not heads:
+            raise InputError(f"{path}:{lineno}: data before the first section (*Targets, "
+                             "*Taps, *Virtuals)")
+        else:
+            bodies[-1].append((lineno, s))
+    seen: dict[str, int] = {}
+    sections = []
+    for (name, lineno), body in zip(heads, bodies, strict=True):
+        kind = KNOWN_SECTIONS.get(name.lower(), "unknown")
+        rows = tuple(s for _, s in body)
+        if kind == "unknown":
+            warnings.warn(f"{path}:{lineno}: section '*{name}' is not one of *Targets, *Taps, "
+                          f"*Virtuals, *Kulites: its {len(rows)} row(s) are kept, not used",
+                          UserWarning, stacklevel=2)
+            sections.append(TgtsSection(name, kind, lineno, rows))
             continue
-        if section is None:
-            raise InputError(f"{path}:{lineno}: data before a *Targets or *Taps section")
+        ms, nodes = _parse_rows(path, body, kind, seen)
+        sections.append(TgtsSection(name, kind, lineno, rows, ms, nodes))
+    return TgtsFile(path, tuple(sections))
+
+
+def _parse_rows(path: str, body, kind: str, seen: dict[str, int]):
+    ids, xyz, nrm, diam, nodes = [], [], [], [], []
+    for lineno, s in body:
         fields = s.split()
         if len(fields) < _NCOLS:
             raise InputError(f"{path}:{lineno}: {len(fields)} columns, expected {_NCOLS} "
@@ -95,7 +256,8 @@ def read_tgts(path: str | os.PathLike) -> MarkerSet:
                              f"({_COLUMNS}); names cannot contain spaces")
         try:
             vals = [float(f) for f in fields[1:8]]
-            int(fields[0]), int(fields[8]), int(fields[9]), int(fields[10])
+            int(fields[0])
+            node = [int(f) for f in fields[8:11]]
         except ValueError:
             raise InputError(f"{path}:{lineno}: a numeric column is not a number "
                              f"({' '.join(fields[:11])})") from None
@@ -114,38 +276,58 @@ def read_tgts(path: str | os.PathLike) -> MarkerSet:
         xyz.append(vals[0:3])
         nrm.append(vals[3:6])
         diam.append(vals[6])
-        taps.append(section == "taps")
-    if not ids or all(taps):
-        raise InputError(f"{path}: no targets (expected a *Targets section with rows "
-                         f"{_COLUMNS})")
-    return MarkerSet(tuple(ids), np.array(xyz), np.array(diam), np.array(nrm), np.array(taps))
+        nodes.append(node)
+    n = len(ids)
+    ms = MarkerSet(tuple(ids), np.array(xyz, float).reshape(n, 3), np.array(diam, float),
+                   np.array(nrm, float).reshape(n, 3), np.full(n, kind != "targets"))
+    return ms, np.array(nodes, int).reshape(n, 3)
 
 
-def write_tgts(path: str | os.PathLike, markers: MarkerSet, *, grid_nodes=None) -> None:
-    """Write a :class:`MarkerSet` as a uPSP ``.tgts`` file (targets, then taps).
+def write_tgts(path: str | os.PathLike, markers: MarkerSet | TgtsFile, *,
+               grid_nodes=None) -> None:
+    """Write a uPSP ``.tgts`` file.
 
-    ``grid_nodes``: optional ``(N, 3)`` integers ``block i j`` (zeros when not given).
-    Markers without normals cannot be written (uPSP needs them).
+    ``markers``: a :class:`TgtsFile` (every section written back in order, unknown ones
+    verbatim, ``block i j`` kept) or a :class:`MarkerSet` (targets, then the points flagged
+    in ``taps`` under ``*Taps``). ``grid_nodes``: optional ``(N, 3)`` integers ``block i j``
+    for a MarkerSet (zeros when not given). Points without normals or diameters cannot be
+    written (uPSP needs them).
     """
-    n = len(markers)
-    if np.isnan(markers.normals).any():
-        raise InputError(f"{path}: every marker needs a normal in a .tgts file")
-    if np.isnan(markers.diameter).any():
-        raise InputError(f"{path}: every marker needs a diameter in a .tgts file")
-    if any(not k or any(c.isspace() for c in k) for k in markers.ids):
-        raise InputError(f"{path}: .tgts names cannot be empty or contain spaces")
-    nodes = np.zeros((n, 3), int) if grid_nodes is None else np.asarray(grid_nodes, int)
+    if isinstance(markers, TgtsFile):
+        parts = []
+        for s in markers.sections:
+            if s.kind == "unknown":
+                parts.append((s.name, None, s.rows))
+            else:
+                parts.append((s.name, s.markers, s.grid_nodes))
+    else:
+        n = len(markers)
+        nodes = np.zeros((n, 3), int) if grid_nodes is None else \
+            np.asarray(grid_nodes, int).reshape(n, 3)
+        parts = [("Targets", markers.subset(~markers.taps), nodes[~markers.taps])]
+        if markers.taps.any():
+            parts.append(("Taps", markers.subset(markers.taps), nodes[markers.taps]))
     out = [f"# {_COLUMNS}"]
-    for title, sel in (("*Targets", ~markers.taps), ("*Taps", markers.taps)):
-        idx = np.flatnonzero(sel)
-        if title == "*Taps" and idx.size == 0:
+    for title, ms, extra in parts:
+        out.append(f"*{title}")
+        if ms is None:
+            out.extend(extra)
             continue
-        out.append(title)
-        for k, i in enumerate(idx, 1):
-            nums = [*markers.xyz[i], *markers.normals[i], markers.diameter[i]]
-            out.append(" ".join([str(k), *(repr(float(v)) for v in nums),
-                                 *(str(int(v)) for v in nodes[i]), markers.ids[i]]))
+        _check_writable(path, ms)
+        for k in range(len(ms)):
+            nums = [*ms.xyz[k], *ms.normals[k], ms.diameter[k]]
+            out.append(" ".join([str(k + 1), *(repr(float(v)) for v in nums),
+                                 *(str(int(v)) for v in extra[k]), ms.ids[k]]))
     atomic_text(path, "\n".join(out) + "\n")
+
+
+def _check_writable(path, ms: MarkerSet) -> None:
+    if np.isnan(ms.normals).any():
+        raise InputError(f"{path}: every marker needs a normal in a .tgts file")
+    if np.isnan(ms.diameter).any():
+        raise InputError(f"{path}: every marker needs a diameter in a .tgts file")
+    if any(not k or any(c.isspace() for c in k) for k in ms.ids):
+        raise InputError(f"{path}: .tgts names cannot be empty or contain spaces")
 
 
 def snap_to_surface(markers: MarkerSet, mesh, *, source: str = "markers",

@@ -70,8 +70,9 @@ def read_taps(path: str | os.PathLike, positions=None) -> Taps:
     Parameters
     ----------
     positions : path-like or resection.io.markers.MarkerSet, optional
-        Where the taps are: a uPSP ``.tgts`` file (its ``*Taps`` section, or any of its
-        markers) or a marker CSV; needed when the tap file holds only ``id,p``.
+        Where the taps are: a uPSP ``.tgts`` file (its ``*Taps`` or ``*Virtuals``/``*Kulites``
+        sections, or any of its markers) or a marker CSV; needed when the tap file holds
+        only ``id,p``.
     """
     path = os.fspath(path)
     try:
@@ -95,12 +96,12 @@ def read_taps(path: str | os.PathLike, positions=None) -> Taps:
         raise InputError(f"{path}: duplicate tap ids")
     try:
         p = np.array([float(r["p"]) for r in rows])
-        if need == ("id", "p"):
-            pts = _tap_positions(path, ids, positions)
-        else:
+        if need != ("id", "p"):
             pts = np.array([[float(r["x"]), float(r["y"]), float(r["z"])] for r in rows])
     except (TypeError, ValueError) as exc:
         raise InputError(f"{path}: not a number ({exc})") from None
+    if need == ("id", "p"):  # outside the try: a bad positions file names itself
+        pts = _tap_positions(path, ids, positions)
     if not (np.all(np.isfinite(pts)) and np.all(np.isfinite(p))):
         raise InputError(f"{path}: NaN or infinite coordinates or pressures")
     return Taps(ids, pts, p)
