@@ -122,8 +122,8 @@ def test_convert_camera_cli(tmp_path, capsys):
 @pytest.mark.parametrize(
     "change, match",
     [
-        ({"focal": 3}, "unknown key"),
-        ({"sensor_resolution": None}, "sensor_resolution"),
+        ({"distCoefs": [DIST.tolist()]}, r"unknown key 'distCoefs' \(did you mean 'distCoeffs'"),
+        ({"sensor_resolution": None}, r"no key 'sensor_resolution' and no image"),
         ({"distCoeffs": [[0.1, 0.2]]}, "distCoeffs"),
         ({"tvec": ["0.1", 0, 2]}, "not a number"),
         ({"rmat": None}, "rmat"),
@@ -158,3 +158,82 @@ def test_bad_camera_files(tmp_path):
             read_camera(p)
         msg = str(err.value)
         assert msg.startswith(str(p)) and "\n" not in msg, (name, msg)
+
+
+def _model_dict(with_pose=True) -> dict:
+    """A uPSP camera-to-model file (camNN-to-model.json) as upsp-external-calibration writes
+    it: absolute principal point, flat distCoeffs, imageSize [w, h] (not our writer)."""
+    d = {"cameraMatrix": K.tolist(), "distCoeffs": DIST.tolist(), "imageSize": [W, H]}
+    if with_pose:
+        d["rmat"] = cv2.Rodrigues(RVEC)[0].tolist()
+        d["tvec"] = [[v] for v in TVEC]  # a 3x1 column, as cv2 gives it
+    d["Updated"] = "2021-03-04 10:11:12"
+    return d
+
+
+def test_upsp_camera_to_model_read_everywhere(tmp_path):
+    p = tmp_path / "cam01-to-model.json"
+    p.write_text(json.dumps(_model_dict()))
+    cf = read_camera_file(p)
+    assert cf.format == "upsp-model" and cf.has_pose and cf.extra == {
+        "Updated": "2021-03-04 10:11:12"}
+    cam = Camera.read(p)  # what every command calls
+    assert (cam.width, cam.height) == (W, H)
+    X = np.random.default_rng(1).uniform(-0.4, 0.4, (50, 3))
+    ref, _ = cv2.projectPoints(X, RVEC, TVEC, K, DIST)
+    np.testing.assert_allclose(cam.project(X), ref.reshape(-1, 2), atol=1e-6, rtol=0)
+
+
+def test_convert_camera_writes_camera_to_model(tmp_path):
+    src = tmp_path / "cam.json"
+    _camera().write(src)
+    out = tmp_path / "cam01-to-model.json"
+    assert resection_main(["convert-camera", str(src), "--out", str(out), "--format",
+                           "upsp-model"]) == 0
+    d = json.loads(out.read_text())
+    assert set(d) == {"cameraMatrix", "distCoeffs", "imageSize", "rmat", "tvec"}
+    assert d["imageSize"] == [W, H] and len(d["distCoeffs"]) == 5
+    np.testing.assert_allclose(d["cameraMatrix"], K, rtol=0, atol=1e-12)  # absolute
+    np.testing.assert_allclose(d["rmat"], cv2.Rodrigues(RVEC)[0], atol=1e-14)
+    np.testing.assert_allclose(d["tvec"], TVEC, atol=1e-14)
+
+
+@pytest.mark.parametrize("fmt, make", [("upsp", _upsp_dict), ("upsp-model", _model_dict)])
+def test_upsp_unknown_keys_kept_on_round_trip(tmp_path, fmt, make):
+    d = make()
+    d["Updated"] = "03/04/2021"
+    d["tunnel"] = {"name": "11-ft TWT", "run": 412}
+    src = tmp_path / "in.json"
+    src.write_text(json.dumps(d))
+    out = tmp_path / "out.json"
+    assert resection_main(["convert-camera", str(src), "--out", str(out), "--format",
+                           fmt]) == 0
+    back = json.loads(out.read_text())
+    assert back["Updated"] == "03/04/2021"
+    assert back["tunnel"] == {"name": "11-ft TWT", "run": 412}
+    assert set(back) == set(d)
+
+
+@pytest.mark.parametrize("fmt, make, key", [("upsp", _upsp_dict, "sensor_resolution"),
+                                             ("upsp-model", _model_dict, "imageSize")])
+def test_upsp_image_size_optional(tmp_path, fmt, make, key, capsys):
+    d = make()
+    del d[key]
+    p = tmp_path / "nosize.json"
+    p.write_text(json.dumps(d))
+    with pytest.raises(InputError, match=f"no key '{key}'") as err:
+        Camera.read(p)
+    assert str(err.value).startswith(str(p))
+    cf = read_camera_file(p, image_size=(W, H))  # the size comes from the image
+    assert not cf.size_from_file
+    X = np.random.default_rng(2).uniform(-0.4, 0.4, (20, 3))
+    ref, _ = cv2.projectPoints(X, RVEC, TVEC, K, DIST)
+    np.testing.assert_allclose(cf.camera.project(X), ref.reshape(-1, 2), atol=1e-6, rtol=0)
+    img = tmp_path / "frame.npy"
+    np.save(img, np.zeros((H, W), np.float32))
+    out = tmp_path / "native.json"
+    assert resection_main(["convert-camera", str(p), "--image", str(img), "--out",
+                           str(out)]) == 0
+    assert read_camera(out) == cf.camera
+    assert resection_main(["convert-camera", str(p), "--out", str(tmp_path / "x.json")]) == 2
+    assert key in capsys.readouterr().err

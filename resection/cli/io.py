@@ -15,11 +15,16 @@ def register(sub) -> None:
         description="Read a camera file of any family (recognised by content) and write it "
                     "in the one asked for.",
     )
-    c.add_argument("camera", help="input camera file (JSON, uPSP JSON, OpenCV YAML/XML)")
+    c.add_argument("camera", help="input camera file (JSON, uPSP camera-to-tunnel or "
+                   "camera-to-model JSON, OpenCV YAML/XML)")
     c.add_argument("--out", required=True, help="output camera file")
     c.add_argument("--format", default="auto",
-                   choices=("auto", "json", "upsp", "opencv-yaml", "opencv-xml"),
-                   help="output family (auto: OpenCV for .yml/.yaml/.xml, else JSON)")
+                   choices=("auto", "json", "upsp", "upsp-model", "opencv-yaml", "opencv-xml"),
+                   help="output family (auto: OpenCV for .yml/.yaml/.xml, else JSON; upsp: "
+                        "uPSP camera-to-tunnel; upsp-model: uPSP camera-to-model, as "
+                        "psp_process reads it)")
+    c.add_argument("--image", help="an image of the camera: its size, for a uPSP file that "
+                   "gives none (sensor_resolution / imageSize)")
     c.add_argument("--intrinsics-only", action="store_true",
                    help="leave the pose out (an internal calibration file)")
     c.set_defaults(func=_convert)
@@ -30,8 +35,15 @@ def _convert(args) -> int:
 
     if os.path.abspath(args.out) == os.path.abspath(args.camera):
         raise InputError(f"{args.out}: the output would overwrite the input camera file")
-    cf = read_camera_file(args.camera)
+    size = None
+    if args.image:
+        from .io.images import read_image
+
+        img = read_image(args.image)
+        size = (img.shape[1], img.shape[0])
+    cf = read_camera_file(args.camera, image_size=size)
     write_camera(args.out, cf.camera, format=args.format, sensor_size=cf.sensor_size,
-                 channels=cf.channels, intrinsics_only=args.intrinsics_only or not cf.has_pose)
+                 channels=cf.channels, intrinsics_only=args.intrinsics_only or not cf.has_pose,
+                 extra=cf.extra, solved_on=cf.solved_on)
     print(f"{args.camera} ({cf.format}) -> {args.out}")
     return 0

@@ -14,9 +14,21 @@ Formats
     (``cx = K[0][2] + width / 2``, ``cy = K[1][2] + height / 2``, pixels);
     ``distCoeffs``: OpenCV ``[k1, k2, p1, p2, k3]`` (1x5 nested list or flat);
     ``rmat``, ``tvec``: ``x_cam = rmat @ X + tvec``;
-    ``sensor_resolution``: ``[rows, cols, channels]``; ``sensor_size``: inches;
-    ``Updated``: free text. A file without ``rmat``/``tvec`` is an internal calibration
-    (intrinsics only): its camera gets the identity pose and ``has_pose`` is False.
+    ``sensor_resolution`` (optional, as uPSP documents it): ``[rows, cols, channels]``;
+    without it the image size comes from the image the camera is used with
+    (``image_size=``), or the error names the key. ``sensor_size``: inches. A file without
+    ``rmat``/``tvec`` is an internal calibration (intrinsics only): its camera gets the
+    identity pose and ``has_pose`` is False.
+``upsp-model`` (NASA uPSP camera-to-model file, ``camNN-to-model.json``, written by
+    ``upsp-external-calibration`` and read by ``psp_process``)
+    ``cameraMatrix``: ``K`` with an absolute principal point (pixels); ``distCoeffs``: flat
+    ``[k1, k2, p1, p2, k3]``; ``imageSize``: ``[width, height]``; ``rmat``, ``tvec`` as
+    above.
+
+In both uPSP families, keys we do not use (``Updated``, or any other a uPSP tool adds) are
+kept in :attr:`CameraFile.extra` and written back by :func:`write_camera`, so a file
+round-trips; a key one letter or so from a known key (``distCoefs``) is refused as a typing
+mistake, naming the key it resembles.
 ``opencv`` (FileStorage YAML or XML, as ``cv2.FileStorage`` and OpenCV's calibration sample
     write them)
     ``camera_matrix`` or ``cameraMatrix``; ``distortion_coefficients`` or ``distCoeffs``
@@ -25,16 +37,21 @@ Formats
     ``R`` and ``tvec`` or ``T``. The calibration sample's bookkeeping keys are accepted
     and ignored; any other key is an error.
 
-Unknown keys are errors in every family, so a typing mistake is never silently ignored.
-A UTF-8 byte-order mark is accepted.
+Unknown keys are errors in the native and OpenCV families, so a typing mistake is never
+silently ignored. A UTF-8 byte-order mark is accepted.
+
+A native camera written by ``resection pose`` may hold ``"solved_on"``: the image and the
+marker file it was solved on (:mod:`resection.io.provenance`), kept in
+:attr:`CameraFile.solved_on` and used by the commands that take the camera to another image.
 """
 
 from __future__ import annotations
 
+import difflib
 import json
 import os
 import xml.etree.ElementTree as ET
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -45,10 +62,11 @@ from resection.io._write import atomic_text
 
 __all__ = ["CameraFile", "read_camera", "read_camera_file", "write_camera", "camera_format"]
 
-FORMATS = ("json", "upsp", "opencv-yaml", "opencv-xml")
+FORMATS = ("json", "upsp", "upsp-model", "opencv-yaml", "opencv-xml")
 
 _UPSP_KEYS = ("uPSP_cameraMatrix", "distCoeffs", "rmat", "tvec", "sensor_resolution",
-              "sensor_size", "Updated")
+              "sensor_size")
+_UPSP_MODEL_KEYS = ("cameraMatrix", "distCoeffs", "imageSize", "rmat", "tvec")
 _CV_K = ("camera_matrix", "cameraMatrix")
 _CV_DIST = ("distortion_coefficients", "distCoeffs", "dist_coeffs")
 _CV_SIZE = ("image_width", "image_height", "image_size", "imageSize")
@@ -78,7 +96,15 @@ class CameraFile:
     channels : int or None
         Third entry of uPSP ``sensor_resolution``.
     updated : str or None
-        uPSP ``Updated`` text.
+        uPSP ``Updated`` text (also in ``extra``).
+    extra : dict
+        uPSP keys that the camera does not use (``Updated`` and any other), in file order,
+        written back by :func:`write_camera` in the uPSP families.
+    solved_on : dict or None
+        Native JSON: what ``resection pose`` recorded about the image and markers the
+        camera was solved on (:mod:`resection.io.provenance`).
+    size_from_file : bool
+        False when the file gives no image size and it was taken from ``image_size``.
     """
 
     camera: Camera
@@ -87,6 +113,9 @@ class CameraFile:
     sensor_size: tuple[float, ...] | None = None
     channels: int | None = None
     updated: str | None = None
+    extra: dict = field(default_factory=dict)
+    solved_on: dict | None = None
+    size_from_file: bool = True
 
 
 def _int(v, what: str) -> int:
@@ -99,7 +128,8 @@ def _int(v, what: str) -> int:
 def camera_format(text: str) -> str:
     """The family of a camera file's text: ``json``, ``upsp``, ``opencv-yaml``, ``opencv-xml``.
 
-    The native and uPSP JSON are told apart by their keys (``uPSP_cameraMatrix``).
+    The native and uPSP JSON are told apart by their keys (``uPSP_cameraMatrix``: uPSP
+    camera-to-tunnel; ``cameraMatrix`` without ``K``: uPSP camera-to-model).
     """
     head = text.lstrip()[:200]
     if head.startswith("%YAML") or "!!opencv-matrix" in text:
@@ -108,11 +138,19 @@ def camera_format(text: str) -> str:
         return "opencv-xml"
     if '"uPSP_cameraMatrix"' in text:
         return "upsp"
+    if '"cameraMatrix"' in text and '"K"' not in text:
+        return "upsp-model"
     return "json"
 
 
-def read_camera(path: str | os.PathLike) -> Camera:
+def read_camera(path: str | os.PathLike, *, image_size=None) -> Camera:
     """Read a camera file of any supported family (see the module docstring).
+
+    Parameters
+    ----------
+    image_size : (width, height), optional
+        The size of the image the camera is used with: the image size of a uPSP file that
+        gives none (``sensor_resolution`` / ``imageSize`` are optional there).
 
     Raises
     ------
@@ -120,11 +158,12 @@ def read_camera(path: str | os.PathLike) -> Camera:
         Missing or unreadable file, unknown family, unknown or missing keys, wrong types
         or shapes; the message names the file.
     """
-    return read_camera_file(path).camera
+    return read_camera_file(path, image_size=image_size).camera
 
 
-def read_camera_file(path: str | os.PathLike) -> CameraFile:
-    """Read a camera file and what it holds besides the camera (:class:`CameraFile`)."""
+def read_camera_file(path: str | os.PathLike, *, image_size=None) -> CameraFile:
+    """Read a camera file and what it holds besides the camera (:class:`CameraFile`);
+    ``image_size`` as in :func:`read_camera`."""
     path = os.fspath(path)
     try:
         with open(path, "rb") as fh:
@@ -150,53 +189,113 @@ def read_camera_file(path: str | os.PathLike) -> CameraFile:
         except json.JSONDecodeError as exc:
             raise InputError(f"not valid JSON ({exc})") from None
         if fmt == "upsp":
-            return _from_upsp(d)
-        return CameraFile(Camera.from_dict(d, source=path), "json")
+            return _from_upsp(d, image_size)
+        if fmt == "upsp-model":
+            return _from_upsp_model(d, image_size)
+        solved_on = None
+        if isinstance(d, dict) and "solved_on" in d:
+            d = dict(d)
+            solved_on = d.pop("solved_on")
+            if not isinstance(solved_on, dict):
+                raise InputError(f"'solved_on' must be an object, got {solved_on!r}")
+        return CameraFile(Camera.from_dict(d, source=path), "json", solved_on=solved_on)
     except InputError as exc:
         msg = str(exc)
         raise InputError(msg if msg.startswith(path) else f"{path}: {msg}") from None
 
 
-def _from_upsp(d) -> CameraFile:
-    if not isinstance(d, dict):
-        raise InputError(f"expected a JSON object, got {type(d).__name__}")
-    unknown = sorted(set(d) - set(_UPSP_KEYS))
-    if unknown:
-        raise InputError(f"uPSP camera: unknown key(s) {', '.join(map(repr, unknown))}; "
-                         f"allowed: {', '.join(_UPSP_KEYS)}")
-    for k in ("uPSP_cameraMatrix", "distCoeffs"):
-        if k not in d:
-            raise InputError(f"uPSP camera: missing key {k!r}")
-    if "sensor_resolution" not in d:
-        raise InputError("uPSP camera: missing key 'sensor_resolution' (the image size; "
-                         "the principal point is relative to the image centre)")
-    res = d["sensor_resolution"]
-    if not isinstance(res, list) or len(res) not in (2, 3):
-        raise InputError(f"uPSP camera: sensor_resolution must be [rows, cols, channels], "
-                         f"got {res!r}")
-    rows = _int(res[0], "uPSP camera: sensor_resolution[0] (rows)")
-    cols = _int(res[1], "uPSP camera: sensor_resolution[1] (cols)")
-    channels = _int(res[2], "uPSP camera: sensor_resolution[2] (channels)") \
-        if len(res) == 3 else None
-    K = json_array(d["uPSP_cameraMatrix"], ((3, 3),), "uPSP camera: uPSP_cameraMatrix")
-    K[0, 2] += cols / 2.0
-    K[1, 2] += rows / 2.0
-    dist = json_array(d["distCoeffs"], ((1, 5), (5,), (5, 1)), "uPSP camera: distCoeffs").ravel()
+def _upsp_extra(d, known, what: str) -> dict:
+    """The keys of a uPSP file that the camera does not use (kept), refusing near-typos of
+    the known keys."""
+    extra = {}
+    for k, v in d.items():
+        if k in known:
+            continue
+        near = difflib.get_close_matches(k, known, n=1, cutoff=0.85)
+        if near:
+            raise InputError(f"{what}: unknown key {k!r} (did you mean {near[0]!r}?)")
+        extra[k] = v
+    return extra
+
+
+def _size_from_image(image_size, key: str, what: str) -> tuple[int, int]:
+    if image_size is None:
+        raise InputError(f"{what}: no key {key!r} and no image to take the image size from "
+                         f"(add {key!r} to the file, or give the image with the camera)")
+    w, h = (int(x) for x in image_size)
+    return w, h
+
+
+def _upsp_pose(d, what: str):
     has_r, has_t = "rmat" in d, "tvec" in d
     if has_r != has_t:
-        raise InputError("uPSP camera: 'rmat' and 'tvec' come together (or neither, for an "
+        raise InputError(f"{what}: 'rmat' and 'tvec' come together (or neither, for an "
                          "internal calibration)")
-    R = json_array(d["rmat"], ((3, 3),), "uPSP camera: rmat") if has_r else np.eye(3)
-    t = json_array(d["tvec"], ((3,), (3, 1), (1, 3)), "uPSP camera: tvec").ravel() \
+    R = json_array(d["rmat"], ((3, 3),), f"{what}: rmat") if has_r else np.eye(3)
+    t = json_array(d["tvec"], ((3,), (3, 1), (1, 3)), f"{what}: tvec").ravel() \
         if has_t else np.zeros(3)
+    return has_r, R, t
+
+
+def _from_upsp(d, image_size=None) -> CameraFile:
+    what = "uPSP camera"
+    if not isinstance(d, dict):
+        raise InputError(f"expected a JSON object, got {type(d).__name__}")
+    extra = _upsp_extra(d, _UPSP_KEYS, what)
+    for k in ("uPSP_cameraMatrix", "distCoeffs"):
+        if k not in d:
+            raise InputError(f"{what}: missing key {k!r}")
+    channels = None
+    if "sensor_resolution" in d:
+        res = d["sensor_resolution"]
+        if not isinstance(res, list) or len(res) not in (2, 3):
+            raise InputError(f"{what}: sensor_resolution must be [rows, cols, channels], "
+                             f"got {res!r}")
+        rows = _int(res[0], f"{what}: sensor_resolution[0] (rows)")
+        cols = _int(res[1], f"{what}: sensor_resolution[1] (cols)")
+        channels = _int(res[2], f"{what}: sensor_resolution[2] (channels)") \
+            if len(res) == 3 else None
+    else:  # optional in uPSP's camera-to-tunnel files: the principal point needs the size
+        cols, rows = _size_from_image(image_size, "sensor_resolution", what)
+    K = json_array(d["uPSP_cameraMatrix"], ((3, 3),), f"{what}: uPSP_cameraMatrix")
+    K[0, 2] += cols / 2.0
+    K[1, 2] += rows / 2.0
+    dist = json_array(d["distCoeffs"], ((1, 5), (5,), (5, 1)), f"{what}: distCoeffs").ravel()
+    has_r, R, t = _upsp_pose(d, what)
     size = None
     if "sensor_size" in d:
-        size = tuple(json_array(d["sensor_size"], ((2,), (3,)), "uPSP camera: sensor_size"))
+        size = tuple(json_array(d["sensor_size"], ((2,), (3,)), f"{what}: sensor_size"))
     upd = d.get("Updated")
     if upd is not None and not isinstance(upd, str):
-        raise InputError(f"uPSP camera: 'Updated' must be text, got {upd!r}")
+        raise InputError(f"{what}: 'Updated' must be text, got {upd!r}")
     cam = Camera(cols, rows, K, dist, R, t)
-    return CameraFile(cam, "upsp", has_r, size, channels, upd)
+    return CameraFile(cam, "upsp", has_r, size, channels, upd, extra,
+                      size_from_file="sensor_resolution" in d)
+
+
+def _from_upsp_model(d, image_size=None) -> CameraFile:
+    what = "uPSP camera-to-model"
+    if not isinstance(d, dict):
+        raise InputError(f"expected a JSON object, got {type(d).__name__}")
+    extra = _upsp_extra(d, _UPSP_MODEL_KEYS, what)
+    for k in ("cameraMatrix", "distCoeffs"):
+        if k not in d:
+            raise InputError(f"{what}: missing key {k!r}")
+    if "imageSize" in d:
+        wh = json_array(d["imageSize"], ((2,), (1, 2), (2, 1)), f"{what}: imageSize").ravel()
+        if not all(float(x).is_integer() and x > 0 for x in wh):
+            raise InputError(f"{what}: imageSize must be two positive integers [width, "
+                             f"height], got {d['imageSize']!r}")
+        w, h = int(wh[0]), int(wh[1])
+    else:
+        w, h = _size_from_image(image_size, "imageSize", what)
+    K = json_array(d["cameraMatrix"], ((3, 3),), f"{what}: cameraMatrix")
+    dist = json_array(d["distCoeffs"], ((1, 5), (5,), (5, 1)), f"{what}: distCoeffs").ravel()
+    has_r, R, t = _upsp_pose(d, what)
+    upd = d.get("Updated")
+    cam = Camera(w, h, K, dist, R, t)
+    return CameraFile(cam, "upsp-model", has_r, updated=upd if isinstance(upd, str) else None,
+                      extra=extra, size_from_file="imageSize" in d)
 
 
 def _from_opencv(d: dict, fmt: str) -> CameraFile:
@@ -342,18 +441,26 @@ def write_camera(
     sensor_size: tuple[float, ...] | None = None,
     channels: int | None = None,
     intrinsics_only: bool = False,
+    extra: dict | None = None,
+    solved_on: dict | None = None,
 ) -> None:
     """Write ``camera`` as one of :data:`FORMATS`.
 
     Parameters
     ----------
-    format : {"auto", "json", "upsp", "opencv-yaml", "opencv-xml"}
+    format : {"auto", "json", "upsp", "upsp-model", "opencv-yaml", "opencv-xml"}
         ``auto``: OpenCV YAML for ``.yml``/``.yaml``, OpenCV XML for ``.xml``, else the
         native JSON.
     sensor_size, channels : optional
         uPSP ``sensor_size`` (inches) and the third entry of ``sensor_resolution``.
     intrinsics_only : bool
         uPSP / OpenCV: leave the pose out (an internal calibration file).
+    extra : dict, optional
+        uPSP families: keys kept from a uPSP file (:attr:`CameraFile.extra`, ``Updated``
+        ...), written after the camera's own. Other families have no room for them.
+    solved_on : dict, optional
+        Native JSON: the record of the image and markers the camera was solved on
+        (:mod:`resection.io.provenance`).
 
     The file is written to a temporary name in the same folder and renamed into place.
     """
@@ -367,10 +474,16 @@ def write_camera(
         raise InputError(f"{path}: unknown camera format {format!r}; one of "
                          f"{', '.join(FORMATS)}")
     if fmt == "json":
-        text = json.dumps(camera.to_dict(), indent=2) + "\n"
-    elif fmt == "upsp":
-        text = json.dumps(_to_upsp(camera, sensor_size, channels, intrinsics_only),
-                          indent=2) + "\n"
+        d = camera.to_dict()
+        if solved_on:
+            d["solved_on"] = solved_on
+        text = json.dumps(d, indent=2) + "\n"
+    elif fmt in ("upsp", "upsp-model"):
+        d = _to_upsp(camera, sensor_size, channels, intrinsics_only) if fmt == "upsp" else \
+            _to_upsp_model(camera, intrinsics_only)
+        for k, v in (extra or {}).items():
+            d.setdefault(k, v)
+        text = json.dumps(d, indent=2) + "\n"
     else:
         text = _to_opencv(camera, fmt, intrinsics_only)
     atomic_text(path, text)
@@ -387,6 +500,16 @@ def _to_upsp(cam: Camera, sensor_size, channels, intrinsics_only) -> dict:
     d["sensor_resolution"] = [cam.height, cam.width] + ([int(channels)] if channels else [1])
     if sensor_size is not None:
         d["sensor_size"] = [float(x) for x in sensor_size]
+    return d
+
+
+def _to_upsp_model(cam: Camera, intrinsics_only) -> dict:
+    d: dict = {"cameraMatrix": np.asarray(cam.K).tolist(),
+               "distCoeffs": np.asarray(cam.dist).tolist(),
+               "imageSize": [cam.width, cam.height]}
+    if not intrinsics_only:
+        d["rmat"] = np.asarray(cam.R).tolist()
+        d["tvec"] = np.asarray(cam.t).tolist()
     return d
 
 
