@@ -15,14 +15,20 @@ Readers
 * 3-D NPY ``(n, H, W)``: ``numpy.load(mmap_mode="r")``.
 * Photron ``.mraw`` (+ its ``.cih``/``.cihx`` header, found next to it with the same stem):
   ``pyMRAW.get_cih`` for the header, then ``pyMRAW.load_images`` which memory-maps the raw
-  file (8/12/16-bit); a frame is read when it is indexed.
+  file (8/12/16-bit); a frame is read when it is indexed. The sensor's full scale comes
+  from ``EffectiveBit Depth``; a frame whose counts exceed it (pyMRAW's own writer declares
+  12 for 16-bit data) contradicts the header: a warning names the header, the counts are
+  kept, and the full scale becomes the container's (``Color Bit``).
 * Phantom ``.cine``: headers, setup and frame offset table parsed by the ``cine-handler``
   package (module ``cine_reader``, numpy only); a frame's payload is read when it is asked
   for and decoded here (grey 8/16-bit; P12L 12-bit packed, uPSP's usual recording) or by
-  cine-handler's 10-bit unpacker (P10). Phantom stores rows bottom-up when the bitmap
-  header's height is positive (the DIB convention, as pycine also reads it): such frames are
-  flipped so that row 0 is the top of the image. Raw counts: no black/white level or
-  linearisation table is applied.
+  cine-handler's 10-bit unpacker (P10, which applies Phantom's 10-to-12-bit linearisation
+  table, as uPSP's CineReader does: such counts are 12-bit). Orientation follows uPSP's
+  ``CineReader.cpp``: unpacked frames are stored bottom-up when the bitmap header's height
+  is positive (the DIB convention) and are flipped so that row 0 is the top of the image;
+  packed frames (P10, P12L) are stored top-down and are never flipped (uPSP: "Do not flip
+  any version, checked against Buffet data and TC3 data"; pims reads them so too). No
+  black/white level is applied.
 
 Counts stay counts (a 12-bit pixel of 4095 reads 4095.0); with ``mask_saturated`` the
 pixels at the sensor's full scale (``2**bits - 1``) read as NaN, as
@@ -33,6 +39,7 @@ from __future__ import annotations
 
 import os
 import struct
+import warnings
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
@@ -278,17 +285,35 @@ def _mraw(p: Path, mask_saturated: bool) -> FrameSource:
     except (ValueError, OSError) as exc:
         raise InputError(f"{mraw}: cannot read frames ({exc})") from None
     rate = info.get("Record Rate(fps)")
-    return FrameSource(mraw, n, (h, w), lambda i: images[i], lambda i: f"{mraw}#{i}",
-                       bits=eff if 0 < eff <= bits else bits,
-                       frame_rate=float(rate) if rate else None, mask_saturated=mask_saturated)
+    declared = eff if 0 < eff <= bits else bits
+
+    def read(i):
+        img = images[i]
+        if src.bits < bits:  # the data may contradict the header's effective bit depth
+            top = int(img.max())
+            if top > (1 << src.bits) - 1:
+                warnings.warn(
+                    f"{cih}: header 'EffectiveBit Depth : {declared}' is contradicted by the "
+                    f"data ({mraw.name}#{i} holds counts up to {top} > {(1 << declared) - 1}); "
+                    f"the counts are kept and read as {bits}-bit ('Color Bit'), saturated at "
+                    f"{(1 << bits) - 1}", UserWarning, stacklevel=3)
+                src.bits = bits
+        return img
+
+    src = FrameSource(mraw, n, (h, w), read, lambda i: f"{mraw}#{i}", bits=declared,
+                      frame_rate=float(rate) if rate else None, mask_saturated=mask_saturated)
+    if n:
+        read(0)  # the first frame says at once whether the header holds
+    return src
 
 
 def _cine(p: Path, mask_saturated: bool) -> FrameSource:
     """Phantom .cine: headers, setup and the frame offset table parsed by cine-handler's
     ``cine_reader.headers``; each frame's payload read on demand and decoded here
     (uncompressed 8/16-bit; ``P12L`` 12-bit packed, ``biCompression`` 1024, uPSP's usual
-    format) or by cine-handler's 10-bit unpacker (``P10``, ``biCompression`` 256). Counts
-    are the raw sensor values (no black/white-level or linearisation table applied)."""
+    format) or by cine-handler's 10-bit unpacker (``P10``, ``biCompression`` 256, counts
+    linearised to 12 bits). Packed frames are never flipped, unpacked ones are when stored
+    bottom-up (uPSP's rule, module docstring). No black/white level is applied."""
     try:
         from cine_reader.headers import (
             read_bitmap_header,
@@ -319,9 +344,13 @@ def _cine(p: Path, mask_saturated: bool) -> FrameSource:
         fh.close()
         raise InputError(f"{p}: unsupported .cine image layout ({bitcount} bits a pixel, "
                          f"compression {comp}, {w}x{h}); grey 8/16-bit, P10 or P12L are read")
-    bits = int(setup.RealBPP) or (12 if comp == 1024 else 10 if comp == 256 else bitcount)
+    bits = int(setup.RealBPP) or (12 if comp == 1024 else bitcount)
+    if comp == 256:
+        bits = 12  # P10 is linearised to 12-bit counts (Phantom's table, as uPSP reads it)
     need = {0: w * h * bitcount // 8, 256: w * h * 10 // 8, 1024: w * h * 3 // 2}[comp]
-    flip = h_signed > 0  # DIB convention: positive height = rows stored bottom-up
+    # DIB convention: positive height = rows stored bottom-up, for unpacked frames only;
+    # packed frames are top-down whatever the sign (uPSP's CineReader, pims)
+    flip = h_signed > 0 and comp == 0
 
     def read(i):
         try:
