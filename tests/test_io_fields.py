@@ -159,3 +159,48 @@ def test_map_writes_plot3d_function_file(plate):
                 ref[i, j] = np.mean(around)
     np.testing.assert_allclose(vals[..., 0, 0], ref, rtol=0, atol=1e-12)
     assert np.isfinite(ref).sum() > 40
+
+
+def _read_with_vtk(path):
+    """Cell and point arrays of a legacy .vtk as VTK's own reader (ParaView's) gives them."""
+    import vtk
+    from vtk.util.numpy_support import vtk_to_numpy
+
+    r = vtk.vtkUnstructuredGridReader()
+    r.SetFileName(str(path))
+    r.ReadAllScalarsOn()
+    r.ReadAllVectorsOn()
+    r.ReadAllFieldsOn()
+    r.Update()
+    g = r.GetOutput()
+
+    def arrays(data):
+        return {data.GetArrayName(i): vtk_to_numpy(data.GetArray(i))
+                for i in range(data.GetNumberOfArrays())}
+
+    return g, arrays(g.GetCellData()), arrays(g.GetPointData())
+
+
+def test_legacy_vtk_read_by_vtk_with_every_field(tmp_path):
+    """VTK's legacy reader sees every field of our .vtk (booleans as uint8); on today's main
+    it dropped them all ('Unsupported data type: vtktypeint32')."""
+    m, f = _mesh_and_fields()
+    m.face_attributes["block"] = np.arange(len(m.faces)) % 3 + 1
+    nodes = {"h": np.linspace(0.0, 1.0, len(m.vertices)), "on": np.arange(len(m.vertices)) % 2 == 0}
+    p = tmp_path / "surf.vtk"
+    write_fields(p, m, f, nodes)
+    g, cells, points = _read_with_vtk(p)
+    assert g.GetNumberOfCells() == len(m.faces) and g.GetNumberOfPoints() == len(m.vertices)
+    assert set(cells) == {"block", "Cp", "seen", "count", "grad_0", "grad_1"}
+    assert set(points) == {"h", "on"}
+    np.testing.assert_array_equal(cells["Cp"], f["Cp"])  # NaN kept
+    assert cells["seen"].dtype == np.uint8 and points["on"].dtype == np.uint8
+    np.testing.assert_array_equal(cells["seen"], f["seen"].astype(np.uint8))
+    np.testing.assert_array_equal(cells["count"], f["count"])
+    np.testing.assert_array_equal(cells["grad_1"], f["grad"][:, 1])
+    np.testing.assert_array_equal(cells["block"], m.face_attributes["block"])
+    np.testing.assert_array_equal(points["h"], nodes["h"])
+    np.testing.assert_array_equal(points["on"], nodes["on"].astype(np.uint8))
+    from vtk.util.numpy_support import vtk_to_numpy
+
+    np.testing.assert_array_equal(vtk_to_numpy(g.GetPoints().GetData()), m.vertices)

@@ -308,71 +308,33 @@ def test_ply_round_trip(tmp_path):
     np.testing.assert_array_equal(back.face_attributes["Cp"], f["Cp"])
 
 
-def _parse_legacy_vtk(path):
-    """Minimal independent reader of a binary legacy VTK 5.1 UNSTRUCTURED_GRID (the layout
-    of the VTK file-format document: OFFSETS/CONNECTIVITY, CELL_TYPES, CELL_DATA FIELD)."""
-    blob = path.read_bytes()
-    lines = blob.split(b"\n", 4)
-    assert lines[0].startswith(b"# vtk DataFile Version")
-    assert lines[2].strip() == b"BINARY"
-    assert lines[3].strip() == b"DATASET UNSTRUCTURED_GRID"
-    rest = lines[4]
-    out = {"fields": {}}
-    types = {"double": ">f8", "float": ">f4", "vtktypeint64": ">i8", "vtktypeint32": ">i4",
-             "int": ">i4", "long": ">i8", "unsigned_char": ">u1"}
+def test_vtk_cell_data_read_by_vtk(tmp_path):
+    """VTK's own legacy reader (the one ParaView uses) reads the mesh and every field."""
+    import vtk
+    from vtk.util.numpy_support import vtk_to_numpy
 
-    def take_line():
-        nonlocal rest
-        line, rest = rest.split(b"\n", 1)
-        return line.decode().split()
-
-    def take(n, bdt):
-        nonlocal rest
-        size = n * np.dtype(bdt).itemsize
-        arr = np.frombuffer(rest[:size], bdt)
-        rest = rest[size:].lstrip(b"\n")
-        return arr
-
-    while rest.strip():
-        head = take_line()
-        if not head:
-            continue
-        if head[0] == "POINTS":
-            n = int(head[1])
-            out["points"] = take(3 * n, types[head[2]]).reshape(n, 3)
-        elif head[0] == "CELLS":
-            n_off, n_conn = int(head[1]), int(head[2])
-            h = take_line()
-            out["offsets"] = take(n_off, types[h[1]])
-            h = take_line()
-            out["connectivity"] = take(n_conn, types[h[1]])
-        elif head[0] == "CELL_TYPES":
-            out["cell_types"] = take(int(head[1]), ">i4")
-        elif head[0] == "CELL_DATA":
-            out["ncells"] = int(head[1])
-        elif head[0] == "FIELD":
-            for _ in range(int(head[2])):
-                name, nc, nt, typ = take_line()
-                out["fields"][name] = take(int(nc) * int(nt), types[typ])
-        else:
-            raise AssertionError(f"unexpected VTK section {head}")
-    return out
-
-
-def test_vtk_cell_data_read_by_an_independent_parser(tmp_path):
     m, f = _mesh_and_fields()
     p = tmp_path / "out.vtk"
     write_surface(p, m, f)
-    v = _parse_legacy_vtk(p)
-    np.testing.assert_allclose(v["points"], m.vertices, rtol=0, atol=0)
-    np.testing.assert_array_equal(np.diff(v["offsets"]), 3)
-    np.testing.assert_array_equal(v["connectivity"].reshape(-1, 3), m.faces)
-    np.testing.assert_array_equal(v["cell_types"], 5)  # VTK_TRIANGLE
-    assert v["ncells"] == len(m.faces)
-    np.testing.assert_array_equal(v["fields"]["Cp"], f["Cp"])
-    np.testing.assert_array_equal(v["fields"]["seen"], f["seen"].astype(int))
-    np.testing.assert_array_equal(v["fields"]["grad_0"], f["grad"][:, 0])
-    np.testing.assert_array_equal(v["fields"]["block"], m.face_attributes["block"])
+    r = vtk.vtkUnstructuredGridReader()
+    r.SetFileName(str(p))
+    r.ReadAllScalarsOn()
+    r.ReadAllFieldsOn()
+    r.Update()
+    g = r.GetOutput()
+    np.testing.assert_array_equal(vtk_to_numpy(g.GetPoints().GetData()), m.vertices)
+    assert g.GetNumberOfCells() == len(m.faces)
+    assert {g.GetCellType(i) for i in range(g.GetNumberOfCells())} == {5}  # VTK_TRIANGLE
+    conn = vtk_to_numpy(g.GetCells().GetConnectivityArray())
+    np.testing.assert_array_equal(conn.reshape(-1, 3), m.faces)
+    cd = g.GetCellData()
+    fields = {cd.GetArrayName(i): vtk_to_numpy(cd.GetArray(i))
+              for i in range(cd.GetNumberOfArrays())}
+    np.testing.assert_array_equal(fields["Cp"], f["Cp"])
+    np.testing.assert_array_equal(fields["seen"], f["seen"].astype(np.uint8))
+    assert fields["seen"].dtype == np.uint8
+    np.testing.assert_array_equal(fields["grad_0"], f["grad"][:, 0])
+    np.testing.assert_array_equal(fields["block"], m.face_attributes["block"])
 
 
 def test_csv_output(tmp_path):

@@ -5,7 +5,10 @@ Formats, chosen by the extension:
 
 ``.vtk`` (VTK legacy), ``.vtu`` (VTK XML), ``.xdmf`` (XDMF, data inline in the XML)
     through the ``meshio`` library: the mesh's triangles with ``cell_data`` (per-face) and
-    ``point_data`` (per-node) arrays; ParaView opens all three.
+    ``point_data`` (per-node) arrays; ParaView opens all three. The legacy ``.vtk`` is
+    written in the 4.2 layout with the classic type names that VTK's own reader knows
+    (``unsigned_char`` for booleans, ``int`` for integers that fit 32 bits, ``float``,
+    ``double``): meshio's 5.1 names (``vtktypeint32``) make VTK drop every field.
 ``.ply``
     through the ``plyfile`` library (meshio's PLY writer drops per-face data): binary
     little-endian, vertices as doubles, one face property per face field and one vertex
@@ -22,7 +25,8 @@ Formats, chosen by the extension:
     report, not to the file, which has no place for them).
 
 Names are sanitised to ``[A-Za-z0-9_]``; an ``(n, k)`` field becomes ``name_0 ..
-name_{k-1}``; booleans are written as 0/1 integers. NaN is kept (the value of unseen faces).
+name_{k-1}``; booleans are written as 0/1 integers (unsigned bytes in ``.vtk``). NaN is kept
+(the value of unseen faces).
 Every file is written to a temporary name and renamed into place.
 """
 
@@ -43,8 +47,10 @@ FIELD_SUFFIXES = (".vtk", ".vtu", ".xdmf", ".ply", ".csv", ".npy", ".f")
 _MESHIO = {".vtk": "vtk", ".vtu": "vtu", ".xdmf": "xdmf"}
 
 
-def _columns(fields: dict | None, n: int, what: str) -> list[tuple[str, np.ndarray]]:
-    """Flatten fields to ``(name, (n,) array)`` columns, checked."""
+def _columns(fields: dict | None, n: int, what: str,
+             bool_dtype=np.int32) -> list[tuple[str, np.ndarray]]:
+    """Flatten fields to ``(name, (n,) array)`` columns, checked; booleans as
+    ``bool_dtype`` 0/1."""
     cols = []
     for k, v in (fields or {}).items():
         a = np.asarray(v)
@@ -52,7 +58,7 @@ def _columns(fields: dict | None, n: int, what: str) -> list[tuple[str, np.ndarr
             raise InputError(f"{what} field {k!r}: shape {a.shape} does not match the mesh's "
                              f"{n} {what}s")
         if a.dtype == bool:
-            a = a.astype(np.int32)
+            a = a.astype(bool_dtype)
         if not np.issubdtype(a.dtype, np.number):
             raise InputError(f"{what} field {k!r}: must be numeric, got dtype {a.dtype}")
         name = re.sub(r"[^A-Za-z0-9_]", "_", str(k)) or "field"
@@ -108,8 +114,9 @@ def write_fields(
     faces_in = dict(face_fields or {})
     if include_attributes and suffix not in (".npy", ".f"):
         faces_in = {**_attributes(mesh), **faces_in}
-    fcols = _columns(faces_in, nf, "face")
-    ncols = _columns(node_fields, nv, "node")
+    bool_dtype = np.uint8 if suffix == ".vtk" else np.int32  # VTK legacy: unsigned_char
+    fcols = _columns(faces_in, nf, "face", bool_dtype)
+    ncols = _columns(node_fields, nv, "node", bool_dtype)
     reserved = {"x", "y", "z", "node", "face", "cx", "cy", "cz", "vertex_indices"}
     clash = sorted({k for k, _ in fcols + ncols} & reserved)
     if clash and suffix in (".ply", ".csv"):
@@ -138,8 +145,27 @@ def _write_meshio(tmp, mesh, fcols, ncols, fmt):
     )
     kw = {"data_format": "XML"} if fmt == "xdmf" else {}
     if fmt == "vtk":
-        kw = {"binary": True}
+        # VTK's own legacy reader (ParaView's) knows the classic type names only: the 4.2
+        # layout, booleans as unsigned_char (uint8), integers as int (int32) where they fit
+        m.cell_data = {k: [_vtk_legacy_array(v[0])] for k, v in m.cell_data.items()}
+        m.point_data = {k: _vtk_legacy_array(v) for k, v in m.point_data.items()}
+        fmt, kw = "vtk42", {"binary": True}
     meshio.write(os.fspath(tmp), m, file_format=fmt, **kw)
+
+
+def _vtk_legacy_array(a: np.ndarray) -> np.ndarray:
+    """An array in a type VTK's legacy reader reads: float32/float64 kept, booleans and
+    0/1 columns of a boolean field as uint8, other integers as int32 when they fit, else
+    float64."""
+    if a.dtype.kind == "f":
+        return a
+    if a.dtype == bool:
+        return a.astype(np.uint8)
+    if a.dtype == np.uint8:
+        return a
+    if a.size == 0 or (a.min() >= np.iinfo(np.int32).min and a.max() <= np.iinfo(np.int32).max):
+        return a.astype(np.int32)
+    return a.astype(np.float64)
 
 
 def _ply_dtype(a: np.ndarray) -> str:
