@@ -226,7 +226,7 @@ def real_traits(*, scale: float = 1.0, seed: int = 0, gain_ratio: float = 1.25,
     blocks = plate_blocks(0.015 / np.sqrt(scale))
     mesh = plot3d_to_mesh(blocks, source="real_traits")
     nplate = 6
-    painted = np.asarray(mesh.face_attributes["block"]) < nplate
+    painted = np.asarray(mesh.face_attributes["block"]) <= nplate  # blocks count from 1
     cameras = _cameras(scale)
     gains = np.array([150.0, 150.0 * gain_ratio])
 

@@ -42,9 +42,9 @@ class SlabBlock:
     blocks : list of (ni, nj, 1, 3) float64 arrays
         The structured blocks (see the module notes for the order).
     mesh : trimesh.Trimesh
-        Triangles of every block (two a cell), ``face_attributes["block"]`` counted from 0.
+        Triangles of every block (two a cell), ``face_attributes["block"]`` counted from 1.
     part : (N,) int64
-        Block of each face, counted from 0.
+        Block of each face, counted from 0 (``face_attributes["block"] - 1``).
     painted : (N,) bool
         Faces of the slab (the box is unpainted).
     emission : (N,) float64
@@ -149,7 +149,7 @@ def slab_block(
     cell = np.sqrt(2.0 * area / faces)
     blocks = _blocks(a, b, t, c, d, h, cell)
     mesh = plot3d_to_mesh(blocks, source="slab_block")
-    part = np.asarray(mesh.face_attributes["block"], dtype=np.int64)
+    part = np.asarray(mesh.face_attributes["block"], dtype=np.int64) - 1
     painted = part < 6
     centres = np.asarray(mesh.triangles_center)
     emission = np.where(painted, paint(centres), 0.0)

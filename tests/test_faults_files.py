@@ -175,7 +175,7 @@ def test_byte_swapped_plot3d_is_read_or_named(tmp_path):
     np.testing.assert_array_equal(got.vertices, ref.vertices)
     d[s:s + n] = np.full(n // 8, 1e200).tobytes()  # implausible in both byte orders
     p.write_bytes(bytes(d))
-    with pytest.raises(InputError, match=r"wing.x: block 0: .*implausible.*byte order"):
+    with pytest.raises(InputError, match=r"wing.x: block 1: .*implausible.*byte order"):
         load_mesh(p)
 
 

@@ -132,33 +132,62 @@ def test_view_and_backproject_read_what_map_writes(plate, ext, capsys):
 
 
 def test_map_writes_plot3d_function_file(plate):
-    """``--out P.f`` on a Plot3D grid: per-node values on the original grid, equal to a
-    plain loop over the grid's cells of the per-face values ``map`` writes to CSV (cell =
-    mean of its triangles, node = mean of its cells, both over the finite values)."""
+    """``--out P.f`` on a Plot3D grid: per-node values on the original grid with a ``.nam``
+    sidecar naming them, and one definition of a node value: the .f holds, for the same
+    image, exactly the node values of the .h5 time history (``--per node``). The image holds
+    the x coordinate of the plate under each pixel, so a node's value is its own x to a
+    fraction of the grid spacing (closed form)."""
+    from resection.io.history import read_history
     from resection.io.meshes import load_mesh
 
     d, X = plate
-    for out in ("P.f", "P.csv"):
-        assert main(["map", "--mesh", str(d / "panel.grid"), "--camera", str(d / "off.json"),
-                     "--image", str(d / "xcoord.npy"), "--out", str(d / out)]) == 0
+    assert main(["map", "--mesh", str(d / "panel.grid"), "--camera", str(d / "off.json"),
+                 "--image", str(d / "xcoord.npy"), "--out", str(d / "P.f")]) == 0
     (vals,) = read_plot3d_function(d / "P.f")
-    assert vals.shape == (25, 17, 1, 3)  # xcoord, xcoord_count, xcoord_seen
-    face = read_fields(d / "P.csv")["xcoord"]
+    assert vals.shape == (25, 17, 1, 3)
+    assert (d / "P.nam").read_text() == "xcoord\nxcoord_count\nxcoord_seen\n"
+    v = vals[..., 0, 0]
+    fin = np.isfinite(v)
+    inner = np.zeros_like(fin)  # nodes whose eight neighbours have values: seen all round
+    inner[1:-1, 1:-1] = np.all([fin[1 + di:fin.shape[0] - 1 + di, 1 + dj:fin.shape[1] - 1 + dj]
+                                for di in (-1, 0, 1) for dj in (-1, 0, 1)], axis=0)
+    assert inner.sum() > 40
+    dx = X[1, 0] - X[0, 0]
+    assert np.max(np.abs(v[inner] - X[inner])) < 0.1 * dx
+    # the same image to a time history, per node: the same values
+    assert main(["map", "--mesh", str(d / "panel.grid"), "--camera", str(d / "off.json"),
+                 "--image", str(d / "xcoord.npy"), "--out", str(d / "P.h5"),
+                 "--per", "node"]) == 0
+    h = read_history(d / "P.h5")
     mesh = load_mesh(d / "panel.grid")
-    ci, cj = mesh.face_attributes["cell_i"], mesh.face_attributes["cell_j"]
-    cells = {}
-    for f, (i, j) in enumerate(zip(ci, cj, strict=True)):
-        if np.isfinite(face[f]):
-            cells.setdefault((i, j), []).append(face[f])
-    ref = np.full((25, 17), np.nan)
-    for i in range(25):
-        for j in range(17):
-            around = [np.mean(cells[c]) for c in ((i - 1, j - 1), (i - 1, j), (i, j - 1),
-                                                   (i, j)) if c in cells]
-            if around:
-                ref[i, j] = np.mean(around)
-    np.testing.assert_allclose(vals[..., 0, 0], ref, rtol=0, atol=1e-12)
-    assert np.isfinite(ref).sum() > 40
+    node_vertex = mesh.metadata["plot3d_node_vertex"].reshape(25, 17)
+    np.testing.assert_array_equal(np.asarray(h.points), mesh.vertices)
+    hv = h.values[0][node_vertex]
+    assert hv.dtype == np.float32  # the history stores float32: the .f's values, rounded
+    np.testing.assert_array_equal(v.astype(np.float32), hv)
+
+
+def test_merged_plot3d_function_file_named(plate):
+    """A merge written to ``.f``: node values with a ``.nam`` naming every variable in file
+    order; a camera's node values are those of ``map`` with that camera alone."""
+    d, _ = plate
+    img2 = d / "xcopy.npy"
+    img2.write_bytes((d / "xcoord.npy").read_bytes())
+    assert main(["map", "--mesh", str(d / "panel.grid"), "--camera", str(d / "off.json"),
+                 "--image", str(d / "xcoord.npy"), "--camera", str(d / "off.json"),
+                 "--image", str(img2), "--out", str(d / "M.f"), "--no-gain-match"]) == 0
+    names = (d / "M.nam").read_text().splitlines()
+    assert names == ["merged", "merged_weight", "merged_cameras", "merged_seen", "xcoord",
+                     "xcoord_weight", "xcopy", "xcopy_weight"]
+    (vals,) = read_plot3d_function(d / "M.f")
+    assert vals.shape[-1] == len(names)
+    assert main(["map", "--mesh", str(d / "panel.grid"), "--camera", str(d / "off.json"),
+                 "--image", str(d / "xcoord.npy"), "--out", str(d / "S.f")]) == 0
+    (single,) = read_plot3d_function(d / "S.f")
+    np.testing.assert_array_equal(vals[..., names.index("xcoord")], single[..., 0])
+    # two identical views: the merged value is the view's value wherever it has weight
+    w = vals[..., names.index("merged_weight")] > 0
+    np.testing.assert_allclose(vals[..., 0][w], single[..., 0][w], rtol=1e-12)
 
 
 def _read_with_vtk(path):

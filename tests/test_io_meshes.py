@@ -39,7 +39,12 @@ def test_hand_written_ascii_multiblock(tmp_path):
     p.write_text(HAND_ASCII)
     m = load_mesh(p)
     assert len(m.faces) == 6  # 2 cells -> 4 triangles, 1 cell -> 2 triangles
-    np.testing.assert_array_equal(m.face_attributes["block"], [0, 0, 0, 0, 1, 1])
+    np.testing.assert_array_equal(m.face_attributes["block"], [1, 1, 1, 1, 2, 2])
+    # blocks count from 1 everywhere: the block field and --unpainted agree
+    from selfillum.unseen import read_unpainted
+
+    mask, _ = read_unpainted("2", m)
+    np.testing.assert_array_equal(mask, m.face_attributes["block"] == 2)
     np.testing.assert_allclose(m.area_faces, [0.5, 0.5, 0.5, 0.5, 1.0, 1.0])
     # normals follow d/di x d/dj = +z
     np.testing.assert_allclose(m.face_normals, np.tile([0, 0, 1.0], (6, 1)), atol=1e-12)
@@ -130,7 +135,7 @@ def test_plot3d_round_trip(tmp_path, binary, records, precision, with_iblank, en
     ib = None
     if with_iblank:
         ib = [np.ones((7, 5, 1), int), np.ones((7, 5, 1), int)]
-        ib[1][3, 2, 0] = 0  # blanks the 4 cells around point (3, 2) of block 1
+        ib[1][3, 2, 0] = 0  # blanks the 4 cells around point (3, 2) of block 2
     p = tmp_path / "cyl.xyz"
     write_plot3d(p, blocks, iblank=ib, binary=binary, precision=precision, endian=endian,
                  records=records)
@@ -143,7 +148,7 @@ def test_plot3d_round_trip(tmp_path, binary, records, precision, with_iblank, en
     n_cells = 2 * 6 * 4 - (4 if with_iblank else 0)
     assert len(m.faces) == 2 * n_cells
     nb = np.bincount(m.face_attributes["block"]).tolist()
-    assert nb == [48, 48 - (8 if with_iblank else 0)]
+    assert nb == [0, 48, 48 - (8 if with_iblank else 0)]  # blocks 1 and 2
     # blocks share the seam at theta = pi/2: vertices merged
     assert len(m.vertices) == 2 * 35 - 5 - (1 if with_iblank else 0)  # blanked point unused
     # the triangles lie on the cylinder: vertices at radius 1, area below 2 pi / 4 * 2 * 2
@@ -188,11 +193,11 @@ def test_plot3d_errors(tmp_path):
     # the writer refuses what the reader would refuse, and shapes that are not grids
     grid = np.zeros((3, 2, 3))
     grid[..., 0] = np.arange(3)[:, None]
-    with pytest.raises(InputError, match=r"block 0 has shape \(3, 3\)"):
+    with pytest.raises(InputError, match=r"block 1 has shape \(3, 3\)"):
         write_plot3d(tmp_path / "w.xyz", [np.zeros((3, 3))])
-    with pytest.raises(InputError, match="block 1 holds NaN"):
+    with pytest.raises(InputError, match="block 2 holds NaN"):
         write_plot3d(tmp_path / "w.xyz", [grid, np.full((2, 2, 3), np.nan)])
-    with pytest.raises(InputError, match="IBLANK of block 0"):
+    with pytest.raises(InputError, match="IBLANK of block 1"):
         write_plot3d(tmp_path / "w.xyz", [grid], iblank=[np.ones((2, 2), int)])
     with pytest.raises(InputError, match="2 IBLANK arrays for 1 blocks"):
         write_plot3d(tmp_path / "w.xyz", [grid], iblank=[np.ones((3, 2), int)] * 2)

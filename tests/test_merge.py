@@ -85,7 +85,7 @@ def test_pixel_and_angle_weights(scene):
     # block outline (occlusion and creases) is a boundary: the block's top face pixels
     # next to the plate are in it
     blk = np.asarray(sc.mesh.face_attributes["block"])
-    top = (m.face_index >= 0) & (blk[np.maximum(m.face_index, 0)] == 6)
+    top = (m.face_index >= 0) & (blk[np.maximum(m.face_index, 0)] == 7)
     assert (bnd & top).sum() > 10
     # at the image edge, far from boundaries: ramp d / (feather + 1), d = 1 on the edge
     row = m.shape[0] // 2

@@ -172,13 +172,22 @@ def run_map(args: argparse.Namespace) -> int:
     require_seen(smap.seen_faces.sum(), camera, mesh.vertices, "the mesh",
                  f"map: {args.camera} sees none of the {len(mesh.faces)} faces of {args.mesh}")
     fields = {}
+    per_node = Path(args.out).suffix.lower() == ".f"  # Plot3D function file: node values
     for path in args.image:
         name = Path(path).stem
+        if per_node:
+            from .node_values import image_node_fields
+
+            fields.update(image_node_fields(smap, read_image(path), name))
+            continue
         res = smap.to_surface(read_image(path))
         fields[name] = res.values
         fields[f"{name}_count"] = res.counts
         fields[f"{name}_seen"] = ~res.unseen
-    atomic_write(args.out, write_surface, mesh, fields)
+    if per_node:
+        write_surface(args.out, mesh, None, node_fields=fields)  # atomic, with its .nam
+    else:
+        atomic_write(args.out, write_surface, mesh, fields)
     print(f"map: {int(smap.seen_faces.sum())} of {len(mesh.faces)} faces seen by "
           f"{int(smap.mask.sum())} pixels; written to {args.out}")
     return 0
@@ -233,12 +242,18 @@ def _run_merge(args: argparse.Namespace, names: list) -> int:
     maps = [SurfaceMap(mesh, c, max_obliqueness=args.max_obliqueness) for c in cameras]
     images = [read_image(p, mask_saturated=True) for p in args.image]
     mv = merge_views(maps, images, feather_px=args.feather, match_gain=not args.no_gain_match)
-    fields = {"merged": mv.values, "merged_weight": mv.weight,
-              "merged_cameras": mv.n_cameras, "merged_seen": mv.seen}
-    for c, name in enumerate(names):
-        fields[name] = mv.camera_values[c]
-        fields[f"{name}_weight"] = mv.camera_weights[c]
-    atomic_write(args.out, write_surface, mesh, fields)
+    if Path(args.out).suffix.lower() == ".f":  # Plot3D function file: node values
+        from .node_values import merged_node_fields
+
+        write_surface(args.out, mesh, None,
+                      node_fields=merged_node_fields(maps, images, mv, names))
+    else:
+        fields = {"merged": mv.values, "merged_weight": mv.weight,
+                  "merged_cameras": mv.n_cameras, "merged_seen": mv.seen}
+        for c, name in enumerate(names):
+            fields[name] = mv.camera_values[c]
+            fields[f"{name}_weight"] = mv.camera_weights[c]
+        atomic_write(args.out, write_surface, mesh, fields)
     print(mv.report())
     print(f"map: {int(mv.seen.sum())} of {len(mesh.faces)} faces seen by {len(maps)} "
           f"cameras ({int((mv.n_cameras > 1).sum())} by several); written to {args.out}")

@@ -19,10 +19,14 @@ Formats, chosen by the extension:
 ``.npy``
     one field: its ``(n_faces,)`` or ``(n_faces, k)`` array; read back as ``"values"``.
 ``.f``
-    Plot3D function file on the original grid's nodes (mesh read from a Plot3D grid): the
-    face fields averaged to the nodes (:func:`resection.io.plot3d.faces_to_grid_nodes`),
-    one variable per field column in the order given (the names are written to the command's
-    report, not to the file, which has no place for them).
+    Plot3D function file on the original grid's nodes (mesh read from a Plot3D grid), one
+    variable per field column in the order given, with a ``.nam`` sidecar (same name,
+    extension ``.nam``) naming the variables one a line, as FAST and Tecplot read it. Node
+    fields (one value per mesh vertex, e.g. :meth:`resection.surface.SurfaceMap.to_nodes`,
+    the one definition of a node value that ``map`` writes to ``.f`` and ``.h5`` alike) go
+    to the grid nodes sharing that vertex
+    (:func:`resection.io.plot3d.vertices_to_grid_nodes`); face fields (results that exist
+    per face only) are averaged to the nodes (:func:`resection.io.plot3d.faces_to_grid_nodes`).
 
 Names are sanitised to ``[A-Za-z0-9_]``; an ``(n, k)`` field becomes ``name_0 ..
 name_{k-1}``; booleans are written as 0/1 integers (unsigned bytes in ``.vtk``). NaN is kept
@@ -39,9 +43,9 @@ from pathlib import Path
 import numpy as np
 
 from resection.errors import InputError
-from resection.io._write import atomic_write
+from resection.io._write import atomic_text, atomic_write
 
-__all__ = ["write_fields", "read_fields", "FIELD_SUFFIXES"]
+__all__ = ["write_fields", "read_fields", "nam_path", "FIELD_SUFFIXES"]
 
 FIELD_SUFFIXES = (".vtk", ".vtu", ".xdmf", ".ply", ".csv", ".npy", ".f")
 _MESHIO = {".vtk": "vtk", ".vtu": "vtu", ".xdmf": "xdmf"}
@@ -232,17 +236,37 @@ def _write_npy(path, face_fields, node_fields):
     atomic_write(path, write)
 
 
-def _write_function(path, mesh, face_fields, node_fields):
-    from resection.io.plot3d import faces_to_grid_nodes, write_plot3d_function
+def nam_path(path: str | os.PathLike) -> str:
+    """The ``.nam`` sidecar of a Plot3D function file: same name, extension ``.nam``."""
+    return os.fspath(Path(os.fspath(path)).with_suffix(".nam"))
 
+
+def _write_function(path, mesh, face_fields, node_fields):
+    from resection.io.plot3d import (
+        faces_to_grid_nodes,
+        vertices_to_grid_nodes,
+        write_plot3d_function,
+    )
+
+    if node_fields and face_fields:
+        raise InputError(f"{path}: a Plot3D function file holds node values: give node "
+                         "fields or face fields, not both")
     if node_fields:
-        raise InputError(f"{path}: a Plot3D function file is written from face fields (the "
-                         "grid's nodes are not the mesh's merged vertices)")
-    fcols = _columns(face_fields, len(mesh.faces), "face")
-    if not fcols:
+        cols = _columns(node_fields, len(mesh.vertices), "node")
+    else:
+        cols = _columns(face_fields, len(mesh.faces), "face")
+    if not cols:
         raise InputError(f"{path}: no field to write")
-    values = np.column_stack([a.astype(np.float64) for _, a in fcols])
-    write_plot3d_function(path, faces_to_grid_nodes(mesh, values))
+    values = np.column_stack([a.astype(np.float64) for _, a in cols])
+    nodes = vertices_to_grid_nodes(mesh, values) if node_fields else \
+        faces_to_grid_nodes(mesh, values)
+    nam = nam_path(path)
+    if os.path.exists(nam) and not os.path.exists(path):
+        raise InputError(f"{nam}: exists and was not made with {Path(path).name} (its variable "
+                         "names go there); refusing to replace it: move it or choose another "
+                         "output name")
+    write_plot3d_function(path, nodes)
+    atomic_text(nam, "".join(f"{name}\n" for name, _ in cols))
 
 
 # --------------------------------------------------------------------------- reading

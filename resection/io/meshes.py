@@ -11,8 +11,9 @@ so the face order is that of the file and every per-face array of the package fo
   Every 2-D block (one of ``ni, nj, nk`` equal to 1) is split into triangles, two per grid
   cell; cells with a corner of IBLANK = 0 are dropped; triangles made degenerate by a
   collapsed grid line (two coincident grid points, e.g. a nose singularity) are dropped.
-  ``face_attributes["block"]`` (0-based block), ``["cell_i"]``, ``["cell_j"]`` (0-based cell
-  indices along the block's two surface directions) are kept per face;
+  ``face_attributes["block"]`` (the block number counted from 1 in file order, as the
+  Plot3D manual and uPSP count them), ``["cell_i"]``, ``["cell_j"]`` (0-based cell indices
+  along the block's two surface directions) are kept per face;
 * Cart3D ``.tri`` (ASCII, or Fortran unformatted): ``face_attributes["component"]`` holds the
   component id of every triangle (1 if the file has none).
 
@@ -293,12 +294,13 @@ def plot3d_to_mesh(blocks, *, merge_vertices: bool = True,
         if xyz.ndim == 3:
             xyz = xyz[:, :, None, :]
         if xyz.ndim != 4 or xyz.shape[3] != 3:
-            raise InputError(f"{source}: block {b} has shape {xyz.shape}, expected (ni,nj,nk,3)")
+            raise InputError(f"{source}: block {b + 1} has shape {xyz.shape}, expected "
+                             "(ni,nj,nk,3)")
         dims = xyz.shape[:3]
         keep = [a for a in range(3) if dims[a] > 1]
         if len(keep) != 2:
             raise InputError(
-                f"{source}: block {b} with dimensions {dims} is not a surface (exactly one "
+                f"{source}: block {b + 1} with dimensions {dims} is not a surface (exactly one "
                 "of ni, nj, nk must be 1)"
             )
         P = xyz.reshape(dims[keep[0]], dims[keep[1]], 3)
@@ -322,7 +324,7 @@ def plot3d_to_mesh(blocks, *, merge_vertices: bool = True,
         ok &= ~collapsed
         verts.append(Pf)
         faces.append(tri[ok] + off)
-        blk.append(np.full(ok.sum(), b))
+        blk.append(np.full(ok.sum(), b + 1))  # blocks count from 1
         ci.append(cell_i[ok])
         cj.append(cell_j[ok])
         off += len(Pf)
@@ -331,8 +333,14 @@ def plot3d_to_mesh(blocks, *, merge_vertices: bool = True,
     mesh = trimesh.Trimesh(np.vstack(verts), np.vstack(faces).astype(np.int64), process=False)
     if len(mesh.faces) == 0:
         raise InputError(f"{source}: empty mesh (every cell blanked or collapsed)")
+    faces0 = np.array(mesh.faces)
     if merge_vertices:
         mesh.merge_vertices()
+    # grid node (blocks in order, each block's nodes as reshape(-1)) -> mesh vertex, -1 for a
+    # node no face uses (blanked); merging keeps the faces and their order
+    node_vertex = np.full(off, -1, dtype=np.int64)
+    node_vertex[faces0.ravel()] = np.asarray(mesh.faces).ravel()
+    mesh.metadata["plot3d_node_vertex"] = node_vertex
     mesh.face_attributes["block"] = np.concatenate(blk).astype(np.int64)
     mesh.face_attributes["cell_i"] = np.concatenate(ci).astype(np.int64)
     mesh.face_attributes["cell_j"] = np.concatenate(cj).astype(np.int64)

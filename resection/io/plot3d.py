@@ -125,7 +125,7 @@ def _parse_binary_plot3d(data: bytes, source: str):
         for rec, d in zip(data_recs, dims, strict=True):  # loop over blocks
             n = int(np.prod(d))
             vals = _byte_order(np.frombuffer(rec, f"{endian}f{real}", 3 * n), source,
-                               len(blocks))
+                               len(blocks) + 1)
             ib = np.frombuffer(rec, f"{endian}i4", n, 3 * n * real) if has_ib else None
             blocks.append(_split_block(vals, ib, d))
         return blocks, {"encoding": "fortran", "precision": real, "iblank": has_ib}
@@ -154,7 +154,7 @@ def _parse_binary_plot3d(data: bytes, source: str):
             for d in dims:
                 n = int(np.prod(d))
                 vals = _byte_order(np.frombuffer(data, f"{endian}f{real}", 3 * n, pos),
-                                   source, len(blocks))
+                                   source, len(blocks) + 1)
                 pos += 3 * n * real
                 ib = None
                 if has_ib:
@@ -303,7 +303,7 @@ def read_plot3d(path: str | os.PathLike) -> list[tuple[np.ndarray, np.ndarray | 
         blocks, _info = _parse_ascii_plot3d(text, path)
     for k, (xyz, _) in enumerate(blocks):  # (binary blocks passed _byte_order already)
         if not binary and not np.all(np.isfinite(xyz)):
-            raise InputError(f"{path}: block {k} holds NaN or infinite coordinates")
+            raise InputError(f"{path}: block {k + 1} holds NaN or infinite coordinates")
     return blocks
 
 
@@ -338,13 +338,13 @@ def write_plot3d(
         try:
             a = np.asarray(b, dtype=np.float64)
         except (TypeError, ValueError):
-            raise InputError(f"write_plot3d: block {k} is not a numeric array") from None
+            raise InputError(f"write_plot3d: block {k + 1} is not a numeric array") from None
         a = a[:, :, None, :] if a.ndim == 3 else a
         if a.ndim != 4 or a.shape[3] != 3 or 0 in a.shape:
-            raise InputError(f"write_plot3d: block {k} has shape {np.shape(b)}, expected "
+            raise InputError(f"write_plot3d: block {k + 1} has shape {np.shape(b)}, expected "
                              "(ni, nj, nk, 3) or (ni, nj, 3)")
         if not np.all(np.isfinite(a)):
-            raise InputError(f"write_plot3d: block {k} holds NaN or infinite coordinates")
+            raise InputError(f"write_plot3d: block {k + 1} holds NaN or infinite coordinates")
         arrs.append(a)
     if not arrs:
         raise InputError("write_plot3d: no blocks")
@@ -359,7 +359,7 @@ def write_plot3d(
         for k, (ib, a) in enumerate(zip(iblank, arrs, strict=True)):
             ib = np.asarray(ib)
             if ib.size != np.prod(a.shape[:3]) or not np.issubdtype(ib.dtype, np.integer):
-                raise InputError(f"write_plot3d: IBLANK of block {k} must be integers of "
+                raise InputError(f"write_plot3d: IBLANK of block {k + 1} must be integers of "
                                  f"shape {a.shape[:3]}, got {ib.dtype} {ib.shape}")
             ibs[k] = ib.reshape(a.shape[:3])
     dims = np.array([a.shape[:3] for a in arrs], dtype=np.int64)
@@ -454,7 +454,7 @@ def write_plot3d_function(
         if a.ndim == 3:
             a = a[..., None]
         if a.ndim != 4 or 0 in a.shape:
-            raise InputError(f"{path}: block {k} values have shape {np.shape(v)}, expected "
+            raise InputError(f"{path}: block {k + 1} values have shape {np.shape(v)}, expected "
                              "(ni, nj, nk[, nvar])")
         arrs.append(a)
     if not arrs:
@@ -496,9 +496,51 @@ def read_plot3d_function(path: str | os.PathLike) -> list[np.ndarray]:
         n = int(np.prod(d))
         real = len(r) // n if n else 0
         if real not in (4, 8) or len(r) != real * n:
-            raise InputError(f"{path}: block {k}: {len(r)} bytes for {n} values")
+            raise InputError(f"{path}: block {k + 1}: {len(r)} bytes for {n} values")
         v = np.frombuffer(r, f"{endian}f{real}").astype(np.float64)
         out.append(v.reshape(d[3], d[2], d[1], d[0]).transpose(3, 2, 1, 0).copy())
+    return out
+
+
+def _grid_dims(mesh) -> list[tuple[int, int, int]]:
+    dims = mesh.metadata.get("plot3d_dims") if hasattr(mesh, "metadata") else None
+    if dims is None:
+        raise InputError("per-node Plot3D output needs a mesh read from a Plot3D grid")
+    return [tuple(int(x) for x in d) for d in dims]
+
+
+def vertices_to_grid_nodes(mesh, vertex_values) -> list[np.ndarray]:
+    """Per-vertex values of a triangulated Plot3D grid on the grid's own nodes.
+
+    ``mesh`` must come from :func:`~resection.io.meshes.plot3d_to_mesh` (or
+    :func:`~resection.io.meshes.load_mesh` of a Plot3D file): ``metadata["plot3d_node_vertex"]``
+    gives the mesh vertex of every grid node (nodes merged across block interfaces share
+    it, and so their value). NaN at a node no face uses (blanked).
+
+    Parameters
+    ----------
+    vertex_values : (n_vertices,) or (n_vertices, nvar) array
+
+    Returns
+    -------
+    list of (ni, nj, nk, nvar) float64 arrays, one per block.
+    """
+    dims = _grid_dims(mesh)
+    nv = mesh.metadata.get("plot3d_node_vertex")
+    if nv is None:
+        raise InputError("per-node Plot3D output needs a mesh read from a Plot3D grid")
+    v = np.asarray(vertex_values, dtype=np.float64)
+    if v.ndim == 1:
+        v = v[:, None]
+    if v.shape[0] != len(mesh.vertices):
+        raise InputError(f"{v.shape[0]} node values for {len(mesh.vertices)} vertices")
+    nv = np.asarray(nv)
+    vals = np.where((nv >= 0)[:, None], v[np.maximum(nv, 0)], np.nan)
+    out, pos = [], 0
+    for d in dims:
+        n = int(np.prod(d))
+        out.append(vals[pos:pos + n].reshape(*d, v.shape[1]))
+        pos += n
     return out
 
 
@@ -508,8 +550,11 @@ def faces_to_grid_nodes(mesh, face_values) -> list[np.ndarray]:
     ``mesh`` must come from :func:`~resection.io.meshes.plot3d_to_mesh` (or
     :func:`~resection.io.meshes.load_mesh` of a Plot3D file): its ``face_attributes``
     ``block``, ``cell_i``, ``cell_j`` and ``metadata["plot3d_dims"]`` locate every face.
-    A cell's value is the mean of its (up to two) finite triangle values; a node's value is
-    the mean of its (up to four) adjacent finite cells; NaN where none.
+    Blocks are numbered from 1 in ``face_attributes["block"]``. A cell's value is the mean
+    of its (up to two) finite triangle values; a node's value is the mean of its (up to
+    four) adjacent finite cells; NaN where none. (For image values, ``map`` writes the node
+    values of :meth:`resection.surface.SurfaceMap.to_nodes` instead: see
+    :mod:`resection.node_values`.)
 
     Parameters
     ----------
@@ -535,7 +580,7 @@ def faces_to_grid_nodes(mesh, face_values) -> list[np.ndarray]:
         d = tuple(int(x) for x in d)
         keep = [a for a in range(3) if d[a] > 1]
         na, nb = d[keep[0]], d[keep[1]]
-        sel = blk == b
+        sel = blk == b + 1  # blocks count from 1
         cell = ci[sel] * (nb - 1) + cj[sel]
         fin = np.isfinite(v[sel])
         ncell = (na - 1) * (nb - 1)

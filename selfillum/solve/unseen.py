@@ -94,7 +94,7 @@ def read_unpainted(spec, mesh: trimesh.Trimesh) -> tuple[np.ndarray, str]:
         counted from 1 in file order), or a per-face boolean array.
     mesh : trimesh.Trimesh
         The model; for block numbers it must come from a Plot3D grid
-        (``face_attributes["block"]``, counted from 0, as
+        (``face_attributes["block"]``, counted from 1, as
         :func:`resection.io.meshes.plot3d_to_mesh` writes it).
 
     Returns
@@ -120,12 +120,12 @@ def read_unpainted(spec, mesh: trimesh.Trimesh) -> tuple[np.ndarray, str]:
             raise InputError(f"--unpainted {text}: block numbers need a Plot3D grid (this "
                              "mesh has no blocks); give a per-face 0/1 file instead")
         block = np.asarray(block, dtype=np.int64)
-        count = int(block.max()) + 1
+        count = int(block.max())
         bad = numbers[(numbers < 1) | (numbers > count)]
         if bad.size:
             raise InputError(f"--unpainted {text}: block {int(bad[0])} does not exist (the "
                              f"grid has blocks 1 to {count}, counted from 1)")
-        return np.isin(block, numbers - 1), f"Plot3D blocks {text.split(':')[-1].strip()}"
+        return np.isin(block, numbers), f"Plot3D blocks {text.split(':')[-1].strip()}"
     if not path.exists():
         raise InputError(f"{path}: no such unpainted-face file (nor block numbers like 3,5-7)")
     values = _per_face_file(path, n, "unpainted")
