@@ -272,3 +272,42 @@ def test_cli_correct_stack(renders, tmp_path, capsys):
         ok = inner & np.isfinite(frame)
         err = (scale * frame - emit)[ok] / emit[ok]
         assert np.sqrt(np.mean(err**2)) < 1.5 * noise + 0.01
+
+
+def test_cli_correct_8bit_writes_float_unless_asked(renders, tmp_path, capsys):
+    """An 8-bit image's correction is often under one count: the output is float32 by
+    default (TIFF and NPY), 8 bits only when asked, and an 8-bit PNG output is refused
+    with the choices. On today's main the output was uint8 and the correction rounded."""
+    from PIL import Image
+
+    sc, cam, smap, full, emit, inner, noise = renders
+    mesh_path, cam_path = tmp_path / "corner.ply", tmp_path / "cam.json"
+    sc.mesh.export(mesh_path)
+    cam.write(cam_path)
+    counts = np.clip(np.rint(full * 60), 0, 255).astype(np.uint8)
+    Image.fromarray(counts).save(tmp_path / "img.png")
+
+    def run(out, *extra):
+        return main(["correct", "--mesh", str(mesh_path), "--camera", str(cam_path),
+                     "--image", str(tmp_path / "img.png"), "--reflectance", "0.6",
+                     "--out", str(tmp_path / out), "--quiet", *extra])
+
+    assert run("out.tif") == 0 and run("out.npy") == 0
+    tif = tifffile.imread(tmp_path / "out.tif")
+    npy = np.load(tmp_path / "out.npy")
+    assert tif.dtype == np.float32 and npy.dtype == np.float32
+    np.testing.assert_array_equal(tif, npy)
+    changed = np.abs(tif - counts) > 0
+    fractional = changed & (np.abs(tif - np.rint(tif)) > 0.01)
+    assert fractional.sum() > 0.5 * changed.sum() > 0  # sub-count corrections are kept
+    assert run("out8.tif", "--dtype", "uint8") == 0
+    out8 = tifffile.imread(tmp_path / "out8.tif")
+    assert out8.dtype == np.uint8
+    np.testing.assert_array_equal(out8, np.clip(np.rint(tif), 0, 255).astype(np.uint8))
+    capsys.readouterr()
+    assert run("out.png") == 2
+    err = capsys.readouterr().err
+    assert "out.png" in err and "--dtype uint16" in err and ".tif" in err
+    assert not (tmp_path / "out.png").exists()
+    assert run("out16.png", "--dtype", "uint16") == 0
+    assert np.asarray(Image.open(tmp_path / "out16.png")).dtype == np.uint16

@@ -73,6 +73,7 @@ def _cmd_correct(args) -> int:
         max_obliqueness=args.max_obliqueness,
         progress=not args.quiet,
         mesh_format=args.mesh_format,
+        dtype=args.dtype,
     )
     s = summarize(result)
     seen = s.seen_min if s.seen_min == s.seen_max else f"{s.seen_min} to {s.seen_max}"
@@ -183,7 +184,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="correct a camera image of a painted model for self-illumination",
         description="Map the image onto the model's faces, remove self-illumination "
         "(Lambertian, view factors by Embree ray casting) and write the corrected image: "
-        "same shape and pixel type, pixels off the model unchanged. The image is assumed "
+        "same shape, float32 for an 8-bit image (else its own pixel type; --dtype to "
+        "choose), pixels off the model unchanged. The image is assumed "
         "proportional to radiance (dark level subtracted).",
     )
     p.add_argument(
@@ -200,7 +202,11 @@ def build_parser() -> argparse.ArgumentParser:
         required=True,
         help="paint reflectance: a number in [0, 1) or a per-face .npy/.csv file",
     )
-    p.add_argument("--out", required=True, help="corrected image (.tif, .tiff, .npy)")
+    p.add_argument("--out", required=True, help="corrected image (.tif, .tiff, .npy, .png)")
+    p.add_argument("--dtype", choices=("float32", "uint16", "uint8"), default=None,
+                   help="pixel type of the corrected image (default: float32 for an 8-bit "
+                   "image, whose correction is often under one count, else the input's "
+                   "type; PNG: integers only)")
     p.add_argument(
         "--mode",
         choices=("subtract", "ratio"),

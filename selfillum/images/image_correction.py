@@ -35,6 +35,7 @@ from resection.errors import InputError
 from resection.io.cameras import read_camera
 from resection.io.images import write_image
 from resection.surface.surface_map import DEFAULT_MAX_OBLIQUENESS
+from selfillum.images.output_dtype import output_dtype
 from selfillum.mesh import check_mesh, face_areas
 from selfillum.solve.radiosity import SolveInfo, check_reflectance, correct
 from selfillum.solve.unseen import describe_unseen, read_unpainted, read_unseen, unseen_warning
@@ -380,11 +381,14 @@ def correct_image_file(
     max_obliqueness: float = DEFAULT_MAX_OBLIQUENESS,
     progress: bool = False,
     mesh_format: str | None = None,
+    dtype: str | None = None,
 ) -> ImageCorrection:
     """File-level :func:`correct_image`: read the mesh (any format of
     :func:`resection.io.meshes.load_mesh`), the camera JSON and the image (TIFF or NPY),
-    correct, write the corrected image with the input's dtype (TIFF or NPY, from
-    ``out_path``'s suffix), the summary with the assumption for unseen faces
+    correct, write the corrected image (TIFF, PNG or NPY, from ``out_path``'s suffix) as
+    float32 for an 8-bit image and with the input's type otherwise, or as ``dtype``
+    (``"float32"``, ``"uint16"``, ``"uint8"``) when asked (:mod:`selfillum.image_dtype`),
+    the summary with the assumption for unseen faces
     (:func:`selfillum.summary.write_summary`) to ``out_path`` + ``".json"``, and
     optionally the per-face fields (``radiosity``, ``emission``, ``seen``,
     ``unseen_share``, ``grazing``, ``unpainted``) to ``surface_out`` (.ply, .vtk or .csv).
@@ -414,6 +418,9 @@ def correct_image_file(
     mesh = load_mesh(mesh_path, format=mesh_format)
     camera = read_camera(camera_path)
     image = _read_native(image_path)
+    target = output_dtype(image.dtype, out_path, dtype)  # refused before the work
+    if image.dtype.kind in "uib":  # correct in float, then write the type chosen
+        image = image.astype(np.float32)
     n = len(mesh.faces)
     rho = read_reflectance(reflectance, n)
     unpainted_mask, source = (None, "") if unpainted is None else \
@@ -435,7 +442,7 @@ def correct_image_file(
             progress=progress,
         )
     said = describe_unseen(unseen_value, unpainted_mask, source)
-    result = replace(result, assumption=said)
+    result = replace(result, assumption=said, image=_as_dtype(result.image, target))
     said_file = f"{said}: {unseen}" if isinstance(unseen_value, np.ndarray) else said
     # every file through a temporary name, renamed into place only when all are written
     with atomic_path(out_path) as tmp, atomic_path(surface_out) as tmp_surface, \
