@@ -382,3 +382,84 @@ def test_to_nodes_linear_field_and_no_background(plane_map):
     touched = r2.nan_counts[1] > 0
     assert 1 <= touched.sum() <= 3 and np.all(r2.nan_counts[0] == 0)
     np.testing.assert_allclose(r2.values[0], res.values, rtol=1e-12)
+
+
+def test_vertex_values_next_to_missing_faces_stay_bounded():
+    """A vertex far from the origin with one valued face around it: the gradient fit on its
+    centroid spread (pure round-off) made values of 1e14 to 1e17 (issue 20 item 9). A
+    linear field's vertex values stay within its range over the mesh, widened by the
+    gradient times two face sizes (the fit's first-order error), whatever faces are
+    missing."""
+    from resection import vertex_values
+
+    rng = np.random.default_rng(1)
+    for _ in range(60):
+        m = trimesh.creation.icosphere(subdivisions=2, radius=0.01)
+        off = rng.uniform(-3000, 3000, 3)
+        m = trimesh.Trimesh(m.vertices * rng.uniform(0.5, 2) + off, m.faces, process=False)
+        r = np.abs(m.vertices[:, 0] - off[0]).max()
+        f = 1000 + 3e4 * (m.triangles_center[:, 0] - off[0])
+        f[rng.random(len(f)) < 0.8] = np.nan
+        vv = vertex_values(m, f)
+        ok = np.isfinite(vv)
+        assert ok.any()
+        assert np.abs(vv[ok] - 1000).max() <= 3e4 * (r + 2 * m.edges_unique_length.max())
+
+
+def test_to_image_renormalises_over_valued_corners(plane_map):
+    """Barycentric interpolation never mixes in a missing vertex value: the weights are
+    renormalised over the corners that have one (closed form on a face), NaN where none."""
+    mesh, cam, smap, _ = plane_map
+    f = linear(mesh.triangles_center)
+    vert = smap.vertex_values(f[:, None], "linear")
+    face = int(np.bincount(smap.face_index[smap.face_index >= 0]).argmax())  # a well-seen face
+    a, b, c = mesh.faces[face]
+    holed = vert.copy()
+    holed[a] = np.nan  # as if vertex a had no value
+
+    class Patched(SurfaceMap):
+        def vertex_values(self, fv, interpolation="linear"):
+            return holed
+
+    p = Patched.__new__(Patched)
+    p.__dict__.update(smap.__dict__)
+    img = p.to_image(f)
+    pix = smap.face_index == face
+    assert pix.sum() > 3
+    bary = smap.barycentric[pix]  # weights of corners a, b, c
+    ref = (bary[:, 1] * vert[b, 0] + bary[:, 2] * vert[c, 0]) / (bary[:, 1] + bary[:, 2])
+    np.testing.assert_allclose(img[pix], ref, rtol=1e-12)
+    holed[[b, c]] = np.nan  # no corner with a value: NaN
+    assert np.isnan(p.to_image(f)[pix]).all()
+
+
+def test_backproject_png_scaled_or_refused(tmp_path, capsys):
+    """Float values to PNG: refused with the choices by default, or mapped linearly to
+    1..65535 (NaN 0) as printed with --png-range."""
+    from PIL import Image
+
+    from resection.cli import main
+
+    mesh = grid_plane()
+    cam = camera()
+    mesh.export(tmp_path / "plane.ply")
+    cam.write(tmp_path / "cam.json")
+    vals = 681.0 + 695.0 * (mesh.triangles_center[:, 0] + 1) / 2  # 681..1376
+    np.save(tmp_path / "v.npy", vals)
+    base = ["backproject", "--mesh", str(tmp_path / "plane.ply"), "--camera",
+            str(tmp_path / "cam.json"), "--values", str(tmp_path / "v.npy")]
+    assert main([*base, "--out", str(tmp_path / "x.png")]) == 2
+    err = capsys.readouterr().err
+    assert "--png-range" in err and ".tif" in err and "x.png" in err
+    assert not (tmp_path / "x.png").exists()
+    assert main([*base, "--out", str(tmp_path / "x.npy")]) == 0
+    ref = np.load(tmp_path / "x.npy")
+    assert main([*base, "--out", str(tmp_path / "x.png"), "--png-range", "600,1400"]) == 0
+    assert "600 -> 1, 1400 -> 65535" in capsys.readouterr().out
+    got = np.asarray(Image.open(tmp_path / "x.png"))
+    assert got.dtype == np.uint16
+    fin = np.isfinite(ref)
+    assert np.all(got[~fin] == 0) and np.all(got[fin] >= 1)
+    back = 600 + (got[fin].astype(float) - 1) / 65534 * 800
+    # half a count of the map, plus the float32 rounding of the .npy reference
+    assert np.abs(back - ref[fin]).max() <= 0.5 * 800 / 65534 + 1376 * 2**-23

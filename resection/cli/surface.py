@@ -81,7 +81,11 @@ def register(sub) -> None:
     b.add_argument("--field", help="field name in --values (default: the only/first field)")
     b.add_argument("--background", help="image or number for pixels off the model")
     b.add_argument("--interpolation", choices=("linear", "mean", "nearest"), default="linear")
-    b.add_argument("--out", required=True, help="output image (.tif, .npy; .png if integer)")
+    b.add_argument("--out", required=True, help="output image (.tif, .npy: float; .png: "
+                   "integer values as they are, else with --png-range)")
+    b.add_argument("--png-range", metavar="MIN,MAX|auto",
+                   help="PNG output: map MIN..MAX linearly to counts 1..65535 (auto: the "
+                   "image's finite range), NaN to 0; the map is printed")
     b.set_defaults(func=run_backproject)
 
     a = sub.add_parser(
@@ -274,9 +278,20 @@ def run_backproject(args: argparse.Namespace) -> int:
             background = float(args.background)
         except ValueError:
             background = read_image(args.background)
+    from .png_range import parse_png_range, png_counts
+
+    png_range = parse_png_range(args.png_range)
+    png = Path(args.out).suffix.lower() == ".png"
+    if png_range is not None and not png:
+        raise InputError("--png-range is for a .png output")
     img = SurfaceMap(mesh, camera).to_image(values, background=background,
                                             interpolation=args.interpolation)
-    atomic_write(args.out, write_image, img.astype(np.float32))
+    if png:
+        counts, how = png_counts(img, png_range, args.out)
+        atomic_write(args.out, write_image, counts, dtype=np.uint16)
+        print(f"backproject: {how}")
+    else:
+        atomic_write(args.out, write_image, img.astype(np.float32))
     print(f"backproject: image written to {args.out}")
     return 0
 

@@ -137,7 +137,12 @@ def _fit_pairs(vid, fid, w, cen, verts, nv, linear):
                     vid, weights=w * dc[:, i] * dc[:, j], minlength=nv)
         evals, evecs = np.linalg.eigh(cov)
         scale = evals[:, -1:]
-        keep = evals > 1e-2 * scale
+        # a spread below the round-off of the coordinates is none (one valued face around a
+        # vertex far from the origin: its centroid minus their mean is round-off, and its
+        # inverse would blow the gradient up to 1e17)
+        reach = np.abs(verts).max() if len(verts) else 0.0
+        floor = W[:, None] * (1e-8 * reach) ** 2
+        keep = (evals > 1e-2 * scale) & (evals > floor)
         rank = keep.sum(axis=1)
         with np.errstate(invalid="ignore", divide="ignore"):
             inv = np.where(keep, 1.0 / evals, 0.0)
@@ -492,7 +497,9 @@ class SurfaceMap:
             turned into vertex values (``"mean"``: area-weighted mean of the faces around a
             vertex; ``"linear"``: that mean plus an area-weighted least-squares gradient
             correction, exact for fields linear in space) and interpolated barycentrically
-            at the pixel's hit point.
+            at the pixel's hit point. Only valued faces enter a vertex value, and the
+            barycentric weights are renormalised over the corners that have a value (NaN
+            where none): a missing value is never mixed in.
 
         Returns
         -------
@@ -530,7 +537,14 @@ class SurfaceMap:
             vals = fv2[:, f]
         else:
             vert = self.vertex_values(fv2.T, interpolation)  # (V, T)
-            vals = (self._interpolation_matrix() @ np.nan_to_num(vert)).T  # (T, pixels)
+            # barycentric weights renormalised over the corners that have a value: a
+            # missing value is never mixed in (NaN where no corner has one)
+            Mi = self._interpolation_matrix()
+            valued = np.isfinite(vert)
+            num = Mi @ np.where(valued, vert, 0.0)
+            den = Mi @ valued.astype(np.float64)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                vals = np.where(den > 1e-12, num / den, np.nan).T  # (T, pixels)
         good = np.isfinite(fv2[:, f])
         if good.all():
             out[:, hit] = vals
