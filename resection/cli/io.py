@@ -37,7 +37,7 @@ def _convert(args) -> int:
         raise InputError(f"{args.out}: the output would overwrite the input camera file")
     size = None
     if args.image:
-        from .io.images import read_image
+        from resection.io.images import read_image
 
         img = read_image(args.image)
         size = (img.shape[1], img.shape[0])

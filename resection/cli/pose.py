@@ -167,7 +167,13 @@ def run_pose(args: argparse.Namespace) -> int:
     print(f"{'id':>12} {'du':>9} {'dv':>9} {'error':>9}")
     for k, r, e, u in zip(ids, result.residuals, result.errors, result.used, strict=True):
         print(f"{k:>12} {r[0]:9.4f} {r[1]:9.4f} {e:9.4f}" + ("" if u else "  outlier, dropped"))
-    atomic_write(args.out, write_camera, result.camera)
+    from resection.pose.camera_fit import solved_on_record
+
+    # what the camera was solved on: the image (name, size, fingerprint) and the targets
+    # of the marker file (their units), for the commands that use the camera later
+    record = solved_on_record(args.image, read_image(args.image) if args.image else None,
+                              args.markers, read_markers(args.markers))
+    write_camera(args.out, result.camera, solved_on=record)  # atomic
     if args.residuals:
         atomic_write(args.residuals, write_residuals, ids, uv, result.residuals)
     print(f"camera written to {args.out}")

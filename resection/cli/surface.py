@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from resection.cli.util import add_mesh_format
+from resection.cli.util import add_camera_check_options, add_mesh_format
 from resection.defaults import DEFAULT_MAX_OBLIQUENESS
 from resection.errors import InputError
 from resection.io.cameras import read_camera
@@ -52,6 +52,7 @@ def register(sub) -> None:
                    "0: none)")
     m.add_argument("--no-gain-match", action="store_true",
                    help="several cameras: do not match the camera gains on the overlaps")
+    add_camera_check_options(m)
     h = m.add_argument_group(
         "time histories (--out P.h5)",
         "--image is then a frame sequence (image files, a multi-page TIFF, a 3-D .npy, "
@@ -155,8 +156,11 @@ def _field(path: str, name: str | None, n_faces: int) -> tuple[str, np.ndarray]:
 
 def run_map(args: argparse.Namespace) -> int:
     from resection.camera.units import require_seen
+    from resection.io.cameras import read_camera_file
     from resection.io.images import read_image
+    from resection.io.markers import read_markers
     from resection.io.meshes import load_mesh, write_surface
+    from resection.pose.camera_fit import check_camera
     from resection.surface.surface_map import SurfaceMap
 
     if Path(args.out).suffix.lower() in (".h5", ".hdf5"):
@@ -171,20 +175,28 @@ def run_map(args: argparse.Namespace) -> int:
     if len(args.camera) > 1:
         return _run_merge(args, names)
     mesh = load_mesh(args.mesh, format=args.mesh_format)
-    camera = read_camera(args.camera[0])
+    images = [read_image(p) for p in args.image]
+    cf = read_camera_file(args.camera[0], image_size=images[0].shape[::-1])
+    camera = cf.camera
     smap = SurfaceMap(mesh, camera, max_obliqueness=args.max_obliqueness)
+    markers = read_markers(args.markers) if args.markers else None
+    for path, img in zip(args.image, images, strict=True):  # units, image, markers
+        line = check_camera(args.camera[0], cf, path, img, mesh.vertices, args.mesh,
+                            markers=markers, surface_map=smap, polarity=args.polarity)
+        if line:
+            print(line)
     require_seen(smap.seen_faces.sum(), camera, mesh.vertices, "the mesh",
                  f"map: {args.camera} sees none of the {len(mesh.faces)} faces of {args.mesh}")
     fields = {}
     per_node = Path(args.out).suffix.lower() == ".f"  # Plot3D function file: node values
-    for path in args.image:
+    for path, img in zip(args.image, images, strict=True):
         name = Path(path).stem
         if per_node:
-            from .node_values import image_node_fields
+            from resection.surface.node_values import image_node_fields
 
-            fields.update(image_node_fields(smap, read_image(path), name))
+            fields.update(image_node_fields(smap, img, name))
             continue
-        res = smap.to_surface(read_image(path))
+        res = smap.to_surface(img)
         fields[name] = res.values
         fields[f"{name}_count"] = res.counts
         fields[f"{name}_seen"] = ~res.unseen
@@ -206,6 +218,9 @@ def _run_history(args: argparse.Namespace) -> int:
 
     if len(args.camera) > 1:
         raise InputError("--out .h5: one --camera (a time history is one camera's sequence)")
+    if args.markers:
+        raise InputError("--markers checks single images; a sequence's poses are checked by "
+                         "'resection track'")
     if args.fps is not None and not args.fps > 0:
         raise InputError(f"--fps: must be positive, got {args.fps}")
     mesh = load_mesh(args.mesh)
@@ -233,8 +248,11 @@ def _run_history(args: argparse.Namespace) -> int:
 
 
 def _run_merge(args: argparse.Namespace, names: list) -> int:
+    from resection.io.cameras import read_camera_file
     from resection.io.images import read_image
+    from resection.io.markers import read_markers
     from resection.io.meshes import load_mesh, write_surface
+    from resection.pose.camera_fit import check_camera
     from resection.surface.merge import merge_views
     from resection.surface.surface_map import SurfaceMap
 
@@ -242,12 +260,20 @@ def _run_merge(args: argparse.Namespace, names: list) -> int:
         raise InputError(f"--image: {len(args.image)} images for {len(args.camera)} cameras "
                          "(give one image per camera, in camera order)")
     mesh = load_mesh(args.mesh, format=args.mesh_format)
-    cameras = [read_camera(p) for p in args.camera]
-    maps = [SurfaceMap(mesh, c, max_obliqueness=args.max_obliqueness) for c in cameras]
     images = [read_image(p, mask_saturated=True) for p in args.image]
+    files = [read_camera_file(p, image_size=img.shape[::-1])
+             for p, img in zip(args.camera, images, strict=True)]
+    maps = [SurfaceMap(mesh, cf.camera, max_obliqueness=args.max_obliqueness) for cf in files]
+    markers = read_markers(args.markers) if args.markers else None
+    for cpath, cf, ipath, img, smap in zip(args.camera, files, args.image, images, maps,
+                                           strict=True):
+        line = check_camera(cpath, cf, ipath, img, mesh.vertices, args.mesh, markers=markers,
+                            surface_map=smap, polarity=args.polarity)
+        if line:
+            print(line)
     mv = merge_views(maps, images, feather_px=args.feather, match_gain=not args.no_gain_match)
     if Path(args.out).suffix.lower() == ".f":  # Plot3D function file: node values
-        from .node_values import merged_node_fields
+        from resection.surface.node_values import merged_node_fields
 
         write_surface(args.out, mesh, None,
                       node_fields=merged_node_fields(maps, images, mv, names))
@@ -278,7 +304,7 @@ def run_backproject(args: argparse.Namespace) -> int:
             background = float(args.background)
         except ValueError:
             background = read_image(args.background)
-    from .png_range import parse_png_range, png_counts
+    from resection.io.png_range import parse_png_range, png_counts
 
     png_range = parse_png_range(args.png_range)
     png = Path(args.out).suffix.lower() == ".png"

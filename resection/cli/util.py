@@ -76,3 +76,15 @@ def add_mesh_format(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--format", dest="mesh_format", choices=MESH_FORMATS, default=None,
                         help="format of --mesh (default: from the extension; Plot3D by "
                         "content)")
+
+
+def add_camera_check_options(parser: argparse.ArgumentParser) -> None:
+    """``--markers`` and ``--polarity``: check that the camera fits the image (each target
+    it should see lands on a spot; :mod:`resection.camera_fit`)."""
+    parser.add_argument("--markers", metavar="MARKERS", help="marker file (CSV or uPSP "
+                        ".tgts): check that the camera fits each image, every target it "
+                        "should see landing on a spot (window check); a camera that does "
+                        "not fit is refused")
+    parser.add_argument("--polarity", choices=("dark", "bright"), default="dark",
+                        help="targets darker (default) or brighter than the paint, for "
+                        "--markers")

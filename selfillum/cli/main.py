@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from resection.cli.util import OneLineParser, add_mesh_format, run
+from resection.cli.util import OneLineParser, add_camera_check_options, add_mesh_format, run
 from resection.defaults import DEFAULT_MAX_OBLIQUENESS
 from resection.errors import InputError
 
@@ -74,6 +74,8 @@ def _cmd_correct(args) -> int:
         progress=not args.quiet,
         mesh_format=args.mesh_format,
         dtype=args.dtype,
+        markers=args.markers,
+        polarity=args.polarity,
     )
     s = summarize(result)
     seen = s.seen_min if s.seen_min == s.seen_max else f"{s.seen_min} to {s.seen_max}"
@@ -248,6 +250,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="faces seen more obliquely than this (degrees from the normal) count as "
         "unseen (default 70)",
     )
+    add_camera_check_options(p)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_cmd_correct)
     from selfillum.cli import psp, render

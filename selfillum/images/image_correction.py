@@ -382,6 +382,8 @@ def correct_image_file(
     progress: bool = False,
     mesh_format: str | None = None,
     dtype: str | None = None,
+    markers=None,
+    polarity: str = "dark",
 ) -> ImageCorrection:
     """File-level :func:`correct_image`: read the mesh (any format of
     :func:`resection.io.meshes.load_mesh`), the camera JSON and the image (TIFF or NPY),
@@ -393,11 +395,20 @@ def correct_image_file(
     optionally the per-face fields (``radiosity``, ``emission``, ``seen``,
     ``unseen_share``, ``grazing``, ``unpainted``) to ``surface_out`` (.ply, .vtk or .csv).
 
+    The camera is checked against the image first (:func:`resection.camera_fit.check_camera`):
+    a warning when it was solved on another image, a refusal on a units mismatch with the
+    mesh and, with ``markers`` (a marker file), when its targets do not land on spots of
+    the image (``polarity``).
+
     ``unseen`` is ``"continue"``, ``"none"`` or a per-face file of emission values;
     ``unpainted`` a per-face 0/1 file or Plot3D block numbers
     (:func:`selfillum.solve.unseen.read_unpainted`)."""
+    from resection.io.cameras import read_camera_file
+    from resection.io.markers import read_markers
     from resection.io.meshes import load_mesh, write_surface
     from resection.io.outputs import atomic_path, refuse_overwriting_inputs
+    from resection.pose.camera_fit import check_camera
+    from resection.surface.surface_map import SurfaceMap
     from selfillum.summary import summarize, write_summary
 
     image_path, out_path = Path(image_path), Path(out_path)
@@ -414,11 +425,20 @@ def correct_image_file(
         {"--image": [image_path], "--mesh": [mesh_path], "--camera": [camera_path],
          "--reflectance": [reflectance] if isinstance(reflectance, str | os.PathLike) else [],
          "--unseen": [unseen] if isinstance(unseen, str | os.PathLike) else [],
-         "--unpainted": [unpainted] if isinstance(unpainted, str | os.PathLike) else []})
+         "--unpainted": [unpainted] if isinstance(unpainted, str | os.PathLike) else [],
+         "--markers": [markers] if markers else []})
     mesh = load_mesh(mesh_path, format=mesh_format)
-    camera = read_camera(camera_path)
     image = _read_native(image_path)
     target = output_dtype(image.dtype, out_path, dtype)  # refused before the work
+    cf = read_camera_file(camera_path, image_size=image.shape[::-1][:2])
+    camera = cf.camera
+    smap = SurfaceMap(mesh, camera, max_obliqueness=max_obliqueness)
+    for frame in (image if image.ndim == 3 else image[None])[:1]:  # the first frame
+        line = check_camera(camera_path, cf, image_path, frame, mesh.vertices, mesh_path,
+                            markers=read_markers(markers) if markers else None,
+                            surface_map=smap, polarity=polarity)
+        if line and progress:
+            print(line)
     if image.dtype.kind in "uib":  # correct in float, then write the type chosen
         image = image.astype(np.float32)
     n = len(mesh.faces)
@@ -440,6 +460,7 @@ def correct_image_file(
             unpainted=unpainted_mask,
             max_obliqueness=max_obliqueness,
             progress=progress,
+            surface_map=smap,
         )
     said = describe_unseen(unseen_value, unpainted_mask, source)
     result = replace(result, assumption=said, image=_as_dtype(result.image, target))

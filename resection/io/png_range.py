@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import InputError
+from resection.errors import InputError
 
 __all__ = ["parse_png_range", "png_counts"]
 
