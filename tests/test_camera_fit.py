@@ -168,3 +168,21 @@ def test_correct_refuses_another_cameras_file_with_markers(plate, tmp_path, caps
         rc = si_main([*base, "--camera", p["camera1"], "--out", str(tmp_path / "bad.tif")])
     err = capsys.readouterr().err
     assert rc == 2 and "does not fit" in err and not (tmp_path / "bad.tif").exists()
+
+
+def test_upsp_camera_without_size_used_with_its_image(plate, tmp_path, capsys):
+    """A uPSP camera-to-tunnel file without sensor_resolution (optional in uPSP's docs):
+    map takes the size from the image and maps as with the native file."""
+    sc, p = plate
+    write_camera(tmp_path / "cam0_upsp.json", sc.cameras[0], format="upsp")
+    d = json.loads((tmp_path / "cam0_upsp.json").read_text())
+    del d["sensor_resolution"]
+    (tmp_path / "cam0_upsp.json").write_text(json.dumps(d))
+    outs = []
+    for cam in (p["camera0"], tmp_path / "cam0_upsp.json"):
+        out = tmp_path / f"m{len(outs)}.csv"
+        rc, _, err = _run(["map", "--mesh", p["grid"], "--camera", cam, "--image", p["image0"],
+                           "--out", out], capsys)
+        assert rc == 0, err
+        outs.append(np.genfromtxt(out, delimiter=",", names=True)["cam0"])
+    np.testing.assert_allclose(outs[1], outs[0], rtol=1e-9, equal_nan=True)

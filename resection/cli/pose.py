@@ -113,7 +113,12 @@ def pose_inputs(args: argparse.Namespace, mesh=None):
     from resection.io.markers import read_markers
     from resection.markers.from_image import image_points
 
-    camera = read_camera(args.camera)
+    size = None
+    if getattr(args, "image", None):  # the image's size serves a uPSP file that gives none
+        from resection.io.images import read_image
+
+        size = read_image(args.image).shape[::-1]
+    camera = read_camera(args.camera, image_size=size)
     if getattr(args, "image", None):
         if args.points:
             raise InputError("give --points or --image, not both")
