@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 
 from resection.camera import Camera
-from resection.camera_fit import image_fingerprint, marker_fit, solved_on_record
 from resection.cli import main
 from resection.io.cameras import read_camera_file, write_camera
 from resection.io.images import read_image, write_image
 from resection.io.markers import read_markers, write_markers
+from resection.pose.camera_fit import image_fingerprint, marker_fit, solved_on_record
 from scenes.marker_images import render_markers
 from scenes.real_traits import real_traits, write_scene
 
@@ -54,7 +54,7 @@ def test_pose_records_image_and_markers(tmp_path, capsys):
                          blur=0.7, snr=40, rng=1, dtype=np.uint16)
     write_image(tmp_path / "frame.tif", img)
     write_markers(tmp_path / "model.csv", [f"T{k}" for k in range(n)], xyz, np.full(n, 0.005))
-    true.write(tmp_path / "cam.json")
+    write_camera(tmp_path / "cam.json", true)
     rc, _, err = _run(["pose", "--camera", tmp_path / "cam.json", "--markers",
                        tmp_path / "model.csv", "--image", tmp_path / "frame.tif", "--out",
                        tmp_path / "posed.json"], capsys)
@@ -128,7 +128,7 @@ def test_map_warns_on_another_image_only(plate, tmp_path, capsys, recwarn):
 def test_units_mismatch_refused_by_map_and_correct(plate, tmp_path, capsys):
     """A camera solved on markers in mm (its translation in mm too), used on the grid in
     inches: it still sees some faces (on today's main: 'N of M faces seen', exit 0); map
-    and correct refuse it, as pose does (resection.units.spread_hint)."""
+    and correct refuse it, as pose does (resection.camera.units.spread_hint)."""
     from resection.io.meshes import load_mesh, write_plot3d
 
     sc, p = plate

@@ -283,7 +283,7 @@ def test_cli_correct_8bit_writes_float_unless_asked(renders, tmp_path, capsys):
     sc, cam, smap, full, emit, inner, noise = renders
     mesh_path, cam_path = tmp_path / "corner.ply", tmp_path / "cam.json"
     sc.mesh.export(mesh_path)
-    cam.write(cam_path)
+    write_camera(cam_path, cam)
     counts = np.clip(np.rint(full * 60), 0, 255).astype(np.uint8)
     Image.fromarray(counts).save(tmp_path / "img.png")
 

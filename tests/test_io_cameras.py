@@ -177,7 +177,7 @@ def test_upsp_camera_to_model_read_everywhere(tmp_path):
     cf = read_camera_file(p)
     assert cf.format == "upsp-model" and cf.has_pose and cf.extra == {
         "Updated": "2021-03-04 10:11:12"}
-    cam = Camera.read(p)  # what every command calls
+    cam = read_camera(p)  # what every command calls
     assert (cam.width, cam.height) == (W, H)
     X = np.random.default_rng(1).uniform(-0.4, 0.4, (50, 3))
     ref, _ = cv2.projectPoints(X, RVEC, TVEC, K, DIST)
@@ -186,7 +186,7 @@ def test_upsp_camera_to_model_read_everywhere(tmp_path):
 
 def test_convert_camera_writes_camera_to_model(tmp_path):
     src = tmp_path / "cam.json"
-    _camera().write(src)
+    write_camera(src, _camera())
     out = tmp_path / "cam01-to-model.json"
     assert resection_main(["convert-camera", str(src), "--out", str(out), "--format",
                            "upsp-model"]) == 0
@@ -222,7 +222,7 @@ def test_upsp_image_size_optional(tmp_path, fmt, make, key, capsys):
     p = tmp_path / "nosize.json"
     p.write_text(json.dumps(d))
     with pytest.raises(InputError, match=f"no key '{key}'") as err:
-        Camera.read(p)
+        read_camera(p)
     assert str(err.value).startswith(str(p))
     cf = read_camera_file(p, image_size=(W, H))  # the size comes from the image
     assert not cf.size_from_file

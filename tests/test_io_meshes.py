@@ -41,7 +41,7 @@ def test_hand_written_ascii_multiblock(tmp_path):
     assert len(m.faces) == 6  # 2 cells -> 4 triangles, 1 cell -> 2 triangles
     np.testing.assert_array_equal(m.face_attributes["block"], [1, 1, 1, 1, 2, 2])
     # blocks count from 1 everywhere: the block field and --unpainted agree
-    from selfillum.unseen import read_unpainted
+    from selfillum.solve.unseen import read_unpainted
 
     mask, _ = read_unpainted("2", m)
     np.testing.assert_array_equal(mask, m.face_attributes["block"] == 2)

@@ -209,7 +209,7 @@ def test_tgts_round_trip_keeps_every_section(tmp_path):
 def test_psp_tap_positions_from_virtuals_and_blame(tmp_path):
     """Kulite positions from *Virtuals serve ``--tap-positions``; a bad .tgts is named as
     the culprit, not the tap CSV."""
-    from selfillum.psp import read_taps
+    from selfillum.images.psp import read_taps
 
     (tmp_path / "model.tgts").write_text(TC3)
     (tmp_path / "p.csv").write_text("id,p\nK02,99.0\nCP01,101.5\n")

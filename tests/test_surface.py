@@ -438,12 +438,13 @@ def test_backproject_png_scaled_or_refused(tmp_path, capsys):
     1..65535 (NaN 0) as printed with --png-range."""
     from PIL import Image
 
-    from resection.cli import main
+    from resection.cli.main import main
+    from resection.io.cameras import write_camera
 
     mesh = grid_plane()
     cam = camera()
     mesh.export(tmp_path / "plane.ply")
-    cam.write(tmp_path / "cam.json")
+    write_camera(tmp_path / "cam.json", cam)
     vals = 681.0 + 695.0 * (mesh.triangles_center[:, 0] + 1) / 2  # 681..1376
     np.save(tmp_path / "v.npy", vals)
     base = ["backproject", "--mesh", str(tmp_path / "plane.ply"), "--camera",

@@ -80,7 +80,7 @@ def add_mesh_format(parser: argparse.ArgumentParser) -> None:
 
 def add_camera_check_options(parser: argparse.ArgumentParser) -> None:
     """``--markers`` and ``--polarity``: check that the camera fits the image (each target
-    it should see lands on a spot; :mod:`resection.camera_fit`)."""
+    it should see lands on a spot; :mod:`resection.pose.camera_fit`)."""
     parser.add_argument("--markers", metavar="MARKERS", help="marker file (CSV or uPSP "
                         ".tgts): check that the camera fits each image, every target it "
                         "should see landing on a spot (window check); a camera that does "

@@ -41,7 +41,7 @@ Unknown keys are errors in the native and OpenCV families, so a typing mistake i
 silently ignored. A UTF-8 byte-order mark is accepted.
 
 A native camera written by ``resection pose`` may hold ``"solved_on"``: the image and the
-marker file it was solved on (:mod:`resection.io.provenance`), kept in
+marker file it was solved on (:mod:`resection.pose.camera_fit`), kept in
 :attr:`CameraFile.solved_on` and used by the commands that take the camera to another image.
 """
 
@@ -102,7 +102,7 @@ class CameraFile:
         written back by :func:`write_camera` in the uPSP families.
     solved_on : dict or None
         Native JSON: what ``resection pose`` recorded about the image and markers the
-        camera was solved on (:mod:`resection.io.provenance`).
+        camera was solved on (:mod:`resection.pose.camera_fit`).
     size_from_file : bool
         False when the file gives no image size and it was taken from ``image_size``.
     """
@@ -460,7 +460,7 @@ def write_camera(
         ...), written after the camera's own. Other families have no room for them.
     solved_on : dict, optional
         Native JSON: the record of the image and markers the camera was solved on
-        (:mod:`resection.io.provenance`).
+        (:mod:`resection.pose.camera_fit`).
 
     The file is written to a temporary name in the same folder and renamed into place.
     """

@@ -22,9 +22,9 @@ Formats, chosen by the extension:
     Plot3D function file on the original grid's nodes (mesh read from a Plot3D grid), one
     variable per field column in the order given, with a ``.nam`` sidecar (same name,
     extension ``.nam``) naming the variables one a line, as FAST and Tecplot read it. Node
-    fields (one value per mesh vertex, e.g. :meth:`resection.surface.SurfaceMap.to_nodes`,
-    the one definition of a node value that ``map`` writes to ``.f`` and ``.h5`` alike) go
-    to the grid nodes sharing that vertex
+    fields (one value per mesh vertex, e.g. ``SurfaceMap.to_nodes``, the one definition of
+    a node value that ``map`` writes to ``.f`` and ``.h5`` alike:
+    :mod:`resection.surface.node_values`) go to the grid nodes sharing that vertex
     (:func:`resection.io.plot3d.vertices_to_grid_nodes`); face fields (results that exist
     per face only) are averaged to the nodes (:func:`resection.io.plot3d.faces_to_grid_nodes`).
 

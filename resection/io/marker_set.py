@@ -33,8 +33,9 @@ class MarkerSet:
         (:meth:`facing`).
     taps : (N,) bool ndarray
         True for pressure taps and transducers (``*Taps``, ``*Virtuals``/``*Kulites`` of a
-        ``.tgts`` file): known dark spots that are *not* targets. Matching and pose must not take them for targets (use
-        :attr:`targets`); ``selfillum psp`` may use their positions for the in-situ fit.
+        ``.tgts`` file): known dark spots that are *not* targets. Matching and pose must
+        not take them for targets (use :attr:`targets`); ``selfillum psp`` may use their
+        positions for the in-situ fit.
     """
 
     ids: tuple[str, ...]

@@ -553,8 +553,8 @@ def faces_to_grid_nodes(mesh, face_values) -> list[np.ndarray]:
     Blocks are numbered from 1 in ``face_attributes["block"]``. A cell's value is the mean
     of its (up to two) finite triangle values; a node's value is the mean of its (up to
     four) adjacent finite cells; NaN where none. (For image values, ``map`` writes the node
-    values of :meth:`resection.surface.SurfaceMap.to_nodes` instead: see
-    :mod:`resection.node_values`.)
+    values of :meth:`resection.surface.surface_map.SurfaceMap.to_nodes` instead: see
+    :mod:`resection.surface.node_values`.)
 
     Parameters
     ----------

@@ -11,7 +11,7 @@ catch it, from cheap to thorough:
   solved on gets a warning (fine for another frame of the same camera; wrong for another
   camera's image);
 * **the units** (:func:`require_same_units`): the record's targets against the grid, with
-  :func:`resection.units.spread_hint` as ``pose --mesh`` does: a mismatch is refused;
+  :func:`resection.camera.units.spread_hint` as ``pose --mesh`` does: a mismatch is refused;
 * **the markers** (:func:`marker_fit`, :func:`require_fit`, with ``--markers``): each target
   the camera should see is projected into the image and a window around it is checked for a
   dark spot (the target) against the ring around it; a camera under which fewer than half of
@@ -29,8 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from resection.errors import InputError
 from resection.camera.units import spread_hint
+from resection.errors import InputError
 
 __all__ = ["image_fingerprint", "solved_on_record", "other_image", "require_same_units",
            "MarkerFit", "marker_fit", "require_fit", "check_camera", "FIT_SHARE"]
@@ -96,7 +96,7 @@ def other_image(solved_on: dict | None, image_path, image, camera_path) -> str |
 
 def require_same_units(solved_on: dict | None, mesh_vertices, camera_path, mesh_path) -> None:
     """Refuse a camera whose record's targets and the grid differ in units, as ``pose``
-    refuses its markers against the mesh (:func:`resection.units.spread_hint`)."""
+    refuses its markers against the mesh (:func:`resection.camera.units.spread_hint`)."""
     rec = (solved_on or {}).get("markers")
     if not isinstance(rec, dict) or not rec.get("xyz"):
         return

@@ -1,14 +1,14 @@
 """Node values: the one definition of an image's value at a grid node.
 
-A node's value is :meth:`resection.surface.SurfaceMap.to_nodes` of the image: the mean of
-the finite pixels that see a face around the node, each weighted by the barycentric
+A node's value is :meth:`resection.surface.surface_map.SurfaceMap.to_nodes` of the image:
+the mean of the finite pixels that see a face around the node, each weighted by the barycentric
 coordinate of its hit point on that node. ``map`` writes it to a Plot3D function file
 (``.f``) and to a time history (``.h5``, ``--per node``) alike, so that the two files agree
 for the same frame.
 
 Merged over cameras (``map`` with several ``--camera``), a node's value is the weighted mean
 of the cameras' node values, each divided by its camera's gain (the gains of
-:func:`resection.merge.merge_views`, reference camera's units), with the camera's weight at
+:func:`resection.surface.merge.merge_views`, reference camera's units), with the camera's weight at
 the node the mean of its face weights around the node (the feathered weights of the merge).
 With one camera this is that camera's node value.
 """
@@ -36,7 +36,7 @@ def merged_node_fields(maps, images, merged, names) -> dict[str, np.ndarray]:
     maps : sequence of SurfaceMap
         One per camera, of the same mesh.
     images : sequence of (H, W) arrays
-    merged : resection.merge.MergedViews
+    merged : resection.surface.merge.MergedViews
         The face merge of the same maps and images (its gains and face weights).
     names : sequence of str
         Field name of each camera's image.

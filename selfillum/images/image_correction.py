@@ -32,7 +32,6 @@ import trimesh
 
 from resection.camera.model import Camera
 from resection.errors import InputError
-from resection.io.cameras import read_camera
 from resection.io.images import write_image
 from resection.surface.surface_map import DEFAULT_MAX_OBLIQUENESS
 from selfillum.images.output_dtype import output_dtype
@@ -389,13 +388,13 @@ def correct_image_file(
     :func:`resection.io.meshes.load_mesh`), the camera JSON and the image (TIFF or NPY),
     correct, write the corrected image (TIFF, PNG or NPY, from ``out_path``'s suffix) as
     float32 for an 8-bit image and with the input's type otherwise, or as ``dtype``
-    (``"float32"``, ``"uint16"``, ``"uint8"``) when asked (:mod:`selfillum.image_dtype`),
+    (``"float32"``, ``"uint16"``, ``"uint8"``) when asked (:mod:`selfillum.images.output_dtype`),
     the summary with the assumption for unseen faces
     (:func:`selfillum.summary.write_summary`) to ``out_path`` + ``".json"``, and
     optionally the per-face fields (``radiosity``, ``emission``, ``seen``,
     ``unseen_share``, ``grazing``, ``unpainted``) to ``surface_out`` (.ply, .vtk or .csv).
 
-    The camera is checked against the image first (:func:`resection.camera_fit.check_camera`):
+    The camera is checked against the image first (:func:`resection.pose.camera_fit.check_camera`):
     a warning when it was solved on another image, a refusal on a units mismatch with the
     mesh and, with ``markers`` (a marker file), when its targets do not land on spots of
     the image (``polarity``).
