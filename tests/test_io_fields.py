@@ -233,3 +233,13 @@ def test_legacy_vtk_read_by_vtk_with_every_field(tmp_path):
     from vtk.util.numpy_support import vtk_to_numpy
 
     np.testing.assert_array_equal(vtk_to_numpy(g.GetPoints().GetData()), m.vertices)
+
+
+def test_nam_sidecar_never_replaces_a_file_it_did_not_make(plate, capsys):
+    """``P.nam`` next to no ``P.f`` is someone else's file: refused, nothing written."""
+    d, _ = plate
+    (d / "Q.nam").write_text("mine\n")
+    assert main(["map", "--mesh", str(d / "panel.grid"), "--camera", str(d / "off.json"),
+                 "--image", str(d / "xcoord.npy"), "--out", str(d / "Q.f")]) == 2
+    assert "Q.nam" in capsys.readouterr().err
+    assert (d / "Q.nam").read_text() == "mine\n" and not (d / "Q.f").exists()

@@ -175,21 +175,24 @@ def run_map(args: argparse.Namespace) -> int:
     if len(args.camera) > 1:
         return _run_merge(args, names)
     mesh = load_mesh(args.mesh, format=args.mesh_format)
-    images = [read_image(p) for p in args.image]
-    cf = read_camera_file(args.camera[0], image_size=images[0].shape[::-1])
+    first = read_image(args.image[0])
+    cf = read_camera_file(args.camera[0], image_size=first.shape[::-1])
     camera = cf.camera
     smap = SurfaceMap(mesh, camera, max_obliqueness=args.max_obliqueness)
     markers = read_markers(args.markers) if args.markers else None
-    for path, img in zip(args.image, images, strict=True):  # units, image, markers
+    for k, path in enumerate(args.image):  # units, image, markers: before any work
+        img = first if k == 0 else read_image(path)  # one image in memory at a time
         line = check_camera(args.camera[0], cf, path, img, mesh.vertices, args.mesh,
                             markers=markers, surface_map=smap, polarity=args.polarity)
         if line:
             print(line)
+    del first
     require_seen(smap.seen_faces.sum(), camera, mesh.vertices, "the mesh",
                  f"map: {args.camera} sees none of the {len(mesh.faces)} faces of {args.mesh}")
     fields = {}
     per_node = Path(args.out).suffix.lower() == ".f"  # Plot3D function file: node values
-    for path, img in zip(args.image, images, strict=True):
+    for path in args.image:
+        img = read_image(path)
         name = Path(path).stem
         if per_node:
             from resection.surface.node_values import image_node_fields
