@@ -64,7 +64,9 @@ def test_truncated_png_and_tiff(tmp_path):
 
 def test_selfillum_correct_takes_png(tmp_path, capsys):
     """``selfillum correct`` refused PNG, which ``resection`` reads: the one reader now
-    serves both, and an 8-bit PNG comes back as an 8-bit PNG of the same shape."""
+    serves both, and an 8-bit PNG comes back as an 8-bit PNG of the same shape when 8 bits
+    are asked for (without ``--dtype`` an 8-bit PNG output is refused: the correction would
+    be rounded away; tests/test_correct_image.py)."""
     from resection import Camera
     from scenes.corner import corner
     from selfillum.cli.main import main
@@ -80,7 +82,7 @@ def test_selfillum_correct_takes_png(tmp_path, capsys):
     rc = main(["correct", "--mesh", str(tmp_path / "corner.ply"), "--camera",
                str(tmp_path / "cam.json"), "--image", str(tmp_path / "frame.png"),
                "--reflectance", "0.5", "--rays", "32", "--out", str(tmp_path / "out.png"),
-               "--quiet"])
+               "--quiet", "--dtype", "uint8"])
     assert rc == 0, capsys.readouterr().err
     out = iio.imread(tmp_path / "out.png")
     assert out.dtype == np.uint8 and out.shape == img.shape
