@@ -541,10 +541,13 @@ class SurfaceMap:
             # missing value is never mixed in (NaN where no corner has one)
             Mi = self._interpolation_matrix()
             valued = np.isfinite(vert)
-            num = Mi @ np.where(valued, vert, 0.0)
-            den = Mi @ valued.astype(np.float64)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                vals = np.where(den > 1e-12, num / den, np.nan).T  # (T, pixels)
+            if valued.all():  # the usual case: the weights sum to 1 already
+                vals = (Mi @ vert).T  # (T, pixels)
+            else:
+                num = Mi @ np.where(valued, vert, 0.0)
+                den = Mi @ valued.astype(np.float64)
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    vals = np.where(den > 1e-12, num / den, np.nan).T  # (T, pixels)
         good = np.isfinite(fv2[:, f])
         if good.all():
             out[:, hit] = vals
