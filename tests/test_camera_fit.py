@@ -66,6 +66,18 @@ def test_pose_records_image_and_markers(tmp_path, capsys):
     np.testing.assert_allclose(rec["markers"]["xyz"], xyz, rtol=1e-8)
     cf = read_camera_file(tmp_path / "posed.json")  # the record is kept, the camera reads
     assert cf.solved_on == rec and cf.format == "json"
+    # the same from a uPSP camera-to-tunnel file without sensor_resolution (optional in
+    # uPSP's docs): the size comes from the image
+    write_camera(tmp_path / "cam_upsp.json", true, format="upsp")
+    d = json.loads((tmp_path / "cam_upsp.json").read_text())
+    del d["sensor_resolution"]
+    (tmp_path / "cam_upsp.json").write_text(json.dumps(d))
+    rc, _, err = _run(["pose", "--camera", tmp_path / "cam_upsp.json", "--markers",
+                       tmp_path / "model.csv", "--image", tmp_path / "frame.tif", "--out",
+                       tmp_path / "posed2.json"], capsys)
+    assert rc == 0, err
+    again = read_camera_file(tmp_path / "posed2.json").camera
+    np.testing.assert_allclose(again.project(xyz), true.project(xyz), atol=0.05)
 
 
 def test_fingerprint_follows_the_pixels_not_the_file(tmp_path):

@@ -62,7 +62,7 @@ def _load(image, markers, camera):
         markers = read_markers(markers)
     meta = {"has_pose": True, "source": None}
     if isinstance(camera, str | os.PathLike):
-        camera, meta = _read_posed(camera)
+        camera, meta = _read_posed(camera, np.shape(image)[::-1][-2:])
     meta["markers"] = markers_path
     if camera is not None and not isinstance(camera, Camera):
         raise InputError("camera: expected a resection.Camera or a camera JSON path")
@@ -70,12 +70,13 @@ def _load(image, markers, camera):
     return image, markers, camera, meta
 
 
-def _read_posed(path) -> tuple[Camera, dict]:
+def _read_posed(path, image_size=None) -> tuple[Camera, dict]:
     """A camera file's camera, and what the file says of its pose (an intrinsics-only
-    file has none) and its name, for the messages of :func:`image_points`."""
+    file has none) and its name, for the messages of :func:`image_points`; ``image_size``
+    ``(width, height)`` for a uPSP file that gives none."""
     from resection.io.cameras import read_camera_file
 
-    cf = read_camera_file(path)
+    cf = read_camera_file(path, image_size=image_size)
     return cf.camera, {"has_pose": bool(cf.has_pose), "source": os.fspath(path)}
 
 
