@@ -399,9 +399,9 @@ def open_session(
     inputs = {k: os.fspath(v) for k, v in inputs.items() if v is not None}
     outputs = {"--save-links": save_links, "--pose": save_camera, "--out": save_linked}
     refuse_overwriting_inputs(outputs, {k: [v] for k, v in inputs.items()})
-    cf = read_camera_file(camera)
-    cam = cf.camera
     img = read_image(image, mask_saturated=True)
+    cf = read_camera_file(camera, image_size=img.shape[::-1])  # for a uPSP file without one
+    cam = cf.camera
     if img.shape != (cam.height, cam.width):
         raise InputError(f"{image}: {img.shape[1]}x{img.shape[0]} pixels, but the camera "
                          f"{camera} is {cam.width}x{cam.height} (wrong image or camera file?)")
