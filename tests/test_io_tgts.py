@@ -133,7 +133,8 @@ def test_psp_taps_positions_from_tgts(tmp_path):
 
 # NASA's TC3 volume file layout: targets, then *Virtuals (the Kulites), then a section we
 # do not know; uPSP reads one section at a time and ignores the others
-TC3 = """# fml tc3 volume targets (inches)
+TC3 = """#GRID_FILE: volume.grid
+#GRID_TOLERANCE: 0.39
 *Targets
 1  10.0  2.0  0.5   0.0 0.0 1.0   0.25  1 10 4  st01
 2  12.5 -1.0  0.5   0.0 0.0 1.0   0.25  1 20 7  st02
@@ -155,7 +156,7 @@ def test_tgts_every_section_read(tmp_path):
         tf = read_tgts(p)
     msgs = [str(w.message) for w in rec]
     assert len(msgs) == 1 and "\n" not in msgs[0]
-    assert f"{p}:9: section '*Oilflow'" in msgs[0] and "kept" in msgs[0]
+    assert f"{p}:10: section '*Oilflow'" in msgs[0] and "kept" in msgs[0]
     assert [s.name for s in tf.sections] == ["Targets", "Virtuals", "Oilflow", "Taps"]
     assert [s.kind for s in tf.sections] == ["targets", "virtuals", "unknown", "taps"]
     assert tf.unknown == ("Oilflow",)
@@ -200,6 +201,7 @@ def test_tgts_round_trip_keeps_every_section(tmp_path):
     assert [(s.name, s.kind, s.rows if s.kind == "unknown" else s.markers.ids)
             for s in back.sections] == \
         [(s.name, s.kind, s.rows if s.kind == "unknown" else s.markers.ids) for s in tf.sections]
+    assert back.header == ("#GRID_FILE: volume.grid", "#GRID_TOLERANCE: 0.39")
     for a, b in zip(tf.sections, back.sections, strict=True):
         np.testing.assert_array_equal(a.grid_nodes, b.grid_nodes)
         np.testing.assert_array_equal(a.markers.xyz, b.markers.xyz)

@@ -106,10 +106,14 @@ class TgtsFile:
     path : str
     sections : tuple of TgtsSection
         In file order; a section name written twice gives two entries (both read).
+    header : tuple of str
+        The comment lines before the first section (uPSP writes ``#GRID_FILE: ...``
+        there), written back by :func:`write_tgts`.
     """
 
     path: str
     sections: tuple[TgtsSection, ...]
+    header: tuple[str, ...] = ()
 
     def section(self, name: str) -> tuple[TgtsSection, ...]:
         """The sections called ``name`` (case-insensitive, with or without ``*``)."""
@@ -216,9 +220,12 @@ def read_tgts(path: str | os.PathLike) -> TgtsFile:
         raise InputError(f"{path}: not a text (UTF-8) target file") from None
     heads: list[tuple[str, int]] = []
     bodies: list[list[tuple[int, str]]] = []
+    header: list[str] = []
     for lineno, line in enumerate(lines, 1):
         s = line.strip()
         if not s or s.startswith("#"):
+            if s and not heads:
+                header.append(s)
             continue
         if s.startswith("*"):
             heads.append((s[1:].strip(), lineno))
@@ -241,7 +248,7 @@ def read_tgts(path: str | os.PathLike) -> TgtsFile:
             continue
         ms, nodes = _parse_rows(path, body, kind, seen)
         sections.append(TgtsSection(name, kind, lineno, rows, ms, nodes))
-    return TgtsFile(path, tuple(sections))
+    return TgtsFile(path, tuple(sections), tuple(header))
 
 
 def _parse_rows(path: str, body, kind: str, seen: dict[str, int]):
@@ -293,7 +300,9 @@ def write_tgts(path: str | os.PathLike, markers: MarkerSet | TgtsFile, *,
     for a MarkerSet (zeros when not given). Points without normals or diameters cannot be
     written (uPSP needs them).
     """
+    out = [f"# {_COLUMNS}"]
     if isinstance(markers, TgtsFile):
+        out = list(markers.header) or out
         parts = []
         for s in markers.sections:
             if s.kind == "unknown":
@@ -307,7 +316,6 @@ def write_tgts(path: str | os.PathLike, markers: MarkerSet | TgtsFile, *,
         parts = [("Targets", markers.subset(~markers.taps), nodes[~markers.taps])]
         if markers.taps.any():
             parts.append(("Taps", markers.subset(markers.taps), nodes[markers.taps]))
-    out = [f"# {_COLUMNS}"]
     for title, ms, extra in parts:
         out.append(f"*{title}")
         if ms is None:
