@@ -290,3 +290,18 @@ def test_track_on_a_pymraw_16bit_video(tmp_path, capsys):
     with open(out / "poses.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     assert len(rows) == 4 and all(r["status"] == "ok" for r in rows)
+
+
+def test_mraw_later_frame_contradicting_header(tmp_path):
+    """The first frame within 12 bits, a later one above: the warning comes when that frame
+    is read (with the saturation mask, where the full scale matters) and its counts stay."""
+    import pyMRAW
+
+    frames = _frames(bits=12)
+    frames[3, 5, 5] = 9000
+    mraw, _ = pyMRAW.save_mraw(frames, str(tmp_path / "run.cih"), bit_depth=16)
+    src = open_frames(mraw, mask_saturated=True)
+    assert src.bits == 12
+    with pytest.warns(UserWarning, match=r"run\.mraw#3 holds counts up to 9000"):
+        img = src[3]
+    assert img[5, 5] == 9000 and src.bits == 16

@@ -287,8 +287,7 @@ def _mraw(p: Path, mask_saturated: bool) -> FrameSource:
     rate = info.get("Record Rate(fps)")
     declared = eff if 0 < eff <= bits else bits
 
-    def read(i):
-        img = images[i]
+    def check(i, img):
         if src.bits < bits:  # the data may contradict the header's effective bit depth
             top = int(img.max())
             if top > (1 << src.bits) - 1:
@@ -298,12 +297,17 @@ def _mraw(p: Path, mask_saturated: bool) -> FrameSource:
                     f"the counts are kept and read as {bits}-bit ('Color Bit'), saturated at "
                     f"{(1 << bits) - 1}", UserWarning, stacklevel=3)
                 src.bits = bits
+
+    def read(i):
+        img = images[i]
+        if mask_saturated:  # where the full scale matters: every frame is checked
+            check(i, img)
         return img
 
     src = FrameSource(mraw, n, (h, w), read, lambda i: f"{mraw}#{i}", bits=declared,
                       frame_rate=float(rate) if rate else None, mask_saturated=mask_saturated)
     if n:
-        read(0)  # the first frame says at once whether the header holds
+        check(0, images[0])  # the first frame says at once whether the header holds
     return src
 
 
