@@ -163,6 +163,38 @@ def test_psp_images_and_cli(psp_case, tmp_path, capsys):
                "--taps", str(tmp_path / "taps.csv"), "--p-ref", "100", "--reflectance", "0.6",
                "--out", str(out)])
     assert rc == 2 and "one wind-on image per camera" in capsys.readouterr().err
+    # the taps as a uPSP run gives them: Cp in the .wtd's '# Tap CP' table (p = PS + Cp Q),
+    # numbered 1..M, placed by the .tgts's *Taps named CP01..; the same law must come out
+    q, ps = 40.0, P_REF
+    (tmp_path / "run.wtd").write_text(
+        f"# MACH\tALPHA\tTTF\tPS\tQ\n0.5\t0.0\t80.0\t{ps!r}\t{q!r}\n# Tap CP\n"
+        + "".join(f"{k + 1}\t{float((p - ps) / q)!r}\n"
+                  for k, p in enumerate(taps.pressure)))
+    rows = ["*Targets", "1 0.0 0.0 0.0 0 0 1 0.01 1 1 1 T1", "*Taps"]
+    rows += [f"{k + 2} {float(x)!r} {float(y)!r} {float(z)!r} 0 0 1 0.005 1 1 1 "
+             f"CP{k + 1:02d}" for k, (x, y, z) in enumerate(taps.points)]
+    (tmp_path / "model.tgts").write_text("\n".join(rows) + "\n")
+    out2 = tmp_path / "out_wtd"
+    rc = main(["psp", "--mesh", str(tmp_path / "corner.ply"), "--camera",
+               str(tmp_path / "cam.json"), "--wind-off", str(tmp_path / "off.tif"),
+               "--wind-on", str(tmp_path / "on.tif"), "--taps", str(tmp_path / "run.wtd"),
+               "--tap-positions", str(tmp_path / "model.tgts"), "--p-ref", str(P_REF),
+               "--reflectance", str(sc.reflectance), "--rays", "2048", "--out", str(out2)])
+    assert rc == 0, capsys.readouterr().err
+    law2 = json.loads((out2 / "stern_volmer.json").read_text())
+    assert law2["A"] == pytest.approx(law["A"], abs=1e-6)
+    assert law2["B"] == pytest.approx(law["B"], abs=1e-6)
+    assert sorted(law2["taps"]) == [f"CP{k + 1:02d}" for k in range(len(taps.ids))]
+    # a tap number the .tgts does not place: named, exit 2, nothing written
+    (tmp_path / "run2.wtd").write_text((tmp_path / "run.wtd").read_text() + "99\t0.1\n")
+    rc = main(["psp", "--mesh", str(tmp_path / "corner.ply"), "--camera",
+               str(tmp_path / "cam.json"), "--wind-off", str(tmp_path / "off.tif"),
+               "--wind-on", str(tmp_path / "on.tif"), "--taps", str(tmp_path / "run2.wtd"),
+               "--tap-positions", str(tmp_path / "model.tgts"), "--p-ref", str(P_REF),
+               "--out", str(tmp_path / "out_bad")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "run2.wtd" in err and "99" in err and "CP99" in err
+    assert not (tmp_path / "out_bad").exists()
 
 
 def test_psp_bad_input(psp_case):

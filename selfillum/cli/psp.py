@@ -85,7 +85,8 @@ def register(sub) -> None:
                    help="wind-off image (uniform p_ref), one per camera, in camera order")
     p.add_argument("--wind-on", action="append", help="wind-on image, one per camera")
     p.add_argument("--taps", required=True, help="pressure taps CSV: id,x,y,z,p, or id,p with "
-                   "--tap-positions")
+                   "--tap-positions; or a uPSP RUN.wtd (its '# Tap CP' table, p = PS + Cp Q, "
+                   "tap n = the .tgts point CPnn) with --tap-positions")
     p.add_argument("--tap-positions", metavar="MODEL.tgts",
                    help="tap positions for an id,p tap file: a uPSP .tgts file (its *Taps) "
                    "or a marker file")

@@ -72,9 +72,19 @@ def read_taps(path: str | os.PathLike, positions=None) -> Taps:
     positions : path-like or resection.io.markers.MarkerSet, optional
         Where the taps are: a uPSP ``.tgts`` file (its ``*Taps`` or ``*Virtuals``/``*Kulites``
         sections, or any of its markers) or a marker CSV; needed when the tap file holds
-        only ``id,p``.
+        only ``id,p``, and for a ``.wtd``.
+
+    A uPSP wind-tunnel data file (``.wtd``, :mod:`resection.io.wtd`) is read too: its
+    ``# Tap CP`` table gives each tap's pressure ``p = PS + Cp Q`` (the file's units, psf
+    at NASA Ames: ``p_ref`` must be in the same unit), and tap number ``n`` is the
+    ``.tgts`` point named ``CPnn`` (1 -> ``CP01``; then ``CPn``, then ``n``:
+    :func:`resection.io.wtd.tap_name`).
     """
+    from resection.io.wtd import is_wtd
+
     path = os.fspath(path)
+    if is_wtd(path):
+        return _wtd_taps(path, positions)
     try:
         with open(path, newline="", encoding="utf-8-sig") as fh:
             rows = list(csv.DictReader(fh))
@@ -105,6 +115,34 @@ def read_taps(path: str | os.PathLike, positions=None) -> Taps:
     if not (np.all(np.isfinite(pts)) and np.all(np.isfinite(p))):
         raise InputError(f"{path}: NaN or infinite coordinates or pressures")
     return Taps(ids, pts, p)
+
+
+def _wtd_taps(path: str, positions) -> Taps:
+    """Taps of a ``.wtd``'s ``# Tap CP`` table, named and placed through ``positions``."""
+    from resection.io.markers import MarkerSet, read_markers
+    from resection.io.wtd import read_wtd, tap_candidates, tap_name
+
+    wtd = read_wtd(path)
+    if not wtd.taps:
+        raise InputError(f"{path}: no '# Tap CP' table (no taps)")
+    q, ps = wtd.value("Q"), wtd.value("PS")
+    if positions is None:
+        raise InputError(f"{path}: a .wtd numbers its taps; give their positions "
+                         "(--tap-positions MODEL.tgts)")
+    ms = positions if isinstance(positions, MarkerSet) else \
+        read_markers(positions, include_taps=True)
+    ids, missing = [], []
+    for n in wtd.taps:
+        name = tap_name(n, ms.ids)
+        (ids if name is not None else missing).append(name if name is not None else n)
+    if missing:
+        src = getattr(positions, "path", positions)
+        raise InputError(f"{path}: tap(s) {', '.join(str(n) for n in missing[:10])} have no "
+                         f"position in {src} (looked for "
+                         f"{' / '.join(tap_candidates(missing[0]))})")
+    cp = np.array(list(wtd.taps.values()), dtype=np.float64)
+    pos = {k: i for i, k in enumerate(ms.ids)}
+    return Taps(ids, ms.xyz[[pos[k] for k in ids]], ps + cp * q)
 
 
 def _tap_positions(path: str, ids: list, positions) -> np.ndarray:
