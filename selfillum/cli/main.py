@@ -253,10 +253,11 @@ def build_parser() -> argparse.ArgumentParser:
     add_camera_check_options(p)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_cmd_correct)
-    from selfillum.cli import psp, render
+    from selfillum.cli import psp, render, unsteady
 
     render.register(sub)
     psp.register(sub)
+    unsteady.register(sub)
     return parser
 
 

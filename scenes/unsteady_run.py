@@ -1,0 +1,248 @@
+"""A synthetic unsteady PSP run with a known dCp: a painted plate and a painted block on it,
+filmed by a high-speed camera while the model vibrates.
+
+The truth, per grid node and frame (``t`` seconds):
+
+* on the plate: ``dCp = A_tone sin(2 pi f_tone t) + A_wave sin(2 pi (f_wave t - x / lam))``
+  (a tone everywhere and a wave convected along +x);
+* on the block (painted too): ``dCp = A_block sin(2 pi f_block t)``, its own tone, which
+  reaches the plate only as light reflected from the block (self-illumination);
+* steady Cp ``-0.3 + 0.4 x`` and the tunnel's ``q``, ``PS``, ``T0``, ``MACH``.
+
+The paint follows uPSP's Phase 2 model exactly: with the gain ``G`` of each face (the paint
+calibration at its steady pressure and the recovery temperature) and ``p = dCp q / 144``
+(psi), the emission is ``E = E0(x) drift(t) / (1 + p / G)`` (so that ``I' - fit`` times
+``G`` gives ``p`` back to second order), ``drift`` a slow photo-degradation of the paint
+(-1 % over the run). The radiosity ``B = (I - rho F)^-1 E`` is computed with view factors
+of 4096 rays a face and another seed than the run uses. Each frame is rendered through the
+camera's pose in that frame (the model pitches and heaves a little), targets, taps and
+Kulites darkened where their disks lie on the surface, and Gaussian noise added.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from resection.camera import Camera
+
+__all__ = ["UnsteadyRun", "make_unsteady_run", "PAINT", "CONDITIONS"]
+
+#: Paint calibration a..f (uPSP's gain file).
+PAINT = {"a": 1.5, "b": 0.002, "c": 1e-6, "d": 1e-4, "e": 1e-7, "f": 0.0}
+#: .wtd conditions (Q and PS in psf, TTF in deg F).
+CONDITIONS = {"MACH": 0.8, "ALPHA": 2.0, "PTOT": 2300.0, "TTF": 100.0, "PS": 1500.0,
+              "Q": 600.0}
+
+
+@dataclass(frozen=True)
+class UnsteadyRun:
+    """Paths of the run's files and its truth.
+
+    Attributes
+    ----------
+    folder : Path
+    deck, grid, wtd, paint, steady, targets, video, calibration : Path
+    fps : float
+    truth : (T, N) float64
+        dCp per frame and grid node (file order); NaN at nodes shared by plate and block.
+    plate, block : (N,) bool
+        Nodes of the plate top and of the block (not the seam).
+    near : (N,) bool
+        Plate-top nodes within ``near_distance`` of the block's footprint, on the sides
+        the camera sees.
+    freqs : dict
+        ``tone``, ``wave``, ``block``, ``vibration`` (Hz); ``amps``: the dCp amplitudes.
+    """
+
+    folder: Path
+    deck: Path
+    grid: Path
+    wtd: Path
+    paint: Path
+    steady: Path
+    targets: Path
+    video: Path
+    calibration: Path
+    fps: float
+    truth: np.ndarray
+    plate: np.ndarray
+    block: np.ndarray
+    near: np.ndarray
+    freqs: dict
+    amps: dict
+
+
+def _camera(width, height) -> Camera:
+    f = 1.0 * width
+    K = [[f, 0.0, (width - 1) / 2], [0.0, f, (height - 1) / 2], [0.0, 0.0, 1.0]]
+    return Camera.look_at([-0.22, -0.24, 0.33], [0.03, 0.02, 0.0], [0.0, 0.0, 1.0], K=K,
+                          width=width, height=height)
+
+
+def _pitch(theta, heave):
+    c, s = np.cos(theta), np.sin(theta)
+    M = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+    return M, np.array([0.0, 0.0, heave])
+
+
+def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: int = 100,
+                      fps: float = 1000.0, width: int = 200, height: int = 150,
+                      noise: float = 0.003, vibration_deg: float = 0.5, texture: float = 0.08,
+                      seed: int = 0) -> UnsteadyRun:
+    """Write a run into ``folder`` (created) and return its paths and truth."""
+    from resection.io.cameras import write_camera
+    from resection.io.plot3d import write_plot3d_function
+    from resection.surface import SurfaceMap
+    from scenes.slab_block import paint, slab_block, write_slab_block
+    from selfillum.radiosity import check_reflectance
+    from selfillum.unsteady.conditions import Conditions
+    from selfillum.unsteady.grid import load_run_grid
+    from selfillum.viewfactors import view_factors
+
+    out = Path(folder)
+    out.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    box = (0.04, 0.03, 0.04)
+    sc = slab_block(faces, half=(0.35, 0.25), box=box, rho_paint=0.6, rho_box=0.6)
+    grid_path = out / "model.grid"
+    write_slab_block(sc, grid_path)
+    grid = load_run_grid(grid_path)
+    mesh = grid.mesh
+    nf = len(mesh.faces)
+    part = np.asarray(mesh.face_attributes["block"])
+    on_block = part >= 6
+    # ------------------------------------------------------------------ the truth
+    freqs = {"tone": 120.0, "wave": 70.0, "block": 200.0, "vibration": 30.0}
+    amps = {"tone": 0.03, "wave": 0.02, "block": 0.1, "lam": 0.3}
+    t = np.arange(frames) / fps
+
+    def dcp(points, is_block):
+        x = points[:, 0]
+        plate = (amps["tone"] * np.sin(2 * np.pi * freqs["tone"] * t)[:, None]
+                 + amps["wave"] * np.sin(2 * np.pi * (freqs["wave"] * t[:, None]
+                                                      - x[None, :] / amps["lam"])))
+        blk = np.broadcast_to(amps["block"] * np.sin(2 * np.pi * freqs["block"] * t)[:, None],
+                              plate.shape)
+        return np.where(is_block[None, :], blk, plate)
+
+    def cp_steady(points):
+        return -0.3 + 0.4 * points[:, 0]
+
+    cond = Conditions(CONDITIONS["MACH"], CONDITIONS["Q"], CONDITIONS["PS"], CONDITIONS["TTF"],
+                      0.0)
+    from selfillum.unsteady.conditions import freestream_temperature
+
+    tinf = float(freestream_temperature(cond.t0, cond.mach))
+    Ts = 0.896 * (cond.t0 - tinf) + tinf
+    centres = np.asarray(mesh.triangles_center)
+
+    def gain(points):
+        pss = cp_steady(points) * cond.q + cond.p_inf
+        P = PAINT
+        return (P["a"] + P["b"] * Ts + P["c"] * Ts**2
+                + (P["d"] + P["e"] * Ts + P["f"] * Ts**2) * pss)
+
+    p_face = dcp(centres, on_block) * cond.q / 144.0  # psi, (T, F)
+    drift = 1.0 - 0.01 * (t / t[-1]) + 0.003 * (t / t[-1]) ** 2
+    E0 = 1000.0 * paint(centres) * (1.0 + texture * rng.uniform(-1.0, 1.0, nf))
+    E = E0[None, :] * drift[:, None] / (1.0 + p_face / gain(centres)[None, :])
+    rho = check_reflectance(np.full(nf, 0.6), nf)
+    F = view_factors(mesh, rays_per_face=4096, seed=12345, progress=False)
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
+    lu = spla.splu(sp.csc_matrix(sp.identity(nf) - sp.diags(rho) @ F))
+    B = lu.solve(np.ascontiguousarray(E.T)).T  # (T, F)
+    # ------------------------------------------------------------------ targets and spots
+    cam0 = _camera(width, height)
+    gx, gy = np.meshgrid(np.arange(-0.24, 0.34, 0.09), np.arange(-0.2, 0.25, 0.09))
+    cand = np.column_stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)])
+    uv, ok = cam0.project(cand, return_valid=True)
+    ok &= cam0.in_image(uv, margin=12.0)
+    ok &= np.maximum(np.abs(cand[:, 0]) - box[0], np.abs(cand[:, 1]) - box[1]) > 0.05
+    tpts = np.vstack([cand[ok], [[-0.02, -0.015, box[2]], [0.02, 0.015, box[2]]]])
+    tdia = np.full(len(tpts), 0.014)
+    kul = np.array([[-0.08, -0.05, 0.0], [-0.05, -0.075, 0.0]])
+    taps = np.array([[-0.09, 0.06, 0.0]])
+    rows = ["# synthetic unsteady run", "*Targets"]
+    k = 1
+    for i, p in enumerate(tpts):
+        rows.append(f"{k} {p[0]:.9g} {p[1]:.9g} {p[2]:.9g} 0 0 1 {tdia[i]:.9g} 1 1 1 T{i + 1}")
+        k += 1
+    rows.append("*Taps")
+    for i, p in enumerate(taps):
+        rows.append(f"{k} {p[0]:.9g} {p[1]:.9g} {p[2]:.9g} 0 0 1 0.004 1 1 1 CP{i + 1:02d}")
+        k += 1
+    rows.append("*Virtuals")
+    for i, p in enumerate(kul):
+        rows.append(f"{k} {p[0]:.9g} {p[1]:.9g} {p[2]:.9g} 0 0 1 0.006 1 1 1 K{i + 1:02d}")
+        k += 1
+    (out / "model.tgts").write_text("\n".join(rows) + "\n")
+    spots = np.vstack([tpts, taps, kul])
+    srad = 0.5 * np.concatenate([tdia, [0.004], [0.006, 0.006]])
+    # ------------------------------------------------------------------ frames
+    theta = np.radians(vibration_deg) * np.sin(2 * np.pi * freqs["vibration"] * t)
+    heave = 0.003 * np.sin(2 * np.pi * freqs["vibration"] * t + 0.7)
+    video = np.empty((frames, height, width), np.float32)
+    for k in range(frames):  # frames (the renderer is vectorised over pixels)
+        M, d = _pitch(theta[k], heave[k])
+        cam = cam0.with_pose(R=cam0.R @ M, t=cam0.R @ d + cam0.t)
+        smap = SurfaceMap(mesh, cam, max_obliqueness=None)
+        img = smap.to_image(B[k], background=30.0)
+        pts = smap.points.reshape(-1, 3)
+        hit = np.isfinite(pts[:, 0])
+        dist = np.linalg.norm(pts[hit][:, None, :] - spots[None, :, :], axis=2)
+        dark = (dist <= srad[None, :]).any(axis=1)
+        flat = img.reshape(-1)
+        idx = np.flatnonzero(hit)[dark]
+        flat[idx] = 0.12 * flat[idx]
+        img = flat.reshape(height, width)
+        video[k] = img * (1.0 + noise * rng.standard_normal(img.shape))
+    np.save(out / "cam01.npy", video)
+    write_camera(out / "cam01.json", cam0)
+    # ------------------------------------------------------------------ other inputs
+    dims = grid.dims
+    cp_nodes = cp_steady(grid.points)
+    blocks, a = [], 0
+    for d in dims:
+        n = int(np.prod(d))
+        blocks.append(cp_nodes[a:a + n].reshape(d, order="F"))
+        a += n
+    write_plot3d_function(out / "steady.f", blocks)
+    names = list(CONDITIONS)
+    (out / "run.wtd").write_text("# " + "\t".join(names) + "\n"
+                                 + "\t".join(repr(CONDITIONS[n]) for n in names) + "\n"
+                                 + "# Tap CP\n1\t-0.2\n")
+    (out / "paint.txt").write_text("".join(f"{k} = {v!r}\n" for k, v in PAINT.items()))
+    (out / "run.inp").write_text(
+        "@general\n    test = synthetic\n    run = 1\n    sequence = 1\n"
+        f"@vars\n    dir = {out}\n"
+        "@all\n    sds = $dir/run.wtd\n    grid = $dir/model.grid\n"
+        "    targets = $dir/model.tgts\n"
+        "@camera\n    number = 1\n    filename = $dir/cam01.npy\n"
+        "    calibration = $dir/cam01.json\n"
+        "@options\n    target_patcher = none\n    registration = none\n"
+        "    overlap = average_view\n    filter = none\n    filter_size = 3\n"
+        "    oblique_angle = 70\n    number_frames = -1\n"
+        "@output\n    dir = $dir\n")
+    # ------------------------------------------------------------------ truth per node
+    nblock_of_node = np.concatenate([np.full(int(np.prod(d)), b) for b, d in enumerate(dims)])
+    vb = np.zeros(len(mesh.vertices), bool)
+    vp = np.zeros(len(mesh.vertices), bool)
+    vb[np.asarray(mesh.faces)[on_block].ravel()] = True
+    vp[np.asarray(mesh.faces)[part == 0].ravel()] = True
+    seam = grid.to_nodes(vb & vp)
+    is_block = (nblock_of_node >= 6) & ~seam
+    plate = (nblock_of_node == 0) & ~seam
+    truth = dcp(grid.points, is_block)
+    truth[:, seam] = np.nan
+    x, y = grid.points[:, 0], grid.points[:, 1]
+    gap = np.maximum(np.abs(x) - box[0], np.abs(y) - box[1])
+    near = plate & (gap < 0.06) & ((x < -box[0]) | (y < -box[1]))
+    return UnsteadyRun(out, out / "run.inp", grid_path, out / "run.wtd", out / "paint.txt",
+                       out / "steady.f", out / "model.tgts", out / "cam01.npy",
+                       out / "cam01.json", fps, truth, plate, is_block, near, freqs, amps)

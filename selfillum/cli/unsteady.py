@@ -1,0 +1,138 @@
+"""``selfillum unsteady``: the unsteady PSP run, from a uPSP input deck or flags.
+
+Only parses arguments and calls :func:`selfillum.unsteady.run_unsteady`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from resection.errors import InputError
+
+
+def _cmd_unsteady(args) -> int:
+    from resection.io.upsp_inputs import read_deck
+
+    from .unsteady import CameraInput, UnsteadyConfig, config_from_deck, run_unsteady
+
+    flags = {"registration": args.registration, "target_patcher": args.target_patcher,
+             "overlap": args.overlap, "filter": args.filter, "filter_size": args.filter_size,
+             "oblique_angle": args.oblique_angle, "number_frames": args.number_frames}
+    common = {"paint_calibration": Path(args.paint_calibration) if args.paint_calibration
+              else None, "steady": Path(args.steady), "si": not args.no_si,
+              "reflectance": args.reflectance, "unpainted": args.unpainted, "rays": args.rays,
+              "seed": args.seed, "fps": args.fps, "tinf": args.tinf,
+              "upsp_flat": args.upsp_flat, "track_dirs": args.track,
+              "progress": not args.quiet}
+    if args.deck:
+        if args.grid or args.sds or args.video or args.calibration:
+            raise InputError("give either DECK.inp or --grid/--sds/--video/--calibration, "
+                             "not both")
+        cfg = config_from_deck(read_deck(args.deck), out=args.out, **flags)
+        if args.targets:
+            cfg.targets = Path(args.targets)
+        for k, v in common.items():
+            setattr(cfg, k, v)
+    else:
+        for name in ("grid", "sds", "video", "calibration"):
+            if not getattr(args, name):
+                raise InputError(f"without a deck, give --{name}")
+        if len(args.video) != len(args.calibration):
+            raise InputError(f"{len(args.video)} --video for {len(args.calibration)} "
+                             "--calibration (one each per camera, in camera order)")
+        cams = [CameraInput(k + 1, Path(v), Path(c)) for k, (v, c) in
+                enumerate(zip(args.video, args.calibration, strict=True))]
+        for c in cams:
+            for p in (c.video, c.calibration):
+                if not p.exists():
+                    raise InputError(f"{p}: file not found")
+        cfg = UnsteadyConfig(grid=Path(args.grid), sds=Path(args.sds), cameras=cams,
+                             targets=Path(args.targets) if args.targets else None,
+                             out=Path(args.out), **{k: v for k, v in flags.items()
+                                                    if v is not None}, **common)
+    if cfg.track_dirs is not None and len(cfg.track_dirs) != len(cfg.cameras):
+        raise InputError(f"--track: {len(cfg.track_dirs)} folders for {len(cfg.cameras)} "
+                         "cameras (one per camera, in camera order)")
+    res = run_unsteady(cfg)
+    print(f"unsteady: {res.n_frames} frames x {res.n_nodes} nodes, {100 * res.seen:.1f} % of "
+          f"the nodes seen; chunks {res.chunks[0]} frames x {res.chunks[1]} nodes")
+    if res.tracked_failed:
+        print(f"tracking: {res.tracked_failed} frames without a pose took the nearest "
+              "tracked frame's")
+    if res.si_change_median == res.si_change_median:
+        print(f"self-illumination: dCp changed by {res.si_change_median:.4g} (median over the "
+              f"nodes of its RMS over time), {res.si_change_p95:.4g} (95th percentile)")
+    else:
+        print("self-illumination: not removed (--no-si)")
+    print("wrote " + ", ".join(str(p) for p in res.files))
+    return 0
+
+
+def register(sub) -> None:
+    """Add the ``unsteady`` sub-command to ``sub`` (an argparse sub-parsers object)."""
+    from .unsteady.phase1 import FILTERS, OVERLAPS, REGISTRATIONS
+
+    p = sub.add_parser(
+        "unsteady",
+        help="unsteady PSP: videos of several cameras to dCp time histories on the grid, "
+        "self-illumination removed (uPSP's psp_process)",
+        description="Phase 1 maps every frame of every camera onto the grid's nodes (each "
+        "frame with its own tracked pose, targets/taps/Kulites left out, cameras combined, "
+        "self-illumination removed); Phase 2 turns node intensities into dCp with the paint "
+        "gain (uPSP's formulas). Writes OUT.h5 (dCp frames x nodes) and OUT.xdmf. "
+        "See docs/unsteady.md.",
+    )
+    p.add_argument("deck", nargs="?", metavar="DECK.inp",
+                   help="uPSP psp_process input deck (@all, @camera, @options); flags "
+                   "given below override its @options")
+    p.add_argument("--grid", help="Plot3D surface grid (without a deck)")
+    p.add_argument("--sds", "--wtd", dest="sds", metavar="RUN.wtd",
+                   help="wind-tunnel data (MACH, Q, PS, TTF) (without a deck)")
+    p.add_argument("--targets", metavar="MODEL.tgts",
+                   help="targets, taps and Kulites (.tgts; without a deck, or to override)")
+    p.add_argument("--video", action="append",
+                   help="a camera's video (.cine, .mraw, TIFF/NPY stack); repeat per camera")
+    p.add_argument("--calibration", action="append",
+                   help="a camera's calibration (camera file, pose of the first frame); "
+                   "repeat per camera, same order as --video")
+    p.add_argument("--paint-calibration", required=True, metavar="CAL.txt",
+                   help="uPSP's paint gain file (a = ... to f = ...)")
+    p.add_argument("--steady", required=True, metavar="STEADY.f",
+                   help="steady Cp: a Plot3D function file on the grid")
+    p.add_argument("--reflectance", default="0.6", metavar="R|FILE",
+                   help="paint reflectance: a number or a per-face file (default 0.6)")
+    p.add_argument("--out", required=True, metavar="OUT.h5", help="output HDF5 file")
+    p.add_argument("--registration", choices=REGISTRATIONS, default=None,
+                   help="track: every frame with its own pose (default); first-frame: uPSP's "
+                   "affine pixel registration onto frame 0 and its map; none: a fixed model")
+    p.add_argument("--target-patcher", choices=("none", "polynomial"), default=None,
+                   help="dark spots left out of node values (none, default) or patched by a "
+                   "3rd-order 2-D polynomial (polynomial)")
+    p.add_argument("--overlap", choices=OVERLAPS, default=None,
+                   help="cameras combined per node: average_view, best_view or merge "
+                   "(feathered, gains matched; default)")
+    p.add_argument("--filter", choices=FILTERS, default=None, help="image filter")
+    p.add_argument("--filter-size", type=int, default=None, help="filter size, odd pixels")
+    p.add_argument("--oblique-angle", type=float, default=None, metavar="DEG",
+                   help="obliqueness cut-off, degrees (default 70)")
+    p.add_argument("--number-frames", type=int, default=None,
+                   help="frames to process (-1: all, default)")
+    p.add_argument("--no-si", action="store_true",
+                   help="do not remove the self-illumination (uPSP's answer)")
+    p.add_argument("--unpainted", metavar="FILE|BLOCKS",
+                   help="faces that emit nothing and never make a node value: a per-face 0/1 "
+                   "file or Plot3D block numbers counted from 1")
+    p.add_argument("--rays", type=int, default=1024, help="rays per face for the view "
+                   "factors (default 1024)")
+    p.add_argument("--seed", type=int, default=0, help="view-factor seed")
+    p.add_argument("--fps", type=float, help="frame rate, when the video does not say it")
+    p.add_argument("--tinf", type=float, metavar="DEG_F",
+                   help="free-stream static temperature (default: isentropic from TTF, MACH)")
+    p.add_argument("--track", action="append", metavar="DIR",
+                   help="a camera's 'resection track' output instead of tracking here; "
+                   "repeat per camera")
+    p.add_argument("--upsp-flat", action="store_true",
+                   help="also write uPSP's flat 'pressure' and 'pressure_transpose' files "
+                   "next to OUT.h5")
+    p.add_argument("--quiet", action="store_true", help="no progress")
+    p.set_defaults(func=_cmd_unsteady)

@@ -1,0 +1,28 @@
+"""The unsteady PSP run (NASA uPSP's ``psp_process``, and beyond it): from the videos of
+several cameras to dCp time histories at every grid node, self-illumination removed.
+
+Takes a uPSP input deck (or the same by flags), the ``.wtd`` conditions, the paint gain
+file and the steady Cp; gives one HDF5 file (frames x nodes, chunked for frames and for
+node histories) with an XDMF sidecar (``docs/unsteady.md``).
+
+Modules, by concept:
+
+- :mod:`~selfillum.unsteady.conditions`: tunnel conditions, the Phase 2 formulas (gain,
+  recovery temperature, steady pressure);
+- :mod:`~selfillum.unsteady.grid`: grid nodes in the grid file's order, the steady Cp;
+- :mod:`~selfillum.unsteady.spots`: targets, taps and Kulites masked or patched;
+- :mod:`~selfillum.unsteady.registration`: uPSP's affine pixel registration;
+- :mod:`~selfillum.unsteady.phase1`: frames onto nodes (registration, spots, cameras
+  combined, self-illumination removed);
+- :mod:`~selfillum.unsteady.phase2`: node intensities to dCp;
+- :mod:`~selfillum.unsteady.output`: the HDF5 layout, XDMF, uPSP's flat files;
+- :mod:`~selfillum.unsteady.run`: :func:`run_unsteady`, the whole job.
+"""
+
+from __future__ import annotations
+
+from .conditions import Conditions
+from .run import CameraInput, UnsteadyConfig, UnsteadyResult, config_from_deck, run_unsteady
+
+__all__ = ["Conditions", "CameraInput", "UnsteadyConfig", "UnsteadyResult",
+           "config_from_deck", "run_unsteady"]

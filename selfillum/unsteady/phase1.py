@@ -1,0 +1,252 @@
+"""Phase 1: every frame of every camera onto the grid's nodes, one frame at a time.
+
+For frame ``k``, each camera's image is
+
+1. registered: mapped with the camera's own pose in that frame (``"track"``: a
+   :class:`resection.SurfaceMap` per frame from the tracked pose, the visibility and the
+   obliqueness cut-off exact per frame), or warped onto the first frame by an affine
+   pixel registration and mapped through the first frame's map (``"first-frame"``, uPSP's
+   method, :mod:`~selfillum.unsteady.registration`), or mapped through the first frame's
+   map as it is (``"none"``, a model that does not move);
+2. cleared of its dark spots (targets, taps, Kulites: :mod:`~selfillum.unsteady.spots`),
+   masked or patched;
+3. optionally low-pass filtered (``filter = gaussian``, NaN-aware);
+
+then the cameras are combined on the faces (:func:`resection.merge.merge_views`:
+``average_view`` = view-angle weights, ``best_view`` = the camera of largest weight,
+``merge`` = feathered weights with gains matched on frame 0 and kept), the
+self-illumination is removed on the faces (``E = B - rho F B``: one sparse product a frame;
+faces no camera sees in the frame take the radiosity of the frame-0 solve, see
+:class:`SelfIllumination`), unpainted faces are dropped, and the faces' values go to the
+nodes (area-weighted mean of the finite faces around each node) in grid-file order.
+
+Frames are produced one at a time (:func:`map_run` is a generator), so a caller writes them
+in blocks of frames and memory does not grow with the run.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy import ndimage
+
+from resection.errors import InputError
+
+from .spots import DarkSpots, mask_spots, patch_spots, project_spots
+
+__all__ = ["CameraRun", "SelfIllumination", "FrameNodes", "map_run", "REGISTRATIONS",
+           "OVERLAPS", "FILTERS"]
+
+REGISTRATIONS = ("track", "first-frame", "none")
+OVERLAPS = ("average_view", "best_view", "merge")
+FILTERS = ("none", "gaussian")
+
+
+@dataclass
+class CameraRun:
+    """One camera of the run.
+
+    Attributes
+    ----------
+    number : int
+        The deck's camera number.
+    camera : resection.Camera
+        Intrinsics and the pose of frame 0.
+    frames : indexable of (H, W) arrays
+        The video (``frames[k]``, e.g. :func:`resection.io.video.open_frames`).
+    poses : sequence of Camera, optional
+        The camera in every frame (``registration="track"``).
+    """
+
+    number: int
+    camera: object
+    frames: object
+    poses: Sequence | None = None
+
+
+@dataclass(frozen=True)
+class FrameNodes:
+    """One frame on the grid: ``index``, node ``values`` with the self-illumination
+    removed (or not, with ``si=None``), ``raw`` without it (N,) float32 in grid order,
+    NaN unseen; ``cameras`` the camera of each camera in this frame."""
+
+    index: int
+    values: np.ndarray
+    raw: np.ndarray
+    cameras: list
+
+
+class SelfIllumination:
+    """``E = B - rho F B`` per frame on the faces.
+
+    Faces seen in no camera in a frame get the radiosity of the frame-0 solve
+    (:func:`selfillum.radiosity.correct` with ``unseen`` continued smoothly, then
+    :func:`selfillum.radiosity.forward`), so that each frame costs one sparse product.
+    ``unpainted`` faces emit nothing.
+    """
+
+    def __init__(self, mesh, F, reflectance, unpainted=None):
+        from ..radiosity import check_form_factors, check_reflectance
+
+        self.mesh = mesh
+        self.F = check_form_factors(F)
+        n = len(mesh.faces)
+        if self.F.shape != (n, n):
+            raise InputError(f"form factors: {self.F.shape} for {n} faces")
+        self.rho = check_reflectance(reflectance, n)
+        self.unpainted = None if unpainted is None else np.asarray(unpainted, bool)
+        self.hidden = None
+
+    def reference(self, B0, seen0) -> None:
+        """Solve frame 0 (seen and hidden faces) for the hidden faces' radiosity."""
+        from ..radiosity import correct, forward
+
+        if seen0.all():
+            self.hidden = np.asarray(B0, float)
+            return
+        E0 = correct(self.F, np.where(seen0, B0, np.nan), self.rho, seen0, mesh=self.mesh,
+                     unpainted=self.unpainted)
+        E0 = np.where(np.isfinite(E0), E0, 0.0)
+        if self.unpainted is not None:
+            E0[self.unpainted] = 0.0
+        self.hidden = forward(self.F, E0, self.rho)
+
+    def __call__(self, B, seen) -> np.ndarray:
+        if self.hidden is None:
+            self.reference(B, seen)
+        full = np.where(seen, B, self.hidden)
+        E = full - self.rho * (self.F @ full)
+        return np.where(seen, E, np.nan)
+
+
+def _gaussian(img: np.ndarray, size: int) -> np.ndarray:
+    """NaN-aware Gaussian low-pass of a ``size`` x ``size`` kernel (OpenCV's sigma for a
+    kernel size: ``0.3 ((size - 1) / 2 - 1) + 0.8``)."""
+    sigma = 0.3 * ((size - 1) * 0.5 - 1) + 0.8
+    fin = np.isfinite(img)
+    r = (size - 1) // 2
+    num = ndimage.gaussian_filter(np.where(fin, img, 0.0), sigma, truncate=r / sigma)
+    den = ndimage.gaussian_filter(fin.astype(np.float64), sigma, truncate=r / sigma)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(fin & (den > 0), num / den, np.nan)
+
+
+def _face_to_vertex(mesh) -> sp.csr_matrix:
+    """(V, F) sparse: face areas at each face's three corners."""
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    area = np.asarray(mesh.area_faces, dtype=np.float64)
+    F = len(faces)
+    return sp.csr_matrix((np.repeat(area, 3), (faces.ravel(), np.repeat(np.arange(F), 3))),
+                         shape=(len(mesh.vertices), F))
+
+
+def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpots | None,
+            registration: str = "track", patcher: str = "none", overlap: str = "merge",
+            filter: str = "none", filter_size: int = 3, max_obliqueness: float = 70.0,
+            si: SelfIllumination | None = None, unpainted=None,
+            spot_margin_px: float = 1.0) -> Iterator[FrameNodes]:
+    """Map the frames ``frame_numbers`` of every camera onto the grid's nodes.
+
+    Parameters
+    ----------
+    grid : selfillum.unsteady.grid.RunGrid
+    cameras : sequence of CameraRun
+    frame_numbers : sequence of int
+    spots : DarkSpots or None
+    registration : {"track", "first-frame", "none"}
+    patcher : {"none", "polynomial"}
+    overlap : {"average_view", "best_view", "merge"}
+    filter : {"none", "gaussian"}
+    filter_size : int
+        Odd kernel size, pixels.
+    max_obliqueness : float
+        Degrees (uPSP's ``oblique_angle``).
+    si : SelfIllumination, optional
+        Remove the self-illumination (else ``values`` equals ``raw``).
+    unpainted : (F,) bool, optional
+        Faces left out of node values.
+
+    Yields
+    ------
+    FrameNodes
+    """
+    from resection.merge import merge_views
+    from resection.surface import SurfaceMap
+    from resection.visibility import RayCaster
+
+    from .registration import AffineRegistration
+
+    if registration not in REGISTRATIONS:
+        raise InputError(f"registration must be one of {', '.join(REGISTRATIONS)}, got "
+                         f"{registration!r}")
+    if patcher not in ("none", "polynomial"):
+        raise InputError(f"target_patcher must be 'none' or 'polynomial', got {patcher!r}")
+    if overlap not in OVERLAPS:
+        raise InputError(f"overlap must be one of {', '.join(OVERLAPS)}, got {overlap!r}")
+    if filter not in FILTERS:
+        raise InputError(f"filter must be 'none' or 'gaussian', got {filter!r}")
+    if filter == "gaussian" and (filter_size < 3 or filter_size % 2 == 0):
+        raise InputError(f"filter_size must be an odd number >= 3, got {filter_size}")
+    mesh = grid.mesh
+    caster = RayCaster(mesh)
+    maps0 = [SurfaceMap(mesh, c.camera, max_obliqueness=max_obliqueness, caster=caster)
+             for c in cameras]
+    regs = [None] * len(cameras)
+    W = _face_to_vertex(mesh)
+    merge_kw = {"average_view": dict(method="weighted", feather_px=0, edge_margin=1,
+                                     match_gain=False),
+                "best_view": dict(method="best", feather_px=0, edge_margin=1,
+                                  match_gain=False),
+                "merge": dict(method="weighted")}[overlap]
+    gains = None
+    off = None if unpainted is None else np.asarray(unpainted, bool)
+    for k in frame_numbers:  # frames, one at a time
+        k = int(k)
+        maps, imgs, cams = [], [], []
+        for ci, c in enumerate(cameras):  # a few cameras
+            img = np.asarray(c.frames[k], dtype=np.float64)
+            if img.shape != maps0[ci].shape:
+                raise InputError(f"camera {c.number}: frame {k} is {img.shape}, its "
+                                 f"calibration {maps0[ci].shape}")
+            if registration == "track":
+                cam = c.poses[k]
+                smap = maps0[ci] if k == 0 and cam is c.camera else SurfaceMap(
+                    mesh, cam, max_obliqueness=max_obliqueness, caster=caster)
+            else:
+                cam, smap = c.camera, maps0[ci]
+                if registration == "first-frame":
+                    if regs[ci] is None:
+                        regs[ci] = AffineRegistration(img, smap.mask)
+                    img = regs[ci].warp(img, regs[ci].fit(img))
+            if spots is not None and len(spots):
+                cen, rad = project_spots(spots, smap, margin_px=spot_margin_px)
+                img = patch_spots(img, cen, rad) if patcher == "polynomial" \
+                    else mask_spots(img, cen, rad)
+            if filter == "gaussian":
+                img = _gaussian(img, filter_size)
+            maps.append(smap)
+            imgs.append(img)
+            cams.append(cam)
+        mv = merge_views(maps, imgs, gains=gains, **merge_kw)
+        if overlap == "merge" and gains is None:
+            gains = mv.gains  # matched on frame 0, kept: no seam moving over time
+        B = mv.values
+        seen = mv.seen & np.isfinite(B)
+        if off is not None:
+            seen = seen & ~off
+        raw_f = np.where(seen, B, np.nan)
+        E = si(B, seen) if si is not None else raw_f
+        vals = _to_nodes(W, np.vstack([E, raw_f]), grid)
+        yield FrameNodes(k, vals[0], vals[1], cams)
+
+
+def _to_nodes(W, face_values, grid) -> np.ndarray:
+    fin = np.isfinite(face_values)
+    num = (W @ np.where(fin, face_values, 0.0).T).T
+    den = (W @ fin.T.astype(np.float64)).T
+    with np.errstate(invalid="ignore", divide="ignore"):
+        v = np.where(den > 0, num / den, np.nan)
+    return grid.to_nodes(v).astype(np.float32)

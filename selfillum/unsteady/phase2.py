@@ -1,0 +1,126 @@
+"""Phase 2: node intensities over time to pressure coefficient fluctuations, block by block.
+
+Per node (uPSP's ``psp_process``, :mod:`selfillum.unsteady.conditions` for the formulas):
+``I' = mean_t(I) / I``; a polynomial of order 6 in time fitted to ``I'`` and subtracted
+(it takes out the slow drifts: paint photo-degradation, lamp warm-up, temperature);
+``P = (I' - fit) Gain``; ``dCp = P 144 / q``.
+
+A block is ``(T, n)``: every frame of ``n`` nodes, the shape of the HDF5 dataset's chunk
+columns (:mod:`selfillum.unsteady.output`), so that Phase 2 reads along its chunks with
+memory bounded by the block, whatever the number of nodes.
+
+Frames where a node is unseen (NaN) are left out of its mean and of its fit, and stay NaN;
+a node seen in fewer than half the frames (or fewer than ``order + 2``) gets NaN throughout:
+its drift cannot be told from its signal.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from resection.errors import InputError
+
+__all__ = ["DETREND_ORDER", "intensity_ratio", "detrend", "dcp_block", "node_gain"]
+
+#: Order of the polynomial in time fitted to ``I'`` and subtracted (uPSP: 6).
+DETREND_ORDER = 6
+
+
+def intensity_ratio(intensity) -> np.ndarray:
+    """``I' = mean_t(I) / I`` per column of a ``(T, n)`` block (NaN frames left out of the
+    mean and kept NaN; non-positive intensities are NaN)."""
+    I = np.asarray(intensity, dtype=np.float64)
+    I = np.where(I > 0, I, np.nan)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.nanmean(I, axis=0, keepdims=True) / I if I.size else I.copy()
+
+
+def _vandermonde(times, order: int) -> np.ndarray:
+    t = np.asarray(times, dtype=np.float64)
+    span = t.max() - t.min() if t.size > 1 else 1.0
+    x = (2.0 * (t - t.min()) / (span if span > 0 else 1.0)) - 1.0  # in [-1, 1]
+    return np.polynomial.legendre.legvander(x, order)  # same fit as powers, well conditioned
+
+
+def detrend(ratio, times, order: int = DETREND_ORDER) -> np.ndarray:
+    """Subtract a least-squares polynomial of ``order`` in time from every column.
+
+    Parameters
+    ----------
+    ratio : (T, n) array_like
+        ``I'`` per frame and node (NaN where unseen).
+    times : (T,) array_like
+        Frame times (any unit; frame numbers as uPSP).
+    order : int
+
+    Returns
+    -------
+    (T, n) float64
+        ``I' - fit``; NaN where ``ratio`` is NaN and in columns with too few frames.
+    """
+    y = np.asarray(ratio, dtype=np.float64)
+    if y.ndim != 2:
+        raise InputError(f"detrend: expected a (frames, nodes) block, got shape {y.shape}")
+    T = y.shape[0]
+    if np.shape(times) != (T,):
+        raise InputError(f"detrend: {np.size(times)} times for {T} frames")
+    V = _vandermonde(times, order)
+    fin = np.isfinite(y)
+    nfin = fin.sum(axis=0)
+    out = np.full_like(y, np.nan)
+    full = nfin == T
+    if full.any() and T > order:
+        coef, *_ = np.linalg.lstsq(V, y[:, full], rcond=None)
+        out[:, full] = y[:, full] - V @ coef
+    part = np.flatnonzero(~full & (nfin >= max(order + 2, (T + 1) // 2)))
+    if part.size:  # weighted normal equations, all such columns at once
+        w = fin[:, part].astype(np.float64)
+        yz = np.where(fin[:, part], y[:, part], 0.0)
+        A = np.einsum("ti,tn,tj->nij", V, w, V)
+        b = np.einsum("ti,tn->ni", V, w * yz)
+        coef = np.linalg.solve(A, b[..., None])[..., 0]
+        out[:, part] = np.where(fin[:, part], y[:, part] - V @ coef.T, np.nan)
+    return out
+
+
+def dcp_block(intensity, times, gain, q: float, order: int = DETREND_ORDER) -> np.ndarray:
+    """dCp of a ``(T, n)`` block of node intensities: ``(I' - fit) Gain 144 / q``.
+
+    Parameters
+    ----------
+    intensity : (T, n) array_like
+        Node intensities (counts, NaN unseen), frames in time order.
+    times : (T,) array_like
+    gain : (n,) array_like
+        Per node, psi per unit of ``I'`` (:func:`node_gain`).
+    q : float
+        Dynamic pressure, psf.
+
+    Returns
+    -------
+    (T, n) float32
+    """
+    g = np.asarray(gain, dtype=np.float64)
+    I = np.asarray(intensity)
+    if g.shape != (I.shape[1],):
+        raise InputError(f"dcp_block: {g.size} gains for {I.shape[1]} nodes")
+    res = detrend(intensity_ratio(I), times, order)
+    return (res * (g * 144.0 / float(q))[None, :]).astype(np.float32)
+
+
+def node_gain(calibration, surface_temperature, cp_steady, conditions) -> np.ndarray:
+    """Per-node gain ``a + bT + cT^2 + (d + eT + fT^2) Pss`` with ``Pss = Cp q + p_inf``.
+
+    Parameters
+    ----------
+    calibration : resection.io.upsp_inputs.PaintCalibration
+    surface_temperature : float or (n,) array_like
+        deg F.
+    cp_steady : (n,) array_like
+        Steady Cp per node.
+    conditions : selfillum.unsteady.conditions.Conditions
+    """
+    from .conditions import steady_pressure
+
+    pss = steady_pressure(cp_steady, conditions.q, conditions.p_inf)
+    return np.asarray(calibration.gain(surface_temperature, pss), dtype=np.float64)

@@ -1,0 +1,420 @@
+"""The whole unsteady run: inputs checked, Phase 1 (frames onto nodes), Phase 2 (dCp), the
+output file, in one call: :func:`run_unsteady`.
+
+Nothing is written before every input has been read and checked; the outputs are written
+to temporary names and renamed only when the run has succeeded (a failed run leaves
+nothing, not half a file). Phase 1 writes its node intensities in blocks of frames to a
+scratch HDF5 file next to the output (removed at the end); Phase 2 reads it back in blocks
+of nodes: memory is bounded by one block, whatever the length of the run.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from resection.errors import InputError
+
+from .output import FORMAT, VERSION, chunk_shape, json_attr, provenance, write_flat, write_xdmf
+from .phase1 import FILTERS, OVERLAPS, REGISTRATIONS, CameraRun, SelfIllumination, map_run
+from .phase2 import DETREND_ORDER, dcp_block, node_gain
+
+__all__ = ["CameraInput", "UnsteadyConfig", "UnsteadyResult", "run_unsteady",
+           "config_from_deck"]
+
+
+@dataclass(frozen=True)
+class CameraInput:
+    """A camera: ``number``, ``video`` (a ``.cine``, ``.mraw``, TIFF/NPY stack) and
+    ``calibration`` (its camera file, pose of the first frame relative to the model)."""
+
+    number: int
+    video: Path
+    calibration: Path
+
+
+@dataclass
+class UnsteadyConfig:
+    """Everything a run needs (the command's flags or a uPSP deck, :func:`config_from_deck`).
+
+    ``registration``: ``track`` (each frame's own pose from the project's tracking, or
+    ``track_dirs``), ``first-frame`` (uPSP: affine pixel registration onto frame 0, its
+    map), ``none`` (a fixed model: frame 0's map). ``number_frames``: -1 for all.
+    ``reflectance``: a number or a per-face file. ``si``: remove the self-illumination.
+    """
+
+    grid: Path
+    sds: Path
+    cameras: list
+    out: Path
+    paint_calibration: Path | None = None
+    steady: Path | None = None
+    targets: Path | None = None
+    registration: str = "track"
+    target_patcher: str = "none"
+    overlap: str = "merge"
+    filter: str = "none"
+    filter_size: int = 3
+    oblique_angle: float = 70.0
+    number_frames: int = -1
+    si: bool = True
+    reflectance: object = 0.6
+    unpainted: object = None
+    rays: int = 1024
+    seed: int = 0
+    fps: float | None = None
+    tinf: float | None = None
+    upsp_flat: bool = False
+    track_dirs: list | None = None
+    progress: bool = False
+    general: dict = field(default_factory=dict)
+    source: str = "flags"
+
+
+@dataclass(frozen=True)
+class UnsteadyResult:
+    """What a run did: ``out`` (the HDF5 file), ``n_frames``, ``n_nodes``, ``chunks``,
+    ``seen`` (share of nodes with a dCp), ``si_change_median`` / ``si_change_p95`` (over
+    the seen nodes, of the RMS over time of the change of dCp by the SI removal; NaN
+    without SI), ``tracked_failed`` (frames whose pose was taken from the nearest good
+    frame), ``files`` (everything written)."""
+
+    out: Path
+    n_frames: int
+    n_nodes: int
+    chunks: tuple
+    seen: float
+    si_change_median: float
+    si_change_p95: float
+    tracked_failed: int
+    files: tuple
+
+
+_DECK_REGISTRATION = {"pixel": "first-frame", "none": "none", "track": "track",
+                      "first-frame": "first-frame"}
+
+
+def config_from_deck(deck, **overrides) -> UnsteadyConfig:
+    """An :class:`UnsteadyConfig` from a :class:`resection.io.upsp_inputs.Deck`; the
+    ``@options`` are honoured or refused by name; ``overrides`` (not None) win."""
+    where = f"{deck.path}: @options"
+    opts = dict(deck.options)
+    kw: dict = {}
+    if "target_patcher" in opts:
+        kw["target_patcher"] = opts["target_patcher"]
+    if "registration" in opts:
+        r = opts["registration"]
+        if r not in _DECK_REGISTRATION:
+            raise InputError(f"{where} registration = {r}: unknown (pixel, none, track)")
+        kw["registration"] = _DECK_REGISTRATION[r]
+    if opts.get("pixel_interpolation", "linear") != "linear":
+        raise InputError(f"{where} pixel_interpolation = {opts['pixel_interpolation']}: "
+                         "only linear is supported")
+    if "overlap" in opts:
+        kw["overlap"] = opts["overlap"]
+    if "filter" in opts:
+        kw["filter"] = opts["filter"]
+    for key, conv in (("filter_size", int), ("oblique_angle", float), ("number_frames", int)):
+        if key in opts:
+            try:
+                kw[key] = conv(opts[key])
+            except ValueError:
+                raise InputError(f"{where} {key} = {opts[key]}: not a number") from None
+    kw.update({k: v for k, v in overrides.items() if v is not None})
+    cams = [CameraInput(c.number, c.video, c.calibration) for c in deck.cameras]
+    tg = {c.targets for c in deck.cameras if c.targets is not None}
+    if len(tg) > 1:
+        raise InputError(f"{deck.path}: cameras name different targets files; one .tgts "
+                         "for the model")
+    targets = tg.pop() if tg else deck.targets
+    out = kw.pop("out", None)
+    if out is None:
+        raise InputError(f"{deck.path}: give --out OUT.h5")
+    return UnsteadyConfig(grid=deck.grid, sds=deck.sds, cameras=cams, targets=targets,
+                          out=Path(out), general=dict(deck.general), source=str(deck.path),
+                          **kw)
+
+
+def _check_options(cfg: UnsteadyConfig) -> None:
+    where = cfg.source
+    if cfg.registration not in REGISTRATIONS:
+        raise InputError(f"{where}: registration {cfg.registration!r} unknown (one of "
+                         f"{', '.join(REGISTRATIONS)})")
+    if cfg.target_patcher not in ("none", "polynomial"):
+        raise InputError(f"{where}: target_patcher {cfg.target_patcher!r} unknown (none, "
+                         "polynomial)")
+    if cfg.overlap not in OVERLAPS:
+        raise InputError(f"{where}: overlap {cfg.overlap!r} unknown (one of "
+                         f"{', '.join(OVERLAPS)})")
+    if cfg.filter not in FILTERS:
+        raise InputError(f"{where}: filter {cfg.filter!r} unknown (none, gaussian)")
+    if cfg.filter == "gaussian" and (cfg.filter_size < 3 or cfg.filter_size % 2 == 0):
+        raise InputError(f"{where}: filter_size {cfg.filter_size} must be odd and >= 3")
+    if not 0 < cfg.oblique_angle <= 90:
+        raise InputError(f"{where}: oblique_angle {cfg.oblique_angle} must be in (0, 90]")
+    if cfg.number_frames == 0 or cfg.number_frames < -1:
+        raise InputError(f"{where}: number_frames {cfg.number_frames} must be -1 (all) or > 0")
+    if not cfg.cameras:
+        raise InputError(f"{where}: no camera")
+    if cfg.out.suffix.lower() not in (".h5", ".hdf5"):
+        raise InputError(f"{cfg.out}: the output is an HDF5 file (.h5)")
+
+
+def _open_videos(cfg: UnsteadyConfig):
+    from resection.io.video import open_frames
+
+    srcs = [open_frames(c.video) for c in cfg.cameras]
+    n = [len(s) for s in srcs]
+    where = cfg.source
+    if cfg.number_frames == -1:
+        if len(set(n)) > 1:
+            lens = ", ".join(f"{c.video.name}: {k}" for c, k in
+                             zip(cfg.cameras, n, strict=True))
+            raise InputError(f"{where}: number_frames = -1 but the videos differ in length "
+                             f"({lens} frames)")
+        T = n[0]
+    else:
+        T = cfg.number_frames
+        short = [(c, k) for c, k in zip(cfg.cameras, n, strict=True) if k < T]
+        if short:
+            c, k = short[0]
+            raise InputError(f"{where}: number_frames = {T} but {c.video} has {k} frames")
+    rates = [s.frame_rate for s in srcs]
+    known = {float(r) for r in rates if r}
+    if len(known) > 1:
+        rl = ", ".join(f"{c.video.name}: {r} fps" for c, r in
+                       zip(cfg.cameras, rates, strict=True))
+        raise InputError(f"{where}: the videos differ in frame rate ({rl})")
+    fps = cfg.fps if cfg.fps is not None else (known.pop() if known else None)
+    if fps is None:
+        raise InputError(f"{cfg.cameras[0].video}: no frame rate in the video; give --fps")
+    if not fps > 0:
+        raise InputError(f"--fps must be positive, got {fps}")
+    return srcs, T, float(fps)
+
+
+def _track(cfg, cam_in, camera, src, T, tmp: Path):
+    """Each frame's camera from the project's tracking (or a given track folder)."""
+    from resection.io.markers import read_markers
+    from resection.sequence import read_track, track
+
+    if cfg.track_dirs is not None:
+        tr = read_track(cfg.track_dirs[cfg.cameras.index(cam_in)])
+    else:
+        if cfg.targets is None:
+            raise InputError(f"{cfg.source}: registration 'track' needs the targets (.tgts)")
+        ms = read_markers(cfg.targets)
+        z = camera.to_camera_frame(ms.xyz)[:, 2]
+        f = 0.5 * (camera.K[0, 0] + camera.K[1, 1])
+        dpx = float(np.median(ms.diameter * f / z[z > 0])) if ms.diameter is not None \
+            else 5.0
+        tr = track(str(cam_in.video), camera, ms, diameter=dpx,
+                   out_dir=tmp / f"track{cam_in.number}", workers=1, progress=cfg.progress,
+                   resume=False)
+    ok = np.flatnonzero(tr.status == "ok")
+    frame_ok = tr.frame[ok]
+    if frame_ok.size == 0:
+        raise InputError(f"{cam_in.video}: tracking found the pose in no frame")
+    poses, failed = [], 0
+    for k in range(T):  # per frame: pick the pose of the nearest tracked frame
+        j = int(np.argmin(np.abs(frame_ok - k)))
+        failed += int(frame_ok[j] != k)
+        poses.append(camera.with_pose(rvec=tr.rvec[ok[j]], t=tr.tvec[ok[j]]))
+    return poses, failed
+
+
+def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
+    """Run Phase 1 and Phase 2 and write the output (see the module notes)."""
+    import h5py
+
+    from resection.io.cameras import read_camera
+    from resection.io.markers import read_markers
+    from resection.io.outputs import atomic_path
+    from resection.io.upsp_inputs import read_paint_calibration
+    from resection.io.wtd import read_wtd
+
+    from ..correct_image import read_reflectance
+    from ..unseen import read_unpainted
+    from .conditions import Conditions
+    from .grid import load_run_grid, read_steady_cp
+    from .spots import DarkSpots
+
+    _check_options(cfg)
+    out = Path(cfg.out)
+    if not out.parent.is_dir():
+        raise InputError(f"{out}: output folder {out.parent} does not exist")
+    # ---------------------------------------------------------------- inputs, all checked
+    grid = load_run_grid(cfg.grid)
+    if cfg.steady is None:
+        raise InputError("no steady Cp: give --steady STEADY.f")
+    cp = read_steady_cp(cfg.steady, grid)
+    wtd = read_wtd(cfg.sds)
+    cond = Conditions.from_wtd(wtd, tinf=cfg.tinf)
+    if cfg.paint_calibration is None:
+        raise InputError("no paint calibration: give --paint-calibration CAL.txt (uPSP's "
+                         "a..f gain file)")
+    cal = read_paint_calibration(cfg.paint_calibration)
+    gain = node_gain(cal, cond.surface_temperature, cp, cond)
+    spots = None
+    if cfg.targets is not None:
+        spots = DarkSpots.from_markers(read_markers(cfg.targets, include_taps=True),
+                                       str(cfg.targets))
+    mesh = grid.mesh
+    unpainted = None
+    if cfg.unpainted is not None:
+        unpainted, _ = read_unpainted(cfg.unpainted, mesh)
+    rho = read_reflectance(cfg.reflectance, len(mesh.faces)) if cfg.si else None
+    cams = [read_camera(c.calibration) for c in cfg.cameras]
+    srcs, T, fps = _open_videos(cfg)
+    for c, cam, s in zip(cfg.cameras, cams, srcs, strict=True):
+        if (cam.height, cam.width) != tuple(s.shape):
+            raise InputError(f"{c.calibration}: a {cam.width}x{cam.height} camera, its video "
+                             f"{c.video} is {s.shape[1]}x{s.shape[0]}")
+    flat = [out.parent / "pressure", out.parent / "pressure_transpose"] if cfg.upsp_flat \
+        else []
+    xdmf = out.with_suffix(".xdmf")
+    for p in [out, xdmf, *flat]:
+        if p.exists():
+            raise InputError(f"{p}: exists; remove it or choose another --out")
+    N = grid.n_nodes
+    tc, nc = chunk_shape(T, N)
+    frames = np.arange(T)
+    times = frames / fps
+    scratch = Path(tempfile.mkdtemp(prefix=f".{out.stem}.run-", dir=out.parent))
+    try:
+        # ------------------------------------------------------------ registration
+        runs, failed = [], 0
+        for c, cam, s in zip(cfg.cameras, cams, srcs, strict=True):
+            poses = None
+            if cfg.registration == "track":
+                poses, nf = _track(cfg, c, cam, s, T, scratch)
+                failed += nf
+            runs.append(CameraRun(c.number, cam, s, poses))
+        si = None
+        if cfg.si:
+            from ..viewfactors import view_factors
+
+            F = view_factors(mesh, rays_per_face=cfg.rays, seed=cfg.seed,
+                             progress=cfg.progress)
+            si = SelfIllumination(mesh, F, rho, unpainted)
+        # ------------------------------------------------------------ Phase 1
+        R = np.full((len(runs), T, 3, 3), np.nan)
+        t = np.full((len(runs), T, 3), np.nan)
+        with h5py.File(scratch / "phase1.h5", "w") as s1:
+            vals = s1.create_dataset("values", (T, N), "f4", chunks=(tc, nc))
+            raw = s1.create_dataset("raw", (T, N), "f4", chunks=(tc, nc))
+            block_v = np.empty((tc, N), np.float32)
+            block_r = np.empty((tc, N), np.float32)
+            a = 0
+            for fn in map_run(grid, runs, frames, spots=spots, registration=cfg.registration,
+                              patcher=cfg.target_patcher, overlap=cfg.overlap,
+                              filter=cfg.filter, filter_size=cfg.filter_size,
+                              max_obliqueness=cfg.oblique_angle, si=si, unpainted=unpainted):
+                k = fn.index
+                block_v[k - a], block_r[k - a] = fn.values, fn.raw
+                for ci, cm in enumerate(fn.cameras):
+                    R[ci, k], t[ci, k] = cm.R, cm.t
+                if k - a + 1 == tc or k == T - 1:  # a block of frames: whole chunk rows
+                    vals[a:k + 1], raw[a:k + 1] = block_v[:k + 1 - a], block_r[:k + 1 - a]
+                    a = k + 1
+                if cfg.progress:
+                    print(f"\rphase 1: frame {k + 1}/{T}", end="", flush=True)
+            if cfg.progress:
+                print()
+            # -------------------------------------------------------- Phase 2 + output
+            files = [out, xdmf, *flat]
+            with contextlib.ExitStack() as stack:
+                tmp = [stack.enter_context(atomic_path(p)) for p in files]
+                with h5py.File(tmp[0], "w") as f:
+                    stats = _write_run(f, cfg, grid, cond, cp, gain, vals, raw, times, frames,
+                                       runs, R, t, tc, nc, si is not None)
+                    write_xdmf(tmp[1], out.name, T, N, len(grid.triangles), times)
+                    if flat:
+                        write_flat(f, tmp[2], tmp[3])
+    finally:
+        for s in srcs:
+            with contextlib.suppress(Exception):
+                s.close()
+        shutil.rmtree(scratch, ignore_errors=True)
+    return UnsteadyResult(out, T, N, (tc, nc), stats["seen"], stats["si_median"],
+                          stats["si_p95"], failed, tuple(files))
+
+
+def _write_run(f, cfg, grid, cond, cp, gain, vals, raw, times, frames, runs, R, t, tc, nc,
+               with_si: bool) -> dict:
+    T, N = vals.shape
+    f.attrs["format"] = FORMAT
+    f.attrs["version"] = VERSION
+    g = f.create_group("grid")
+    g.create_dataset("points", data=grid.points)
+    g.create_dataset("triangles", data=grid.triangles)
+    g.create_dataset("block_dims", data=np.asarray(grid.dims, np.int64))
+    fr = f.create_group("frames")
+    fr.create_dataset("time", data=times)
+    fr.create_dataset("index", data=frames.astype(np.int64))
+    cg = f.create_group("cameras")
+    for ci, r in enumerate(runs):
+        c = cg.create_group(f"cam{r.number:02d}")
+        c.attrs.update(width=r.camera.width, height=r.camera.height, number=r.number,
+                       video=str(cfg.cameras[ci].video))
+        c.create_dataset("K", data=r.camera.K)
+        c.create_dataset("dist", data=r.camera.dist)
+        c.create_dataset("R", data=R[ci])
+        c.create_dataset("t", data=t[ci])
+    st = f.create_group("steady")
+    st.create_dataset("cp", data=cp)
+    st.create_dataset("gain", data=gain)
+    dcp = f.create_dataset("dcp", (T, N), "f4", chunks=(tc, nc), fillvalue=np.nan)
+    mean = np.full(N, np.nan, np.float32)
+    rms = np.full(N, np.nan, np.float32)
+    change = np.full(N, np.nan, np.float32)
+    for a in range(0, N, nc):  # blocks of nodes: whole chunk columns
+        b = min(a + nc, N)
+        d = dcp_block(vals[:, a:b], frames, gain[a:b], cond.q)
+        dcp[:, a:b] = d
+        with np.errstate(invalid="ignore"), _quiet():
+            mean[a:b] = np.nanmean(d, axis=0)
+            rms[a:b] = np.sqrt(np.nanmean(d.astype(np.float64) ** 2, axis=0))
+            if with_si:
+                d0 = dcp_block(raw[:, a:b], frames, gain[a:b], cond.q)
+                change[a:b] = np.sqrt(np.nanmean((d.astype(np.float64) - d0) ** 2, axis=0))
+    s = f.create_group("stats")
+    s.create_dataset("dcp_mean", data=mean)
+    s.create_dataset("dcp_rms", data=rms)
+    if with_si:
+        s.create_dataset("si_change_rms", data=change)
+    fin = change[np.isfinite(change)]
+    si_med = float(np.median(fin)) if fin.size else float("nan")
+    si_p95 = float(np.percentile(fin, 95)) if fin.size else float("nan")
+    f.attrs["si_change_median"] = si_med
+    f.attrs["si_change_p95"] = si_p95
+    f.attrs["conditions"] = json_attr(cond.to_dict())
+    f.attrs["options"] = json_attr({
+        "registration": cfg.registration, "target_patcher": cfg.target_patcher,
+        "overlap": cfg.overlap, "filter": cfg.filter, "filter_size": cfg.filter_size,
+        "oblique_angle": cfg.oblique_angle, "number_frames": T, "si": cfg.si,
+        "reflectance": str(cfg.reflectance), "unpainted": str(cfg.unpainted),
+        "rays": cfg.rays, "seed": cfg.seed, "detrend_order": DETREND_ORDER,
+        "general": cfg.general, "source": cfg.source, "chunks": [tc, nc]})
+    f.attrs["provenance"] = json_attr(provenance({
+        "grid": cfg.grid, "sds": cfg.sds, "steady": cfg.steady,
+        "paint_calibration": cfg.paint_calibration, "targets": cfg.targets,
+        "videos": [c.video for c in cfg.cameras],
+        "calibrations": [c.calibration for c in cfg.cameras],
+        "deck": cfg.source if os.path.isfile(cfg.source) else None}))
+    return {"seen": float(np.isfinite(rms).mean()), "si_median": si_med, "si_p95": si_p95}
+
+
+@contextlib.contextmanager
+def _quiet():
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        yield
