@@ -30,9 +30,11 @@ def intensity_ratio(intensity) -> np.ndarray:
     """``I' = mean_t(I) / I`` per column of a ``(T, n)`` block (NaN frames left out of the
     mean and kept NaN; non-positive intensities are NaN)."""
     I = np.asarray(intensity, dtype=np.float64)
-    I = np.where(I > 0, I, np.nan)
+    ok = I > 0  # False on NaN too
+    n = ok.sum(axis=0, keepdims=True)
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.nanmean(I, axis=0, keepdims=True) / I if I.size else I.copy()
+        mean = np.where(ok, I, 0.0).sum(axis=0, keepdims=True) / n
+        return np.where(ok, mean / np.where(ok, I, 1.0), np.nan)
 
 
 def _vandermonde(times, order: int) -> np.ndarray:

@@ -1,0 +1,370 @@
+"""``selfillum unsteady``: Phase 2 formulas against hand-computed values, the pieces of
+Phase 1 against closed forms, and a synthetic run with a known dCp end to end, compared
+in the same test with uPSP's method (``--registration first-frame --no-si``)."""
+
+from __future__ import annotations
+
+import shutil
+import xml.etree.ElementTree as ET
+
+import h5py
+import numpy as np
+import pytest
+
+from resection.errors import InputError
+from resection.io.upsp_inputs import PaintCalibration
+from selfillum.unsteady.conditions import (
+    Conditions,
+    freestream_temperature,
+    recovery_temperature,
+    steady_pressure,
+)
+from selfillum.unsteady.phase2 import dcp_block, detrend, intensity_ratio, node_gain
+
+# ---------------------------------------------------------------------------- Phase 2
+
+
+def test_phase2_formulas_hand_computed():
+    # T = 0.896 (T0 - Tinf) + Tinf: 0.896 * 50 + 50
+    assert recovery_temperature(100.0, 50.0) == pytest.approx(94.8, abs=1e-12)
+    # T0 / Tinf = 1 + 0.2 M^2 on Rankine: (100 + 459.67) / 1.128 - 459.67
+    assert freestream_temperature(100.0, 0.8) == pytest.approx(36.491348, abs=1e-6)
+    # Pss = Cp q + p_inf
+    assert steady_pressure(-0.5, 600.0, 1500.0) == pytest.approx(1200.0, abs=1e-12)
+    # Gain = a + bT + cT^2 + (d + eT + fT^2) Pss at T = 2, Pss = 10: 1+4+12+(4+10+24)*10
+    cal = PaintCalibration(1.0, 2.0, 3.0, 4.0, 5.0, 6.0)
+    assert cal.gain(2.0, 10.0) == pytest.approx(397.0, abs=1e-12)
+    cond = Conditions(mach=0.8, q=600.0, p_inf=1500.0, t0=100.0, tinf=50.0)
+    assert cond.surface_temperature == pytest.approx(94.8, abs=1e-12)
+    # node gain at Cp = -0.5: Pss = 1200, T = 94.8
+    g = node_gain(cal, cond.surface_temperature, np.array([-0.5]), cond)
+    assert g[0] == pytest.approx(1 + 2 * 94.8 + 3 * 94.8**2
+                                 + (4 + 5 * 94.8 + 6 * 94.8**2) * 1200, rel=1e-12)
+    # I' = mean(I) / I
+    np.testing.assert_allclose(intensity_ratio([[1.0], [2.0], [4.0]])[:, 0],
+                               [7 / 3, 7 / 6, 7 / 12], rtol=1e-12)
+    # dCp = (I' - fit) Gain 144 / q; with a fit of order 0 (the mean, 49/36):
+    # (35/36, -7/36, -28/36) * 2 * 144 / 600
+    d = dcp_block([[1.0], [2.0], [4.0]], [0.0, 1.0, 2.0], [2.0], 600.0, order=0)
+    np.testing.assert_allclose(d[:, 0], np.array([35, -7, -28]) / 36 * 0.48, rtol=1e-6)
+
+
+def test_detrend_matches_numpy_polyfit():
+    """The 6th-order fit removed is NumPy's least-squares polynomial (np.polyfit), also for
+    a node unseen in some frames (those frames left out of its fit)."""
+    rng = np.random.default_rng(1)
+    t = np.arange(60, dtype=float)
+    y = rng.standard_normal((60, 3)) + 0.01 * t[:, None] ** 2
+    y[[3, 17, 40], 2] = np.nan
+    out = detrend(y, t, 6)
+    for j in range(3):
+        ok = np.isfinite(y[:, j])
+        c = np.polyfit(t[ok], y[ok, j], 6)
+        np.testing.assert_allclose(out[ok, j], y[ok, j] - np.polyval(c, t[ok]), atol=1e-8)
+        assert np.all(np.isnan(out[~ok, j]))
+    # a node seen in fewer than half the frames: NaN throughout
+    y2 = y.copy()
+    y2[:35, 0] = np.nan
+    assert np.all(np.isnan(detrend(y2, t, 6)[:, 0]))
+
+
+def test_conditions_from_wtd(tmp_path):
+    from resection.io.wtd import read_wtd
+
+    p = tmp_path / "r.wtd"
+    p.write_text("# MACH\tTTF\tPS\tQ\n0.8\t100\t1500\t600\n")
+    c = Conditions.from_wtd(read_wtd(p))
+    assert c.tinf == pytest.approx(36.491348, abs=1e-6) and c.q == 600 and c.p_inf == 1500
+    assert Conditions.from_wtd(read_wtd(p), tinf=40.0).tinf == 40.0
+    p.write_text("# MACH\tTTF\tPS\n0.8\t100\t1500\n")
+    with pytest.raises(InputError, match=r"r\.wtd: no 'Q' column"):
+        Conditions.from_wtd(read_wtd(p))
+
+
+# ---------------------------------------------------------------------------- Phase 1 parts
+
+
+def test_grid_nodes_in_file_order(tmp_path):
+    """Node n of the run is point n of the Plot3D file (block by block, i fastest), and the
+    steady Cp lines up with it; a steady file of other blocks is refused."""
+    from resection.io.meshes import write_plot3d
+    from resection.io.plot3d import write_plot3d_function
+    from selfillum.unsteady.grid import load_run_grid, read_steady_cp
+
+    x, y = np.meshgrid(np.linspace(0, 1, 4), np.linspace(0, 1, 3), indexing="ij")
+    b1 = np.stack([x, y, np.zeros_like(x)], -1)[:, :, None, :]      # (4, 3, 1, 3)
+    x2, y2 = np.meshgrid(np.linspace(1, 2, 3), np.linspace(0, 1, 3), indexing="ij")
+    b2 = np.stack([x2, y2, 0.1 * (x2 - 1)], -1)[:, :, None, :]     # shares the edge x = 1
+    write_plot3d(tmp_path / "g.x", [b1, b2])
+    g = load_run_grid(tmp_path / "g.x")
+    expect = np.vstack([np.stack([b[..., k].ravel(order="F") for k in range(3)], -1)
+                        for b in (b1, b2)])  # i fastest, block after block
+    np.testing.assert_array_equal(g.points, expect)
+    # seam copies share one mesh vertex; every node's vertex sits at the node
+    np.testing.assert_allclose(np.asarray(g.mesh.vertices)[g.node_vertex], g.points)
+    assert len(g.mesh.vertices) == 12 + 9 - 3
+    cp1, cp2 = b1[..., 0] * 10 + b1[..., 1], b2[..., 0] * 10 + b2[..., 1]
+    write_plot3d_function(tmp_path / "s.f", [cp1, cp2])
+    np.testing.assert_allclose(read_steady_cp(tmp_path / "s.f", g),
+                               np.concatenate([cp1.ravel(order="F"), cp2.ravel(order="F")]))
+    write_plot3d_function(tmp_path / "bad.f", [cp1, cp2[:2]])
+    with pytest.raises(InputError, match=r"bad\.f: block 2 is 2x3x1, the grid's is 3x3x1"):
+        read_steady_cp(tmp_path / "bad.f", g)
+    write_plot3d_function(tmp_path / "bad1.f", [cp1])
+    with pytest.raises(InputError, match=r"bad1\.f: 1 blocks, the grid .* has 2"):
+        read_steady_cp(tmp_path / "bad1.f", g)
+
+
+def test_spots_mask_and_polynomial_patch():
+    from selfillum.unsteady.spots import mask_spots, patch_spots
+
+    v, u = np.mgrid[0:60, 0:80].astype(float)
+    img = 100 + 0.5 * u - 0.3 * v + 0.01 * u * v + 1e-4 * u**3 - 2e-4 * v**2 * u
+    dark = img.copy()
+    centres = np.array([[20.3, 30.6], [55.0, 12.2]])
+    radii = np.array([4.0, 3.0])
+    d = np.hypot(u[None] - centres[:, 0, None, None], v[None] - centres[:, 1, None, None])
+    inside = (d <= radii[:, None, None]).any(axis=0)
+    dark[inside] = 5.0
+    m = mask_spots(dark, centres, radii)
+    assert np.array_equal(np.isnan(m), inside)
+    # a cubic image: the order-3 patch restores it exactly (to rounding)
+    p = patch_spots(dark, centres, radii)
+    np.testing.assert_allclose(p[inside], img[inside], rtol=0, atol=1e-6)
+    np.testing.assert_array_equal(p[~inside], img[~inside])
+
+
+def test_affine_registration_recovers_known_warp():
+    """A textured frame warped by a known affine transform (scipy's affine_transform)
+    registers back to within 0.02 px."""
+    from scipy import ndimage
+
+    from selfillum.unsteady.registration import AffineRegistration
+
+    rng = np.random.default_rng(3)
+    ref = ndimage.gaussian_filter(rng.standard_normal((120, 160)), 3.0) * 100 + 500
+    A = np.array([[1.004, 0.006, 1.3], [-0.005, 0.997, -0.8]])  # frame pixel = A [u v 1]
+    B = np.linalg.inv(np.vstack([A, [0, 0, 1]]))[:2]  # frame(y) = ref(B y)
+    # affine_transform: output[row, col] = input[M (row, col) + offset]
+    M = np.array([[B[1, 1], B[1, 0]], [B[0, 1], B[0, 0]]])
+    frame = ndimage.affine_transform(ref, M, offset=[B[1, 2], B[0, 2]], order=3,
+                                     mode="nearest")
+    mask = np.zeros(ref.shape, bool)
+    mask[15:-15, 15:-15] = True
+    reg = AffineRegistration(ref, mask)
+    got = reg.fit(frame)
+    v, u = np.mgrid[15:105, 15:145]
+    pts = np.stack([u.ravel(), v.ravel(), np.ones(u.size)])
+    assert np.abs(got @ pts - A @ pts).max() < 0.02
+    back = reg.warp(frame, got)
+    assert np.nanmax(np.abs(back - ref)[20:-20, 20:-20]) < 0.5
+
+
+# ---------------------------------------------------------------------------- end to end
+
+
+def _amplitude(d, t, f):
+    A = np.column_stack([np.sin(2 * np.pi * f * t), np.cos(2 * np.pi * f * t)])
+    c, *_ = np.linalg.lstsq(A, d, rcond=None)
+    return np.hypot(c[0], c[1])
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    from scenes.unsteady_run import make_unsteady_run
+
+    return make_unsteady_run(tmp_path_factory.mktemp("unsteady"))
+
+
+def _cli(run, out, *extra):
+    from selfillum.cli import main
+
+    return main(["unsteady", str(run.deck), "--paint-calibration", str(run.paint),
+                 "--steady", str(run.steady), "--fps", str(run.fps), "--out", str(out),
+                 "--quiet", *extra])
+
+
+def test_synthetic_run_recovers_dcp_and_removes_the_blocks_light(run, capsys):
+    """The known dCp (tone, convected wave, noise, paint drift, vibration, targets, a
+    painted block lighting the plate) is recovered; the block's tone, seen on the plate
+    only by reflection, is removed. uPSP's method on the same run keeps it."""
+    ours = run.folder / "ours.h5"
+    upsp = run.folder / "upsp.h5"
+    assert _cli(run, ours, "--registration", "track", "--upsp-flat") == 0, \
+        capsys.readouterr().err
+    text = capsys.readouterr().out
+    assert "self-illumination: dCp changed by" in text
+    assert _cli(run, upsp, "--registration", "first-frame", "--no-si") == 0, \
+        capsys.readouterr().err
+    with h5py.File(ours) as f:
+        d = f["dcp"][()]
+        t = f["frames/time"][()]
+        chunks = f["dcp"].chunks
+        pts = f["grid/points"][()]
+        mean, rms = f["stats/dcp_mean"][()], f["stats/dcp_rms"][()]
+        prov = f.attrs["provenance"]
+        si_med = f.attrs["si_change_median"]
+    with h5py.File(upsp) as f:
+        d0 = f["dcp"][()]
+    T, N = run.truth.shape
+    assert d.shape == (T, N) and d.dtype == np.float32
+    from selfillum.unsteady.output import chunk_shape
+
+    assert chunks == chunk_shape(T, N)
+    # the truth that Phase 2 can see: uPSP's 6th-order fit in time removes slow content
+    # of any signal (NumPy's polyfit here); the tone itself is compared with 0.03
+    truth = np.nan_to_num(run.truth)
+    c = np.polynomial.polynomial.polyfit(t, truth, 6)
+    seen_truth = truth - np.polynomial.polynomial.polyval(t, c).T
+    seen = np.isfinite(d).all(axis=0) & np.isfinite(d0).all(axis=0)
+    x, y = pts[:, 0], pts[:, 1]
+    gap = np.maximum(np.abs(x) - 0.04, np.abs(y) - 0.03)  # distance from the block
+    far = run.plate & seen & (gap > 0.12)
+    near = run.near & seen
+    assert far.sum() > 100 and near.sum() > 15
+    err = np.sqrt(np.mean((d - seen_truth) ** 2, axis=0))
+    err0 = np.sqrt(np.mean((d0 - seen_truth) ** 2, axis=0))
+    # stated errors (the signal's RMS is about 0.025): median RMS error 0.0025 near the
+    # block and away from it
+    assert np.median(err[far]) < 0.0025 and np.median(err[near]) < 0.0025
+    assert np.median(err[near]) < 0.6 * np.median(err0[near])  # what SI removal gains
+    assert np.median(err[far]) <= 1.1 * np.median(err0[far])
+    # the tone's amplitude within 3 %
+    tone = _amplitude(d[:, far], t, run.freqs["tone"])
+    assert np.median(tone) == pytest.approx(run.amps["tone"], rel=0.03)
+    # the block's own tone, on the plate only by reflection: removed
+    b_ours = _amplitude(d[:, near], t, run.freqs["block"])
+    b_upsp = _amplitude(d0[:, near], t, run.freqs["block"])
+    assert np.median(b_upsp) > 0.0025  # uPSP keeps the reflection
+    assert np.median(b_ours) < 0.3 * np.median(b_upsp)
+    # on the block itself the tone stays (0.1 true)
+    blk = run.block & seen
+    assert blk.sum() > 10
+    assert np.median(_amplitude(d[:, blk], t, run.freqs["block"])) == pytest.approx(
+        run.amps["block"], rel=0.15)
+    # statistics, provenance and the reported SI change
+    ok = np.isfinite(d).all(axis=0)
+    np.testing.assert_allclose(mean[ok], d[:, ok].mean(axis=0), atol=1e-6)
+    np.testing.assert_allclose(rms[ok], np.sqrt((d[:, ok].astype(float) ** 2).mean(axis=0)),
+                               rtol=1e-5)
+    assert np.all(np.isnan(d[:, np.isnan(rms)]))
+    assert str(run.grid.resolve()) in prov and '"size"' in prov and si_med > 0
+    # uPSP's flat files: row = frame, and its transpose
+    flat = np.fromfile(run.folder / "pressure", "<f4").reshape(T, N)
+    flat_t = np.fromfile(run.folder / "pressure_transpose", "<f4").reshape(N, T)
+    np.testing.assert_array_equal(flat, d)
+    np.testing.assert_array_equal(flat_t, d.T)
+    # the XDMF sidecar: every frame a hyperslab row of /dcp
+    root = ET.parse(ours.with_suffix(".xdmf")).getroot()
+    frames = root.findall(".//Grid[@CollectionType='Temporal']/Grid")
+    assert len(frames) == T
+    slab = frames[5].find(".//DataItem[@ItemType='HyperSlab']/DataItem")
+    assert slab.text.split()[:2] == ["5", "0"] and slab.text.split()[-1] == str(N)
+
+
+# ---------------------------------------------------------------------------- bad inputs
+
+
+@pytest.fixture
+def case(run, tmp_path):
+    """A copy of the run's inputs to spoil, with the deck pointing at the copies."""
+    for p in run.folder.iterdir():
+        if p.suffix in (".grid", ".tgts", ".npy", ".json", ".wtd", ".txt", ".f"):
+            shutil.copy(p, tmp_path / p.name)
+    (tmp_path / "run.inp").write_text(run.deck.read_text().replace(str(run.folder),
+                                                                   str(tmp_path)))
+    return tmp_path
+
+
+def _bad(case, capsys, *extra, deck="run.inp", paint="paint.txt", steady="steady.f"):
+    from selfillum.cli import main
+
+    before = sorted(p.name for p in case.iterdir())
+    rc = main(["unsteady", str(case / deck), "--paint-calibration", str(case / paint),
+               "--steady", str(case / steady), "--fps", "1000", "--out",
+               str(case / "out.h5"), "--quiet", "--registration", "none", "--no-si", *extra])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2
+    assert len(err.splitlines()) == 1 and "Traceback" not in err
+    assert sorted(p.name for p in case.iterdir()) == before  # nothing written, not half
+    return err
+
+
+def test_bad_deck_missing_file(case, capsys):
+    (case / "model.grid").unlink()
+    err = _bad(case, capsys)
+    assert "run.inp" in err and "@all grid" in err and "file not found" in err
+
+
+def test_bad_camera_without_video(case, capsys):
+    text = (case / "run.inp").read_text()
+    (case / "run.inp").write_text(text.replace("    filename = $dir/cam01.npy\n", ""))
+    err = _bad(case, capsys)
+    assert "run.inp" in err and "@camera 1 has no video" in err and "filename" in err
+
+
+def test_bad_videos_of_different_lengths(case, capsys):
+    v = np.load(case / "cam01.npy")
+    np.save(case / "cam02.npy", v[:60])
+    shutil.copy(case / "cam01.json", case / "cam02.json")
+    text = (case / "run.inp").read_text()
+    two = text.replace("@options", "@camera\n    number = 2\n    filename = $dir/cam02.npy\n"
+                       "    calibration = $dir/cam02.json\n@options")
+    (case / "run.inp").write_text(two)
+    err = _bad(case, capsys)
+    assert "run.inp" in err and "number_frames = -1" in err and "cam02.npy: 60" in err
+    (case / "run.inp").write_text(two.replace("number_frames = -1", "number_frames = 80"))
+    err = _bad(case, capsys)
+    assert "number_frames = 80" in err and "cam02.npy has 60 frames" in err
+
+
+def test_bad_videos_of_different_rates(case, capsys):
+    import pyMRAW
+
+    v = np.load(case / "cam01.npy")[:20]
+    frames = np.clip(v, 0, 65535).astype(np.uint16)
+    for n, fps in ((1, 1000), (2, 2000)):
+        pyMRAW.save_mraw(frames, str(case / f"cam{n:02d}.cih"), bit_depth=16,
+                         info_dict={"Record Rate(fps)": fps})
+    shutil.copy(case / "cam01.json", case / "cam02.json")
+    text = (case / "run.inp").read_text().replace("cam01.npy", "cam01.mraw")
+    (case / "run.inp").write_text(text.replace(
+        "@options", "@camera\n    number = 2\n    filename = $dir/cam02.mraw\n"
+        "    calibration = $dir/cam02.json\n@options"))
+    err = _bad(case, capsys)
+    assert "run.inp" in err and "frame rate" in err and "cam02.mraw: 2000" in err
+
+
+def test_bad_gain_file_without_a_coefficient(case, capsys):
+    text = (case / "paint.txt").read_text()
+    (case / "paint.txt").write_text("".join(line + "\n" for line in text.splitlines()
+                                            if not line.startswith("d ")))
+    err = _bad(case, capsys)
+    assert "paint.txt" in err and "coefficient 'd' missing" in err
+
+
+def test_bad_steady_blocks(case, capsys):
+    from resection.io.plot3d import read_plot3d_function, write_plot3d_function
+
+    blocks = read_plot3d_function(case / "steady.f")
+    write_plot3d_function(case / "steady.f", blocks[:-1])
+    err = _bad(case, capsys)
+    assert "steady.f" in err and "10 blocks, the grid" in err and "has 11" in err
+
+
+def test_bad_wtd_without_q(case, capsys):
+    lines = (case / "run.wtd").read_text().splitlines()
+    names, vals = lines[0].lstrip("# ").split("\t"), lines[1].split("\t")
+    k = names.index("Q")
+    del names[k], vals[k]
+    (case / "run.wtd").write_text("# " + "\t".join(names) + "\n" + "\t".join(vals) + "\n")
+    err = _bad(case, capsys)
+    assert "run.wtd" in err and "no 'Q' column" in err
+
+
+def test_bad_option_refused_by_name(case, capsys):
+    text = (case / "run.inp").read_text()
+    (case / "run.inp").write_text(text.replace("target_patcher = none",
+                                               "target_patcher = inpaint"))
+    err = _bad(case, capsys, "--registration", "none")
+    assert "target_patcher" in err and "inpaint" in err
