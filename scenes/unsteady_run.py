@@ -96,12 +96,12 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
     """Write a run into ``folder`` (created) and return its paths and truth."""
     from resection.io.cameras import write_camera
     from resection.io.plot3d import write_plot3d_function
-    from resection.surface import SurfaceMap
+    from resection.surface.surface_map import SurfaceMap
     from scenes.slab_block import paint, slab_block, write_slab_block
-    from selfillum.radiosity import check_reflectance
+    from selfillum.solve.radiosity import check_reflectance
+    from selfillum.transport.viewfactors import view_factors
     from selfillum.unsteady.conditions import Conditions
     from selfillum.unsteady.grid import load_run_grid
-    from selfillum.viewfactors import view_factors
 
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)

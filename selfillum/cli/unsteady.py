@@ -12,8 +12,7 @@ from resection.errors import InputError
 
 def _cmd_unsteady(args) -> int:
     from resection.io.upsp_inputs import read_deck
-
-    from .unsteady import CameraInput, UnsteadyConfig, config_from_deck, run_unsteady
+    from selfillum.unsteady import CameraInput, UnsteadyConfig, config_from_deck, run_unsteady
 
     flags = {"registration": args.registration, "target_patcher": args.target_patcher,
              "overlap": args.overlap, "filter": args.filter, "filter_size": args.filter_size,
@@ -70,7 +69,7 @@ def _cmd_unsteady(args) -> int:
 
 def register(sub) -> None:
     """Add the ``unsteady`` sub-command to ``sub`` (an argparse sub-parsers object)."""
-    from .unsteady.phase1 import FILTERS, OVERLAPS, REGISTRATIONS
+    from selfillum.unsteady.phase1 import FILTERS, OVERLAPS, REGISTRATIONS
 
     p = sub.add_parser(
         "unsteady",

@@ -21,8 +21,14 @@ Modules, by concept:
 
 from __future__ import annotations
 
-from .conditions import Conditions
-from .run import CameraInput, UnsteadyConfig, UnsteadyResult, config_from_deck, run_unsteady
+from selfillum.unsteady.conditions import Conditions
+from selfillum.unsteady.run import (
+           CameraInput,
+           UnsteadyConfig,
+           UnsteadyResult,
+           config_from_deck,
+           run_unsteady,
+)
 
 __all__ = ["Conditions", "CameraInput", "UnsteadyConfig", "UnsteadyResult",
            "config_from_deck", "run_unsteady"]

@@ -12,7 +12,7 @@ For frame ``k``, each camera's image is
    masked or patched;
 3. optionally low-pass filtered (``filter = gaussian``, NaN-aware);
 
-then the cameras are combined on the faces (:func:`resection.merge.merge_views`:
+then the cameras are combined on the faces (:func:`resection.surface.merge.merge_views`:
 ``average_view`` = view-angle weights, ``best_view`` = the camera of largest weight,
 ``merge`` = feathered weights with gains matched on frame 0 and kept), the
 self-illumination is removed on the faces (``E = B - rho F B``: one sparse product a frame;
@@ -34,8 +34,7 @@ import scipy.sparse as sp
 from scipy import ndimage
 
 from resection.errors import InputError
-
-from .spots import DarkSpots, mask_spots, patch_spots, project_spots
+from selfillum.unsteady.spots import DarkSpots, mask_spots, patch_spots, project_spots
 
 __all__ = ["CameraRun", "SelfIllumination", "FrameNodes", "map_run", "REGISTRATIONS",
            "OVERLAPS", "FILTERS"]
@@ -83,13 +82,13 @@ class SelfIllumination:
     """``E = B - rho F B`` per frame on the faces.
 
     Faces seen in no camera in a frame get the radiosity of the frame-0 solve
-    (:func:`selfillum.radiosity.correct` with ``unseen`` continued smoothly, then
-    :func:`selfillum.radiosity.forward`), so that each frame costs one sparse product.
+    (:func:`selfillum.solve.radiosity.correct` with ``unseen`` continued smoothly, then
+    :func:`selfillum.solve.radiosity.forward`), so that each frame costs one sparse product.
     ``unpainted`` faces emit nothing.
     """
 
     def __init__(self, mesh, F, reflectance, unpainted=None):
-        from ..radiosity import check_form_factors, check_reflectance
+        from selfillum.solve.radiosity import check_form_factors, check_reflectance
 
         self.mesh = mesh
         self.F = check_form_factors(F)
@@ -102,7 +101,7 @@ class SelfIllumination:
 
     def reference(self, B0, seen0) -> None:
         """Solve frame 0 (seen and hidden faces) for the hidden faces' radiosity."""
-        from ..radiosity import correct, forward
+        from selfillum.solve.radiosity import correct, forward
 
         if seen0.all():
             self.hidden = np.asarray(B0, float)
@@ -173,11 +172,10 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
     ------
     FrameNodes
     """
-    from resection.merge import merge_views
-    from resection.surface import SurfaceMap
-    from resection.visibility import RayCaster
-
-    from .registration import AffineRegistration
+    from resection.surface.merge import merge_views
+    from resection.surface.surface_map import SurfaceMap
+    from resection.surface.visibility import RayCaster
+    from selfillum.unsteady.registration import AffineRegistration
 
     if registration not in REGISTRATIONS:
         raise InputError(f"registration must be one of {', '.join(REGISTRATIONS)}, got "

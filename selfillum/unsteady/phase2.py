@@ -122,7 +122,7 @@ def node_gain(calibration, surface_temperature, cp_steady, conditions) -> np.nda
         Steady Cp per node.
     conditions : selfillum.unsteady.conditions.Conditions
     """
-    from .conditions import steady_pressure
+    from selfillum.unsteady.conditions import steady_pressure
 
     pss = steady_pressure(cp_steady, conditions.q, conditions.p_inf)
     return np.asarray(calibration.gain(surface_temperature, pss), dtype=np.float64)

@@ -20,10 +20,24 @@ from pathlib import Path
 import numpy as np
 
 from resection.errors import InputError
-
-from .output import FORMAT, VERSION, chunk_shape, json_attr, provenance, write_flat, write_xdmf
-from .phase1 import FILTERS, OVERLAPS, REGISTRATIONS, CameraRun, SelfIllumination, map_run
-from .phase2 import DETREND_ORDER, dcp_block, node_gain
+from selfillum.unsteady.output import (
+    FORMAT,
+    VERSION,
+    chunk_shape,
+    json_attr,
+    provenance,
+    write_flat,
+    write_xdmf,
+)
+from selfillum.unsteady.phase1 import (
+    FILTERS,
+    OVERLAPS,
+    REGISTRATIONS,
+    CameraRun,
+    SelfIllumination,
+    map_run,
+)
+from selfillum.unsteady.phase2 import DETREND_ORDER, dcp_block, node_gain
 
 __all__ = ["CameraInput", "UnsteadyConfig", "UnsteadyResult", "run_unsteady",
            "config_from_deck"]
@@ -238,12 +252,11 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     from resection.io.outputs import atomic_path
     from resection.io.upsp_inputs import read_paint_calibration
     from resection.io.wtd import read_wtd
-
-    from ..correct_image import read_reflectance
-    from ..unseen import read_unpainted
-    from .conditions import Conditions
-    from .grid import load_run_grid, read_steady_cp
-    from .spots import DarkSpots
+    from selfillum.images.image_correction import read_reflectance
+    from selfillum.solve.unseen import read_unpainted
+    from selfillum.unsteady.conditions import Conditions
+    from selfillum.unsteady.grid import load_run_grid, read_steady_cp
+    from selfillum.unsteady.spots import DarkSpots
 
     _check_options(cfg)
     out = Path(cfg.out)
@@ -298,7 +311,7 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
             runs.append(CameraRun(c.number, cam, s, poses))
         si = None
         if cfg.si:
-            from ..viewfactors import view_factors
+            from selfillum.transport.viewfactors import view_factors
 
             F = view_factors(mesh, rays_per_face=cfg.rays, seed=cfg.seed,
                              progress=cfg.progress)
