@@ -56,6 +56,8 @@ class UnsteadyRun:
         the camera sees.
     freqs : dict
         ``tone``, ``wave``, ``block``, ``vibration`` (Hz); ``amps``: the dCp amplitudes.
+    poses : (C, T, 4, 3)
+        Each camera's true pose in each frame: ``R`` (rows 0-2) and ``t`` (row 3).
     """
 
     folder: Path
@@ -74,13 +76,16 @@ class UnsteadyRun:
     near: np.ndarray
     freqs: dict
     amps: dict
+    poses: np.ndarray
 
 
-def _camera(width, height) -> Camera:
+def _camera(width, height, second: bool = False) -> Camera:
+    """Camera 1 from the (-x, -y) side, camera 2 from the (+x, +y) side."""
     f = 1.0 * width
     K = [[f, 0.0, (width - 1) / 2], [0.0, f, (height - 1) / 2], [0.0, 0.0, 1.0]]
-    return Camera.look_at([-0.22, -0.24, 0.33], [0.03, 0.02, 0.0], [0.0, 0.0, 1.0], K=K,
-                          width=width, height=height)
+    eye, target = ([0.24, 0.22, 0.33], [-0.03, -0.02, 0.0]) if second else \
+        ([-0.22, -0.24, 0.33], [0.03, 0.02, 0.0])
+    return Camera.look_at(eye, target, [0.0, 0.0, 1.0], K=K, width=width, height=height)
 
 
 def _pitch(theta, heave):
@@ -92,8 +97,9 @@ def _pitch(theta, heave):
 def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: int = 100,
                       fps: float = 1000.0, width: int = 200, height: int = 150,
                       noise: float = 0.003, vibration_deg: float = 0.5, texture: float = 0.08,
-                      seed: int = 0) -> UnsteadyRun:
-    """Write a run into ``folder`` (created) and return its paths and truth."""
+                      cameras: int = 1, seed: int = 0) -> UnsteadyRun:
+    """Write a run into ``folder`` (created) and return its paths and truth; ``cameras``
+    1 or 2 (the second from the opposite side, seeing the block's other sides)."""
     from resection.io.cameras import write_camera
     from resection.io.plot3d import write_plot3d_function
     from resection.surface.surface_map import SurfaceMap
@@ -158,11 +164,13 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
     lu = spla.splu(sp.csc_matrix(sp.identity(nf) - sp.diags(rho) @ F))
     B = lu.solve(np.ascontiguousarray(E.T)).T  # (T, F)
     # ------------------------------------------------------------------ targets and spots
-    cam0 = _camera(width, height)
+    cams0 = [_camera(width, height, second=c == 1) for c in range(cameras)]
     gx, gy = np.meshgrid(np.arange(-0.24, 0.34, 0.09), np.arange(-0.2, 0.25, 0.09))
     cand = np.column_stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)])
-    uv, ok = cam0.project(cand, return_valid=True)
-    ok &= cam0.in_image(uv, margin=12.0)
+    ok = np.zeros(len(cand), bool)
+    for c in cams0:  # in view of a camera
+        uv, v = c.project(cand, return_valid=True)
+        ok |= v & c.in_image(uv, margin=12.0)
     ok &= np.maximum(np.abs(cand[:, 0]) - box[0], np.abs(cand[:, 1]) - box[1]) > 0.05
     tpts = np.vstack([cand[ok], [[-0.02, -0.015, box[2]], [0.02, 0.015, box[2]]]])
     tdia = np.full(len(tpts), 0.014)
@@ -187,23 +195,26 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
     # ------------------------------------------------------------------ frames
     theta = np.radians(vibration_deg) * np.sin(2 * np.pi * freqs["vibration"] * t)
     heave = 0.003 * np.sin(2 * np.pi * freqs["vibration"] * t + 0.7)
-    video = np.empty((frames, height, width), np.float32)
-    for k in range(frames):  # frames (the renderer is vectorised over pixels)
-        M, d = _pitch(theta[k], heave[k])
-        cam = cam0.with_pose(R=cam0.R @ M, t=cam0.R @ d + cam0.t)
-        smap = SurfaceMap(mesh, cam, max_obliqueness=None)
-        img = smap.to_image(B[k], background=30.0)
-        pts = smap.points.reshape(-1, 3)
-        hit = np.isfinite(pts[:, 0])
-        dist = np.linalg.norm(pts[hit][:, None, :] - spots[None, :, :], axis=2)
-        dark = (dist <= srad[None, :]).any(axis=1)
-        flat = img.reshape(-1)
-        idx = np.flatnonzero(hit)[dark]
-        flat[idx] = 0.12 * flat[idx]
-        img = flat.reshape(height, width)
-        video[k] = img * (1.0 + noise * rng.standard_normal(img.shape))
-    np.save(out / "cam01.npy", video)
-    write_camera(out / "cam01.json", cam0)
+    poses = np.empty((cameras, frames, 4, 3))
+    for c, camc in enumerate(cams0):  # cameras
+        video = np.empty((frames, height, width), np.float32)
+        for k in range(frames):  # frames (the renderer is vectorised over pixels)
+            M, d = _pitch(theta[k], heave[k])
+            cam = camc.with_pose(R=camc.R @ M, t=camc.R @ d + camc.t)
+            poses[c, k, :3], poses[c, k, 3] = cam.R, cam.t
+            smap = SurfaceMap(mesh, cam, max_obliqueness=None)
+            img = smap.to_image(B[k], background=30.0)
+            pts = smap.points.reshape(-1, 3)
+            hit = np.isfinite(pts[:, 0])
+            dist = np.linalg.norm(pts[hit][:, None, :] - spots[None, :, :], axis=2)
+            dark = (dist <= srad[None, :]).any(axis=1)
+            flat = img.reshape(-1)
+            idx = np.flatnonzero(hit)[dark]
+            flat[idx] = 0.12 * flat[idx]
+            img = flat.reshape(height, width)
+            video[k] = img * (1.0 + noise * rng.standard_normal(img.shape))
+        np.save(out / f"cam{c + 1:02d}.npy", video)
+        write_camera(out / f"cam{c + 1:02d}.json", camc)
     # ------------------------------------------------------------------ other inputs
     dims = grid.dims
     cp_nodes = cp_steady(grid.points)
@@ -223,9 +234,9 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
         f"@vars\n    dir = {out}\n"
         "@all\n    sds = $dir/run.wtd\n    grid = $dir/model.grid\n"
         "    targets = $dir/model.tgts\n"
-        "@camera\n    number = 1\n    filename = $dir/cam01.npy\n"
-        "    calibration = $dir/cam01.json\n"
-        "@options\n    target_patcher = none\n    registration = none\n"
+        + "".join(f"@camera\n    number = {c}\n    filename = $dir/cam{c:02d}.npy\n"
+                  f"    calibration = $dir/cam{c:02d}.json\n" for c in range(1, cameras + 1))
+        + "@options\n    target_patcher = none\n    registration = none\n"
         "    overlap = average_view\n    filter = none\n    filter_size = 3\n"
         "    oblique_angle = 70\n    number_frames = -1\n"
         "@output\n    dir = $dir\n")
@@ -245,4 +256,5 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
     near = plate & (gap < 0.06) & ((x < -box[0]) | (y < -box[1]))
     return UnsteadyRun(out, out / "run.inp", grid_path, out / "run.wtd", out / "paint.txt",
                        out / "steady.f", out / "model.tgts", out / "cam01.npy",
-                       out / "cam01.json", fps, truth, plate, is_block, near, freqs, amps)
+                       out / "cam01.json", fps, truth, plate, is_block, near, freqs, amps,
+                       poses)
