@@ -97,9 +97,13 @@ def _pitch(theta, heave):
 def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: int = 100,
                       fps: float = 1000.0, width: int = 200, height: int = 150,
                       noise: float = 0.003, vibration_deg: float = 0.5, texture: float = 0.08,
-                      cameras: int = 1, seed: int = 0) -> UnsteadyRun:
+                      cameras: int = 1, stern_volmer=None, seed: int = 0) -> UnsteadyRun:
     """Write a run into ``folder`` (created) and return its paths and truth; ``cameras``
-    1 or 2 (the second from the opposite side, seeing the block's other sides)."""
+    1 or 2 (the second from the opposite side, seeing the block's other sides).
+
+    ``stern_volmer = (A, B, p_ref)`` (p_ref in psf): the paint follows
+    ``I_ref / I = A + B p / p_ref`` instead of the paint calibration, and a wind-off image
+    per camera at ``p_ref`` is written (``wind_off_camNN.npy``) for the in-situ fit."""
     from resection.io.cameras import write_camera
     from resection.io.plot3d import write_plot3d_function
     from resection.surface.surface_map import SurfaceMap
@@ -155,7 +159,12 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
     p_face = dcp(centres, on_block) * cond.q / 144.0  # psi, (T, F)
     drift = 1.0 - 0.01 * (t / t[-1]) + 0.003 * (t / t[-1]) ** 2
     E0 = 1000.0 * paint(centres) * (1.0 + texture * rng.uniform(-1.0, 1.0, nf))
-    E = E0[None, :] * drift[:, None] / (1.0 + p_face / gain(centres)[None, :])
+    if stern_volmer is None:  # uPSP's paint calibration
+        E = E0[None, :] * drift[:, None] / (1.0 + p_face / gain(centres)[None, :])
+    else:  # I_ref / I = A + B p / p_ref, p = Pss + dCp q (psf)
+        A_sv, B_sv, p_ref = stern_volmer
+        p_abs = cp_steady(centres)[None, :] * cond.q + cond.p_inf + 144.0 * p_face
+        E = E0[None, :] * drift[:, None] / (A_sv + B_sv * p_abs / p_ref)
     rho = check_reflectance(np.full(nf, 0.6), nf)
     F = view_factors(mesh, rays_per_face=4096, seed=12345, progress=False)
     import scipy.sparse as sp
@@ -163,6 +172,8 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
 
     lu = spla.splu(sp.csc_matrix(sp.identity(nf) - sp.diags(rho) @ F))
     B = lu.solve(np.ascontiguousarray(E.T)).T  # (T, F)
+    B_off = None if stern_volmer is None else \
+        lu.solve(E0 / (stern_volmer[0] + stern_volmer[1]))  # wind-off: p = p_ref
     # ------------------------------------------------------------------ targets and spots
     cams0 = [_camera(width, height, second=c == 1) for c in range(cameras)]
     gx, gy = np.meshgrid(np.arange(-0.24, 0.34, 0.09), np.arange(-0.2, 0.25, 0.09))
@@ -175,7 +186,8 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
     tpts = np.vstack([cand[ok], [[-0.02, -0.015, box[2]], [0.02, 0.015, box[2]]]])
     tdia = np.full(len(tpts), 0.014)
     kul = np.array([[-0.08, -0.05, 0.0], [-0.05, -0.075, 0.0]])
-    taps = np.array([[-0.09, 0.06, 0.0]])
+    taps = np.array([[-0.195, -0.065, 0.0], [-0.105, 0.115, 0.0], [0.165, 0.115, 0.0],
+                     [0.255, -0.065, 0.0], [-0.105, 0.025, 0.0], [0.075, -0.155, 0.0]])
     rows = ["# synthetic unsteady run", "*Targets"]
     k = 1
     for i, p in enumerate(tpts):
@@ -191,7 +203,7 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
         k += 1
     (out / "model.tgts").write_text("\n".join(rows) + "\n")
     spots = np.vstack([tpts, taps, kul])
-    srad = 0.5 * np.concatenate([tdia, [0.004], [0.006, 0.006]])
+    srad = 0.5 * np.concatenate([tdia, np.full(len(taps), 0.004), [0.006, 0.006]])
     # ------------------------------------------------------------------ frames
     theta = np.radians(vibration_deg) * np.sin(2 * np.pi * freqs["vibration"] * t)
     heave = 0.003 * np.sin(2 * np.pi * freqs["vibration"] * t + 0.7)
@@ -214,6 +226,17 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
             img = flat.reshape(height, width)
             video[k] = img * (1.0 + noise * rng.standard_normal(img.shape))
         np.save(out / f"cam{c + 1:02d}.npy", video)
+        if B_off is not None:  # the wind-off image, frame 0's pose, no vibration
+            smap = SurfaceMap(mesh, camc, max_obliqueness=None)
+            img = smap.to_image(B_off, background=30.0).reshape(-1)
+            pts = smap.points.reshape(-1, 3)
+            hit = np.isfinite(pts[:, 0])
+            dist = np.linalg.norm(pts[hit][:, None, :] - spots[None, :, :], axis=2)
+            idx = np.flatnonzero(hit)[(dist <= srad[None, :]).any(axis=1)]
+            img[idx] = 0.12 * img[idx]
+            img = img.reshape(height, width)
+            np.save(out / f"wind_off_cam{c + 1:02d}.npy",
+                    (img * (1.0 + noise * rng.standard_normal(img.shape))).astype(np.float32))
         write_camera(out / f"cam{c + 1:02d}.json", camc)
     # ------------------------------------------------------------------ other inputs
     dims = grid.dims
@@ -227,7 +250,9 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
     names = list(CONDITIONS)
     (out / "run.wtd").write_text("# " + "\t".join(names) + "\n"
                                  + "\t".join(repr(CONDITIONS[n]) for n in names) + "\n"
-                                 + "# Tap CP\n1\t-0.2\n")
+                                 + "# Tap CP\n" + "".join(
+                                     f"{k + 1}\t{c:.9g}\n"
+                                     for k, c in enumerate(cp_steady(taps))))
     (out / "paint.txt").write_text("".join(f"{k} = {v!r}\n" for k, v in PAINT.items()))
     (out / "run.inp").write_text(
         "@general\n    test = synthetic\n    run = 1\n    sequence = 1\n"

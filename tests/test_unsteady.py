@@ -453,3 +453,58 @@ def test_gaussian_filter_ignores_nan():
     out = _gaussian(img, 5)
     np.testing.assert_allclose(out[np.isfinite(img)], 7.0, rtol=1e-12)
     assert np.all(np.isnan(out[np.isnan(img)]))
+
+
+# ---------------------------------------------------------------------------- in-situ gain
+
+
+@pytest.fixture(scope="module")
+def run_sv(tmp_path_factory):
+    from scenes.unsteady_run import make_unsteady_run
+
+    return make_unsteady_run(tmp_path_factory.mktemp("unsteady_sv"),
+                             stern_volmer=(0.2, 0.8, 1500.0))
+
+
+def test_insitu_stern_volmer_on_taps(run_sv, capsys):
+    """No paint calibration: the paint follows I_ref / I = A + B p / p_ref; A and B fitted
+    on the .wtd's taps (placed by the .tgts's CPnn) against a wind-off image give the gain,
+    and the known dCp comes back."""
+    import json
+
+    from selfillum.cli import main
+
+    out = run_sv.folder / "insitu.h5"
+    rc = main(["unsteady", str(run_sv.deck), "--taps", str(run_sv.wtd), "--wind-off",
+               str(run_sv.folder / "wind_off_cam01.npy"), "--p-ref", "1500", "--steady",
+               str(run_sv.steady), "--fps", str(run_sv.fps), "--out", str(out), "--quiet",
+               "--registration", "track"])
+    assert rc == 0, capsys.readouterr().err
+    with h5py.File(out) as f:
+        d = f["dcp"][()]
+        law = json.loads(f.attrs["stern_volmer"])
+    assert law["A"] == pytest.approx(0.2, abs=0.04) and law["B"] == pytest.approx(0.8, abs=0.04)
+    assert law["taps"] == [f"CP{k:02d}" for k in range(1, 7)]
+    t = np.arange(d.shape[0]) / run_sv.fps
+    truth = np.nan_to_num(run_sv.truth)
+    c = np.polynomial.polynomial.polyfit(t, truth, 6)
+    seen_truth = truth - np.polynomial.polynomial.polyval(t, c).T
+    x, y = f_points(out)
+    gap = np.maximum(np.abs(x) - 0.04, np.abs(y) - 0.03)
+    far = run_sv.plate & np.isfinite(d).all(axis=0) & (gap > 0.12)
+    err = np.sqrt(np.mean((d - seen_truth)[:, far] ** 2, axis=0))
+    assert np.median(err) < 0.0025
+    assert np.median(_amplitude(d[:, far], t, run_sv.freqs["tone"])) == pytest.approx(
+        run_sv.amps["tone"], rel=0.03)
+    # the in-situ fit without its wind-off image: named, exit 2, nothing written
+    rc = main(["unsteady", str(run_sv.deck), "--taps", str(run_sv.wtd), "--p-ref", "1500",
+               "--steady", str(run_sv.steady), "--fps", str(run_sv.fps), "--out",
+               str(run_sv.folder / "bad.h5"), "--quiet", "--registration", "none"])
+    err_text = capsys.readouterr().err
+    assert rc == 2 and "--wind-off" in err_text and not (run_sv.folder / "bad.h5").exists()
+
+
+def f_points(path):
+    with h5py.File(path) as f:
+        p = f["grid/points"][()]
+    return p[:, 0], p[:, 1]

@@ -22,7 +22,10 @@ def _cmd_unsteady(args) -> int:
               "reflectance": args.reflectance, "unpainted": args.unpainted, "rays": args.rays,
               "seed": args.seed, "fps": args.fps, "tinf": args.tinf,
               "upsp_flat": args.upsp_flat, "track_dirs": args.track,
-              "progress": not args.quiet}
+              "taps": Path(args.taps) if args.taps else None,
+              "tap_positions": Path(args.tap_positions) if args.tap_positions else None,
+              "wind_off": [Path(p) for p in args.wind_off] if args.wind_off else None,
+              "p_ref": args.p_ref, "progress": not args.quiet}
     if args.deck:
         if args.grid or args.sds or args.video or args.calibration:
             raise InputError("give either DECK.inp or --grid/--sds/--video/--calibration, "
@@ -94,8 +97,19 @@ def register(sub) -> None:
     p.add_argument("--calibration", action="append",
                    help="a camera's calibration (camera file, pose of the first frame); "
                    "repeat per camera, same order as --video")
-    p.add_argument("--paint-calibration", required=True, metavar="CAL.txt",
-                   help="uPSP's paint gain file (a = ... to f = ...)")
+    p.add_argument("--paint-calibration", metavar="CAL.txt",
+                   help="uPSP's paint gain file (a = ... to f = ...); without it, the gain "
+                   "comes from the in-situ Stern-Volmer fit on --taps")
+    p.add_argument("--taps", metavar="RUN.wtd|TAPS.csv",
+                   help="pressure taps for the in-situ fit (no paint calibration): a .wtd "
+                   "('# Tap CP', p = PS + Cp Q; tap n = the .tgts point CPnn) or a tap CSV")
+    p.add_argument("--tap-positions", metavar="MODEL.tgts",
+                   help="where the taps are (default: the targets file)")
+    p.add_argument("--wind-off", action="append", metavar="IMAGE",
+                   help="wind-off image at --p-ref, one per camera in camera order (in-situ "
+                   "fit)")
+    p.add_argument("--p-ref", type=float, metavar="PSF",
+                   help="pressure of the wind-off images, psf (in-situ fit)")
     p.add_argument("--steady", required=True, metavar="STEADY.f",
                    help="steady Cp: a Plot3D function file on the grid")
     p.add_argument("--reflectance", default="0.6", metavar="R|FILE",

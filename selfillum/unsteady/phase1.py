@@ -70,12 +70,14 @@ class CameraRun:
 class FrameNodes:
     """One frame on the grid: ``index``, node ``values`` with the self-illumination
     removed (or not, with ``si=None``), ``raw`` without it (N,) float32 in grid order,
-    NaN unseen; ``cameras`` the camera of each camera in this frame."""
+    NaN unseen; ``cameras`` the camera of each camera in this frame; ``gains`` the cameras'
+    gains used by the merge."""
 
     index: int
     values: np.ndarray
     raw: np.ndarray
     cameras: list
+    gains: np.ndarray | None = None
 
 
 class SelfIllumination:
@@ -146,7 +148,7 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
             registration: str = "track", patcher: str = "none", overlap: str = "merge",
             filter: str = "none", filter_size: int = 3, max_obliqueness: float = 70.0,
             si: SelfIllumination | None = None, unpainted=None,
-            spot_margin_px: float = 1.0) -> Iterator[FrameNodes]:
+            spot_margin_px: float = 1.0, gains=None) -> Iterator[FrameNodes]:
     """Map the frames ``frame_numbers`` of every camera onto the grid's nodes.
 
     Parameters
@@ -167,6 +169,9 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
         Remove the self-illumination (else ``values`` equals ``raw``).
     unpainted : (F,) bool, optional
         Faces left out of node values.
+    gains : (C,) array_like, optional
+        The cameras' gains (``overlap="merge"``; default: matched on the first frame and
+        kept).
 
     Yields
     ------
@@ -199,7 +204,7 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
                 "best_view": dict(method="best", feather_px=0, edge_margin=1,
                                   match_gain=False),
                 "merge": dict(method="weighted")}[overlap]
-    gains = None
+    gains = None if gains is None else np.asarray(gains, dtype=np.float64)
     off = None if unpainted is None else np.asarray(unpainted, bool)
     for k in frame_numbers:  # frames, one at a time
         k = int(k)
@@ -238,7 +243,7 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
         raw_f = np.where(seen, B, np.nan)
         E = si(B, seen) if si is not None else raw_f
         vals = _to_nodes(W, np.vstack([E, raw_f]), grid)
-        yield FrameNodes(k, vals[0], vals[1], cams)
+        yield FrameNodes(k, vals[0], vals[1], cams, mv.gains)
 
 
 def _to_nodes(W, face_values, grid) -> np.ndarray:

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from resection.errors import InputError
+from selfillum.unsteady.insitu import insitu_gain
 from selfillum.unsteady.output import (
     FORMAT,
     VERSION,
@@ -61,6 +62,10 @@ class UnsteadyConfig:
     ``track_dirs``), ``first-frame`` (uPSP: affine pixel registration onto frame 0, its
     map), ``none`` (a fixed model: frame 0's map). ``number_frames``: -1 for all.
     ``reflectance``: a number or a per-face file. ``si``: remove the self-illumination.
+    Without ``paint_calibration``, the gain comes from the in-situ Stern-Volmer fit on the
+    ``taps`` (a ``.wtd`` or a tap file, placed by ``tap_positions`` or the targets file)
+    with one ``wind_off`` image per camera at pressure ``p_ref`` (psf)
+    (:mod:`selfillum.unsteady.insitu`).
     """
 
     grid: Path
@@ -86,6 +91,10 @@ class UnsteadyConfig:
     tinf: float | None = None
     upsp_flat: bool = False
     track_dirs: list | None = None
+    taps: Path | None = None
+    tap_positions: Path | None = None
+    wind_off: list | None = None
+    p_ref: float | None = None
     progress: bool = False
     general: dict = field(default_factory=dict)
     source: str = "flags"
@@ -269,11 +278,12 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     cp = read_steady_cp(cfg.steady, grid)
     wtd = read_wtd(cfg.sds)
     cond = Conditions.from_wtd(wtd, tinf=cfg.tinf)
-    if cfg.paint_calibration is None:
-        raise InputError("no paint calibration: give --paint-calibration CAL.txt (uPSP's "
-                         "a..f gain file)")
-    cal = read_paint_calibration(cfg.paint_calibration)
-    gain = node_gain(cal, cond.surface_temperature, cp, cond)
+    law = gain = taps = tapn = offs = None
+    if cfg.paint_calibration is not None:
+        cal = read_paint_calibration(cfg.paint_calibration)
+        gain = node_gain(cal, cond.surface_temperature, cp, cond)
+    else:
+        taps, tapn, offs = _insitu_inputs(cfg, grid)
     spots = None
     if cfg.targets is not None:
         spots = DarkSpots.from_markers(read_markers(cfg.targets, include_taps=True),
@@ -285,10 +295,14 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     rho = read_reflectance(cfg.reflectance, len(mesh.faces)) if cfg.si else None
     cams = [read_camera(c.calibration) for c in cfg.cameras]
     srcs, T, fps = _open_videos(cfg)
-    for c, cam, s in zip(cfg.cameras, cams, srcs, strict=True):
+    for k, (c, cam, s) in enumerate(zip(cfg.cameras, cams, srcs, strict=True)):
         if (cam.height, cam.width) != tuple(s.shape):
             raise InputError(f"{c.calibration}: a {cam.width}x{cam.height} camera, its video "
                              f"{c.video} is {s.shape[1]}x{s.shape[0]}")
+        if offs is not None and offs[k].shape != tuple(s.shape):
+            raise InputError(f"{cfg.wind_off[k]}: wind-off image {offs[k].shape[1]}x"
+                             f"{offs[k].shape[0]}, camera {c.number}'s video "
+                             f"{s.shape[1]}x{s.shape[0]}")
     flat = [out.parent / "pressure", out.parent / "pressure_transpose"] if cfg.upsp_flat \
         else []
     xdmf = out.with_suffix(".xdmf")
@@ -309,7 +323,7 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
                 poses, nf = _track(cfg, c, cam, s, T, scratch)
                 failed += nf
             runs.append(CameraRun(c.number, cam, s, poses))
-        si = None
+        si = F = None
         if cfg.si:
             from selfillum.transport.viewfactors import view_factors
 
@@ -325,11 +339,13 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
             block_v = np.empty((tc, N), np.float32)
             block_r = np.empty((tc, N), np.float32)
             a = 0
+            gains0 = None
             for fn in map_run(grid, runs, frames, spots=spots, registration=cfg.registration,
                               patcher=cfg.target_patcher, overlap=cfg.overlap,
                               filter=cfg.filter, filter_size=cfg.filter_size,
                               max_obliqueness=cfg.oblique_angle, si=si, unpainted=unpainted):
                 k = fn.index
+                gains0 = fn.gains if gains0 is None else gains0
                 block_v[k - a], block_r[k - a] = fn.values, fn.raw
                 for ci, cm in enumerate(fn.cameras):
                     R[ci, k], t[ci, k] = cm.R, cm.t
@@ -340,6 +356,10 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
                     print(f"\rphase 1: frame {k + 1}/{T}", end="", flush=True)
             if cfg.progress:
                 print()
+            if gain is None:  # the in-situ fit on the taps
+                law = _insitu_fit(cfg, grid, runs, vals, taps, tapn, offs, spots, unpainted,
+                                  F, rho, gains0)
+                gain = insitu_gain(law, cp, cond)
             # -------------------------------------------------------- Phase 2 + output
             files = [out, xdmf, *flat]
             with contextlib.ExitStack() as stack:
@@ -347,6 +367,10 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
                 with h5py.File(tmp[0], "w") as f:
                     stats = _write_run(f, cfg, grid, cond, cp, gain, vals, raw, times, frames,
                                        runs, R, t, tc, nc, si is not None)
+                    if law is not None:
+                        f.attrs["stern_volmer"] = json_attr(
+                            {"A": law.A, "B": law.B, "p_ref": law.p_ref,
+                             "taps": list(taps.ids), "tap_nodes": tapn.tolist()})
                     write_xdmf(tmp[1], out.name, T, N, len(grid.triangles), times)
                     if flat:
                         write_flat(f, tmp[2], tmp[3])
@@ -357,6 +381,51 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
         shutil.rmtree(scratch, ignore_errors=True)
     return UnsteadyResult(out, T, N, (tc, nc), stats["seen"], stats["si_median"],
                           stats["si_p95"], failed, tuple(files))
+
+
+def _insitu_inputs(cfg, grid):
+    """Taps, their grid nodes and the wind-off images, checked (no paint calibration)."""
+    from resection.io.images import read_image
+    from selfillum.images.psp import read_taps
+    from selfillum.unsteady.insitu import tap_nodes
+
+    if cfg.taps is None:
+        raise InputError("no paint calibration: give --paint-calibration CAL.txt (uPSP's a..f "
+                         "gain file), or --taps with --wind-off and --p-ref for the in-situ "
+                         "Stern-Volmer fit")
+    if not cfg.wind_off or len(cfg.wind_off) != len(cfg.cameras):
+        n = len(cfg.wind_off or [])
+        raise InputError(f"--taps: the in-situ fit needs one --wind-off image per camera "
+                         f"({len(cfg.cameras)} cameras, {n} images)")
+    if cfg.p_ref is None or not cfg.p_ref > 0:
+        raise InputError("--taps: the in-situ fit needs --p-ref (the wind-off pressure, psf)")
+    positions = cfg.tap_positions if cfg.tap_positions is not None else cfg.targets
+    taps = read_taps(cfg.taps, positions=positions)
+    nodes = tap_nodes(grid, taps.points, taps.ids, str(cfg.taps))
+    offs = [np.asarray(read_image(p), dtype=np.float64) for p in cfg.wind_off]
+    return taps, nodes, offs
+
+
+def _insitu_fit(cfg, grid, runs, vals, taps, nodes, offs, spots, unpainted, F, rho, gains):
+    """Stern-Volmer ``A, B`` from the wind-off / time-mean intensity ratio at the taps."""
+    from selfillum.images.psp import fit_stern_volmer
+
+    order, inverse = np.unique(nodes, return_inverse=True)  # h5py reads sorted columns
+    with _quiet():
+        on = np.nanmean(vals[:, order], axis=0)[inverse]
+    off_runs = [CameraRun(r.number, r.camera, [img]) for r, img in zip(runs, offs,
+                                                                         strict=True)]
+    si = SelfIllumination(grid.mesh, F, rho, unpainted) if F is not None else None
+    fn = next(map_run(grid, off_runs, [0], spots=spots, registration="none",
+                      patcher=cfg.target_patcher, overlap=cfg.overlap, filter=cfg.filter,
+                      filter_size=cfg.filter_size, max_obliqueness=cfg.oblique_angle, si=si,
+                      unpainted=unpainted, gains=gains if cfg.overlap == "merge" else None))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = fn.values[nodes] / on
+    try:
+        return fit_stern_volmer(ratio, taps.pressure, cfg.p_ref)
+    except InputError as e:
+        raise InputError(f"{cfg.taps}: {e}") from None
 
 
 def _write_run(f, cfg, grid, cond, cp, gain, vals, raw, times, frames, runs, R, t, tc, nc,
@@ -418,6 +487,7 @@ def _write_run(f, cfg, grid, cond, cp, gain, vals, raw, times, frames, runs, R, 
     f.attrs["provenance"] = json_attr(provenance({
         "grid": cfg.grid, "sds": cfg.sds, "steady": cfg.steady,
         "paint_calibration": cfg.paint_calibration, "targets": cfg.targets,
+        "taps": cfg.taps, "tap_positions": cfg.tap_positions, "wind_off": cfg.wind_off,
         "videos": [c.video for c in cfg.cameras],
         "calibrations": [c.calibration for c in cfg.cameras],
         "deck": cfg.source if os.path.isfile(cfg.source) else None}))
