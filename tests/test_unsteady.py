@@ -260,6 +260,25 @@ def test_synthetic_run_recovers_dcp_and_removes_the_blocks_light(run, capsys):
     assert len(frames) == T
     slab = frames[5].find(".//DataItem[@ItemType='HyperSlab']/DataItem")
     assert slab.text.split()[:2] == ["5", "0"] and slab.text.split()[-1] == str(N)
+    # ... and VTK's own XDMF reader (ParaView's) plays it: frame 5 is row 5 of /dcp
+    import vtk
+    from vtk.util.numpy_support import vtk_to_numpy
+
+    reader = vtk.vtkXdmfReader()
+    reader.SetFileName(str(ours.with_suffix(".xdmf")))
+    reader.UpdateInformation()
+    steps = reader.GetOutputInformation(0).Get(
+        vtk.vtkStreamingDemandDrivenPipeline.TIME_STEPS())
+    np.testing.assert_allclose(steps, t, rtol=0, atol=1e-12)
+    reader.UpdateTimeStep(steps[5])
+    it = reader.GetOutputDataObject(0).NewIterator()
+    it.InitTraversal()
+    got = None
+    while not it.IsDoneWithTraversal():
+        arr = it.GetCurrentDataObject().GetPointData().GetArray("dCp")
+        got = vtk_to_numpy(arr) if arr is not None else got
+        it.GoToNextItem()
+    assert got is not None and np.array_equal(got, d[5], equal_nan=True)
 
 
 # ---------------------------------------------------------------------------- bad inputs
