@@ -11,6 +11,7 @@ radiosity ``B`` (what a camera sees) to the emission ``E`` (what the paint emits
   paint (diffuse + GGX lobe) with a view-dependent transport;
 * :func:`merge_views`: several cameras merged before the inverse;
 * :func:`psp_images`: the PSP workflow (wind-off / wind-on, Stern-Volmer fitted to taps);
+* :func:`run_unsteady`: the unsteady PSP run (uPSP's ``psp_process``, SI removed per frame);
 * :mod:`selfillum.corner`: the corner case end to end.
 """
 
@@ -44,6 +45,8 @@ _EXPORTS: dict[str, str] = {
     "render": ".rendering.mitsuba_render",
     "enforce_reciprocity": ".transport.viewfactors",
     "view_factors": ".transport.viewfactors",
+    "UnsteadyConfig": ".unsteady.run",
+    "run_unsteady": ".unsteady.run",
 }
 
 __all__: list[str] = [
@@ -70,6 +73,8 @@ __all__: list[str] = [
     "psp_pressure",
     "psp_images",
     "PSPResult",
+    "UnsteadyConfig",
+    "run_unsteady",
 ]
 
 __getattr__, __dir__ = attach(__name__, _EXPORTS)

@@ -72,7 +72,7 @@ def _cmd_unsteady(args) -> int:
 
 def register(sub) -> None:
     """Add the ``unsteady`` sub-command to ``sub`` (an argparse sub-parsers object)."""
-    from selfillum.unsteady.phase1 import FILTERS, OVERLAPS, REGISTRATIONS
+    from selfillum.unsteady.options import FILTERS, OVERLAPS, REGISTRATIONS
 
     p = sub.add_parser(
         "unsteady",

@@ -21,14 +21,19 @@ Modules, by concept:
 
 from __future__ import annotations
 
-from selfillum.unsteady.conditions import Conditions
-from selfillum.unsteady.run import (
-           CameraInput,
-           UnsteadyConfig,
-           UnsteadyResult,
-           config_from_deck,
-           run_unsteady,
-)
+from resection._lazy import attach
+
+#: Public name -> submodule (loaded on first use, so the command line builds light).
+_EXPORTS: dict[str, str] = {
+    "Conditions": ".conditions",
+    "CameraInput": ".run",
+    "UnsteadyConfig": ".run",
+    "UnsteadyResult": ".run",
+    "config_from_deck": ".run",
+    "run_unsteady": ".run",
+}
 
 __all__ = ["Conditions", "CameraInput", "UnsteadyConfig", "UnsteadyResult",
            "config_from_deck", "run_unsteady"]
+
+__getattr__, __dir__ = attach(__name__, _EXPORTS)

@@ -34,14 +34,12 @@ import scipy.sparse as sp
 from scipy import ndimage
 
 from resection.errors import InputError
+from selfillum.unsteady.options import FILTERS, OVERLAPS, REGISTRATIONS
 from selfillum.unsteady.spots import DarkSpots, mask_spots, patch_spots, project_spots
 
 __all__ = ["CameraRun", "SelfIllumination", "FrameNodes", "map_run", "REGISTRATIONS",
            "OVERLAPS", "FILTERS"]
 
-REGISTRATIONS = ("track", "first-frame", "none")
-OVERLAPS = ("average_view", "best_view", "merge")
-FILTERS = ("none", "gaussian")
 
 
 @dataclass

@@ -24,10 +24,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from resection.errors import InputError
+from selfillum.unsteady.options import PATCHERS  # re-exported
 
 __all__ = ["DarkSpots", "project_spots", "mask_spots", "patch_spots", "PATCHERS"]
-
-PATCHERS = ("none", "polynomial")
 
 
 @dataclass(frozen=True)
