@@ -130,6 +130,9 @@ def test_deck_bad(tmp_path):
     p.write_text(text.replace("overlap = best_view", "overlaps = best_view"))
     with pytest.raises(InputError, match=r"run\.inp:\d+: unknown key 'overlaps' in @options"):
         read_deck(p)
+    p.write_text(text.replace("aedc = false", "aedc = true"))
+    with pytest.raises(InputError, match=r"run\.inp:\d+: @camera 2 aedc = true: AEDC"):
+        read_deck(p)
     p.write_text(text.replace("$inp/model.grid", "$nope/model.grid"))
     with pytest.raises(InputError, match=r"@all grid: \$nope is not defined"):
         read_deck(p)

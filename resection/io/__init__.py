@@ -15,4 +15,6 @@ accepts what any other writes.
 - :mod:`resection.io.cameras`: camera files (native JSON, uPSP JSON, OpenCV FileStorage).
 - :mod:`resection.io.video`: frame sequences read lazily (image lists, TIFF/NPY stacks,
   Photron .mraw/.cih, Phantom .cine): :func:`~resection.io.video.iter_frames`.
+- :mod:`resection.io.wtd`: uPSP wind-tunnel data (``.wtd``: conditions, ``# Tap CP``).
+- :mod:`resection.io.upsp_inputs`: uPSP ``psp_process`` input decks and paint gain files.
 """

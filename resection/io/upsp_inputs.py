@@ -226,6 +226,9 @@ def read_deck(path: str | os.PathLike, *, check_files: bool = True) -> Deck:
             cal = resolve("all", 0, "calibration", al["calibration"])
         else:
             raise InputError(f"{p}:{line}: @camera {num} has no 'calibration' (nor @all)")
+        if c.get("aedc", "false").lower() not in ("false", "0", "no"):
+            raise InputError(f"{p}:{line}: @camera {num} aedc = {c['aedc']}: AEDC's .cine "
+                             "layout is not read (aedc = false only)")
         tg = resolve("camera", i, "targets", c["targets"]) if "targets" in c else targets
         cameras.append(DeckCamera(num, video, cal, tg))
     cameras.sort(key=lambda c: c.number)
