@@ -400,9 +400,11 @@ def run2(tmp_path_factory):
 
 
 def test_two_cameras_each_overlap_and_unpainted(run2, capsys):
-    """Two cameras from opposite sides: average_view, best_view and merge all recover the
-    known dCp where both see the plate; every frame's tracked pose of each camera is in
-    the file and follows the true vibration; --unpainted blocks give no node value."""
+    """Two cameras from opposite sides: average_view (with uPSP's polynomial target
+    patches), best_view (with a 3 x 3 Gaussian filter) and merge (tracked, SI removed) all
+    recover the known dCp where both see the plate; every frame's tracked pose of each
+    camera is in the file and follows the true vibration; --unpainted blocks give no node
+    value."""
     t = np.arange(run2.truth.shape[0]) / run2.fps
     truth = np.nan_to_num(run2.truth)
     c = np.polynomial.polynomial.polyfit(t, truth, 6)
@@ -410,8 +412,11 @@ def test_two_cameras_each_overlap_and_unpainted(run2, capsys):
     errs = {}
     for ov in ("average_view", "best_view", "merge"):
         out = run2.folder / f"{ov}.h5"
-        extra = ("--registration", "track") if ov == "merge" else \
-            ("--registration", "none", "--no-si")  # tracking and SI once, for the merge
+        extra = {"merge": ("--registration", "track"),  # tracking and SI once
+                 "average_view": ("--registration", "none", "--no-si", "--target-patcher",
+                                  "polynomial"),
+                 "best_view": ("--registration", "none", "--no-si", "--filter", "gaussian",
+                               "--filter-size", "3")}[ov]
         assert _cli(run2, out, "--overlap", ov, *extra) == 0, capsys.readouterr().err
         with h5py.File(out) as f:
             d = f["dcp"][()]
