@@ -229,6 +229,9 @@ def test_synthetic_run_recovers_dcp_and_removes_the_blocks_light(run, capsys):
     assert np.median(err[far]) < 0.0025 and np.median(err[near]) < 0.0025
     assert np.median(err[near]) < 0.6 * np.median(err0[near])  # what SI removal gains
     assert np.median(err[far]) <= 1.1 * np.median(err0[far])
+    # per-frame maps against the affine registration, away from the block: the worst
+    # nodes (95th percentile: 0.0046 against 0.0054 when measured)
+    assert np.percentile(err[far], 95) < np.percentile(err0[far], 95)
     # the tone's amplitude within 3 %
     tone = _amplitude(d[:, far], t, run.freqs["tone"])
     assert np.median(tone) == pytest.approx(run.amps["tone"], rel=0.03)
