@@ -68,6 +68,23 @@ def test_detrend_matches_numpy_polyfit():
     assert np.all(np.isnan(detrend(y2, t, 6)[:, 0]))
 
 
+def test_phase2_by_blocks_of_nodes_equals_one_block():
+    """Phase 2 reads blocks of nodes: the block size bounds memory, never the answer."""
+    from selfillum.unsteady.phase2 import run_phase2
+
+    rng = np.random.default_rng(2)
+    T, N = 50, 11
+    I = 1000 + 20 * rng.standard_normal((T, N))
+    I[5:9, 3] = np.nan
+    gain = rng.uniform(1.5, 2.5, N)
+    whole = dcp_block(I, np.arange(T), gain, 600.0)
+    out = np.empty((T, N), np.float32)
+    stats = run_phase2(I, out, np.arange(T), gain, 600.0, raw=I * 1.01, block=3)
+    np.testing.assert_allclose(out, whole, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(stats["mean"], np.nanmean(whole, axis=0), rtol=1e-6)
+    np.testing.assert_allclose(stats["si_change"], 0.0, atol=1e-6)  # a gain cancels in I'
+
+
 def test_conditions_from_wtd(tmp_path):
     from resection.io.wtd import read_wtd
 

@@ -20,7 +20,8 @@ import numpy as np
 
 from resection.errors import InputError
 
-__all__ = ["DETREND_ORDER", "intensity_ratio", "detrend", "dcp_block", "node_gain"]
+__all__ = ["DETREND_ORDER", "intensity_ratio", "detrend", "dcp_block", "node_gain",
+           "run_phase2"]
 
 #: Order of the polynomial in time fitted to ``I'`` and subtracted (uPSP: 6).
 DETREND_ORDER = 6
@@ -126,3 +127,51 @@ def node_gain(calibration, surface_temperature, cp_steady, conditions) -> np.nda
 
     pss = steady_pressure(cp_steady, conditions.q, conditions.p_inf)
     return np.asarray(calibration.gain(surface_temperature, pss), dtype=np.float64)
+
+
+def run_phase2(intensity, out, times, gain, q: float, *, raw=None, block: int | None = None,
+               order: int = DETREND_ORDER) -> dict:
+    """Phase 2 over a whole run, block by block of nodes.
+
+    Parameters
+    ----------
+    intensity : (T, N) array-like readable by column slices (an h5py dataset)
+        Node intensities, SI removed.
+    out : (T, N) array-like writable by column slices
+        Receives dCp (float32).
+    times : (T,) array_like
+    gain : (N,) array_like
+    q : float
+        psf.
+    raw : (T, N) array-like, optional
+        Node intensities without the SI removal: the change of dCp it makes is reported.
+    block : int, optional
+        Nodes per block (default: the chunk width of ``out``, else 4096): memory holds
+        ``T x block`` values at a time.
+
+    Returns
+    -------
+    dict
+        ``mean``, ``rms`` (RMS about zero) of dCp per node and ``si_change`` (RMS over time
+        of dCp minus dCp without SI; NaN without ``raw``), each (N,) float32.
+    """
+    import warnings
+
+    T, N = intensity.shape
+    nc = block or (getattr(out, "chunks", None) or (None, 4096))[1]
+    g = np.asarray(gain, dtype=np.float64)
+    mean = np.full(N, np.nan, np.float32)
+    rms = np.full(N, np.nan, np.float32)
+    change = np.full(N, np.nan, np.float32)
+    for a in range(0, N, nc):  # blocks of nodes: whole chunk columns
+        b = min(a + nc, N)
+        d = dcp_block(intensity[:, a:b], times, g[a:b], q, order)
+        out[:, a:b] = d
+        with np.errstate(invalid="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN nodes
+            mean[a:b] = np.nanmean(d, axis=0)
+            rms[a:b] = np.sqrt(np.nanmean(d.astype(np.float64) ** 2, axis=0))
+            if raw is not None:
+                d0 = dcp_block(raw[:, a:b], times, g[a:b], q, order)
+                change[a:b] = np.sqrt(np.nanmean((d.astype(np.float64) - d0) ** 2, axis=0))
+    return {"mean": mean, "rms": rms, "si_change": change}

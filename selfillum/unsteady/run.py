@@ -38,7 +38,7 @@ from selfillum.unsteady.phase1 import (
     SelfIllumination,
     map_run,
 )
-from selfillum.unsteady.phase2 import DETREND_ORDER, dcp_block, node_gain
+from selfillum.unsteady.phase2 import DETREND_ORDER, node_gain, run_phase2
 
 __all__ = ["CameraInput", "UnsteadyConfig", "UnsteadyResult", "run_unsteady",
            "config_from_deck"]
@@ -453,19 +453,8 @@ def _write_run(f, cfg, grid, cond, cp, gain, vals, raw, times, frames, runs, R, 
     st.create_dataset("cp", data=cp)
     st.create_dataset("gain", data=gain)
     dcp = f.create_dataset("dcp", (T, N), "f4", chunks=(tc, nc), fillvalue=np.nan)
-    mean = np.full(N, np.nan, np.float32)
-    rms = np.full(N, np.nan, np.float32)
-    change = np.full(N, np.nan, np.float32)
-    for a in range(0, N, nc):  # blocks of nodes: whole chunk columns
-        b = min(a + nc, N)
-        d = dcp_block(vals[:, a:b], frames, gain[a:b], cond.q)
-        dcp[:, a:b] = d
-        with np.errstate(invalid="ignore"), _quiet():
-            mean[a:b] = np.nanmean(d, axis=0)
-            rms[a:b] = np.sqrt(np.nanmean(d.astype(np.float64) ** 2, axis=0))
-            if with_si:
-                d0 = dcp_block(raw[:, a:b], frames, gain[a:b], cond.q)
-                change[a:b] = np.sqrt(np.nanmean((d.astype(np.float64) - d0) ** 2, axis=0))
+    p2 = run_phase2(vals, dcp, frames, gain, cond.q, raw=raw if with_si else None)
+    mean, rms, change = p2["mean"], p2["rms"], p2["si_change"]
     s = f.create_group("stats")
     s.create_dataset("dcp_mean", data=mean)
     s.create_dataset("dcp_rms", data=rms)
