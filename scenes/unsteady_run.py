@@ -123,7 +123,7 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
     grid = load_run_grid(grid_path)
     mesh = grid.mesh
     nf = len(mesh.faces)
-    part = np.asarray(mesh.face_attributes["block"])
+    part = np.asarray(mesh.face_attributes["block"]) - 1  # blocks count from 1 in the file
     on_block = part >= 6
     # ------------------------------------------------------------------ the truth
     freqs = {"tone": 120.0, "wave": 70.0, "block": 200.0, "vibration": 30.0}

@@ -32,7 +32,7 @@ class RunGrid:
     points : (N, 3) float64
         Grid nodes in file order.
     mesh : trimesh.Trimesh
-        Triangles on merged vertices (``face_attributes["block"]`` from 0, as
+        Triangles on merged vertices (``face_attributes["block"]`` from 1, as
         :func:`resection.io.meshes.plot3d_to_mesh`).
     node_vertex : (N,) int64
         The mesh vertex of every grid node.
