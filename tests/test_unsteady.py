@@ -604,3 +604,48 @@ def test_flags_without_a_deck_give_the_deck_run(run, capsys):
     with h5py.File(a) as fa, h5py.File(b) as fb:
         np.testing.assert_allclose(fa["dcp"][()], fb["dcp"][()], rtol=0, atol=1e-6)
         assert fb["grid/points"].shape == fa["grid/points"].shape
+
+
+def test_cart3d_grid_and_triq_steady(run, tmp_path, capsys):
+    """A Cart3D grid with its steady Cp in a .triq (uPSP's other grid family) gives the
+    same dCp, node for node, as the Plot3D run of the same surface."""
+    from scipy.spatial import cKDTree
+
+    from resection.io.meshes import write_cart3d_tri
+    from selfillum.cli import main
+    from selfillum.unsteady.grid import load_run_grid
+
+    g = load_run_grid(run.grid)
+    write_cart3d_tri(tmp_path / "model.tri", g.mesh)
+    V, T = np.asarray(g.mesh.vertices), np.asarray(g.mesh.faces)
+    cp = -0.3 + 0.4 * V[:, 0]  # the scene's steady Cp, from its formula
+    (tmp_path / "steady.triq").write_text(
+        f"{len(V)} {len(T)} 1\n" + "".join(f"{x!r} {y!r} {z!r}\n" for x, y, z in V.tolist())
+        + "".join(f"{a + 1} {b + 1} {c + 1}\n" for a, b, c in T.tolist())
+        + "1\n" * len(T) + "".join(f"{c!r}\n" for c in cp.tolist()))
+    common = ["--sds", str(run.wtd), "--targets", str(run.targets), "--video",
+              str(run.video), "--calibration", str(run.calibration), "--paint-calibration",
+              str(run.paint), "--fps", str(run.fps), "--quiet", "--registration", "none",
+              "--no-si", "--overlap", "average_view"]
+    a, b = tmp_path / "p3d.h5", tmp_path / "c3d.h5"
+    assert main(["unsteady", "--grid", str(run.grid), "--steady", str(run.steady),
+                 "--out", str(a), *common]) == 0, capsys.readouterr().err
+    assert main(["unsteady", "--grid", str(tmp_path / "model.tri"), "--steady",
+                 str(tmp_path / "steady.triq"), "--out", str(b), *common]) == 0, \
+        capsys.readouterr().err
+    with h5py.File(a) as fa, h5py.File(b) as fb:
+        dp, pp = fa["dcp"][()], fa["grid/points"][()]
+        dc, pc = fb["dcp"][()], fb["grid/points"][()]
+    np.testing.assert_allclose(pc, V, rtol=0, atol=1e-12)  # nodes: the .tri's vertices
+    dist, idx = cKDTree(pp).query(pc)
+    assert dist.max() < 1e-9
+    assert np.isfinite(dc).all(axis=0).sum() > 300
+    np.testing.assert_allclose(dc, dp[:, idx], rtol=0, atol=1e-5)
+    # a .triq of another surface, or a Plot3D steady file for the Cart3D grid: named
+    (tmp_path / "bad.triq").write_text("3 1 1\n0 0 0\n1 0 0\n0 1 0\n1 2 3\n1\n0.1\n0.2\n0.3\n")
+    for steady, msg in (("bad.triq", "3 vertices that are not the grid"),
+                        (str(run.steady), "Plot3D function file for the cart3d grid")):
+        rc = main(["unsteady", "--grid", str(tmp_path / "model.tri"), "--steady",
+                   str(tmp_path / steady), "--out", str(tmp_path / "x.h5"), *common])
+        err = capsys.readouterr().err
+        assert rc == 2 and msg in err and not (tmp_path / "x.h5").exists()

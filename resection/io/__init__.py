@@ -17,4 +17,5 @@ accepts what any other writes.
   Photron .mraw/.cih, Phantom .cine): :func:`~resection.io.video.iter_frames`.
 - :mod:`resection.io.wtd`: uPSP wind-tunnel data (``.wtd``: conditions, ``# Tap CP``).
 - :mod:`resection.io.upsp_inputs`: uPSP ``psp_process`` input decks and paint gain files.
+- :mod:`resection.io.triq`: Cart3D annotated triangulations (``.triq``, scalars per vertex).
 """

@@ -56,14 +56,40 @@ class RunGrid:
         return np.asarray(vertex_values)[..., self.node_vertex]
 
 
+def _merged(path: str, raw, perm, dims, fmt: str) -> RunGrid:
+    """Merge coincident points of ``raw`` (vertices in ``perm`` order = the file's nodes)."""
+    from resection.io.meshes import check_mesh
+
+    pts_u = np.asarray(raw.vertices, dtype=np.float64)
+    scale = float(np.ptp(pts_u, axis=0).max()) or 1.0
+    key = np.round(pts_u / (scale * 1e-9)).astype(np.int64)
+    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    inverse = inverse.ravel()
+    faces_u = np.asarray(raw.faces, dtype=np.int64)
+    mesh = trimesh.Trimesh(pts_u[first], inverse[faces_u], process=False)
+    for k, v in raw.face_attributes.items():
+        mesh.face_attributes[k] = v
+    mesh.metadata.update(raw.metadata)
+    mesh.metadata["source"] = path
+    mesh.metadata["format"] = fmt
+    check_mesh(mesh, path)
+    file_of_u = np.empty_like(perm)
+    file_of_u[perm] = np.arange(perm.size)
+    return RunGrid(path, dims, pts_u[perm], mesh, inverse[perm], file_of_u[faces_u])
+
+
 def load_run_grid(path: str | os.PathLike) -> RunGrid:
-    """Read a Plot3D surface grid for an unsteady run (see the module notes)."""
-    from resection.io.meshes import check_mesh, plot3d_to_mesh
+    """Read the run's grid: a Plot3D surface grid (by content, any extension; nodes block by
+    block, ``i`` fastest) or a Cart3D ``.tri`` (nodes = its vertices in file order)."""
+    from resection.io.meshes import plot3d_to_mesh, read_cart3d_tri
     from resection.io.plot3d import read_plot3d
 
     p = os.fspath(path)
     if not os.path.isfile(p):
         raise InputError(f"grid file not found: {p}")
+    if p.lower().endswith(".tri"):
+        raw = read_cart3d_tri(p)
+        return _merged(p, raw, np.arange(len(raw.vertices)), [], "cart3d")
     blocks = read_plot3d(p)
     raw = plot3d_to_mesh(blocks, merge_vertices=False, source=p)
     dims, perm, off = [], [], 0
@@ -75,41 +101,30 @@ def load_run_grid(path: str | os.PathLike) -> RunGrid:
         perm.append((np.arange(na)[None, :] * nb + np.arange(nb)[:, None]).ravel() + off)
         dims.append(d)
         off += na * nb
-    perm = np.concatenate(perm)
-    pts_u = np.asarray(raw.vertices, dtype=np.float64)
-    scale = float(np.ptp(pts_u, axis=0).max()) or 1.0
-    key = np.round(pts_u / (scale * 1e-9)).astype(np.int64)
-    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
-    inverse = inverse.ravel()
-    faces_u = np.asarray(raw.faces, dtype=np.int64)
-    mesh = trimesh.Trimesh(pts_u[first], inverse[faces_u], process=False)
-    for k, v in raw.face_attributes.items():
-        mesh.face_attributes[k] = v
-    mesh.metadata.update(raw.metadata)
-    mesh.metadata["source"] = p
-    mesh.metadata["format"] = "plot3d"
-    check_mesh(mesh, p)
-    file_of_u = np.empty_like(perm)
-    file_of_u[perm] = np.arange(perm.size)
-    return RunGrid(p, dims, pts_u[perm], mesh, inverse[perm], file_of_u[faces_u])
+    return _merged(p, raw, np.concatenate(perm), dims, "plot3d")
 
 
 def read_steady_cp(path: str | os.PathLike, grid: RunGrid) -> np.ndarray:
-    """The steady Cp of a Plot3D function file on the grid, per grid node in file order.
+    """The steady Cp per grid node in file order: a Plot3D function file on a Plot3D grid,
+    or a Cart3D ``.triq`` on a Cart3D grid (its first scalar, Cp as Cart3D writes it first).
 
     Raises
     ------
     InputError
-        A Cart3D ``.triq`` (not read), blocks that do not match the grid's (count or
-        dimensions: the message names the first that differs), more than one variable, a
-        non-finite value.
+        A file of the other family than the grid, blocks that do not match the grid's
+        (count or dimensions: the message names the first that differs), more than one
+        variable, a ``.triq`` of other vertices, a non-finite value.
     """
     from resection.io.plot3d import read_plot3d_function
 
     p = os.fspath(path)
-    if p.lower().endswith(".triq"):
-        raise InputError(f"{p}: Cart3D .triq steady files are not read (give a Plot3D "
-                         "function file on the Plot3D grid)")
+    is_triq = p.lower().endswith(".triq")
+    if is_triq != (grid.mesh.metadata.get("format") == "cart3d"):
+        raise InputError(f"{p}: a {'Cart3D .triq' if is_triq else 'Plot3D function file'} "
+                         f"for the {grid.mesh.metadata.get('format')} grid {grid.path} (the "
+                         "steady Cp comes on the grid's own kind of file)")
+    if is_triq:
+        return _triq_cp(p, grid)
     blocks = read_plot3d_function(p)
     if len(blocks) != len(grid.dims):
         raise InputError(f"{p}: {len(blocks)} blocks, the grid {grid.path} has "
@@ -128,3 +143,17 @@ def read_steady_cp(path: str | os.PathLike, grid: RunGrid) -> np.ndarray:
         bad = int(np.flatnonzero(~np.isfinite(cp))[0])
         raise InputError(f"{p}: NaN or infinite Cp at node {bad}")
     return cp
+
+
+def _triq_cp(p: str, grid: RunGrid) -> np.ndarray:
+    from resection.io.triq import read_triq
+
+    mesh, S = read_triq(p)
+    if len(mesh.vertices) != grid.n_nodes or not np.allclose(
+            mesh.vertices, grid.points, rtol=0,
+            atol=1e-6 * (float(np.ptp(grid.points, axis=0).max()) or 1.0)):
+        raise InputError(f"{p}: {len(mesh.vertices)} vertices that are not the grid "
+                         f"{grid.path}'s {grid.n_nodes} nodes")
+    if S.shape[1] < 1:
+        raise InputError(f"{p}: no scalar (the steady Cp)")
+    return S[:, 0].copy()
