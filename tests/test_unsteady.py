@@ -649,3 +649,29 @@ def test_cart3d_grid_and_triq_steady(run, tmp_path, capsys):
                    str(tmp_path / steady), "--out", str(tmp_path / "x.h5"), *common])
         err = capsys.readouterr().err
         assert rc == 2 and msg in err and not (tmp_path / "x.h5").exists()
+
+
+def test_reflectance_per_face(run, tmp_path, capsys):
+    """The reflectance may be given per face: a file of 0.6 on every face is the number
+    0.6; a file of the wrong length is named."""
+    from selfillum.cli import main
+    from selfillum.unsteady.grid import load_run_grid
+
+    nf = len(load_run_grid(run.grid).mesh.faces)
+    np.save(tmp_path / "rho.npy", np.full(nf, 0.6))
+    np.save(tmp_path / "short.npy", np.full(nf - 1, 0.6))
+    common = [str(run.deck), "--paint-calibration", str(run.paint), "--steady",
+              str(run.steady), "--fps", str(run.fps), "--quiet", "--registration", "none",
+              "--rays", "256"]
+    a, b = tmp_path / "num.h5", tmp_path / "file.h5"
+    assert main(["unsteady", *common, "--reflectance", "0.6", "--out", str(a)]) == 0, \
+        capsys.readouterr().err
+    assert main(["unsteady", *common, "--reflectance", str(tmp_path / "rho.npy"),
+                 "--out", str(b)]) == 0, capsys.readouterr().err
+    with h5py.File(a) as fa, h5py.File(b) as fb:
+        np.testing.assert_allclose(fa["dcp"][()], fb["dcp"][()], rtol=0, atol=1e-6)
+        assert fa.attrs["si_change_median"] > 0
+    rc = main(["unsteady", *common, "--reflectance", str(tmp_path / "short.npy"),
+               "--out", str(tmp_path / "x.h5")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "short.npy" in err and f"{nf - 1} reflectance values for {nf}" in err
