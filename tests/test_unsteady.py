@@ -190,7 +190,8 @@ def _amplitude(d, t, f):
 def run(tmp_path_factory):
     from scenes.unsteady_run import make_unsteady_run
 
-    return make_unsteady_run(tmp_path_factory.mktemp("unsteady"))
+    # 200 frames: the tone has 24 cycles, of which the 6th-order detrend takes under 1 %
+    return make_unsteady_run(tmp_path_factory.mktemp("unsteady"), frames=200)
 
 
 def _cli(run, out, *extra):
@@ -247,7 +248,7 @@ def test_synthetic_run_recovers_dcp_and_removes_the_blocks_light(run, capsys):
     assert np.median(err[near]) < 0.6 * np.median(err0[near])  # what SI removal gains
     assert np.median(err[far]) <= 1.1 * np.median(err0[far])
     # per-frame maps against the affine registration, away from the block: the worst
-    # nodes (95th percentile: 0.0046 against 0.0054 when measured)
+    # nodes (95th percentile: 0.0047 against 0.0055 when measured)
     assert np.percentile(err[far], 95) < np.percentile(err0[far], 95)
     # the tone's amplitude within 3 %
     tone = _amplitude(d[:, far], t, run.freqs["tone"])
