@@ -128,7 +128,8 @@ def pose_inputs(args: argparse.Namespace, mesh=None):
                            template=args.template, roi=args.roi, threshold=args.threshold,
                            enhance=args.enhance, enhance_windows=args.enhance_window,
                            links=args.links, candidates=args.candidates,
-                           marker_accuracy=args.marker_accuracy, max_rms=args.max_rms)
+                           marker_accuracy=args.marker_accuracy, max_rms=args.max_rms,
+                           markers_source=args.markers)
         print(f"image: {len(pts.candidates)} candidates, {len(pts.ids)} markers linked")
         return camera, pts.ids, pts.points3d, pts.points2d
     if not args.points:

@@ -121,6 +121,7 @@ def image_points(
     marker_accuracy: float = DEFAULT_MARKER_ACCURACY,
     max_rms: float | None = DEFAULT_MAX_RMS,
     has_pose: bool | None = None,
+    markers_source: str | None = None,
 ) -> ImagePoints:
     """Detect the markers of an image and link them to the model's markers.
 
@@ -158,9 +159,12 @@ def image_points(
         ``camera`` is a path, else True). A camera without a pose (or with the identity
         pose and fewer than three targets in view) cannot be matched from: the error says
         so and names ``resection link --serve`` (:mod:`resection.pose.pose_needed`).
+    markers_source : str, optional
+        The marker file's name for messages, when ``markers`` is given already read.
     """
     image_arg = image
     image, markers, camera, meta = _load(image, markers, camera)
+    meta["markers"] = meta["markers"] or markers_source
     if links is None and reference is None and camera is not None:
         _pose_check(image_arg, markers, camera, meta, has_pose, need_diameter=False)
     if candidates is None:
