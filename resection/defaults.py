@@ -23,3 +23,8 @@ DEFAULT_MAX_RMS = 2.0
 #: What ``format=`` of :func:`resection.io.meshes.load_mesh` (and the commands'
 #: ``--format``) accepts.
 MESH_FORMATS = ("plot3d", "cart3d", "stl", "obj", "ply", "off", "glb", "gltf")
+
+#: what ``track`` writes into its output folder, and the producer named in its manifest
+#: (``track.json``), which marks the folder as a track output
+TRACK_FILES = ("poses.csv", "markers.csv", "track.json", "pose_vs_time.png", "frames")
+TRACK_PRODUCER = "resection track"

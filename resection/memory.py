@@ -8,7 +8,7 @@ import os
 
 from resection.errors import InputError
 
-__all__ = ["available_memory", "check_pixel_memory"]
+__all__ = ["available_memory", "check_memory", "check_pixel_memory"]
 
 #: Bytes a pixel at least costs in :class:`resection.surface.surface_map.SurfaceMap` (pixel grid,
 #: ray directions, hit face, depth and barycentric coordinates: 80 bytes in float64/int64,
@@ -61,3 +61,12 @@ def check_pixel_memory(width: int, height: int, bytes_per_pixel: float, what: st
             f"{what}: a {w}x{h} image ({w * h / 1e6:.4g} Mpixel) needs at least "
             f"{need / 2**30:.3g} GiB, only {avail / 2**30:.3g} GiB available: use a smaller "
             "image size")
+
+
+def check_memory(need: float, what: str, *, available: int | None = None) -> None:
+    """Raise :class:`InputError` when ``need`` bytes (a lower bound of what ``what``
+    allocates) exceed the memory available; no check when that is unknown."""
+    avail = available_memory() if available is None else int(available)
+    if avail is not None and float(need) > avail:
+        raise InputError(f"{what} needs at least {float(need) / 2**30:.3g} GiB, only "
+                         f"{avail / 2**30:.3g} GiB available")

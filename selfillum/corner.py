@@ -347,10 +347,16 @@ def plot_corner(result: CornerResult, path) -> Path:
 def write_corner(result: CornerResult, out_dir) -> dict:
     """Write ``corner_profile.png``, ``corner_profile.csv`` and ``corner_numbers.json``
     to ``out_dir`` (created if needed); return their paths by kind."""
+    from resection.io.outputs import output_folder
+
+    # a folder made here is removed again when a file cannot be written (a full disk)
+    with output_folder(out_dir) as out:
+        return _write_corner_files(result, out)
+
+
+def _write_corner_files(result: CornerResult, out: Path) -> dict:
     from resection.io.outputs import atomic_path  # each file via a temporary name
 
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     png = out / "corner_profile.png"
     # one BLAS thread: OpenBLAS's idle threads would spin on the cores meanwhile
     with atomic_path(png) as tmp, threadpool_limits(limits=1, user_api="blas"):
@@ -367,5 +373,6 @@ def write_corner(result: CornerResult, out_dir) -> dict:
             )
     json_path = out / "corner_numbers.json"
     with atomic_path(json_path) as tmp:
-        tmp.write_text(json.dumps(asdict(result.numbers), indent=2) + "\n")
+        tmp.write_text(json.dumps({"written_by": "selfillum corner",
+                                   **asdict(result.numbers)}, indent=2) + "\n")
     return {"png": png, "csv": csv_path, "json": json_path}

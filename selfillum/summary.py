@@ -108,8 +108,11 @@ def summarize(result) -> CorrectionSummary:
 
 def write_summary(path: str | os.PathLike, summary: CorrectionSummary, **extra) -> None:
     """Write the summary (and ``extra`` entries) as JSON, through a temporary file in the
-    same folder renamed into place."""
+    same folder renamed into place. The side-file mark (``written_by``, ``side_file_of``,
+    :mod:`resection.io.marks`), when among ``extra``, comes first."""
     from resection.io._write import atomic_text
+    from resection.io.marks import MARK_KEY, PRODUCER_KEY
 
-    data = {**asdict(summary), **extra}
+    first = {k: extra.pop(k) for k in (PRODUCER_KEY, MARK_KEY) if k in extra}
+    data = {**first, **asdict(summary), **extra}
     atomic_text(path, json.dumps(data, indent=2, allow_nan=True) + "\n")

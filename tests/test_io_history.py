@@ -92,6 +92,7 @@ def test_interrupted_run_keeps_its_frames_and_resumes(tmp_path, mesh):
     w._f["values"].create_dataset("000006", data=np.zeros(n, np.float32))
     w._f.flush()
     w._f.close()
+    w._jf.close()  # the process ends: the lock on the file goes with it
     with h5py.File(path, "r") as f:  # what an interrupted run leaves
         assert f.attrs["n_frames"] == 6
     h = read_history(path)

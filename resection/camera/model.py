@@ -36,6 +36,10 @@ __all__ = [
     "effective_focal_length",
 ]
 
+#: Largest focal length accepted, in multiples of the image's larger side (a field of view of
+#: about a microradian; a real lens stays under 100).
+MAX_FOCAL_PER_PIXEL = 1e6
+
 _REQUIRED_KEYS = ("width", "height", "K", "dist", "R", "t")
 _OPTIONAL_KEYS = ("oof", "name")
 
@@ -121,6 +125,10 @@ class Camera:
         K = as_matrix(self.K, (3, 3), "camera K")
         if K[0, 0] <= 0 or K[1, 1] <= 0:
             raise InputError(f"camera K: focal lengths must be positive, got {K[0, 0]}, {K[1, 1]}")
+        if max(K[0, 0], K[1, 1]) > MAX_FOCAL_PER_PIXEL * max(w, h):
+            raise InputError(f"camera K: focal lengths {K[0, 0]:g}, {K[1, 1]:g} px are beyond "
+                             f"{MAX_FOCAL_PER_PIXEL:g} times the image size (a field of view "
+                             "under a microradian: wrong units?)")
         if K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1:
             raise InputError("camera K: must be upper triangular with K[2,2] = 1")
         try:

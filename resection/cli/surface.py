@@ -6,6 +6,7 @@ work is in :mod:`resection.surface.surface_map`, :mod:`~resection.surface.align`
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -66,6 +67,10 @@ def register(sub) -> None:
                    "the video's, else times are frame numbers)")
     h.add_argument("--resume", action="store_true",
                    help="continue the file of an interrupted run")
+    m.add_argument("--saturation", type=float, default=None, metavar="LEVEL",
+                   help="pixels at or above this are saturated: unknown, in no value, and "
+                   "the faces they fall on unseen (default: the full scale of the file's "
+                   "integer type or of the video's sensor bits; none for float images)")
     m.set_defaults(func=run_map)
 
     b = sub.add_parser(
@@ -157,10 +162,11 @@ def _field(path: str, name: str | None, n_faces: int) -> tuple[str, np.ndarray]:
 def run_map(args: argparse.Namespace) -> int:
     from resection.camera.units import require_seen
     from resection.io.cameras import read_camera_file
-    from resection.io.images import read_image
+    from resection.io.images import read_image, read_native
     from resection.io.markers import read_markers
     from resection.io.meshes import load_mesh, write_surface
     from resection.pose.camera_fit import check_camera
+    from resection.saturation import faces_touched, level_of, mask_saturated, report
     from resection.surface.surface_map import SurfaceMap
 
     if Path(args.out).suffix.lower() in (".h5", ".hdf5"):
@@ -191,8 +197,17 @@ def run_map(args: argparse.Namespace) -> int:
                  f"map: {args.camera} sees none of the {len(mesh.faces)} faces of {args.mesh}")
     fields = {}
     per_node = Path(args.out).suffix.lower() == ".f"  # Plot3D function file: node values
+    n_sat = n_faces = 0
+    level = None
     for path in args.image:
-        img = read_image(path)
+        raw = read_native(path)
+        if raw.ndim != 2:
+            raise InputError(f"{path}: a stack of {raw.shape[0]} frames; map one image, or "
+                             "the sequence into a time history (--out P.h5)")
+        level = level_of(raw.dtype, args.saturation)
+        img, sat = mask_saturated(raw, level)  # unknown: in no value
+        touched = faces_touched(smap.face_index, smap.mask, sat, len(mesh.faces))
+        n_sat, n_faces = n_sat + int(sat.sum()), n_faces + int(touched.sum())
         name = Path(path).stem
         if per_node:
             from resection.surface.node_values import image_node_fields
@@ -200,15 +215,18 @@ def run_map(args: argparse.Namespace) -> int:
             fields.update(image_node_fields(smap, img, name))
             continue
         res = smap.to_surface(img)
-        fields[name] = res.values
+        fields[name] = np.where(touched, np.nan, res.values)
         fields[f"{name}_count"] = res.counts
-        fields[f"{name}_seen"] = ~res.unseen
+        fields[f"{name}_seen"] = ~res.unseen & ~touched
     if per_node:
         write_surface(args.out, mesh, None, node_fields=fields)  # atomic, with its .nam
     else:
         atomic_write(args.out, write_surface, mesh, fields)
     print(f"map: {int(smap.seen_faces.sum())} of {len(mesh.faces)} faces seen by "
           f"{int(smap.mask.sum())} pixels; written to {args.out}")
+    line = report(n_sat, level, n_faces)
+    if line:
+        print(f"map: warning: {line}", file=sys.stderr)
     return 0
 
 
@@ -216,6 +234,7 @@ def _run_history(args: argparse.Namespace) -> int:
     from resection.io.history import xdmf_path
     from resection.io.meshes import load_mesh
     from resection.io.video import open_frames
+    from resection.saturation import level_of, report
     from resection.sequence import read_track
     from resection.sequence.mapping import map_to_history
 
@@ -224,9 +243,9 @@ def _run_history(args: argparse.Namespace) -> int:
     if args.markers:
         raise InputError("--markers checks single images; a sequence's poses are checked by "
                          "'resection track'")
-    if args.fps is not None and not args.fps > 0:
-        raise InputError(f"--fps: must be positive, got {args.fps}")
-    mesh = load_mesh(args.mesh)
+    if args.fps is not None and not (np.isfinite(args.fps) and args.fps > 0):
+        raise InputError(f"--fps: must be a positive finite frame rate, got {args.fps}")
+    mesh = load_mesh(args.mesh, format=args.mesh_format)
     camera = read_camera(args.camera[0])
     src = open_frames(args.image if len(args.image) > 1 else args.image[0])
     with src:
@@ -241,13 +260,60 @@ def _run_history(args: argparse.Namespace) -> int:
         else:
             numbers, cameras = np.arange(len(src)), camera
         fps = args.fps if args.fps is not None else src.frame_rate
+        if fps is not None and not (np.isfinite(fps) and fps > 0):
+            raise InputError(f"{src.path}: its header's frame rate {fps} is not a positive "
+                             "finite number; give --fps")
         times = numbers / fps if fps else numbers.astype(float)
-        n = map_to_history(args.out, mesh, cameras, src, frame_numbers=numbers, times=times,
+        sources = _image_identities(args.image, numbers)  # a resume maps the same images
+        level = level_of(np.float32, args.saturation, bits=src.bits)
+        if level is None and args.saturation is None and src.bits is None:
+            from resection.io.images import image_info  # image files: their type's scale
+
+            level = image_info(args.image[0])["saturation"]
+        frames = _Saturated(src, level)
+        n = map_to_history(args.out, mesh, cameras, frames, frame_numbers=numbers, times=times,
                            per=args.per, resume=args.resume,
-                           max_obliqueness=args.max_obliqueness)
+                           max_obliqueness=args.max_obliqueness, sources=sources)
     print(f"map: {n} frames mapped per {args.per} ({len(numbers)} in the history); "
           f"written to {args.out} and {xdmf_path(args.out)}")
+    line = report(frames.count, frames.level)
+    if line:
+        print(f"map: warning: {line} in the frames mapped now", file=sys.stderr)
     return 0
+
+
+class _Saturated:
+    """Frames of a source with their saturated pixels NaN (:mod:`resection.saturation`),
+    counted as they are read."""
+
+    def __init__(self, src, level):
+        self.src, self.level, self.count = src, level, 0
+
+    def __len__(self):
+        return len(self.src)
+
+    def __getitem__(self, i):
+        from resection.saturation import mask_saturated
+
+        img, sat = mask_saturated(self.src[i], self.level)
+        self.count += int(sat.sum())
+        return img
+
+
+def _image_identities(paths: list[str], numbers) -> list[str]:
+    """What each frame of a time history is read from: ``name|digest`` of its image file
+    (:func:`resection.sequence.frames.content_digest`: size and a sample of the content),
+    or ``name#k|digest`` for frame k of a file holding many."""
+    from .sequence.frames import content_digest
+
+    def ident(q: Path) -> str:
+        return content_digest(q) if q.is_file() else ""
+
+    if len(paths) == 1:
+        q = Path(paths[0])
+        d = ident(q)
+        return [f"{q.name}#{int(k)}|{d}" for k in numbers]
+    return [f"{Path(paths[int(k)]).name}|{ident(Path(paths[int(k)]))}" for k in numbers]
 
 
 def _run_merge(args: argparse.Namespace, names: list) -> int:
@@ -353,6 +419,11 @@ def run_view(args: argparse.Namespace) -> int:
             raise InputError(f"--size: expected WxH, got {args.size!r}") from None
         camera = virtual_camera(mesh, args.azimuth, args.elevation, width=w, height=h)
     box = None if args.box is None else np.reshape(args.box, (2, 3))
+    if box is not None:
+        lo, hi = np.asarray(mesh.bounds)
+        if np.any(box[0] > hi) or np.any(box[1] < lo):
+            raise InputError(f"--box: {args.box} holds no part of {args.mesh} (its bounds "
+                             f"{lo.tolist()} to {hi.tolist()})")
     camera = frame_camera(camera, target=args.target, zoom=args.zoom, box=box)
     with atomic_path(args.out) as tmp:
         plot_surface(mesh, values, camera, method=args.method, cmap=args.cmap, vmin=args.vmin,

@@ -9,8 +9,14 @@ import json
 import os
 import sys
 
+from resection.cli.paths import FolderOutput
 from resection.cli.util import add_acceptance_options
-from resection.defaults import DEFAULT_MARKER_ACCURACY, DEFAULT_MAX_RMS
+from resection.defaults import (
+    DEFAULT_MARKER_ACCURACY,
+    DEFAULT_MAX_RMS,
+    TRACK_FILES,
+    TRACK_PRODUCER,
+)
 from resection.errors import InputError
 from resection.io.cameras import read_camera
 
@@ -57,7 +63,8 @@ def register(sub) -> None:
     p.add_argument("--no-resume", action="store_true",
                    help="recompute every frame even if --out holds finished ones")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.set_defaults(func=run_track)
+    p.set_defaults(func=run_track, out_folder=FolderOutput(
+        TRACK_FILES, "track.json", TRACK_PRODUCER, subfolders=("frames",)))
 
 
 def _expand(patterns: list[str]) -> list[str]:
@@ -118,4 +125,7 @@ def run_track(args: argparse.Namespace) -> int:
     for i in range(len(result)):
         if not result.ok[i]:
             print(f"  frame {result.frame[i]} ({result.file[i]}): {result.reason[i]}")
+    if not n_ok:
+        first = result.reason[0] if len(result) else "no frames"
+        print(f"resection track: error: no frame solved (frame 0: {first})", file=sys.stderr)
     return 0 if n_ok else 1

@@ -2,8 +2,13 @@
 
 Bad input (an :class:`~resection.errors.InputError`, an untrustworthy solve, a missing or
 unwritable file, a bad argument, an output that is one of the inputs) is printed as one
-line naming the problem, with exit status 2, never as a traceback. A closed output pipe
-(``... | head``) ends quietly.
+line naming the problem, with exit status 2, never as a traceback; so is every error of the
+operating system (a full disk, a read-only folder, a symlink loop: ``<file>: <reason>``), an
+input nested too deeply to parse and a memory need that cannot be met. The paths of a command
+line are checked before the command runs (:mod:`resection.cli.paths`): no output is written
+when another cannot be. Ctrl-C prints one line and exits with status 130; the files being
+written are removed (see :func:`resection.io.outputs.atomic_path`), complete ones stay. A
+closed output pipe (``... | head``) ends quietly.
 """
 
 from __future__ import annotations
@@ -38,19 +43,38 @@ class OneLineParser(argparse.ArgumentParser):
 def run(parser: argparse.ArgumentParser, argv: list[str] | None) -> int:
     """Parse ``argv`` and call the chosen sub-command's ``func(args)``; return the exit
     status."""
+    from resection.cli.paths import check_command_paths
+    from resection.io.paths import os_error_text
+
     args = parser.parse_args(argv)
+    prog = f"{parser.prog} {args.command}"
     try:
+        check_command_paths(args)  # inputs readable, every output writable, before any work
         check_command_outputs(args)  # no output may be one of the inputs
         return int(args.func(args) or 0)
     except USER_ERRORS as exc:
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        print(f"{parser.prog} {args.command}: error: {msg}", file=sys.stderr)
+        print(f"{prog}: error: {msg}", file=sys.stderr)
         return 2
     except BrokenPipeError:
         # the reader went away (e.g. `| head`): stop quietly, as Unix tools do
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())
         return 1
+    except OSError as exc:  # full disk, read-only file system, link loop, ...
+        print(f"{prog}: error: {os_error_text(exc)}", file=sys.stderr)
+        return 2
+    except RecursionError:
+        print(f"{prog}: error: an input is nested too deeply to read", file=sys.stderr)
+        return 2
+    except MemoryError as exc:
+        why = str(exc).splitlines()[0] if str(exc) else "an allocation failed"
+        print(f"{prog}: error: not enough memory ({why})", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted; files being written were removed, complete ones kept",
+              file=sys.stderr)
+        return 130
 
 
 def add_acceptance_options(p: argparse.ArgumentParser) -> None:

@@ -188,6 +188,8 @@ def read_camera_file(path: str | os.PathLike, *, image_size=None) -> CameraFile:
             d = json.loads(text)
         except json.JSONDecodeError as exc:
             raise InputError(f"not valid JSON ({exc})") from None
+        except RecursionError:
+            raise InputError("JSON nested too deeply to be a camera file") from None
         if fmt == "upsp":
             return _from_upsp(d, image_size)
         if fmt == "upsp-model":

@@ -11,6 +11,9 @@ File layout (``format = "resection-history"``, ``version = 1`` in the root attri
     /frames/camera/dist   (T, 5)
     /frames/camera/R      (T, 3, 3)        x_cam = R X + t: the pose relative to the model
     /frames/camera/t      (T, 3)
+    /frames/source        (T,)   str       what each frame was read from (its file's name and
+                                           a digest of its content; "" when not given)
+    /inputs               ()     str       JSON: what the frames were computed from
     /values/000000 ...    (N,) float32     frame k's values, one dataset (one chunk) a frame;
                                            N = V (per node) or F (per face); NaN = unseen
 
@@ -18,17 +21,33 @@ Root attributes: ``per`` (``"node"`` or ``"face"``), ``n_frames`` (frames commit
 
 Frames are written as they finish: the values first, then the frame's time and camera,
 then ``n_frames`` is raised and the file flushed. A frame is committed when ``n_frames``
-counts it; an interrupted run keeps every committed frame, and :class:`HistoryWriter` with
-``resume=True`` drops whatever lies beyond ``n_frames`` and carries on. One dataset a frame
-keeps memory flat over the run (nothing is held but the current frame) and lets the XDMF
-sidecar point at each frame with a plain HDF5 path (readable by ParaView and by meshio's
-XDMF time-series reader). The sidecar (``<file>.xdmf``, written to a temporary name and
-renamed) is rewritten when the writer closes and every ``xdmf_every`` frames;
-:func:`write_xdmf` rebuilds it from the HDF5 file alone.
+counts it and the file has been flushed; an interrupted run keeps every committed frame,
+and :class:`HistoryWriter` with ``resume=True`` drops whatever lies beyond ``n_frames`` and
+carries on.
+
+The committed frames survive whatever happens to the writes after them (a full disk, a
+read-only remount, ``kill -9``, a crash of the process): the file is written through an
+undo journal (:mod:`resection.io.journal`, ``P.h5.journal``) that keeps the bytes of the
+committed file before they are overwritten. A failed write rolls the file back to its last
+commit at once; a run that died leaves the journal, and the next writer rolls the file back,
+while a reader reads the committed state through it without writing. The ``/inputs``
+dataset (JSON) records what the frames were computed from (settings, images, camera): a
+resumed run with other inputs is refused, as are committed frames whose times or cameras
+differ from those of the resumed run. A file whose ``n_frames`` counts frames it does not
+hold is refused as damaged. The sidecar carries the mark of this file
+(:mod:`resection.io.marks`): an XDMF file of that name that is not ours is never replaced.
+
+One dataset a frame keeps memory flat over the run (nothing is held but the current frame)
+and lets the XDMF sidecar point at each frame with a plain HDF5 path (readable by ParaView
+and by meshio's XDMF time-series reader). The sidecar (``<file>.xdmf``, written to a
+temporary name and renamed) is rewritten when the writer closes and every ``xdmf_every``
+frames; :func:`write_xdmf` rebuilds it from the HDF5 file alone.
 """
 
 from __future__ import annotations
 
+import contextlib
+import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,6 +58,8 @@ import numpy as np
 
 from resection.camera.model import Camera
 from resection.errors import InputError
+from resection.io.journal import JournaledFile, committed_view
+from resection.io.marks import claim_side_file, xml_mark
 from resection.io.outputs import atomic_path
 
 __all__ = ["FORMAT", "HistoryWriter", "History", "read_history", "write_xdmf", "xdmf_path"]
@@ -80,6 +101,12 @@ class HistoryWriter:
         Continue a file written by an earlier (interrupted) run on the same grid.
     xdmf_every : int
         Rewrite the XDMF sidecar every so many frames (and at :meth:`close`).
+    inputs : dict, optional
+        What the frames are computed from (JSON-able: settings, image identities, camera),
+        stored in ``/inputs``; a resumed file must record the same.
+    opener : callable, optional
+        ``opener(path, mode)`` opening the file and its journal (tests inject failing
+        writes through it); default :func:`open`.
 
     Examples
     --------
@@ -89,7 +116,7 @@ class HistoryWriter:
     """
 
     def __init__(self, path, mesh, *, per: str = "node", resume: bool = False,
-                 xdmf_every: int = 100):
+                 xdmf_every: int = 100, inputs: dict | None = None, opener=open):
         if per not in ("node", "face"):
             raise InputError(f"per must be 'node' or 'face', got {per!r}")
         self.path = Path(path)
@@ -101,20 +128,27 @@ class HistoryWriter:
             raise InputError(f"{self.path}: a time history is an HDF5 file (.h5)")
         if self.path.exists() and not resume:
             raise InputError(f"{self.path}: exists (resume it, or remove it first)")
+        claim_side_file(xdmf_path(self.path), self.path, "XDMF sidecar")
+        self._inputs = None if inputs is None else json.dumps(inputs, sort_keys=True)
+        self._f = self._jf = None
+        if not self.path.exists():  # made whole under a temporary name, then renamed
+            with atomic_path(self.path) as tmp, h5py.File(tmp, "w") as f:
+                self._create(f, points, tris)
         try:
-            if self.path.exists():
-                self._f = h5py.File(self.path, "r+")
-                self._check_resumable(points, tris)
-            else:
-                self._f = h5py.File(self.path, "w")
-                self._create(points, tris)
-        except OSError as exc:
-            raise InputError(f"{self.path}: cannot write the time history ({exc})") from None
+            self._jf = JournaledFile(self.path, opener=opener)
+            _lock(self._jf, self.path)
+            self._f = h5py.File(self._jf, "r+")
+            self._check_resumable(points, tris)
+            self._f.flush()
+            self._raise_failed()
+            self._jf.commit()
+        except BaseException:
+            self._abandon()
+            raise
         self._since_xdmf = 0
 
     # ------------------------------------------------------------------ set-up
-    def _create(self, points, tris) -> None:
-        f = self._f
+    def _create(self, f, points, tris) -> None:
         f.attrs["format"] = FORMAT
         f.attrs["version"] = VERSION
         f.attrs["per"] = self.per
@@ -125,12 +159,15 @@ class HistoryWriter:
         fr = f.create_group("frames")
         fr.create_dataset("time", shape=(0,), maxshape=(None,), dtype="f8", chunks=(1024,))
         fr.create_dataset("index", shape=(0,), maxshape=(None,), dtype="i8", chunks=(1024,))
+        fr.create_dataset("source", shape=(0,), maxshape=(None,), dtype=h5py.string_dtype(),
+                          chunks=(256,))
         cam = fr.create_group("camera")
         for name, shape in _CAM.items():
             cam.create_dataset(name, shape=(0,) + shape, maxshape=(None,) + shape, dtype="f8",
                                chunks=(256,) + shape)
         f.create_group("values")
-        f.flush()
+        if self._inputs is not None:
+            f.create_dataset("inputs", data=self._inputs)
 
     def _check_resumable(self, points, tris) -> None:
         f = self._f
@@ -144,14 +181,20 @@ class HistoryWriter:
                 or not np.array_equal(g["triangles"][()], tris) \
                 or not np.allclose(g["points"][()], points, rtol=0, atol=1e-9):
             raise InputError(f"{self.path}: written for another grid; cannot resume it")
-        n = int(f.attrs["n_frames"])
+        n = _committed(f, self.path)
+        if self._inputs is not None:
+            old = f["inputs"][()].decode() if "inputs" in f else None
+            if old != self._inputs:
+                raise InputError(f"{self.path}: {_input_difference(old, self._inputs)}; "
+                                 "cannot resume it (write to another file)")
         for name in list(f["values"]):  # a frame begun but not committed
             if int(name) >= n:
                 del f["values"][name]
         fr = f["frames"]
         for ds in (fr["time"], fr["index"], *(fr["camera"][k] for k in _CAM)):
             ds.resize(n, axis=0)
-        f.flush()
+        if "source" in fr:
+            fr["source"].resize(n, axis=0)
 
     # ------------------------------------------------------------------ writing
     @property
@@ -159,13 +202,23 @@ class HistoryWriter:
         """Frames committed so far (a resumed file starts with its earlier frames)."""
         return int(self._f.attrs["n_frames"])
 
+    def committed_frames(self) -> dict:
+        """``index``, ``time`` and the cameras (``K``, ``dist``, ``R``, ``t``) of the
+        committed frames, as arrays."""
+        n, fr = self.n_frames, self._f["frames"]
+        out = {"index": fr["index"][:n], "time": fr["time"][:n],
+               "source": (fr["source"].asstr()[:n] if "source" in fr
+                          else np.full(n, None, dtype=object))}
+        out.update({k: fr["camera"][k][:n] for k in _CAM})
+        return out
+
     @property
     def done(self) -> np.ndarray:
         """Source frame numbers already committed (to skip when resuming)."""
         return self._f["frames/index"][()]
 
     def append(self, values, *, time: float, camera: Camera | None = None,
-               index: int | None = None) -> None:
+               index: int | None = None, source: str = "") -> None:
         """Commit one frame.
 
         Parameters
@@ -178,16 +231,34 @@ class HistoryWriter:
             The frame's camera (its pose relative to the model); NaN when not given.
         index : int, optional
             The frame's number in the source sequence (default: its position here).
+        source : str, optional
+            What the frame was read from (a name and a content digest), compared when the
+            file is resumed.
         """
         v = np.asarray(values)
         if v.shape != (self.n_values,):
             raise InputError(f"values: expected ({self.n_values},) per {self.per}, got shape "
                              f"{v.shape}")
+        if not np.isfinite(float(time)):
+            raise InputError(f"time: must be finite, got {time}")
+        try:
+            self._append(v, float(time), camera, index, str(source))
+        except BaseException:
+            self._abandon()  # the file goes back to its last commit
+            self._raise_failed()
+            raise
+        self._raise_failed()
+        self._since_xdmf += 1
+        if self._since_xdmf >= self.xdmf_every:
+            self.write_xdmf()
+
+    def _append(self, v, time, camera, index, source) -> None:
         n = self.n_frames
         f = self._f
         f["values"].create_dataset(f"{n:06d}", data=v.astype(np.float32, copy=False))
         fr = f["frames"]
-        for ds, val in ((fr["time"], float(time)), (fr["index"], n if index is None else index)):
+        for ds, val in ((fr["time"], float(time)), (fr["index"], n if index is None else index),
+                        (fr["source"], source)):
             ds.resize(n + 1, axis=0)
             ds[n] = val
         for name, shape in _CAM.items():
@@ -197,12 +268,18 @@ class HistoryWriter:
         if camera is not None:
             fr["camera"].attrs["width"] = camera.width
             fr["camera"].attrs["height"] = camera.height
-        f.attrs["n_frames"] = n + 1  # the commit
+        f.attrs["n_frames"] = n + 1
         f.flush()
-        self._since_xdmf += 1
-        if self._since_xdmf >= self.xdmf_every:
-            self.write_xdmf()
+        if self._jf.failed is None:
+            self._jf.commit()  # the commit: the file as flushed is what survives
 
+    def _raise_failed(self) -> None:
+        """After a write of the file failed (a full disk): roll back, raise its OSError."""
+        failed = self._jf.failed if self._jf is not None else None
+        if failed is None or isinstance(failed, _Abandoned):
+            return
+        self._abandon()
+        raise OSError(failed.errno, failed.strerror or str(failed), str(self.path))
     def write_xdmf(self) -> Path:
         """Rewrite the XDMF sidecar for the frames committed so far."""
         self._f.flush()
@@ -211,20 +288,98 @@ class HistoryWriter:
 
     def close(self) -> None:
         """Write the sidecar and close the file."""
-        if getattr(self, "_f", None) is not None and self._f.id.valid:
+        if getattr(self, "_f", None) is None or not self._f.id.valid:
+            return
+        try:
             self.write_xdmf()
             self._f.close()
+            self._raise_failed()
+            self._jf.commit()
+            self._jf.close()
+        except BaseException:
+            self._abandon()
+            raise
+
+    def _abandon(self) -> None:
+        """Close without keeping anything written since the last commit (the file is
+        rolled back to it)."""
+        jf = getattr(self, "_jf", None)
+        if jf is not None and jf.failed is None:
+            jf.fail(_Abandoned())  # nothing more reaches the file
+        f = getattr(self, "_f", None)
+        if f is not None and f.id.valid:
+            try:
+                f.close()
+            except Exception:  # noqa: BLE001 - the writes go nowhere; rolled back below
+                pass
+        if jf is not None and not jf.closed:
+            jf.close()
 
     def __enter__(self) -> HistoryWriter:
         return self
 
-    def __exit__(self, *exc) -> None:
-        self.close()
+    def __exit__(self, exc_type, *exc) -> None:
+        if exc_type is None:
+            self.close()
+        else:  # interrupted (Ctrl-C) or failed: keep what is committed, and the sidecar
+            self._abandon()
+            if self.path.exists():
+                with contextlib.suppress(Exception):
+                    write_xdmf(self.path)
+
+
+class _Abandoned(Exception):
+    """The writer was closed without a commit (an error elsewhere, Ctrl-C)."""
+
+
+def _lock(jf, path: Path) -> None:
+    """One writer at a time (an advisory lock on the open file, released when the process
+    ends, however it ends)."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - Windows
+        return
+    try:
+        fcntl.flock(jf._f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        raise InputError(f"{path}: another process is writing this time history") from None
+    except OSError:
+        pass  # a file system without flock
+
+
+def _committed(f: h5py.File, path: Path) -> int:
+    """The committed frame count, checked against what the file holds."""
+    try:
+        n = int(f.attrs["n_frames"])
+        fr = f["frames"]
+        lengths = [fr["time"].shape[0], fr["index"].shape[0],
+                   *(fr["camera"][k].shape[0] for k in _CAM)]
+        names = set(f["values"])
+    except (KeyError, TypeError, ValueError, OSError):
+        raise InputError(f"{path}: damaged time history (its frame tables are "
+                         "unreadable)") from None
+    missing = [k for k in range(min(n, 10**7)) if f"{k:06d}" not in names][:1]
+    if n < 0 or n > min(lengths) or missing:
+        raise InputError(f"{path}: damaged time history: n_frames says {n}, but "
+                         f"{min(lengths) if n > min(lengths) else missing[0]} frames are "
+                         "stored")
+    return n
+
+
+def _input_difference(old: str | None, new: str) -> str:
+    if old is None:
+        return "records no inputs (written before they were recorded, or not by map)"
+    try:
+        a, b = json.loads(old), json.loads(new)
+        keys = sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k))
+    except (ValueError, AttributeError):
+        keys = []
+    return f"made from other inputs ({', '.join(keys) or 'unreadable record'})"
 
 
 # --------------------------------------------------------------------------- XDMF
 def _write_xdmf(f: h5py.File, path: Path) -> Path:
-    n = int(f.attrs["n_frames"])
+    n = _committed(f, path)
     per = str(f.attrs["per"])
     V, F = f["grid/points"].shape[0], f["grid/triangles"].shape[0]
     nv = V if per == "node" else F
@@ -235,6 +390,7 @@ def _write_xdmf(f: h5py.File, path: Path) -> Path:
         '<?xml version="1.0"?>',
         '<Xdmf Version="3.0" xmlns:xi="http://www.w3.org/2001/XInclude">',
         "<Domain>",
+        xml_mark(path, "resection map"),  # ours: replaced by the next writer of `path`
         '<Grid Name="grid" GridType="Uniform">',
         f'<Topology TopologyType="Triangle" NumberOfElements="{F}">',
         f'<DataItem Dimensions="{F} 3" NumberType="Int" Precision="8" Format="HDF">'
@@ -261,7 +417,7 @@ def _write_xdmf(f: h5py.File, path: Path) -> Path:
             "</Grid>",
         ]
     lines += ["</Grid>", "</Domain>", "</Xdmf>", ""]
-    out = xdmf_path(path)
+    out = claim_side_file(xdmf_path(path), path, "XDMF sidecar")
     with atomic_path(out) as tmp:
         Path(tmp).write_text("\n".join(lines), encoding="utf-8")
     return out
@@ -276,17 +432,25 @@ def write_xdmf(path: str | os.PathLike) -> Path:
 
 
 # --------------------------------------------------------------------------- reading
-def _open(p: Path) -> h5py.File:
+@contextlib.contextmanager
+def _open(p: Path):
+    """The file opened for reading, as committed: through its journal when a run that
+    wrote it stopped (or is still writing), without changing it."""
     if not p.is_file():
         raise InputError(f"{p}: time history not found")
+    view = committed_view(p)
     try:
-        f = h5py.File(p, "r")
-    except OSError as exc:
-        raise InputError(f"{p}: not a readable HDF5 file ({exc})") from None
-    if f.attrs.get("format") != FORMAT:
-        f.close()
-        raise InputError(f"{p}: not a {FORMAT} file")
-    return f
+        try:
+            f = h5py.File(p if view is None else view, "r")
+        except OSError as exc:
+            raise InputError(f"{p}: not a readable HDF5 file ({exc})") from None
+        with f:
+            if f.attrs.get("format") != FORMAT:
+                raise InputError(f"{p}: not a {FORMAT} file")
+            yield f
+    finally:
+        if view is not None:
+            view.close()
 
 
 @dataclass(frozen=True)
@@ -335,7 +499,7 @@ def read_history(path: str | os.PathLike, *, frames=None, items=None) -> History
     """
     p = Path(path)
     with _open(p) as f:
-        n = int(f.attrs["n_frames"])
+        n = _committed(f, p)
         sel = np.arange(n)[frames] if frames is not None else np.arange(n)
         sel = np.atleast_1d(sel)
         fr = f["frames"]

@@ -47,11 +47,14 @@ def same_file(a: str | os.PathLike, b: str | os.PathLike) -> bool:
     and hard links included), else the same absolute path with links resolved."""
     a, b = Path(a), Path(b)
     try:
-        if a.exists() and b.exists():
+        if os.path.exists(a) and os.path.exists(b):  # False, not an error, for a non-path
             return os.path.samefile(a, b)
     except OSError:
         pass
-    return a.resolve() == b.resolve()
+    try:
+        return a.resolve() == b.resolve()
+    except (OSError, RuntimeError, ValueError):
+        return False
 
 
 def refuse_overwriting_inputs(outputs: Mapping[str, str | os.PathLike | None],
@@ -68,15 +71,15 @@ def refuse_overwriting_inputs(outputs: Mapping[str, str | os.PathLike | None],
         Inputs by name (e.g. ``"--image"``); only existing files are compared.
     """
     outs = [(k, Path(v)) for k, v in outputs.items()
-            if v is not None and str(v) != "" and not Path(v).is_dir()]
+            if v is not None and str(v) != "" and not os.path.isdir(v)]
     for i, (name, path) in enumerate(outs):
         for other_name, other in outs[:i]:
             if same_file(path, other):
                 raise InputError(f"{name} {path}: same file as {other_name}; give each "
                                  "output its own name")
         for in_name, paths in inputs.items():
-            for p in paths:
-                if Path(p).is_file() and same_file(path, p):
+            for p in paths:  # os.path.isfile: False for a value that is no path (a JSON text)
+                if os.path.isfile(p) and same_file(path, p):
                     raise InputError(
                         f"{name} {path}: is an input of this command ({in_name} {p}); "
                         "refusing to overwrite it: write to another file")
@@ -167,23 +170,21 @@ def side_path(output: str | os.PathLike, tag: str, suffix: str) -> Path:
     in the same folder (``a.tif`` -> ``a.preview.png``).
 
     A side file never replaces a file the command did not make: an existing one is
-    accepted only when ``output`` exists too (the pair left by an earlier run into the same
-    output), else it is refused.
+    accepted only when it carries the mark of ``output``'s side file
+    (:mod:`resection.io.marks`: the writer adds it), else it is refused.
 
     Raises
     ------
     InputError
-        The side file exists without its output, or is the output itself.
+        The side file exists without the mark, or is the output itself.
     """
+    from resection.io.marks import claim_side_file
+
     output = Path(output)
     side = output.with_name(f"{output.stem}.{tag}{suffix}")
     if same_file(side, output):
         raise InputError(f"{output}: its {tag} would have the same name {side.name}")
-    if side.exists() and not output.exists():
-        raise InputError(
-            f"{side}: exists and was not made with {output.name} (its {tag} goes there); "
-            "refusing to replace it: move it or choose another output name")
-    return side
+    return claim_side_file(side, output, tag)
 
 
 @contextlib.contextmanager

@@ -223,7 +223,9 @@ def _parse_ascii_plot3d(text: str, source: str):
         raise InputError(f"{source}: not a Plot3D file (non-numeric entry: {exc})") from None
     for multi in (True, False):
         if multi:
-            if v.size < 4 or v[0] != int(v[0]) or v[0] < 1:
+            # nan or inf as the block count (int() of them raises): not a count
+            if v.size < 4 or not np.isfinite(v[0]) or v[0] != np.round(v[0]) or v[0] < 1 \
+                    or v[0] > v.size:
                 continue
             nb, off = int(v[0]), 1
         else:
@@ -231,7 +233,8 @@ def _parse_ascii_plot3d(text: str, source: str):
         if v.size < off + 3 * nb:
             continue
         dims = v[off:off + 3 * nb]
-        if np.any(dims != np.round(dims)) or np.any(dims < 1):
+        if not np.all(np.isfinite(dims)) or np.any(dims != np.round(dims)) \
+                or np.any(dims < 1) or np.any(dims > v.size):
             continue
         dims = dims.reshape(nb, 3).astype(np.int64)
         npts = np.prod(dims, axis=1)

@@ -275,6 +275,9 @@ def _mraw(p: Path, mask_saturated: bool) -> FrameSource:
                          ) from None
     if bits not in (8, 12, 16):
         raise InputError(f"{cih}: {bits}-bit frames are not supported (8, 12 or 16)")
+    if w <= 0 or h <= 0 or n <= 0:  # header values checked where they enter
+        raise InputError(f"{cih}: the header says {n} frames of {w}x{h} pixels; expected "
+                         "positive numbers")
     need = n * w * h * bits // 8
     have = mraw.stat().st_size
     if have < need:
@@ -337,8 +340,16 @@ def _cine(p: Path, mask_saturated: bool) -> FrameSource:
         setup = read_setup(fh, off_setup=int(head.OffSetup),
                            off_image_offsets=int(head.OffImageOffsets))
         n = int(head.ImageCount)
-        offsets = read_image_offsets(fh, off_image_offsets=int(head.OffImageOffsets),
-                                     image_count=n, version=int(head.Version)).pImage
+        size = os.fstat(fh.fileno()).st_size
+        table = int(head.OffImageOffsets)
+        # header values checked before they size anything: a table of n offsets (4 or 8
+        # bytes each) must lie inside the file
+        if n < 1 or table < 0 or table + 4 * n > size:
+            raise ValueError(f"the header says {n} frames with their offset table at byte "
+                             f"{table}, the file has {size} bytes")
+        offsets = read_image_offsets(fh, off_image_offsets=table, image_count=n,
+                                     version=int(head.Version)).pImage[:n]  # + a sentinel
+        offsets = np.asarray(offsets, np.uint64).astype(np.int64)  # > 2**63: negative
     except (OSError, ValueError, EOFError, IndexError, struct.error) as exc:
         fh.close()
         raise InputError(f"{p}: not a readable Phantom .cine file ({exc})") from None
@@ -352,6 +363,11 @@ def _cine(p: Path, mask_saturated: bool) -> FrameSource:
     if comp == 256:
         bits = 12  # P10 is linearised to 12-bit counts (Phantom's table, as uPSP reads it)
     need = {0: w * h * bitcount // 8, 256: w * h * 10 // 8, 1024: w * h * 3 // 2}[comp]
+    bad = np.flatnonzero((offsets < 0) | (offsets >= size))  # a short last frame: when read
+    if bad.size:
+        fh.close()
+        raise InputError(f"{p}: frame {int(bad[0])}'s offset {int(offsets[bad[0]])} lies "
+                         f"outside the file ({size} bytes): damaged offset table")
     # DIB convention: positive height = rows stored bottom-up, for unpacked frames only;
     # packed frames are top-down whatever the sign (uPSP's CineReader, pims)
     flip = h_signed > 0 and comp == 0

@@ -169,8 +169,30 @@ def _checked(frames, camera, markers3d, *, link, diameter, polarity, workers, ch
                               ("candidates", "markers3d", "reference", "camera", "pose_kw"))
     pose_kw = _check_options(pose_kw, solve_pose, "pose_kw",
                              ("camera", "points3d", "points2d", "refine_intrinsics"))
+    _probe_pose_options(camera, pose_kw, solve_pose)
     setup = _Setup(camera=camera, ids=ids, points3d=pts, diameter=d, polarity=polarity,
                    detect_kw=detect_kw, match_kw=match_kw,
                    pose_kw=pose_kw, min_markers=int(min_markers),
                    roi_margin=None if roi_margin is None else float(roi_margin))
     return frames, setup, link_d, workers, int(chunk_size)
+
+
+def _probe_pose_options(camera, pose_kw: dict, solve_pose) -> None:
+    """Refuse ``pose_kw`` values that ``solve_pose`` rejects (``{"robust": 5}``), before the
+    run: solved once on eight exact synthetic markers in front of the camera, the options
+    must give an accepted pose. Otherwise every frame would fail, one by one."""
+    if not pose_kw:
+        return
+    W, H = camera.width, camera.height
+    fx, fy = camera.K[0, 0], camera.K[1, 1]
+    x = np.array([-1, 1, -1, 1, -0.5, 0.5, 0.3, -0.2]) * 0.2 * W / fx
+    y = np.array([-1, -1, 1, 1, 0.4, -0.6, 0.1, -0.3]) * 0.2 * H / fy
+    z = np.array([10.0, 11, 12, 9, 10.5, 9.5, 11.5, 10.2])
+    cam_pts = np.column_stack([x * z, y * z, z])
+    points3d = (cam_pts - camera.t) @ camera.R  # R^T (X_cam - t): model frame
+    points2d = camera.project(points3d)
+    try:
+        solve_pose(camera, points3d, points2d, **pose_kw)
+    except Exception as exc:  # noqa: BLE001 - any refusal names the option set
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise InputError(f"pose_kw {pose_kw}: refused by solve_pose ({msg})") from None

@@ -20,6 +20,7 @@ resumes an interrupted run.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 
@@ -145,6 +146,8 @@ def map_to_history(
     resume: bool = False,
     max_obliqueness: float | None = DEFAULT_MAX_OBLIQUENESS,
     progress=None,
+    inputs: dict | None = None,
+    sources=None,
 ) -> int:
     """Map a sequence frame by frame into one time-history file (HDF5 + XDMF sidecar).
 
@@ -166,8 +169,18 @@ def map_to_history(
     per : {"node", "face"}
     resume : bool
         Continue the file of an interrupted run: the frames it holds are not mapped again.
+        It must have been made with the same ``inputs``, ``per`` and ``max_obliqueness``,
+        and its frames must have the times and cameras given here; else InputError (the
+        file is left as it is).
     progress : callable, optional
         Called as ``progress(done, total)`` after each frame.
+    inputs : dict, optional
+        Settings besides the arguments that the frames depend on (JSON-able), recorded in
+        the file and compared on resume.
+    sources : sequence of str, optional
+        What each entry of ``frame_numbers`` is read from (e.g. its file's name and content
+        digest, :func:`resection.sequence.frames.content_digest`), recorded per frame and
+        compared on resume: a committed frame whose image changed is refused.
 
     Returns
     -------
@@ -180,17 +193,57 @@ def map_to_history(
     tms = nums.astype(float) if times is None else np.asarray(times, dtype=float)
     if tms.shape != nums.shape:
         raise InputError(f"times: {tms.size} times for {nums.size} frames")
+    if not np.all(np.isfinite(tms)):
+        raise InputError("times: must be finite (a frame rate of 0 or infinity?)")
     fixed = isinstance(cameras, Camera)
     if not fixed and len(cameras) != len(nums):
         raise InputError(f"cameras: {len(cameras)} cameras for {len(nums)} frames")
-    with HistoryWriter(path, mesh, per=per, resume=resume) as writer:
+    record = {"inputs": inputs, "per": per,
+              "max_obliqueness": None if max_obliqueness is None else float(max_obliqueness),
+              "camera": (cameras if fixed else cameras[0]).to_dict() if len(nums) else None}
+    with HistoryWriter(path, mesh, per=per, resume=resume,
+                       inputs=json.loads(json.dumps(record, default=_plain))) as writer:
+        _check_committed(writer, path, nums, tms, cameras, sources)
         todo = np.flatnonzero(~np.isin(nums, writer.done))
         cams = cameras if fixed else [cameras[i] for i in todo]
         images = (frames[int(nums[i])] for i in todo)
         for j, res in enumerate(map_frames(mesh, cams, images, per=per,
                                            max_obliqueness=max_obliqueness)):
             i = todo[j]
-            writer.append(res.values, time=tms[i], camera=res.camera, index=int(nums[i]))
+            writer.append(res.values, time=tms[i], camera=res.camera, index=int(nums[i]),
+                          source="" if sources is None else str(sources[i]))
             if progress is not None:
                 progress(writer.n_frames, len(nums))
     return len(todo)
+
+
+def _plain(o):
+    return np.asarray(o).tolist()
+
+
+def _check_committed(writer, path, nums, tms, cameras, sources) -> None:
+    """The frames a resumed file holds must be frames of this run, at the same times and
+    with the same cameras."""
+    if writer.n_frames == 0:
+        return
+    h = writer.committed_frames()
+    pos = {int(n): i for i, n in enumerate(nums)}
+    fixed = isinstance(cameras, Camera)
+    for k, n in enumerate(h["index"]):
+        i = pos.get(int(n))
+        if i is None:
+            raise InputError(f"{path}: holds frame {int(n)}, which this run does not map; "
+                             "cannot resume it")
+        if not np.isclose(h["time"][k], tms[i], rtol=1e-12, atol=0):
+            raise InputError(f"{path}: frame {int(n)} was at {h['time'][k]:g} s, now at "
+                             f"{tms[i]:g} s (another frame rate?); cannot resume it")
+        src = "" if sources is None else str(sources[i])
+        if h["source"][k] != src:
+            raise InputError(f"{path}: frame {int(n)} was mapped from another image than "
+                             f"{src.split('|')[0] or 'the one given now'}; cannot resume it")
+        cam = cameras if fixed else cameras[i]
+        for name in ("K", "dist", "R", "t"):
+            if not np.allclose(h[name][k], getattr(cam, name), rtol=1e-12, atol=1e-12):
+                raise InputError(f"{path}: frame {int(n)} was mapped with another camera "
+                                 f"({name} differs); cannot resume it")
+

@@ -10,7 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
+from resection.defaults import TRACK_PRODUCER
 from resection.errors import InputError
+from resection.io.marks import PRODUCER_KEY
 from resection.io.outputs import atomic_path
 from resection.sequence.results import (
     _FORMAT_VERSION,
@@ -141,12 +143,23 @@ def read_track(out_dir: str | os.PathLike) -> TrackResult:
     if not mrows or tuple(mrows[0]) != MARKER_COLUMNS:
         raise InputError(f"{marker_path}: header is not {','.join(MARKER_COLUMNS)}")
     mb = mrows[1:]
+    for path, table, width in ((pose_path, body, len(POSE_COLUMNS)),
+                               (marker_path, mb, len(MARKER_COLUMNS))):
+        short = next((k for k, r in enumerate(table) if len(r) != width), None)
+        if short is not None:
+            raise InputError(f"{path}: line {short + 2} has {len(table[short])} fields, "
+                             f"expected {width} (a truncated or edited file?)")
+    try:
+        return _track_result(out, body, mb, col, cols)
+    except ValueError as exc:
+        raise InputError(f"{out}: a non-numeric value in poses.csv or markers.csv "
+                         f"({exc})") from None
+
+
+def _track_result(out: Path, body, mb, col, cols) -> TrackResult:
     status = np.array(col("status"), dtype=object).astype(str)
     good = np.flatnonzero(status == "ok")
-    meta = {}
-    if (out / "track.json").is_file():
-        with open(out / "track.json", encoding="utf-8") as fh:
-            meta = json.load(fh)
+    meta = _read_manifest(out / "track.json") or {}
     return TrackResult(
         frame=np.array(col("frame"), int), file=np.array(col("file"), dtype=object).astype(str),
         status=status, reason=np.array(col("reason"), dtype=object).astype(str),
@@ -163,33 +176,48 @@ def read_track(out_dir: str | os.PathLike) -> TrackResult:
     )
 
 
+def _read_manifest(manifest: Path) -> dict | None:
+    """The settings recorded in ``track.json`` (without the producer's mark), or None when
+    it is missing, unreadable or not a track manifest."""
+    try:
+        with open(manifest, encoding="utf-8") as fh:
+            old = json.load(fh)
+    except (OSError, ValueError, RecursionError):
+        return None
+    if not isinstance(old, dict) or old.get(PRODUCER_KEY) != TRACK_PRODUCER:
+        return None
+    return {k: v for k, v in old.items() if k != PRODUCER_KEY}
+
+
 def _start_run(out: Path, frames: list, settings: dict, resume: bool) -> dict[int, tuple]:
     """Prepare ``out`` (locked by the caller) for a run: check that a run there had the same
-    settings, write them, and return the frames already finished, of files that have not
-    changed since, as ``index -> (ok, matched_from)``; the result files of changed frames
-    are removed."""
+    settings, write them, and return the frames already finished that are still right, as
+    ``index -> (ok, matched_from)``; the result files of the others are removed.
+
+    A frame is kept when its file has not changed (:func:`~.frames.fingerprint`: metadata
+    and a digest of a sample of its content) and the frame it was matched or predicted
+    from is kept too, unchanged since (its recorded fingerprint): a frame computed from a
+    frame that changed is computed again. A missing or unreadable manifest means the
+    settings of the frames found are unknown: they are all computed again."""
     from resection.sequence.frames import _frame_name, changed
 
     frames_dir = out / "frames"
     manifest = out / "track.json"
-    if resume and manifest.is_file():
-        try:
-            with open(manifest, encoding="utf-8") as fh:
-                old = json.load(fh)
-        except (OSError, json.JSONDecodeError):
-            old = None
-        if old is not None and old != settings:
-            diff = sorted(k for k in set(old) | set(settings) if old.get(k) != settings.get(k))
-            raise InputError(f"{out}: holds a run with other settings ({', '.join(diff)}); "
-                             "use another out_dir or resume=False")
-    if not resume:
+    old = _read_manifest(manifest) if resume else None
+    if old is not None and old != settings:
+        diff = sorted(k for k in set(old) | set(settings) if old.get(k) != settings.get(k))
+        raise InputError(f"{out}: holds a run with other settings ({', '.join(diff)}); "
+                         "use another out_dir or resume=False")
+    if old is None:  # a fresh run, or settings unknown: no frame of before is kept
         for p in frames_dir.glob("frame_*.json"):
             p.unlink()
-    _atomic_write_text(manifest, json.dumps(settings, indent=1))
+    _atomic_write_text(manifest, json.dumps({PRODUCER_KEY: TRACK_PRODUCER, **settings},
+                                            indent=1))
     done: dict[int, tuple] = {}
-    if not resume:
+    if old is None:
         return done
     names = set(os.listdir(frames_dir))
+    sources: dict[int, object] = {}  # fingerprints of the frames kept
     for i, f in enumerate(frames):
         path = _frame_path(frames_dir, i)
         if path.name not in names:
@@ -200,9 +228,12 @@ def _start_run(out: Path, frames: list, settings: dict, resume: bool) -> dict[in
         if d["frame"] != i or d["file"] != _frame_name(f):
             raise InputError(f"{out}: frame {i} was {d['file']!r} in the interrupted run, "
                              f"now {_frame_name(f)!r}; use another out_dir or resume=False")
-        if changed(f, d.get("source")):  # the file was written since: recompute it
+        ref = int(d.get("matched_from", -1))
+        stale_ref = ref >= 0 and (ref not in sources or d.get("ref_source") != sources[ref])
+        if stale_ref or changed(f, d.get("source")):  # recompute it
             path.unlink()
             continue
+        sources[i] = d.get("source")
         done[i] = summary(d)
     return done
 

@@ -126,7 +126,8 @@ def _process_frame(frame_data, index: int, setup: _Setup, reference: FrameResult
     source = fingerprint(frame_data)  # before reading: a later change is seen next time
     res = _process_frame_unlabelled(frame_data, index, setup, reference, previous, sources)
     return dataclasses.replace(res, matched_from=-1 if reference is None else reference.frame,
-                               source=source)
+                               source=source,
+                               ref_source=None if reference is None else reference.source)
 
 
 def _process_frame_unlabelled(frame_data, index: int, setup: _Setup,

@@ -13,7 +13,8 @@ POSE_COLUMNS = ("frame", "file", "status", "reason", "roll_deg", "pitch_deg", "y
                 "dx", "dy", "dz", "rms_px", "n_markers", "rvec_x", "rvec_y", "rvec_z",
                 "tvec_x", "tvec_y", "tvec_z")
 MARKER_COLUMNS = ("frame", "id", "u", "v", "residual", "residual_u", "residual_v")
-_FORMAT_VERSION = 2  # 2: frame files record their source's fingerprint
+_FORMAT_VERSION = 3  # 2: frame files record their source's fingerprint; 3: its content
+# digest, and the fingerprint of the frame it was matched or predicted from
 
 @dataclass(frozen=True)
 class FrameResult:
@@ -43,9 +44,12 @@ class FrameResult:
     matched_from : int
         The frame whose markers this one was matched from (-1: the approximate camera or
         the linking).
-    source : list of int or None
+    source : list or None
         Fingerprint of the frame's file when it was read (see
         :func:`resection.sequence.frames.fingerprint`); None for an in-memory frame.
+    ref_source : list or None
+        Fingerprint of the frame ``matched_from`` when this one was computed from it: a
+        resumed run recomputes this frame when that one has changed since.
     method : str
         How the markers were associated: ``"predicted"`` (gated windows around the
         positions predicted from the previous poses, :mod:`resection.sequence.predict`),
@@ -65,6 +69,7 @@ class FrameResult:
     matched_from: int = -1
     source: list | None = None
     method: str = ""
+    ref_source: list | None = None
 
     @property
     def ok(self) -> bool:
@@ -83,8 +88,9 @@ class FrameResult:
             "uv": np.asarray(self.uv, float).tolist(),
             "residuals": np.asarray(self.residuals, float).tolist(),
             "matched_from": int(self.matched_from),
-            "source": None if self.source is None else [int(x) for x in self.source],
+            "source": None if self.source is None else list(self.source),
             "method": self.method,
+            "ref_source": None if self.ref_source is None else list(self.ref_source),
         }
 
     @classmethod
@@ -99,6 +105,7 @@ class FrameResult:
             residuals=np.array(d["residuals"], float).reshape(n, 2),
             matched_from=int(d.get("matched_from", -1)),
             source=d.get("source"), method=str(d.get("method", "")),
+            ref_source=d.get("ref_source"),
         )
 
 

@@ -3,11 +3,16 @@
 from __future__ import annotations
 
 import os
+import shutil
 from collections.abc import Sequence
 from pathlib import Path
 
 from resection.camera.model import Camera
+from resection.defaults import TRACK_FILES, TRACK_PRODUCER
 from resection.io.lock import lock_folder
+from resection.io.marks import claim_folder
+from resection.io.outputs import refuse_overwriting_inputs
+from resection.io.paths import sweep_temporaries
 from resection.sequence.execute import run_frames
 from resection.sequence.inputs import _checked, _settings
 from resection.sequence.outputs import _frames_from_files, _start_run, _write_csvs
@@ -107,15 +112,41 @@ def track(
         workers=workers, chunk_size=chunk_size, min_markers=min_markers,
         roi_margin=roi_margin, detect_kw=detect_kw, match_kw=match_kw, pose_kw=pose_kw)
     out = Path(out_dir)
+    _check_out_dir(out, frames, markers3d, link)
     frames_dir = out / "frames"
-    frames_dir.mkdir(parents=True, exist_ok=True)
-    with lock_folder(out, command=f"track: {len(frames)} frames"):
-        settings = _settings(setup, link_d, fixed_camera, chunk_size)
-        done = _start_run(out, frames, settings, resume)
-        computed = run_frames(frames, setup, link_d, done, chunk_size=chunk_size,
-                              workers=workers, scheduler=scheduler, frames_dir=frames_dir,
-                              progress=progress)
-        result = _assemble(_frames_from_files(frames_dir, len(frames)), fixed_camera,
-                           computed, str(out))
-        _write_csvs(result, out)
+    made = None  # the topmost folder this run creates
+    for parent in (out, *out.parents):
+        if parent.exists():
+            break
+        made = parent
+    try:
+        frames_dir.mkdir(parents=True, exist_ok=True)
+        with lock_folder(out, command=f"track: {len(frames)} frames"):
+            for folder in (out, frames_dir):  # what a killed run left half written
+                sweep_temporaries(folder)
+            settings = _settings(setup, link_d, fixed_camera, chunk_size)
+            done = _start_run(out, frames, settings, resume)
+            computed = run_frames(frames, setup, link_d, done, chunk_size=chunk_size,
+                                  workers=workers, scheduler=scheduler,
+                                  frames_dir=frames_dir, progress=progress)
+            result = _assemble(_frames_from_files(frames_dir, len(frames)), fixed_camera,
+                               computed, str(out))
+            _write_csvs(result, out)
+    except BaseException:
+        # a folder made by this run goes again when it holds no finished frame to resume
+        if made is not None and not any(frames_dir.glob("frame_*.json")):
+            shutil.rmtree(made, ignore_errors=True)
+        raise
     return result
+
+
+def _check_out_dir(out: Path, frames: list, markers3d, link) -> None:
+    """Refuse an output folder whose files would replace the user's (a folder that is not
+    a track output but holds a ``poses.csv``) or an input (``--markers out/markers.csv``),
+    before anything is written."""
+    claim_folder(out, TRACK_FILES, "track.json", TRACK_PRODUCER)
+    inputs = {"markers3d": [markers3d] if isinstance(markers3d, (str, os.PathLike)) else [],
+              "link": [link] if isinstance(link, (str, os.PathLike)) else [],
+              "frames": [f for f in frames if isinstance(f, (str, os.PathLike))]}
+    refuse_overwriting_inputs({f"out_dir {out / n}": out / n for n in TRACK_FILES[:3]},
+                              inputs)

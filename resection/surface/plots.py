@@ -120,6 +120,9 @@ def frame_camera(camera: Camera, *, target=None, zoom: float = 1.0, box=None,
         if not np.all(np.isfinite(uv)):
             raise InputError("box: outside the camera's field of view")
         lo, hi = uv.min(axis=0), uv.max(axis=0)
+        if np.max(hi - lo) < 1.0:
+            raise InputError(f"box: {np.asarray(box).tolist()} is under a pixel across in "
+                             "this view (a box without extent?)")
         centre_uv = (lo + hi) / 2
         size = np.maximum(hi - lo, 1e-9) * margin
         m = float(min((W - 1) / size[0], (H - 1) / size[1]))

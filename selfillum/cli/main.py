@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from resection.cli.paths import FolderOutput
 from resection.cli.util import OneLineParser, add_camera_check_options, add_mesh_format, run
 from resection.defaults import DEFAULT_MAX_OBLIQUENESS
 from resection.errors import InputError
@@ -55,6 +56,7 @@ def _cmd_corner(args) -> int:
 
 
 def _cmd_correct(args) -> int:
+    from resection.saturation import report
     from selfillum.images.image_correction import correct_image_file
     from selfillum.summary import summarize
 
@@ -76,6 +78,7 @@ def _cmd_correct(args) -> int:
         dtype=args.dtype,
         markers=args.markers,
         polarity=args.polarity,
+        saturation=args.saturation,
     )
     s = summarize(result)
     seen = s.seen_min if s.seen_min == s.seen_max else f"{s.seen_min} to {s.seen_max}"
@@ -92,6 +95,9 @@ def _cmd_correct(args) -> int:
     print(f"inverse                        {s.method}, {s.iterations} iterations{frames}")
     for w in s.warnings:
         print(f"warning: {w}", file=sys.stderr)
+    line = report(result.saturated, result.saturation, result.saturated_faces)
+    if line:
+        print(f"warning: {line}", file=sys.stderr)
     print(f"wrote {args.out}")
     print(f"wrote {args.out}.json")
     if args.surface:
@@ -179,7 +185,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
-    p.set_defaults(func=_cmd_corner)
+    p.set_defaults(func=_cmd_corner, out_folder=FolderOutput(
+        ("corner_profile.png", "corner_profile.csv", "corner_numbers.json"),
+        "corner_numbers.json", "selfillum corner"))
 
     p = sub.add_parser(
         "correct",
@@ -251,6 +259,10 @@ def build_parser() -> argparse.ArgumentParser:
         "unseen (default 70)",
     )
     add_camera_check_options(p)
+    p.add_argument("--saturation", type=float, default=None, metavar="LEVEL",
+                   help="pixels at or above this are saturated: unknown, left as they are "
+                   "and their faces unseen (default: the image type's full scale, 255 or "
+                   "65535; none for float images)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_cmd_correct)
     from selfillum.cli import psp, render, unsteady

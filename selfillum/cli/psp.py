@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from resection.cli.paths import FolderOutput
 from resection.cli.util import add_mesh_format
 from resection.errors import InputError
 from resection.io.cameras import read_camera
@@ -46,6 +47,7 @@ def _cmd_psp(args) -> int:
                              reflectance=rho, correct_si=not args.no_correction)
     law = res.stern_volmer
     info = {
+        "written_by": "selfillum psp",
         "A": law.A, "B": law.B, "p_ref": law.p_ref, "si_corrected": res.corrected,
         "taps": {tid: {"face": int(f), "residual": float(r)}
                  for tid, f, r in zip(taps.ids, res.tap_faces, res.tap_residuals,
@@ -100,4 +102,6 @@ def register(sub) -> None:
                    help="do not remove the self-illumination (for comparison)")
     p.add_argument("--out", required=True, help="output folder (created if needed)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=_cmd_psp)
+    p.set_defaults(func=_cmd_psp, out_folder=FolderOutput(
+        ("pressure_*.tif", "pressure_faces.csv", "stern_volmer.json"), "stern_volmer.json",
+        "selfillum psp"))

@@ -47,8 +47,9 @@ def preview(image: np.ndarray) -> np.ndarray:
 
 def _cmd_render(args) -> int:
     from resection.io.images import write_image
+    from resection.io.marks import mark_png
     from resection.io.meshes import load_mesh
-    from resection.io.outputs import atomic_write, side_path
+    from resection.io.outputs import atomic_path, atomic_write, side_path
     from selfillum.rendering.mitsuba_render import render
 
     out = Path(args.out)
@@ -71,7 +72,9 @@ def _cmd_render(args) -> int:
                  seed=args.seed, variant=args.variant, paint=paint, two_sided=args.two_sided)
     seconds = time.perf_counter() - t0
     atomic_write(out, write_image, res.image)
-    atomic_write(png, write_image, preview(res.image))
+    with atomic_path(png) as tmp:
+        write_image(tmp, preview(res.image))
+        mark_png(tmp, out, "selfillum render")  # ours: a later run into `out` may replace it
     print(f"variant   {res.variant}")
     print(f"image     {camera.width} x {camera.height}, {res.spp} spp, bounces {res.bounces}")
     if paint is not None:

@@ -93,6 +93,9 @@ class ImageCorrection:
     warnings: tuple = ()
     grazing: np.ndarray | None = None
     unpainted: np.ndarray | None = None
+    saturated: int = 0
+    saturated_faces: int = 0
+    saturation: float | None = None
 
 
 def correct_image(
@@ -110,6 +113,7 @@ def correct_image(
     unpainted=None,
     max_obliqueness: float = DEFAULT_MAX_OBLIQUENESS,
     progress: bool = False,
+    saturation: float | None = None,
 ) -> ImageCorrection:
     """Remove self-illumination from a camera image of a painted model.
 
@@ -145,6 +149,12 @@ def correct_image(
         pixels are left uncorrected.
     progress : bool
         Progress bar on the ray casting.
+    saturation : float, optional
+        Pixels at or above this level are saturated (default: the full scale of an integer
+        image, 255 or 65535; none for a float image): their true value is unknown, so they
+        take no part in the faces' values, the faces they fall on count as unseen, and
+        they come out as they came in (NaN in a float image), uncorrected
+        (:mod:`resection.saturation`). Counted in ``saturated``, ``saturated_faces``.
 
     Returns
     -------
@@ -199,13 +209,23 @@ def correct_image(
         raise InputError("surface_map: made for another camera size or mesh")
     _check_painted_side(smap, mesh, camera)
 
+    from resection.saturation import faces_touched, level_of
+
+    level = level_of(img.dtype, saturation)
+    sat = np.zeros(stack.shape, bool) if level is None else stack >= level
     x = stack.astype(np.float64)
+    x[sat] = np.nan  # unknown: in no face's value
     sample = smap.to_surface(x)
     B = sample.values  # (T, N)
     grazing = oblique_faces(mesh, camera.center, lim)
-    seen = ~sample.unseen & ~grazing[None]
+    sat_faces = faces_touched(smap.face_index, smap.mask, sat, n)
+    seen = ~sample.unseen & ~grazing[None] & ~sat_faces
     if not seen.any(axis=1).all():
         t = int(np.flatnonzero(~seen.any(axis=1))[0])
+        if (~sample.unseen[t] & ~grazing & ~sat_faces[t]).sum() == 0 and sat_faces[t].any():
+            raise InputError(f"image: every face the camera sees has saturated pixels (at "
+                             f"or above {level:g}) in frame {t}: their values are unknown, "
+                             "nothing to correct")
         from resection.camera.units import nothing_seen_causes
 
         why = " (check the pose)" if smap.seen_faces.any() else \
@@ -255,12 +275,16 @@ def correct_image(
         corr = smap.to_image(ratio, background=1.0)
         corr = np.where(on & np.isfinite(corr), corr, 1.0)
         out[on] = x[on] * corr[on]
-    out = _as_dtype(out, img.dtype)
+    out = _as_dtype(np.where(sat, 0.0, out), img.dtype)
+    # saturated pixels come out unknown: NaN in a float image, else at their full scale
+    out[sat] = np.nan if out.dtype.kind == "f" else stack[sat]
+    counts = {"saturated": int(sat.sum()), "saturated_faces": int(sat_faces.any(axis=0).sum()),
+              "saturation": level}
     if single:
         return ImageCorrection(out[0], corr[0], B[0], E[0], seen[0], mode, infos[0],
-                               share[0], said, tuple(warns), grazing, ~painted)
+                               share[0], said, tuple(warns), grazing, ~painted, **counts)
     return ImageCorrection(out, corr, B, E, seen, mode, tuple(infos), share, said,
-                           tuple(warns), grazing, ~painted)
+                           tuple(warns), grazing, ~painted, **counts)
 
 
 class UnseenFacesWarning(UserWarning):
@@ -383,6 +407,7 @@ def correct_image_file(
     dtype: str | None = None,
     markers=None,
     polarity: str = "dark",
+    saturation: float | None = None,
 ) -> ImageCorrection:
     """File-level :func:`correct_image`: read the mesh (any format of
     :func:`resection.io.meshes.load_mesh`), the camera JSON and the image (TIFF or NPY),
@@ -401,9 +426,11 @@ def correct_image_file(
 
     ``unseen`` is ``"continue"``, ``"none"`` or a per-face file of emission values;
     ``unpainted`` a per-face 0/1 file or Plot3D block numbers
-    (:func:`selfillum.solve.unseen.read_unpainted`)."""
+    (:func:`selfillum.solve.unseen.read_unpainted`); ``saturation`` as in
+    :func:`correct_image`."""
     from resection.io.cameras import read_camera_file
     from resection.io.markers import read_markers
+    from resection.io.marks import claim_side_file, mark
     from resection.io.meshes import load_mesh, write_surface
     from resection.io.outputs import atomic_path, refuse_overwriting_inputs
     from resection.pose.camera_fit import check_camera
@@ -418,7 +445,8 @@ def correct_image_file(
         raise FileNotFoundError(f"{image_path}: no such image file")
     if not out_path.parent.exists():
         raise FileNotFoundError(f"{out_path.parent}: output directory does not exist")
-    summary_path = out_path.with_name(out_path.name + ".json")
+    summary_path = claim_side_file(out_path.with_name(out_path.name + ".json"), out_path,
+                                   "summary")  # never a .json of the user's
     refuse_overwriting_inputs(
         {"--out": out_path, "--surface": surface_out, "summary": summary_path},
         {"--image": [image_path], "--mesh": [mesh_path], "--camera": [camera_path],
@@ -438,6 +466,10 @@ def correct_image_file(
                             surface_map=smap, polarity=polarity)
         if line and progress:
             print(line)
+    from resection.saturation import level_of
+
+    level = level_of(image.dtype, saturation)  # the file's full scale, or the level stated
+    saturated = None if level is None else image >= level
     if image.dtype.kind in "uib":  # correct in float, then write the type chosen
         image = image.astype(np.float32)
     n = len(mesh.faces)
@@ -460,9 +492,15 @@ def correct_image_file(
             max_obliqueness=max_obliqueness,
             progress=progress,
             surface_map=smap,
+            saturation=level,
         )
     said = describe_unseen(unseen_value, unpainted_mask, source)
-    result = replace(result, assumption=said, image=_as_dtype(result.image, target))
+    corrected = _as_dtype(result.image if saturated is None
+                          else np.where(saturated, 0.0, result.image), target)
+    if saturated is not None:  # unknown: NaN in a float file, full scale in an integer one
+        corrected[saturated] = np.nan if corrected.dtype.kind == "f" else \
+            np.iinfo(corrected.dtype).max
+    result = replace(result, assumption=said, image=corrected)
     said_file = f"{said}: {unseen}" if isinstance(unseen_value, np.ndarray) else said
     # every file through a temporary name, renamed into place only when all are written
     with atomic_path(out_path) as tmp, atomic_path(surface_out) as tmp_surface, \
@@ -479,8 +517,11 @@ def correct_image_file(
             import tifffile
 
             tifffile.imwrite(tmp, result.image)
-        write_summary(tmp_summary, summarize(result), assumption_detail=said_file,
+        write_summary(tmp_summary, summarize(result), **mark(out_path, "selfillum correct"),
+                      assumption_detail=said_file,
                       max_obliqueness_deg=float(max_obliqueness),
+                      saturated_pixels=result.saturated, saturated_faces=result.saturated_faces,
+                      saturation=result.saturation,
                       rays_per_face=rays_per_face, image=str(image_path),
                       mesh=str(mesh_path))
         if surface_out is not None:

@@ -28,6 +28,7 @@ from numba import njit
 
 from resection._threads import available_cores
 from resection.errors import InputError
+from resection.memory import check_memory
 from selfillum.mesh import check_mesh, face_areas, face_normals
 from selfillum.transport.sampling import digital_shifts, rqmc_points, sample_rays
 
@@ -38,6 +39,9 @@ __all__ = ["view_factors", "RowTracer", "enforce_reciprocity", "RayScene", "samp
 _OFFSET = 1e-6
 #: Default number of rays in flight per chunk.
 _RAYS_PER_CHUNK = 1 << 20
+#: Bytes a ray in flight costs at least (origin, direction, hit record), for the memory
+#: check before a chunk is allocated (about 150 in practice).
+_RAY_BYTES_MIN = 64
 
 
 class RayScene:
@@ -254,6 +258,9 @@ class RowTracer:
         k = _positive_int(rays_per_face, "rays_per_face")
         self.chunk = (max(1, _RAYS_PER_CHUNK // k) if chunk_size is None
                       else _positive_int(chunk_size, "chunk_size"))
+        # the rays of one chunk are allocated at once: refuse what cannot be, before
+        check_memory(min(self.chunk, n_rows or len(mesh.faces)) * float(k) * _RAY_BYTES_MIN,
+                     f"view factors with {k} rays per face")
         try:
             seed = int(seed)
         except (TypeError, ValueError):

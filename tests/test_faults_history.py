@@ -1,0 +1,342 @@
+"""Fault cases of time histories (``resection map --out P.h5``): a full disk, kill -9 and
+failed writes leave the committed frames readable, and a resume carries on or refuses with
+the reason; a resume checks what it appends to (issue 25 items 1, 6). The family of
+tests/test_faults.py."""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+
+import numpy as np
+import pytest
+import trimesh
+from fault_files import corner_files
+
+from resection import InputError
+from resection.io.history import HistoryWriter, read_history, xdmf_path
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _values(k, n):
+    return (np.arange(n) * 0.5 + k).astype(np.float32)
+
+
+class _FullDisk:
+    """An ``opener`` whose history file refuses writes with ENOSPC once ``budget`` bytes
+    were written to it (the disk fills up), as a kernel write would."""
+
+    def __init__(self, budget):
+        self.budget = budget
+
+    def __call__(self, path, mode):
+        fh = open(path, mode)
+        if not str(path).endswith(".h5"):
+            return fh
+        outer = self
+
+        class Wrapped:
+            def __getattr__(self, name):
+                return getattr(fh, name)
+
+            def write(self, b):
+                if len(b) > outer.budget:
+                    n = outer.budget
+                    fh.write(bytes(b)[:n])  # a part goes through, as on a real disk
+                    outer.budget = 0
+                    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+                outer.budget -= len(b)
+                return fh.write(b)
+
+        return Wrapped()
+
+
+def test_failed_appends_never_touch_committed_frames(tmp_path):
+    """The disk fills at every possible point of an append (ENOSPC injected in the write
+    path of the file, a part of the failing write going through): the error is an OSError
+    naming the file, the frames committed before stay readable and exact, and a resume
+    with room again completes the run. On today's main such a failure corrupted the file
+    ("invalid dataset size") or crashed the process."""
+    mesh = trimesh.creation.icosphere(subdivisions=1)
+    n = len(mesh.vertices)
+    path = tmp_path / "P.h5"
+    with HistoryWriter(path, mesh) as w:
+        for k in range(3):
+            w.append(_values(k, n), time=0.1 * k, index=k)
+    size0 = path.stat().st_size
+    seen_counts = set()
+    for budget in [0, 1, 40, 300, 2000, 9000, 30000, 70000, 150000, 400000, 1000000, 2500000]:
+        before = read_history(path).n_frames
+        with pytest.raises(OSError) as exc:
+            with HistoryWriter(path, mesh, resume=True, opener=_FullDisk(budget)) as w:
+                for k in range(w.n_frames, 400):
+                    w.append(_values(k, n), time=0.1 * k, index=k)
+        assert exc.value.errno == errno.ENOSPC and str(path) in str(exc.value)
+        h = read_history(path)
+        assert h.n_frames >= before
+        seen_counts.add(h.n_frames)
+        for k in range(h.n_frames):
+            np.testing.assert_array_equal(h.values[k], _values(k, n))
+        np.testing.assert_allclose(h.times, 0.1 * np.arange(h.n_frames), rtol=1e-15)
+        assert not (tmp_path / "P.h5.journal").exists()
+    assert len(seen_counts) > 3 and path.stat().st_size > size0  # failures at many points
+    with HistoryWriter(path, mesh, resume=True) as w:
+        for k in range(w.n_frames, 60):
+            w.append(_values(k, n), time=0.1 * k, index=k)
+    h = read_history(path)
+    assert h.n_frames == 60
+    np.testing.assert_array_equal(h.values[59], _values(59, n))
+
+
+def test_a_journal_left_by_a_dead_writer_is_read_through_and_rolled_back(tmp_path):
+    """A writer that died between a commit and the next (its journal left beside the
+    file): a reader sees the committed frames without writing; the next writer rolls the
+    file back and carries on."""
+    mesh = trimesh.creation.icosphere(subdivisions=1)
+    n = len(mesh.vertices)
+    path = tmp_path / "P.h5"
+    w = HistoryWriter(path, mesh)
+    for k in range(4):
+        w.append(_values(k, n), time=float(k), index=k)
+    # frame 4 half written: values and tables changed in place, never committed
+    w._f["values"].create_dataset("000004", data=np.zeros(n, np.float32))
+    w._f["frames/time"].resize(5, axis=0)
+    w._f.attrs["n_frames"] = 5
+    w._f.flush()
+    # what the process leaves when it dies now: the file as it is and its journal
+    raw = path.read_bytes()
+    journal = (tmp_path / "P.h5.journal").read_bytes()
+    w._abandon()
+    path.write_bytes(raw)
+    (tmp_path / "P.h5.journal").write_bytes(journal)
+    assert len(journal) > 16
+    h = read_history(path)  # through the journal, read-only
+    assert h.n_frames == 4 and path.read_bytes() == raw
+    np.testing.assert_array_equal(h.values[3], _values(3, n))
+    with HistoryWriter(path, mesh, resume=True) as w2:
+        assert w2.n_frames == 4
+        w2.append(_values(4, n), time=4.0, index=4)
+    assert read_history(path).n_frames == 5
+    assert not (tmp_path / "P.h5.journal").exists()
+
+
+def _map_args(folder, out, frames, *extra):
+    return [sys.executable, "-m", "resection.cli", "map", "--mesh",
+            str(folder / "corner.ply"), "--camera", str(folder / "cam.json"), "--out",
+            str(out), "--image", *map(str, frames), "--fps", "50", *extra]
+
+
+def _frames(folder, n):
+    img = np.load(folder / "img.npy")
+    out = []
+    for k in range(n):
+        p = folder / f"f{k:03d}.npy"
+        np.save(p, img + np.float32(k))
+        out.append(p)
+    return out
+
+
+def _env():
+    return {**os.environ, "PYTHONPATH": ROOT + os.pathsep + os.environ.get("PYTHONPATH", "")}
+
+
+_DISK_SCRIPT = textwrap.dedent("""
+    import json, os, subprocess, sys
+    disk, args_first, args_all = sys.argv[1], json.loads(sys.argv[2]), json.loads(sys.argv[3])
+    subprocess.run(["mount", "-t", "tmpfs", "-o", "size=%s" % sys.argv[4], "tmpfs", disk],
+                   check=True)
+    res = {}
+    r = subprocess.run(args_first, capture_output=True, text=True)
+    res["first"] = [r.returncode, r.stderr]
+    filler = os.path.join(disk, "filler")
+    fd = os.open(filler, os.O_WRONLY | os.O_CREAT)  # the disk is filled up
+    try:
+        while True:
+            os.write(fd, b"x" * 4096)
+    except OSError:
+        pass
+    os.close(fd)
+    r = subprocess.run(args_all + ["--resume"], capture_output=True, text=True)
+    res["full"] = [r.returncode, r.stderr]
+    from resection.io.history import read_history
+    h = read_history(os.path.join(disk, "P.h5"))
+    res["after_full"] = h.values.tolist()
+    os.unlink(filler)  # room again: the resume carries on
+    r = subprocess.run(args_all + ["--resume"], capture_output=True, text=True)
+    res["resumed"] = [r.returncode, r.stderr]
+    h = read_history(os.path.join(disk, "P.h5"))
+    res["final"] = h.values.tolist()
+    res["files"] = sorted(os.listdir(disk))
+    print(json.dumps(res))
+""")
+
+
+@pytest.mark.slow
+def test_map_history_survives_a_full_tmpfs(tmp_path):
+    """Issue 25 item 1: `map --out P.h5` commits frames on a small tmpfs, the disk is
+    filled, the run is resumed over more frames. On today's main the process died with a
+    segmentation fault and the committed frames became unreadable. Now: one line, exit 2,
+    the committed frames intact; with room again the resume completes the run with the
+    values of a clean run."""
+    corner_files(tmp_path)
+    frames = _frames(tmp_path, 12)
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    out = disk / "P.h5"
+    first = _map_args(tmp_path, out, frames[:4])
+    full = _map_args(tmp_path, out, frames)
+    r = subprocess.run(["unshare", "-rm", sys.executable, "-c", _DISK_SCRIPT, str(disk),
+                        json.dumps(first), json.dumps(full), "4m"],
+                       capture_output=True, text=True, env=_env(), timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    res = json.loads(r.stdout.strip().splitlines()[-1])
+    assert res["first"][0] == 0, res["first"]
+    rc, err = res["full"]
+    assert rc == 2 and len(err.strip().splitlines()) == 1, err
+    assert "No space left on device" in err and "Traceback" not in err
+    committed = np.array(res["after_full"], dtype=np.float32)
+    assert 4 <= len(committed) < 12
+    assert res["resumed"][0] == 0, res["resumed"]
+    final = np.array(res["final"], dtype=np.float32)
+    # a clean run of the 12 frames, on a normal disk
+    clean = tmp_path / "clean.h5"
+    subprocess.run(_map_args(tmp_path, clean, frames), check=True, env=_env(),
+                   capture_output=True)
+    ref = read_history(clean).values
+    np.testing.assert_array_equal(final, ref)
+    np.testing.assert_array_equal(committed, ref[:len(committed)])
+    assert res["files"] == ["P.h5", "P.xdmf"]  # no journal nor temporary file left
+
+
+@pytest.mark.slow
+def test_map_history_survives_kill_9(tmp_path):
+    """kill -9 of `map --out P.h5` at several moments of a run: the file always reads,
+    holding a prefix of the frames with their exact values; a resume completes it to what
+    a clean run gives."""
+    corner_files(tmp_path)
+    frames = _frames(tmp_path, 60)
+    clean = tmp_path / "clean.h5"
+    t0 = time.perf_counter()
+    subprocess.run(_map_args(tmp_path, clean, frames), check=True, env=_env(),
+                   capture_output=True)
+    run_time = time.perf_counter() - t0
+    ref = read_history(clean).values
+    rng = np.random.default_rng(25)
+    counts = []
+    for trial, frac in enumerate(rng.uniform(0.5, 0.95, 4)):
+        out = tmp_path / f"k{trial}.h5"
+        p = subprocess.Popen(_map_args(tmp_path, out, frames), env=_env(),
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        time.sleep(frac * run_time)
+        p.send_signal(signal.SIGKILL)
+        p.wait()
+        if not out.exists():
+            counts.append(0)
+            continue
+        h = read_history(out)
+        counts.append(h.n_frames)
+        np.testing.assert_array_equal(h.values, ref[:h.n_frames])
+        r = subprocess.run(_map_args(tmp_path, out, frames, "--resume"), env=_env(),
+                           capture_output=True, text=True)
+        assert r.returncode == 0, r.stderr
+        np.testing.assert_array_equal(read_history(out).values, ref)
+        assert not (tmp_path / f"k{trial}.h5.journal").exists()
+    assert any(0 < c < 60 for c in counts), counts  # some kills landed mid-run
+
+
+# --------------------------------------------------------------------------------------
+# a resume checks what it appends to (issue 25 item 6)
+# --------------------------------------------------------------------------------------
+
+
+def _run(argv, capsys):
+    from resection.cli import main
+
+    rc = main([str(a) for a in argv])
+    cap = capsys.readouterr()
+    return rc, cap.out, cap.err
+
+
+def test_map_resume_refuses_other_fps_images_camera_or_settings(tmp_path, capsys):
+    """On today's main another --fps, other images, another camera or another
+    --max-obliqueness were all appended to the earlier frames, exit 0."""
+    corner_files(tmp_path)
+    frames = _frames(tmp_path, 5)
+    out = tmp_path / "P.h5"
+    base = ["map", "--mesh", tmp_path / "corner.ply", "--out", out]
+    cam = ["--camera", tmp_path / "cam.json"]
+    assert _run([*base, *cam, "--image", *frames[:3], "--fps", "50"], capsys)[0] == 0
+    raw = out.read_bytes()
+    other = tmp_path / "other.npy"
+    np.save(other, np.load(frames[1]) * 2)
+    from resection.io.cameras import read_camera, write_camera
+
+    c = read_camera(tmp_path / "cam.json")
+    write_camera(tmp_path / "cam2.json", c.replace(K=c.K * [[1.01], [1.01], [1]]))
+    cases = [
+        ([*cam, "--image", *frames, "--fps", "40"], "another frame rate"),
+        ([*cam, "--image", frames[0], other, *frames[2:], "--fps", "50"], "another image"),
+        (["--camera", tmp_path / "cam2.json", "--image", *frames, "--fps", "50"],
+         "other inputs (camera)"),
+        ([*cam, "--image", *frames, "--fps", "50", "--max-obliqueness", "60"],
+         "other inputs (max_obliqueness)"),
+        ([*cam, "--image", *frames, "--fps", "50", "--per", "face"], "per node"),
+    ]
+    for extra, why in cases:
+        rc, _, err = _run([*base, *extra, "--resume"], capsys)
+        assert rc == 2 and why in err and len(err.strip().splitlines()) == 1, (why, err)
+        assert out.read_bytes() == raw  # the file is never changed by a refusal
+    rc, outp, _ = _run([*base, *cam, "--image", *frames, "--fps", "50", "--resume"], capsys)
+    assert rc == 0 and "2 frames mapped" in outp
+
+
+def test_map_resume_refuses_a_history_whose_frame_count_lies(tmp_path, capsys):
+    """A hand-edited n_frames larger than the frames stored was resumed with exit 0 on
+    today's main, and the file then failed to read."""
+    import h5py
+
+    corner_files(tmp_path)
+    frames = _frames(tmp_path, 4)
+    out = tmp_path / "P.h5"
+    base = ["map", "--mesh", tmp_path / "corner.ply", "--camera", tmp_path / "cam.json",
+            "--out", out, "--fps", "50", "--image"]
+    assert _run([*base, *frames[:2]], capsys)[0] == 0
+    with h5py.File(out, "r+") as f:
+        f.attrs["n_frames"] = 9
+    rc, _, err = _run([*base, *frames, "--resume"], capsys)
+    assert rc == 2 and "damaged" in err and "n_frames says 9" in err, err
+    with pytest.raises(InputError, match="damaged"):
+        read_history(out)
+
+
+def test_map_history_fps_format_and_sidecar(tmp_path, capsys):
+    """`map --fps inf` wrote every time as 0; --format was ignored for .h5 outputs; an
+    unrelated P.xdmf beside P.h5 was replaced (issue 25 items 2, 7)."""
+    corner_files(tmp_path)
+    frames = _frames(tmp_path, 2)
+    out = tmp_path / "P.h5"
+    base = ["map", "--mesh", tmp_path / "corner.ply", "--camera", tmp_path / "cam.json",
+            "--out", out, "--image", *frames]
+    for fps in ("inf", "nan", "0"):
+        rc, _, err = _run([*base, "--fps", fps], capsys)
+        assert rc == 2 and "--fps" in err and not out.exists(), err
+    (tmp_path / "corner.ply").rename(tmp_path / "corner.mesh")
+    base[2] = tmp_path / "corner.mesh"
+    rc, _, err = _run([*base, "--fps", "50", "--format", "ply"], capsys)
+    assert rc == 0, err
+    assert read_history(out).points.shape[1] == 3
+    mine = tmp_path / "Q.xdmf"
+    mine.write_text("<Xdmf>my own sidecar</Xdmf>")
+    q = tmp_path / "Q.h5"
+    rc, _, err = _run([*base[:6], q, *base[7:], "--fps", "50", "--format", "ply"], capsys)
+    assert rc == 2 and "Q.xdmf" in err and "refusing" in err, err
+    assert mine.read_text() == "<Xdmf>my own sidecar</Xdmf>" and not q.exists()
+    # our own sidecar is replaced by a resume
+    assert "side_file_of" in xdmf_path(out).read_text()
