@@ -304,7 +304,7 @@ def _image_identities(paths: list[str], numbers) -> list[str]:
     """What each frame of a time history is read from: ``name|digest`` of its image file
     (:func:`resection.sequence.frames.content_digest`: size and a sample of the content),
     or ``name#k|digest`` for frame k of a file holding many."""
-    from .sequence.frames import content_digest
+    from resection.sequence.frames import content_digest
 
     def ident(q: Path) -> str:
         return content_digest(q) if q.is_file() else ""
