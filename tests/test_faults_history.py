@@ -255,6 +255,37 @@ def test_map_history_survives_kill_9(tmp_path):
     assert sum(0 < c < 60 for c in counts) >= 3, counts  # the kills landed mid-run
 
 
+def test_ctrl_c_on_a_running_map_history(tmp_path):
+    """Ctrl-C (SIGINT) in the middle of `map --out P.h5`: one line, exit 130; the frames
+    committed before it stay, exact; no journal nor temporary file is left."""
+    corner_files(tmp_path)
+    frames = _frames(tmp_path, 200)
+    out = tmp_path / "P.h5"
+    p = subprocess.Popen(_map_args(tmp_path, out, frames), env=_env(),
+                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    while p.poll() is None:
+        try:
+            if read_history(out).n_frames >= 3:
+                break
+        except Exception:  # noqa: BLE001 - not there yet
+            pass
+        time.sleep(0.002)
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 130 and len(err.strip().splitlines()) == 1, err
+    assert "interrupted" in err and "Traceback" not in err
+    h = read_history(out)
+    assert 3 <= h.n_frames < 200
+    clean = tmp_path / "clean.h5"
+    subprocess.run(_map_args(tmp_path, clean, frames[:h.n_frames]), check=True, env=_env(),
+                   capture_output=True)
+    np.testing.assert_array_equal(h.values, read_history(clean).values)
+    clean.unlink()
+    (tmp_path / "clean.xdmf").unlink()
+    assert sorted(q.name for q in tmp_path.iterdir() if q.name.startswith((".P", "P."))) \
+        == ["P.h5", "P.xdmf"]
+
+
 # --------------------------------------------------------------------------------------
 # a resume checks what it appends to (issue 25 item 6)
 # --------------------------------------------------------------------------------------

@@ -44,6 +44,9 @@ def _commands(i, o):
     return {
         "map": ("resection", ["map", "--mesh", i / "corner.ply", "--camera", i / "cam.json",
                               "--image", i / "img.npy", "--out", o / "m.vtk"]),
+        "map-h5": ("resection", ["map", "--mesh", i / "corner.ply", "--camera",
+                                 i / "cam.json", "--image", i / "img.npy", i / "img2.npy",
+                                 "--out", o / "h.h5"]),
         "correct": ("selfillum", ["correct", "--mesh", i / "corner.ply", "--camera",
                                   i / "front.json", "--image", i / "img.npy", "--reflectance",
                                   "0.5", "--rays", "8", "--quiet", "--out", o / "c.npy"]),

@@ -61,6 +61,7 @@ from resection.errors import InputError
 from resection.io.journal import JournaledFile, committed_view
 from resection.io.marks import claim_side_file, xml_mark
 from resection.io.outputs import atomic_path
+from resection.io.paths import as_os_error
 
 __all__ = ["FORMAT", "HistoryWriter", "History", "read_history", "write_xdmf", "xdmf_path"]
 
@@ -132,12 +133,22 @@ class HistoryWriter:
         self._inputs = None if inputs is None else json.dumps(inputs, sort_keys=True)
         self._f = self._jf = None
         if not self.path.exists():  # made whole under a temporary name, then renamed
-            with atomic_path(self.path) as tmp, h5py.File(tmp, "w") as f:
-                self._create(f, points, tris)
+            try:
+                with atomic_path(self.path) as tmp, h5py.File(tmp, "w") as f:
+                    self._create(f, points, tris)
+            except OSError as exc:  # HDF5's text: the system's errno and message in it
+                raise as_os_error(exc, self.path) from None
         try:
             self._jf = JournaledFile(self.path, opener=opener)
             _lock(self._jf, self.path)
-            self._f = h5py.File(self._jf, "r+")
+            try:
+                self._f = h5py.File(self._jf, "r+")
+            except OSError as exc:
+                if self._jf.failed is not None:
+                    raise
+                msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+                raise InputError(f"{self.path}: not a readable HDF5 file ({msg}); cannot "
+                                 "resume it") from None
             self._check_resumable(points, tris)
             self._f.flush()
             self._raise_failed()
@@ -242,7 +253,8 @@ class HistoryWriter:
         if not np.isfinite(float(time)):
             raise InputError(f"time: must be finite, got {time}")
         try:
-            self._append(v, float(time), camera, index, str(source))
+            with _interrupt_after():  # Ctrl-C waits for the commit (never inside HDF5)
+                self._append(v, float(time), camera, index, str(source))
         except BaseException:
             self._abandon()  # the file goes back to its last commit
             self._raise_failed()
@@ -326,6 +338,27 @@ class HistoryWriter:
             if self.path.exists():
                 with contextlib.suppress(Exception):
                     write_xdmf(self.path)
+
+
+@contextlib.contextmanager
+def _interrupt_after():
+    """Hold Ctrl-C (SIGINT) while the block runs and raise it when the block is done: a
+    KeyboardInterrupt raised inside HDF5's calls into the journaled file could not be
+    carried out of them. Only in the main thread (where Python delivers signals)."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught = []
+    previous = signal.signal(signal.SIGINT, lambda *a: caught.append(a))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if caught:
+        raise KeyboardInterrupt
 
 
 class _Abandoned(Exception):

@@ -24,8 +24,8 @@ from pathlib import Path
 
 from resection.errors import InputError
 
-__all__ = ["check_input_path", "check_output_folder", "check_output_path", "os_error_text",
-           "sweep_temporaries"]
+__all__ = ["as_os_error", "check_input_path", "check_output_folder", "check_output_path",
+           "os_error_text", "sweep_temporaries", "system_message"]
 
 #: temporary names made by :func:`resection.io.outputs.atomic_path`
 _TEMP = re.compile(r"^\..*\.(\d+)-[0-9a-f]{8}\.tmp(\.[^./]*)?$")
@@ -36,11 +36,32 @@ _KINDS = ((stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character de
 
 def os_error_text(exc: OSError) -> str:
     """One line for an OS error: ``<file>: <what the system says>`` (``No space left on
-    device``, ``Read-only file system``, ...)."""
-    what = exc.strerror or (errno.errorcode.get(exc.errno or 0) if exc.errno else None) \
-        or str(exc) or type(exc).__name__
+    device``, ``Read-only file system``, ...); for an error of a library that wraps the
+    system's (HDF5: ``..., errno = 28, error message = 'No space left on device', ...``),
+    the system's message."""
+    what = exc.strerror or system_message(exc) or str(exc) or type(exc).__name__
+    what = " ".join(str(what).split())  # one line
     name = exc.filename if exc.filename is not None else None
-    return f"{os.fsdecode(name)}: {what}" if name is not None else str(what)
+    return f"{os.fsdecode(name)}: {what}" if name is not None else what
+
+
+def system_message(exc: BaseException) -> str | None:
+    """The operating system's message inside a library's error text (HDF5 quotes it as
+    ``error message = '...'``), or None."""
+    m = re.search(r"error message = '([^']*)'", str(exc))
+    return m.group(1) if m else None
+
+
+def as_os_error(exc: OSError, path: str | os.PathLike) -> OSError:
+    """``exc`` as an OSError naming ``path`` with the system's errno and message when the
+    library's text holds them (HDF5), for a one-line report."""
+    if exc.errno is not None and exc.filename is not None:
+        return exc
+    m = re.search(r"errno = (\d+)", str(exc))
+    code = exc.errno if exc.errno is not None else (int(m.group(1)) if m else None)
+    msg = exc.strerror or system_message(exc) or (os.strerror(code) if code else None) \
+        or " ".join(str(exc).split())
+    return OSError(code, msg, os.fspath(path))
 
 
 def _stat(path: Path, what: str, *, strict: bool = True):
