@@ -127,6 +127,33 @@ def test_a_journal_left_by_a_dead_writer_is_read_through_and_rolled_back(tmp_pat
     assert not (tmp_path / "P.h5.journal").exists()
 
 
+def test_a_second_writer_is_refused_and_never_undoes_the_first(tmp_path):
+    """While a writer works (its journal holds the bytes of its frame in progress), a second
+    writer (another process) is refused; the first writer's journal is untouched and its
+    run ends with every frame."""
+    mesh = trimesh.creation.icosphere(subdivisions=1)
+    n = len(mesh.vertices)
+    path = tmp_path / "P.h5"
+    w = HistoryWriter(path, mesh)
+    w.append(_values(0, n), time=0.0, index=0)
+    w._f["frames/time"][0] = 5.0  # a change in progress, not committed yet
+    w._f.flush()
+    journal = (tmp_path / "P.h5.journal").read_bytes()
+    assert len(journal) > 16  # the committed bytes it overwrote
+    code = ("import sys, trimesh\nfrom resection.io.history import HistoryWriter\n"
+            "HistoryWriter(sys.argv[1], trimesh.creation.icosphere(subdivisions=1), "
+            "resume=True)\n")
+    r = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True,
+                       text=True, env=_env())
+    assert r.returncode != 0 and "another process is writing" in r.stderr, r.stderr
+    assert (tmp_path / "P.h5.journal").read_bytes() == journal
+    w.append(_values(1, n), time=1.0, index=1)
+    w.close()
+    h = read_history(path)
+    np.testing.assert_array_equal(h.values[1], _values(1, n))
+    assert h.times.tolist() == [5.0, 1.0]  # the first writer's change, committed by it
+
+
 def _map_args(folder, out, frames, *extra):
     return [sys.executable, "-m", "resection.cli", "map", "--mesh",
             str(folder / "corner.ply"), "--camera", str(folder / "cam.json"), "--out",

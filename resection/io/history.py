@@ -139,8 +139,11 @@ class HistoryWriter:
             except OSError as exc:  # HDF5's text: the system's errno and message in it
                 raise as_os_error(exc, self.path) from None
         try:
-            self._jf = JournaledFile(self.path, opener=opener)
-            _lock(self._jf, self.path)
+            try:
+                self._jf = JournaledFile(self.path, opener=opener)
+            except BlockingIOError:
+                raise InputError(f"{self.path}: another process is writing this time "
+                                 "history") from None
             try:
                 self._f = h5py.File(self._jf, "r+")
             except OSError as exc:
@@ -363,21 +366,6 @@ def _interrupt_after():
 
 class _Abandoned(Exception):
     """The writer was closed without a commit (an error elsewhere, Ctrl-C)."""
-
-
-def _lock(jf, path: Path) -> None:
-    """One writer at a time (an advisory lock on the open file, released when the process
-    ends, however it ends)."""
-    try:
-        import fcntl
-    except ImportError:  # pragma: no cover - Windows
-        return
-    try:
-        fcntl.flock(jf._f.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        raise InputError(f"{path}: another process is writing this time history") from None
-    except OSError:
-        pass  # a file system without flock
 
 
 def _committed(f: h5py.File, path: Path) -> int:

@@ -143,17 +143,42 @@ def committed_view(path: str | os.PathLike):
     return _View(Path(path), committed, records)
 
 
+def _lock(fh) -> None:
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - Windows
+        return
+    try:
+        fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        raise
+    except OSError:
+        pass  # a file system without flock
+
+
 class JournaledFile(io.RawIOBase):
     """Binary read/write file object over ``path`` (which must exist) with an undo journal
-    (see the module docstring). A journal left by an earlier run is rolled back first.
+    (see the module docstring). One writer at a time: an advisory lock on the file (held
+    until :meth:`close`, released by the system when the process ends however it ends);
+    then a journal left by an earlier run is rolled back.
 
     ``opener`` (for tests) opens the file and the journal: ``opener(path, mode)``.
+
+    Raises
+    ------
+    BlockingIOError
+        Another process (or another writer in this one) holds the file.
     """
 
     def __init__(self, path: str | os.PathLike, *, opener=open):
         self.path = Path(path)
-        recover(self.path)
         self._f = opener(self.path, "r+b")
+        try:
+            _lock(self._f)
+            recover(self.path)  # only now: the journal of a live writer is not ours to undo
+        except BaseException:
+            self._f.close()
+            raise
         self._j = opener(journal_path(self.path), "w+b")
         self._pos = 0
         self.failed: BaseException | None = None
