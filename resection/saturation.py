@@ -55,6 +55,9 @@ def faces_touched(face_index: np.ndarray, on_model: np.ndarray, saturated: np.nd
     the model falls on (``face_index``, ``on_model``: a surface map's per-pixel face and
     mask; ``saturated``: ``(H, W)`` or ``(T, H, W)``)."""
     sat = np.asarray(saturated, bool)
+    if sat.shape[-2:] != np.shape(on_model):
+        raise InputError(f"image: shape {sat.shape[-2:]} is not the camera's (H, W) = "
+                         f"{np.shape(on_model)}")
     stack = sat if sat.ndim == 3 else sat[None]
     out = np.zeros((len(stack), n_faces), bool)
     for t, s in enumerate(stack):  # loop over frames, not pixels
