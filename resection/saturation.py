@@ -39,12 +39,12 @@ def level_of(dtype, saturation=None, bits: int | None = None) -> float | None:
 
 
 def mask_saturated(image, level: float | None) -> tuple[np.ndarray, np.ndarray]:
-    """``(float image with the saturated pixels NaN, boolean mask of them)``; ``level``
-    None masks nothing."""
+    """``(float32 image with the saturated pixels NaN, boolean mask of them)`` (float32 as
+    :func:`resection.io.images.read_image` and the frame readers give); ``level`` None
+    masks nothing."""
     img = np.asarray(image)
     sat = np.zeros(img.shape, bool) if level is None else (img >= level)
-    out = img.astype(np.float64 if img.dtype.kind == "f" and img.itemsize == 8
-                     else np.float32)
+    out = img.astype(np.float32)
     out[sat] = np.nan
     return out, sat
 
