@@ -316,3 +316,14 @@ def test_option_values_that_are_not_paths_are_not_taken_for_files(tmp_path, caps
     assert len(long_json) > 300
     rc, _, err = _run(_main(prog), [*map(str, argv), "--pose-options", long_json], capsys)
     assert "file name" not in err and "too long" not in err, err
+
+
+def test_track_with_every_frame_failed_says_so_on_stderr(tmp_path, capsys):
+    """Item 18: track exited 1 with nothing on stderr when every frame failed. Now one
+    line on stderr says no frame was solved and why frame 0 failed."""
+    i = _inputs(tmp_path)
+    prog, argv = _commands(i, tmp_path)["track"]
+    rc, out, err = _run(_main(prog), argv, capsys)
+    assert rc == 1, (out, err)
+    lines = [s for s in err.splitlines() if s.strip()]
+    assert len(lines) == 1 and "no frame solved" in lines[0] and "frame 0" in lines[0], err
