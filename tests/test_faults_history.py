@@ -196,7 +196,7 @@ _DISK_SCRIPT = textwrap.dedent("""
     else:  # no namespace: no file may grow past its size now (EFBIG), inherited by map
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
         size = os.path.getsize(os.path.join(disk, "P.h5"))
-        resource.setrlimit(resource.RLIMIT_FSIZE, (size + 20000, resource.RLIM_INFINITY))
+        resource.setrlimit(resource.RLIMIT_FSIZE, (size + 3000, resource.RLIM_INFINITY))
     r = subprocess.run(args_all + ["--resume"], capture_output=True, text=True)
     res["full"] = [r.returncode, r.stderr]
     from resection.io.history import read_history
@@ -211,6 +211,25 @@ _DISK_SCRIPT = textwrap.dedent("""
     h = read_history(os.path.join(disk, "P.h5"))
     res["final"] = h.values.tolist()
     res["files"] = sorted(os.listdir(disk))
+    # a fresh run on a disk that fills up in its middle (room for a few frames only)
+    for name in ("P.h5", "P.xdmf", "filler"):
+        if os.path.exists(os.path.join(disk, name)):
+            os.unlink(os.path.join(disk, name))
+    if mount:
+        subprocess.run(["mount", "-o", "remount,size=128k", disk], check=True)
+    else:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (109000, resource.RLIM_INFINITY))
+    r = subprocess.run(args_all, capture_output=True, text=True)
+    res["mid"] = [r.returncode, r.stderr]
+    res["mid_values"] = read_history(os.path.join(disk, "P.h5")).values.tolist()
+    if mount:
+        subprocess.run(["mount", "-o", "remount,size=16m", disk], check=True)
+    else:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (resource.RLIM_INFINITY,) * 2)
+    r = subprocess.run(args_all + ["--resume"], capture_output=True, text=True)
+    res["mid_resumed"] = [r.returncode, r.stderr]
+    res["mid_final"] = read_history(os.path.join(disk, "P.h5")).values.tolist()
+    res["mid_files"] = sorted(os.listdir(disk))
     print(json.dumps(res))
 """)
 
@@ -218,7 +237,9 @@ _DISK_SCRIPT = textwrap.dedent("""
 @pytest.mark.slow
 def test_map_history_survives_a_full_tmpfs(tmp_path):
     """Issue 25 item 1: `map --out P.h5` commits frames on a small tmpfs, the disk is
-    filled, the run is resumed over more frames. On today's main the process died with a
+    filled, the run is resumed over more frames; then a fresh run on a tmpfs that fills up
+    in its middle (without a mount namespace: a file-size limit, see
+    fault_files.isolated). On today's main the process died with a
     segmentation fault and the committed frames became unreadable. Now: one line, exit 2,
     the committed frames intact; with room again the resume completes the run with the
     values of a clean run."""
@@ -251,6 +272,15 @@ def test_map_history_survives_a_full_tmpfs(tmp_path):
     np.testing.assert_array_equal(final, ref)
     np.testing.assert_array_equal(committed, ref[:len(committed)])
     assert set(res["files"]) - {"filler"} == {"P.h5", "P.xdmf"}  # no journal nor temporary
+    # the disk filled in the middle of a fresh run: the frames before it stay, exact
+    rc, err = res["mid"]
+    assert rc == 2 and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    mid = np.array(res["mid_values"], dtype=np.float32)
+    assert 1 <= len(mid) < 12, len(mid)
+    np.testing.assert_array_equal(mid, ref[:len(mid)])
+    assert res["mid_resumed"][0] == 0, res["mid_resumed"]
+    np.testing.assert_array_equal(np.array(res["mid_final"], dtype=np.float32), ref)
+    assert res["mid_files"] == ["P.h5", "P.xdmf"]
 
 
 @pytest.mark.slow
