@@ -154,6 +154,22 @@ def test_a_second_writer_is_refused_and_never_undoes_the_first(tmp_path):
     assert h.times.tolist() == [5.0, 1.0]  # the first writer's change, committed by it
 
 
+def test_a_file_of_the_users_named_like_the_journal_is_never_touched(tmp_path):
+    """P.h5.journal that is not a journal of ours (the user's notes): the writer refuses by
+    name instead of truncating or removing it; a reader reads the history as it is."""
+    mesh = trimesh.creation.icosphere(subdivisions=1)
+    n = len(mesh.vertices)
+    path = tmp_path / "P.h5"
+    with HistoryWriter(path, mesh) as w:
+        w.append(_values(0, n), time=0.0, index=0)
+    notes = tmp_path / "P.h5.journal"
+    notes.write_text("my notes on run P\n")
+    with pytest.raises(InputError, match="P.h5.journal: exists and is not the journal"):
+        HistoryWriter(path, mesh, resume=True)
+    assert notes.read_text() == "my notes on run P\n"
+    assert read_history(path).n_frames == 1
+
+
 def _map_args(folder, out, frames, *extra):
     return [sys.executable, "-m", "resection.cli", "map", "--mesh",
             str(folder / "corner.ply"), "--camera", str(folder / "cam.json"), "--out",

@@ -48,16 +48,26 @@ def journal_path(path: str | os.PathLike) -> Path:
 
 def _read_journal(jpath: Path) -> tuple[int, list[tuple[int, bytes]]] | None:
     """``(committed length, [(offset, old bytes), ...])``, or None when there is no
-    journal with a whole header (nothing to undo)."""
+    journal with a whole header (nothing to undo).
+
+    Raises
+    ------
+    InputError
+        A file of that name that is not a journal of this program (the user's: never
+        replaced nor removed).
+    """
     try:
         data = jpath.read_bytes()
     except FileNotFoundError:
         return None
+    if not _MAGIC.startswith(data[:len(_MAGIC)]):
+        from resection.errors import InputError
+
+        raise InputError(f"{jpath}: exists and is not the journal of {jpath.stem} written "
+                         "by this program; refusing to replace it: move it")
     if len(data) < _HEADER.size:
-        return None
-    magic, committed = _HEADER.unpack_from(data, 0)
-    if magic != _MAGIC:
-        return None
+        return None  # a header cut short: nothing was journaled yet
+    committed = _HEADER.unpack_from(data, 0)[1]
     records, pos = [], _HEADER.size
     while pos + _RECORD.size <= len(data):
         off, n, crc = _RECORD.unpack_from(data, pos)
@@ -135,8 +145,13 @@ class _View(io.RawIOBase):
 
 def committed_view(path: str | os.PathLike):
     """A read-only file object of ``path`` as committed when a journal is beside it, else
-    None (read the file itself)."""
-    state = _read_journal(journal_path(path))
+    None (read the file itself; also when the file of that name is not a journal)."""
+    from resection.errors import InputError
+
+    try:
+        state = _read_journal(journal_path(path))
+    except InputError:
+        return None
     if state is None:
         return None
     committed, records = state
