@@ -300,3 +300,25 @@ def test_time_history_masks_saturated_pixels_and_counts_them(tmp_path, capsys):
     a, b = read_history(tmp_path / "a.h5").values, read_history(tmp_path / "b.h5").values
     np.testing.assert_array_equal(a, b)
     assert np.nanmax(a) <= 1010.0 + 1e-3
+
+
+def test_merged_map_counts_saturated_pixels(tmp_path, capsys):
+    """Several cameras (`map` merging views): the saturated pixels of every image are
+    unknown (in no camera's value) and counted in one line."""
+    from resection.cli import main
+    from resection.io.images import write_image
+    from resection.io.meshes import read_face_fields
+
+    sc, cam, _ = corner_files(tmp_path)
+    for k in range(2):
+        img = np.full((72, 96), 1000, np.uint16)
+        img[30:34, 40:44 + k] = 65535
+        write_image(tmp_path / f"c{k}.tif", img)
+    rc, _, err = _run(main, ["map", "--mesh", tmp_path / "corner.ply", "--camera",
+                             tmp_path / "cam.json", "--camera", tmp_path / "cam.json",
+                             "--image", tmp_path / "c0.tif", tmp_path / "c1.tif", "--out",
+                             tmp_path / "m.vtk"], capsys)
+    assert rc == 0, err
+    assert "saturated pixels: 36 at or above 65535" in err, err  # 16 + 20
+    f = read_face_fields(tmp_path / "m.vtk", len(sc.mesh.faces))
+    assert np.nanmax(f["merged"]) < 1000.0 * 1.5  # no saturated count averaged in

@@ -318,10 +318,11 @@ def _image_identities(paths: list[str], numbers) -> list[str]:
 
 def _run_merge(args: argparse.Namespace, names: list) -> int:
     from resection.io.cameras import read_camera_file
-    from resection.io.images import read_image
+    from resection.io.images import read_native
     from resection.io.markers import read_markers
     from resection.io.meshes import load_mesh, write_surface
     from resection.pose.camera_fit import check_camera
+    from resection.saturation import level_of, mask_saturated, report
     from resection.surface.merge import merge_views
     from resection.surface.surface_map import SurfaceMap
 
@@ -329,7 +330,16 @@ def _run_merge(args: argparse.Namespace, names: list) -> int:
         raise InputError(f"--image: {len(args.image)} images for {len(args.camera)} cameras "
                          "(give one image per camera, in camera order)")
     mesh = load_mesh(args.mesh, format=args.mesh_format)
-    images = [read_image(p, mask_saturated=True) for p in args.image]
+    images, n_sat, level = [], 0, None
+    for p in args.image:  # saturated pixels unknown (NaN): in no camera's values
+        raw = read_native(p)
+        if raw.ndim != 2:
+            raise InputError(f"{p}: a stack of {raw.shape[0]} frames; give one image per "
+                             "camera")
+        level = level_of(raw.dtype, args.saturation)
+        img, sat = mask_saturated(raw, level)
+        images.append(img)
+        n_sat += int(sat.sum())
     files = [read_camera_file(p, image_size=img.shape[::-1])
              for p, img in zip(args.camera, images, strict=True)]
     maps = [SurfaceMap(mesh, cf.camera, max_obliqueness=args.max_obliqueness) for cf in files]
@@ -356,6 +366,9 @@ def _run_merge(args: argparse.Namespace, names: list) -> int:
     print(mv.report())
     print(f"map: {int(mv.seen.sum())} of {len(mesh.faces)} faces seen by {len(maps)} "
           f"cameras ({int((mv.n_cameras > 1).sum())} by several); written to {args.out}")
+    line = report(n_sat, level)
+    if line:
+        print(f"map: warning: {line}", file=sys.stderr)
     return 0
 
 
