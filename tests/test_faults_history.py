@@ -168,6 +168,34 @@ def test_a_file_of_the_users_named_like_the_journal_is_never_touched(tmp_path):
         HistoryWriter(path, mesh, resume=True)
     assert notes.read_text() == "my notes on run P\n"
     assert read_history(path).n_frames == 1
+    path.unlink()  # a new history of that name: still refused, the notes kept
+    with pytest.raises(InputError, match="P.h5.journal: exists and is not the journal"):
+        HistoryWriter(path, mesh)
+    assert notes.read_text() == "my notes on run P\n"
+
+
+def test_a_journal_of_a_removed_history_is_not_applied_to_a_new_one(tmp_path):
+    """A run died (its journal left), the user removed P.h5 and starts again: the old
+    journal's records belong to the old file and must not be rolled into the new one."""
+    mesh = trimesh.creation.icosphere(subdivisions=1)
+    n = len(mesh.vertices)
+    path = tmp_path / "P.h5"
+    w = HistoryWriter(path, mesh)
+    w.append(_values(0, n), time=0.0, index=0)
+    w._f["frames/time"][0] = 7.0  # uncommitted
+    w._f.flush()
+    journal = (tmp_path / "P.h5.journal").read_bytes()
+    w._abandon()
+    (tmp_path / "P.h5.journal").write_bytes(journal)  # as a dead process leaves it
+    path.unlink()
+    finer = trimesh.creation.icosphere(subdivisions=3)  # another grid: another layout
+    m = len(finer.vertices)
+    with HistoryWriter(path, finer) as w2:
+        for k in range(3):
+            w2.append(_values(10 + k, m), time=float(k), index=k)
+    h = read_history(path)
+    assert h.times.tolist() == [0.0, 1.0, 2.0]
+    np.testing.assert_array_equal(h.values[0], _values(10, m))
 
 
 def _map_args(folder, out, frames, *extra):

@@ -58,7 +58,7 @@ import numpy as np
 
 from resection.camera.model import Camera
 from resection.errors import InputError
-from resection.io.journal import JournaledFile, committed_view
+from resection.io.journal import JournaledFile, committed_view, discard
 from resection.io.marks import claim_side_file, xml_mark
 from resection.io.outputs import atomic_path
 from resection.io.paths import as_os_error
@@ -133,6 +133,7 @@ class HistoryWriter:
         self._inputs = None if inputs is None else json.dumps(inputs, sort_keys=True)
         self._f = self._jf = None
         if not self.path.exists():  # made whole under a temporary name, then renamed
+            discard(self.path)  # a journal left by a file of that name that is gone
             try:
                 with atomic_path(self.path) as tmp, h5py.File(tmp, "w") as f:
                     self._create(f, points, tris)

@@ -33,7 +33,7 @@ import struct
 import zlib
 from pathlib import Path
 
-__all__ = ["JournaledFile", "committed_view", "journal_path", "recover"]
+__all__ = ["JournaledFile", "committed_view", "discard", "journal_path", "recover"]
 
 _MAGIC = b"RSJ1"
 _HEADER = struct.Struct("<4sQ")  # magic, committed length
@@ -77,6 +77,15 @@ def _read_journal(jpath: Path) -> tuple[int, list[tuple[int, bytes]]] | None:
         records.append((off, body))
         pos += _RECORD.size + n
     return committed, records
+
+
+def discard(path: str | os.PathLike) -> None:
+    """Remove the journal of a file that is gone (the file is made anew): its records
+    belong to the old file. A file of that name that is not a journal is refused."""
+    jpath = journal_path(path)
+    _read_journal(jpath)  # raises for a file of the user's
+    if jpath.exists():
+        jpath.unlink()
 
 
 def recover(path: str | os.PathLike) -> bool:
