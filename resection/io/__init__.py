@@ -18,4 +18,12 @@ accepts what any other writes.
 - :mod:`resection.io.wtd`: uPSP wind-tunnel data (``.wtd``: conditions, ``# Tap CP``).
 - :mod:`resection.io.upsp_inputs`: uPSP ``psp_process`` input decks and paint gain files.
 - :mod:`resection.io.triq`: Cart3D annotated triangulations (``.triq``, scalars per vertex).
+- :mod:`resection.io.history`: time histories (HDF5 + XDMF sidecar), written through
+  :mod:`resection.io.journal` (an undo journal: committed frames survive a full disk,
+  ``kill -9`` and crashes).
+
+How files are written, for every command: :mod:`resection.io.outputs` (temporary name and
+rename, never over an input), :mod:`resection.io.marks` (side files and output folders
+marked as ours; the user's never replaced), :mod:`resection.io.paths` (paths checked before
+anything is written; special files refused; temporaries of killed runs swept).
 """
