@@ -20,6 +20,7 @@ import contextlib
 import os
 import secrets
 import shutil
+import stat
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 
@@ -72,17 +73,35 @@ def refuse_overwriting_inputs(outputs: Mapping[str, str | os.PathLike | None],
     """
     outs = [(k, Path(v)) for k, v in outputs.items()
             if v is not None and str(v) != "" and not os.path.isdir(v)]
+    existing = {}  # (device, inode) of the outputs that exist: only they can be inputs
     for i, (name, path) in enumerate(outs):
         for other_name, other in outs[:i]:
             if same_file(path, other):
                 raise InputError(f"{name} {path}: same file as {other_name}; give each "
                                  "output its own name")
-        for in_name, paths in inputs.items():
-            for p in paths:  # os.path.isfile: False for a value that is no path (a JSON text)
-                if os.path.isfile(p) and same_file(path, p):
-                    raise InputError(
-                        f"{name} {path}: is an input of this command ({in_name} {p}); "
-                        "refusing to overwrite it: write to another file")
+        st = _stat_or_none(path)
+        if st is not None:
+            existing.setdefault((st.st_dev, st.st_ino), (name, path))
+    if not existing:
+        return
+    for in_name, paths in inputs.items():  # one stat an input (thousands of frames)
+        for p in paths:
+            st = _stat_or_none(p)  # None for a value that is no path (a JSON text)
+            if st is None or not stat.S_ISREG(st.st_mode):
+                continue
+            hit = existing.get((st.st_dev, st.st_ino))  # the same file, links included
+            if hit is not None:
+                name, path = hit
+                raise InputError(
+                    f"{name} {path}: is an input of this command ({in_name} {p}); "
+                    "refusing to overwrite it: write to another file")
+
+
+def _stat_or_none(path):
+    try:
+        return os.stat(path)
+    except (OSError, ValueError):
+        return None
 
 
 def _as_paths(value) -> list[str]:
