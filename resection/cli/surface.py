@@ -264,7 +264,7 @@ def _run_history(args: argparse.Namespace) -> int:
             raise InputError(f"{src.path}: its header's frame rate {fps} is not a positive "
                              "finite number; give --fps")
         times = numbers / fps if fps else numbers.astype(float)
-        sources = _image_identities(args.image, numbers)  # a resume maps the same images
+        sources = _ImageIdentities(args.image, numbers)  # a resume maps the same images
         level = level_of(np.float32, args.saturation, bits=src.bits)
         if level is None and args.saturation is None and src.bits is None:
             from resection.io.images import image_info  # image files: their type's scale
@@ -300,20 +300,33 @@ class _Saturated:
         return img
 
 
-def _image_identities(paths: list[str], numbers) -> list[str]:
+class _ImageIdentities:
     """What each frame of a time history is read from: ``name|digest`` of its image file
     (:func:`resection.sequence.frames.content_digest`: size and a sample of the content),
-    or ``name#k|digest`` for frame k of a file holding many."""
-    from resection.sequence.frames import content_digest
+    or ``name#k|digest`` for frame k of a file holding many. Lazy: a frame's digest is
+    taken when the resume check or the writer asks for it (12 KiB read), not for every
+    frame up front."""
 
-    def ident(q: Path) -> str:
+    def __init__(self, paths: list[str], numbers):
+        self.paths, self.numbers = [Path(p) for p in paths], np.asarray(numbers, int)
+        self._video = None
+
+    def __len__(self) -> int:
+        return len(self.numbers)
+
+    @staticmethod
+    def _digest(q: Path) -> str:
+        from resection.sequence.frames import content_digest
+
         return content_digest(q) if q.is_file() else ""
 
-    if len(paths) == 1:
-        q = Path(paths[0])
-        d = ident(q)
-        return [f"{q.name}#{int(k)}|{d}" for k in numbers]
-    return [f"{Path(paths[int(k)]).name}|{ident(Path(paths[int(k)]))}" for k in numbers]
+    def __getitem__(self, i) -> str:
+        k = int(self.numbers[i])
+        if len(self.paths) == 1:
+            if self._video is None:
+                self._video = self._digest(self.paths[0])
+            return f"{self.paths[0].name}#{k}|{self._video}"
+        return f"{self.paths[k].name}|{self._digest(self.paths[k])}"
 
 
 def _run_merge(args: argparse.Namespace, names: list) -> int:
