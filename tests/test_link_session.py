@@ -255,15 +255,20 @@ def test_link_serve_command(scene, tmp_path):
 
 @pytest.mark.parametrize("camera", ["intrinsics", "identity"])
 @pytest.mark.parametrize("diameter", [[], ["--diameter", "5"]])
-def test_pose_names_a_camera_without_a_pose(scene, tmp_path, capsys, camera, diameter):
-    """Issue 20 item 13: not 'marker diameter unknown' nor 'camera facing away?'."""
+@pytest.mark.parametrize("mesh", [False, True])
+def test_pose_names_a_camera_without_a_pose(scene, tmp_path, capsys, camera, diameter, mesh):
+    """Issue 20 item 13: not 'marker diameter unknown' nor 'camera facing away?'. With
+    --mesh the markers are read (and moved onto the surface) before the check: the message
+    still names their file, not a placeholder."""
     _, paths = scene
+    extra = ["--mesh", paths["grid"]] if mesh else []
     rc = main(["pose", "--image", paths["image0"], "--markers", paths["markers"], "--camera",
-               paths[camera], "--out", str(tmp_path / "o.json"), *diameter])
+               paths[camera], "--out", str(tmp_path / "o.json"), *diameter, *extra])
     err = capsys.readouterr().err
     assert rc == 2 and len(err.splitlines()) == 1
     assert f"{paths[camera]}: this camera has no pose" in err
     assert "resection link --serve" in err and paths["markers"] in err
+    assert "MARKERS" not in err
     assert "diameter unknown" not in err and "facing away" not in err
     assert not (tmp_path / "o.json").exists()
 
