@@ -465,7 +465,10 @@ def test_cli_ctrl_c_says_what_is_kept(run60, tmp_path, monkeypatch, capsys):
     assert "interrupted: 2/4 frames finished are kept" in err and "again to resume" in err
     monkeypatch.setattr(seq_process, "_load_image", load)
     assert main(args) == 0
-    assert "4/4 frames solved (2 computed now)" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "4/4 frames solved (2 computed now)" in out
+    # frame 0 matched from the approximate camera, the others tracked by prediction
+    assert "3 tracked by prediction, 1 by the statistical matcher" in out
 
 
 def test_frames_of_integer_files_have_saturated_pixels_masked(tmp_path):

@@ -43,6 +43,9 @@ def register(sub) -> None:
                    "approximates the first frame's when --link is not given)")
     p.add_argument("--markers", required=True, help="marker CSV: id,x,y,z[,diameter]")
     p.add_argument("--link", help="linking CSV of the first frame: id,candidate")
+    p.add_argument("--mesh", help="model surface (STL, OBJ, PLY, Plot3D...): the normals at "
+                   "the markers (where the marker file has no nx,ny,nz) say which markers "
+                   "face the camera in a frame")
     p.add_argument("--diameter", required=True, type=float, help="marker diameter, pixels")
     p.add_argument("--polarity", choices=("dark", "bright"), default="dark")
     p.add_argument("--out", required=True, help="output directory")
@@ -110,7 +113,7 @@ def run_track(args: argparse.Namespace) -> int:
             polarity=args.polarity, fixed_camera=not args.moving_camera,
             scheduler=args.scheduler, workers=args.workers, out_dir=args.out,
             resume=not args.no_resume, progress=not args.no_progress,
-            chunk_size=args.chunk_size, pose_kw=pose_kw,
+            chunk_size=args.chunk_size, pose_kw=pose_kw, mesh=args.mesh,
         )
     except KeyboardInterrupt:
         frames_dir = os.path.join(args.out, "frames")
@@ -122,6 +125,11 @@ def run_track(args: argparse.Namespace) -> int:
     n_ok = int(result.ok.sum())
     print(f"{n_ok}/{len(result)} frames solved ({result.n_computed} computed now), "
           f"motion relative to frame {result.reference}; results in {args.out}")
+    counts = result.method_counts
+    if counts:
+        print(f"  {counts['predicted']} tracked by prediction, {counts['matched']} by the "
+              "statistical matcher (where the prediction's gate failed)"
+              + (f", {counts['linked']} linked by hand" if counts["linked"] else ""))
     for i in range(len(result)):
         if not result.ok[i]:
             print(f"  frame {result.frame[i]} ({result.file[i]}): {result.reason[i]}")

@@ -16,9 +16,11 @@ from resection.sequence.process import _Setup
 from resection.sequence.results import _FORMAT_VERSION
 
 
-def _as_markers(markers3d) -> tuple[np.ndarray, np.ndarray]:
-    """``(ids, points)`` from a marker file path, an ``(ids, points)`` pair, or an object
-    with ``ids`` and ``points``/``xyz`` attributes."""
+def _as_markers(markers3d) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """``(ids, points, normals)`` from a marker file path, an ``(ids, points)`` pair, or an
+    object with ``ids`` and ``points``/``xyz`` (and optionally ``normals``) attributes;
+    ``normals`` (N, 3), NaN rows where unknown, or None when no marker has one."""
+    normals = None
     if isinstance(markers3d, (str, os.PathLike)):
         from resection.io.markers import read_markers
 
@@ -28,6 +30,7 @@ def _as_markers(markers3d) -> tuple[np.ndarray, np.ndarray]:
     else:
         ids = getattr(markers3d, "ids", None)
         pts = getattr(markers3d, "points", getattr(markers3d, "xyz", None))
+        normals = getattr(markers3d, "normals", None)
         if ids is None or pts is None:
             raise InputError("markers3d: expected a marker file, (ids, points) or an object "
                              "with ids and points")
@@ -38,7 +41,31 @@ def _as_markers(markers3d) -> tuple[np.ndarray, np.ndarray]:
     u, c = np.unique(ids, return_counts=True)
     if np.any(c > 1):
         raise InputError(f"markers3d: duplicate marker id {str(u[c > 1][0])!r}")
-    return ids, pts
+    if normals is not None:
+        normals = np.array(normals, dtype=float).reshape(len(pts), 3)
+        if not np.isfinite(normals).all(axis=1).any():
+            normals = None
+    return ids, pts, normals
+
+
+def _mesh_normals(mesh, points: np.ndarray, normals: np.ndarray | None) -> np.ndarray:
+    """Normals at the markers from the mesh (a path or a trimesh): the normal of the face
+    nearest each marker, where the marker file gives none."""
+    import trimesh
+
+    if isinstance(mesh, (str, os.PathLike)):
+        from resection.io.meshes import load_mesh
+
+        mesh = load_mesh(mesh)
+    if not isinstance(mesh, trimesh.Trimesh):
+        raise InputError(f"mesh: expected a mesh file or a trimesh.Trimesh, got "
+                         f"{type(mesh).__name__}")
+    _, _, face = trimesh.proximity.closest_point(mesh, points)
+    out = np.asarray(mesh.face_normals, float)[face]
+    if normals is not None:
+        given = np.isfinite(normals).all(axis=1)
+        out[given] = normals[given]
+    return out
 
 
 def _check_options(kw, func, name: str, reserved: tuple) -> dict:
@@ -113,11 +140,12 @@ def _settings(setup: _Setup, link: dict | None, fixed_camera: bool, chunk_size: 
                                            else {k: link["pairs"][k]
                                                  for k in sorted(link["pairs"])}),
         "fixed_camera": bool(fixed_camera), "chunk_size": int(chunk_size),
+        **({} if setup.normals is None else {"normals": setup.normals.tolist()}),
     })
 
 
 def _checked(frames, camera, markers3d, *, link, diameter, polarity, workers, chunk_size,
-             min_markers, roi_margin, detect_kw, match_kw, pose_kw):
+             min_markers, roi_margin, detect_kw, match_kw, pose_kw, mesh=None):
     """Checked inputs of :func:`track`: ``(frames list, _Setup, link dict or None,
     workers, chunk_size)``; InputError for the first bad one, before any file is made."""
     from resection.camera.model import Camera
@@ -161,7 +189,9 @@ def _checked(frames, camera, markers3d, *, link, diameter, polarity, workers, ch
         if not isinstance(f, (str, os.PathLike, np.ndarray, VideoFrame)):
             raise InputError(f"frames[{i}]: expected a path or a 2-D array, got "
                              f"{type(f).__name__}")
-    ids, pts = _as_markers(markers3d)
+    ids, pts, normals = _as_markers(markers3d)
+    if mesh is not None:
+        normals = _mesh_normals(mesh, pts, normals)
     link_d = _as_link(link)
     detect_kw = _check_options(detect_kw, detect_markers, "detect_kw",
                                ("image", "diameter", "polarity"))
@@ -173,7 +203,8 @@ def _checked(frames, camera, markers3d, *, link, diameter, polarity, workers, ch
     setup = _Setup(camera=camera, ids=ids, points3d=pts, diameter=d, polarity=polarity,
                    detect_kw=detect_kw, match_kw=match_kw,
                    pose_kw=pose_kw, min_markers=int(min_markers),
-                   roi_margin=None if roi_margin is None else float(roi_margin))
+                   roi_margin=None if roi_margin is None else float(roi_margin),
+                   normals=normals)
     return frames, setup, link_d, workers, int(chunk_size)
 
 

@@ -7,9 +7,18 @@ to a few pixels, smoothly. :func:`track_predicted` uses that:
    ``i < j < k`` at constant velocity, ``R_k = (R_j R_i^T)^s R_j`` and
    ``t_k = t_j + s (t_j - t_i)`` with ``s = (k - j) / (j - i)`` (the rotation power through
    its rotation vector), or held at frame ``j``'s pose when there is only one.
-2. **Gated association.** Every marker is projected with the predicted pose, and the
-   pixel-integrated disk model (:func:`resection.markers.detect.refine_markers`) is fitted in a
-   small window around its prediction only; no search of the image, no candidate list.
+2. **Gated association.** The markers *expected* in the frame (:func:`expected_markers`:
+   those found in the reference or the previous good frame, plus those whose normal, from
+   the marker file or the mesh, faces the camera; never one whose normal faces away) are
+   projected with the predicted pose, and the pixel-integrated disk model
+   (:func:`resection.markers.detect.refine_markers`) is fitted in a small window around each
+   prediction only; no search of the image, no candidate list. A marker never seen (the
+   far side of a body with markers all around) is not counted missing; the markers not
+   expected are looked for every :data:`PROBE_EVERY` frames in the same batch of windows,
+   and one is taken when found where the pose solved from the others puts it (within the
+   residual gate of step 3, its fitted diameter within :data:`PROBE_DIAMETER` times the
+   expected one), so a marker
+   coming into view is picked up within that many frames.
    A fit is kept when it converged, lies within the *gate* of its prediction, has the
    expected size (``diameter_range``), enough contrast (``min_snr`` times the fit's own
    residual RMS: a noise estimate local to the marker, and pessimistic) and few masked
@@ -25,7 +34,7 @@ to a few pixels, smoothly. :func:`track_predicted` uses that:
    ``marker_accuracy`` and ``max_rms`` that the matcher and ``solve_pose`` get).
 
 The frame is refused (None: the caller runs the statistical matcher instead) when fewer
-than ``max(min_markers, min_matches, 0.8 n)`` of the ``n`` markers predicted in the image
+than ``max(min_markers, min_matches, 0.8 n)`` of the ``n`` markers expected in the image
 are found, or when the residual gate or the acceptance rule fails: a jump, lost or hidden
 markers, the first frame of a run or of a chunk. A frame is thus right or refused as with
 the matcher: what the gate accepts, the matcher's own final tests would accept too.
@@ -45,12 +54,23 @@ from resection.camera.model import Camera, distort_normalized
 from resection.pose.acceptance import judge
 from resection.sequence.results import FrameResult
 
-__all__ = ["predict_pose", "project_poses", "refine_pose", "track_predicted"]
+__all__ = ["expected_markers", "predict_pose", "project_poses", "refine_pose",
+           "track_predicted"]
 
 #: fraction of the markers predicted in the image that must be found
 MIN_FOUND_FRACTION = 0.8
 #: the gate, as a fraction of the distance to the nearest other predicted marker
 GATE_SPACING_FRACTION = 0.3
+#: markers not expected in a frame (never seen, or lost) are looked for in the frames whose
+#: index is a multiple of this
+PROBE_EVERY = 5
+#: a marker never seen is expected when its normal is within this angle of the line of
+#: sight (degrees): beyond it a disk is an ellipse of aspect under 1/2, which the disk model
+#: may not fit; such a marker is probed instead
+EXPECT_MAX_ANGLE = 60.0
+#: fitted diameter of a marker picked up by a probe, as factors of the expected one (a
+#: marker seen obliquely fits as a smaller disk)
+PROBE_DIAMETER = (0.5, 1.5)
 
 
 def predict_pose(reference: FrameResult, previous: FrameResult | None,
@@ -166,6 +186,37 @@ def residual_gate(errors, tolerance: float) -> float:
     return float(min(tolerance, max(6.0 * sigma, 0.25)))
 
 
+def expected_markers(setup, reference: FrameResult, previous: FrameResult | None,
+                     center: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Which markers a frame should show: ``(expected, facing_away)``, (N,) bool each.
+
+    Expected: found in the reference frame or the previous good frame, or facing the
+    camera by their normal (``setup.normals``: from the marker file's ``nx,ny,nz`` or
+    ``.tgts`` columns, or from the mesh) within :data:`EXPECT_MAX_ANGLE` between the
+    normal and the line of sight;
+    a marker whose normal faces away from the predicted perspective centre ``center`` is
+    never expected. A marker that was never
+    seen and has no normal is not expected (never counted missing): it is looked for every
+    :data:`PROBE_EVERY` frames.
+    """
+    ids = setup.ids
+    seen = np.isin(ids, np.asarray(reference.ids, str))
+    if previous is not None and previous.ok:
+        seen |= np.isin(ids, np.asarray(previous.ids, str))
+    normals = getattr(setup, "normals", None)
+    if normals is None:
+        return seen, np.zeros(len(ids), bool)
+    known = np.isfinite(normals).all(axis=1)
+    view = center[None, :] - setup.points3d
+    with np.errstate(invalid="ignore"):
+        cosine = np.einsum("ij,ij->i", normals, view) / np.linalg.norm(view, axis=1)
+    # facing within the obliqueness cut-off: expected even if never seen; beyond it (a
+    # grazing view) only if seen, and probed otherwise; facing away: never
+    facing = known & (cosine >= math.cos(math.radians(EXPECT_MAX_ANGLE)))
+    away = known & ~(cosine > 0)
+    return (seen | facing) & ~away, away
+
+
 def track_predicted(img: np.ndarray, setup, reference: FrameResult,
                     previous: FrameResult | None, index: int, name: str) -> FrameResult | None:
     """One frame tracked by prediction from ``reference`` (and ``previous``), or None when
@@ -187,13 +238,25 @@ def track_predicted(img: np.ndarray, setup, reference: FrameResult,
     H, W = img.shape
     u0, v0, u1, v1 = kw.get("roi") or (0, 0, W - 1, H - 1)
     with np.errstate(invalid="ignore"):
-        vis = np.flatnonzero((pred[:, 0] >= u0 + half + 1) & (pred[:, 0] <= u1 - half - 1)
-                             & (pred[:, 1] >= v0 + half + 1) & (pred[:, 1] <= v1 - half - 1))
+        inside = ((pred[:, 0] >= u0 + half + 1) & (pred[:, 0] <= u1 - half - 1)
+                  & (pred[:, 1] >= v0 + half + 1) & (pred[:, 1] <= v1 - half - 1))
+    center = -Rotation.from_rotvec(rvec0).as_matrix().T @ tvec0
+    expected, away = expected_markers(setup, reference, previous, center)
+    vis = np.flatnonzero(inside & expected)
     min_matches = int(_match_default("min_matches", setup.match_kw))
     need = max(setup.min_markers, min_matches, math.ceil(MIN_FOUND_FRACTION * vis.size))
     if vis.size < need or vis.size < 4:
         return None
-    pv = pred[vis]
+    # markers not expected (never seen, or lost) are looked for every PROBE_EVERY frames,
+    # where their window cannot hold an expected marker
+    probe = np.zeros(0, int)
+    if index % PROBE_EVERY == 0:
+        probe = np.flatnonzero(inside & ~expected & ~away)
+        if probe.size:
+            dist_to_expected = cKDTree(pred[vis]).query(pred[probe])[0]
+            probe = probe[dist_to_expected > 2.0 * half]
+    look = np.concatenate([vis, probe])
+    pv = pred[look]
     nn = cKDTree(pv).query(pv, k=2)[0][:, 1]
     gate = np.minimum(R + 1.5, GATE_SPACING_FRACTION * nn)
     # only the box around the predicted markers is read (and negated, for dark markers)
@@ -223,7 +286,8 @@ def track_predicted(img: np.ndarray, setup, reference: FrameResult,
               & (fit["depth"] >= float(kw.get("min_snr", 3.0)) * fit["rms"])
               & (2.0 * fit["radius"] >= lo_d * d) & (2.0 * fit["radius"] <= hi_d * d)
               & (fit["masked_fraction"] <= float(kw.get("max_masked", 0.75))))
-    sel = np.flatnonzero(ok)
+    n_vis = vis.size
+    sel = np.flatnonzero(ok[:n_vis])
     if sel.size > 1:  # two windows on one blob: neither is trusted
         close = cKDTree(found[sel]).query_pairs(max(0.75 * d, 1.5), output_type="ndarray")
         if close.size:
@@ -251,7 +315,37 @@ def track_predicted(img: np.ndarray, setup, reference: FrameResult,
     acc = judge(err, 6, accuracy, max_rms, what="track")
     if not acc.accepted:
         return None
+    if probe.size:  # markers coming into view: those found where the solved pose puts them
+        got = _probed(fit, found, ok, n_vis, probe, uv, cam, rvec, tvec, X, g, d, rmax)
+        if got is not None:
+            idx2, uv2 = np.concatenate([idx, got[0]]), np.vstack([uv, got[1]])
+            r2, t2, res2 = refine_pose(cam, rvec, tvec, X[idx2], uv2, max_radius=rmax)
+            err2 = np.hypot(res2[:, 0], res2[:, 1])
+            acc2 = judge(err2, 6, accuracy, max_rms, what="track")
+            if acc2.accepted and (err2 <= g).all():
+                idx, uv, rvec, tvec, res, acc = idx2, uv2, r2, t2, res2, acc2
     rms = acc.statistic
     return FrameResult(frame=index, file=name, status="ok", rvec=rvec, tvec=tvec, rms=rms,
                        ids=setup.ids[idx].astype(str), uv=uv, residuals=res,
                        method="predicted")
+
+
+def _probed(fit, found, ok, n_vis, probe, uv_tracked, cam, rvec, tvec, X, gate, d, rmax):
+    """The probed markers (never seen or lost) found within the residual ``gate`` of where
+    the pose solved from the tracked markers puts them, with a diameter within
+    :data:`PROBE_DIAMETER` of the expected one, and not on a tracked marker:
+    ``(indices, uv)`` or None."""
+    j = np.flatnonzero(ok[n_vis:])
+    if j.size == 0:
+        return None
+    at = n_vis + j
+    proj = project_poses(cam, rvec, tvec, X[probe[j]], max_radius=rmax)[0]
+    with np.errstate(invalid="ignore"):
+        good = ((np.hypot(*(found[at] - proj).T) <= gate)
+                & (2.0 * fit["radius"][at] >= PROBE_DIAMETER[0] * d)
+                & (2.0 * fit["radius"][at] <= PROBE_DIAMETER[1] * d))
+    if uv_tracked.size:
+        good &= cKDTree(uv_tracked).query(found[at])[0] > max(1.5 * d, 3.0)
+    if not good.any():
+        return None
+    return probe[j[good]], found[at[good]]

@@ -33,6 +33,8 @@ class _Setup:
     pose_kw: dict
     min_markers: int
     roi_margin: float | None = None
+    #: (N, 3) outward unit normals at the markers (NaN rows where unknown), or None
+    normals: np.ndarray | None = None
 
 def _search_roi(setup: _Setup, reference: FrameResult | None, shape) -> tuple | None:
     """Bounding box ``(u_min, v_min, u_max, v_max)`` of all the markers projected with the

@@ -139,6 +139,10 @@ class TrackResult:
     n_computed : int
         Frames computed by this call (the others were resumed from ``out_dir``).
     out_dir : str or None
+    method : (F,) str ndarray or None
+        How each frame's markers were associated (:attr:`FrameResult.method`:
+        ``predicted``, ``matched``, ``linked``, ``""`` when failed); None when unknown
+        (a result read back from the CSVs).
     """
 
     frame: np.ndarray
@@ -159,6 +163,7 @@ class TrackResult:
     reference: int = 0
     n_computed: int = 0
     out_dir: str | None = None
+    method: np.ndarray | None = None
 
     @property
     def ok(self) -> np.ndarray:
@@ -167,6 +172,16 @@ class TrackResult:
 
     def __len__(self) -> int:
         return len(self.frame)
+
+    @property
+    def method_counts(self) -> dict:
+        """Frames by association method: ``{"predicted": n, "matched": n, "linked": n,
+        "failed": n}`` (empty when the methods are unknown). ``matched`` counts the frames
+        that went to the statistical matcher."""
+        if self.method is None:
+            return {}
+        m = np.where(self.status == "ok", self.method, "failed")
+        return {k: int(np.sum(m == k)) for k in ("predicted", "matched", "linked", "failed")}
 
     def marker_positions(self, ids) -> np.ndarray:
         """``(F, len(ids), 2)`` measured positions of the given markers in every frame, NaN
@@ -188,9 +203,9 @@ def _assemble(results, fixed_camera: bool, n_computed: int,
     """The TrackResult of the frames ``results`` (an iterable of FrameResult in frame
     order, consumed one at a time: only the compact arrays of the result are kept)."""
     cols = {k: [] for k in ("frame", "file", "status", "reason", "rms", "rvec", "tvec",
-                            "ids", "uv", "residuals")}
+                            "ids", "uv", "residuals", "method")}
     for r in results:
-        for k in ("frame", "file", "status", "reason", "rms"):
+        for k in ("frame", "file", "status", "reason", "rms", "method"):
             cols[k].append(getattr(r, k))
         cols["rvec"].append(np.asarray(r.rvec, float))
         cols["tvec"].append(np.asarray(r.tvec, float))
@@ -221,4 +236,5 @@ def _assemble(results, fixed_camera: bool, n_computed: int,
         marker_id=mid.astype(str), marker_uv=muv.reshape(-1, 2),
         marker_residual=mres.reshape(-1, 2), fixed_camera=fixed_camera, reference=ref,
         n_computed=n_computed, out_dir=out_dir,
+        method=np.array(cols["method"], dtype=object).astype(str).reshape(F),
     )

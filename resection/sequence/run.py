@@ -39,6 +39,7 @@ def track(
     detect_kw: dict | None = None,
     match_kw: dict | None = None,
     pose_kw: dict | None = None,
+    mesh=None,
 ) -> TrackResult:
     """Track markers and solve the Point of View in every frame of a sequence.
 
@@ -53,7 +54,9 @@ def track(
         Calibrated intrinsics. Without ``link``, its pose must also approximate the pose of
         the first frame (matching starts from it).
     markers3d : path-like, (ids, points) or object with ``ids`` and ``points``
-        The 3-D markers (DESIGN marker CSV ``id,x,y,z[,diameter]``), model units.
+        The 3-D markers (DESIGN marker CSV ``id,x,y,z[,diameter][,nx,ny,nz]`` or a uPSP
+        ``.tgts`` file), model units. Their normals, when given, say which markers face
+        the camera in a frame (see ``mesh``).
     link : path-like or dict, optional
         Linking of the first frame by hand: CSV ``id,candidate`` (see
         :mod:`resection.markers.link`) or ``{id: candidate}``, the candidate numbers being the
@@ -90,6 +93,12 @@ def track(
         Detect only inside the bounding box of the markers projected with the reference
         pose, widened by this many pixels (more than the motion from the reference frame
         plus a marker diameter); None searches the whole image.
+    mesh : path-like or trimesh.Trimesh, optional
+        The model surface: a marker's normal (where the marker file gives none) is that of
+        the nearest face. Tracking by prediction expects in a frame the markers found in
+        the previous frames and those whose normal faces the camera, never one facing
+        away (:func:`resection.sequence.predict.expected_markers`); without normals, a
+        marker never seen is looked for every few frames.
     detect_kw, match_kw, pose_kw : dict, optional
         Extra keyword arguments of ``detect_markers``, ``match_markers`` and
         ``solve_pose`` (``pose_kw`` also goes to the matcher's verifying pose solves; the
@@ -110,7 +119,8 @@ def track(
     frames, setup, link_d, workers, chunk_size = _checked(
         frames, camera, markers3d, link=link, diameter=diameter, polarity=polarity,
         workers=workers, chunk_size=chunk_size, min_markers=min_markers,
-        roi_margin=roi_margin, detect_kw=detect_kw, match_kw=match_kw, pose_kw=pose_kw)
+        roi_margin=roi_margin, detect_kw=detect_kw, match_kw=match_kw, pose_kw=pose_kw,
+        mesh=mesh)
     out = Path(out_dir)
     _check_out_dir(out, frames, markers3d, link)
     frames_dir = out / "frames"
