@@ -385,12 +385,21 @@ def test_default_is_a_local_cluster_and_client_writes_unshared_frames(run60, tmp
 
     monkeypatch.setattr(seq_execute, "_execute_dask", fake_dask)
     monkeypatch.setattr(os, "cpu_count", lambda: 3)
+    # a run this short is finished sooner in this process than by starting workers
+    out = tmp_path / "short"
+    rc = main(["track", *files["frames"][:8], "--camera", files["camera"], "--markers",
+               files["markers"], "--diameter", "5.6", "--out", str(out), "--no-progress",
+               "--chunk-size", "3"])
+    assert rc == 0 and "8/8 frames solved" in capsys.readouterr().out and not seen
+    # with workers that start at no cost, the chunks after the first (timed here) go to
+    # the cluster: three chunks, the first here, two workers for the two others
+    monkeypatch.setattr(seq_execute, "LOCAL_CLUSTER_START_S", 0.0)
     out = tmp_path / "cli"
     rc = main(["track", *files["frames"][:8], "--camera", files["camera"], "--markers",
                files["markers"], "--diameter", "5.6", "--out", str(out), "--no-progress",
                "--chunk-size", "3"])
     assert rc == 0 and "8/8 frames solved" in capsys.readouterr().out
-    assert seen["workers"] == 3 and seen["scheduler"] is None
+    assert seen["workers"] == 2 and seen["scheduler"] is None
     assert os.path.isabs(seen["frames_dir"])
     assert len(list((out / "frames").glob("frame_*.json"))) == 8
     np.testing.assert_allclose(read_track(out).angles, ref.angles[:8], atol=1e-9)
@@ -398,15 +407,28 @@ def test_default_is_a_local_cluster_and_client_writes_unshared_frames(run60, tmp
     res = _track(files["frames"][:8], cam, files["markers"], diameter=5.6, out_dir=out,
                  chunk_size=3, progress=False)
     assert res.n_computed == 0
-    # no more local workers than chunks: two chunks, two workers; one chunk, no cluster
+    # no more local workers than chunks: three chunks, two workers; two chunks (one
+    # left after the first), no cluster; one chunk, no cluster
     seen.clear()
-    _track(files["frames"][:8], cam, files["markers"], diameter=5.6, out_dir=tmp_path / "b",
-           chunk_size=4, progress=False)
+    _track(files["frames"][:10], cam, files["markers"], diameter=5.6,
+           out_dir=tmp_path / "b", chunk_size=3, progress=False)
     assert seen["workers"] == 2
+    seen.clear()
+    _track(files["frames"][:8], cam, files["markers"], diameter=5.6,
+           out_dir=tmp_path / "b2", chunk_size=4, progress=False)
+    assert not seen
     seen.clear()
     res = _track(files["frames"][:4], cam, files["markers"], diameter=5.6,
                  out_dir=tmp_path / "c", chunk_size=4, progress=False)
     assert not seen and res.ok.all() and res.n_computed == 4
+
+
+def test_cluster_pays_only_when_it_finishes_sooner():
+    from resection.sequence.execute import cluster_pays
+
+    # 3 s to start two workers: they finish 10 s of work in 3 + 5 s, but not 5 s (3 + 2.5)
+    assert cluster_pays(10.0, 2, start_s=3.0) and not cluster_pays(5.0, 2, start_s=3.0)
+    assert cluster_pays(4.0, 4, start_s=2.0) and not cluster_pays(100.0, 1, start_s=0.0)
 
 
 def test_pose_options_reach_every_solve(run60, tmp_path, capsys):

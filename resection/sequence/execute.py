@@ -4,6 +4,7 @@ frames in this process or on a Dask cluster, then the repair pass."""
 from __future__ import annotations
 
 import os
+import time
 from pathlib import Path
 
 from resection.errors import InputError
@@ -24,6 +25,11 @@ from resection.sequence.results import FrameResult
 #: of a tracked frame in a worker (20 ms against 11 ms in this process, 1 Mpx frames,
 #: bench_track.py). Unset (None), the workers allocate as this process does.
 LOCAL_WORKER_CONFIG = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
+#: seconds to start a local cluster of worker processes and load the package and its
+#: compiled kernels in them (measured 2.7 s on the 2-core development machine, more
+#: under load: ``bench/bench_track.py``). A run starts them only when the work left after
+#: the first chunk, timed in this process, takes longer than that plus its share.
+LOCAL_CLUSTER_START_S = 3.0
 
 
 def run_frames(frames: list, setup: _Setup, link: dict | None, done: dict, *,
@@ -60,6 +66,17 @@ def run_frames(frames: list, setup: _Setup, link: dict | None, done: dict, *,
             record(first)
         tasks = _chunks(frames, done, first if first.ok else None, chunk_size, frames_dir)
         n_local = min(workers, len(tasks))  # no idle local workers: start-up costs
+        if tasks and scheduler is None and n_local > 1:
+            # no worker processes for a run that this process finishes sooner: the first
+            # chunk runs here, timed, and the rest goes to a local cluster only if that
+            # pays its start-up
+            t0 = time.perf_counter()
+            _execute_local(setup, tasks[:1], record)
+            per_frame = (time.perf_counter() - t0) / max(_to_compute(tasks[:1]), 1)
+            tasks = tasks[1:]
+            n_local = min(workers, len(tasks))
+            if not cluster_pays(per_frame * _to_compute(tasks), n_local):
+                n_local = 1
         if tasks and scheduler is None and n_local == 1:
             _execute_local(setup, tasks, record)
         elif tasks:
@@ -78,6 +95,18 @@ def run_frames(frames: list, setup: _Setup, link: dict | None, done: dict, *,
     finally:
         bar.close()
     return computed
+
+
+def cluster_pays(seconds: float, workers: int, start_s: float | None = None) -> bool:
+    """Whether ``workers`` local worker processes finish ``seconds`` of work in this
+    process sooner, their start-up ``start_s`` (default :data:`LOCAL_CLUSTER_START_S`)
+    included (perfect scaling assumed, so the answer errs towards starting them)."""
+    start = LOCAL_CLUSTER_START_S if start_s is None else float(start_s)
+    return workers > 1 and start + seconds / workers < seconds
+
+
+def _to_compute(tasks) -> int:
+    return sum(len(items) - len(done) for items, _, done in tasks)
 
 
 def _chunks(frames: list, done: dict, seed: FrameResult | None, chunk_size: int,
