@@ -64,21 +64,24 @@ def run_frames(frames: list, setup: _Setup, link: dict | None, done: dict, *,
             first = (_process_linked(frames[0], 0, setup, link) if link is not None
                      else _process_frame(frames[0], 0, setup, None))
             record(first)
-        tasks = _chunks(frames, done, first if first.ok else None, chunk_size, frames_dir)
+        seed0 = first if first.ok else None
+        tasks = _chunks(frames, done, seed0, chunk_size, frames_dir)
         n_local = min(workers, len(tasks))  # no idle local workers: start-up costs
         if tasks and scheduler is None and n_local > 1:
             # no worker processes for a run that this process finishes sooner: the first
             # chunk runs here, timed, and the rest goes to a local cluster only if that
             # pays its start-up
             t0 = time.perf_counter()
-            _execute_local(setup, tasks[:1], record)
+            last = _execute_local(setup, tasks[:1], record, (seed0, None))
             per_frame = (time.perf_counter() - t0) / max(_to_compute(tasks[:1]), 1)
             tasks = tasks[1:]
             n_local = min(workers, len(tasks))
             if not cluster_pays(per_frame * _to_compute(tasks), n_local):
                 n_local = 1
+        else:
+            last = (seed0, None)
         if tasks and scheduler is None and n_local == 1:
-            _execute_local(setup, tasks, record)
+            _execute_local(setup, tasks, record, last)
         elif tasks:
             todo = {i for items, _, _ in tasks for i, _ in items if i not in done}
             _execute_dask(setup, tasks, _on_chunk(frames_dir, todo, note),
@@ -158,9 +161,23 @@ def _on_chunk(frames_dir: Path, todo: set, note):
     return on_chunk
 
 
-def _execute_local(setup, tasks, on_frame):
+def _execute_local(setup, tasks, on_frame, last=None):
+    """The chunks one after the other in this process, each seeded with the last two good
+    frames of the chunk before it (``last``: those before the first chunk), as they are
+    known here: a chunk's first frame is then predicted from the frames just before it
+    rather than from frame 0, as on a cluster (the results agree to the solver's
+    convergence). Returns the last two good frames."""
+    last = last or (None, None)
     for items, seed, done in tasks:
-        _run_chunk(setup, items, seed, done, on_frame)
+        ref, prev = last if last[0] is not None else (seed, None)
+        dicts = _run_chunk(setup, items, ref, done, on_frame, previous=prev)
+        good = [d for d in dicts if d["status"] == "ok"]
+        if good:
+            tail = [FrameResult.from_dict(d) for d in good[-2:]]
+            last = (tail[-1], tail[0] if len(tail) == 2 else ref)
+        else:
+            last = (None, None)
+    return last
 
 
 def _execute_dask(setup, tasks, on_chunk, on_poll, scheduler, workers, frames_dir,

@@ -207,25 +207,51 @@ def _apply_link(candidates, link: dict, setup: _Setup) -> tuple[np.ndarray, np.n
     return np.array(list(pairs), dtype=str), candidates.uv[idx].reshape(-1, 2)
 
 
+#: ``matched_from`` of a frame left uncomputed by its chunk (see :func:`_run_chunk`)
+DEFERRED = -2
+
+
 def _run_chunk(setup: _Setup, items: list, seed: FrameResult | None,
                done: dict | None = None,
                on_frame: Callable[[FrameResult], None] | None = None,
-               frames_dir: str | None = None) -> list[dict]:
+               frames_dir: str | None = None,
+               previous: FrameResult | None = None) -> list[dict]:
     """Process consecutive frames ``items = [(index, frame), ...]``, each matched from the
-    previous good one (the first from ``seed``). Frames already in ``done`` (index -> dict)
-    are not recomputed but serve as references. With ``frames_dir`` (a Dask task) every
-    frame's result file is written there as soon as the frame is finished, so that an
-    interruption loses at most the frame in progress. Returns the frames' dictionaries."""
+    previous good one (the first from ``seed``, and ``previous``, the good frame before it,
+    when known). Frames already in ``done`` (index -> dict) are not recomputed but serve as
+    references. With ``frames_dir`` (a Dask task) every frame's result file is written
+    there as soon as the frame is finished, so that an interruption loses at most the
+    frame in progress. Returns the frames' dictionaries.
+
+    A chunk seeded from a frame other than the one just before it (frame 0, for chunks run
+    in parallel) whose first frame fails from the seed computes no more: the model moved
+    too far since the seed, and every frame would fail alike, each at the price of a
+    detection and a statistical match. Its frames are recorded as failed with
+    ``matched_from = DEFERRED``, and the sequential pass (:func:`_repair`) computes them
+    from the good frame before them."""
     done = done or {}
-    ref, prev = seed, None
+    ref, prev = seed, previous
     out = []
     sources: dict = {}  # multi-frame files, opened once for the chunk
+    far_seed = seed is not None and bool(items) and seed.frame < items[0][0] - 1
+    deferred = None
     try:
         for index, frame in items:
             if index in done:
                 res = FrameResult.from_dict(done[index])
+            elif deferred is not None:
+                res = FrameResult(frame=index, file=_frame_name(frame), status="failed",
+                                  reason=deferred, matched_from=DEFERRED,
+                                  source=fingerprint(frame))
+                if frames_dir is not None:
+                    _try_write_frame(Path(frames_dir), res)
+                if on_frame is not None:
+                    on_frame(res)
             else:
                 res = _process_frame(frame, index, setup, ref, prev, sources=sources)
+                if far_seed and not res.ok and ref is seed:
+                    deferred = (f"not computed in its chunk: frame {index} failed from "
+                                f"frame {seed.frame}")
                 if frames_dir is not None:
                     _try_write_frame(Path(frames_dir), res)
                 if on_frame is not None:
@@ -255,7 +281,7 @@ def _repair(frames: list, setup: _Setup, done: dict, record, frames_dir: Path) -
         if ok:
             last_good = i
             continue
-        if last_good is None or matched_from == last_good:
+        if last_good is None or (matched_from == last_good and matched_from != DEFERRED):
             continue
         ref = FrameResult.from_dict(_read_frame(_frame_path(frames_dir, last_good)))
         res = _process_frame(frames[i], i, setup, ref)

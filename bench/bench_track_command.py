@@ -1,0 +1,222 @@
+"""The whole ``resection track`` command, start-up included, against an OpenCV-parts
+pipeline on the same frames, in the same run (issue 21).
+
+Scene: ``scenes.revolution`` (cylinder-cone-fin body, 36 targets all around, about half of
+them on the far side, no normals and no mesh; 1280 x 800 8-bit frames with speckled paint,
+glare and vibration, a roll sweep; 100 fps). ``--frames`` frames are rendered once (to
+``--cache``, reused), the 200-frame period listed again for longer runs (the motion is
+periodic over 200 frames, so the run stays continuous).
+
+Each round runs, one after the other, in fresh processes (``python -m ...``):
+
+* ``resection track FRAMES --link LINK ...`` (default workers: the run decides whether a
+  local cluster pays its start-up), timed from the process start to its end;
+* the OpenCV pipeline of ``bench/bench_track.py`` (``read_image``, 8-bit scaling,
+  ``SimpleBlobDetector``, nearest neighbour within 5 px of the markers projected with the
+  previous pose, ``solvePnP`` from the previous pose), seeded with the exact frame-0 pose,
+  writing its poses to a CSV; its imports included.
+
+The rounds alternate (``--repeat``), the best of each is kept. Printed: frames/s of each
+and their ratio, the peak resident memory (flat: the same for 200 and 2,000 frames), how many frames went to the statistical matcher, the accuracy of both
+against the known motion. ``--profile`` also runs ``track`` in this process under cProfile
+and prints the steady cost per frame split by step.
+
+Start-up and steady cost come from two run lengths: ``T(N) = S + N c``.
+
+Run: ``.venv/bin/python bench/bench_track_command.py --frames 200 2000 [--repeat 2]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+PERIOD = 200
+
+
+def render(cache: Path) -> dict:
+    """The 200 frames of one period, the camera, markers and the link of frame 0."""
+    from scipy.spatial import cKDTree
+
+    from resection.io.images import read_image
+    from resection.markers import detect_markers
+    from scenes.revolution import revolution_model, write_sequence
+
+    model = revolution_model(PERIOD)
+    done = cache / "done.json"
+    if not done.is_file():
+        t = time.perf_counter()
+        write_sequence(model, cache)
+        print(f"rendered {PERIOD} frames in {time.perf_counter() - t:.0f} s")
+        cands = detect_markers(read_image(cache / "frame_00000.npy", mask_saturated=True),
+                               5.0)
+        vis = model.visible(0)
+        d, j = cKDTree(cands.uv).query(model.uv(0)[vis])
+        with open(cache / "link.csv", "w", encoding="utf-8") as fh:
+            fh.write("id,candidate\n")
+            for k, i, e in zip(model.ids[vis], j, d, strict=True):
+                if e < 1.0:
+                    fh.write(f"{k},{i}\n")
+        done.write_text("{}")
+    return {"model": model, "frames": [str(cache / f"frame_{k:05d}.npy") for k in range(PERIOD)],
+            "camera": str(cache / "camera.json"), "markers": str(cache / "markers.csv"),
+            "link": str(cache / "link.csv")}
+
+
+def timed(cmd: list[str], env: dict) -> tuple[float, float, str]:
+    """Wall seconds, peak RSS (MiB) of a command, and its stdout."""
+    t = time.perf_counter()
+    p = subprocess.run(["/usr/bin/time", "-f", "%M", *cmd], env=env, capture_output=True,
+                       text=True, check=True)
+    wall = time.perf_counter() - t
+    rss = float(p.stderr.strip().splitlines()[-1]) / 1024.0
+    return wall, rss, p.stdout
+
+
+OPENCV_RUNNER = """
+import sys, json, numpy as np
+sys.path.insert(0, {root!r}); sys.path.insert(0, {bench!r})
+from bench_track import opencv_pipeline
+from resection.io.cameras import read_camera
+from resection.io.markers import read_markers
+args = json.load(open({args!r}))
+cam = read_camera(args["camera"]); ms = read_markers(args["markers"])
+rv, tv, uv = opencv_pipeline(args["frames"], cam, ms.ids, ms.xyz, np.array(args["rvec0"]),
+                             np.array(args["tvec0"]), 5.0)
+np.save(args["out"], np.hstack([rv, tv]))
+"""
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", type=int, nargs="+", default=[200, 2000])
+    ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument("--cache", default="/tmp/bench_track_revolution")
+    ap.add_argument("--workers", type=int, default=None,
+                    help="track's --workers (default: its own choice)")
+    ap.add_argument("--profile", action="store_true")
+    args = ap.parse_args()
+    cache = Path(args.cache)
+    cache.mkdir(parents=True, exist_ok=True)
+    sc = render(cache)
+    model = sc["model"]
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    py = sys.executable
+    cam0 = model.camera_at(0)
+    print(f"load average at start: {os.getloadavg()}")
+    results = {}
+    for n in args.frames:
+        frames = [sc["frames"][k % PERIOD] for k in range(n)]
+        out = cache / f"out_{n}"
+        track_cmd = [py, "-m", "resection.cli", "track", *frames, "--camera", sc["camera"],
+                     "--markers", sc["markers"], "--link", sc["link"], "--diameter", "5",
+                     "--out", str(out), "--no-progress", "--no-resume"]
+        if args.workers is not None:
+            track_cmd += ["--workers", str(args.workers)]
+        cv_args = cache / f"cv_{n}.json"
+        cv_args.write_text(json.dumps({"camera": sc["camera"], "markers": sc["markers"],
+                                       "frames": frames, "rvec0": cam0.rvec.tolist(),
+                                       "tvec0": np.asarray(cam0.t).tolist(),
+                                       "out": str(cache / f"cv_{n}.npy")}))
+        cv_cmd = [py, "-c", OPENCV_RUNNER.format(root=str(ROOT), bench=str(ROOT / "bench"),
+                                                 args=str(cv_args))]
+        best = {"track": (np.inf, 0.0), "opencv": (np.inf, 0.0)}
+        loads = []
+        for _ in range(args.repeat):
+            for key, cmd in (("track", track_cmd), ("opencv", cv_cmd)):
+                loads.append(os.getloadavg()[0])
+                wall, rss, stdout = timed(cmd, env)
+                if key == "track":
+                    summary = stdout.strip().splitlines()
+                if wall < best[key][0]:
+                    best[key] = (wall, rss)
+                print(f"  {n} frames, {key}: {wall:.2f} s ({n / wall:.1f} frames/s), peak "
+                      f"RSS {rss:.0f} MiB")
+        from resection.sequence import read_track
+
+        res = read_track(out)
+        methods = [json.load(open(out / "frames" / f"frame_{k:06d}.json",
+                                  encoding="utf-8"))["method"] for k in range(n)]
+        ang_truth = np.degrees(model.angles[np.arange(n) % PERIOD])
+        from resection.sequence import relative_motion
+
+        e_track = np.abs(res.angles - (ang_truth - ang_truth[0])).max()
+        pv = np.load(cache / f"cv_{n}.npy")
+        ang_cv, _ = relative_motion(pv[:, :3], pv[:, 3:], 0)
+        e_cv = np.nanmax(np.abs(ang_cv - (ang_truth - ang_truth[0])))
+        results[n] = best
+        t_fps, c_fps = n / best["track"][0], n / best["opencv"][0]
+        print(f"{n} frames: track {t_fps:.1f} frames/s (peak {best['track'][1]:.0f} MiB), "
+              f"OpenCV parts {c_fps:.1f} frames/s (peak {best['opencv'][1]:.0f} MiB): "
+              f"ratio {t_fps / c_fps:.2f}; predicted {methods.count('predicted')}, "
+              f"matched {methods.count('matched')}, linked {methods.count('linked')}, "
+              f"failed {int((~res.ok).sum())}; largest attitude difference to the truth "
+              f"track {e_track:.3f} deg, OpenCV {e_cv:.3f} deg; load during the runs "
+              f"{min(loads):.1f}-{max(loads):.1f}")
+        print("  " + " | ".join(summary))
+    if len(args.frames) >= 2:
+        n1, n2 = sorted(args.frames)[:2]
+        for key in ("track", "opencv"):
+            c = (results[n2][key][0] - results[n1][key][0]) / (n2 - n1)
+            s = results[n1][key][0] - n1 * c
+            print(f"{key}: start-up {s:.2f} s, steady {1e3 * c:.2f} ms a frame "
+                  f"({1 / c:.0f} frames/s)")
+    if args.profile:
+        profile(sc, min(args.frames))
+    print(f"load average at the end: {os.getloadavg()}")
+
+
+def profile(sc: dict, n: int) -> None:
+    """``track`` in this process (one worker) under cProfile: the steady cost per frame
+    split by step (cumulative time of the step's function over the frames)."""
+    import cProfile
+    import pstats
+    import tempfile
+
+    from resection.io.cameras import read_camera
+    from resection.sequence import track
+
+    frames = [sc["frames"][k % PERIOD] for k in range(n)]
+    cam = read_camera(sc["camera"])
+    with tempfile.TemporaryDirectory() as tmp:
+        link = sc["link"]
+        track(frames[:3], cam, sc["markers"], link=link, diameter=5.0, out_dir=tmp + "/w",
+              workers=1, progress=False)  # warm: imports, kernels
+        pr = cProfile.Profile()
+        t = time.perf_counter()
+        pr.enable()
+        track(frames, cam, sc["markers"], link=link, diameter=5.0, out_dir=tmp + "/o",
+              workers=1, progress=False)
+        pr.disable()
+        wall = time.perf_counter() - t
+    st = pstats.Stats(pr)
+    steps = {"read frame": "_load_image", "fingerprint": "fingerprint",
+             "predict + gate (whole)": "track_predicted", "window fits": "refine_markers",
+             "pose (Gauss-Newton)": "refine_pose", "acceptance": "judge",
+             "statistical matcher": "match_markers", "detection (matcher frames)":
+             "detect_markers", "write frame file": "_write_frame",
+             "assemble + CSVs": "_write_csvs"}
+    cum = {}
+    for (file, _, fn), (_, _, _, ct, _) in st.stats.items():
+        for label, name in steps.items():
+            if fn == name and "resection" in file:
+                cum[label] = cum.get(label, 0.0) + ct
+    print(f"\nprofile, {n} frames in this process (cProfile adds overhead): {wall:.2f} s, "
+          f"{1e3 * wall / n:.2f} ms a frame")
+    for label in steps:
+        if label in cum:
+            print(f"  {label:28s} {1e3 * cum[label] / n:7.3f} ms a frame")
+
+
+if __name__ == "__main__":
+    main()
