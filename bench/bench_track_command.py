@@ -17,9 +17,10 @@ Each round runs, one after the other, in fresh processes (``python -m ...``):
   writing its poses to a CSV; its imports included.
 
 The rounds alternate (``--repeat``), the best of each is kept. Printed: frames/s of each
-and their ratio, the peak resident memory (flat: the same for 200 and 2,000 frames), how many frames went to the statistical matcher, the accuracy of both
-against the known motion. ``--profile`` also runs ``track`` in this process under cProfile
-and prints the steady cost per frame split by step.
+and their ratio, the peak resident memory (flat: the same for 200 and 2,000 frames), how
+many frames went to the statistical matcher, the accuracy of both against the known
+motion. ``--profile`` also runs ``track`` in this process under cProfile and prints the
+steady cost per frame split by step.
 
 Start-up and steady cost come from two run lengths: ``T(N) = S + N c``.
 

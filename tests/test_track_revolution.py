@@ -60,7 +60,8 @@ def _link(model, frame0, diameter):
 def _check_run(model, res, n):
     """Every frame solved; no marker reported that the camera cannot see; every reported
     marker within 1 px of its true projection; the markers that face the camera within
-    55 degrees for PROBE_EVERY + 1 frames are tracked."""
+    45 degrees for PROBE_EVERY + 1 frames are tracked (beyond, a marker is an ellipse that
+    fits as a smaller disk, and a probe may wait until it faces the camera more)."""
     assert res.ok.all()
     missing = 0
     for k in range(n):
@@ -74,7 +75,7 @@ def _check_run(model, res, n):
         if k > PROBE_EVERY:
             steady = np.ones(len(model.ids), bool)
             for j in range(k - PROBE_EVERY - 1, k + 1):
-                steady &= model.visible(j, min_cos=np.cos(np.radians(55.0)))
+                steady &= model.visible(j, min_cos=np.cos(np.radians(45.0)))
             missing += int(np.setdiff1d(model.ids[steady], ids).size)
     return missing
 
@@ -118,3 +119,19 @@ def test_normals_say_which_markers_face_the_camera(small_run, tmp_path):
                 out_dir=tmp_path / "o", workers=1, progress=False)
     assert res.method_counts["predicted"] >= 0.95 * (n - 1)
     assert _check_run(model, res, n) == 0
+
+
+@pytest.mark.slow
+def test_200_frames_of_1_mpx_tracked_by_prediction(tmp_path):
+    """The issue's case: 200 frames of 1280 x 800 px, 36 targets all around, no normals,
+    no mesh: at least 95 % of the frames by prediction, the matcher counted, no hidden
+    marker reported."""
+    model = revolution_model(200)
+    files = write_sequence(model, tmp_path / "frames")
+    cam = Camera.read(files["camera"])
+    link = _link(model, files["frames"][0], 5.0)
+    res = track(files["frames"], cam, files["markers"], diameter=5.0, link=link,
+                out_dir=tmp_path / "o", workers=1, progress=False)
+    counts = res.method_counts
+    assert counts["predicted"] >= 0.95 * 199 and counts["failed"] == 0
+    assert _check_run(model, res, 200) == 0

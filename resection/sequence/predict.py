@@ -16,8 +16,8 @@ to a few pixels, smoothly. :func:`track_predicted` uses that:
    far side of a body with markers all around) is not counted missing; the markers not
    expected are looked for every :data:`PROBE_EVERY` frames in the same batch of windows,
    and one is taken when found where the pose solved from the others puts it (within the
-   residual gate of step 3, its fitted diameter within :data:`PROBE_DIAMETER` times the
-   expected one), so a marker
+   residual gate of step 3 and :data:`PROBE_GATE`, its fitted size and contrast like
+   the tracked markers': :func:`_probed`), so a marker
    coming into view is picked up within that many frames.
    A fit is kept when it converged, lies within the *gate* of its prediction, has the
    expected size (``diameter_range``), enough contrast (``min_snr`` times the fit's own
@@ -71,6 +71,11 @@ EXPECT_MAX_ANGLE = 60.0
 #: fitted diameter of a marker picked up by a probe, as factors of the expected one (a
 #: marker seen obliquely fits as a smaller disk)
 PROBE_DIAMETER = (0.5, 1.5)
+#: largest distance (px) of a probed marker from where the solved pose puts it
+PROBE_GATE = 0.5
+#: a probed marker's fitted radius and contrast, at least this fraction of the tracked
+#: markers' medians
+PROBE_LIKE = 0.7
 
 
 def predict_pose(reference: FrameResult, previous: FrameResult | None,
@@ -316,7 +321,8 @@ def track_predicted(img: np.ndarray, setup, reference: FrameResult,
     if not acc.accepted:
         return None
     if probe.size:  # markers coming into view: those found where the solved pose puts them
-        got = _probed(fit, found, ok, n_vis, probe, uv, cam, rvec, tvec, X, g, d, rmax)
+        got = _probed(fit, found, ok, n_vis, probe, sel, uv, cam, rvec, tvec, X, g, d,
+                      rmax)
         if got is not None:
             idx2, uv2 = np.concatenate([idx, got[0]]), np.vstack([uv, got[1]])
             r2, t2, res2 = refine_pose(cam, rvec, tvec, X[idx2], uv2, max_radius=rmax)
@@ -330,20 +336,28 @@ def track_predicted(img: np.ndarray, setup, reference: FrameResult,
                        method="predicted")
 
 
-def _probed(fit, found, ok, n_vis, probe, uv_tracked, cam, rvec, tvec, X, gate, d, rmax):
-    """The probed markers (never seen or lost) found within the residual ``gate`` of where
-    the pose solved from the tracked markers puts them, with a diameter within
-    :data:`PROBE_DIAMETER` of the expected one, and not on a tracked marker:
-    ``(indices, uv)`` or None."""
+def _probed(fit, found, ok, n_vis, probe, tracked, uv_tracked, cam, rvec, tvec, X, gate,
+            d, rmax):
+    """The probed markers (never seen or lost) found within the residual ``gate`` (at most
+    :data:`PROBE_GATE`) of where the pose solved from the tracked markers puts them, with
+    a diameter within :data:`PROBE_DIAMETER` of the expected one and a fitted diameter and
+    contrast at least :data:`PROBE_LIKE` times the median of the tracked markers' (fits
+    ``tracked``: a pressure tap or a speckle grain is smaller or fainter), and not on a
+    tracked marker: ``(indices, uv)`` or None. (Without normals, a marker on the far side
+    projects onto the near side's paint: these tests keep it from taking a blob there.)"""
     j = np.flatnonzero(ok[n_vis:])
     if j.size == 0:
         return None
     at = n_vis + j
     proj = project_poses(cam, rvec, tvec, X[probe[j]], max_radius=rmax)[0]
+    r_med = float(np.median(fit["radius"][tracked]))
+    a_med = float(np.median(fit["depth"][tracked]))
     with np.errstate(invalid="ignore"):
-        good = ((np.hypot(*(found[at] - proj).T) <= gate)
+        good = ((np.hypot(*(found[at] - proj).T) <= min(gate, PROBE_GATE))
                 & (2.0 * fit["radius"][at] >= PROBE_DIAMETER[0] * d)
-                & (2.0 * fit["radius"][at] <= PROBE_DIAMETER[1] * d))
+                & (2.0 * fit["radius"][at] <= PROBE_DIAMETER[1] * d)
+                & (fit["radius"][at] >= PROBE_LIKE * r_med)
+                & (fit["depth"][at] >= PROBE_LIKE * a_med))
     if uv_tracked.size:
         good &= cKDTree(uv_tracked).query(found[at])[0] > max(1.5 * d, 3.0)
     if not good.any():
