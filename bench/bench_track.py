@@ -40,8 +40,10 @@ import numpy as np
 from resection.io.cameras import read_camera
 
 
-def opencv_pipeline(frames, camera, ids, points3d, rvec0, tvec0, diameter):
-    """The same job from OpenCV parts; returns (rvecs, tvecs, uv (F, K, 2))."""
+def opencv_pipeline(frames, camera, ids, points3d, rvec0, tvec0, diameter, *,
+                    step: int = 10):
+    """The same job from OpenCV parts; returns (rvecs, tvecs, uv (F, K, 2)). 8-bit frames
+    are detected as they are (no scaling); ``step``: the blob detector's threshold step."""
     import cv2
     from scipy.spatial import cKDTree
 
@@ -60,16 +62,19 @@ def opencv_pipeline(frames, camera, ids, points3d, rvec0, tvec0, diameter):
     params.filterByInertia = False
     params.minThreshold = 10
     params.maxThreshold = 250
-    params.thresholdStep = 10
+    params.thresholdStep = step
     params.minDistBetweenBlobs = diameter
     detector = cv2.SimpleBlobDetector_create(params)
     rvec, tvec = rvec0.reshape(3, 1).copy(), tvec0.reshape(3, 1).copy()
     X = np.ascontiguousarray(points3d, dtype=np.float64)
     rv, tv, uvs = [], [], []
     for f in frames:
-        img = read_image(f)
-        lo, hi = np.percentile(img, [0.1, 99.9])
-        img8 = np.clip((img - lo) * (255.0 / max(hi - lo, 1e-9)), 0, 255).astype(np.uint8)
+        img = np.load(f) if str(f).endswith(".npy") else read_image(f)
+        if img.dtype == np.uint8:
+            img8 = img
+        else:
+            lo, hi = np.percentile(img, [0.1, 99.9])
+            img8 = np.clip((img - lo) * (255.0 / max(hi - lo, 1e-9)), 0, 255).astype(np.uint8)
         kps = detector.detect(img8)
         cand = np.array([k.pt for k in kps], dtype=np.float64).reshape(-1, 2)
         pred, _ = cv2.projectPoints(X, rvec, tvec, K, dist)

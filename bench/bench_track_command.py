@@ -11,8 +11,9 @@ Each round runs, one after the other, in fresh processes (``python -m ...``):
 
 * ``resection track FRAMES --link LINK ...`` (default workers: the run decides whether a
   local cluster pays its start-up), timed from the process start to its end;
-* the OpenCV pipeline of ``bench/bench_track.py`` (``read_image``, 8-bit scaling,
-  ``SimpleBlobDetector``, nearest neighbour within 5 px of the markers projected with the
+* the OpenCV pipeline of ``bench/bench_track.py`` (the 8-bit frame as it is,
+  ``SimpleBlobDetector`` with thresholds from 10 to 250 by ``--opencv-step``, nearest
+  neighbour within 5 px of the markers projected with the
   previous pose, ``solvePnP`` from the previous pose), seeded with the exact frame-0 pose,
   writing its poses to a CSV; its imports included.
 
@@ -93,7 +94,7 @@ from resection.io.markers import read_markers
 args = json.load(open({args!r}))
 cam = read_camera(args["camera"]); ms = read_markers(args["markers"])
 rv, tv, uv = opencv_pipeline(args["frames"], cam, ms.ids, ms.xyz, np.array(args["rvec0"]),
-                             np.array(args["tvec0"]), 5.0)
+                             np.array(args["tvec0"]), 5.0, step=args["step"])
 np.save(args["out"], np.hstack([rv, tv]))
 """
 
@@ -106,6 +107,9 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=None,
                     help="track's --workers (default: its own choice)")
     ap.add_argument("--profile", action="store_true")
+    ap.add_argument("--opencv-step", type=int, default=10,
+                    help="the blob detector's threshold step (bench_track.py: 10; 20 halves "
+                    "its time)")
     args = ap.parse_args()
     cache = Path(args.cache)
     cache.mkdir(parents=True, exist_ok=True)
@@ -128,7 +132,8 @@ def main() -> None:
         cv_args.write_text(json.dumps({"camera": sc["camera"], "markers": sc["markers"],
                                        "frames": frames, "rvec0": cam0.rvec.tolist(),
                                        "tvec0": np.asarray(cam0.t).tolist(),
-                                       "out": str(cache / f"cv_{n}.npy")}))
+                                       "out": str(cache / f"cv_{n}.npy"),
+                                       "step": args.opencv_step}))
         cv_cmd = [py, "-c", OPENCV_RUNNER.format(root=str(ROOT), bench=str(ROOT / "bench"),
                                                  args=str(cv_args))]
         best = {"track": (np.inf, 0.0), "opencv": (np.inf, 0.0)}

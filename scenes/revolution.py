@@ -74,11 +74,12 @@ def _body_point(x, theta):
     return p, n
 
 
-def _layout(rng):
-    """Targets (36) and taps: positions, normals."""
+def _layout(rng, counts=(10, 8, 7, 7)):
+    """Targets (``sum(counts) + 4``: rings on the cylinder, four on the cone) and taps:
+    positions, normals."""
     # rings of unequal counts, jittered: no roll of the body maps the layout onto itself
     # (a regular layout would make the statistical matcher's answer ambiguous)
-    xs, counts = [-0.17, -0.07, 0.03, 0.11], [10, 8, 7, 7]
+    xs = [-0.17, -0.07, 0.03, 0.11]
     th, x = [], []
     for j, (xr, m) in enumerate(zip(xs, counts, strict=True)):
         th.extend(2 * np.pi * np.arange(m) / m + j * 0.6 + np.radians(rng.uniform(-9, 9, m)))
@@ -351,7 +352,7 @@ def revolution_model(n_frames: int = 200, *, shape=(800, 1280), fps: float = 100
                      period: int = 200, roll_deg: float = 25.0, vibration: float = 1.0,
                      marker_px: float = 5.0, tap_px: float = 2.5, speckle: float = 0.10,
                      grain: float = 2.0, snr: float = 20.0, roll0_deg: float = 0.0,
-                     glare=None, seed: int = 0) -> RevolutionModel:
+                     glare=None, rings=(10, 8, 7, 7), seed: int = 0) -> RevolutionModel:
     """The body of revolution pitching, yawing, heaving and rolling in front of a camera.
 
     Parameters
@@ -374,6 +375,9 @@ def revolution_model(n_frames: int = 200, *, shape=(800, 1280), fps: float = 100
         See :class:`RevolutionModel`.
     roll0_deg : float
         Roll offset of the whole run.
+    rings : tuple of int
+        Targets in each of the four rings on the cylinder (four more on the cone; the
+        default makes 36).
     glare : (u, v), optional
         Glare centre; default on the body's upper side.
     seed : int
@@ -386,7 +390,7 @@ def revolution_model(n_frames: int = 200, *, shape=(800, 1280), fps: float = 100
     cam = Camera.look_at(eye, [0.01, 0.0, 0.0], [0.0, 0.0, 1.0], K=K, width=W, height=H,
                          dist=[-0.04, 0.0, 0.0, 0.0, 0.0], name="body of revolution camera")
     rng = np.random.default_rng([int(seed), 3])
-    pts, nrm, tpts, tnrm = _layout(np.random.default_rng(2121))
+    pts, nrm, tpts, tnrm = _layout(np.random.default_rng(2121), rings)
     ids = np.array([f"T{i:02d}" for i in range(len(pts))])
     px_m = f / np.linalg.norm(eye)
     n = int(n_frames)
@@ -412,14 +416,16 @@ def revolution_model(n_frames: int = 200, *, shape=(800, 1280), fps: float = 100
 
 def paint_frame(seed: int, *, snr: float = 20.0, shape=(800, 1280)):
     """One real-looking frame for detection benchmarks, its parameters drawn from ``seed``:
-    target size 4-6 px, tap size 2-3 px, speckle contrast 5-15 %, grain 1-3 px, glare
-    position and roll angle.
+    target size 4-6 px, tap size 2-3 px, speckle contrast (RMS) 5-15 %, grain 1-3 px,
+    glare position and roll angle. The body carries 59 targets (rings of 18, 13, 12 and 12,
+    four on the cone): 16 to 24 face the camera within 60 degrees.
 
     Returns
     -------
     image : (H, W) uint8
     truth : (N, 2) ndarray
-        True centres of the targets that face the camera at 70 degrees or less (pixels).
+        True centres of the targets that face the camera within 60 degrees (pixels; beyond
+        it a target is an ellipse of aspect under 1/2, counted neither found nor missed).
     diameter : float
         The targets' nominal diameter on the image, pixels.
     model : RevolutionModel
@@ -429,9 +435,9 @@ def paint_frame(seed: int, *, snr: float = 20.0, shape=(800, 1280)):
     model = revolution_model(1, shape=shape, marker_px=d, tap_px=rng.uniform(2.0, 3.0),
                              speckle=rng.uniform(0.05, 0.15), grain=rng.uniform(1.0, 3.0),
                              snr=snr, roll0_deg=rng.uniform(0, 360), roll_deg=0.0,
-                             seed=int(seed))
+                             rings=(18, 13, 12, 12), seed=int(seed))
     img = model.image(0)
-    keep = model.visible(0, min_cos=np.cos(np.radians(70.0)))
+    keep = model.visible(0, min_cos=np.cos(np.radians(60.0)))
     return img, model.uv(0)[keep], d, model
 
 
