@@ -451,6 +451,7 @@ def write_sequence(model: RevolutionModel, out_dir, *, frames=None,
     dict
         ``frames`` (paths), ``camera``, ``markers``, ``truth`` (paths).
     """
+    from resection.io.cameras import write_camera
     from resection.io.markers import write_markers
 
     out = Path(out_dir)
@@ -468,7 +469,7 @@ def write_sequence(model: RevolutionModel, out_dir, *, frames=None,
         dR = Rotation.from_rotvec(np.radians([0.3, -0.3, 0.2])).as_matrix()
         cam = cam.with_pose(R=dR @ cam.R, t=cam.t + np.array([0.004, -0.003, 0.005]))
     cam_path = out / "camera.json"
-    cam.write(cam_path)
+    write_camera(cam_path, cam)
     m_path = out / "markers.csv"
     write_markers(m_path, model.ids, model.points3d,
                   np.full(len(model.ids), model.marker_diameter),

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from resection import Camera
+from resection.io.cameras import read_camera
 from resection.io.images import read_image
 from resection.markers import detect_markers
 from resection.sequence import track
@@ -93,7 +93,7 @@ def small_run(tmp_path_factory):
 def test_markers_all_around_tracked_by_prediction(small_run, tmp_path):
     model, files = small_run
     n = model.n_frames
-    cam = Camera.read(files["camera"])
+    cam = read_camera(files["camera"])
     link = _link(model, files["frames"][0], 5.0)
     res = track(files["frames"], cam, files["markers"], diameter=5.0, link=link,
                 out_dir=tmp_path / "o", workers=1, progress=False)
@@ -113,7 +113,7 @@ def test_normals_say_which_markers_face_the_camera(small_run, tmp_path):
     n = model.n_frames
     base = tmp_path / "withnormals"
     files_n = write_sequence(model, base, frames=[], normals=True)
-    cam = Camera.read(files_n["camera"])
+    cam = read_camera(files_n["camera"])
     link = _link(model, files["frames"][0], 5.0)
     res = track(files["frames"], cam, files_n["markers"], diameter=5.0, link=link,
                 out_dir=tmp_path / "o", workers=1, progress=False)
@@ -128,7 +128,7 @@ def test_200_frames_of_1_mpx_tracked_by_prediction(tmp_path):
     marker reported."""
     model = revolution_model(200)
     files = write_sequence(model, tmp_path / "frames")
-    cam = Camera.read(files["camera"])
+    cam = read_camera(files["camera"])
     link = _link(model, files["frames"][0], 5.0)
     res = track(files["frames"], cam, files["markers"], diameter=5.0, link=link,
                 out_dir=tmp_path / "o", workers=1, progress=False)
