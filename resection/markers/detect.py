@@ -60,6 +60,11 @@ __all__ = [
 ]
 
 _FIELDS = ("u", "v", "diameter", "depth", "merit", "snr")
+#: Levenberg-Marquardt iterations of a candidate's disk fit in detection. A marker converges
+#: in 2 or 3 model evaluations from its start; a speckle grain or noise blob does not
+#: converge and would use them all (30 took 1.75 times as long on speckled paint, for the
+#: same markers: bench/bench_detect_paint.py).
+FIT_ITERATIONS = 10
 
 
 @dataclass(frozen=True)
@@ -413,7 +418,7 @@ def detect_markers(
         return empty
     # the fit reads its windows from the frame itself (sign and fill level applied there)
     fit = fit_frame(part, mpart, sat, sign, fill, np.column_stack([pu, pv]).astype(float), d,
-                    blur=blur, strength=m, iterations=30 if refine else 0)
+                    blur=blur, strength=m, iterations=FIT_ITERATIONS if refine else 0)
     if not refine:  # the merit is the better contrast estimate of an unfitted marker
         fit["depth"] = m
     fu, fv, fr = fit["u"], fit["v"], fit["radius"]
