@@ -72,14 +72,17 @@ def main() -> None:
     ap.add_argument("--snr", type=float, default=20.0)
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--no-screen", action="store_true")
+    ap.add_argument("--speckle", type=float, default=None,
+                    help="RMS speckle contrast of every frame (default: drawn, 5-15 %%; 0: "
+                    "plain paint, the accuracy without the paint's texture)")
     args = ap.parse_args()
     print(f"load average: {os.getloadavg()}")
     # compile / load the kernels before timing
-    img0, _, d0, _ = paint_frame(args.seeds[0], snr=args.snr)
+    img0, _, d0, _ = paint_frame(args.seeds[0], snr=args.snr, speckle=args.speckle)
     detect_markers(img0, d0)
     rows = []
     for seed in args.seeds:
-        img, truth, d, model = paint_frame(seed, snr=args.snr)
+        img, truth, d, model = paint_frame(seed, snr=args.snr, speckle=args.speckle)
         cv = opencv_detector(d)
         fns = {"ours": functools.partial(detect_markers, img, d),
                "opencv": functools.partial(cv, img)}

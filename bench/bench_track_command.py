@@ -60,16 +60,16 @@ def render(cache: Path) -> dict:
         t = time.perf_counter()
         write_sequence(model, cache)
         print(f"rendered {PERIOD} frames in {time.perf_counter() - t:.0f} s")
-        cands = detect_markers(read_image(cache / "frame_00000.npy", mask_saturated=True),
-                               5.0)
-        vis = model.visible(0)
-        d, j = cKDTree(cands.uv).query(model.uv(0)[vis])
-        with open(cache / "link.csv", "w", encoding="utf-8") as fh:
-            fh.write("id,candidate\n")
-            for k, i, e in zip(model.ids[vis], j, d, strict=True):
-                if e < 1.0:
-                    fh.write(f"{k},{i}\n")
         done.write_text("{}")
+    # the linking of frame 0 (candidate numbers of this version's detection), every run
+    cands = detect_markers(read_image(cache / "frame_00000.npy", mask_saturated=True), 5.0)
+    vis = model.visible(0)
+    d, j = cKDTree(cands.uv).query(model.uv(0)[vis])
+    with open(cache / "link.csv", "w", encoding="utf-8") as fh:
+        fh.write("id,candidate\n")
+        for k, i, e in zip(model.ids[vis], j, d, strict=True):
+            if e < 1.0:
+                fh.write(f"{k},{i}\n")
     return {"model": model, "frames": [str(cache / f"frame_{k:05d}.npy") for k in range(PERIOD)],
             "camera": str(cache / "camera.json"), "markers": str(cache / "markers.csv"),
             "link": str(cache / "link.csv")}

@@ -414,10 +414,12 @@ def revolution_model(n_frames: int = 200, *, shape=(800, 1280), fps: float = 100
                            glare=tuple(float(g) for g in glare), seed=int(seed))
 
 
-def paint_frame(seed: int, *, snr: float = 20.0, shape=(800, 1280)):
+def paint_frame(seed: int, *, snr: float = 20.0, shape=(800, 1280),
+                speckle: float | None = None):
     """One real-looking frame for detection benchmarks, its parameters drawn from ``seed``:
     target size 4-6 px, tap size 2-3 px, speckle contrast (RMS) 5-15 %, grain 1-3 px,
-    glare position and roll angle. The body carries 59 targets (rings of 18, 13, 12 and 12,
+    glare position and roll angle (``speckle``: a given RMS contrast instead, 0 for plain
+    paint). The body carries 59 targets (rings of 18, 13, 12 and 12,
     four on the cone): 16 to 24 face the camera within 60 degrees.
 
     Returns
@@ -433,7 +435,8 @@ def paint_frame(seed: int, *, snr: float = 20.0, shape=(800, 1280)):
     rng = np.random.default_rng([int(seed), 99])
     d = rng.uniform(4.0, 6.0)
     model = revolution_model(1, shape=shape, marker_px=d, tap_px=rng.uniform(2.0, 3.0),
-                             speckle=rng.uniform(0.05, 0.15), grain=rng.uniform(1.0, 3.0),
+                             speckle=rng.uniform(0.05, 0.15) if speckle is None else speckle,
+                             grain=rng.uniform(1.0, 3.0),
                              snr=snr, roll0_deg=rng.uniform(0, 360), roll_deg=0.0,
                              rings=(18, 13, 12, 12), seed=int(seed))
     img = model.image(0)
