@@ -394,6 +394,7 @@ def test_default_is_a_local_cluster_and_client_writes_unshared_frames(run60, tmp
     # with workers that start at no cost, the chunks after the first (timed here) go to
     # the cluster: three chunks, the first here, two workers for the two others
     monkeypatch.setattr(seq_execute, "LOCAL_CLUSTER_START_S", 0.0)
+    monkeypatch.setattr(seq_execute, "free_cores", lambda: 3.0)  # an idle machine
     out = tmp_path / "cli"
     rc = main(["track", *files["frames"][:8], "--camera", files["camera"], "--markers",
                files["markers"], "--diameter", "5.6", "--out", str(out), "--no-progress",
@@ -429,6 +430,17 @@ def test_cluster_pays_only_when_it_finishes_sooner():
     # 3 s to start two workers: they finish 10 s of work in 3 + 5 s, but not 5 s (3 + 2.5)
     assert cluster_pays(10.0, 2, start_s=3.0) and not cluster_pays(5.0, 2, start_s=3.0)
     assert cluster_pays(4.0, 4, start_s=2.0) and not cluster_pays(100.0, 1, start_s=0.0)
+
+
+def test_free_cores_count_the_load(monkeypatch):
+    from resection.sequence import execute
+
+    monkeypatch.setattr(os, "getloadavg", lambda: (3.9, 3.0, 2.0))
+    monkeypatch.setattr("resection._threads.available_cores", lambda: 2)
+    assert execute.free_cores() == 1.0  # 2 cores, 2.9 busy besides this process
+    monkeypatch.setattr(os, "getloadavg", lambda: (1.5, 1.0, 1.0))
+    monkeypatch.setattr("resection._threads.available_cores", lambda: 16)
+    assert execute.free_cores() == 15.5
 
 
 def test_pose_options_reach_every_solve(run60, tmp_path, capsys):

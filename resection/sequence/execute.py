@@ -76,7 +76,7 @@ def run_frames(frames: list, setup: _Setup, link: dict | None, done: dict, *,
             per_frame = (time.perf_counter() - t0) / max(_to_compute(tasks[:1]), 1)
             tasks = tasks[1:]
             n_local = min(workers, len(tasks))
-            if not cluster_pays(per_frame * _to_compute(tasks), n_local):
+            if not cluster_pays(per_frame * _to_compute(tasks), min(n_local, free_cores())):
                 n_local = 1
         else:
             last = (seed0, None)
@@ -100,12 +100,27 @@ def run_frames(frames: list, setup: _Setup, link: dict | None, done: dict, *,
     return computed
 
 
-def cluster_pays(seconds: float, workers: int, start_s: float | None = None) -> bool:
-    """Whether ``workers`` local worker processes finish ``seconds`` of work in this
-    process sooner, their start-up ``start_s`` (default :data:`LOCAL_CLUSTER_START_S`)
-    included (perfect scaling assumed, so the answer errs towards starting them)."""
+def cluster_pays(seconds: float, workers: float, start_s: float | None = None) -> bool:
+    """Whether ``workers`` local worker processes (a number of cores' worth, at most the
+    free cores) finish ``seconds`` of work in this process sooner, their start-up
+    ``start_s`` (default :data:`LOCAL_CLUSTER_START_S`) included (perfect scaling
+    assumed, so the answer errs towards starting them)."""
     start = LOCAL_CLUSTER_START_S if start_s is None else float(start_s)
     return workers > 1 and start + seconds / workers < seconds
+
+
+def free_cores() -> float:
+    """Cores free for more worker processes: those this process may use less the 1-minute
+    load average of the machine (other users' processes; this process's own share, 1,
+    counted back), at least 1. On a loaded machine a second worker process does not
+    make the run faster."""
+    from resection._threads import available_cores
+
+    try:
+        load = os.getloadavg()[0]
+    except OSError:  # no load average on this platform
+        load = 0.0
+    return max(1.0, available_cores() - max(load - 1.0, 0.0))
 
 
 def _to_compute(tasks) -> int:
