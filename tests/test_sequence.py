@@ -583,3 +583,61 @@ def test_memory_does_not_grow_with_the_frames(run60, tmp_path):
         assert len(done) == n and all(v[0] for v in done.values())
     per_frame = (held[80] - held[20]) / 60
     assert per_frame < 1000, held
+
+
+def test_a_chunk_that_fails_from_a_far_seed_is_left_to_the_sequential_pass(run60, tmp_path):
+    """A chunk seeded from frame 0 (as on a cluster) whose first frame fails computes no
+    more: its other frames are recorded as deferred, not computed; the sequential pass
+    then computes them from the good frame before them, and they agree with the run in
+    this process."""
+    from resection.sequence.execute import _chunks
+    from resection.sequence.inputs import _checked
+    from resection.sequence.process import DEFERRED, _process_frame, _repair, _run_chunk
+
+    model, files, cam, ref, _ = run60
+    n = 12
+    frames = list(files["frames"][:n])
+    bad = tmp_path / "corrupt.npy"
+    bad.write_bytes(b"not an image")
+    frames[5] = str(bad)  # the first frame of the second chunk (frames 5 to 8)
+    frames, setup, _, _, _ = _checked(
+        frames, cam, files["markers"], link=None, diameter=5.6, polarity="dark", workers=1,
+        chunk_size=4, min_markers=4, roi_margin=40.0, detect_kw=None, match_kw=None,
+        pose_kw=None)
+    first = _process_frame(frames[0], 0, setup, None)
+    tasks = _chunks(frames, {}, first, 4, tmp_path)
+    items, seed, done = tasks[1]
+    assert [i for i, _ in items] == [5, 6, 7, 8] and seed.frame == 0
+    computed = []
+    dicts = _run_chunk(setup, items, seed, done, on_frame=computed.append)
+    assert [d["status"] for d in dicts] == ["failed"] * 4
+    assert dicts[0]["matched_from"] == 0 and "corrupt.npy" in dicts[0]["reason"]
+    assert all(d["matched_from"] == DEFERRED and "not computed" in d["reason"]
+               for d in dicts[1:])
+    # the sequential pass: every frame of chunks 1 and 3 good, chunk 2 as recorded
+    from resection.sequence.outputs import _write_frame
+    from resection.sequence.results import FrameResult
+
+    fdir = tmp_path / "frames"
+    fdir.mkdir()
+    state = {}
+    for task in (tasks[0], tasks[2]):
+        for d in _run_chunk(setup, *task[:3]):
+            state[d["frame"]] = d
+    for d in dicts:
+        state[d["frame"]] = d
+    state[0] = first.to_dict()
+    for d in state.values():
+        _write_frame(fdir, FrameResult.from_dict(d))
+    summary = {i: (state[i]["status"] == "ok", state[i]["matched_from"]) for i in range(n)}
+    redone = {}
+
+    def record(res):
+        redone[res.frame] = res
+        _write_frame(fdir, res)
+
+    _repair(frames, setup, summary, record, fdir)
+    assert sorted(redone) == [5, 6, 7, 8]  # the corrupt frame is tried once more
+    assert not redone[5].ok and all(redone[i].ok for i in (6, 7, 8))
+    for i in (6, 7, 8):
+        np.testing.assert_allclose(redone[i].rvec, ref.rvec[i], atol=1e-7)
