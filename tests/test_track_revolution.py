@@ -135,3 +135,27 @@ def test_200_frames_of_1_mpx_tracked_by_prediction(tmp_path):
     counts = res.method_counts
     assert counts["predicted"] >= 0.95 * 199 and counts["failed"] == 0
     assert _check_run(model, res, 200) == 0
+
+
+def test_mesh_gives_the_normals_the_marker_file_lacks(tmp_path):
+    """track(mesh=...): a marker's normal is that of the nearest face (here a finely
+    faceted cylinder: radial within the facets' angle); a normal given in the marker file
+    is kept."""
+    import trimesh
+
+    from resection.sequence.inputs import _mesh_normals
+
+    mesh = trimesh.creation.cylinder(radius=0.05, height=0.4, sections=256)
+    th = np.linspace(0.0, 2.0 * np.pi, 9)[:-1]
+    pts = np.column_stack([0.05 * np.cos(th), 0.05 * np.sin(th), np.linspace(-0.1, 0.1, 8)])
+    given = np.full((8, 3), np.nan)
+    given[3] = [0.0, 0.0, 1.0]
+    n = _mesh_normals(mesh, pts, given)
+    radial = np.column_stack([np.cos(th), np.sin(th), np.zeros(8)])
+    keep = np.arange(8) != 3
+    assert np.all(np.einsum("ij,ij->i", n[keep], radial[keep]) > np.cos(np.radians(1.0)))
+    np.testing.assert_array_equal(n[3], [0.0, 0.0, 1.0])
+    path = tmp_path / "body.stl"
+    mesh.export(path)
+    from_file = _mesh_normals(str(path), pts, None)  # a mesh file: the same normals
+    assert np.all(np.einsum("ij,ij->i", from_file, radial) > np.cos(np.radians(1.0)))
