@@ -16,7 +16,14 @@ from resection.sequence.outputs import (
     _write_frame,
     summary,
 )
-from resection.sequence.process import _process_frame, _process_linked, _repair, _run_chunk, _Setup
+from resection.sequence.process import (
+    DEFERRED,
+    _process_frame,
+    _process_linked,
+    _repair,
+    _run_chunk,
+    _Setup,
+)
 from resection.sequence.results import FrameResult
 
 #: Dask configuration of the local cluster's workers. The nanny sets
@@ -46,11 +53,12 @@ def run_frames(frames: list, setup: _Setup, link: dict | None, done: dict, *,
     computed = 0
 
     def note(d: dict) -> None:
-        """A frame finished (its file is written)."""
+        """A frame finished (its file is written; a deferred one is computed later)."""
         nonlocal computed
         done[d["frame"]] = summary(d)
-        computed += 1
-        bar.update(1)
+        if d.get("matched_from") != DEFERRED:
+            computed += 1
+            bar.update(1)
 
     def record(res: FrameResult) -> None:
         _write_frame(frames_dir, res)
@@ -91,6 +99,8 @@ def run_frames(frames: list, setup: _Setup, link: dict | None, done: dict, *,
         def rerecord(res: FrameResult) -> None:
             nonlocal computed
             _write_frame(frames_dir, res)
+            if done.get(res.frame, (False, -1))[1] == DEFERRED:
+                bar.update(1)
             done[res.frame] = summary(res.to_dict())
             computed += 1
 
