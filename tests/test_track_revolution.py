@@ -7,6 +7,8 @@ known motion as the reference."""
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
@@ -159,3 +161,19 @@ def test_mesh_gives_the_normals_the_marker_file_lacks(tmp_path):
     mesh.export(path)
     from_file = _mesh_normals(str(path), pts, None)  # a mesh file: the same normals
     assert np.all(np.einsum("ij,ij->i", from_file, radial) > np.cos(np.radians(1.0)))
+
+
+def test_bad_mesh_is_a_one_line_error(small_run, tmp_path, capsys):
+    from resection.cli.main import main
+
+    model, files = small_run
+    bad = tmp_path / "bad.stl"
+    bad.write_text("solid x\n")
+    for mesh in (str(tmp_path / "missing.stl"), str(bad)):
+        out = tmp_path / "o"
+        rc = main(["track", *files["frames"][:2], "--camera", files["camera"], "--markers",
+                   files["markers"], "--diameter", "5", "--out", str(out), "--no-progress",
+                   "--mesh", mesh])
+        err = capsys.readouterr().err.strip()
+        assert rc == 2 and "\n" not in err and os.path.basename(mesh) in err
+        assert not out.exists()
