@@ -11,7 +11,6 @@ import numpy as np
 
 from resection.cli.util import add_acceptance_options, add_mesh_format
 from resection.errors import InputError
-from resection.io.cameras import read_camera, write_camera
 from resection.io.outputs import atomic_write
 
 
@@ -133,6 +132,7 @@ def run_detect(args: argparse.Namespace) -> int:
 
 
 def run_link(args: argparse.Namespace) -> int:
+    from resection.io.cameras import read_camera
     from resection.io.images import read_image
     from resection.io.markers import read_markers
     from resection.markers.detect import read_candidates, write_candidates
@@ -216,6 +216,7 @@ def run_link_serve(args: argparse.Namespace) -> int:
 
 
 def run_match(args: argparse.Namespace) -> int:
+    from resection.io.cameras import read_camera, write_camera
     from resection.io.markers import read_markers
     from resection.markers.detect import read_candidates, write_candidates
     from resection.markers.match import match_markers

@@ -12,7 +12,6 @@ import numpy as np
 from resection.cli.markers import add_detect_options, add_enhance_window_option
 from resection.cli.util import add_acceptance_options, add_mesh_format
 from resection.errors import InputError
-from resection.io.cameras import read_camera, write_camera
 from resection.io.outputs import atomic_write
 
 _LOSSES = ("huber", "soft_l1", "cauchy", "arctan")
@@ -110,6 +109,7 @@ def pose_inputs(args: argparse.Namespace, mesh=None):
     """Camera and linked ``(ids, points3d, points2d)`` of the ``pose`` command (the place
     where other sources of image points plug in). ``mesh``: the model surface, if given
     (targets under it are moved out to it)."""
+    from resection.io.cameras import read_camera
     from resection.io.markers import read_markers
     from resection.markers.from_image import image_points
 
@@ -141,6 +141,7 @@ def pose_inputs(args: argparse.Namespace, mesh=None):
 
 
 def run_pose(args: argparse.Namespace) -> int:
+    from resection.io.cameras import write_camera
     from resection.io.images import read_image
     from resection.io.markers import read_markers, write_residuals
     from resection.io.meshes import load_mesh
@@ -200,6 +201,7 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def run_calibrate(args: argparse.Namespace) -> int:
+    from resection.io.cameras import read_camera, write_camera
     from resection.io.markers import write_view_residuals
     from resection.pose.calibration import calibrate
 

@@ -14,7 +14,6 @@ import numpy as np
 from resection.cli.util import add_camera_check_options, add_mesh_format
 from resection.defaults import DEFAULT_MAX_OBLIQUENESS
 from resection.errors import InputError
-from resection.io.cameras import read_camera
 from resection.io.outputs import atomic_path, atomic_write
 
 
@@ -231,6 +230,7 @@ def run_map(args: argparse.Namespace) -> int:
 
 
 def _run_history(args: argparse.Namespace) -> int:
+    from resection.io.cameras import read_camera
     from resection.io.history import xdmf_path
     from resection.io.meshes import load_mesh
     from resection.io.video import open_frames
@@ -386,6 +386,7 @@ def _run_merge(args: argparse.Namespace, names: list) -> int:
 
 
 def run_backproject(args: argparse.Namespace) -> int:
+    from resection.io.cameras import read_camera
     from resection.io.images import read_image, write_image
     from resection.io.meshes import load_mesh
     from resection.surface.surface_map import SurfaceMap
@@ -418,6 +419,7 @@ def run_backproject(args: argparse.Namespace) -> int:
 
 
 def run_align(args: argparse.Namespace) -> int:
+    from resection.io.cameras import read_camera
     from resection.io.images import read_image, write_image
     from resection.io.meshes import load_mesh
     from resection.surface.align import ViewWarp
@@ -431,6 +433,7 @@ def run_align(args: argparse.Namespace) -> int:
 
 
 def run_view(args: argparse.Namespace) -> int:
+    from resection.io.cameras import read_camera
     from resection.io.meshes import load_mesh
     from resection.surface.plots import frame_camera, plot_surface, virtual_camera
 

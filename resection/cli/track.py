@@ -18,7 +18,6 @@ from resection.defaults import (
     TRACK_PRODUCER,
 )
 from resection.errors import InputError
-from resection.io.cameras import read_camera
 
 
 def register(sub) -> None:
@@ -96,6 +95,7 @@ def _json_options(text: str | None, option: str) -> dict | None:
 
 
 def run_track(args: argparse.Namespace) -> int:
+    from resection.io.cameras import read_camera
     from resection.sequence import track
     from resection.sequence.motion_plots import plot_motion
 

@@ -14,10 +14,10 @@ import numpy as np
 from resection.cli.paths import FolderOutput
 from resection.cli.util import add_mesh_format
 from resection.errors import InputError
-from resection.io.cameras import read_camera
 
 
 def _cmd_psp(args) -> int:
+    from resection.io.cameras import read_camera
     from resection.io.images import read_image, write_image
     from resection.io.meshes import load_mesh
     from resection.io.outputs import atomic_write, output_folder

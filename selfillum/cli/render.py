@@ -13,7 +13,6 @@ import numpy as np
 
 from resection.cli.util import add_mesh_format
 from resection.errors import InputError
-from resection.io.cameras import read_camera
 
 
 def per_face_arg(text: str, name: str):
@@ -46,6 +45,7 @@ def preview(image: np.ndarray) -> np.ndarray:
 
 
 def _cmd_render(args) -> int:
+    from resection.io.cameras import read_camera
     from resection.io.images import write_image
     from resection.io.marks import mark_png
     from resection.io.meshes import load_mesh
