@@ -54,4 +54,6 @@ def test_resection_command_line_builds_without_the_numerical_stacks():
     """``resection --help`` and argument errors come at once: the parser's defaults
     (:mod:`resection.defaults`) need none of the libraries the commands call."""
     loaded = _modules_after("from resection.cli.main import build_parser\nbuild_parser()")
-    assert not {"matplotlib", "dask", "trimesh", "embreex", "numba", "scipy.stats"} & loaded
+    assert not {"matplotlib", "dask", "trimesh", "embreex", "numba", "scipy"} & loaded
+    loaded = _modules_after("from selfillum.cli.main import build_parser\nbuild_parser()")
+    assert not {"matplotlib", "dask", "trimesh", "embreex", "numba", "scipy", "mitsuba"} & loaded
