@@ -268,7 +268,7 @@ def test_commands_share_the_option(tmp_path, capsys):
 def test_track_frame_keeps_only_the_markers_the_rule_used():
     """A tracked frame whose pose drops a gross outlier records the markers used only
     (ids, positions and residuals agree), the outlier's 9 px no part of its RMS."""
-    from resection.sequence.process import _Setup, _solve
+    from resection.sequence.process import Setup, _solve
 
     rng = np.random.default_rng(8)
     truth = _truth()
@@ -276,7 +276,7 @@ def test_track_frame_keeps_only_the_markers_the_rule_used():
     ids = np.array([f"S{i}" for i in range(len(X))])
     uv = truth.project(X) + rng.normal(scale=0.1, size=(len(X), 2))
     uv[6] += [7.0, 5.5]
-    setup = _Setup(camera=truth, ids=ids, points3d=X, diameter=6.0, polarity="dark",
+    setup = Setup(camera=truth, ids=ids, points3d=X, diameter=6.0, polarity="dark",
                    detect_kw={}, match_kw={}, pose_kw={}, min_markers=4)
     fr = _solve(ids, uv, setup, frame=0, file="f0")
     assert "S6" not in fr.ids and len(fr.ids) == len(fr.uv) == len(fr.residuals) == 14

@@ -183,7 +183,7 @@ def test_iterative_solves_keep_blas_on_one_thread():
     cores); short vectors and the state after the solve are left alone."""
     from threadpoolctl import threadpool_info
 
-    from selfillum.solve.radiosity import _single_blas_thread
+    from selfillum.solve.radiosity import single_blas_thread
 
     def blas_threads():
         return [p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"]
@@ -193,10 +193,10 @@ def test_iterative_solves_keep_blas_on_one_thread():
     # >= 3.5; a BLAS that threadpoolctl does not know (Accelerate) has no pool to limit
     blas = np.show_config(mode="dicts")["Build Dependencies"]["blas"]["name"]
     assert bool(before) or "openblas" not in blas.lower(), (blas, before)
-    with _single_blas_thread(100_000):
+    with single_blas_thread(100_000):
         assert blas_threads() == [1] * len(before)
     assert blas_threads() == before
-    with _single_blas_thread(100):
+    with single_blas_thread(100):
         assert blas_threads() == before
 
 
@@ -211,7 +211,7 @@ def test_cg_and_bicgstab_run_under_the_blas_limit(small_corner, monkeypatch):
         sizes.append(size)
         return contextlib.nullcontext()
 
-    monkeypatch.setattr(rad, "_single_blas_thread", record)
+    monkeypatch.setattr(rad, "single_blas_thread", record)
     sc, F, c, _ = small_corner
     B = forward(F, np.ones(len(c)), 0.9)  # rho > 0.5: BiCGSTAB
     seen = c[:, 2] < 0.5

@@ -144,7 +144,7 @@ def test_interrupt_and_resume(run60, tmp_path, monkeypatch):
     assert len(mtimes) == 30
     # then an interruption (Ctrl-C) in the middle of the next run
     calls = {"n": 0}
-    load = seq_process._load_image
+    load = seq_process.load_image
 
     def interrupted(frame, *args):  # Ctrl-C while the 12th frame of this run is read
         calls["n"] += 1
@@ -152,7 +152,7 @@ def test_interrupt_and_resume(run60, tmp_path, monkeypatch):
             raise KeyboardInterrupt
         return load(frame, *args)
 
-    monkeypatch.setattr(seq_process, "_load_image", interrupted)
+    monkeypatch.setattr(seq_process, "load_image", interrupted)
     with pytest.raises(KeyboardInterrupt):
         track(frames, cam, files["markers"], diameter=5.6, out_dir=out, progress=False)
     assert len(list((out / "frames").glob("*.json"))) == 30 + 11
@@ -342,14 +342,14 @@ def test_dask_interruption_keeps_every_finished_frame(run60, tmp_path, monkeypat
 
     model, files, cam, ref, _ = run60
     n, stop = 20, 15
-    process = seq_process._process_frame
+    process = seq_process.process_frame
 
     def dies_at_frame(frame, index, setup, reference, previous=None, **kw):
         if index == stop:  # the run is stopped while the chunk (frames 1..19) is in flight
             raise RuntimeError("interrupted")
         return process(frame, index, setup, reference, previous, **kw)
 
-    monkeypatch.setattr(seq_process, "_process_frame", dies_at_frame)
+    monkeypatch.setattr(seq_process, "process_frame", dies_at_frame)
     out = tmp_path / "o"
     # in-process workers (threads) so that the patch reaches the task
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
@@ -360,7 +360,7 @@ def test_dask_interruption_keeps_every_finished_frame(run60, tmp_path, monkeypat
     written = sorted(int(p.stem.split("_")[1]) for p in (out / "frames").glob("*.json"))
     assert written == list(range(stop))  # frame 0 (client) and 1..14 (the task)
     assert not list((out / "frames").glob("*.tmp"))
-    monkeypatch.setattr(seq_process, "_process_frame", process)
+    monkeypatch.setattr(seq_process, "process_frame", process)
     res = track(files["frames"][:n], cam, files["markers"], diameter=5.6, out_dir=out,
                 chunk_size=n - 1, progress=False)
     assert res.n_computed == n - stop
@@ -381,7 +381,7 @@ def test_default_is_a_local_cluster_and_client_writes_unshared_frames(run60, tmp
         seen.update(scheduler=scheduler, workers=workers, frames_dir=frames_dir)
         on_poll()  # nothing written yet: no frame may be taken as done
         for items, s, done in tasks:
-            on_chunk(seq_process._run_chunk(setup, items, s, done))
+            on_chunk(seq_process.run_chunk(setup, items, s, done))
 
     monkeypatch.setattr(seq_execute, "_execute_dask", fake_dask)
     monkeypatch.setattr(os, "cpu_count", lambda: 3)
@@ -481,7 +481,7 @@ def test_pose_options_reach_every_solve(run60, tmp_path, capsys):
 def test_cli_ctrl_c_says_what_is_kept(run60, tmp_path, monkeypatch, capsys):
     model, files, cam, ref, _ = run60
     calls = {"n": 0}
-    load = seq_process._load_image
+    load = seq_process.load_image
 
     def interrupted(frame, *args):
         calls["n"] += 1
@@ -489,7 +489,7 @@ def test_cli_ctrl_c_says_what_is_kept(run60, tmp_path, monkeypatch, capsys):
             raise KeyboardInterrupt
         return load(frame, *args)
 
-    monkeypatch.setattr(seq_process, "_load_image", interrupted)
+    monkeypatch.setattr(seq_process, "load_image", interrupted)
     out = tmp_path / "o"
     args = ["track", *files["frames"][:4], "--camera", files["camera"], "--markers",
             files["markers"], "--diameter", "5.6", "--out", str(out), "--no-progress",
@@ -497,7 +497,7 @@ def test_cli_ctrl_c_says_what_is_kept(run60, tmp_path, monkeypatch, capsys):
     assert main(args) == 130
     err = capsys.readouterr().err
     assert "interrupted: 2/4 frames finished are kept" in err and "again to resume" in err
-    monkeypatch.setattr(seq_process, "_load_image", load)
+    monkeypatch.setattr(seq_process, "load_image", load)
     assert main(args) == 0
     out = capsys.readouterr().out
     assert "4/4 frames solved (2 computed now)" in out
@@ -508,12 +508,12 @@ def test_cli_ctrl_c_says_what_is_kept(run60, tmp_path, monkeypatch, capsys):
 def test_frames_of_integer_files_have_saturated_pixels_masked(tmp_path):
     import tifffile
 
-    from resection.sequence.frames import _load_image
+    from resection.sequence.frames import load_image
 
     img = np.full((20, 30), 1000, np.uint16)
     img[5:8, 10:14] = 65535
     tifffile.imwrite(tmp_path / "f.tif", img)
-    out = _load_image(tmp_path / "f.tif")
+    out = load_image(tmp_path / "f.tif")
     assert out.shape == (20, 30) and np.isnan(out).sum() == 12
     assert np.all(np.isnan(out[5:8, 10:14])) and np.all(out[~np.isnan(out)] == 1000)
 
@@ -559,13 +559,13 @@ def test_memory_does_not_grow_with_the_frames(run60, tmp_path):
     import tracemalloc
 
     from resection.sequence.execute import run_frames
-    from resection.sequence.inputs import _checked
+    from resection.sequence.inputs import checked
 
     model, files, cam, _, _ = run60
     held = {}
     for n in (20, 80):
         frames = [files["frames"][k % 20] for k in range(n)]  # 20 frames, again and again
-        frames, setup, _, _, _ = _checked(
+        frames, setup, _, _, _ = checked(
             frames, cam, files["markers"], link=None, diameter=5.6, polarity="dark",
             workers=1, chunk_size=20, min_markers=4, roi_margin=40.0, detect_kw=None,
             match_kw=None, pose_kw=None)
@@ -591,8 +591,8 @@ def test_a_chunk_that_fails_from_a_far_seed_is_left_to_the_sequential_pass(run60
     then computes them from the good frame before them, and they agree with the run in
     this process."""
     from resection.sequence.execute import _chunks
-    from resection.sequence.inputs import _checked
-    from resection.sequence.process import DEFERRED, _process_frame, _repair, _run_chunk
+    from resection.sequence.inputs import checked
+    from resection.sequence.process import DEFERRED, process_frame, repair, run_chunk
 
     model, files, cam, ref, _ = run60
     n = 12
@@ -600,43 +600,43 @@ def test_a_chunk_that_fails_from_a_far_seed_is_left_to_the_sequential_pass(run60
     bad = tmp_path / "corrupt.npy"
     bad.write_bytes(b"not an image")
     frames[5] = str(bad)  # the first frame of the second chunk (frames 5 to 8)
-    frames, setup, _, _, _ = _checked(
+    frames, setup, _, _, _ = checked(
         frames, cam, files["markers"], link=None, diameter=5.6, polarity="dark", workers=1,
         chunk_size=4, min_markers=4, roi_margin=40.0, detect_kw=None, match_kw=None,
         pose_kw=None)
-    first = _process_frame(frames[0], 0, setup, None)
+    first = process_frame(frames[0], 0, setup, None)
     tasks = _chunks(frames, {}, first, 4, tmp_path)
     items, seed, done = tasks[1]
     assert [i for i, _ in items] == [5, 6, 7, 8] and seed.frame == 0
     computed = []
-    dicts = _run_chunk(setup, items, seed, done, on_frame=computed.append)
+    dicts = run_chunk(setup, items, seed, done, on_frame=computed.append)
     assert [d["status"] for d in dicts] == ["failed"] * 4
     assert dicts[0]["matched_from"] == 0 and "corrupt.npy" in dicts[0]["reason"]
     assert all(d["matched_from"] == DEFERRED and "not computed" in d["reason"]
                for d in dicts[1:])
     # the sequential pass: every frame of chunks 1 and 3 good, chunk 2 as recorded
-    from resection.sequence.outputs import _write_frame
+    from resection.sequence.outputs import write_frame
     from resection.sequence.results import FrameResult
 
     fdir = tmp_path / "frames"
     fdir.mkdir()
     state = {}
     for task in (tasks[0], tasks[2]):
-        for d in _run_chunk(setup, *task[:3]):
+        for d in run_chunk(setup, *task[:3]):
             state[d["frame"]] = d
     for d in dicts:
         state[d["frame"]] = d
     state[0] = first.to_dict()
     for d in state.values():
-        _write_frame(fdir, FrameResult.from_dict(d))
+        write_frame(fdir, FrameResult.from_dict(d))
     summary = {i: (state[i]["status"] == "ok", state[i]["matched_from"]) for i in range(n)}
     redone = {}
 
     def record(res):
         redone[res.frame] = res
-        _write_frame(fdir, res)
+        write_frame(fdir, res)
 
-    _repair(frames, setup, summary, record, fdir)
+    repair(frames, setup, summary, record, fdir)
     assert sorted(redone) == [5, 6, 7, 8]  # the corrupt frame is tried once more
     assert not redone[5].ok and all(redone[i].ok for i in (6, 7, 8))
     for i in (6, 7, 8):

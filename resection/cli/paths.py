@@ -20,7 +20,7 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-from resection.io.outputs import OUTPUT_OPTIONS, _as_paths, refuse_overwriting_inputs
+from resection.io.outputs import OUTPUT_OPTIONS, as_paths, refuse_overwriting_inputs
 from resection.io.paths import (
     check_input_path,
     check_output_folder,
@@ -58,11 +58,11 @@ def check_command_paths(args) -> None:
     opts = vars(args)
     outputs = _outputs(args)
     folder: FolderOutput | None = opts.get("out_folder")
-    inputs = {f"input {k.replace('_', '-')}": _as_paths(v) for k, v in opts.items()
+    inputs = {f"input {k.replace('_', '-')}": as_paths(v) for k, v in opts.items()
               if k not in OUTPUT_OPTIONS + _NOT_PATHS}
     for k, v in opts.items():
         if k not in OUTPUT_OPTIONS + _NOT_PATHS:
-            for p in _as_paths(v):
+            for p in as_paths(v):
                 if p:
                     check_input_path(p, f"--{k.replace('_', '-')}")
     for key, value in outputs.items():

@@ -37,10 +37,10 @@ from resection.defaults import MESH_FORMATS
 from resection.errors import InputError
 from resection.io.plot3d import (  # noqa: F401 - re-exported: Plot3D lives in io/plot3d.py
     PLOT3D_SUFFIXES,
-    _read_bytes,
-    _split_records,
     is_plot3d,
+    read_bytes,
     read_plot3d,
+    split_records,
     write_plot3d,
 )
 
@@ -202,7 +202,7 @@ def _format_by_content(path: Path, suffix: str) -> str:
 def _check_stl(path: Path) -> None:
     """Refuse a truncated or random STL with a clear message (trimesh would otherwise try
     to decode it as text and fail on an unrelated import)."""
-    data = _read_bytes(str(path), "STL", "empty file")
+    data = read_bytes(str(path), "STL", "empty file")
     if len(data) >= 84:
         n = int(np.frombuffer(data, "<u4", 1, 80)[0])
         if len(data) == 84 + 50 * n:
@@ -359,8 +359,8 @@ def read_cart3d_tri(path: str | os.PathLike) -> trimesh.Trimesh:
     1 when absent).
     """
     path = os.fspath(path)
-    data = _read_bytes(path, "Cart3D", "empty mesh (empty file)")
-    recs, endian = _split_records(data)
+    data = read_bytes(path, "Cart3D", "empty mesh (empty file)")
+    recs, endian = split_records(data)
     if recs is not None and len(recs[0]) in (8, 12):
         head = np.frombuffer(recs[0], f"{endian}i4")
         nv, nt = int(head[0]), int(head[1])

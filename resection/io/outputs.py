@@ -104,14 +104,14 @@ def _stat_or_none(path):
         return None
 
 
-def _as_paths(value) -> list[str]:
+def as_paths(value) -> list[str]:
     """The file names a parsed option value may hold (a string, a list of them, or
     ``A:B`` pairs as in ``calibrate --views``)."""
     if isinstance(value, (str, os.PathLike)):
         text = os.fspath(value)
         return [text, *text.rsplit(":", 1)] if ":" in text else [text]
     if isinstance(value, (list, tuple)):
-        return [p for v in value for p in _as_paths(v)]
+        return [p for v in value for p in as_paths(v)]
     return []
 
 
@@ -123,7 +123,7 @@ def check_command_outputs(args, output_options: Iterable[str] = OUTPUT_OPTIONS) 
     output_options = tuple(output_options)
     outputs = {f"--{k.replace('_', '-')}": v for k, v in opts.items()
                if k in output_options and isinstance(v, (str, os.PathLike))}
-    inputs = {f"input {k.replace('_', '-')}": _as_paths(v)
+    inputs = {f"input {k.replace('_', '-')}": as_paths(v)
               for k, v in opts.items() if k not in output_options + ("command", "func")}
     refuse_overwriting_inputs(outputs, inputs)
 

@@ -58,7 +58,7 @@ def _fortran_records(data: bytes, marker: int, endian: str) -> list[bytes] | Non
     return out if out else None
 
 
-def _split_records(data: bytes):
+def split_records(data: bytes):
     for marker in (4, 8):
         for endian in ("<", ">"):
             recs = _fortran_records(data, marker, endian)
@@ -94,7 +94,7 @@ def _split_block(values: np.ndarray, iblank: np.ndarray | None, dims):
 
 
 def _parse_binary_plot3d(data: bytes, source: str):
-    recs, endian = _split_records(data)
+    recs, endian = split_records(data)
     if recs is not None:
         header = 0
         first = recs[0]
@@ -264,7 +264,7 @@ def _parse_ascii_plot3d(text: str, source: str):
     )
 
 
-def _read_bytes(path: str, kind: str, empty: str) -> bytes:
+def read_bytes(path: str, kind: str, empty: str) -> bytes:
     """The whole file, or InputError naming it when it is missing or blank."""
     try:
         with open(path, "rb") as fh:
@@ -286,7 +286,7 @@ def read_plot3d(path: str | os.PathLike) -> list[tuple[np.ndarray, np.ndarray | 
         int or None.
     """
     path = os.fspath(path)
-    data = _read_bytes(path, "Plot3D", "empty file")
+    data = read_bytes(path, "Plot3D", "empty file")
     blocks = None
     # a binary grid has non-text bytes in its header (the block count and dimensions as
     # 4-byte integers); an ASCII one is text throughout: the first 4 kB decide
@@ -485,8 +485,8 @@ def read_plot3d_function(path: str | os.PathLike) -> list[np.ndarray]:
     writes it (either byte order, single or double precision). Returns one
     ``(ni, nj, nk, nvar)`` float64 array per block."""
     path = os.fspath(path)
-    data = _read_bytes(path, "Plot3D function", "empty file")
-    recs, endian = _split_records(data)
+    data = read_bytes(path, "Plot3D function", "empty file")
+    recs, endian = split_records(data)
     if recs is None or len(recs) < 3 or len(recs[0]) != 4:
         raise InputError(f"{path}: not a multi-block Plot3D function file (Fortran records)")
     nb = int(np.frombuffer(recs[0], f"{endian}i4")[0])

@@ -59,7 +59,7 @@ __all__ = [
     "write_candidates",
 ]
 
-_FIELDS = ("u", "v", "diameter", "depth", "merit", "snr")
+CANDIDATE_FIELDS = ("u", "v", "diameter", "depth", "merit", "snr")
 #: Levenberg-Marquardt iterations of a candidate's disk fit in detection. A marker converges
 #: in 2 or 3 model evaluations from its start; a speckle grain or noise blob does not
 #: converge and would use them all (30 took 1.75 times as long on speckled paint, for the
@@ -110,7 +110,7 @@ class Candidates:
 
     def __post_init__(self):
         n = None
-        for name in _FIELDS:
+        for name in CANDIDATE_FIELDS:
             a = np.asarray(getattr(self, name), dtype=float).ravel()
             if n is None:
                 n = a.size
@@ -128,7 +128,7 @@ class Candidates:
 
     def subset(self, index) -> Candidates:
         """Candidates selected by a boolean mask or integer index."""
-        kw = {f: getattr(self, f)[index] for f in _FIELDS}
+        kw = {f: getattr(self, f)[index] for f in CANDIDATE_FIELDS}
         return Candidates(**kw, n_masked=self.n_masked, noise=self.noise,
                           threshold=self.threshold, polarity=self.polarity,
                           n_rejected=dict(self.n_rejected))
@@ -407,7 +407,7 @@ def detect_markers(
     order = np.argsort(-m, kind="stable")[:max_candidates]
     pu, pv, m = pu[order], pv[order], m[order]
     rejected = {"screen": 0, "border": 0, "masked": 0, "fit": 0, "double": 0}
-    empty = Candidates(*(np.zeros(0) for _ in _FIELDS), n_masked=n_masked, noise=noise,
+    empty = Candidates(*(np.zeros(0) for _ in CANDIDATE_FIELDS), n_masked=n_masked, noise=noise,
                        threshold=thr, polarity=polarity, n_rejected=rejected)
     if pu.size and screen_contrast is not None:
         keep, _ = _screen.screen(work, bad, pu, pv, d, _ideal_size(d, blur),
@@ -506,7 +506,7 @@ def write_candidates(path: str | os.PathLike, candidates: Candidates, ids=None) 
     """Write candidates as CSV ``u,v,diameter,depth,merit,snr`` (+ ``id`` if ids given;
     candidates whose id is None or empty are left out)."""
     path = Path(path)
-    cols = [getattr(candidates, f) for f in _FIELDS]
+    cols = [getattr(candidates, f) for f in CANDIDATE_FIELDS]
     rows = range(len(candidates))
     if ids is not None:
         ids = list(ids)
@@ -515,10 +515,10 @@ def write_candidates(path: str | os.PathLike, candidates: Candidates, ids=None) 
         rows = [i for i in rows if ids[i] not in (None, "")]
     with open(path, "w", newline="") as fh:
         wr = csv.writer(fh)
-        wr.writerow((["id"] if ids is not None else []) + list(_FIELDS))
+        wr.writerow((["id"] if ids is not None else []) + list(CANDIDATE_FIELDS))
         for i in rows:
             vals = [f"{c[i]:.6g}" if f not in ("u", "v") else f"{c[i]:.4f}"
-                    for f, c in zip(_FIELDS, cols, strict=True)]
+                    for f, c in zip(CANDIDATE_FIELDS, cols, strict=True)]
             wr.writerow(([str(ids[i])] if ids is not None else []) + vals)
 
 
@@ -535,12 +535,12 @@ def read_candidates(path: str | os.PathLike) -> tuple[Candidates, list[str] | No
         except StopIteration:
             raise InputError(f"{path}: empty file, expected a header u,v,...") from None
         rows = [r for r in rd if r and any(c.strip() for c in r)]
-    unknown = set(header) - set(_FIELDS) - {"id"}
+    unknown = set(header) - set(CANDIDATE_FIELDS) - {"id"}
     if unknown:
         raise InputError(f"{path}: unknown column(s) {sorted(unknown)}")
     if "u" not in header or "v" not in header:
         raise InputError(f"{path}: columns 'u' and 'v' are required")
-    data = {f: np.full(len(rows), np.nan) for f in _FIELDS}
+    data = {f: np.full(len(rows), np.nan) for f in CANDIDATE_FIELDS}
     ids = [] if "id" in header else None
     for k, r in enumerate(rows):
         if len(r) != len(header):

@@ -111,9 +111,9 @@ def merge_candidates(parts, diameter, min_separation) -> Candidates:
     overlapping windows removed); counts summed over the windows, noise their median."""
     from scipy.spatial import cKDTree
 
-    from resection.markers.detect import _FIELDS
+    from resection.markers.detect import CANDIDATE_FIELDS
 
-    cols = {f: np.concatenate([getattr(c, f) for c in parts]) for f in _FIELDS}
+    cols = {f: np.concatenate([getattr(c, f) for c in parts]) for f in CANDIDATE_FIELDS}
     order = np.argsort(-cols["merit"], kind="stable")
     cols = {f: v[order] for f, v in cols.items()}
     keep = np.ones(order.size, bool)

@@ -37,7 +37,7 @@ def _left_jacobian(w: np.ndarray) -> np.ndarray:
             + (th - math.sin(th)) / th**3 * (W @ W))
 
 
-def _rotvec_from_left(rvec: np.ndarray) -> np.ndarray:
+def rotvec_from_left(rvec: np.ndarray) -> np.ndarray:
     """``d rvec / d w`` for a left perturbation ``w`` at rotation vector ``rvec``."""
     return np.linalg.inv(_left_jacobian(rvec))
 
@@ -169,7 +169,7 @@ def _robust_weights(e2: np.ndarray, robust: str | None, scale: float) -> np.ndar
     return 1.0 / (1.0 + z * z)  # arctan
 
 
-def _sq_cost(res2: np.ndarray, robust: str | None, scale: float):
+def squared_cost(res2: np.ndarray, robust: str | None, scale: float):
     """Sum over the last axis of (robustified) squared errors, px^2, from the squared
     per-marker errors ``res2``."""
     if robust is None:
@@ -188,7 +188,7 @@ def _sq_cost(res2: np.ndarray, robust: str | None, scale: float):
     return scale**2 * rho.sum(axis=-1)
 
 
-def _batch_refine(X, uv, Rs, ts, K, dist, robust, scale, iterations=40):
+def batch_refine(X, uv, Rs, ts, K, dist, robust, scale, iterations=40):
     """Damped Gauss-Newton (Levenberg-Marquardt) on many starts at once (pose only),
     with IRLS weights for a robust loss. Returns refined ``R (C,3,3)``, ``t (C,3)`` and
     the (robust) costs ``(C,)``."""
@@ -199,7 +199,7 @@ def _batch_refine(X, uv, Rs, ts, K, dist, robust, scale, iterations=40):
     def evaluate(Rc, tc):
         proj, Jp, _, z = project_with_jacobians(K, dist, Rc, tc, X)
         res = proj - uv
-        c = np.array(_sq_cost(np.sum(res**2, axis=-1), robust, scale), dtype=float)
+        c = np.array(squared_cost(np.sum(res**2, axis=-1), robust, scale), dtype=float)
         c[np.any(z <= 0, axis=1)] = np.inf
         return c, res, Jp
 

@@ -50,12 +50,12 @@ from resection.pose.acceptance import (
 )
 from resection.pose.dlt import COLLINEAR_RTOL, COPLANAR_RTOL, coplanarity
 from resection.pose.reprojection import (
-    _batch_refine,
-    _rotvec_from_left,
-    _sq_cost,
     apply_intrinsics,
+    batch_refine,
     intrinsic_params,
     project_with_jacobians,
+    rotvec_from_left,
+    squared_cost,
 )
 from resection.pose.starts import initial_poses
 from resection.pose.three_point import p3p
@@ -299,7 +299,7 @@ def _solve_once(
     Rc = np.array([c[0] for c in cands])
     tc = np.array([c[1] for c in cands])
     proj, _, _, z = project_with_jacobians(K0, dist0, Rc, tc, X, jac=False)
-    costs = _sq_cost(np.sum((proj - uv) ** 2, axis=-1), robust, scale)
+    costs = squared_cost(np.sum((proj - uv) ** 2, axis=-1), robust, scale)
     costs[np.any(z <= 0, axis=1)] = np.inf
     order = np.argsort(costs)
     depth = float(np.median(np.linalg.norm(X @ Rc[order[0]].T + tc[order[0]], axis=1)))
@@ -318,7 +318,7 @@ def _solve_once(
         raise SolveError("solve_pose: no start puts all markers in front of the camera")
 
     # ---- refine every start (pose only, all at once), keep distinct minima in front
-    Rr, tr, cr = _batch_refine(X, uv, Rc[starts], tc[starts], K0, dist0, robust, scale)
+    Rr, tr, cr = batch_refine(X, uv, Rc[starts], tc[starts], K0, dist0, robust, scale)
     rmax = max_monotonic_radius(dist0)
     minima = []
     for k in np.argsort(cr):
@@ -347,7 +347,7 @@ def _solve_once(
             return  # a competitor: keep its valid batch minimum
         res = sol.fun.reshape(-1, 2)
         m.update(R=R, t=t, C=-R.T @ t, converged=sol.status != 0,
-                 cost=float(_sq_cost(np.sum(res**2, axis=-1), robust, scale)))
+                 cost=float(squared_cost(np.sum(res**2, axis=-1), robust, scale)))
 
     best_cost0 = minima[0]["cost"]
     polish(minima[0], check_valid=False)  # validity checked on the final camera below
@@ -426,7 +426,7 @@ def _solve_once(
     else:
         cov_full = np.full((p, p), np.nan)
     G = np.eye(6)
-    G[:3, :3] = _rotvec_from_left(cam.rvec)
+    G[:3, :3] = rotvec_from_left(cam.rvec)
     cov = G @ cov_full[:6, :6] @ G.T
     istd = np.sqrt(np.diag(cov_full)[6:])
     in_rms = float(np.sqrt(np.mean(errors[inliers] ** 2))) if inliers.any() else math.inf

@@ -9,20 +9,20 @@ from pathlib import Path
 
 from resection.errors import InputError
 from resection.sequence.outputs import (
-    _atomic_write_text,
-    _frame_path,
-    _frame_text,
-    _read_frame,
-    _write_frame,
+    atomic_write_text,
+    frame_path,
+    frame_text,
+    read_frame,
     summary,
+    write_frame,
 )
 from resection.sequence.process import (
     DEFERRED,
-    _process_frame,
-    _process_linked,
-    _repair,
-    _run_chunk,
-    _Setup,
+    Setup,
+    process_frame,
+    process_linked,
+    repair,
+    run_chunk,
 )
 from resection.sequence.results import FrameResult
 
@@ -39,7 +39,7 @@ LOCAL_WORKER_CONFIG = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOL
 LOCAL_CLUSTER_START_S = 3.0
 
 
-def run_frames(frames: list, setup: _Setup, link: dict | None, done: dict, *,
+def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
                chunk_size: int, workers: int, scheduler: str | None, frames_dir: Path,
                progress: bool) -> int:
     """Compute every frame not in ``done`` (index -> ``(ok, matched_from)``, completed in
@@ -61,16 +61,16 @@ def run_frames(frames: list, setup: _Setup, link: dict | None, done: dict, *,
             bar.update(1)
 
     def record(res: FrameResult) -> None:
-        _write_frame(frames_dir, res)
+        write_frame(frames_dir, res)
         note(res.to_dict())
 
     try:
-        d0 = _read_frame(_frame_path(frames_dir, 0)) if 0 in done else None
+        d0 = read_frame(frame_path(frames_dir, 0)) if 0 in done else None
         if d0 is not None:  # the reference frame, in this process
             first = FrameResult.from_dict(d0)
         else:
-            first = (_process_linked(frames[0], 0, setup, link) if link is not None
-                     else _process_frame(frames[0], 0, setup, None))
+            first = (process_linked(frames[0], 0, setup, link) if link is not None
+                     else process_frame(frames[0], 0, setup, None))
             record(first)
         seed0 = first if first.ok else None
         tasks = _chunks(frames, done, seed0, chunk_size, frames_dir)
@@ -98,13 +98,13 @@ def run_frames(frames: list, setup: _Setup, link: dict | None, done: dict, *,
 
         def rerecord(res: FrameResult) -> None:
             nonlocal computed
-            _write_frame(frames_dir, res)
+            write_frame(frames_dir, res)
             if done.get(res.frame, (False, -1))[1] == DEFERRED:
                 bar.update(1)
             done[res.frame] = summary(res.to_dict())
             computed += 1
 
-        _repair(frames, setup, done, rerecord, frames_dir)
+        repair(frames, setup, done, rerecord, frames_dir)
     finally:
         bar.close()
     return computed
@@ -147,7 +147,7 @@ def _chunks(frames: list, done: dict, seed: FrameResult | None, chunk_size: int,
         idx = range(start, min(start + chunk_size, len(frames)))
         if all(i in done for i in idx):
             continue
-        finished = {i: _read_frame(_frame_path(frames_dir, i)) for i in idx if i in done}
+        finished = {i: read_frame(frame_path(frames_dir, i)) for i in idx if i in done}
         tasks.append(([(i, frames[i]) for i in idx], seed,
                       {i: d for i, d in finished.items() if d is not None}))
     return tasks
@@ -158,8 +158,8 @@ def _on_poll(frames_dir: Path, todo: set, note):
     def on_poll() -> None:
         names = set(os.listdir(frames_dir))
         for i in sorted(todo):
-            if _frame_path(frames_dir, i).name in names:
-                d = _read_frame(_frame_path(frames_dir, i))
+            if frame_path(frames_dir, i).name in names:
+                d = read_frame(frame_path(frames_dir, i))
                 if d is not None and d.get("frame") == i:
                     todo.discard(i)
                     note(d)
@@ -174,13 +174,13 @@ def _on_chunk(frames_dir: Path, todo: set, note):
             i = dct["frame"]
             if i not in todo:
                 continue
-            path, text = _frame_path(frames_dir, i), _frame_text(dct)
+            path, text = frame_path(frames_dir, i), frame_text(dct)
             try:
                 same = path.read_text(encoding="utf-8") == text
             except OSError:
                 same = False
             if not same:
-                _atomic_write_text(path, text, sync=False)
+                atomic_write_text(path, text, sync=False)
             todo.discard(i)
             note(dct)
     return on_chunk
@@ -195,7 +195,7 @@ def _execute_local(setup, tasks, on_frame, last=None):
     last = last or (None, None)
     for items, seed, done in tasks:
         ref, prev = last if last[0] is not None else (seed, None)
-        dicts = _run_chunk(setup, items, ref, done, on_frame, previous=prev)
+        dicts = run_chunk(setup, items, ref, done, on_frame, previous=prev)
         good = [d for d in dicts if d["status"] == "ok"]
         if good:
             tail = [FrameResult.from_dict(d) for d in good[-2:]]
@@ -239,7 +239,7 @@ def _execute_dask(setup, tasks, on_chunk, on_poll, scheduler, workers, frames_di
                              f"{scheduler!r} ({msg})")
     try:
         s = client.scatter(setup, broadcast=True)
-        futures = [client.submit(_run_chunk, s, items, seed, done, None, frames_dir,
+        futures = [client.submit(run_chunk, s, items, seed, done, None, frames_dir,
                                  pure=False)
                    for items, seed, done in tasks]
         pending = as_completed(futures)
@@ -256,6 +256,6 @@ def _execute_dask(setup, tasks, on_chunk, on_poll, scheduler, workers, frames_di
             cluster.close()
 
 
-def _default_workers() -> int:
+def default_workers() -> int:
     """Worker processes of the default local cluster: one per CPU core."""
     return max(int(os.cpu_count() or 1), 1)

@@ -58,7 +58,7 @@ def expand_frames(frames: list) -> list:
         return [VideoFrame(str(p), i, src.label(i)) for i in range(src.n)]
 
 
-def _load_image(frame, sources: dict | None = None) -> np.ndarray:
+def load_image(frame, sources: dict | None = None) -> np.ndarray:
     """The frame's image (saturated pixels of integer files masked as NaN). ``sources``:
     the multi-frame files already open (path -> FrameSource), kept open for the next
     frames; without it a multi-frame file is opened and closed for this frame."""
@@ -83,7 +83,7 @@ def _load_image(frame, sources: dict | None = None) -> np.ndarray:
     return img
 
 
-def _frame_name(frame) -> str:
+def frame_name(frame) -> str:
     if isinstance(frame, VideoFrame):
         return frame.label
     return "" if isinstance(frame, np.ndarray) else os.fspath(frame)

@@ -12,8 +12,8 @@ import numpy as np
 from resection._checks import as_points
 from resection.errors import InputError
 from resection.sequence.frames import VideoFrame, expand_frames
-from resection.sequence.process import _Setup
-from resection.sequence.results import _FORMAT_VERSION
+from resection.sequence.process import Setup
+from resection.sequence.results import FORMAT_VERSION
 
 
 def _as_markers(markers3d) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
@@ -124,13 +124,13 @@ def _as_link(link) -> dict | None:
     return {"path": None, "pairs": pairs, "text": None}
 
 
-def _settings(setup: _Setup, link: dict | None, fixed_camera: bool, chunk_size: int) -> dict:
+def run_settings(setup: Setup, link: dict | None, fixed_camera: bool, chunk_size: int) -> dict:
     """The settings a resumed run must share with the interrupted one (JSON-able)."""
     def plain(d):
         return json.loads(json.dumps(d, default=lambda o: np.asarray(o).tolist()))
 
     return plain({
-        "version": _FORMAT_VERSION,
+        "version": FORMAT_VERSION,
         "camera": setup.camera.to_dict(),
         "markers": {"ids": setup.ids.tolist(), "points": setup.points3d.tolist()},
         "diameter": setup.diameter, "polarity": setup.polarity,
@@ -144,15 +144,15 @@ def _settings(setup: _Setup, link: dict | None, fixed_camera: bool, chunk_size: 
     })
 
 
-def _checked(frames, camera, markers3d, *, link, diameter, polarity, workers, chunk_size,
+def checked(frames, camera, markers3d, *, link, diameter, polarity, workers, chunk_size,
              min_markers, roi_margin, detect_kw, match_kw, pose_kw, mesh=None):
-    """Checked inputs of :func:`track`: ``(frames list, _Setup, link dict or None,
+    """Checked inputs of :func:`track`: ``(frames list, Setup, link dict or None,
     workers, chunk_size)``; InputError for the first bad one, before any file is made."""
     from resection.camera.model import Camera
     from resection.markers.detect import detect_markers
     from resection.markers.match import match_markers
     from resection.pose.solve import solve_pose
-    from resection.sequence.execute import _default_workers
+    from resection.sequence.execute import default_workers
 
     if not isinstance(camera, Camera):
         raise InputError(f"camera: expected a resection.Camera, got {type(camera).__name__}")
@@ -172,7 +172,7 @@ def _checked(frames, camera, markers3d, *, link, diameter, polarity, workers, ch
     if polarity not in ("dark", "bright"):
         raise InputError(f"polarity: expected 'dark' or 'bright', got {polarity!r}")
     if workers is None:
-        workers = _default_workers()
+        workers = default_workers()
     try:
         workers = int(workers)
     except (TypeError, ValueError):
@@ -200,7 +200,7 @@ def _checked(frames, camera, markers3d, *, link, diameter, polarity, workers, ch
     pose_kw = _check_options(pose_kw, solve_pose, "pose_kw",
                              ("camera", "points3d", "points2d", "refine_intrinsics"))
     _probe_pose_options(camera, pose_kw, solve_pose)
-    setup = _Setup(camera=camera, ids=ids, points3d=pts, diameter=d, polarity=polarity,
+    setup = Setup(camera=camera, ids=ids, points3d=pts, diameter=d, polarity=polarity,
                    detect_kw=detect_kw, match_kw=match_kw,
                    pose_kw=pose_kw, min_markers=int(min_markers),
                    roi_margin=None if roi_margin is None else float(roi_margin),

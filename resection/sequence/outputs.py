@@ -15,7 +15,7 @@ from resection.errors import InputError
 from resection.io.marks import PRODUCER_KEY
 from resection.io.outputs import atomic_path
 from resection.sequence.results import (
-    _FORMAT_VERSION,
+    FORMAT_VERSION,
     MARKER_COLUMNS,
     POSE_COLUMNS,
     FrameResult,
@@ -23,7 +23,7 @@ from resection.sequence.results import (
 )
 
 
-def _atomic_write_text(path: Path, text: str, *, sync: bool = True) -> None:
+def atomic_write_text(path: Path, text: str, *, sync: bool = True) -> None:
     """Write ``text`` to a temporary file next to ``path`` and rename it into place: a
     crash of the process leaves the old file or the new one, never half of one. ``sync``
     also flushes it to the disk first (against a crash of the machine); the per-frame
@@ -37,36 +37,36 @@ def _atomic_write_text(path: Path, text: str, *, sync: bool = True) -> None:
             os.fsync(fh.fileno())
 
 
-def _frame_path(frames_dir: Path, index: int) -> Path:
+def frame_path(frames_dir: Path, index: int) -> Path:
     return frames_dir / f"frame_{index:06d}.json"
 
 
-def _frame_text(d: dict) -> str:
+def frame_text(d: dict) -> str:
     return json.dumps(d)
 
 
-def _write_frame(frames_dir: Path, res: FrameResult) -> None:
-    _atomic_write_text(_frame_path(frames_dir, res.frame), _frame_text(res.to_dict()),
+def write_frame(frames_dir: Path, res: FrameResult) -> None:
+    atomic_write_text(frame_path(frames_dir, res.frame), frame_text(res.to_dict()),
                        sync=False)
 
 
-def _try_write_frame(frames_dir: Path, res: FrameResult) -> None:
+def try_write_frame(frames_dir: Path, res: FrameResult) -> None:
     """A worker's write of a finished frame. A worker that cannot reach the output directory
     (a remote cluster without a shared filesystem) leaves it to the client, which writes
     the frame when the chunk comes back."""
     try:
-        _write_frame(frames_dir, res)
+        write_frame(frames_dir, res)
     except OSError:
         pass
 
 
-def _read_frame(path: Path) -> dict | None:
+def read_frame(path: Path) -> dict | None:
     try:
         with open(path, encoding="utf-8") as fh:
             d = json.load(fh)
     except (OSError, json.JSONDecodeError):
         return None
-    if not isinstance(d, dict) or d.get("version") != _FORMAT_VERSION:
+    if not isinstance(d, dict) or d.get("version") != FORMAT_VERSION:
         return None
     return d
 
@@ -74,7 +74,7 @@ def _fmt(x: float) -> str:
     return "" if not np.isfinite(x) else f"{x:.10g}"
 
 
-def _write_csvs(result: TrackResult, out: Path) -> None:
+def write_csvs(result: TrackResult, out: Path) -> None:
     """``poses.csv`` and ``markers.csv``, each streamed to a temporary file (in blocks of
     rows, not built in memory) and renamed into place."""
     def poses():
@@ -105,12 +105,12 @@ def _atomic_write_rows(path: Path, header, rows) -> None:
         os.fsync(fh.fileno())
 
 
-def _frames_from_files(frames_dir: Path, n: int):
+def frames_from_files(frames_dir: Path, n: int):
     """The finished frames ``0 .. n-1`` read back from their files, one at a time."""
     for i in range(n):
-        d = _read_frame(_frame_path(frames_dir, i))
+        d = read_frame(frame_path(frames_dir, i))
         if d is None or d.get("frame") != i:
-            raise InputError(f"{_frame_path(frames_dir, i)}: missing or unreadable; another "
+            raise InputError(f"{frame_path(frames_dir, i)}: missing or unreadable; another "
                              "process changed the output folder during the run?")
         yield FrameResult.from_dict(d)
 
@@ -189,7 +189,7 @@ def _read_manifest(manifest: Path) -> dict | None:
     return {k: v for k, v in old.items() if k != PRODUCER_KEY}
 
 
-def _start_run(out: Path, frames: list, settings: dict, resume: bool) -> dict[int, tuple]:
+def start_run(out: Path, frames: list, settings: dict, resume: bool) -> dict[int, tuple]:
     """Prepare ``out`` (locked by the caller) for a run: check that a run there had the same
     settings, write them, and return the frames already finished that are still right, as
     ``index -> (ok, matched_from)``; the result files of the others are removed.
@@ -199,7 +199,7 @@ def _start_run(out: Path, frames: list, settings: dict, resume: bool) -> dict[in
     from is kept too, unchanged since (its recorded fingerprint): a frame computed from a
     frame that changed is computed again. A missing or unreadable manifest means the
     settings of the frames found are unknown: they are all computed again."""
-    from resection.sequence.frames import _frame_name, changed
+    from resection.sequence.frames import changed, frame_name
 
     frames_dir = out / "frames"
     manifest = out / "track.json"
@@ -211,7 +211,7 @@ def _start_run(out: Path, frames: list, settings: dict, resume: bool) -> dict[in
     if old is None:  # a fresh run, or settings unknown: no frame of before is kept
         for p in frames_dir.glob("frame_*.json"):
             p.unlink()
-    _atomic_write_text(manifest, json.dumps({PRODUCER_KEY: TRACK_PRODUCER, **settings},
+    atomic_write_text(manifest, json.dumps({PRODUCER_KEY: TRACK_PRODUCER, **settings},
                                             indent=1))
     done: dict[int, tuple] = {}
     if old is None:
@@ -219,15 +219,15 @@ def _start_run(out: Path, frames: list, settings: dict, resume: bool) -> dict[in
     names = set(os.listdir(frames_dir))
     sources: dict[int, object] = {}  # fingerprints of the frames kept
     for i, f in enumerate(frames):
-        path = _frame_path(frames_dir, i)
+        path = frame_path(frames_dir, i)
         if path.name not in names:
             continue
-        d = _read_frame(path)
+        d = read_frame(path)
         if d is None:
             continue
-        if d["frame"] != i or d["file"] != _frame_name(f):
+        if d["frame"] != i or d["file"] != frame_name(f):
             raise InputError(f"{out}: frame {i} was {d['file']!r} in the interrupted run, "
-                             f"now {_frame_name(f)!r}; use another out_dir or resume=False")
+                             f"now {frame_name(f)!r}; use another out_dir or resume=False")
         ref = int(d.get("matched_from", -1))
         stale_ref = ref >= 0 and (ref not in sources or d.get("ref_source") != sources[ref])
         if stale_ref or changed(f, d.get("source")):  # recompute it

@@ -13,14 +13,14 @@ import numpy as np
 
 from resection.camera.model import Camera
 from resection.errors import InputError, SolveError
-from resection.sequence.frames import _frame_name, _load_image, failure_reason, fingerprint
-from resection.sequence.outputs import _try_write_frame
+from resection.sequence.frames import failure_reason, fingerprint, frame_name, load_image
+from resection.sequence.outputs import try_write_frame
 from resection.sequence.predict import track_predicted
 from resection.sequence.results import FrameResult
 
 
 @dataclass(frozen=True)
-class _Setup:
+class Setup:
     """Everything a worker needs to process frames (picklable, sent once)."""
 
     camera: Camera
@@ -36,7 +36,7 @@ class _Setup:
     #: (N, 3) outward unit normals at the markers (NaN rows where unknown), or None
     normals: np.ndarray | None = None
 
-def _search_roi(setup: _Setup, reference: FrameResult | None, shape) -> tuple | None:
+def _search_roi(setup: Setup, reference: FrameResult | None, shape) -> tuple | None:
     """Bounding box ``(u_min, v_min, u_max, v_max)`` of all the markers projected with the
     reference pose (or the approximate camera), widened by ``roi_margin`` pixels: markers
     cannot be elsewhere, and detection costs grow with the searched area. None: search the
@@ -58,7 +58,7 @@ def _search_roi(setup: _Setup, reference: FrameResult | None, shape) -> tuple | 
     return (u0, v0, u1, v1)
 
 
-def _detect(img: np.ndarray, setup: _Setup, roi=None):
+def _detect(img: np.ndarray, setup: Setup, roi=None):
     from resection.markers.detect import detect_markers
 
     kw = dict(setup.detect_kw)
@@ -67,7 +67,7 @@ def _detect(img: np.ndarray, setup: _Setup, roi=None):
     return detect_markers(img, setup.diameter, polarity=setup.polarity, **kw)
 
 
-def _match(candidates, setup: _Setup, reference: FrameResult | None):
+def _match(candidates, setup: Setup, reference: FrameResult | None):
     """Match the candidates to the 3-D markers, from the reference frame's markers (their
     pixel positions) or, without a reference, from the approximate camera. Returns the
     matched ``(ids, uv)`` and the matcher's pose solve (a ``PoseResult``)."""
@@ -92,7 +92,7 @@ def _match(candidates, setup: _Setup, reference: FrameResult | None):
     return np.asarray(m.marker_ids).astype(str), np.asarray(m.uv, float).reshape(-1, 2), m.pose
 
 
-def _solve(ids: np.ndarray, uv: np.ndarray, setup: _Setup, frame: int, file: str,
+def _solve(ids: np.ndarray, uv: np.ndarray, setup: Setup, frame: int, file: str,
            pose=None, method: str = "matched") -> FrameResult:
     """The frame's pose from matched markers (``pose``: the matcher's ``PoseResult`` for
     exactly these markers, solved with ``pose_kw``, reused)."""
@@ -117,7 +117,7 @@ def _solve(ids: np.ndarray, uv: np.ndarray, setup: _Setup, frame: int, file: str
                        residuals=res, method=method)
 
 
-def _process_frame(frame_data, index: int, setup: _Setup, reference: FrameResult | None,
+def process_frame(frame_data, index: int, setup: Setup, reference: FrameResult | None,
                    previous: FrameResult | None = None, sources: dict | None = None
                    ) -> FrameResult:
     """Read one frame, track its markers by prediction from ``reference`` (and the good
@@ -132,12 +132,12 @@ def _process_frame(frame_data, index: int, setup: _Setup, reference: FrameResult
                                ref_source=None if reference is None else reference.source)
 
 
-def _process_frame_unlabelled(frame_data, index: int, setup: _Setup,
+def _process_frame_unlabelled(frame_data, index: int, setup: Setup,
                               reference: FrameResult | None,
                               previous: FrameResult | None, sources) -> FrameResult:
-    name = _frame_name(frame_data)
+    name = frame_name(frame_data)
     try:
-        img = _load_image(frame_data, sources)
+        img = load_image(frame_data, sources)
         if img.shape != (setup.camera.height, setup.camera.width):
             raise InputError(f"image is {img.shape[1]}x{img.shape[0]} px, the camera "
                              f"{setup.camera.width}x{setup.camera.height}")
@@ -157,7 +157,7 @@ def _process_frame_unlabelled(frame_data, index: int, setup: _Setup,
                            reason=failure_reason(exc, name))
 
 
-def _process_linked(frame_data, index: int, setup: _Setup, link: dict) -> FrameResult:
+def process_linked(frame_data, index: int, setup: Setup, link: dict) -> FrameResult:
     """The reference frame through a linking by hand: marker id -> candidate number, the
     candidates being those of ``detect_markers`` on the whole frame (as ``resection detect``
     numbers them). A linking that does not fit the candidates raises InputError."""
@@ -166,11 +166,11 @@ def _process_linked(frame_data, index: int, setup: _Setup, link: dict) -> FrameR
                                source=source)
 
 
-def _process_linked_unlabelled(frame_data, index: int, setup: _Setup,
+def _process_linked_unlabelled(frame_data, index: int, setup: Setup,
                                link: dict) -> FrameResult:
-    name = _frame_name(frame_data)
+    name = frame_name(frame_data)
     try:
-        img = _load_image(frame_data)
+        img = load_image(frame_data)
         if img.shape != (setup.camera.height, setup.camera.width):
             raise InputError(f"image is {img.shape[1]}x{img.shape[0]} px, the camera "
                              f"{setup.camera.width}x{setup.camera.height}")
@@ -186,7 +186,7 @@ def _process_linked_unlabelled(frame_data, index: int, setup: _Setup,
                            reason=failure_reason(exc, name))
 
 
-def _apply_link(candidates, link: dict, setup: _Setup) -> tuple[np.ndarray, np.ndarray]:
+def _apply_link(candidates, link: dict, setup: Setup) -> tuple[np.ndarray, np.ndarray]:
     markers = (setup.ids, setup.points3d)
     if link["path"] is not None:
         from resection.markers.link import read_links
@@ -207,11 +207,11 @@ def _apply_link(candidates, link: dict, setup: _Setup) -> tuple[np.ndarray, np.n
     return np.array(list(pairs), dtype=str), candidates.uv[idx].reshape(-1, 2)
 
 
-#: ``matched_from`` of a frame left uncomputed by its chunk (see :func:`_run_chunk`)
+#: ``matched_from`` of a frame left uncomputed by its chunk (see :func:`run_chunk`)
 DEFERRED = -2
 
 
-def _run_chunk(setup: _Setup, items: list, seed: FrameResult | None,
+def run_chunk(setup: Setup, items: list, seed: FrameResult | None,
                done: dict | None = None,
                on_frame: Callable[[FrameResult], None] | None = None,
                frames_dir: str | None = None,
@@ -227,7 +227,7 @@ def _run_chunk(setup: _Setup, items: list, seed: FrameResult | None,
     in parallel) whose first frame fails from the seed computes no more: the model moved
     too far since the seed, and every frame would fail alike, each at the price of a
     detection and a statistical match. Its frames are recorded as failed with
-    ``matched_from = DEFERRED``, and the sequential pass (:func:`_repair`) computes them
+    ``matched_from = DEFERRED``, and the sequential pass (:func:`repair`) computes them
     from the good frame before them."""
     done = done or {}
     ref, prev = seed, previous
@@ -240,20 +240,20 @@ def _run_chunk(setup: _Setup, items: list, seed: FrameResult | None,
             if index in done:
                 res = FrameResult.from_dict(done[index])
             elif deferred is not None:
-                res = FrameResult(frame=index, file=_frame_name(frame), status="failed",
+                res = FrameResult(frame=index, file=frame_name(frame), status="failed",
                                   reason=deferred, matched_from=DEFERRED,
                                   source=fingerprint(frame))
                 if frames_dir is not None:
-                    _try_write_frame(Path(frames_dir), res)
+                    try_write_frame(Path(frames_dir), res)
                 if on_frame is not None:
                     on_frame(res)
             else:
-                res = _process_frame(frame, index, setup, ref, prev, sources=sources)
+                res = process_frame(frame, index, setup, ref, prev, sources=sources)
                 if far_seed and not res.ok and ref is seed:
                     deferred = (f"not computed in its chunk: frame {index} failed from "
                                 f"frame {seed.frame}")
                 if frames_dir is not None:
-                    _try_write_frame(Path(frames_dir), res)
+                    try_write_frame(Path(frames_dir), res)
                 if on_frame is not None:
                     on_frame(res)
             if res.ok:
@@ -265,7 +265,7 @@ def _run_chunk(setup: _Setup, items: list, seed: FrameResult | None,
     return out
 
 
-def _repair(frames: list, setup: _Setup, done: dict, record, frames_dir: Path) -> None:
+def repair(frames: list, setup: Setup, done: dict, record, frames_dir: Path) -> None:
     """Second, sequential pass over the frames that failed while matched from a frame other
     than the last good one before them (a chunk's first frames are matched from frame 0:
     after a large excursion that can fail where matching from the previous frame works).
@@ -273,7 +273,7 @@ def _repair(frames: list, setup: _Setup, done: dict, record, frames_dir: Path) -
     matched from it (a corrupt frame) is left as it is, so the pass is cheap and a resumed
     run does not redo it. Deterministic: it depends only on the first pass' results.
     ``done``: index -> ``(ok, matched_from)``; the last good frame is read from its file."""
-    from resection.sequence.outputs import _frame_path, _read_frame
+    from resection.sequence.outputs import frame_path, read_frame
 
     last_good = None
     for i in range(len(frames)):
@@ -283,8 +283,8 @@ def _repair(frames: list, setup: _Setup, done: dict, record, frames_dir: Path) -
             continue
         if last_good is None or (matched_from == last_good and matched_from != DEFERRED):
             continue
-        ref = FrameResult.from_dict(_read_frame(_frame_path(frames_dir, last_good)))
-        res = _process_frame(frames[i], i, setup, ref)
+        ref = FrameResult.from_dict(read_frame(frame_path(frames_dir, last_good)))
+        res = process_frame(frames[i], i, setup, ref)
         record(res)
         if res.ok:
             last_good = i

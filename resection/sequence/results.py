@@ -13,7 +13,7 @@ POSE_COLUMNS = ("frame", "file", "status", "reason", "roll_deg", "pitch_deg", "y
                 "dx", "dy", "dz", "rms_px", "n_markers", "rvec_x", "rvec_y", "rvec_z",
                 "tvec_x", "tvec_y", "tvec_z")
 MARKER_COLUMNS = ("frame", "id", "u", "v", "residual", "residual_u", "residual_v")
-_FORMAT_VERSION = 3  # 2: frame files record their source's fingerprint; 3: its content
+FORMAT_VERSION = 3  # 2: frame files record their source's fingerprint; 3: its content
 # digest, and the fingerprint of the frame it was matched or predicted from
 
 @dataclass(frozen=True)
@@ -81,7 +81,7 @@ class FrameResult:
 
     def to_dict(self) -> dict:
         return {
-            "version": _FORMAT_VERSION, "frame": int(self.frame), "file": self.file,
+            "version": FORMAT_VERSION, "frame": int(self.frame), "file": self.file,
             "status": self.status, "reason": self.reason,
             "rvec": [float(x) for x in self.rvec], "tvec": [float(x) for x in self.tvec],
             "rms": float(self.rms), "ids": [str(i) for i in self.ids],
@@ -198,7 +198,7 @@ class TrackResult:
         return out
 
 
-def _assemble(results, fixed_camera: bool, n_computed: int,
+def assemble(results, fixed_camera: bool, n_computed: int,
               out_dir: str | None) -> TrackResult:
     """The TrackResult of the frames ``results`` (an iterable of FrameResult in frame
     order, consumed one at a time: only the compact arrays of the result are kept)."""

@@ -14,9 +14,9 @@ from resection.io.marks import claim_folder
 from resection.io.outputs import refuse_overwriting_inputs
 from resection.io.paths import sweep_temporaries
 from resection.sequence.execute import run_frames
-from resection.sequence.inputs import _checked, _settings
-from resection.sequence.outputs import _frames_from_files, _start_run, _write_csvs
-from resection.sequence.results import TrackResult, _assemble
+from resection.sequence.inputs import checked, run_settings
+from resection.sequence.outputs import frames_from_files, start_run, write_csvs
+from resection.sequence.results import TrackResult, assemble
 
 
 def track(
@@ -116,7 +116,7 @@ def track(
         message names it; see :mod:`resection.io.lock`). Failures of single frames are not
         raised: they are recorded.
     """
-    frames, setup, link_d, workers, chunk_size = _checked(
+    frames, setup, link_d, workers, chunk_size = checked(
         frames, camera, markers3d, link=link, diameter=diameter, polarity=polarity,
         workers=workers, chunk_size=chunk_size, min_markers=min_markers,
         roi_margin=roi_margin, detect_kw=detect_kw, match_kw=match_kw, pose_kw=pose_kw,
@@ -134,14 +134,14 @@ def track(
         with lock_folder(out, command=f"track: {len(frames)} frames"):
             for folder in (out, frames_dir):  # what a killed run left half written
                 sweep_temporaries(folder)
-            settings = _settings(setup, link_d, fixed_camera, chunk_size)
-            done = _start_run(out, frames, settings, resume)
+            settings = run_settings(setup, link_d, fixed_camera, chunk_size)
+            done = start_run(out, frames, settings, resume)
             computed = run_frames(frames, setup, link_d, done, chunk_size=chunk_size,
                                   workers=workers, scheduler=scheduler,
                                   frames_dir=frames_dir, progress=progress)
-            result = _assemble(_frames_from_files(frames_dir, len(frames)), fixed_camera,
+            result = assemble(frames_from_files(frames_dir, len(frames)), fixed_camera,
                                computed, str(out))
-            _write_csvs(result, out)
+            write_csvs(result, out)
     except BaseException:
         # a folder made by this run goes again when it holds no finished frame to resume
         if made is not None and not any(frames_dir.glob("frame_*.json")):

@@ -55,11 +55,11 @@ from resection.camera.model import Camera
 from resection.errors import InputError, SolveError
 from selfillum.mesh import check_mesh, face_normals
 from selfillum.solve.radiosity import (
-    _field,
-    _single_blas_thread,
     check_form_factors,
     check_reflectance,
     forward,
+    per_face_field,
+    single_blas_thread,
 )
 
 __all__ = ["GlossyPaint", "GlossyTransport", "transport_matrix", "glossy_forward",
@@ -382,7 +382,7 @@ def glossy_forward(F, transport: GlossyTransport, emission, reflectance,
     T, T2 = _check_transport(transport, n)
     rho = check_reflectance(reflectance, n)
     _check_paint(paint)
-    E = _field(emission, n, "emission")
+    E = per_face_field(emission, n, "emission")
     return _apply(F, T, T2, E, paint.albedo(rho), 1e-10) / math.pi
 
 
@@ -425,7 +425,7 @@ def glossy_correct(F, transport: GlossyTransport, radiance, reflectance, paint: 
     a = paint.albedo(rho)
     op = spla.LinearOperator((n, n), matvec=lambda e: _apply(F, T, T2, e, a, tol * 0.1),
                              dtype=np.float64)
-    with _single_blas_thread(n):
+    with single_blas_thread(n):
         E, info = spla.gmres(op, M, x0=M - T @ M, rtol=tol, atol=0.0, maxiter=maxiter,
                              restart=50)
     if info != 0:

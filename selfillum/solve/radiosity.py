@@ -31,7 +31,7 @@ __all__ = [
 _BLAS_THREADED_SIZE = 10_000
 
 
-def _single_blas_thread(size: int):
+def single_blas_thread(size: int):
     """Context manager keeping BLAS on one thread while an iterative solver runs on
     vectors of length ``size`` (a no-op for short vectors).
 
@@ -118,7 +118,7 @@ def check_form_factors(F) -> sp.csr_matrix:
 
 def check_reflectance(reflectance, n: int) -> np.ndarray:
     """Reflectance as an ``(n,)`` float64 array in ``[0, 1)``: a scalar is broadcast."""
-    rho = _field(reflectance, n, "reflectance")
+    rho = per_face_field(reflectance, n, "reflectance")
     bad = np.flatnonzero((rho < 0) | (rho >= 1))
     if bad.size:
         raise InputError(
@@ -127,7 +127,7 @@ def check_reflectance(reflectance, n: int) -> np.ndarray:
     return rho
 
 
-def _field(values, n: int, name: str) -> np.ndarray:
+def per_face_field(values, n: int, name: str) -> np.ndarray:
     """``values`` as a finite ``(n,)`` float64 array (a scalar is broadcast) or InputError."""
     try:
         x = np.asarray(values, dtype=np.float64)
@@ -192,7 +192,7 @@ def forward(
     """
     F = check_form_factors(F)
     n = F.shape[0]
-    E = _field(emission, n, "emission")
+    E = per_face_field(emission, n, "emission")
     rho = check_reflectance(reflectance, n)
     if not (tol > 0) or int(maxiter) < 1:
         raise InputError(f"tol must be > 0 and maxiter >= 1 (got {tol!r}, {maxiter!r})")
@@ -224,7 +224,7 @@ def forward(
         def cb(_x):
             counter["k"] += 1
 
-        with _single_blas_thread(n):
+        with single_blas_thread(n):
             B2, _ = spla.bicgstab(
                 A, E, x0=B, rtol=tol * 0.5, atol=0.0, maxiter=maxiter - it, callback=cb
             )
@@ -429,7 +429,7 @@ def _unseen_choice(unseen, n: int) -> tuple[str, np.ndarray | None]:
                 f"unseen: expected 'continue', 'none' or per-face values, got {unseen!r}"
             )
         return unseen, None
-    return "given", _field(unseen, n, "unseen emission")
+    return "given", per_face_field(unseen, n, "unseen emission")
 
 
 def _neumann(RF: sp.csr_matrix, rhs: np.ndarray, tol: float) -> np.ndarray:
@@ -528,7 +528,7 @@ def _continue_hidden(M, Bsub, loc_seen, paint_off, mesh, sub, regularization, to
     norm_rhs = float(np.linalg.norm(rhs))
     x = np.zeros(nh)
     if norm_rhs > 0:
-        with _single_blas_thread(nh):
+        with single_blas_thread(nh):
             x, flag = spla.cg(N, rhs, x0=x, rtol=tol, atol=0.0, maxiter=limit, M=prec,
                               callback=count)
         res = float(np.linalg.norm(normal(x) - rhs)) / norm_rhs
