@@ -423,3 +423,21 @@ def test_rqmc_points_are_uniform_and_unbiased():
     one = rqmc_points(16, np.array([7]), seed=1, dims=4)[0]
     for d in range(4):
         assert np.array_equal(np.sort(np.floor(one[:, d] * 16)), np.arange(16))
+
+
+@pytest.mark.parametrize("dims", [1, 4, 5])
+def test_sobol_base_is_scipys_sobol_sequence(dims):
+    """The Sobol points made without importing scipy.stats are exactly SciPy's unscrambled
+    ``qmc.Sobol`` points (same direction numbers, same Gray-code order), for power-of-2
+    and other counts; more than 5 dimensions are refused."""
+    from scipy.stats import qmc
+
+    from selfillum.transport.sampling import _sobol_base
+
+    for k in (1, 2, 3, 100, 256, 1000, 4096, 1 << 16):
+        m = max(0, int(np.ceil(np.log2(k))))
+        ref = qmc.Sobol(dims, scramble=False).random_base2(m)[:k]
+        ref = np.round(ref * 2.0**32).astype(np.uint64).astype(np.uint32)
+        assert np.array_equal(_sobol_base(k, dims), ref), k
+    with pytest.raises(ValueError, match="dims"):
+        _sobol_base(16, 6)

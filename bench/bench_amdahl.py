@@ -1,0 +1,248 @@
+"""Serial share (Amdahl) of the whole ``selfillum correct`` command, per part, and the
+thread efficiency of ``view_factors`` (issue 21 item 5).
+
+Run: ``.venv/bin/python bench/bench_amdahl.py [--faces 609000] [--repeat 2]
+[--threads 1,2,4,8,16] [--roots A,B]``
+
+**Parts.** The command runs in a fresh process (this script with ``--child``) that times,
+by wrapping the library's functions (no change to the library), the wall and process CPU
+seconds of: the imports (every module the command loads, imported up front), reading the
+grid, the camera and the image, building the ``SurfaceMap``, the camera check, the Embree
+scene and kernels of the view factors, the ray tracing (worker threads), the assembly of
+``F`` from the traced rows, the solve (``selfillum.correct``, the continuation's CG
+inside), the per-pixel correction (``SurfaceMap.to_image``) and writing. What no wrapper
+covers (argument checks, ``to_surface``, the painted-side check, ...) is "other".
+
+A part is *parallel* when its code runs on several threads (the ray tracing, the
+SurfaceMap's Embree queries, which are inside "SurfaceMap"); every other part runs on one
+thread and is *serial*. The serial share is serial wall seconds over the command's wall
+seconds (the interpreter's start included, timed by the parent). ``cpu/wall`` of each part
+is printed as a check: about 1 for a serial part, up to 2 for a parallel one on 2 free
+cores (less when other processes take the cores).
+
+With ``--roots`` the command of each source tree (``PYTHONPATH``) runs in turn, interleaved
+round by round, e.g. the previous commit unpacked with ``git archive`` against this one.
+
+**Threads.** ``view_factors`` of the same grid (every row, K = 256, or ``--vf-faces``
+rows) with ``workers`` = each of ``--threads``, interleaved, best of ``--repeat``. The
+efficiency from 2 to ``w`` threads is ``T(2) * 2 / (T(w) * min(w, cores))``; with more
+threads than cores it only shows the cost of the extra threads (chunking, pool, the serial
+start and assembly), not the speed-up more cores would give: for that, the serial share
+of ``view_factors`` measured here gives Amdahl's bound ``1 / (s + (1 - s) / (w / 2))``
+at ``w`` cores from 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+T_START = time.perf_counter()
+
+ROOT = Path(__file__).resolve().parents[1]
+
+#: (label, module, attribute path, parallel?) of the functions timed in the child.
+PARTS = [
+    ("grid reading", "resection.io.meshes", "load_mesh", False),
+    ("camera reading", "resection.io.cameras", "read_camera_file", False),
+    ("image reading", "resection.io.images", "read_native", False),
+    ("SurfaceMap", "resection.surface.surface_map", "SurfaceMap.__init__", True),
+    ("camera check", "resection.pose.camera_fit", "check_camera", False),
+    ("scene + kernels", "selfillum.transport.viewfactors", "RowTracer._start", False),
+    ("ray tracing", "selfillum.transport.viewfactors", "RowTracer.rows", True),
+    ("F assembly", "selfillum.transport.viewfactors", "_assemble", False),
+    ("solve (CG)", "selfillum.solve.radiosity", "correct", False),
+    ("to_image", "resection.surface.surface_map", "SurfaceMap.to_image", False),
+    ("writing", "selfillum.summary", "write_summary", False),
+    ("writing", "numpy", "save", False),
+]
+IMPORTS = ["numpy", "scipy.sparse", "scipy.sparse.linalg", "trimesh", "numba", "embreex",
+           "selfillum.images.image_correction", "selfillum.summary", "resection.saturation",
+           "resection.io.cameras", "resection.io.meshes", "resection.io.markers",
+           "resection.io.marks", "resection.io.outputs", "resection.pose.camera_fit",
+           "resection.surface.surface_map", "selfillum.transport.viewfactors",
+           "selfillum.transport.coupling", "selfillum.solve.radiosity", "selfillum.mesh"]
+
+
+def child(argv: list[str]) -> None:
+    """Run ``selfillum correct argv`` here, the parts timed; JSON on stdout's last line."""
+    import importlib
+    import threading
+
+    t0, c0 = time.perf_counter(), time.process_time()
+    for m in IMPORTS:
+        importlib.import_module(m)
+    cli = importlib.import_module("selfillum.cli.main")
+
+    t_imp, c_imp = time.perf_counter() - t0, time.process_time() - c0
+    records: dict[str, list[float]] = {}
+    stack: list[list[float]] = []  # [child wall, child cpu] of the open parts (main thread)
+    main_thread = threading.main_thread()
+
+    def wrap(label, fn):
+        def timed(*a, **kw):
+            if threading.current_thread() is not main_thread:
+                return fn(*a, **kw)
+            stack.append([0.0, 0.0])
+            w, c = time.perf_counter(), time.process_time()
+            try:
+                return fn(*a, **kw)
+            finally:
+                dw, dc = time.perf_counter() - w, time.process_time() - c
+                inner = stack.pop()
+                r = records.setdefault(label, [0.0, 0.0])
+                r[0] += dw - inner[0]
+                r[1] += dc - inner[1]
+                if stack:
+                    stack[-1][0] += dw
+                    stack[-1][1] += dc
+        return timed
+
+    for label, mod, attr, _ in PARTS:
+        obj = importlib.import_module(mod)
+        *owner, name = attr.split(".")
+        for o in owner:
+            obj = getattr(obj, o)
+        setattr(obj, name, wrap(label, getattr(obj, name)))
+    w, c = time.perf_counter(), time.process_time()
+    cli.main(argv)
+    total_w, total_c = time.perf_counter() - w, time.process_time() - c
+    covered = [sum(r[i] for r in records.values()) for i in (0, 1)]
+    records["other"] = [total_w - covered[0], total_c - covered[1]]
+    records["imports"] = [t_imp, c_imp]
+    print(json.dumps({"parts": records, "run": [total_w, total_c],
+                      "before_imports": t0 - T_START}))
+
+
+def run_command(root: Path, argv: list[str]) -> dict:
+    env = {**os.environ, "PYTHONPATH": str(root)}
+    t = time.perf_counter()
+    out = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--child", *argv],
+                         env=env, check=True, capture_output=True, text=True)
+    wall = time.perf_counter() - t
+    res = json.loads(out.stdout.strip().splitlines()[-1])
+    res["wall"] = wall
+    # the interpreter's start, this script's top and the child's own overhead: serial
+    res["parts"]["start-up"] = [wall - res["run"][0] - res["parts"]["imports"][0], 0.0]
+    return res
+
+
+def serial_share(res: dict) -> float:
+    parallel = {label for label, _, _, par in PARTS if par}
+    return sum(w for k, (w, _) in res["parts"].items() if k not in parallel) / res["wall"]
+
+
+def print_parts(tag: str, runs: list[dict]) -> None:
+    best = min(runs, key=lambda r: r["wall"])
+    parallel = {label for label, _, _, par in PARTS if par}
+    walls = ", ".join(f"{r['wall']:.2f}" for r in runs)
+    shares = ", ".join(f"{100 * serial_share(r):.0f}" for r in runs)
+    print(f"\n{tag}: whole command {best['wall']:.2f} s (best of {len(runs)}; all: {walls}); "
+          f"serial share {100 * serial_share(best):.0f} % (all: {shares} %)")
+    order = ["start-up", "imports"] + list(dict.fromkeys(p[0] for p in PARTS)) + ["other"]
+    for k in order:
+        if k not in best["parts"]:
+            continue
+        w, c = best["parts"][k]
+        kind = "parallel" if k in parallel else "serial"
+        ratio = f"{c / w:4.2f}" if w > 0.01 and c > 0 else "   -"
+        print(f"  {k:16s} {w:6.2f} s  {100 * w / best['wall']:5.1f} %  cpu/wall {ratio}  "
+              f"{kind}")
+
+
+def thread_efficiency(mesh, threads: list[int], repeat: int, rows) -> None:
+    from selfillum.transport import viewfactors as vf
+
+    times: dict[int, float] = {}
+    starts, assembly = {}, {}
+    orig_start, orig_asm = vf.RowTracer._start, vf._assemble
+    spent = {"start": 0.0, "asm": 0.0}
+
+    def t_start(self):
+        t = time.perf_counter()
+        orig_start(self)
+        spent["start"] += time.perf_counter() - t
+
+    def t_asm(*a):
+        t = time.perf_counter()
+        out = orig_asm(*a)
+        spent["asm"] += time.perf_counter() - t
+        return out
+
+    vf.RowTracer._start, vf._assemble = t_start, t_asm
+    vf.view_factors(mesh, 256, rows=rows[:1000], workers=2)  # kernels loaded
+    for _ in range(repeat):
+        for w in threads:
+            spent["start"] = spent["asm"] = 0.0
+            t = time.perf_counter()
+            vf.view_factors(mesh, 256, rows=rows, workers=w)
+            dt = time.perf_counter() - t
+            if dt < times.get(w, float("inf")):
+                times[w], starts[w], assembly[w] = dt, spent["start"], spent["asm"]
+    vf.RowTracer._start, vf._assemble = orig_start, orig_asm
+    cores = os.cpu_count() or 1
+    print(f"\nview_factors, {len(rows):,} rows, K = 256, {cores} cores, load average "
+          f"{os.getloadavg()[0]:.1f}:")
+    base = times.get(2)
+    for w in threads:
+        eff = (f"{base * 2 / (times[w] * min(w, cores)):.2f}" if base else "-")
+        print(f"  {w:2d} threads: {times[w]:6.2f} s (scene + kernels {starts[w]:.2f} s, "
+              f"F assembly {assembly[w]:.2f} s)  efficiency from 2: {eff}")
+    if base:
+        ser = (starts[2] + assembly[2]) / times[2]
+        print(f"  serial share of view_factors at 2 threads: {100 * ser:.0f} %: Amdahl bound "
+              f"from 2 to 16 cores {1 / (ser + (1 - ser) / 8):.1f}x "
+              f"(efficiency {1 / (ser + (1 - ser) / 8) / 8:.2f})")
+
+
+def main() -> None:
+    if len(sys.argv) > 1 and sys.argv[1] == "--child":
+        child(sys.argv[2:])
+        return
+    sys.path.insert(0, str(ROOT))
+    sys.path.insert(0, str(ROOT / "bench"))
+    from bench_si_command import files
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--faces", type=int, default=609_000)
+    ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument("--roots", default=str(ROOT),
+                    help="comma-separated source trees to compare (default: this one)")
+    ap.add_argument("--threads", default="", help="e.g. 1,2,4,8,16 (default: skip)")
+    ap.add_argument("--vf-faces", type=int, default=0,
+                    help="rows of view_factors in the thread bench (default all)")
+    ap.add_argument("--cache", default="/tmp/bench_si_command")
+    args = ap.parse_args()
+    cache = Path(args.cache) / str(args.faces)
+    cache.mkdir(parents=True, exist_ok=True)
+    f, mesh = files(args.faces, cache)
+    argv = ["correct", "--mesh", f["mesh"], "--camera", f["camera"], "--image", f["image"],
+            "--reflectance", "0.5", "--unpainted", f["unpainted"],
+            "--out", str(cache / "corrected_amdahl.npy"), "--quiet"]
+    roots = [Path(r) for r in args.roots.split(",")]
+    print(f"{len(mesh.faces):,} faces; load average at start {os.getloadavg()}")
+    runs: dict[Path, list[dict]] = {r: [] for r in roots}
+    for r in roots:
+        run_command(r, argv)  # numba caches warm
+    for _ in range(args.repeat):
+        for r in roots:
+            runs[r].append(run_command(r, argv))
+    for r in roots:
+        print_parts(str(r), runs[r])
+    print(f"load average at end {os.getloadavg()}")
+    if args.threads:
+        import numpy as np
+
+        n = len(mesh.faces)
+        rows = np.arange(n) if not args.vf_faces else \
+            np.linspace(0, n - 1, args.vf_faces).astype(np.int64)
+        thread_efficiency(mesh, [int(t) for t in args.threads.split(",")], args.repeat, rows)
+
+
+if __name__ == "__main__":
+    main()
