@@ -135,7 +135,10 @@ def _fit_pairs(vid, fid, w, cen, verts, nv, linear):
             for j in range(i, 3):
                 cov[:, i, j] = cov[:, j, i] = np.bincount(
                     vid, weights=w * dc[:, i] * dc[:, j], minlength=nv)
-        evals, evecs = np.linalg.eigh(cov)
+        evals = np.zeros((nv, 3))
+        evecs = np.zeros((nv, 3, 3))
+        act = W > 0  # vertices with no weighted face keep a zero covariance: no gradient
+        evals[act], evecs[act] = np.linalg.eigh(cov[act])
         scale = evals[:, -1:]
         # a spread below the round-off of the coordinates is none (one valued face around a
         # vertex far from the origin: its centroid minus their mean is round-off, and its
@@ -146,8 +149,9 @@ def _fit_pairs(vid, fid, w, cen, verts, nv, linear):
         rank = keep.sum(axis=1)
         with np.errstate(invalid="ignore", divide="ignore"):
             inv = np.where(keep, 1.0 / evals, 0.0)
-        cinv = np.einsum("vij,vj,vkj->vik", evecs, inv, evecs)
-        lever = np.einsum("vi,vij->vj", verts - cbar, cinv)  # (x_v - cbar)^T C^+
+        cinv = np.einsum("vij,vj,vkj->vik", evecs[act], inv[act], evecs[act])
+        lever = np.zeros((nv, 3))  # (x_v - cbar)^T C^+
+        lever[act] = np.einsum("vi,vij->vj", verts[act] - cbar[act], cinv)
         coef = coef + w * np.einsum("pj,pj->p", lever[vid], dc)
     coef = np.where(np.isfinite(coef) & (w > 0), coef, 0.0)
     return coef, rank, W
@@ -174,8 +178,10 @@ def _vertex_matrix(mesh: trimesh.Trimesh, face_weight: np.ndarray, linear: bool)
     vid = faces.ravel()  # incidence pairs (vertex, face)
     fid = np.repeat(np.arange(nf), 3)
     w = face_weight[fid]
-    coef, rank, W = _fit_pairs(vid, fid, w, cen, verts, nv, linear)
-    M = sp.csr_matrix((coef, (vid, fid)), shape=(nv, nf))
+    on = w > 0  # pairs of weightless (NaN) faces add nothing and get no coefficient: out
+    coef, rank, W = _fit_pairs(vid[on], fid[on], w[on], cen, verts, nv, linear)
+    vid_on, fid_on = vid[on], fid[on]
+    M = sp.csr_matrix((coef, (vid_on, fid_on)), shape=(nv, nf))
     poor = np.flatnonzero((rank < 2) & (W > 0)) if linear else np.array([], dtype=int)
     if poor.size:
         inc = sp.csr_matrix((np.ones(vid.size), (vid, fid)), shape=(nv, nf))
