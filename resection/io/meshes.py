@@ -71,23 +71,7 @@ def check_mesh(mesh: trimesh.Trimesh, source: str = "mesh") -> trimesh.Trimesh:
         No faces, NaN/infinite vertex coordinates, face indices out of range, or
         degenerate triangles (zero area relative to the model size, repeated vertices).
     """
-    verts = np.asarray(mesh.vertices, dtype=np.float64)
-    faces = np.asarray(mesh.faces)
-    if len(faces) == 0 or len(verts) == 0:
-        raise InputError(f"{source}: empty mesh (no triangles)")
-    if faces.ndim != 2 or faces.shape[1] != 3:
-        raise InputError(f"{source}: faces must be triangles, got shape {faces.shape}")
-    bad = ~np.all(np.isfinite(verts), axis=1)
-    if bad.any():
-        raise InputError(
-            f"{source}: {bad.sum()} vertex(es) with NaN or infinite coordinates "
-            f"(first: vertex {np.flatnonzero(bad)[0]})"
-        )
-    if faces.min() < 0 or faces.max() >= len(verts):
-        raise InputError(
-            f"{source}: face vertex indices out of range [0, {len(verts) - 1}] "
-            f"(min {faces.min()}, max {faces.max()})"
-        )
+    verts, faces = _check_indices(mesh, source)
     tri = verts[faces]
     area2 = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
     size = float(np.linalg.norm(verts.max(axis=0) - verts.min(axis=0)))
@@ -106,6 +90,29 @@ def check_mesh(mesh: trimesh.Trimesh, source: str = "mesh") -> trimesh.Trimesh:
             f"{a} and {b} with vertices {faces[a].tolist()}; remove the copies"
         )
     return mesh
+
+
+def _check_indices(mesh: trimesh.Trimesh, source: str) -> tuple[np.ndarray, np.ndarray]:
+    """The checks of :func:`check_mesh` that merging vertices needs (faces present,
+    finite coordinates, indices in range); ``(vertices, faces)`` as arrays."""
+    verts = np.asarray(mesh.vertices, dtype=np.float64)
+    faces = np.asarray(mesh.faces)
+    if len(faces) == 0 or len(verts) == 0:
+        raise InputError(f"{source}: empty mesh (no triangles)")
+    if faces.ndim != 2 or faces.shape[1] != 3:
+        raise InputError(f"{source}: faces must be triangles, got shape {faces.shape}")
+    bad = ~np.all(np.isfinite(verts), axis=1)
+    if bad.any():
+        raise InputError(
+            f"{source}: {bad.sum()} vertex(es) with NaN or infinite coordinates "
+            f"(first: vertex {np.flatnonzero(bad)[0]})"
+        )
+    if faces.min() < 0 or faces.max() >= len(verts):
+        raise InputError(
+            f"{source}: face vertex indices out of range [0, {len(verts) - 1}] "
+            f"(min {faces.min()}, max {faces.max()})"
+        )
+    return verts, faces
 
 
 def duplicate_faces(faces) -> np.ndarray:
@@ -175,7 +182,7 @@ def load_mesh(path: str | os.PathLike, *, format: str | None = None,
             _check_stl(path)
         mesh = _load_trimesh(path, fmt)
     mesh.metadata["source"] = str(path)
-    check_mesh(mesh, str(path))
+    _check_indices(mesh, str(path))  # what merging needs; the rest is checked once, after
     if merge_vertices:
         mesh.merge_vertices(merge_tex=True, merge_norm=True)
     return check_mesh(mesh, str(path))
