@@ -51,13 +51,20 @@ PARTS = [
     ("grid reading", "resection.io.meshes", "load_mesh", False),
     ("camera reading", "resection.io.cameras", "read_camera_file", False),
     ("image reading", "resection.io.images", "read_native", False),
-    ("SurfaceMap", "resection.surface.surface_map", "SurfaceMap.__init__", True),
+    ("SurfaceMap", "resection.surface.surface_map", "SurfaceMap.__init__", False),
+    ("SurfaceMap rays", "resection.surface.visibility", "RayCaster.first_hit", True),
+    ("SurfaceMap rays", "resection.camera.model", "Camera.undistortion_map", True),
     ("camera check", "resection.pose.camera_fit", "check_camera", False),
     ("scene + kernels", "selfillum.transport.viewfactors", "RowTracer._start", False),
     ("ray tracing", "selfillum.transport.viewfactors", "RowTracer.rows", True),
     ("F assembly", "selfillum.transport.viewfactors", "_assemble", False),
-    ("solve (CG)", "selfillum.solve.radiosity", "correct", False),
+    ("solve (CG)", "selfillum.images.image_correction", "correct", False),
+    ("to_surface", "resection.surface.surface_map", "SurfaceMap.to_surface", False),
     ("to_image", "resection.surface.surface_map", "SurfaceMap.to_image", False),
+    ("checks", "selfillum.mesh", "check_mesh", False),
+    ("checks", "selfillum.images.image_correction", "_check_painted_side", False),
+    ("F bookkeeping", "selfillum.transport.coupling", "coupled_view_factors", False),
+    ("summary", "selfillum.summary", "summarize", False),
     ("writing", "selfillum.summary", "write_summary", False),
     ("writing", "numpy", "save", False),
 ]
@@ -116,19 +123,30 @@ def child(argv: list[str]) -> None:
     records["other"] = [total_w - covered[0], total_c - covered[1]]
     records["imports"] = [t_imp, c_imp]
     print(json.dumps({"parts": records, "run": [total_w, total_c],
-                      "before_imports": t0 - T_START}))
+                      "before_imports": t0 - T_START}), flush=True)
 
 
 def run_command(root: Path, argv: list[str]) -> dict:
     env = {**os.environ, "PYTHONPATH": str(root)}
     t = time.perf_counter()
-    out = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--child", *argv],
-                         env=env, check=True, capture_output=True, text=True)
-    wall = time.perf_counter() - t
-    res = json.loads(out.stdout.strip().splitlines()[-1])
-    res["wall"] = wall
-    # the interpreter's start, this script's top and the child's own overhead: serial
-    res["parts"]["start-up"] = [wall - res["run"][0] - res["parts"]["imports"][0], 0.0]
+    proc = subprocess.Popen([sys.executable, str(Path(__file__).resolve()), "--child", *argv],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                            text=True)
+    lines = []
+    for line in proc.stdout:  # the parts come as the child's last line, before its exit
+        lines.append(line)
+        if line.startswith("{"):
+            break
+    t_line = time.perf_counter()
+    proc.stdout.read()
+    if proc.wait() != 0:
+        raise RuntimeError(f"the command failed: {''.join(lines)[-2000:]}")
+    end = time.perf_counter()
+    res = json.loads(lines[-1])
+    res["wall"] = end - t
+    # the interpreter's start and this script's top; the exit (freeing arrays, scene): serial
+    res["parts"]["start-up"] = [t_line - t - res["run"][0] - res["parts"]["imports"][0], 0.0]
+    res["parts"]["exit"] = [end - t_line, 0.0]
     return res
 
 
@@ -144,7 +162,7 @@ def print_parts(tag: str, runs: list[dict]) -> None:
     shares = ", ".join(f"{100 * serial_share(r):.0f}" for r in runs)
     print(f"\n{tag}: whole command {best['wall']:.2f} s (best of {len(runs)}; all: {walls}); "
           f"serial share {100 * serial_share(best):.0f} % (all: {shares} %)")
-    order = ["start-up", "imports"] + list(dict.fromkeys(p[0] for p in PARTS)) + ["other"]
+    order = ["start-up", "imports", "exit"] + list(dict.fromkeys(p[0] for p in PARTS)) + ["other"]
     for k in order:
         if k not in best["parts"]:
             continue

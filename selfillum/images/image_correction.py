@@ -217,7 +217,9 @@ def correct_image(
     x[sat] = np.nan  # unknown: in no face's value
     sample = smap.to_surface(x)
     B = sample.values  # (T, N)
-    grazing = oblique_faces(mesh, camera.center, lim)
+    same_view = smap.max_obliqueness == lim and np.array_equal(
+        np.asarray(smap.camera.center), np.asarray(camera.center))
+    grazing = smap.oblique if same_view else oblique_faces(mesh, camera.center, lim)
     sat_faces = faces_touched(smap.face_index, smap.mask, sat, n)
     seen = ~sample.unseen & ~grazing[None] & ~sat_faces
     if not seen.any(axis=1).all():
@@ -296,10 +298,13 @@ def _check_painted_side(smap, mesh, camera) -> None:
     f = smap.face_index[smap.mask]
     if f.size == 0:
         return
-    pts = smap.points[smap.mask]
-    view = np.asarray(camera.center, dtype=np.float64) - pts
-    normals = np.asarray(mesh.face_normals, dtype=np.float64)[f]
-    back = np.einsum("ij,ij->i", view, normals) < 0
+    # a pixel sees the back of its face when the camera is behind the face's plane: one
+    # sign per face (centre minus any point of the plane, along the normal), gathered
+    tri0 = np.asarray(mesh.vertices, dtype=np.float64)[np.asarray(mesh.faces)[:, 0]]
+    normals = np.asarray(mesh.face_normals, dtype=np.float64)
+    behind = np.einsum("ij,ij->i", np.asarray(camera.center, dtype=np.float64) - tri0,
+                       normals) < 0
+    back = behind[f]
     if back.mean() > 0.5:
         from resection.camera.units import camera_scale_hint
 

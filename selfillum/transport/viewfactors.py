@@ -107,7 +107,7 @@ def _trace_rows(job: _Job, scene: RayScene, rows: np.ndarray):
     """Hits of the rays of faces ``rows``: ``(counts per row, hit faces)``, both int32,
     the hits grouped by row in the order of ``rows`` (duplicates kept)."""
     k = job.k
-    tri = (job.vertices - scene.origin)[job.faces[rows]]  # the scene's centred frame
+    tri = job.vertices[job.faces[rows]] - scene.origin  # the scene's centred frame
     nrm = job.normals[rows]
     o, d, _ = sample_rays(tri, nrm, k, two_sided=job.two_sided, offset=job.offset,
                           face_ids=rows, seed=job.seed)
