@@ -19,6 +19,10 @@ unpainted faces (NPY). Measured, interleaved, in rounds:
 Quiet rounds first, then the same rounds with ``--load`` CPU-bound processes (pure Python
 loops) running beside them, started before and stopped after each round. The ratio
 ours / peer of each round is printed; target: at most 1.5.
+
+With ``--roots A,B`` the command of each source tree (its ``PYTHONPATH``) runs in every
+round, one after the other between the same two peer passes (e.g. the previous commit
+unpacked with ``git archive`` against this one), so that both see the same load.
 """
 
 from __future__ import annotations
@@ -68,16 +72,20 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--load", type=int, default=2)
     ap.add_argument("--cache", default="/tmp/bench_si_command")
+    ap.add_argument("--roots", default=str(ROOT),
+                    help="comma-separated source trees to compare (default: this one)")
     args = ap.parse_args()
     cache = Path(args.cache) / str(args.faces)
     cache.mkdir(parents=True, exist_ok=True)
     f, mesh = files(args.faces, cache)
     n = len(mesh.faces)
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    roots = args.roots.split(",")
     cmd = [sys.executable, "-m", "selfillum.cli", "correct", "--mesh", f["mesh"],
            "--camera", f["camera"], "--image", f["image"], "--reflectance", "0.5",
            "--unpainted", f["unpainted"], "--out", str(cache / "corrected.npy"), "--quiet"]
-    subprocess.run(cmd, env=env, check=True, capture_output=True)  # numba caches warm
+    envs = {r: {**os.environ, "PYTHONPATH": r} for r in roots}
+    for r in roots:
+        subprocess.run(cmd, env=envs[r], check=True, capture_output=True)  # numba caches
     print(f"{n:,} faces; load average {os.getloadavg()}")
     rows = []
     for extra in (0, args.load):
@@ -86,24 +94,28 @@ def main() -> None:
             try:
                 time.sleep(1.0 if extra else 0.0)
                 t_peer = bare_embree(mesh)
-                t = time.perf_counter()
-                subprocess.run(cmd, env=env, check=True, capture_output=True)
-                t_cmd = time.perf_counter() - t
+                t_cmd = {}
+                for r in roots:
+                    t = time.perf_counter()
+                    subprocess.run(cmd, env=envs[r], check=True, capture_output=True)
+                    t_cmd[r] = time.perf_counter() - t
                 t_peer2 = bare_embree(mesh, seed=1)
+                load = os.getloadavg()[0]
             finally:
                 for p in busy:
                     p.kill()
                     p.wait()
             peer = 0.5 * (t_peer + t_peer2)
-            rows.append((extra, t_cmd, peer, t_cmd / peer))
-            print(f"  {extra} busy processes beside: selfillum correct {t_cmd:.1f} s, bare "
-                  f"Embree {t_peer:.1f} / {t_peer2:.1f} s: ratio {t_cmd / peer:.2f}; load "
-                  f"average {os.getloadavg()[0]:.1f}", flush=True)
+            for r in roots:
+                rows.append((extra, r, t_cmd[r], peer, t_cmd[r] / peer))
+                print(f"  {extra} busy processes beside: {r}: selfillum correct "
+                      f"{t_cmd[r]:.1f} s, bare Embree {t_peer:.1f} / {t_peer2:.1f} s: ratio "
+                      f"{t_cmd[r] / peer:.2f}; load average {load:.1f}", flush=True)
     for extra in (0, args.load):
-        r = [x[3] for x in rows if x[0] == extra]
-        print(f"{'quiet' if extra == 0 else f'load {extra}'}: ratio best {min(r):.2f}, "
-              f"worst {max(r):.2f} (target <= 1.5)")
-
+        for r in roots:
+            q = [x[4] for x in rows if x[0] == extra and x[1] == r]
+            print(f"{'quiet' if extra == 0 else f'load {extra}'}: {r}: ratio best "
+                  f"{min(q):.2f}, worst {max(q):.2f} (target <= 1.5)")
 
 if __name__ == "__main__":
     main()
