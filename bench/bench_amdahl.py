@@ -218,6 +218,41 @@ def thread_efficiency(mesh, threads: list[int], repeat: int, rows) -> None:
               f"(efficiency {1 / (ser + (1 - ser) / 8) / 8:.2f})")
 
 
+def track_share(frames: list[int], workers: list[str]) -> None:
+    """``resection track`` on the body of revolution (``bench_track_command``'s frames):
+    wall and CPU seconds of the whole process (its children included) for each run length
+    and ``--workers`` choice. The start-up is the 2-frame run; frames tracked in this
+    process run one after the other on one thread (serial); CPU over wall tells how many
+    cores the run kept busy."""
+    import resource
+
+    from bench_track_command import PERIOD, render
+
+    cache = Path("/tmp/bench_track_revolution")
+    cache.mkdir(parents=True, exist_ok=True)
+    sc = render(cache)
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    print(f"\nresection track (revolution body, 1280 x 800 frames), load average "
+          f"{os.getloadavg()[0]:.1f}:")
+    for n in frames:
+        for w in workers:
+            cmd = [sys.executable, "-m", "resection.cli", "track",
+                   *[sc["frames"][k % PERIOD] for k in range(n)], "--camera", sc["camera"],
+                   "--markers", sc["markers"], "--link", sc["link"], "--diameter", "5",
+                   "--out", str(cache / f"amdahl_{n}_{w}"), "--no-progress", "--no-resume"]
+            if w != "auto":
+                cmd += ["--workers", w]
+            r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            t = time.perf_counter()
+            subprocess.run(cmd, env=env, check=True, capture_output=True)
+            wall = time.perf_counter() - t
+            r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
+            print(f"  {n:5d} frames, --workers {w}: wall {wall:6.2f} s, CPU {cpu:6.2f} s, "
+                  f"cpu/wall {cpu / wall:4.2f}; load average {os.getloadavg()[0]:.1f}",
+                  flush=True)
+
+
 def main() -> None:
     if len(sys.argv) > 1 and sys.argv[1] == "--child":
         child(sys.argv[2:])
@@ -235,21 +270,33 @@ def main() -> None:
     ap.add_argument("--vf-faces", type=int, default=0,
                     help="rows of view_factors in the thread bench (default all)")
     ap.add_argument("--cache", default="/tmp/bench_si_command")
+    ap.add_argument("--track-frames", default="",
+                    help="e.g. 2,2000: also time resection track (default: skip)")
+    ap.add_argument("--track-workers", default="auto",
+                    help="track's --workers values, e.g. auto,1,2")
+    ap.add_argument("--skip-correct", action="store_true")
     args = ap.parse_args()
+    if args.track_frames:
+        track_share([int(x) for x in args.track_frames.split(",")],
+                    args.track_workers.split(","))
     cache = Path(args.cache) / str(args.faces)
     cache.mkdir(parents=True, exist_ok=True)
     f, mesh = files(args.faces, cache)
     argv = ["correct", "--mesh", f["mesh"], "--camera", f["camera"], "--image", f["image"],
             "--reflectance", "0.5", "--unpainted", f["unpainted"],
-            "--out", str(cache / "corrected_amdahl.npy"), "--quiet"]
+            "--quiet"]
+    if args.skip_correct:
+        return
     roots = [Path(r) for r in args.roots.split(",")]
     print(f"{len(mesh.faces):,} faces; load average at start {os.getloadavg()}")
     runs: dict[Path, list[dict]] = {r: [] for r in roots}
+    argvs = {r: argv + ["--out", str(cache / f"corrected_amdahl_{i}.npy")]
+             for i, r in enumerate(roots)}  # an output of its own each
     for r in roots:
-        run_command(r, argv)  # numba caches warm
+        run_command(r, argvs[r])  # numba caches warm
     for _ in range(args.repeat):
         for r in roots:
-            runs[r].append(run_command(r, argv))
+            runs[r].append(run_command(r, argvs[r]))
     for r in roots:
         print_parts(str(r), runs[r])
     print(f"load average at end {os.getloadavg()}")

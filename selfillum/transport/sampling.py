@@ -155,7 +155,8 @@ def rqmc_points(k: int, face_ids: np.ndarray, seed: int, dims: int = 4) -> np.nd
     by a hash of the bits above it, the Laine-Karras permutation applied to the
     bit-reversed value, as in Burley, "Practical Hash-based Owen Scrambling", JCGT 2020).
     A scrambled net stays a net and every point is uniformly distributed on
-    ``[0, 1)^dims`` (to 2**-24), so every estimate built on these points is unbiased,
+    ``[0, 1)^dims`` (to 2**-24; ``dims`` at most 5), so every estimate built on these points
+    is unbiased,
     while the error of one face's points falls faster than ``1/sqrt(k)`` (measured
     against Howell's closed forms in ``bench/bench_viewfactors.py``).
     """
