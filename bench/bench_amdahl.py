@@ -131,7 +131,7 @@ def run_command(root: Path, argv: list[str]) -> dict:
     t = time.perf_counter()
     proc = subprocess.Popen([sys.executable, str(Path(__file__).resolve()), "--child", *argv],
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
-                            text=True)
+                            text=True, cwd=root)
     lines = []
     for line in proc.stdout:  # the parts come as the child's last line, before its exit
         lines.append(line)

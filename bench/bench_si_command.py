@@ -86,7 +86,8 @@ def main() -> None:
                 "--quiet"] for i, r in enumerate(roots)}  # an output of its own each
     envs = {r: {**os.environ, "PYTHONPATH": r} for r in roots}
     for r in roots:
-        subprocess.run(cmds[r], env=envs[r], check=True, capture_output=True)  # numba
+        # run from the tree itself: ``python -m`` puts the working folder first on sys.path
+        subprocess.run(cmds[r], env=envs[r], check=True, capture_output=True, cwd=r)
     print(f"{n:,} faces; load average {os.getloadavg()}")
     rows = []
     for extra in (0, args.load):
@@ -98,7 +99,8 @@ def main() -> None:
                 t_cmd = {}
                 for r in roots:
                     t = time.perf_counter()
-                    subprocess.run(cmds[r], env=envs[r], check=True, capture_output=True)
+                    subprocess.run(cmds[r], env=envs[r], check=True, capture_output=True,
+                                   cwd=r)
                     t_cmd[r] = time.perf_counter() - t
                 t_peer2 = bare_embree(mesh, seed=1)
                 load = os.getloadavg()[0]
