@@ -63,7 +63,7 @@ PARTS = [
     ("to_image", "resection.surface.surface_map", "SurfaceMap.to_image", False),
     ("checks", "selfillum.mesh", "check_mesh", False),
     ("checks", "selfillum.images.image_correction", "_check_painted_side", False),
-    ("F bookkeeping", "selfillum.transport.coupling", "coupled_view_factors", False),
+    ("F bookkeeping", "selfillum.images.image_correction", "coupled_view_factors", False),
     ("summary", "selfillum.summary", "summarize", False),
     ("writing", "selfillum.summary", "write_summary", False),
     ("writing", "numpy", "save", False),
