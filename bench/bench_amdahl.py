@@ -2,7 +2,11 @@
 thread efficiency of ``view_factors`` (issue 21 item 5).
 
 Run: ``.venv/bin/python bench/bench_amdahl.py [--faces 609000] [--repeat 2]
-[--threads 1,2,4,8,16] [--roots A,B]``
+[--threads 1,2,4,8,16] [--roots A,B] [--track-frames 2,2000 [--skip-correct]]``
+
+**track.** With ``--track-frames`` the ``resection track`` command of
+``bench_track_command.py`` (body of revolution) runs for each number of frames: wall and
+CPU seconds of the whole process; CPU over wall says how many cores it kept busy.
 
 **Parts.** The command runs in a fresh process (this script with ``--child``) that times,
 by wrapping the library's functions (no change to the library), the wall and process CPU
