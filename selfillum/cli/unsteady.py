@@ -10,6 +10,16 @@ from pathlib import Path
 from resection.errors import InputError
 
 
+def _node_list(text: str | None) -> list:
+    if not text:
+        return []
+    try:
+        return [int(v) for v in text.replace(" ", "").split(",") if v]
+    except ValueError:
+        raise InputError(f"--psd {text}: expected node numbers separated by commas "
+                         "(grid file order, from 0)") from None
+
+
 def _cmd_unsteady(args) -> int:
     from resection.io.upsp_inputs import read_deck
     from selfillum.unsteady import CameraInput, UnsteadyConfig, config_from_deck, run_unsteady
@@ -25,7 +35,10 @@ def _cmd_unsteady(args) -> int:
               "taps": Path(args.taps) if args.taps else None,
               "tap_positions": Path(args.tap_positions) if args.tap_positions else None,
               "wind_off": [Path(p) for p in args.wind_off] if args.wind_off else None,
-              "p_ref": args.p_ref, "progress": not args.quiet}
+              "p_ref": args.p_ref, "progress": not args.quiet,
+              "psd_probes": _node_list(args.psd), "psd_bands": args.psd_bands,
+              "psd_nperseg": args.psd_nperseg, "memory_mb": args.memory,
+              "plots": not args.no_plots}
     if args.deck:
         if args.grid or args.sds or args.video or args.calibration:
             raise InputError("give either DECK.inp or --grid/--sds/--video/--calibration, "
@@ -66,6 +79,9 @@ def _cmd_unsteady(args) -> int:
               f"nodes of its RMS over time), {res.si_change_p95:.4g} (95th percentile)")
     else:
         print("self-illumination: not removed (--no-si)")
+    print(f"run: {res.frames_per_s:.1f} frames/s end to end; peak memory "
+          f"{res.peak_rss_mb:.0f} MB; blocks of {res.blocks[0]} frames (Phase 1) and "
+          f"{res.blocks[1]} nodes (Phase 2)")
     print("wrote " + ", ".join(str(p) for p in res.files))
     return 0
 
@@ -147,5 +163,19 @@ def register(sub) -> None:
     p.add_argument("--upsp-flat", action="store_true",
                    help="also write uPSP's flat 'pressure' and 'pressure_transpose' files "
                    "next to OUT.h5")
+    p.add_argument("--psd", metavar="N1,N2,...",
+                   help="probe nodes (grid file order, from 0): their Welch PSD of dCp is "
+                   "stored (/psd/probe_psd) and plotted (OUT_psd.png)")
+    p.add_argument("--psd-bands", type=int, default=8, metavar="K",
+                   help="per node, the PSD averaged over K log-spaced bands (/psd/band_psd; "
+                   "0: none; default 8)")
+    p.add_argument("--psd-nperseg", type=int, metavar="FRAMES",
+                   help="frames per Welch segment (default min(frames, 256))")
+    p.add_argument("--memory", type=float, default=512.0, metavar="MB",
+                   help="memory budget of the blocks of frames (Phase 1) and nodes "
+                   "(Phase 2), MiB (default 512); the fixed part of the run (libraries, "
+                   "one frame's images and maps, grid, form factors) comes on top")
+    p.add_argument("--no-plots", action="store_true",
+                   help="do not write OUT_rms.png (dCp RMS on the model) nor OUT_psd.png")
     p.add_argument("--quiet", action="store_true", help="no progress")
     p.set_defaults(func=_cmd_unsteady)

@@ -101,12 +101,14 @@ def write_xdmf(path: Path, h5_name: str, n_frames: int, n_nodes: int, n_tris: in
     Path(path).write_text("\n".join(lines), encoding="utf-8")
 
 
-def write_flat(h5file, pressure_path, transpose_path) -> None:
+def write_flat(h5file, pressure_path, transpose_path, node_block: int | None = None) -> None:
     """uPSP's ``pressure`` and ``pressure_transpose`` from ``/dcp``, streamed along the
-    chunks (blocks of frames for one, blocks of nodes for the other)."""
+    chunks (blocks of frames for one, blocks of ``node_block`` nodes, default a chunk
+    column, for the other)."""
     ds = h5file["dcp"]
     T, N = ds.shape
     tc, nc = ds.chunks
+    nc = int(node_block or nc)
     with open(pressure_path, "wb") as fh:
         for a in range(0, T, tc):  # blocks of frames
             fh.write(np.ascontiguousarray(ds[a:a + tc], dtype="<f4").tobytes())

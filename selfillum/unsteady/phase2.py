@@ -130,7 +130,7 @@ def node_gain(calibration, surface_temperature, cp_steady, conditions) -> np.nda
 
 
 def run_phase2(intensity, out, times, gain, q: float, *, raw=None, block: int | None = None,
-               order: int = DETREND_ORDER) -> dict:
+               order: int = DETREND_ORDER, spectra=None, progress=None) -> dict:
     """Phase 2 over a whole run, block by block of nodes.
 
     Parameters
@@ -147,7 +147,11 @@ def run_phase2(intensity, out, times, gain, q: float, *, raw=None, block: int | 
         Node intensities without the SI removal: the change of dCp it makes is reported.
     block : int, optional
         Nodes per block (default: the chunk width of ``out``, else 4096): memory holds
-        ``T x block`` values at a time.
+        ``T x block`` values at a time (:func:`selfillum.unsteady.budget.plan_blocks`).
+    spectra : selfillum.unsteady.spectra.Spectra, optional
+        Receives every block's dCp (Welch spectra, no second pass over the run).
+    progress : callable, optional
+        Called with the number of nodes done after each block.
 
     Returns
     -------
@@ -174,4 +178,10 @@ def run_phase2(intensity, out, times, gain, q: float, *, raw=None, block: int | 
             if raw is not None:
                 d0 = dcp_block(raw[:, a:b], times, g[a:b], q, order)
                 change[a:b] = np.sqrt(np.nanmean((d.astype(np.float64) - d0) ** 2, axis=0))
+                del d0
+        if spectra is not None:
+            spectra.add(a, d)
+        del d
+        if progress is not None:
+            progress(b)
     return {"mean": mean, "rms": rms, "si_change": change}

@@ -14,12 +14,14 @@ import contextlib
 import os
 import shutil
 import tempfile
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from resection.errors import InputError
+from selfillum.unsteady.budget import DEFAULT_MEMORY_MB, Progress, peak_rss_mb, plan_blocks
 from selfillum.unsteady.insitu import insitu_gain
 from selfillum.unsteady.output import (
     FORMAT,
@@ -39,6 +41,7 @@ from selfillum.unsteady.phase1 import (
     map_run,
 )
 from selfillum.unsteady.phase2 import DETREND_ORDER, node_gain, run_phase2
+from selfillum.unsteady.spectra import Spectra
 
 __all__ = ["CameraInput", "UnsteadyConfig", "UnsteadyResult", "run_unsteady",
            "config_from_deck"]
@@ -66,6 +69,10 @@ class UnsteadyConfig:
     ``taps`` (a ``.wtd`` or a tap file, placed by ``tap_positions`` or the targets file)
     with one ``wind_off`` image per camera at pressure ``p_ref`` (psf)
     (:mod:`selfillum.unsteady.insitu`).
+    ``psd_probes`` (node numbers), ``psd_bands``, ``psd_nperseg``: Welch spectra
+    (:mod:`selfillum.unsteady.spectra`). ``memory_mb``: the budget of the blocks
+    (:func:`selfillum.unsteady.budget.plan_blocks`). ``plots``: write the dCp RMS on the
+    model and the probes' PSD as PNG next to the output.
     """
 
     grid: Path
@@ -96,6 +103,11 @@ class UnsteadyConfig:
     wind_off: list | None = None
     p_ref: float | None = None
     progress: bool = False
+    psd_probes: list = field(default_factory=list)
+    psd_bands: int = 8
+    psd_nperseg: int | None = None
+    memory_mb: float | None = DEFAULT_MEMORY_MB
+    plots: bool = True
     general: dict = field(default_factory=dict)
     source: str = "flags"
 
@@ -106,7 +118,9 @@ class UnsteadyResult:
     ``seen`` (share of nodes with a dCp), ``si_change_median`` / ``si_change_p95`` (over
     the seen nodes, of the RMS over time of the change of dCp by the SI removal; NaN
     without SI), ``tracked_failed`` (frames whose pose was taken from the nearest good
-    frame), ``files`` (everything written)."""
+    frame), ``files`` (everything written), ``peak_rss_mb`` (the process's peak resident
+    memory, MiB), ``frames_per_s`` (frames over the whole run's time), ``blocks``
+    (frames per Phase 1 block, nodes per Phase 2 block)."""
 
     out: Path
     n_frames: int
@@ -117,6 +131,9 @@ class UnsteadyResult:
     si_change_p95: float
     tracked_failed: int
     files: tuple
+    peak_rss_mb: float = float("nan")
+    frames_per_s: float = float("nan")
+    blocks: tuple = ()
 
 
 _DECK_REGISTRATION = {"pixel": "first-frame", "none": "none", "track": "track",
@@ -306,13 +323,22 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     flat = [out.parent / "pressure", out.parent / "pressure_transpose"] if cfg.upsp_flat \
         else []
     xdmf = out.with_suffix(".xdmf")
-    for p in [out, xdmf, *flat]:
+    pngs = [out.with_name(out.stem + "_rms.png")] if cfg.plots else []
+    if cfg.plots and cfg.psd_probes:
+        pngs.append(out.with_name(out.stem + "_psd.png"))
+    for p in [out, xdmf, *flat, *pngs]:
         if p.exists():
             raise InputError(f"{p}: exists; remove it or choose another --out")
     N = grid.n_nodes
     tc, nc = chunk_shape(T, N)
+    plan = plan_blocks(T, N, (tc, nc), cfg.memory_mb)
     frames = np.arange(T)
     times = frames / fps
+    spectra = Spectra(N, fps, T, probes=cfg.psd_probes, n_bands=cfg.psd_bands,
+                      nperseg=cfg.psd_nperseg) if (cfg.psd_probes or cfg.psd_bands) \
+        else None
+    t_start = time.perf_counter()
+    prog = Progress(T, N, enabled=cfg.progress)
     scratch = Path(tempfile.mkdtemp(prefix=f".{out.stem}.run-", dir=out.parent))
     try:
         # ------------------------------------------------------------ registration
@@ -336,8 +362,9 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
         with h5py.File(scratch / "phase1.h5", "w") as s1:
             vals = s1.create_dataset("values", (T, N), "f4", chunks=(tc, nc))
             raw = s1.create_dataset("raw", (T, N), "f4", chunks=(tc, nc))
-            block_v = np.empty((tc, N), np.float32)
-            block_r = np.empty((tc, N), np.float32)
+            fb = plan.frames_per_block
+            block_v = np.empty((fb, N), np.float32)
+            block_r = np.empty((fb, N), np.float32)
             a = 0
             gains0 = None
             for fn in map_run(grid, runs, frames, spots=spots, registration=cfg.registration,
@@ -349,38 +376,54 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
                 block_v[k - a], block_r[k - a] = fn.values, fn.raw
                 for ci, cm in enumerate(fn.cameras):
                     R[ci, k], t[ci, k] = cm.R, cm.t
-                if k - a + 1 == tc or k == T - 1:  # a block of frames: whole chunk rows
+                if k - a + 1 == fb or k == T - 1:  # a block of frames (whole chunk rows
+                    # when the budget allows)
                     vals[a:k + 1], raw[a:k + 1] = block_v[:k + 1 - a], block_r[:k + 1 - a]
                     a = k + 1
-                if cfg.progress:
-                    print(f"\rphase 1: frame {k + 1}/{T}", end="", flush=True)
-            if cfg.progress:
-                print()
+                prog.frame(k + 1)
+            del block_v, block_r
             if gain is None:  # the in-situ fit on the taps
                 law = _insitu_fit(cfg, grid, runs, vals, taps, tapn, offs, spots, unpainted,
                                   F, rho, gains0)
                 gain = insitu_gain(law, cp, cond)
             # -------------------------------------------------------- Phase 2 + output
-            files = [out, xdmf, *flat]
+            files = [out, xdmf, *flat, *pngs]
             with contextlib.ExitStack() as stack:
                 tmp = [stack.enter_context(atomic_path(p)) for p in files]
                 with h5py.File(tmp[0], "w") as f:
                     stats = _write_run(f, cfg, grid, cond, cp, gain, vals, raw, times, frames,
-                                       runs, R, t, tc, nc, si is not None)
+                                       runs, R, t, tc, nc, si is not None, plan=plan,
+                                       spectra=spectra, progress=prog.nodes)
+                    prog.close()
                     if law is not None:
                         f.attrs["stern_volmer"] = json_attr(
                             {"A": law.A, "B": law.B, "p_ref": law.p_ref,
                              "taps": list(taps.ids), "tap_nodes": tapn.tolist()})
                     write_xdmf(tmp[1], out.name, T, N, len(grid.triangles), times)
                     if flat:
-                        write_flat(f, tmp[2], tmp[3])
+                        write_flat(f, tmp[2], tmp[3], node_block=plan.nodes_per_block)
+                    if pngs:
+                        _pictures(grid, stats["rms"], spectra, tmp[-len(pngs):])
     finally:
         for s in srcs:
             with contextlib.suppress(Exception):
                 s.close()
         shutil.rmtree(scratch, ignore_errors=True)
+    el = time.perf_counter() - t_start
     return UnsteadyResult(out, T, N, (tc, nc), stats["seen"], stats["si_median"],
-                          stats["si_p95"], failed, tuple(files))
+                          stats["si_p95"], failed, tuple(files), peak_rss_mb(),
+                          T / el if el > 0 else float("nan"),
+                          (plan.frames_per_block, plan.nodes_per_block))
+
+
+def _pictures(grid, rms, spectra, paths) -> None:
+    """The dCp RMS on the model and, with probes, their PSD (PNG)."""
+    from selfillum.unsteady.plots import plot_psd, plot_rms
+
+    plot_rms(grid, rms, paths[0])
+    if len(paths) > 1:
+        plot_psd(spectra.freq, spectra.probe_psd, spectra.probes, paths[1],
+                 mean_psd=spectra.mean_psd, points=grid.points)
 
 
 def _insitu_inputs(cfg, grid):
@@ -429,7 +472,7 @@ def _insitu_fit(cfg, grid, runs, vals, taps, nodes, offs, spots, unpainted, F, r
 
 
 def _write_run(f, cfg, grid, cond, cp, gain, vals, raw, times, frames, runs, R, t, tc, nc,
-               with_si: bool) -> dict:
+               with_si: bool, *, plan=None, spectra=None, progress=None) -> dict:
     T, N = vals.shape
     f.attrs["format"] = FORMAT
     f.attrs["version"] = VERSION
@@ -453,7 +496,14 @@ def _write_run(f, cfg, grid, cond, cp, gain, vals, raw, times, frames, runs, R, 
     st.create_dataset("cp", data=cp)
     st.create_dataset("gain", data=gain)
     dcp = f.create_dataset("dcp", (T, N), "f4", chunks=(tc, nc), fillvalue=np.nan)
-    p2 = run_phase2(vals, dcp, frames, gain, cond.q, raw=raw if with_si else None)
+    if spectra is not None and spectra.n_bands:
+        spectra.band = f.create_dataset("psd/band_psd", (N, spectra.n_bands), "f4",
+                                        fillvalue=np.nan)
+    p2 = run_phase2(vals, dcp, frames, gain, cond.q, raw=raw if with_si else None,
+                    block=plan.nodes_per_block if plan is not None else None,
+                    spectra=spectra, progress=progress)
+    if spectra is not None:
+        spectra.write(f.require_group("psd"))
     mean, rms, change = p2["mean"], p2["rms"], p2["si_change"]
     s = f.create_group("stats")
     s.create_dataset("dcp_mean", data=mean)
@@ -472,7 +522,9 @@ def _write_run(f, cfg, grid, cond, cp, gain, vals, raw, times, frames, runs, R, 
         "oblique_angle": cfg.oblique_angle, "number_frames": T, "si": cfg.si,
         "reflectance": str(cfg.reflectance), "unpainted": str(cfg.unpainted),
         "rays": cfg.rays, "seed": cfg.seed, "detrend_order": DETREND_ORDER,
-        "general": cfg.general, "source": cfg.source, "chunks": [tc, nc]})
+        "general": cfg.general, "source": cfg.source, "chunks": [tc, nc],
+        "psd_probes": [int(n) for n in cfg.psd_probes], "psd_bands": cfg.psd_bands,
+        "psd_nperseg": spectra.nperseg if spectra is not None else None})
     f.attrs["provenance"] = json_attr(provenance({
         "grid": cfg.grid, "sds": cfg.sds, "steady": cfg.steady,
         "paint_calibration": cfg.paint_calibration, "targets": cfg.targets,
@@ -480,7 +532,12 @@ def _write_run(f, cfg, grid, cond, cp, gain, vals, raw, times, frames, runs, R, 
         "videos": [c.video for c in cfg.cameras],
         "calibrations": [c.calibration for c in cfg.cameras],
         "deck": cfg.source if os.path.isfile(cfg.source) else None}))
-    return {"seen": float(np.isfinite(rms).mean()), "si_median": si_med, "si_p95": si_p95}
+    f.attrs["memory"] = json_attr({
+        "budget_mb": cfg.memory_mb,
+        "frames_per_block": plan.frames_per_block if plan is not None else tc,
+        "nodes_per_block": plan.nodes_per_block if plan is not None else nc})
+    return {"seen": float(np.isfinite(rms).mean()), "si_median": si_med, "si_p95": si_p95,
+            "rms": rms}
 
 
 @contextlib.contextmanager

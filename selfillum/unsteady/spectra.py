@@ -1,0 +1,168 @@
+"""Power spectra of dCp per node: Welch's method (:func:`scipy.signal.welch`), computed on
+the blocks of nodes Phase 2 already holds, so that spectra cost no second pass over the
+run and memory stays bounded by the block.
+
+Conventions: one-sided power spectral density of dCp, ``dCp^2 / Hz``, Hann window of
+``nperseg`` frames, half overlap, each segment's mean removed (SciPy's defaults); its
+integral over frequency is the variance of dCp. Frames where a node is unseen (NaN) are
+set to zero (dCp after the detrend has zero mean) and the PSD is divided by the share of
+frames seen, so that the total power of a node seen part of the time is kept; a node seen
+in no frame has NaN.
+
+Two products (:class:`Spectra`):
+
+* ``probes``: the full PSD at the probe nodes (``--psd N1,N2,...``);
+* ``bands``: per node, the PSD averaged over ``n_bands`` frequency bands, equally spaced
+  in log frequency from the second Welch bin to Nyquist (``/psd/band_psd``, one column a
+  band; ``/psd/band_edges`` in Hz), and the mean PSD over all the nodes seen
+  (``/psd/mean``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from resection.errors import InputError
+
+__all__ = ["welch_block", "band_edges", "band_average", "Spectra"]
+
+
+def welch_block(dcp, fs: float, nperseg: int) -> tuple[np.ndarray, np.ndarray]:
+    """Welch PSD of every column of a ``(T, n)`` block.
+
+    Parameters
+    ----------
+    dcp : (T, n) array_like
+        dCp per frame and node (NaN unseen).
+    fs : float
+        Frame rate, Hz.
+    nperseg : int
+        Frames per Welch segment (at most ``T``).
+
+    Returns
+    -------
+    freq : (K,) float64
+        Hz.
+    psd : (n, K) float64
+        ``dCp^2 / Hz``; NaN for a node never seen.
+    """
+    from scipy.signal import welch
+
+    d = np.asarray(dcp, dtype=np.float64)
+    if d.ndim != 2:
+        raise InputError(f"welch_block: expected a (frames, nodes) block, got {d.shape}")
+    T = d.shape[0]
+    nper = int(min(nperseg, T))
+    if nper < 2:
+        raise InputError(f"welch_block: {T} frames are too few for a spectrum")
+    fin = np.isfinite(d)
+    share = fin.mean(axis=0)
+    freq, p = welch(np.where(fin, d, 0.0), fs=float(fs), nperseg=nper, axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        p = np.where(share > 0, p / share, np.nan)
+    return freq, p.T
+
+
+def band_edges(freq, n_bands: int) -> np.ndarray:
+    """``n_bands + 1`` edges (Hz), log-spaced from the second bin of ``freq`` to its last."""
+    f = np.asarray(freq, dtype=np.float64)
+    if n_bands < 1:
+        raise InputError(f"psd bands: need at least 1, got {n_bands}")
+    if f.size < 3:
+        raise InputError("psd bands: the spectrum has fewer than 3 frequencies")
+    return np.geomspace(f[1], f[-1], int(n_bands) + 1)
+
+
+def band_average(freq, psd, edges) -> np.ndarray:
+    """Mean PSD of every row of ``psd`` (n, K) over each band ``[edges[i], edges[i+1])``
+    (the last band closed); a band holding no bin takes the bin nearest its centre."""
+    f = np.asarray(freq, dtype=np.float64)
+    e = np.asarray(edges, dtype=np.float64)
+    b = np.searchsorted(e, f, side="right") - 1
+    b[f == e[-1]] = len(e) - 2
+    nb = len(e) - 1
+    inb = (b >= 0) & (b < nb)
+    M = np.zeros((f.size, nb))
+    M[np.flatnonzero(inb), b[inb]] = 1.0
+    empty = M.sum(axis=0) == 0
+    if empty.any():
+        centre = np.sqrt(e[:-1] * e[1:])[empty]
+        M[np.abs(f[:, None] - centre[None, :]).argmin(axis=0), np.flatnonzero(empty)] = 1.0
+    M /= M.sum(axis=0, keepdims=True)
+    return np.asarray(psd, dtype=np.float64) @ M
+
+
+class Spectra:
+    """Welch spectra accumulated block by block of nodes (Phase 2 calls :meth:`add`).
+
+    Parameters
+    ----------
+    n_nodes : int
+    fs : float
+        Hz.
+    n_frames : int
+    probes : sequence of int, optional
+        Node numbers (grid file order, from 0) whose full PSD is kept.
+    n_bands : int
+        Bands of the per-node band-averaged PSD (0: none).
+    nperseg : int
+        Frames per Welch segment (default ``min(T, 256)``).
+    band_out : (N, n_bands) writable array, optional
+        Receives the per-node band PSD block by block (an HDF5 dataset); default kept in
+        memory (``N n_bands`` float32).
+    """
+
+    def __init__(self, n_nodes: int, fs: float, n_frames: int, probes=(), n_bands: int = 0,
+                 nperseg: int | None = None, band_out=None):
+        self.N = int(n_nodes)
+        self.fs = float(fs)
+        self.nperseg = int(min(nperseg or 256, n_frames))
+        if self.nperseg < 8:
+            raise InputError(f"psd: {n_frames} frames (segments of {self.nperseg}) are too "
+                             "few for a spectrum (at least 8)")
+        self.probes = np.asarray(list(probes), dtype=np.int64)
+        if self.probes.size and (self.probes.min() < 0 or self.probes.max() >= self.N):
+            bad = self.probes[(self.probes < 0) | (self.probes >= self.N)][0]
+            raise InputError(f"--psd: node {bad} is not a grid node (0 to {self.N - 1})")
+        self.freq = np.fft.rfftfreq(self.nperseg, 1.0 / self.fs)
+        K = self.freq.size
+        self.probe_psd = np.full((self.probes.size, K), np.nan)
+        self.n_bands = int(n_bands)
+        self.edges = band_edges(self.freq, self.n_bands) if self.n_bands else None
+        if self.n_bands:
+            self.band = band_out if band_out is not None else np.full(
+                (self.N, self.n_bands), np.nan, np.float32)
+        self._sum = np.zeros(K)
+        self._count = 0
+
+    def add(self, a: int, dcp_block) -> None:
+        """Spectra of nodes ``a .. a + n`` from their ``(T, n)`` dCp block."""
+        freq, p = welch_block(dcp_block, self.fs, self.nperseg)
+        n = p.shape[0]
+        sel = (self.probes >= a) & (self.probes < a + n)
+        if sel.any():
+            self.probe_psd[sel] = p[self.probes[sel] - a]
+        ok = np.isfinite(p).all(axis=1)
+        self._sum += p[ok].sum(axis=0)
+        self._count += int(ok.sum())
+        if self.n_bands:
+            self.band[a:a + n] = band_average(freq, p, self.edges).astype(np.float32)
+
+    @property
+    def mean_psd(self) -> np.ndarray:
+        """Mean PSD over the nodes seen, (K,)."""
+        return self._sum / self._count if self._count else np.full_like(self._sum, np.nan)
+
+    def write(self, group) -> None:
+        """``frequency``, ``mean``, ``probe_nodes``, ``probe_psd`` (and ``band_edges``;
+        ``band_psd`` when kept in memory) into an HDF5 group."""
+        group.create_dataset("frequency", data=self.freq)
+        group.create_dataset("mean", data=self.mean_psd)
+        group.create_dataset("probe_nodes", data=self.probes)
+        group.create_dataset("probe_psd", data=self.probe_psd)
+        group.attrs.update(nperseg=self.nperseg, window="hann", noverlap=self.nperseg // 2,
+                           scaling="density", units="dCp^2/Hz", fs=self.fs)
+        if self.n_bands:
+            group.create_dataset("band_edges", data=self.edges)
+            if isinstance(self.band, np.ndarray):
+                group.create_dataset("band_psd", data=self.band)

@@ -1,0 +1,228 @@
+"""``selfillum unsteady`` at scale: Welch spectra against SciPy on the same series and
+against a known tone's amplitude and frequency; pictures; the memory budget (a Phase 2
+over data 4x the budget stays within it, measured by tracemalloc in a subprocess); blocks
+never change the answer; progress and peak memory printed."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+
+import h5py
+import numpy as np
+import pytest
+from scipy import signal
+
+from resection.errors import InputError
+from selfillum.unsteady.budget import plan_blocks
+from selfillum.unsteady.spectra import Spectra, band_average, band_edges, welch_block
+
+# ---------------------------------------------------------------------------- spectra
+
+
+def test_welch_block_tone_and_noise_levels():
+    """A tone of amplitude A at f0 carries A^2/2 of power around f0; white noise of
+    variance s^2 has a flat one-sided density s^2 / (fs / 2)."""
+    fs, T = 1000.0, 4096
+    t = np.arange(T) / fs
+    rng = np.random.default_rng(0)
+    A, f0, s = 0.03, 125.0, 0.01  # f0 on a bin of nperseg = 256 (3.90625 Hz bins)
+    d = np.column_stack([A * np.sin(2 * np.pi * f0 * t), s * rng.standard_normal(T)])
+    f, p = welch_block(d, fs, 256)
+    df = f[1] - f[0]
+    k = np.argmax(p[0])
+    assert f[k] == pytest.approx(f0, abs=df / 2)
+    assert p[0, k - 3:k + 4].sum() * df == pytest.approx(A**2 / 2, rel=0.02)
+    level = np.median(p[1, 5:-5])
+    assert level == pytest.approx(s**2 / (fs / 2), rel=0.1)
+    # and SciPy's welch on each series alone gives the same
+    for j in range(2):
+        fr, pr = signal.welch(d[:, j], fs=fs, nperseg=256)
+        np.testing.assert_allclose(f, fr)
+        np.testing.assert_allclose(p[j], pr, rtol=1e-8, atol=1e-10 * pr.max())
+
+
+def test_welch_block_unseen_frames_keep_the_power():
+    """Frames unseen (NaN) are zeros and the PSD is scaled by the share seen: the tone's
+    power is kept within 3 % with 10 % of the frames missing; a node never seen is NaN."""
+    fs, T = 1000.0, 4096
+    t = np.arange(T) / fs
+    d = 0.02 * np.sin(2 * np.pi * 125.0 * t)
+    rng = np.random.default_rng(1)
+    miss = rng.random(T) < 0.1
+    block = np.column_stack([np.where(miss, np.nan, d), np.full(T, np.nan)])
+    f, p = welch_block(block, fs, 256)
+    assert np.trapezoid(p[0], f) == pytest.approx(0.02**2 / 2, rel=0.03)
+    assert np.all(np.isnan(p[1]))
+
+
+def test_band_average_hand_computed():
+    f = np.array([0.0, 1.0, 2.0, 3.0, 4.0])
+    edges = band_edges(f, 2)
+    np.testing.assert_allclose(edges, [1.0, 2.0, 4.0])
+    psd = np.array([[9.0, 1.0, 2.0, 4.0, 8.0]])
+    # band [1, 2): bin 1 -> 1; band [2, 4]: bins 2, 3, 4 -> (2 + 4 + 8) / 3
+    np.testing.assert_allclose(band_average(f, psd, edges), [[1.0, 14.0 / 3]])
+
+
+def test_spectra_by_blocks_equal_scipy_and_refuse_bad_probes():
+    fs, T, N = 500.0, 600, 37
+    rng = np.random.default_rng(2)
+    d = rng.standard_normal((T, N))
+    sp_ = Spectra(N, fs, T, probes=[3, 30], n_bands=4, nperseg=128)
+    for a in range(0, N, 10):  # blocks of 10 nodes
+        sp_.add(a, d[:, a:a + 10])
+    fr, pr = signal.welch(d, fs=fs, nperseg=128, axis=0)
+    np.testing.assert_allclose(sp_.probe_psd, pr[:, [3, 30]].T, rtol=1e-10)
+    np.testing.assert_allclose(sp_.mean_psd, pr.mean(axis=1), rtol=1e-10)
+    np.testing.assert_allclose(sp_.band, band_average(fr, pr.T, sp_.edges), rtol=1e-6)
+    with pytest.raises(InputError, match="node 37"):
+        Spectra(N, fs, T, probes=[37])
+
+
+# ---------------------------------------------------------------------------- memory
+
+
+def test_plan_blocks_within_budget():
+    T, N = 2000, 600_000
+    p = plan_blocks(T, N, (15, 4369), memory_mb=4096)
+    assert p.bytes_phase1(N) <= 4096 * 2**20 and p.bytes_phase2(T) <= 4096 * 2**20
+    assert p.frames_per_block % 15 == 0 and p.nodes_per_block % 4369 == 0
+    small = plan_blocks(T, N, (15, 4369), memory_mb=4)  # below a chunk: partial chunks
+    assert small.nodes_per_block < 4369 and small.bytes_phase2(T) <= 4 * 2**20
+    with pytest.raises(InputError, match="--memory"):
+        plan_blocks(T, N, (15, 4369), memory_mb=0)
+
+
+_MEMORY_CHILD = textwrap.dedent("""
+    import sys, tracemalloc
+    import h5py, numpy as np, scipy.signal  # imports: the fixed part, before tracing
+    from selfillum.unsteady.budget import plan_blocks
+    from selfillum.unsteady.output import chunk_shape
+    from selfillum.unsteady.phase2 import run_phase2
+    from selfillum.unsteady.spectra import Spectra
+    path, budget_mb = sys.argv[1], float(sys.argv[2])
+    with h5py.File(path, "r+") as f:
+        vals, raw = f["values"], f["raw"]
+        T, N = vals.shape
+        chunks = chunk_shape(T, N)
+        plan = plan_blocks(T, N, chunks, budget_mb)
+        dcp = f.create_dataset("dcp", (T, N), "f4", chunks=chunks)
+        band = f.create_dataset("band", (N, 8), "f4")
+        spectra = Spectra(N, 1000.0, T, probes=[0, N - 1], n_bands=8, band_out=band)
+        tracemalloc.start()
+        run_phase2(vals, dcp, np.arange(T), np.full(N, 2.0), 600.0, raw=raw,
+                   block=plan.nodes_per_block, spectra=spectra)
+        peak = tracemalloc.get_traced_memory()[1]
+    print(peak, plan.nodes_per_block)
+""")
+
+
+def test_phase2_on_data_4x_the_budget_stays_within_it(tmp_path):
+    """Phase 2 with the SI change and spectra over (T, N) float32 intensities of 32 MiB
+    each (values and raw: 64 MiB read, 32 MiB written) within an 8 MiB budget: the peak
+    of the arrays allocated (tracemalloc, in a fresh process) stays under the budget, and
+    dCp equals the one-block answer."""
+    T, N = 1024, 8192  # 32 MiB per dataset
+    budget = 8.0
+    rng = np.random.default_rng(3)
+    path = tmp_path / "p1.h5"
+    with h5py.File(path, "w") as f:
+        v = f.create_dataset("values", (T, N), "f4", chunks=(64, 1024))
+        r = f.create_dataset("raw", (T, N), "f4", chunks=(64, 1024))
+        for a in range(0, T, 64):
+            x = 1000 + 5 * rng.standard_normal((64, N)).astype(np.float32)
+            v[a:a + 64] = x
+            r[a:a + 64] = x * 1.01
+    assert T * N * 4 >= 4 * budget * 2**20
+    res = subprocess.run([sys.executable, "-c", _MEMORY_CHILD, str(path), str(budget)],
+                         capture_output=True, text=True, check=True)
+    peak, npb = (int(v) for v in res.stdout.split())
+    assert npb < N  # it did work in blocks
+    assert peak < budget * 2**20, f"peak {peak / 2**20:.1f} MiB over {budget} MiB"
+    from selfillum.unsteady.phase2 import dcp_block
+
+    with h5py.File(path) as f:
+        cols = [5, N // 2, N - 3]
+        got = f["dcp"][:, cols]
+        want = dcp_block(f["values"][:, cols], np.arange(T), np.full(3, 2.0), 600.0)
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-7)
+
+
+# ---------------------------------------------------------------------------- end to end
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    from scenes.unsteady_run import make_unsteady_run
+
+    return make_unsteady_run(tmp_path_factory.mktemp("unsteady_scale"), frames=200)
+
+
+def _cli(run, out, *extra):
+    from selfillum.cli import main
+
+    return main(["unsteady", str(run.deck), "--paint-calibration", str(run.paint),
+                 "--steady", str(run.steady), "--fps", str(run.fps), "--out", str(out),
+                 "--registration", "none", *extra])
+
+
+def test_run_spectra_pictures_budget_and_progress(run, capsys):
+    """The run's stored spectra equal SciPy's welch on its own /dcp; the probe on the
+    plate shows the tone (0.03 at 120 Hz) at its frequency with its power; a run in a
+    tiny budget (blocks of a few frames and nodes) gives the same dCp; progress, frames/s,
+    the time left and the peak memory are printed; the pictures are PNG with colour."""
+    import matplotlib.image as mpimg
+
+    from selfillum.unsteady.grid import load_run_grid
+
+    pts = load_run_grid(run.grid).points
+    plate = np.flatnonzero(run.plate)
+    # two plate nodes away from the block (its footprint is |x| < 0.04, |y| < 0.03)
+    probe = [int(plate[np.argmin(np.hypot(pts[plate, 0] - x, pts[plate, 1] - y))])
+             for x, y in ((0.2, 0.1), (-0.15, -0.1))]
+    out = run.folder / "a.h5"
+    assert _cli(run, out, "--psd", ",".join(map(str, probe)), "--psd-nperseg", "100") == 0
+    text = capsys.readouterr().out
+    assert "frames/s" in text and "s left" in text and "phase 2: node" in text
+    assert "peak memory" in text
+    with h5py.File(out) as f:
+        d = f["dcp"][()]
+        fr = f["psd/frequency"][()]
+        pp = f["psd/probe_psd"][()]
+        mean = f["psd/mean"][()]
+        band = f["psd/band_psd"][()]
+        edges = f["psd/band_edges"][()]
+        assert list(f["psd/probe_nodes"][()]) == probe
+    ok = np.isfinite(d).all(axis=0)
+    fs_, ps_ = signal.welch(d[:, probe].astype(np.float64), fs=run.fps, nperseg=100, axis=0)
+    np.testing.assert_allclose(fr, fs_)
+    np.testing.assert_allclose(pp, ps_.T, rtol=1e-5, atol=1e-6 * ps_.max())
+    _, pall = signal.welch(d[:, ok].astype(np.float64), fs=run.fps, nperseg=100, axis=0)
+    np.testing.assert_allclose(mean, pall.mean(axis=1), rtol=1e-4)
+    np.testing.assert_allclose(band[ok], band_average(fs_, pall.T, edges), rtol=1e-4)
+    assert np.all(np.isnan(band[~np.isfinite(d).any(axis=0)]))
+    # the tone at the far probe: its frequency and power (0.03^2 / 2 within 10 %:
+    # the 6th-order detrend takes under 1 %, noise and the wave add some)
+    df = fr[1] - fr[0]
+    k = np.argmax(pp[0])
+    assert fr[k] == pytest.approx(run.freqs["tone"], abs=df)
+    assert pp[0, k - 2:k + 3].sum() * df == pytest.approx(run.amps["tone"] ** 2 / 2,
+                                                           rel=0.10)
+    for name in ("a_rms.png", "a_psd.png"):
+        img = mpimg.imread(run.folder / name)
+        assert img.ndim == 3 and img.shape[0] > 200
+        rgb = img[..., :3].reshape(-1, 3)
+        assert (np.ptp(rgb, axis=1) > 0.2).mean() > 0.01  # coloured pixels, not blank
+    # a budget of 0.05 MiB: blocks of a few frames and nodes, the same answer
+    small = run.folder / "b.h5"
+    assert _cli(run, small, "--memory", "0.05", "--no-plots", "--quiet") == 0
+    with h5py.File(small) as f:
+        np.testing.assert_array_equal(f["dcp"][()], d)
+        import json
+
+        mem = json.loads(f.attrs["memory"])
+        T, N = d.shape
+        assert mem["frames_per_block"] < 15 and mem["nodes_per_block"] < N
+    assert not (run.folder / "b_rms.png").exists()
