@@ -226,3 +226,63 @@ def test_run_spectra_pictures_budget_and_progress(run, capsys):
         T, N = d.shape
         assert mem["frames_per_block"] < 15 and mem["nodes_per_block"] < N
     assert not (run.folder / "b_rms.png").exists()
+
+
+# ---------------------------------------------------------------------------- resume
+
+
+def test_resume_skips_finished_blocks_and_refuses_stale_work(run, capsys, monkeypatch):
+    """A run interrupted at frame 100 (blocks of 45 frames: 90 committed) resumes with
+    --resume, maps only frame 0 again (its references) and the 110 frames not done, and
+    gives the uninterrupted run's dCp; without --resume the work folder is refused; with an
+    input changed since, the resume is refused by name."""
+    import resection.surface.merge as merge
+    from selfillum.unsteady.work import work_folder
+
+    whole = run.folder / "whole.h5"
+    common = ("--memory", "0.5", "--no-plots", "--quiet", "--psd-bands", "0")
+    assert _cli(run, whole, *common) == 0
+    real = merge.merge_views
+    calls = []
+
+    def counting(*a, **k):
+        calls.append(1)
+        if stop_at is not None and len(calls) == stop_at:
+            raise KeyboardInterrupt
+        return real(*a, **k)
+
+    monkeypatch.setattr(merge, "merge_views", counting)
+    out = run.folder / "resumed.h5"
+    stop_at = 101  # frame 100
+    assert _cli(run, out, *common) == 130
+    capsys.readouterr()
+    work = work_folder(out)
+    assert (work / "phase1.h5").exists() and not out.exists()
+    with h5py.File(work / "phase1.h5") as f:
+        assert f.attrs["frames_done"] == 90
+    # without --resume: refused, the work kept
+    assert _cli(run, out, *common) == 2
+    assert "--resume" in capsys.readouterr().err and work.exists()
+    calls.clear()
+    stop_at = None
+    assert _cli(run, out, *common, "--resume") == 0
+    assert len(calls) == 1 + (200 - 90)  # frame 0 again, then frames 90..199
+    assert not work.exists()
+    with h5py.File(out) as f, h5py.File(whole) as g:
+        np.testing.assert_array_equal(f["dcp"][()], g["dcp"][()])
+    # stale work: interrupted, then a setting changed -> refused by name
+    out2 = run.folder / "stale.h5"
+    calls.clear()
+    stop_at = 60
+    assert _cli(run, out2, *common) == 130
+    capsys.readouterr()
+    assert _cli(run, out2, *common, "--resume", "--oblique-angle", "60") == 2
+    err = capsys.readouterr().err
+    assert "other inputs (oblique_angle)" in err and work_folder(out2).exists()
+    # ... and an input file rewritten since (its mtime and size)
+    import os
+
+    st = os.stat(run.targets)
+    os.utime(run.targets, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    assert _cli(run, out2, *common, "--resume") == 2
+    assert "other inputs (files)" in capsys.readouterr().err

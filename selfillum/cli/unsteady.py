@@ -38,7 +38,7 @@ def _cmd_unsteady(args) -> int:
               "p_ref": args.p_ref, "progress": not args.quiet,
               "psd_probes": _node_list(args.psd), "psd_bands": args.psd_bands,
               "psd_nperseg": args.psd_nperseg, "memory_mb": args.memory,
-              "plots": not args.no_plots}
+              "plots": not args.no_plots, "resume": args.resume}
     if args.deck:
         if args.grid or args.sds or args.video or args.calibration:
             raise InputError("give either DECK.inp or --grid/--sds/--video/--calibration, "
@@ -177,5 +177,9 @@ def register(sub) -> None:
                    "one frame's images and maps, grid, form factors) comes on top")
     p.add_argument("--no-plots", action="store_true",
                    help="do not write OUT_rms.png (dCp RMS on the model) nor OUT_psd.png")
+    p.add_argument("--resume", action="store_true",
+                   help="carry on an interrupted run from its work folder OUT.h5.work "
+                   "(finished blocks of frames are not recomputed; a run with other inputs "
+                   "or settings is refused)")
     p.add_argument("--quiet", action="store_true", help="no progress")
     p.set_defaults(func=_cmd_unsteady)

@@ -88,14 +88,15 @@ def peak_rss_mb() -> float:
 class Progress:
     """One line of progress for the whole run (to ``stream``, at most every ``every_s``).
 
-    ``frame(k)`` after Phase 1's frame ``k`` (0-based count done = k + 1): frames done,
-    frames/s since the start of Phase 1, the time left for Phase 1 at that rate;
+    ``frame(done)`` after Phase 1's frames ``0 .. done - 1``: frames done, frames/s of
+    this run (a resumed run counts from ``start``), the time left for Phase 1 at that rate;
     ``nodes(done)`` in Phase 2; ``close()`` ends the line.
     """
 
     def __init__(self, n_frames: int, n_nodes: int, *, enabled: bool = True,
-                 stream=None, every_s: float = 0.5):
+                 stream=None, every_s: float = 0.5, start: int = 0):
         self.T, self.N = int(n_frames), int(n_nodes)
+        self.start = int(start)  # frames done before (a resumed run)
         self.enabled = enabled
         self.stream = stream if stream is not None else sys.stdout
         self.every = every_s
@@ -112,7 +113,7 @@ class Progress:
 
     def frame(self, done: int) -> None:
         el = time.perf_counter() - self.t0
-        self.rate = done / el if el > 0 else float("nan")
+        self.rate = (done - self.start) / el if el > 0 else float("nan")
         left = (self.T - done) / self.rate if self.rate > 0 else float("nan")
         self._show(f"phase 1: frame {done}/{self.T}, {self.rate:.1f} frames/s, "
                    f"{left:.0f} s left   ", done == self.T)

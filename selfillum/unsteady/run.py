@@ -3,17 +3,18 @@ output file, in one call: :func:`run_unsteady`.
 
 Nothing is written before every input has been read and checked; the outputs are written
 to temporary names and renamed only when the run has succeeded (a failed run leaves
-nothing, not half a file). Phase 1 writes its node intensities in blocks of frames to a
-scratch HDF5 file next to the output (removed at the end); Phase 2 reads it back in blocks
-of nodes: memory is bounded by one block, whatever the length of the run.
+nothing, not half a file). Phase 1 commits its node intensities in blocks of frames to the
+work folder ``OUT.h5.work`` (:mod:`selfillum.unsteady.work`: journaled, kept by an
+interrupted run for ``--resume``, removed when the run succeeds); Phase 2 reads them back in
+blocks of nodes. The blocks' sizes come from the memory budget
+(:func:`selfillum.unsteady.budget.plan_blocks`): memory is bounded whatever the length of
+the run.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
-import shutil
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,6 +43,7 @@ from selfillum.unsteady.phase1 import (
 )
 from selfillum.unsteady.phase2 import DETREND_ORDER, node_gain, run_phase2
 from selfillum.unsteady.spectra import Spectra
+from selfillum.unsteady.work import Phase1Store
 
 __all__ = ["CameraInput", "UnsteadyConfig", "UnsteadyResult", "run_unsteady",
            "config_from_deck"]
@@ -108,6 +110,7 @@ class UnsteadyConfig:
     psd_nperseg: int | None = None
     memory_mb: float | None = DEFAULT_MEMORY_MB
     plots: bool = True
+    resume: bool = False
     general: dict = field(default_factory=dict)
     source: str = "flags"
 
@@ -239,7 +242,7 @@ def _open_videos(cfg: UnsteadyConfig):
     return srcs, T, float(fps)
 
 
-def _track(cfg, cam_in, camera, src, T, tmp: Path):
+def _track(cfg, cam_in, camera, src, T, tmp: Path, *, resume: bool = False):
     """Each frame's camera from the project's tracking (or a given track folder)."""
     from resection.io.markers import read_markers
     from resection.sequence import read_track, track
@@ -256,7 +259,7 @@ def _track(cfg, cam_in, camera, src, T, tmp: Path):
             else 5.0
         tr = track(str(cam_in.video), camera, ms, diameter=dpx,
                    out_dir=tmp / f"track{cam_in.number}", workers=1, progress=cfg.progress,
-                   resume=False)
+                   resume=resume)
     ok = np.flatnonzero(tr.status == "ok")
     frame_ok = tr.frame[ok]
     if frame_ok.size == 0:
@@ -338,50 +341,58 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
                       nperseg=cfg.psd_nperseg) if (cfg.psd_probes or cfg.psd_bands) \
         else None
     t_start = time.perf_counter()
-    prog = Progress(T, N, enabled=cfg.progress)
-    scratch = Path(tempfile.mkdtemp(prefix=f".{out.stem}.run-", dir=out.parent))
+    store = Phase1Store(out, _work_inputs(cfg, T, N, fps), (T, N), (tc, nc), len(cfg.cameras),
+                        resume=cfg.resume)
+    done = store.frames_done
+    prog = Progress(T, N, enabled=cfg.progress, start=done)
+    finished = False
     try:
         # ------------------------------------------------------------ registration
         runs, failed = [], 0
         for c, cam, s in zip(cfg.cameras, cams, srcs, strict=True):
             poses = None
             if cfg.registration == "track":
-                poses, nf = _track(cfg, c, cam, s, T, scratch)
+                poses, nf = _track(cfg, c, cam, s, T, store.folder, resume=store.resumed)
                 failed += nf
             runs.append(CameraRun(c.number, cam, s, poses))
         si = F = None
         if cfg.si:
             from selfillum.transport.viewfactors import view_factors
 
-            F = view_factors(mesh, rays_per_face=cfg.rays, seed=cfg.seed,
-                             progress=cfg.progress)
+            F = store.form_factors(lambda: view_factors(
+                mesh, rays_per_face=cfg.rays, seed=cfg.seed, progress=cfg.progress))
             si = SelfIllumination(mesh, F, rho, unpainted)
         # ------------------------------------------------------------ Phase 1
-        R = np.full((len(runs), T, 3, 3), np.nan)
-        t = np.full((len(runs), T, 3), np.nan)
-        with h5py.File(scratch / "phase1.h5", "w") as s1:
-            vals = s1.create_dataset("values", (T, N), "f4", chunks=(tc, nc))
-            raw = s1.create_dataset("raw", (T, N), "f4", chunks=(tc, nc))
-            fb = plan.frames_per_block
-            block_v = np.empty((fb, N), np.float32)
-            block_r = np.empty((fb, N), np.float32)
-            a = 0
-            gains0 = None
-            for fn in map_run(grid, runs, frames, spots=spots, registration=cfg.registration,
-                              patcher=cfg.target_patcher, overlap=cfg.overlap,
-                              filter=cfg.filter, filter_size=cfg.filter_size,
-                              max_obliqueness=cfg.oblique_angle, si=si, unpainted=unpainted):
-                k = fn.index
-                gains0 = fn.gains if gains0 is None else gains0
-                block_v[k - a], block_r[k - a] = fn.values, fn.raw
-                for ci, cm in enumerate(fn.cameras):
-                    R[ci, k], t[ci, k] = cm.R, cm.t
-                if k - a + 1 == fb or k == T - 1:  # a block of frames (whole chunk rows
-                    # when the budget allows)
-                    vals[a:k + 1], raw[a:k + 1] = block_v[:k + 1 - a], block_r[:k + 1 - a]
-                    a = k + 1
-                prog.frame(k + 1)
-            del block_v, block_r
+        R, t = store.poses()
+        # a resumed run maps frame 0 again (its gains, SI and registration references),
+        # then the frames not done
+        todo = frames[done:] if done == 0 else np.concatenate([[0], frames[done:]])
+        fb = plan.frames_per_block
+        block_v = np.empty((fb, N), np.float32)
+        block_r = np.empty((fb, N), np.float32)
+        a = done
+        gains0 = None
+        for fn in map_run(grid, runs, todo, spots=spots, registration=cfg.registration,
+                          patcher=cfg.target_patcher, overlap=cfg.overlap,
+                          filter=cfg.filter, filter_size=cfg.filter_size,
+                          max_obliqueness=cfg.oblique_angle, si=si, unpainted=unpainted):
+            k = fn.index
+            gains0 = fn.gains if gains0 is None else gains0
+            if k < done:
+                continue  # frame 0 again, already stored
+            block_v[k - a], block_r[k - a] = fn.values, fn.raw
+            for ci, cm in enumerate(fn.cameras):
+                R[ci, k], t[ci, k] = cm.R, cm.t
+            if k - a + 1 == fb or k == T - 1:  # a block of frames (whole chunk rows when
+                # the budget allows), committed
+                store.write_block(a, block_v[:k + 1 - a], block_r[:k + 1 - a],
+                                  R[:, a:k + 1], t[:, a:k + 1])
+                a = k + 1
+            prog.frame(k + 1)
+        del block_v, block_r
+        store.close()
+        with h5py.File(store.path, "r") as s1:
+            vals, raw = s1["values"], s1["raw"]
             if gain is None:  # the in-situ fit on the taps
                 law = _insitu_fit(cfg, grid, runs, vals, taps, tapn, offs, spots, unpainted,
                                   F, rho, gains0)
@@ -404,16 +415,40 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
                         write_flat(f, tmp[2], tmp[3], node_block=plan.nodes_per_block)
                     if pngs:
                         _pictures(grid, stats["rms"], spectra, tmp[-len(pngs):])
+        finished = True
+    except InputError:
+        finished = True  # bad input: nothing to resume, nothing left
+        raise
     finally:
         for s in srcs:
             with contextlib.suppress(Exception):
                 s.close()
-        shutil.rmtree(scratch, ignore_errors=True)
+        if finished:
+            store.remove()
+        else:  # interrupted or failed: the committed blocks stay for --resume
+            store.close()
     el = time.perf_counter() - t_start
     return UnsteadyResult(out, T, N, (tc, nc), stats["seen"], stats["si_median"],
                           stats["si_p95"], failed, tuple(files), peak_rss_mb(),
                           T / el if el > 0 else float("nan"),
                           (plan.frames_per_block, plan.nodes_per_block))
+
+
+def _work_inputs(cfg: UnsteadyConfig, T: int, N: int, fps: float) -> dict:
+    """What Phase 1's numbers depend on: a resumed run with anything else is refused."""
+    return {"files": provenance({
+                "grid": cfg.grid, "targets": cfg.targets,
+                "videos": [c.video for c in cfg.cameras],
+                "calibrations": [c.calibration for c in cfg.cameras],
+                "reflectance": cfg.reflectance if os.path.isfile(str(cfg.reflectance))
+                else None,
+                "unpainted": cfg.unpainted if os.path.isfile(str(cfg.unpainted)) else None,
+                "track": cfg.track_dirs}),
+            "registration": cfg.registration, "target_patcher": cfg.target_patcher,
+            "overlap": cfg.overlap, "filter": cfg.filter, "filter_size": cfg.filter_size,
+            "oblique_angle": cfg.oblique_angle, "frames": T, "nodes": N, "fps": fps,
+            "si": cfg.si, "reflectance": str(cfg.reflectance),
+            "unpainted": str(cfg.unpainted), "rays": cfg.rays, "seed": cfg.seed}
 
 
 def _pictures(grid, rms, spectra, paths) -> None:
