@@ -38,7 +38,8 @@ def _cmd_unsteady(args) -> int:
               "p_ref": args.p_ref, "progress": not args.quiet,
               "psd_probes": _node_list(args.psd), "psd_bands": args.psd_bands,
               "psd_nperseg": args.psd_nperseg, "memory_mb": args.memory,
-              "plots": not args.no_plots, "resume": args.resume}
+              "plots": not args.no_plots, "resume": args.resume,
+              "fast": not args.full_maps}
     if args.deck:
         if args.grid or args.sds or args.video or args.calibration:
             raise InputError("give either DECK.inp or --grid/--sds/--video/--calibration, "
@@ -82,6 +83,9 @@ def _cmd_unsteady(args) -> int:
     print(f"run: {res.frames_per_s:.1f} frames/s end to end; peak memory "
           f"{res.peak_rss_mb:.0f} MB; blocks of {res.blocks[0]} frames (Phase 1) and "
           f"{res.blocks[1]} nodes (Phase 2)")
+    tm = res.timings
+    print(f"time: set-up {tm['setup']:.1f} s, phase 1 {tm['phase1']:.1f} s, phase 2 and "
+          f"outputs {tm['phase2']:.1f} s")
     print("wrote " + ", ".join(str(p) for p in res.files))
     return 0
 
@@ -181,5 +185,8 @@ def register(sub) -> None:
                    help="carry on an interrupted run from its work folder OUT.h5.work "
                    "(finished blocks of frames are not recomputed; a run with other inputs "
                    "or settings is refused)")
+    p.add_argument("--full-maps", action="store_true",
+                   help="map every frame the full way (a ray cast and merge a frame) instead "
+                   "of sparse products after the first frame (for comparison)")
     p.add_argument("--quiet", action="store_true", help="no progress")
     p.set_defaults(func=_cmd_unsteady)

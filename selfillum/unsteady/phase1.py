@@ -146,7 +146,8 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
             registration: str = "track", patcher: str = "none", overlap: str = "merge",
             filter: str = "none", filter_size: int = 3, max_obliqueness: float = 70.0,
             si: SelfIllumination | None = None, unpainted=None,
-            spot_margin_px: float = 1.0, gains=None) -> Iterator[FrameNodes]:
+            spot_margin_px: float = 1.0, gains=None, fast: bool = True,
+            refresh_px: float = 2.0) -> Iterator[FrameNodes]:
     """Map the frames ``frame_numbers`` of every camera onto the grid's nodes.
 
     Parameters
@@ -170,6 +171,16 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
     gains : (C,) array_like, optional
         The cameras' gains (``overlap="merge"``; default: matched on the first frame and
         kept).
+    fast : bool
+        After the first frame, map frames by sparse products
+        (:class:`~selfillum.unsteady.fastmap.FrameOperator`): the same answer to rounding
+        for a fixed map (``none``, ``first-frame``); for ``track``, each frame sampled
+        where the reference's surface points project with its own pose, the reference
+        cast anew when a point moves more than ``refresh_px`` pixels. Not with
+        ``patcher="polynomial"`` (and not with a filter for ``track``): those frames take
+        the full way.
+    refresh_px : float
+        Pixels (``track`` with ``fast``).
 
     Yields
     ------
@@ -204,9 +215,26 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
                 "merge": dict(method="weighted")}[overlap]
     gains = None if gains is None else np.asarray(gains, dtype=np.float64)
     off = None if unpainted is None else np.asarray(unpainted, bool)
+    moving = registration == "track"
+    use_fast = fast and patcher == "none" and not (moving and filter != "none")
+    op = None
+    spot_px = [None] * len(cameras)
     for k in frame_numbers:  # frames, one at a time
         k = int(k)
-        maps, imgs, cams = [], [], []
+        if op is not None:
+            fv = _fast_frame(op, cameras, k, regs, spots, spot_px, filter, filter_size,
+                             moving, refresh_px)
+            if fv is not None:
+                B, cams = fv
+                seen = op.seen & np.isfinite(B)
+                raw_f = np.where(seen, B, np.nan)
+                E = si(B, seen) if si is not None else raw_f
+                vals = _to_nodes(W, np.vstack([E, raw_f]), grid)
+                yield FrameNodes(k, vals[0], vals[1], cams, op.gains)
+                continue
+            if moving:
+                op = None  # cast anew from this frame (the full way)
+        maps, imgs, cams, finite = [], [], [], []
         for ci, c in enumerate(cameras):  # a few cameras
             img = np.asarray(c.frames[k], dtype=np.float64)
             if img.shape != maps0[ci].shape:
@@ -224,8 +252,10 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
                     img = regs[ci].warp(img, regs[ci].fit(img))
             if spots is not None and len(spots):
                 cen, rad = project_spots(spots, smap, margin_px=spot_margin_px)
+                spot_px[ci] = (cen, rad)
                 img = patch_spots(img, cen, rad) if patcher == "polynomial" \
                     else mask_spots(img, cen, rad)
+            finite.append(np.isfinite(img))
             if filter == "gaussian":
                 img = _gaussian(img, filter_size)
             maps.append(smap)
@@ -234,6 +264,10 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
         mv = merge_views(maps, imgs, gains=gains, **merge_kw)
         if overlap == "merge" and gains is None:
             gains = mv.gains  # matched on frame 0, kept: no seam moving over time
+        if use_fast and op is None:  # the reference: frame 0, or where the pose moved
+            from selfillum.unsteady.fastmap import FrameOperator
+
+            op = FrameOperator(maps, finite, merge_kw, mv.gains, off, sample_points=moving)
         B = mv.values
         seen = mv.seen & np.isfinite(B)
         if off is not None:
@@ -242,6 +276,29 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
         E = si(B, seen) if si is not None else raw_f
         vals = _to_nodes(W, np.vstack([E, raw_f]), grid)
         yield FrameNodes(k, vals[0], vals[1], cams, mv.gains)
+
+
+def _fast_frame(op, cameras, k, regs, spots, spot_px, filter, filter_size, moving,
+                refresh_px):
+    """Face values of frame ``k`` by the operator (None: take the full way)."""
+    from selfillum.unsteady.spots import mask_spots
+
+    imgs, cams = [], []
+    for ci, c in enumerate(cameras):  # a few cameras
+        img = np.asarray(c.frames[k], dtype=np.float64)
+        if moving:
+            cams.append(c.poses[k])
+        else:
+            cams.append(c.camera)
+            if regs[ci] is not None:  # first-frame: warped onto frame 0
+                img = regs[ci].warp(img, regs[ci].fit(img))
+            if filter == "gaussian":
+                if spot_px[ci] is not None:
+                    img = mask_spots(img, *spot_px[ci])
+                img = _gaussian(img, filter_size)
+        imgs.append(img)
+    B = op.faces_moved(imgs, cams, refresh_px) if moving else op.faces(imgs)
+    return None if B is None else (B, cams)
 
 
 def _to_nodes(W, face_values, grid) -> np.ndarray:

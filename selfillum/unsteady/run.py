@@ -74,7 +74,9 @@ class UnsteadyConfig:
     ``psd_probes`` (node numbers), ``psd_bands``, ``psd_nperseg``: Welch spectra
     (:mod:`selfillum.unsteady.spectra`). ``memory_mb``: the budget of the blocks
     (:func:`selfillum.unsteady.budget.plan_blocks`). ``plots``: write the dCp RMS on the
-    model and the probes' PSD as PNG next to the output.
+    model and the probes' PSD as PNG next to the output. ``fast``: Phase 1 by sparse
+    products after the first frame (:mod:`selfillum.unsteady.fastmap`); False maps every
+    frame the full way (a ray cast a frame).
     """
 
     grid: Path
@@ -111,6 +113,7 @@ class UnsteadyConfig:
     memory_mb: float | None = DEFAULT_MEMORY_MB
     plots: bool = True
     resume: bool = False
+    fast: bool = True
     general: dict = field(default_factory=dict)
     source: str = "flags"
 
@@ -123,7 +126,8 @@ class UnsteadyResult:
     without SI), ``tracked_failed`` (frames whose pose was taken from the nearest good
     frame), ``files`` (everything written), ``peak_rss_mb`` (the process's peak resident
     memory, MiB), ``frames_per_s`` (frames over the whole run's time), ``blocks``
-    (frames per Phase 1 block, nodes per Phase 2 block)."""
+    (frames per Phase 1 block, nodes per Phase 2 block), ``timings`` (seconds: ``setup``
+    = inputs, tracking, form factors; ``phase1``; ``phase2`` = Phase 2 and the outputs)."""
 
     out: Path
     n_frames: int
@@ -137,6 +141,7 @@ class UnsteadyResult:
     peak_rss_mb: float = float("nan")
     frames_per_s: float = float("nan")
     blocks: tuple = ()
+    timings: dict = field(default_factory=dict)
 
 
 _DECK_REGISTRATION = {"pixel": "first-frame", "none": "none", "track": "track",
@@ -364,6 +369,7 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
             si = SelfIllumination(mesh, F, rho, unpainted)
         # ------------------------------------------------------------ Phase 1
         R, t = store.poses()
+        t_p1 = time.perf_counter()
         # a resumed run maps frame 0 again (its gains, SI and registration references),
         # then the frames not done
         todo = frames[done:] if done == 0 else np.concatenate([[0], frames[done:]])
@@ -375,7 +381,8 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
         for fn in map_run(grid, runs, todo, spots=spots, registration=cfg.registration,
                           patcher=cfg.target_patcher, overlap=cfg.overlap,
                           filter=cfg.filter, filter_size=cfg.filter_size,
-                          max_obliqueness=cfg.oblique_angle, si=si, unpainted=unpainted):
+                          max_obliqueness=cfg.oblique_angle, si=si, unpainted=unpainted,
+                          fast=cfg.fast):
             k = fn.index
             gains0 = fn.gains if gains0 is None else gains0
             if k < done:
@@ -391,6 +398,7 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
             prog.frame(k + 1)
         del block_v, block_r
         store.close()
+        t_p2 = time.perf_counter()
         with h5py.File(store.path, "r") as s1:
             vals, raw = s1["values"], s1["raw"]
             if gain is None:  # the in-situ fit on the taps
@@ -427,11 +435,13 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
             store.remove()
         else:  # interrupted or failed: the committed blocks stay for --resume
             store.close()
-    el = time.perf_counter() - t_start
+    t_end = time.perf_counter()
+    el = t_end - t_start
+    timings = {"setup": t_p1 - t_start, "phase1": t_p2 - t_p1, "phase2": t_end - t_p2}
     return UnsteadyResult(out, T, N, (tc, nc), stats["seen"], stats["si_median"],
                           stats["si_p95"], failed, tuple(files), peak_rss_mb(),
                           T / el if el > 0 else float("nan"),
-                          (plan.frames_per_block, plan.nodes_per_block))
+                          (plan.frames_per_block, plan.nodes_per_block), timings)
 
 
 def _work_inputs(cfg: UnsteadyConfig, T: int, N: int, fps: float) -> dict:
