@@ -236,13 +236,13 @@ def test_resume_skips_finished_blocks_and_refuses_stale_work(run, capsys, monkey
     --resume, maps only frame 0 again (its references) and the 110 frames not done, and
     gives the uninterrupted run's dCp; without --resume the work folder is refused; with an
     input changed since, the resume is refused by name."""
-    import resection.surface.merge as merge
+    import selfillum.unsteady.phase1 as phase1
     from selfillum.unsteady.work import work_folder
 
     whole = run.folder / "whole.h5"
     common = ("--memory", "0.5", "--no-plots", "--quiet", "--psd-bands", "0")
     assert _cli(run, whole, *common) == 0
-    real = merge.merge_views
+    real = phase1._to_nodes  # once a frame mapped, either way
     calls = []
 
     def counting(*a, **k):
@@ -251,7 +251,7 @@ def test_resume_skips_finished_blocks_and_refuses_stale_work(run, capsys, monkey
             raise KeyboardInterrupt
         return real(*a, **k)
 
-    monkeypatch.setattr(merge, "merge_views", counting)
+    monkeypatch.setattr(phase1, "_to_nodes", counting)
     out = run.folder / "resumed.h5"
     stop_at = 101  # frame 100
     assert _cli(run, out, *common) == 130

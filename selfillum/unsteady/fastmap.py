@@ -27,6 +27,8 @@ with the model, so frame 0's spot pixels stay the right ones.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -91,7 +93,10 @@ class FrameOperator:
                 if sample_points:
                     X = maps[c].points.reshape(-1, 3)[used]
                     self.X.append(X)
-                    self.uv0.append(maps[c].camera.project(X))
+                    self.uv0.append(maps[c].camera.project(X).astype(np.float32))
+        # a sample of each camera's points, to find the reference nearest a pose
+        self.probe = [np.linspace(0, max(len(X) - 1, 0), min(len(X), 256)).astype(np.int64)
+                      for X in self.X]
         self.seen = seen if unpainted is None else seen & ~np.asarray(unpainted, bool)
 
     def faces(self, images) -> np.ndarray | None:
@@ -105,28 +110,94 @@ class FrameOperator:
             B += A @ x
         return B
 
+    def displacement(self, cameras) -> float:
+        """Largest move (pixels) of a sample of the reference's surface points under the
+        poses ``cameras`` (inf if one falls behind a camera)."""
+        d = 0.0
+        for X, uv0, pr, cam in zip(self.X, self.uv0, self.probe, cameras, strict=True):
+            if pr.size == 0:
+                continue
+            uv = cam.project(X[pr])
+            if not np.all(np.isfinite(uv)):
+                return float("inf")
+            d = max(d, float(np.max(np.abs(uv - uv0[pr]))))
+        return d
+
     def faces_moved(self, images, cameras, refresh_px: float) -> np.ndarray | None:
         """Face values of a frame of pose ``cameras`` (one a camera): the images sampled
-        (bilinear) where the reference's surface points project; None when a point moved
-        more than ``refresh_px`` or falls outside its image (the caller casts anew)."""
-        from scipy.ndimage import map_coordinates
-
+        (bilinear) where the reference's surface points project (the camera's own
+        projection with its distortion, :meth:`resection.Camera.project`); None when a
+        point moved more than ``refresh_px`` or falls off its sensor (the caller casts
+        anew)."""
         B = np.zeros(self.A[0].shape[0])
         for A, X, uv0, img, cam in zip(self.A, self.X, self.uv0, images, cameras,
                                        strict=True):
-            uv = cam.project(X)
-            if not np.all(np.isfinite(uv)):
-                return None
-            if np.max(np.abs(uv - uv0)) > refresh_px:
-                return None
-            arr = np.asarray(img, dtype=np.float64)
-            H, W = arr.shape
-            if (uv.min(axis=0) < -0.5).any() or uv[:, 0].max() > W - 0.5 \
-                    or uv[:, 1].max() > H - 0.5:  # off the sensor (pixel edges)
-                return None
-            x = map_coordinates(arr, [uv[:, 1], uv[:, 0]], order=1, mode="nearest",
-                                prefilter=False)
-            if not np.isfinite(x).all():
+            arr = np.asarray(img)
+            if arr.dtype.kind not in "fiu":
+                arr = arr.astype(np.float64)
+            x = np.empty(len(X))
+            status = _project_sample(X, np.asarray(cam.R, np.float64),
+                                     np.asarray(cam.t, np.float64).ravel(),
+                                     np.asarray(cam.K, np.float64),
+                                     np.asarray(cam.dist, np.float64).ravel(),
+                                     float(cam.max_radius), uv0, arr, float(refresh_px), x)
+            if status.any() or not np.isfinite(x).all():
                 return None
             B += A @ x
         return B
+
+
+@functools.cache
+def _kernel():
+    import numba
+
+    @numba.njit(parallel=True, cache=True, fastmath=False)
+    def project_sample(X, R, t, K, dist, max_radius, uv0, img, refresh, out):
+        """Project every point (as Camera.project), flag a move over ``refresh`` pixels
+        (status 1), a point off the sensor or not projectable (status 2), else sample the
+        image bilinearly there (pixel centres at integers, edges clamped)."""
+        n = X.shape[0]
+        H, W = img.shape
+        k1, k2, p1, p2, k3 = dist[0], dist[1], dist[2], dist[3], dist[4]
+        status = np.zeros(n, np.uint8)
+        for i in numba.prange(n):
+            xc = R[0, 0] * X[i, 0] + R[0, 1] * X[i, 1] + R[0, 2] * X[i, 2] + t[0]
+            yc = R[1, 0] * X[i, 0] + R[1, 1] * X[i, 1] + R[1, 2] * X[i, 2] + t[1]
+            zc = R[2, 0] * X[i, 0] + R[2, 1] * X[i, 1] + R[2, 2] * X[i, 2] + t[2]
+            if not zc > 0:
+                status[i] = 2
+                continue
+            x = xc / zc
+            y = yc / zc
+            r2 = x * x + y * y
+            if np.sqrt(r2) > max_radius:
+                status[i] = 2
+                continue
+            radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+            xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+            yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+            u = K[0, 0] * xd + K[0, 1] * yd + K[0, 2]
+            v = K[1, 1] * yd + K[1, 2]
+            if abs(u - uv0[i, 0]) > refresh or abs(v - uv0[i, 1]) > refresh:
+                status[i] = 1
+                continue
+            if u < -0.5 or v < -0.5 or u > W - 0.5 or v > H - 0.5:
+                status[i] = 2
+                continue
+            u = min(max(u, 0.0), W - 1.0)
+            v = min(max(v, 0.0), H - 1.0)
+            u0 = min(int(u), W - 2) if W > 1 else 0
+            v0 = min(int(v), H - 2) if H > 1 else 0
+            fu = u - u0
+            fv = v - v0
+            u1 = min(u0 + 1, W - 1)
+            v1 = min(v0 + 1, H - 1)
+            out[i] = ((1.0 - fv) * ((1.0 - fu) * img[v0, u0] + fu * img[v0, u1])
+                      + fv * ((1.0 - fu) * img[v1, u0] + fu * img[v1, u1]))
+        return status
+
+    return project_sample
+
+
+def _project_sample(*args):
+    return _kernel()(*args)  # compiled on first use (and cached on disk by numba)

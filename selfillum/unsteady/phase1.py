@@ -147,7 +147,7 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
             filter: str = "none", filter_size: int = 3, max_obliqueness: float = 70.0,
             si: SelfIllumination | None = None, unpainted=None,
             spot_margin_px: float = 1.0, gains=None, fast: bool = True,
-            refresh_px: float = 2.0) -> Iterator[FrameNodes]:
+            refresh_px: float = 3.0) -> Iterator[FrameNodes]:
     """Map the frames ``frame_numbers`` of every camera onto the grid's nodes.
 
     Parameters
@@ -217,23 +217,22 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
     off = None if unpainted is None else np.asarray(unpainted, bool)
     moving = registration == "track"
     use_fast = fast and patcher == "none" and not (moving and filter != "none")
-    op = None
+    ops: list = []  # references: frame 0's; for a moving model also later casts
     spot_px = [None] * len(cameras)
     for k in frame_numbers:  # frames, one at a time
         k = int(k)
-        if op is not None:
-            fv = _fast_frame(op, cameras, k, regs, spots, spot_px, filter, filter_size,
+        if ops:
+            fv = _fast_frame(ops, cameras, k, regs, spots, spot_px, filter, filter_size,
                              moving, refresh_px)
             if fv is not None:
-                B, cams = fv
-                seen = op.seen & np.isfinite(B)
+                B, cams, op_seen = fv
+                seen = op_seen & np.isfinite(B)
                 raw_f = np.where(seen, B, np.nan)
                 E = si(B, seen) if si is not None else raw_f
                 vals = _to_nodes(W, np.vstack([E, raw_f]), grid)
-                yield FrameNodes(k, vals[0], vals[1], cams, op.gains)
+                yield FrameNodes(k, vals[0], vals[1], cams, ops[0].gains)
                 continue
-            if moving:
-                op = None  # cast anew from this frame (the full way)
+            # else: no reference near this pose: cast anew from this frame (the full way)
         maps, imgs, cams, finite = [], [], [], []
         for ci, c in enumerate(cameras):  # a few cameras
             img = np.asarray(c.frames[k], dtype=np.float64)
@@ -264,10 +263,14 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
         mv = merge_views(maps, imgs, gains=gains, **merge_kw)
         if overlap == "merge" and gains is None:
             gains = mv.gains  # matched on frame 0, kept: no seam moving over time
-        if use_fast and op is None:  # the reference: frame 0, or where the pose moved
+        if use_fast and (moving or not ops):  # a reference: frame 0, or a pose far from
+            # the references so far (a moving model: the oldest dropped past MAX_REFERENCES)
             from selfillum.unsteady.fastmap import FrameOperator
 
-            op = FrameOperator(maps, finite, merge_kw, mv.gains, off, sample_points=moving)
+            ops.append(FrameOperator(maps, finite, merge_kw, mv.gains, off,
+                                     sample_points=moving))
+            if len(ops) > MAX_REFERENCES:
+                ops.pop(0)
         B = mv.values
         seen = mv.seen & np.isfinite(B)
         if off is not None:
@@ -278,18 +281,23 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
         yield FrameNodes(k, vals[0], vals[1], cams, mv.gains)
 
 
-def _fast_frame(op, cameras, k, regs, spots, spot_px, filter, filter_size, moving,
+#: References (full casts) a moving model keeps: a vibrating model returns to earlier poses.
+MAX_REFERENCES = 8
+
+
+def _fast_frame(ops, cameras, k, regs, spots, spot_px, filter, filter_size, moving,
                 refresh_px):
     """Face values of frame ``k`` by the operator (None: take the full way)."""
     from selfillum.unsteady.spots import mask_spots
 
     imgs, cams = [], []
     for ci, c in enumerate(cameras):  # a few cameras
-        img = np.asarray(c.frames[k], dtype=np.float64)
-        if moving:
+        img = np.asarray(c.frames[k])
+        if moving:  # sampled as it is (uint16 from a video)
             cams.append(c.poses[k])
         else:
             cams.append(c.camera)
+            img = img.astype(np.float64)
             if regs[ci] is not None:  # first-frame: warped onto frame 0
                 img = regs[ci].warp(img, regs[ci].fit(img))
             if filter == "gaussian":
@@ -297,8 +305,13 @@ def _fast_frame(op, cameras, k, regs, spots, spot_px, filter, filter_size, movin
                     img = mask_spots(img, *spot_px[ci])
                 img = _gaussian(img, filter_size)
         imgs.append(img)
-    B = op.faces_moved(imgs, cams, refresh_px) if moving else op.faces(imgs)
-    return None if B is None else (B, cams)
+    if moving:  # the reference nearest this pose (on a sample of its points)
+        d = [op.displacement(cams) for op in ops]
+        j = int(np.argmin(d))
+        B = ops[j].faces_moved(imgs, cams, refresh_px) if d[j] <= refresh_px else None
+    else:
+        j, B = 0, ops[0].faces(imgs)
+    return None if B is None else (B, cams, ops[j].seen)
 
 
 def _to_nodes(W, face_values, grid) -> np.ndarray:

@@ -1,0 +1,189 @@
+"""Speed and memory of ``selfillum unsteady`` end to end, as a user runs it.
+
+Generates a run: the slab-and-block model as a Plot3D grid of about ``--nodes`` nodes, one
+``--width`` x ``--height`` 12-bit camera (uint16 NPY stack of ``--frames`` frames: the
+model rendered once, a 120 Hz tone of 1 % in its light and 0.5 % noise), the ``.wtd``, the
+paint calibration, the steady Cp and, for the moving model, a ``resection track`` folder
+of the true poses (``--vibration-deg``, default a 0.1-degree, 0.6-mm vibration at 30 Hz:
+the pose source is not what is timed). Then runs the command (a fresh process each, its
+peak RSS from ``getrusage``) for:
+
+* ``fixed``: ``--registration none --no-si``;
+* ``fixed+si``: ``--registration none`` with the self-illumination removed every frame;
+* ``moving+si``: ``--registration track --track DIR`` (each frame's pose) with SI;
+* with ``--full``: the same with ``--full-maps`` (a ray cast and merge every frame: the
+  path before the sparse products), for the ratio.
+
+Prints frames/s end to end, each phase's share (set-up = inputs and form factors, Phase 1,
+Phase 2 with the outputs), peak RSS, and ``uptime``'s load.
+
+    python bench/bench_unsteady.py --nodes 600000 --frames 2000 [--full] [--rays 16]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+def make_inputs(folder: Path, nodes: int, frames: int, width: int, height: int,
+                fps: float = 2000.0, seed: int = 0, vibration_deg: float = 0.1) -> dict:
+    from resection.io.cameras import write_camera
+    from resection.io.plot3d import write_plot3d_function
+    from resection.surface.surface_map import SurfaceMap
+    from scenes.slab_block import paint, slab_block, write_slab_block
+    from scenes.unsteady_run import CONDITIONS, PAINT, _camera, _pitch
+    from selfillum.unsteady.grid import load_run_grid
+
+    rng = np.random.default_rng(seed)
+    sc = slab_block(2 * nodes, half=(0.35, 0.25), box=(0.04, 0.03, 0.04), rho_paint=0.6,
+                    rho_box=0.6)
+    write_slab_block(sc, folder / "model.grid")
+    grid = load_run_grid(folder / "model.grid")
+    cam = _camera(width, height)
+    write_camera(folder / "cam01.json", cam)
+    centres = np.asarray(grid.mesh.triangles_center)
+    base = SurfaceMap(grid.mesh, cam, max_obliqueness=None).to_image(
+        1500.0 * paint(centres), background=30.0).astype(np.float32)
+    video = np.lib.format.open_memmap(folder / "cam01.npy", "w+", np.uint16,
+                                      (frames, height, width))
+    t = np.arange(frames) / fps
+    for k in range(frames):  # generation, not timed
+        img = base * (1.0 + 0.01 * np.sin(2 * np.pi * 120.0 * t[k]))
+        img *= 1.0 + 0.005 * rng.standard_normal(img.shape, dtype=np.float32)
+        video[k] = np.clip(np.rint(img), 0, 4095).astype(np.uint16)
+    video.flush()
+    del video
+    # the moving model's poses, as a track folder
+    from scipy.spatial.transform import Rotation
+
+    from resection.sequence.results import MARKER_COLUMNS, POSE_COLUMNS
+
+    theta = np.radians(vibration_deg) * np.sin(2 * np.pi * 30.0 * t)
+    heave = 0.0006 * vibration_deg / 0.1 * np.sin(2 * np.pi * 30.0 * t + 0.7)
+    tr = folder / "track1"
+    tr.mkdir(exist_ok=True)
+    rows = [",".join(POSE_COLUMNS)]
+    for k in range(frames):
+        M, d = _pitch(theta[k], heave[k])
+        c = cam.with_pose(R=cam.R @ M, t=cam.R @ d + cam.t)
+        rv = Rotation.from_matrix(c.R).as_rotvec()
+        rows.append(",".join([str(k), f"f{k}", "ok", "", "0", "0", "0", "0", "0", "0", "0.1",
+                              "20", *(repr(float(v)) for v in rv),
+                              *(repr(float(v)) for v in c.t)]))
+    (tr / "poses.csv").write_text("\n".join(rows) + "\n")
+    X = grid.points[::max(1, grid.n_nodes // 5000)]
+    uv0 = cam.project(X)
+    amp = max(float(np.nanmax(np.abs(cam.with_pose(R=cam.R @ _pitch(a, b)[0],
+                                                   t=cam.R @ _pitch(a, b)[1] + cam.t)
+                                     .project(X) - uv0)))
+              for a, b in zip(theta[:200], heave[:200], strict=True))
+    (tr / "markers.csv").write_text(",".join(MARKER_COLUMNS) + "\n")
+    # the rest of the inputs
+    dims = grid.dims
+    cp = -0.3 + 0.4 * grid.points[:, 0]
+    blocks, a = [], 0
+    for dd in dims:
+        n = int(np.prod(dd))
+        blocks.append(cp[a:a + n].reshape(dd, order="F"))
+        a += n
+    write_plot3d_function(folder / "steady.f", blocks)
+    names = list(CONDITIONS)
+    (folder / "run.wtd").write_text("# " + "\t".join(names) + "\n"
+                                    + "\t".join(repr(CONDITIONS[n]) for n in names) + "\n")
+    (folder / "paint.txt").write_text("".join(f"{k} = {v!r}\n" for k, v in PAINT.items()))
+    return {"nodes": grid.n_nodes, "faces": len(grid.mesh.faces), "fps": fps,
+            "vibration_px": amp}
+
+
+def run_case(folder: Path, name: str, extra: list, fps: float, rays: int) -> dict:
+    out = folder / f"{name}.h5"
+    for p in folder.glob(f"{name}*"):
+        if p.is_file():
+            p.unlink()
+    cmd = [sys.executable, "-c",
+           "import resource, sys; from selfillum.cli import main; rc = main(sys.argv[1:]); "
+           "print('MAXRSS_KB', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss); "
+           "sys.exit(rc)",
+           "unsteady", "--grid", str(folder / "model.grid"), "--sds", str(folder / "run.wtd"),
+           "--video", str(folder / "cam01.npy"), "--calibration", str(folder / "cam01.json"),
+           "--paint-calibration", str(folder / "paint.txt"), "--steady",
+           str(folder / "steady.f"), "--fps", str(fps), "--out", str(out), "--rays",
+           str(rays), "--no-plots", "--quiet", "--overlap", "average_view", *extra]
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    t0 = time.perf_counter()
+    res = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    wall = time.perf_counter() - t0
+    if res.returncode != 0:
+        raise SystemExit(f"{name}: {res.stderr.strip()[-2000:]}")
+    txt = res.stdout
+    fr = int(re.search(r"unsteady: (\d+) frames", txt).group(1))
+    tm = re.search(r"set-up ([\d.]+) s, phase 1 ([\d.]+) s, phase 2 and outputs ([\d.]+) s",
+                   txt)
+    setup, p1, p2 = (float(v) for v in tm.groups())
+    rss = int(re.search(r"MAXRSS_KB (\d+)", txt).group(1)) / 1024
+    for p in folder.glob(f"{name}*"):
+        if p.is_file():
+            p.unlink()
+    return {"case": name, "frames": fr, "wall": wall, "setup": setup, "phase1": p1,
+            "phase2": p2, "fps_run": fr / (setup + p1 + p2), "fps_wall": fr / wall,
+            "fps_p12": fr / (p1 + p2), "rss_mb": rss}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--nodes", type=int, default=600_000)
+    ap.add_argument("--frames", type=int, default=2000)
+    ap.add_argument("--width", type=int, default=1280)
+    ap.add_argument("--height", type=int, default=800)
+    ap.add_argument("--rays", type=int, default=16, help="rays a face for the view factors")
+    ap.add_argument("--full", action="store_true", help="also the full per-frame maps")
+    ap.add_argument("--vibration-deg", type=float, default=0.1,
+                    help="pitch amplitude (the heave 0.6 mm per 0.1 degree), 30 Hz")
+    ap.add_argument("--cases", default="fixed,fixed+si,moving+si")
+    ap.add_argument("--memory", default="512", help="--memory of the runs, MiB")
+    ap.add_argument("--folder", help="keep the inputs here (default: a temporary folder)")
+    args = ap.parse_args()
+    folder = Path(args.folder) if args.folder else Path(tempfile.mkdtemp(prefix="bench_u_"))
+    folder.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    info = make_inputs(folder, args.nodes, args.frames, args.width, args.height,
+                       vibration_deg=args.vibration_deg)
+    print(f"inputs: {info['nodes']} nodes, {info['faces']} faces, {args.frames} frames of "
+          f"{args.width}x{args.height} uint16 ({time.perf_counter() - t0:.0f} s to make); "
+          f"vibration {args.vibration_deg} deg: points move up to {info['vibration_px']:.1f} "
+          "px")
+    print("load:", subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip())
+    cases = {"fixed": ["--registration", "none", "--no-si"],
+             "fixed+si": ["--registration", "none"],
+             "moving+si": ["--registration", "track", "--track", str(folder / "track1")]}
+    rows = []
+    for name in args.cases.split(","):
+        extra = cases[name] + ["--memory", args.memory]
+        rows.append(run_case(folder, name, extra, info["fps"], args.rays))
+        if args.full:
+            rows.append(run_case(folder, name + "(full)", extra + ["--full-maps"],
+                                 info["fps"], args.rays))
+    print("load:", subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip())
+    print(f"{'case':<18}{'frames/s':>9}{'(p1+p2)':>9}{'set-up s':>10}{'phase1 s':>10}"
+          f"{'phase2 s':>10}{'p1 %':>6}{'p2 %':>6}{'peak MB':>9}")
+    for r in rows:
+        tot = r["setup"] + r["phase1"] + r["phase2"]
+        print(f"{r['case']:<18}{r['fps_run']:>9.1f}{r['fps_p12']:>9.1f}{r['setup']:>10.1f}"
+              f"{r['phase1']:>10.1f}{r['phase2']:>10.1f}{100 * r['phase1'] / tot:>6.0f}"
+              f"{100 * r['phase2'] / tot:>6.0f}{r['rss_mb']:>9.0f}")
+
+
+if __name__ == "__main__":
+    main()
