@@ -352,3 +352,26 @@ def test_fast_phase1_agrees_with_the_full_per_frame_map(monkeypatch):
     assert (np.isfinite(a) != np.isfinite(b)).mean() < 0.005
     rel = np.abs(b[both] - a[both]) / np.abs(a[both])
     assert np.median(rel) < 1e-3 and np.percentile(rel, 99) < 0.03
+
+
+# ---------------------------------------------------------------------------- Dask
+
+
+def test_dask_two_workers_give_the_one_process_dcp(run, capsys):
+    """Phase 1 over blocks of frames and Phase 2 over blocks of nodes on a local Dask
+    cluster: 1 worker and 2 workers write the dCp, statistics and spectra of the run in one
+    process (blocks finishing in any order, one writer)."""
+    common = ("--memory", "0.5", "--no-plots", "--quiet", "--psd", "100")
+    outs = {}
+    for name, extra in (("local", ()), ("w1", ("--workers", "1")),
+                        ("w2", ("--workers", "2"))):
+        outs[name] = run.folder / f"dask_{name}.h5"
+        assert _cli(run, outs[name], *common, *extra) == 0, capsys.readouterr().err
+    with h5py.File(outs["local"]) as f:
+        ref = {k: f[k][()] for k in ("dcp", "stats/dcp_rms", "psd/band_psd",
+                                     "psd/probe_psd")}
+        assert np.isfinite(ref["dcp"]).any()
+    for name in ("w1", "w2"):
+        with h5py.File(outs[name]) as f:
+            for k, v in ref.items():
+                np.testing.assert_array_equal(f[k][()], v, err_msg=f"{name}: {k}")

@@ -39,7 +39,8 @@ def _cmd_unsteady(args) -> int:
               "psd_probes": _node_list(args.psd), "psd_bands": args.psd_bands,
               "psd_nperseg": args.psd_nperseg, "memory_mb": args.memory,
               "plots": not args.no_plots, "resume": args.resume,
-              "fast": not args.full_maps}
+              "fast": not args.full_maps, "workers": args.workers,
+              "scheduler": args.scheduler}
     if args.deck:
         if args.grid or args.sds or args.video or args.calibration:
             raise InputError("give either DECK.inp or --grid/--sds/--video/--calibration, "
@@ -188,5 +189,11 @@ def register(sub) -> None:
     p.add_argument("--full-maps", action="store_true",
                    help="map every frame the full way (a ray cast and merge a frame) instead "
                    "of sparse products after the first frame (for comparison)")
+    p.add_argument("--workers", type=int, metavar="N",
+                   help="Dask: a local cluster of N worker processes (Phase 1 over blocks of "
+                   "frames, Phase 2 over blocks of nodes)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="Dask: the scheduler of a running cluster (tcp://host:8786); its "
+                   "workers must see the run's files at the same paths")
     p.add_argument("--quiet", action="store_true", help="no progress")
     p.set_defaults(func=_cmd_unsteady)

@@ -76,7 +76,8 @@ class UnsteadyConfig:
     (:func:`selfillum.unsteady.budget.plan_blocks`). ``plots``: write the dCp RMS on the
     model and the probes' PSD as PNG next to the output. ``fast``: Phase 1 by sparse
     products after the first frame (:mod:`selfillum.unsteady.fastmap`); False maps every
-    frame the full way (a ray cast a frame).
+    frame the full way (a ray cast a frame). ``workers`` / ``scheduler``: Phase 1 and
+    Phase 2 on Dask (:mod:`selfillum.unsteady.cluster`).
     """
 
     grid: Path
@@ -114,6 +115,8 @@ class UnsteadyConfig:
     plots: bool = True
     resume: bool = False
     fast: bool = True
+    workers: int | None = None
+    scheduler: str | None = None
     general: dict = field(default_factory=dict)
     source: str = "flags"
 
@@ -351,6 +354,7 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     done = store.frames_done
     prog = Progress(T, N, enabled=cfg.progress, start=done)
     finished = False
+    stack0 = contextlib.ExitStack()
     try:
         # ------------------------------------------------------------ registration
         runs, failed = [], 0
@@ -374,29 +378,16 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
         # then the frames not done
         todo = frames[done:] if done == 0 else np.concatenate([[0], frames[done:]])
         fb = plan.frames_per_block
-        block_v = np.empty((fb, N), np.float32)
-        block_r = np.empty((fb, N), np.float32)
-        a = done
-        gains0 = None
-        for fn in map_run(grid, runs, todo, spots=spots, registration=cfg.registration,
-                          patcher=cfg.target_patcher, overlap=cfg.overlap,
-                          filter=cfg.filter, filter_size=cfg.filter_size,
-                          max_obliqueness=cfg.oblique_angle, si=si, unpainted=unpainted,
-                          fast=cfg.fast):
-            k = fn.index
-            gains0 = fn.gains if gains0 is None else gains0
-            if k < done:
-                continue  # frame 0 again, already stored
-            block_v[k - a], block_r[k - a] = fn.values, fn.raw
-            for ci, cm in enumerate(fn.cameras):
-                R[ci, k], t[ci, k] = cm.R, cm.t
-            if k - a + 1 == fb or k == T - 1:  # a block of frames (whole chunk rows when
-                # the budget allows), committed
-                store.write_block(a, block_v[:k + 1 - a], block_r[:k + 1 - a],
-                                  R[:, a:k + 1], t[:, a:k + 1])
-                a = k + 1
-            prog.frame(k + 1)
-        del block_v, block_r
+        client = None
+        if cfg.workers or cfg.scheduler:
+            from selfillum.unsteady.cluster import open_client
+
+            client = stack0.enter_context(open_client(cfg.workers, cfg.scheduler))
+            gains0 = _cluster_phase1(client, cfg, grid, runs, spots, unpainted, rho, F,
+                                     store, R, t, done, fb, T, prog)
+        else:
+            gains0 = _local_phase1(cfg, grid, runs, todo, spots, si, unpainted, store, R, t,
+                                   done, fb, T, N, prog)
         store.close()
         t_p2 = time.perf_counter()
         with h5py.File(store.path, "r") as s1:
@@ -412,7 +403,8 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
                 with h5py.File(tmp[0], "w") as f:
                     stats = _write_run(f, cfg, grid, cond, cp, gain, vals, raw, times, frames,
                                        runs, R, t, tc, nc, si is not None, plan=plan,
-                                       spectra=spectra, progress=prog.nodes)
+                                       spectra=spectra, progress=prog.nodes,
+                                       client=client, work=store.path)
                     prog.close()
                     if law is not None:
                         f.attrs["stern_volmer"] = json_attr(
@@ -428,6 +420,8 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
         finished = True  # bad input: nothing to resume, nothing left
         raise
     finally:
+        with contextlib.suppress(Exception):
+            stack0.close()  # the Dask client and its cluster
         for s in srcs:
             with contextlib.suppress(Exception):
                 s.close()
@@ -516,8 +510,66 @@ def _insitu_fit(cfg, grid, runs, vals, taps, nodes, offs, spots, unpainted, F, r
         raise InputError(f"{cfg.taps}: {e}") from None
 
 
+def _local_phase1(cfg, grid, runs, todo, spots, si, unpainted, store, R, t, done, fb, T, N,
+                  prog):
+    """Phase 1 in this process, committing blocks of ``fb`` frames; returns frame 0's
+    gains."""
+    block_v = np.empty((fb, N), np.float32)
+    block_r = np.empty((fb, N), np.float32)
+    a = done
+    gains0 = None
+    for fn in map_run(grid, runs, todo, spots=spots, registration=cfg.registration,
+                      patcher=cfg.target_patcher, overlap=cfg.overlap, filter=cfg.filter,
+                      filter_size=cfg.filter_size, max_obliqueness=cfg.oblique_angle, si=si,
+                      unpainted=unpainted, fast=cfg.fast):
+        k = fn.index
+        gains0 = fn.gains if gains0 is None else gains0
+        if k < done:
+            continue  # frame 0 again, already stored
+        block_v[k - a], block_r[k - a] = fn.values, fn.raw
+        for ci, cm in enumerate(fn.cameras):
+            R[ci, k], t[ci, k] = cm.R, cm.t
+        if k - a + 1 == fb or k == T - 1:  # a block of frames (whole chunk rows when the
+            # budget allows), committed
+            store.write_block(a, block_v[:k + 1 - a], block_r[:k + 1 - a], R[:, a:k + 1],
+                              t[:, a:k + 1])
+            a = k + 1
+        prog.frame(k + 1)
+    return gains0
+
+
+def _cluster_phase1(client, cfg, grid, runs, spots, unpainted, rho, F, store, R, t, done, fb,
+                    T, prog):
+    """Phase 1 on Dask: blocks of frames on the workers, written here as they finish;
+    returns frame 0's gains (mapped here, for the in-situ fit)."""
+    from selfillum.unsteady.cluster import Phase1Job, phase1_blocks
+
+    job = Phase1Job(str(cfg.grid), tuple(str(c.video) for c in cfg.cameras),
+                    tuple(r.camera for r in runs), tuple(r.number for r in runs),
+                    None if runs[0].poses is None else tuple(tuple(r.poses) for r in runs),
+                    spots, cfg.registration, cfg.target_patcher, cfg.overlap, cfg.filter,
+                    cfg.filter_size, cfg.oblique_angle, unpainted, rho, None, cfg.fast)
+    blocks = [(a, min(a + fb, T)) for a in range(done, T, fb)]
+    finished, prefix, count = set(), done, done
+    for a, vals, raw, Rb, tb in phase1_blocks(client, job, F, blocks):
+        b = a + len(vals)
+        finished.add(a)
+        while prefix in finished:  # frames_done: the blocks done from frame 0 on
+            prefix = min(prefix + fb, T)
+        R[:, a:b], t[:, a:b] = Rb, tb
+        store.write_block(a, vals, raw, Rb, tb, frames_done=prefix)
+        count += b - a
+        prog.frame(count)
+    fn = next(map_run(grid, runs, [0], spots=spots, registration="none",
+                      patcher=cfg.target_patcher, overlap=cfg.overlap, filter=cfg.filter,
+                      filter_size=cfg.filter_size, max_obliqueness=cfg.oblique_angle,
+                      unpainted=unpainted, fast=False))
+    return fn.gains
+
+
 def _write_run(f, cfg, grid, cond, cp, gain, vals, raw, times, frames, runs, R, t, tc, nc,
-               with_si: bool, *, plan=None, spectra=None, progress=None) -> dict:
+               with_si: bool, *, plan=None, spectra=None, progress=None, client=None,
+               work=None) -> dict:
     T, N = vals.shape
     f.attrs["format"] = FORMAT
     f.attrs["version"] = VERSION
@@ -544,9 +596,28 @@ def _write_run(f, cfg, grid, cond, cp, gain, vals, raw, times, frames, runs, R, 
     if spectra is not None and spectra.n_bands:
         spectra.band = f.create_dataset("psd/band_psd", (N, spectra.n_bands), "f4",
                                         fillvalue=np.nan)
-    p2 = run_phase2(vals, dcp, frames, gain, cond.q, raw=raw if with_si else None,
-                    block=plan.nodes_per_block if plan is not None else None,
-                    spectra=spectra, progress=progress)
+    if client is None:
+        p2 = run_phase2(vals, dcp, frames, gain, cond.q, raw=raw if with_si else None,
+                        block=plan.nodes_per_block if plan is not None else None,
+                        spectra=spectra, progress=progress)
+    else:  # on Dask: blocks of nodes on the workers, written here
+        from selfillum.unsteady.cluster import phase2_blocks
+
+        p2 = {k: np.full(N, np.nan, np.float32) for k in ("mean", "rms", "si_change")}
+        n_done = 0
+        for a, d, mean, rms, change, psd in phase2_blocks(
+                client, str(work), N, plan.nodes_per_block, frames, np.asarray(gain), cond.q,
+                with_si, spectra):
+            b = a + d.shape[1]
+            dcp[:, a:b] = d
+            p2["mean"][a:b], p2["rms"][a:b] = mean, rms
+            if change is not None:
+                p2["si_change"][a:b] = change
+            if spectra is not None:
+                spectra.add(a, None, psd=psd)
+            n_done += b - a
+            if progress is not None:
+                progress(n_done)
     if spectra is not None:
         spectra.write(f.require_group("psd"))
     mean, rms, change = p2["mean"], p2["rms"], p2["si_change"]

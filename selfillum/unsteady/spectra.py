@@ -135,9 +135,13 @@ class Spectra:
         self._sum = np.zeros(K)
         self._count = 0
 
-    def add(self, a: int, dcp_block) -> None:
-        """Spectra of nodes ``a .. a + n`` from their ``(T, n)`` dCp block."""
-        freq, p = welch_block(dcp_block, self.fs, self.nperseg)
+    def add(self, a: int, dcp_block, psd=None) -> None:
+        """Spectra of nodes ``a .. a + n`` from their ``(T, n)`` dCp block (or their
+        ``psd`` (n, K), :func:`welch_block` of it, computed elsewhere)."""
+        if psd is None:
+            freq, p = welch_block(dcp_block, self.fs, self.nperseg)
+        else:
+            freq, p = self.freq, np.asarray(psd)
         n = p.shape[0]
         sel = (self.probes >= a) & (self.probes < a + n)
         if sel.any():

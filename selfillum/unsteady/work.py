@@ -120,9 +120,10 @@ class Phase1Store:
         """``R`` (C, T, 3, 3), ``t`` (C, T, 3) as stored (NaN for frames not done)."""
         return self._f["R"][()], self._f["t"][()]
 
-    def write_block(self, a: int, values, raw, R, t) -> None:
+    def write_block(self, a: int, values, raw, R, t, frames_done: int | None = None) -> None:
         """Commit frames ``a .. a + len(values)``: their node rows and poses
-        (``R`` (C, n, 3, 3), ``t`` (C, n, 3)), then ``frames_done``."""
+        (``R`` (C, n, 3, 3), ``t`` (C, n, 3)), then ``frames_done`` (default the block's
+        end; blocks finishing out of order: the end of the blocks done from frame 0)."""
         from resection.io.history import _interrupt_after
 
         b = a + len(values)
@@ -132,7 +133,7 @@ class Phase1Store:
             f["raw"][a:b] = raw
             f["R"][:, a:b] = R
             f["t"][:, a:b] = t
-            f.attrs["frames_done"] = b
+            f.attrs["frames_done"] = b if frames_done is None else int(frames_done)
             f.flush()
             if self._jf.failed is not None:
                 err = self._jf.failed

@@ -1,0 +1,152 @@
+"""The run on Dask: Phase 1 spread over blocks of frames, Phase 2 over blocks of nodes.
+
+``--workers N`` starts a local cluster of ``N`` worker processes (one thread each);
+``--scheduler ADDRESS`` joins a running one (the workers must read the run's files at the
+same paths: a shared file system). One process writes: the workers return their blocks and
+the command writes them (Phase 1 into the journaled work file, in the order they finish;
+Phase 2 into ``/dcp``), so the files are the same with one worker or many.
+
+A Phase 1 task maps frame 0 and then its block (frame 0 fixes the cameras' gains, the
+self-illumination's reference and the registration's, exactly as the run on one process
+does, so the blocks do not depend on how the frames were split). The form factors are
+sent to every worker once. A Phase 2 task reads its block of nodes from the work file,
+computes dCp, its statistics and Welch spectra, and returns them.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["Phase1Job", "open_client", "phase1_blocks", "phase2_blocks"]
+
+
+@dataclass(frozen=True)
+class Phase1Job:
+    """What a worker needs to map frames (plain, picklable values and paths)."""
+
+    grid: str
+    videos: tuple
+    cameras: tuple  # frame 0's Camera of each camera
+    numbers: tuple
+    poses: tuple | None  # per camera, every frame's Camera ("track")
+    spots: object
+    registration: str
+    patcher: str
+    overlap: str
+    filter: str
+    filter_size: int
+    oblique_angle: float
+    unpainted: object
+    rho: object
+    gains: object
+    fast: bool
+
+
+@contextlib.contextmanager
+def open_client(workers: int | None, scheduler: str | None):
+    """A ``distributed.Client``: on ``scheduler``, or on a local cluster of ``workers``
+    processes of one thread each (closed at the end)."""
+    from distributed import Client, LocalCluster
+
+    if scheduler:
+        with Client(scheduler) as client:
+            yield client
+        return
+    with LocalCluster(n_workers=int(workers), threads_per_worker=1, processes=True,
+                      dashboard_address=None) as cluster, Client(cluster) as client:
+        yield client
+
+
+@functools.lru_cache(maxsize=2)
+def _grid(path: str):
+    from selfillum.unsteady.grid import load_run_grid
+
+    return load_run_grid(path)  # once a worker process
+
+
+def _map_block(job: Phase1Job, F, a: int, b: int):
+    """Frames ``a .. b`` of every camera (frame 0 first), on a worker."""
+    from resection.io.video import open_frames
+    from selfillum.unsteady.phase1 import CameraRun, SelfIllumination, map_run
+
+    grid = _grid(job.grid)
+    srcs = [open_frames(v) for v in job.videos]
+    try:
+        runs = [CameraRun(n, c, s, None if job.poses is None else job.poses[i])
+                for i, (n, c, s) in enumerate(zip(job.numbers, job.cameras, srcs,
+                                                  strict=True))]
+        si = None if F is None else SelfIllumination(grid.mesh, F, job.rho, job.unpainted)
+        frames = list(range(a, b)) if a == 0 else [0, *range(a, b)]
+        vals = np.empty((b - a, grid.n_nodes), np.float32)
+        raw = np.empty_like(vals)
+        C = len(runs)
+        R, t = np.empty((C, b - a, 3, 3)), np.empty((C, b - a, 3))
+        for fn in map_run(grid, runs, frames, spots=job.spots, registration=job.registration,
+                          patcher=job.patcher, overlap=job.overlap, filter=job.filter,
+                          filter_size=job.filter_size, max_obliqueness=job.oblique_angle,
+                          si=si, unpainted=job.unpainted, gains=job.gains, fast=job.fast):
+            k = fn.index
+            if k < a:
+                continue  # frame 0 again: the references
+            vals[k - a], raw[k - a] = fn.values, fn.raw
+            for ci, cm in enumerate(fn.cameras):
+                R[ci, k - a], t[ci, k - a] = cm.R, cm.t
+        return a, vals, raw, R, t
+    finally:
+        for s in srcs:
+            with contextlib.suppress(Exception):
+                s.close()
+
+
+def phase1_blocks(client, job: Phase1Job, F, blocks):
+    """Yield ``(a, values, raw, R, t)`` for every ``(a, b)`` of ``blocks``, as they finish."""
+    from distributed import as_completed
+
+    Ff = client.scatter(F, broadcast=True) if F is not None else None
+    futs = [client.submit(_map_block, job, Ff, a, b, pure=False) for a, b in blocks]
+    for fut in as_completed(futs):
+        yield fut.result()
+        fut.release()
+
+
+def _phase2_block(path: str, a: int, b: int, times, gain, q: float, with_raw: bool,
+                  fs: float | None, nperseg: int | None):
+    """dCp of nodes ``a .. b`` from the work file, its statistics and spectra."""
+    import warnings
+
+    import h5py
+
+    from selfillum.unsteady.phase2 import dcp_block
+    from selfillum.unsteady.spectra import welch_block
+
+    with h5py.File(path, "r") as f:
+        d = dcp_block(f["values"][:, a:b], times, gain, q)
+        d0 = dcp_block(f["raw"][:, a:b], times, gain, q) if with_raw else None
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        mean = np.nanmean(d, axis=0).astype(np.float32)
+        rms = np.sqrt(np.nanmean(d.astype(np.float64) ** 2, axis=0)).astype(np.float32)
+        change = (np.sqrt(np.nanmean((d.astype(np.float64) - d0) ** 2, axis=0))
+                  .astype(np.float32) if d0 is not None else None)
+    psd = welch_block(d, fs, nperseg)[1] if fs is not None else None
+    return a, d, mean, rms, change, psd
+
+
+def phase2_blocks(client, path: str, N: int, nodes_per_block: int, times, gain, q: float,
+                  with_raw: bool, spectra=None):
+    """Yield Phase 2's ``(a, dcp, mean, rms, si_change, psd)`` per block of nodes, as they
+    finish (``psd`` None without ``spectra``)."""
+    from distributed import as_completed
+
+    fs = spectra.fs if spectra is not None else None
+    nper = spectra.nperseg if spectra is not None else None
+    futs = [client.submit(_phase2_block, path, a, min(a + nodes_per_block, N), times,
+                          gain[a:a + nodes_per_block], q, with_raw, fs, nper, pure=False)
+            for a in range(0, N, nodes_per_block)]
+    for fut in as_completed(futs):
+        yield fut.result()
+        fut.release()
