@@ -242,7 +242,7 @@ def test_resume_skips_finished_blocks_and_refuses_stale_work(run, capsys, monkey
     whole = run.folder / "whole.h5"
     common = ("--memory", "0.5", "--no-plots", "--quiet", "--psd-bands", "0")
     assert _cli(run, whole, *common) == 0
-    real = phase1._to_nodes  # once a frame mapped, either way
+    real = phase1.FrameNodes  # made once a frame mapped, either way
     calls = []
 
     def counting(*a, **k):
@@ -251,7 +251,7 @@ def test_resume_skips_finished_blocks_and_refuses_stale_work(run, capsys, monkey
             raise KeyboardInterrupt
         return real(*a, **k)
 
-    monkeypatch.setattr(phase1, "_to_nodes", counting)
+    monkeypatch.setattr(phase1, "FrameNodes", counting)
     out = run.folder / "resumed.h5"
     stop_at = 101  # frame 100
     assert _cli(run, out, *common) == 130

@@ -98,6 +98,21 @@ class FrameOperator:
         self.probe = [np.linspace(0, max(len(X) - 1, 0), min(len(X), 256)).astype(np.int64)
                       for X in self.X]
         self.seen = seen if unpainted is None else seen & ~np.asarray(unpainted, bool)
+        self._nodes = None
+
+    def node_matrix(self, W, grid):
+        """(N, F) sparse: the area-weighted mean of the seen faces around each grid node
+        (rows of nodes with no seen face are empty: ``node_unseen``), built once."""
+        if self._nodes is None:
+            s = self.seen.astype(np.float64)
+            Ws = W @ sp.diags(s)
+            den = np.asarray(Ws.sum(axis=1)).ravel()
+            with np.errstate(divide="ignore"):
+                inv = np.where(den > 0, 1.0 / den, 0.0)
+            Wv = sp.diags(inv) @ Ws
+            self._nodes = sp.csr_matrix(Wv[grid.node_vertex])
+            self.node_unseen = (den == 0)[grid.node_vertex]
+        return self._nodes
 
     def faces(self, images) -> np.ndarray | None:
         """Face values of a frame whose pose is the reference's; None when a pixel that
@@ -127,7 +142,8 @@ class FrameOperator:
         """Face values of a frame of pose ``cameras`` (one a camera): the images sampled
         (bilinear) where the reference's surface points project (the camera's own
         projection with its distortion, :meth:`resection.Camera.project`); None when a
-        point moved more than ``refresh_px`` or falls off its sensor (the caller casts
+        point moved more than twice ``refresh_px`` (the reference was chosen on a sample
+        of its points, :meth:`displacement`) or falls off its sensor (the caller casts
         anew)."""
         B = np.zeros(self.A[0].shape[0])
         for A, X, uv0, img, cam in zip(self.A, self.X, self.uv0, images, cameras,
@@ -140,7 +156,8 @@ class FrameOperator:
                                      np.asarray(cam.t, np.float64).ravel(),
                                      np.asarray(cam.K, np.float64),
                                      np.asarray(cam.dist, np.float64).ravel(),
-                                     float(cam.max_radius), uv0, arr, float(refresh_px), x)
+                                     float(cam.max_radius), uv0, arr,
+                                     2.0 * float(refresh_px), x)
             if status.any() or not np.isfinite(x).all():
                 return None
             B += A @ x
