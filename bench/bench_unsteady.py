@@ -129,14 +129,15 @@ def run_case(folder: Path, name: str, extra: list, fps: float, rays: int) -> dic
         raise SystemExit(f"{name}: {res.stderr.strip()[-2000:]}")
     txt = res.stdout
     fr = int(re.search(r"unsteady: (\d+) frames", txt).group(1))
-    tm = re.search(r"set-up ([\d.]+) s, phase 1 ([\d.]+) s, phase 2 and outputs ([\d.]+) s",
-                   txt)
-    setup, p1, p2 = (float(v) for v in tm.groups())
+    tm = re.search(r"set-up ([\d.]+) s, phase 1 ([\d.]+) s \(first frame ([\d.]+) s\), "
+                   r"phase 2 and outputs ([\d.]+) s", txt)
+    setup, p1, first, p2 = (float(v) for v in tm.groups())
     rss = int(re.search(r"MAXRSS_KB (\d+)", txt).group(1)) / 1024
     for p in folder.glob(f"{name}*"):
         if p.is_file():
             p.unlink()
     return {"case": name, "frames": fr, "wall": wall, "setup": setup, "phase1": p1,
+            "first": first, "fps_p1_after": (fr - 1) / max(p1 - first, 1e-9),
             "phase2": p2, "fps_run": fr / (setup + p1 + p2), "fps_wall": fr / wall,
             "fps_p12": fr / (p1 + p2), "rss_mb": rss}
 
@@ -177,11 +178,13 @@ def main() -> None:
                                  info["fps"], args.rays))
     print("load:", subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip())
     print(f"{'case':<18}{'frames/s':>9}{'(p1+p2)':>9}{'set-up s':>10}{'phase1 s':>10}"
-          f"{'phase2 s':>10}{'p1 %':>6}{'p2 %':>6}{'peak MB':>9}")
+          f"{'frame0 s':>9}{'p1 f/s':>8}{'phase2 s':>10}{'p1 %':>6}{'p2 %':>6}"
+          f"{'peak MB':>9}")
     for r in rows:
         tot = r["setup"] + r["phase1"] + r["phase2"]
         print(f"{r['case']:<18}{r['fps_run']:>9.1f}{r['fps_p12']:>9.1f}{r['setup']:>10.1f}"
-              f"{r['phase1']:>10.1f}{r['phase2']:>10.1f}{100 * r['phase1'] / tot:>6.0f}"
+              f"{r['phase1']:>10.1f}{r['first']:>9.1f}{r['fps_p1_after']:>8.1f}"
+              f"{r['phase2']:>10.1f}{100 * r['phase1'] / tot:>6.0f}"
               f"{100 * r['phase2'] / tot:>6.0f}{r['rss_mb']:>9.0f}")
 
 

@@ -85,8 +85,8 @@ def _cmd_unsteady(args) -> int:
           f"{res.peak_rss_mb:.0f} MB; blocks of {res.blocks[0]} frames (Phase 1) and "
           f"{res.blocks[1]} nodes (Phase 2)")
     tm = res.timings
-    print(f"time: set-up {tm['setup']:.1f} s, phase 1 {tm['phase1']:.1f} s, phase 2 and "
-          f"outputs {tm['phase2']:.1f} s")
+    print(f"time: set-up {tm['setup']:.1f} s, phase 1 {tm['phase1']:.1f} s (first frame "
+          f"{tm['first_frame']:.1f} s), phase 2 and outputs {tm['phase2']:.1f} s")
     print("wrote " + ", ".join(str(p) for p in res.files))
     return 0
 

@@ -102,6 +102,7 @@ class Progress:
         self.every = every_s
         self.t0 = time.perf_counter()
         self.t2 = None
+        self.t_first = None
         self._last = -1e9
         self.rate = float("nan")
 
@@ -112,6 +113,8 @@ class Progress:
             print(f"\r{text}", end="", file=self.stream, flush=True)
 
     def frame(self, done: int) -> None:
+        if self.t_first is None:
+            self.t_first = time.perf_counter()  # the first frame mapped (its references)
         el = time.perf_counter() - self.t0
         self.rate = (done - self.start) / el if el > 0 else float("nan")
         left = (self.T - done) / self.rate if self.rate > 0 else float("nan")

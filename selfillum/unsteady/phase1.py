@@ -263,17 +263,29 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
             maps.append(smap)
             imgs.append(img)
             cams.append(cam)
+        if use_fast and ops:  # a new reference of a moving model: its operator gives the
+            # merge (the gains are frame 0's; the same sums as merge_views with them)
+            from selfillum.unsteady.fastmap import FrameOperator
+
+            op = FrameOperator(maps, finite, merge_kw, ops[0].gains, off, sample_points=True)
+            ops.append(op)
+            if len(ops) > MAX_REFERENCES:
+                ops.pop(1)  # the oldest after frame 0's
+            B = op.faces(imgs)
+            seen = op.seen & np.isfinite(B)
+            raw_f = np.where(seen, B, np.nan)
+            E = si(B, seen) if si is not None else raw_f
+            vals = _fast_nodes(op, W, grid, E, B, seen)
+            yield FrameNodes(k, vals[0], vals[1], cams, op.gains)
+            continue
         mv = merge_views(maps, imgs, gains=gains, **merge_kw)
         if overlap == "merge" and gains is None:
             gains = mv.gains  # matched on frame 0, kept: no seam moving over time
-        if use_fast and (moving or not ops):  # a reference: frame 0, or a pose far from
-            # the references so far (a moving model: the oldest dropped past MAX_REFERENCES)
+        if use_fast:  # the first reference
             from selfillum.unsteady.fastmap import FrameOperator
 
             ops.append(FrameOperator(maps, finite, merge_kw, mv.gains, off,
                                      sample_points=moving))
-            if len(ops) > MAX_REFERENCES:
-                ops.pop(0)
         B = mv.values
         seen = mv.seen & np.isfinite(B)
         if off is not None:

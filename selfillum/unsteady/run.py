@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from resection.errors import InputError
+from selfillum.unsteady.blocks import cluster_phase1, local_phase1
 from selfillum.unsteady.budget import DEFAULT_MEMORY_MB, Progress, peak_rss_mb, plan_blocks
 from selfillum.unsteady.insitu import insitu_gain
 from selfillum.unsteady.output import (
@@ -130,7 +131,8 @@ class UnsteadyResult:
     frame), ``files`` (everything written), ``peak_rss_mb`` (the process's peak resident
     memory, MiB), ``frames_per_s`` (frames over the whole run's time), ``blocks``
     (frames per Phase 1 block, nodes per Phase 2 block), ``timings`` (seconds: ``setup``
-    = inputs, tracking, form factors; ``phase1``; ``phase2`` = Phase 2 and the outputs)."""
+    = inputs, tracking, form factors; ``phase1``, of which ``first_frame`` (its maps and
+    the self-illumination's frame-0 solve); ``phase2`` = Phase 2 and the outputs)."""
 
     out: Path
     n_frames: int
@@ -383,10 +385,10 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
             from selfillum.unsteady.cluster import open_client
 
             client = stack0.enter_context(open_client(cfg.workers, cfg.scheduler))
-            gains0 = _cluster_phase1(client, cfg, grid, runs, spots, unpainted, rho, F,
+            gains0 = cluster_phase1(client, cfg, grid, runs, spots, unpainted, rho, F,
                                      store, R, t, done, fb, T, prog)
         else:
-            gains0 = _local_phase1(cfg, grid, runs, todo, spots, si, unpainted, store, R, t,
+            gains0 = local_phase1(cfg, grid, runs, todo, spots, si, unpainted, store, R, t,
                                    done, fb, T, N, prog)
         store.close()
         t_p2 = time.perf_counter()
@@ -431,7 +433,8 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
             store.close()
     t_end = time.perf_counter()
     el = t_end - t_start
-    timings = {"setup": t_p1 - t_start, "phase1": t_p2 - t_p1, "phase2": t_end - t_p2}
+    timings = {"setup": t_p1 - t_start, "phase1": t_p2 - t_p1, "phase2": t_end - t_p2,
+               "first_frame": (prog.t_first or t_p2) - t_p1}
     return UnsteadyResult(out, T, N, (tc, nc), stats["seen"], stats["si_median"],
                           stats["si_p95"], failed, tuple(files), peak_rss_mb(),
                           T / el if el > 0 else float("nan"),
@@ -508,63 +511,6 @@ def _insitu_fit(cfg, grid, runs, vals, taps, nodes, offs, spots, unpainted, F, r
         return fit_stern_volmer(ratio, taps.pressure, cfg.p_ref)
     except InputError as e:
         raise InputError(f"{cfg.taps}: {e}") from None
-
-
-def _local_phase1(cfg, grid, runs, todo, spots, si, unpainted, store, R, t, done, fb, T, N,
-                  prog):
-    """Phase 1 in this process, committing blocks of ``fb`` frames; returns frame 0's
-    gains."""
-    block_v = np.empty((fb, N), np.float32)
-    block_r = np.empty((fb, N), np.float32)
-    a = done
-    gains0 = None
-    for fn in map_run(grid, runs, todo, spots=spots, registration=cfg.registration,
-                      patcher=cfg.target_patcher, overlap=cfg.overlap, filter=cfg.filter,
-                      filter_size=cfg.filter_size, max_obliqueness=cfg.oblique_angle, si=si,
-                      unpainted=unpainted, fast=cfg.fast):
-        k = fn.index
-        gains0 = fn.gains if gains0 is None else gains0
-        if k < done:
-            continue  # frame 0 again, already stored
-        block_v[k - a], block_r[k - a] = fn.values, fn.raw
-        for ci, cm in enumerate(fn.cameras):
-            R[ci, k], t[ci, k] = cm.R, cm.t
-        if k - a + 1 == fb or k == T - 1:  # a block of frames (whole chunk rows when the
-            # budget allows), committed
-            store.write_block(a, block_v[:k + 1 - a], block_r[:k + 1 - a], R[:, a:k + 1],
-                              t[:, a:k + 1])
-            a = k + 1
-        prog.frame(k + 1)
-    return gains0
-
-
-def _cluster_phase1(client, cfg, grid, runs, spots, unpainted, rho, F, store, R, t, done, fb,
-                    T, prog):
-    """Phase 1 on Dask: blocks of frames on the workers, written here as they finish;
-    returns frame 0's gains (mapped here, for the in-situ fit)."""
-    from selfillum.unsteady.cluster import Phase1Job, phase1_blocks
-
-    job = Phase1Job(str(cfg.grid), tuple(str(c.video) for c in cfg.cameras),
-                    tuple(r.camera for r in runs), tuple(r.number for r in runs),
-                    None if runs[0].poses is None else tuple(tuple(r.poses) for r in runs),
-                    spots, cfg.registration, cfg.target_patcher, cfg.overlap, cfg.filter,
-                    cfg.filter_size, cfg.oblique_angle, unpainted, rho, None, cfg.fast)
-    blocks = [(a, min(a + fb, T)) for a in range(done, T, fb)]
-    finished, prefix, count = set(), done, done
-    for a, vals, raw, Rb, tb in phase1_blocks(client, job, F, blocks):
-        b = a + len(vals)
-        finished.add(a)
-        while prefix in finished:  # frames_done: the blocks done from frame 0 on
-            prefix = min(prefix + fb, T)
-        R[:, a:b], t[:, a:b] = Rb, tb
-        store.write_block(a, vals, raw, Rb, tb, frames_done=prefix)
-        count += b - a
-        prog.frame(count)
-    fn = next(map_run(grid, runs, [0], spots=spots, registration="none",
-                      patcher=cfg.target_patcher, overlap=cfg.overlap, filter=cfg.filter,
-                      filter_size=cfg.filter_size, max_obliqueness=cfg.oblique_angle,
-                      unpainted=unpainted, fast=False))
-    return fn.gains
 
 
 def _write_run(f, cfg, grid, cond, cp, gain, vals, raw, times, frames, runs, R, t, tc, nc,
