@@ -73,8 +73,10 @@ def detrend(ratio, times, order: int = DETREND_ORDER) -> np.ndarray:
     out = np.full_like(y, np.nan)
     full = nfin == T
     if full.any() and T > order:
-        coef, *_ = np.linalg.lstsq(V, y[:, full], rcond=None)
-        out[:, full] = y[:, full] - V @ coef
+        # least squares by the pseudo-inverse of the (T, order + 1) Legendre basis: one
+        # product for every column (np.linalg.lstsq would factor V for each call)
+        yf = y[:, full]
+        out[:, full] = yf - V @ (np.linalg.pinv(V) @ yf)
     part = np.flatnonzero(~full & (nfin >= max(order + 2, (T + 1) // 2)))
     if part.size:  # weighted normal equations, all such columns at once
         w = fin[:, part].astype(np.float64)
