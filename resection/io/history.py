@@ -257,7 +257,7 @@ class HistoryWriter:
         if not np.isfinite(float(time)):
             raise InputError(f"time: must be finite, got {time}")
         try:
-            with _interrupt_after():  # Ctrl-C waits for the commit (never inside HDF5)
+            with interrupt_after():  # Ctrl-C waits for the commit (never inside HDF5)
                 self._append(v, float(time), camera, index, str(source))
         except BaseException:
             self._abandon()  # the file goes back to its last commit
@@ -345,7 +345,7 @@ class HistoryWriter:
 
 
 @contextlib.contextmanager
-def _interrupt_after():
+def interrupt_after():
     """Hold Ctrl-C (SIGINT) while the block runs and raise it when the block is done: a
     KeyboardInterrupt raised inside HDF5's calls into the journaled file could not be
     carried out of them. Only in the main thread (where Python delivers signals)."""

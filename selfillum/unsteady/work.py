@@ -124,10 +124,10 @@ class Phase1Store:
         """Commit frames ``a .. a + len(values)``: their node rows and poses
         (``R`` (C, n, 3, 3), ``t`` (C, n, 3)), then ``frames_done`` (default the block's
         end; blocks finishing out of order: the end of the blocks done from frame 0)."""
-        from resection.io.history import _interrupt_after
+        from resection.io.history import interrupt_after
 
         b = a + len(values)
-        with _interrupt_after():  # Ctrl-C waits for the commit (never inside HDF5)
+        with interrupt_after():  # Ctrl-C waits for the commit (never inside HDF5)
             f = self._f
             f["values"][a:b] = values
             f["raw"][a:b] = raw
