@@ -161,7 +161,7 @@ def _field(path: str, name: str | None, n_faces: int) -> tuple[str, np.ndarray]:
 def run_map(args: argparse.Namespace) -> int:
     from resection.camera.units import require_seen
     from resection.io.cameras import read_camera_file
-    from resection.io.images import read_image, read_native
+    from resection.io.images import read_native
     from resection.io.markers import read_markers
     from resection.io.meshes import load_mesh, write_surface
     from resection.pose.camera_fit import check_camera
@@ -179,30 +179,35 @@ def run_map(args: argparse.Namespace) -> int:
                          "come from the file names; rename or map them separately)")
     if len(args.camera) > 1:
         return _run_merge(args, names)
+    def native(path):
+        raw = read_native(path)
+        if raw.ndim != 2:
+            raise InputError(f"{path}: a stack of {raw.shape[0]} frames; map one image, or "
+                             "the sequence into a time history (--out P.h5)")
+        return raw
+
     mesh = load_mesh(args.mesh, format=args.mesh_format)
-    first = read_image(args.image[0])
+    first = native(args.image[0])  # read once: checked, then mapped
     cf = read_camera_file(args.camera[0], image_size=first.shape[::-1])
     camera = cf.camera
     smap = SurfaceMap(mesh, camera, max_obliqueness=args.max_obliqueness)
     markers = read_markers(args.markers) if args.markers else None
     for k, path in enumerate(args.image):  # units, image, markers: before any work
-        img = first if k == 0 else read_image(path)  # one image in memory at a time
-        line = check_camera(args.camera[0], cf, path, img, mesh.vertices, args.mesh,
-                            markers=markers, surface_map=smap, polarity=args.polarity)
+        raw = first if k == 0 else native(path)  # one more image in memory at a time
+        line = check_camera(args.camera[0], cf, path, raw.astype(np.float32), mesh.vertices,
+                            args.mesh, markers=markers, surface_map=smap,
+                            polarity=args.polarity)
         if line:
             print(line)
-    del first
     require_seen(smap.seen_faces.sum(), camera, mesh.vertices, "the mesh",
                  f"map: {args.camera} sees none of the {len(mesh.faces)} faces of {args.mesh}")
     fields = {}
     per_node = Path(args.out).suffix.lower() == ".f"  # Plot3D function file: node values
     n_sat = n_faces = 0
     level = None
-    for path in args.image:
-        raw = read_native(path)
-        if raw.ndim != 2:
-            raise InputError(f"{path}: a stack of {raw.shape[0]} frames; map one image, or "
-                             "the sequence into a time history (--out P.h5)")
+    for k, path in enumerate(args.image):
+        raw = first if k == 0 else native(path)
+        first = None
         level = level_of(raw.dtype, args.saturation)
         img, sat = mask_saturated(raw, level)  # unknown: in no value
         touched = faces_touched(smap.face_index, smap.mask, sat, len(mesh.faces))
