@@ -52,7 +52,8 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..errors import InputError
+from resection.errors import InputError
+from resection.io.text import read_text_lines
 
 __all__ = ["Deck", "DeckCamera", "read_deck", "PaintCalibration", "read_paint_calibration",
            "DECK_OPTIONS"]
@@ -141,12 +142,7 @@ def read_deck(path: str | os.PathLike, *, check_files: bool = True) -> Deck:
         file.
     """
     p = Path(path)
-    try:
-        lines = p.read_text(encoding="utf-8-sig").splitlines()
-    except FileNotFoundError:
-        raise InputError(f"input deck not found: {p}") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{p}: not a readable text input deck ({exc})") from None
+    lines = read_text_lines(p, "input deck", "input deck")
     section = None
     raw: dict[str, dict] = {"general": {}, "vars": {}, "all": {}, "options": {}, "output": {}}
     cams: list[dict] = []
@@ -272,13 +268,7 @@ def read_paint_calibration(path: str | os.PathLike) -> PaintCalibration:
         not a finite number, a coefficient given twice or missing (the message names it).
     """
     p = os.fspath(path)
-    try:
-        with open(p, encoding="utf-8-sig") as fh:
-            lines = fh.read().splitlines()
-    except FileNotFoundError:
-        raise InputError(f"paint calibration file not found: {p}") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{p}: not a readable text paint calibration ({exc})") from None
+    lines = read_text_lines(p, "paint calibration file", "paint calibration")
     vals: dict[str, float] = {}
     for lineno, line in enumerate(lines, 1):
         s = line.strip()

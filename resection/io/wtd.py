@@ -36,7 +36,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import InputError
+from resection.errors import InputError
+from resection.io.text import read_text_lines
 
 __all__ = ["WindTunnelData", "read_wtd", "is_wtd", "tap_name", "tap_candidates"]
 
@@ -117,13 +118,7 @@ def read_wtd(path: str | os.PathLike) -> WindTunnelData:
         ``number cp``, a tap listed twice. The message names the file and the line.
     """
     p = os.fspath(path)
-    try:
-        with open(p, encoding="utf-8-sig") as fh:
-            lines = fh.read().splitlines()
-    except FileNotFoundError:
-        raise InputError(f"wind-tunnel data file not found: {p}") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(f"{p}: not a readable text .wtd file ({exc})") from None
+    lines = read_text_lines(p, "wind-tunnel data file", ".wtd file")
     names: list[str] | None = None
     columns: dict[str, float] = {}
     taps: dict[int, float] = {}
