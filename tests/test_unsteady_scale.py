@@ -218,8 +218,10 @@ def test_run_spectra_pictures_budget_and_progress(run, capsys):
     # a budget of 0.05 MiB: blocks of a few frames and nodes, the same answer
     small = run.folder / "b.h5"
     assert _cli(run, small, "--memory", "0.05", "--no-plots", "--quiet") == 0
-    with h5py.File(small) as f:
-        np.testing.assert_array_equal(f["dcp"][()], d)
+    with h5py.File(small) as f:  # same NaN pattern; values to float32 rounding (the BLAS
+        # products of narrower blocks may round differently)
+        np.testing.assert_array_equal(np.isnan(f["dcp"][()]), np.isnan(d))
+        np.testing.assert_allclose(f["dcp"][()], d, rtol=1e-5, atol=1e-7)
         import json
 
         mem = json.loads(f.attrs["memory"])
@@ -374,4 +376,8 @@ def test_dask_two_workers_give_the_one_process_dcp(run, capsys):
     for name in ("w1", "w2"):
         with h5py.File(outs[name]) as f:
             for k, v in ref.items():
-                np.testing.assert_array_equal(f[k][()], v, err_msg=f"{name}: {k}")
+                got = f[k][()]  # same NaN pattern; values to float32 rounding (worker
+                # processes may run another BLAS thread count)
+                np.testing.assert_array_equal(np.isnan(got), np.isnan(v), err_msg=f"{name}: {k}")
+                np.testing.assert_allclose(got, v, rtol=1e-5, atol=1e-7 * np.nanmax(np.abs(v)),
+                                           err_msg=f"{name}: {k}")
