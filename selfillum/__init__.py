@@ -45,7 +45,7 @@ _EXPORTS: dict[str, str] = {
     "render": ".rendering.mitsuba_render",
     "enforce_reciprocity": ".transport.viewfactors",
     "view_factors": ".transport.viewfactors",
-    "UnsteadyConfig": ".unsteady.run",
+    "UnsteadyConfig": ".unsteady.config",
     "run_unsteady": ".unsteady.run",
 }
 

@@ -11,11 +11,15 @@ Modules, by concept:
   recovery temperature, steady pressure);
 - :mod:`~selfillum.unsteady.grid`: grid nodes in the grid file's order, the steady Cp;
 - :mod:`~selfillum.unsteady.spots`: targets, taps and Kulites masked or patched;
+- :mod:`~selfillum.unsteady.config`: the run's settings (flags or a deck) and its result;
+- :mod:`~selfillum.unsteady.inputs`: the videos opened and checked, poses from tracking;
 - :mod:`~selfillum.unsteady.registration`: uPSP's affine pixel registration;
 - :mod:`~selfillum.unsteady.phase1`: frames onto nodes (registration, spots, cameras
   combined, self-illumination removed);
 - :mod:`~selfillum.unsteady.phase2`: node intensities to dCp;
+- :mod:`~selfillum.unsteady.insitu`: the gain from the taps without a paint calibration;
 - :mod:`~selfillum.unsteady.output`: the HDF5 layout, XDMF, uPSP's flat files;
+- :mod:`~selfillum.unsteady.results`: the output file's content, Phase 2 written into it;
 - :mod:`~selfillum.unsteady.run`: :func:`run_unsteady`, the whole job.
 """
 
@@ -26,10 +30,10 @@ from resection._lazy import attach
 #: Public name -> submodule (loaded on first use, so the command line builds light).
 _EXPORTS: dict[str, str] = {
     "Conditions": ".conditions",
-    "CameraInput": ".run",
-    "UnsteadyConfig": ".run",
-    "UnsteadyResult": ".run",
-    "config_from_deck": ".run",
+    "CameraInput": ".config",
+    "UnsteadyConfig": ".config",
+    "UnsteadyResult": ".config",
+    "config_from_deck": ".config",
     "run_unsteady": ".run",
 }
 

@@ -15,11 +15,14 @@ paint calibration's) is
 
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 
 from resection.errors import InputError
+from selfillum.unsteady.phase1 import CameraRun, SelfIllumination, map_run
 
-__all__ = ["tap_nodes", "insitu_gain"]
+__all__ = ["tap_nodes", "insitu_gain", "insitu_inputs", "insitu_fit"]
 
 
 def tap_nodes(grid, points, ids, source: str = "taps", max_distance: float | None = None
@@ -56,3 +59,57 @@ def insitu_gain(law, cp_steady, conditions) -> np.ndarray:
 
     pss = steady_pressure(cp_steady, conditions.q, conditions.p_inf)
     return (law.A * law.p_ref / law.B + pss) / 144.0
+
+
+def insitu_inputs(cfg, grid):
+    """Taps, their grid nodes and the wind-off images, checked (no paint calibration)."""
+    from resection.io.images import read_image
+    from selfillum.images.psp import read_taps
+    from selfillum.unsteady.insitu import tap_nodes
+
+    if cfg.taps is None:
+        raise InputError("no paint calibration: give --paint-calibration CAL.txt (uPSP's a..f "
+                         "gain file), or --taps with --wind-off and --p-ref for the in-situ "
+                         "Stern-Volmer fit")
+    if not cfg.wind_off or len(cfg.wind_off) != len(cfg.cameras):
+        n = len(cfg.wind_off or [])
+        raise InputError(f"--taps: the in-situ fit needs one --wind-off image per camera "
+                         f"({len(cfg.cameras)} cameras, {n} images)")
+    if cfg.p_ref is None or not cfg.p_ref > 0:
+        raise InputError("--taps: the in-situ fit needs --p-ref (the wind-off pressure, psf)")
+    positions = cfg.tap_positions if cfg.tap_positions is not None else cfg.targets
+    taps = read_taps(cfg.taps, positions=positions)
+    nodes = tap_nodes(grid, taps.points, taps.ids, str(cfg.taps))
+    offs = [np.asarray(read_image(p), dtype=np.float64) for p in cfg.wind_off]
+    return taps, nodes, offs
+
+
+def insitu_fit(cfg, grid, runs, vals, taps, nodes, offs, spots, unpainted, F, rho, gains):
+    """Stern-Volmer ``A, B`` from the wind-off / time-mean intensity ratio at the taps."""
+    from selfillum.images.psp import fit_stern_volmer
+
+    order, inverse = np.unique(nodes, return_inverse=True)  # h5py reads sorted columns
+    with _quiet():
+        on = np.nanmean(vals[:, order], axis=0)[inverse]
+    off_runs = [CameraRun(r.number, r.camera, [img]) for r, img in zip(runs, offs,
+                                                                         strict=True)]
+    si = SelfIllumination(grid.mesh, F, rho, unpainted) if F is not None else None
+    fn = next(map_run(grid, off_runs, [0], spots=spots, registration="none",
+                      patcher=cfg.target_patcher, overlap=cfg.overlap, filter=cfg.filter,
+                      filter_size=cfg.filter_size, max_obliqueness=cfg.oblique_angle, si=si,
+                      unpainted=unpainted, gains=gains if cfg.overlap == "merge" else None))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = fn.values[nodes] / on
+    try:
+        return fit_stern_volmer(ratio, taps.pressure, cfg.p_ref)
+    except InputError as e:
+        raise InputError(f"{cfg.taps}: {e}") from None
+
+
+@contextlib.contextmanager
+def _quiet():
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        yield

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["node_to_faces", "plot_rms", "plot_psd"]
+__all__ = ["node_to_faces", "plot_rms", "plot_psd", "write_pictures"]
 
 
 def node_to_faces(triangles, node_values) -> np.ndarray:
@@ -64,3 +64,11 @@ def plot_psd(freq, probe_psd, probe_nodes, path, *, mean_psd=None, points=None):
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     return finish_figure(fig, path)
+
+
+def write_pictures(grid, rms, spectra, paths) -> None:
+    """The dCp RMS on the model and, with probes, their PSD (PNG)."""
+    plot_rms(grid, rms, paths[0])
+    if len(paths) > 1:
+        plot_psd(spectra.freq, spectra.probe_psd, spectra.probes, paths[1],
+                 mean_psd=spectra.mean_psd, points=grid.points)

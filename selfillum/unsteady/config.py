@@ -1,0 +1,186 @@
+"""The run's settings and its result: :class:`UnsteadyConfig` (the command's flags or a
+uPSP deck, :func:`config_from_deck`; checked by :func:`check_options`), :class:`CameraInput`
+and :class:`UnsteadyResult`."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from resection.errors import InputError
+from selfillum.unsteady.budget import DEFAULT_MEMORY_MB
+from selfillum.unsteady.options import FILTERS, OVERLAPS, REGISTRATIONS
+
+__all__ = ["CameraInput", "UnsteadyConfig", "UnsteadyResult", "config_from_deck",
+           "check_options"]
+
+
+@dataclass(frozen=True)
+class CameraInput:
+    """A camera: ``number``, ``video`` (a ``.cine``, ``.mraw``, TIFF/NPY stack) and
+    ``calibration`` (its camera file, pose of the first frame relative to the model)."""
+
+    number: int
+    video: Path
+    calibration: Path
+
+
+@dataclass
+class UnsteadyConfig:
+    """Everything a run needs (the command's flags or a uPSP deck, :func:`config_from_deck`).
+
+    ``registration``: ``track`` (each frame's own pose from the project's tracking, or
+    ``track_dirs``), ``first-frame`` (uPSP: affine pixel registration onto frame 0, its
+    map), ``none`` (a fixed model: frame 0's map). ``number_frames``: -1 for all.
+    ``reflectance``: a number or a per-face file. ``si``: remove the self-illumination.
+    Without ``paint_calibration``, the gain comes from the in-situ Stern-Volmer fit on the
+    ``taps`` (a ``.wtd`` or a tap file, placed by ``tap_positions`` or the targets file)
+    with one ``wind_off`` image per camera at pressure ``p_ref`` (psf)
+    (:mod:`selfillum.unsteady.insitu`).
+    ``psd_probes`` (node numbers), ``psd_bands``, ``psd_nperseg``: Welch spectra
+    (:mod:`selfillum.unsteady.spectra`). ``memory_mb``: the budget of the blocks
+    (:func:`selfillum.unsteady.budget.plan_blocks`). ``plots``: write the dCp RMS on the
+    model and the probes' PSD as PNG next to the output. ``fast``: Phase 1 by sparse
+    products after the first frame (:mod:`selfillum.unsteady.fastmap`); False maps every
+    frame the full way (a ray cast a frame). ``workers`` / ``scheduler``: Phase 1 and
+    Phase 2 on Dask (:mod:`selfillum.unsteady.cluster`).
+    """
+
+    grid: Path
+    sds: Path
+    cameras: list
+    out: Path
+    paint_calibration: Path | None = None
+    steady: Path | None = None
+    targets: Path | None = None
+    registration: str = "track"
+    target_patcher: str = "none"
+    overlap: str = "merge"
+    filter: str = "none"
+    filter_size: int = 3
+    oblique_angle: float = 70.0
+    number_frames: int = -1
+    si: bool = True
+    reflectance: object = 0.6
+    unpainted: object = None
+    rays: int = 1024
+    seed: int = 0
+    fps: float | None = None
+    tinf: float | None = None
+    upsp_flat: bool = False
+    track_dirs: list | None = None
+    taps: Path | None = None
+    tap_positions: Path | None = None
+    wind_off: list | None = None
+    p_ref: float | None = None
+    progress: bool = False
+    psd_probes: list = field(default_factory=list)
+    psd_bands: int = 8
+    psd_nperseg: int | None = None
+    memory_mb: float | None = DEFAULT_MEMORY_MB
+    plots: bool = True
+    resume: bool = False
+    fast: bool = True
+    workers: int | None = None
+    scheduler: str | None = None
+    general: dict = field(default_factory=dict)
+    source: str = "flags"
+
+
+@dataclass(frozen=True)
+class UnsteadyResult:
+    """What a run did: ``out`` (the HDF5 file), ``n_frames``, ``n_nodes``, ``chunks``,
+    ``seen`` (share of nodes with a dCp), ``si_change_median`` / ``si_change_p95`` (over
+    the seen nodes, of the RMS over time of the change of dCp by the SI removal; NaN
+    without SI), ``tracked_failed`` (frames whose pose was taken from the nearest good
+    frame), ``files`` (everything written), ``peak_rss_mb`` (the process's peak resident
+    memory, MiB), ``frames_per_s`` (frames over the whole run's time), ``blocks``
+    (frames per Phase 1 block, nodes per Phase 2 block), ``timings`` (seconds: ``setup``
+    = inputs, tracking, form factors; ``phase1``, of which ``first_frame`` (its maps and
+    the self-illumination's frame-0 solve); ``phase2`` = Phase 2 and the outputs)."""
+
+    out: Path
+    n_frames: int
+    n_nodes: int
+    chunks: tuple
+    seen: float
+    si_change_median: float
+    si_change_p95: float
+    tracked_failed: int
+    files: tuple
+    peak_rss_mb: float = float("nan")
+    frames_per_s: float = float("nan")
+    blocks: tuple = ()
+    timings: dict = field(default_factory=dict)
+
+
+_DECK_REGISTRATION = {"pixel": "first-frame", "none": "none", "track": "track",
+                      "first-frame": "first-frame"}
+
+
+def config_from_deck(deck, **overrides) -> UnsteadyConfig:
+    """An :class:`UnsteadyConfig` from a :class:`resection.io.upsp_inputs.Deck`; the
+    ``@options`` are honoured or refused by name; ``overrides`` (not None) win."""
+    where = f"{deck.path}: @options"
+    opts = dict(deck.options)
+    kw: dict = {}
+    if "target_patcher" in opts:
+        kw["target_patcher"] = opts["target_patcher"]
+    if "registration" in opts:
+        r = opts["registration"]
+        if r not in _DECK_REGISTRATION:
+            raise InputError(f"{where} registration = {r}: unknown (pixel, none, track)")
+        kw["registration"] = _DECK_REGISTRATION[r]
+    if opts.get("pixel_interpolation", "linear") != "linear":
+        raise InputError(f"{where} pixel_interpolation = {opts['pixel_interpolation']}: "
+                         "only linear is supported")
+    if "overlap" in opts:
+        kw["overlap"] = opts["overlap"]
+    if "filter" in opts:
+        kw["filter"] = opts["filter"]
+    for key, conv in (("filter_size", int), ("oblique_angle", float), ("number_frames", int)):
+        if key in opts:
+            try:
+                kw[key] = conv(opts[key])
+            except ValueError:
+                raise InputError(f"{where} {key} = {opts[key]}: not a number") from None
+    kw.update({k: v for k, v in overrides.items() if v is not None})
+    cams = [CameraInput(c.number, c.video, c.calibration) for c in deck.cameras]
+    tg = {c.targets for c in deck.cameras if c.targets is not None}
+    if len(tg) > 1:
+        raise InputError(f"{deck.path}: cameras name different targets files; one .tgts "
+                         "for the model")
+    targets = tg.pop() if tg else deck.targets
+    out = kw.pop("out", None)
+    if out is None:
+        raise InputError(f"{deck.path}: give --out OUT.h5")
+    return UnsteadyConfig(grid=deck.grid, sds=deck.sds, cameras=cams, targets=targets,
+                          out=Path(out), general=dict(deck.general), source=str(deck.path),
+                          **kw)
+
+
+def check_options(cfg: UnsteadyConfig) -> None:
+    """Each option honoured or refused by name (:class:`InputError`)."""
+    where = cfg.source
+    if cfg.registration not in REGISTRATIONS:
+        raise InputError(f"{where}: registration {cfg.registration!r} unknown (one of "
+                         f"{', '.join(REGISTRATIONS)})")
+    if cfg.target_patcher not in ("none", "polynomial"):
+        raise InputError(f"{where}: target_patcher {cfg.target_patcher!r} unknown (none, "
+                         "polynomial)")
+    if cfg.overlap not in OVERLAPS:
+        raise InputError(f"{where}: overlap {cfg.overlap!r} unknown (one of "
+                         f"{', '.join(OVERLAPS)})")
+    if cfg.filter not in FILTERS:
+        raise InputError(f"{where}: filter {cfg.filter!r} unknown (none, gaussian)")
+    if cfg.filter == "gaussian" and (cfg.filter_size < 3 or cfg.filter_size % 2 == 0):
+        raise InputError(f"{where}: filter_size {cfg.filter_size} must be odd and >= 3")
+    if not 0 < cfg.oblique_angle <= 90:
+        raise InputError(f"{where}: oblique_angle {cfg.oblique_angle} must be in (0, 90]")
+    if cfg.number_frames == 0 or cfg.number_frames < -1:
+        raise InputError(f"{where}: number_frames {cfg.number_frames} must be -1 (all) or > 0")
+    if not cfg.cameras:
+        raise InputError(f"{where}: no camera")
+    if cfg.out.suffix.lower() not in (".h5", ".hdf5"):
+        raise InputError(f"{cfg.out}: the output is an HDF5 file (.h5)")
+
