@@ -80,13 +80,6 @@ class RayScene:
 TRACERS = ("embree", "mitsuba")
 
 
-def _scene(tracer: str, vertices: np.ndarray, faces: np.ndarray):
-    """The scene of ``tracer``: Embree's, or Mitsuba's (OptiX on a GPU, else LLVM)."""
-    if tracer == "mitsuba":
-        from selfillum.transport.mitsuba_rays import MitsubaRayScene
-
-        return MitsubaRayScene(vertices, faces)
-    return RayScene(vertices, faces)
 
 
 @dataclass(frozen=True)
@@ -101,6 +94,18 @@ class _Job:
     seed: int
     offset: float
     two_sided: bool
+
+
+def _scene(tracer: str, job: _Job, launch: int | None):
+    """The scene of ``tracer``: Embree's, or Mitsuba's (OptiX on a GPU, else LLVM), which
+    also samples the rays and sums them into ``F`` in Dr.Jit (``launch`` faces at once)."""
+    if tracer == "mitsuba":
+        from selfillum.transport.mitsuba_factors import MitsubaFactorTracer
+
+        return MitsubaFactorTracer(job.vertices, job.faces, job.normals, job.k, job.seed,
+                                   offset=job.offset, two_sided=job.two_sided,
+                                   faces_per_launch=launch)
+    return RayScene(job.vertices, job.faces)
 
 
 def _trace_rows(job: _Job, scene: RayScene, rows: np.ndarray):
@@ -284,6 +289,7 @@ class RowTracer:
                         _OFFSET * size, bool(two_sided))
         rows = self.n if n_rows is None else int(n_rows)
         self.nproc = 1 if tracer == "mitsuba" else _workers(workers, -(-rows // self.chunk))
+        self._launch = None if chunk_size is None else self.chunk  # faces a Dr.Jit launch
         self._scene = self._pool = None
 
     def __enter__(self) -> RowTracer:
@@ -300,7 +306,9 @@ class RowTracer:
             self._pool = None
 
     def _start(self) -> None:
-        self._scene = _scene(self.tracer, self.job.vertices, self.job.faces)
+        self._scene = _scene(self.tracer, self.job, self._launch)
+        if self.tracer == "mitsuba":
+            return
         # Embree builds the scene on its first query: do it now, before threads query it
         # at once; and compile (or load) the kernels once, before the threads call them
         j = self.job
@@ -320,6 +328,8 @@ class RowTracer:
         todo = _as_rows(rows, self.n)
         if self._scene is None:
             self._start()
+        if self.tracer == "mitsuba":  # sampled, traced and summed in Dr.Jit
+            return self._scene.rows(todo, progress=progress)
         # as many chunks of at most ``chunk`` faces as it takes, a multiple of the
         # workers, of equal size: no worker idles while another traces a last chunk
         n_chunks = -(-todo.size // self.chunk)

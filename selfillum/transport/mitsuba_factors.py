@@ -1,0 +1,289 @@
+"""Rows of the form factors ``F`` made where Mitsuba traces the rays: sampling, tracing and
+accumulation in Dr.Jit arrays (OptiX on a CUDA GPU, Dr.Jit's LLVM backend on the CPU).
+
+:func:`selfillum.view_factors` with ``tracer="mitsuba"`` uses :class:`MitsubaFactorTracer`.
+Each launch covers a block of faces and runs, for its ``n K`` rays, one Dr.Jit kernel that
+
+1. makes the rays of :func:`selfillum.transport.sampling.sample_rays` (the same Sobol points
+   of Joe and Kuo's table, the same per-face Owen scramble keyed on the face index and the
+   seed, the same float32 arithmetic: uniform points of the face lifted by the offset,
+   cosine-distributed directions; only ``sin``/``cos``, Dr.Jit's own, may differ from
+   NumPy's by an ulp);
+2. traces them (``Scene.ray_intersect_preliminary``);
+3. drops misses, hits on the ray's own face and (one-sided) hits on a face's back, as the
+   Embree path does;
+4. adds each kept ray to the count of its (emitting face, hit face) pair in a hash table
+   of ``T`` slots a face (``T`` the power of two at or above ``2 K``: at most half full),
+   by lock-free linear probing with ``dr.scatter_cas`` and an atomic ``dr.scatter_reduce``
+   of the counts.
+
+Nothing is kept per ray, and nothing goes back to NumPy per ray: a second pass compacts
+the occupied slots (``dr.compress``), sorts each row's pairs by hit face (``dr.argsort``
+of 64-bit keys) and counts the pairs of each row (``dr.block_sum``); only these per-pair
+sums (hit face, count) and per-row lengths come back to build the SciPy CSR matrix. The
+counts are integers, so ``F`` does not depend on the order of the atomic operations (nor
+on the thread count or the device). A launch holds about ``16 T / K`` bytes a ray (the
+table and its counts): the default launch of ``2**24`` rays about 512 MB at most.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import scipy.sparse as sp
+
+from resection.errors import InputError
+from resection.memory import check_memory
+from selfillum.transport.mitsuba_rays import MitsubaRayScene
+from selfillum.transport.sampling import _sobol_base, _tangent_frames, digital_shifts
+
+__all__ = ["MitsubaFactorTracer", "RAYS_PER_LAUNCH"]
+
+#: Rays in one launch by default (their hash tables take about 16 T / K bytes a ray).
+RAYS_PER_LAUNCH = 1 << 24
+#: An empty slot of the hash table (no face has this index).
+_EMPTY = 0xFFFFFFFF
+#: Knuth's multiplicative hash (2**32 / golden ratio), for the first slot of a hit face.
+_GOLDEN = 0x9E3779B1
+#: The Laine-Karras constants of the Owen scramble (as in ``sampling._owen``).
+_LK = (0x6C50B47C, 0xB82F1E52, 0xC7AFE638, 0x8D22F6E6)
+
+
+def _table_bits(k: int) -> int:
+    """``log2 T``: slots a face, the power of two at or above ``2 k``."""
+    return max(1, int(np.ceil(np.log2(2 * k))))
+
+
+class MitsubaFactorTracer:
+    """Rows of ``F`` sampled, traced and accumulated in Dr.Jit (see the module).
+
+    Parameters
+    ----------
+    vertices : (V, 3) array_like
+        Vertex coordinates (model units).
+    faces : (N, 3) array_like of int
+        Triangles; their painted side by the right-hand rule.
+    normals : (N, 3) array_like
+        Unit face normals (painted side), float64.
+    rays_per_face : int
+        ``K``; each kept ray adds ``1/K``.
+    seed : int
+        Seed of the RQMC scramble (as :func:`selfillum.view_factors`).
+    offset : float
+        Lift of the ray origins off their face, model units.
+    two_sided : bool
+        As :func:`selfillum.view_factors`.
+    variant : str, optional
+        See :func:`selfillum.transport.mitsuba_rays.tracing_variant`.
+    faces_per_launch : int, optional
+        Faces traced in one launch; default about ``2**24 / K`` (see :data:`RAYS_PER_LAUNCH`).
+
+    Attributes
+    ----------
+    scene : MitsubaRayScene
+        The Mitsuba scene (its ``origin`` is the centre of the mesh's box; rays are traced
+        relative to it, in float32).
+    """
+
+    def __init__(self, vertices, faces, normals, rays_per_face: int, seed: int = 0, *,
+                 offset: float = 0.0, two_sided: bool = False, variant: str | None = None,
+                 faces_per_launch: int | None = None):
+        self.scene = MitsubaRayScene(vertices, faces, variant=variant)
+        self.n = self.scene.n_faces
+        self.k = int(rays_per_face)
+        if self.k < 1:
+            raise InputError(f"rays_per_face: expected a positive integer, got {rays_per_face}")
+        self.bits = _table_bits(self.k)
+        self.launch = (max(1, RAYS_PER_LAUNCH // self.k) if faces_per_launch is None
+                       else int(faces_per_launch))
+        if self.launch < 1:
+            raise InputError(f"faces_per_launch: expected a positive integer, got "
+                             f"{faces_per_launch}")
+        if self.launch * self.k >= 1 << 31 or self.launch << self.bits >= 1 << 31:
+            raise InputError(f"tracer mitsuba: {self.launch} faces of {self.k} rays are too "
+                             "many for one launch (32-bit indices)")
+        if self.n >= _EMPTY:
+            raise InputError(f"tracer mitsuba: {self.n} faces are too many (32-bit indices)")
+        self.two_sided = bool(two_sided)
+        self.dims = 5 if self.two_sided else 4
+        self.offset = np.float32(offset)
+        f32 = np.float32
+        v = np.asarray(vertices, dtype=np.float64)
+        tri = (v[np.asarray(faces, dtype=np.int64)] - self.scene.origin).astype(f32)
+        nrm = np.asarray(normals, dtype=np.float64)
+        t1, t2 = _tangent_frames(nrm)
+        centre = (tri[:, 0] + tri[:, 1] + tri[:, 2]) / f32(3.0)
+        per_face = {"v0": tri[:, 0], "e1": tri[:, 1] - tri[:, 0], "e2": tri[:, 2] - tri[:, 0],
+                    "c": centre, "n": nrm.astype(f32), "t1": t1.astype(f32),
+                    "t2": t2.astype(f32)}
+        base = _sobol_base(self.k, self.dims)  # (k, dims) uint32
+        # the scramble works on bit-reversed Sobol integers (``sampling._reversed_base``)
+        rbase = _reverse_bits(base)
+        keys = digital_shifts(int(seed), np.arange(self.n), self.dims)
+        mi, dr = self.scene._mi, self.scene._dr
+        with self.scene._variant():
+            self._face = {name: _vector(mi, a) for name, a in per_face.items()}
+            self._rbase = mi.UInt32(np.ascontiguousarray(rbase).ravel())
+            self._keys = mi.UInt32(np.ascontiguousarray(keys).ravel())
+            dr.eval(self._face, self._rbase, self._keys)
+
+    # ------------------------------------------------------------------ the rays
+    def _rays(self, face, local):
+        """Dr.Jit rays of the chunk: ``face`` (UInt32 per ray, global face index) and
+        ``local`` (UInt32 per ray, the sample index within the face). Returns the ray and
+        the side (+1/-1 Float)."""
+        mi, dr = self.scene._mi, self.scene._dr
+        UInt32, Float = mi.UInt32, mi.Float
+
+        def point(d):
+            xr = dr.gather(UInt32, self._rbase, local * self.dims + d)
+            x = xr + dr.gather(UInt32, self._keys, face * self.dims + d)
+            for c in _LK:
+                x ^= x * c
+            x = dr.brev(x)
+            return (Float(x >> 8) + 0.5) * (2.0 ** -24)
+
+        g = {name: dr.gather(mi.Vector3f, a, face) for name, a in self._face.items()}
+        p0, p1, p2, p3 = (point(d) for d in range(4))
+        sd = Float(1.0)
+        if self.two_sided:
+            sd = dr.select(point(4) >= 0.5, -1.0, 1.0)
+        sa = dr.sqrt(p0)
+        w2 = sa * p1
+        w1 = sa - w2
+        o = g["v0"] + w1 * g["e1"] + w2 * g["e2"]
+        off = float(self.offset)
+        if off > 0:
+            to_c = g["c"] - o
+            d = dr.sqrt(dr.squared_norm(to_c))
+            lift = off / dr.maximum(d, off)
+            o = o + (to_c * lift + (sd * off) * g["n"])
+        rr = dr.sqrt(p2)
+        s, c = dr.sincos(p3 * float(np.float32(2.0 * np.pi)))
+        lz = dr.sqrt(dr.maximum(0.0, 1.0 - p2)) * sd
+        direction = (rr * c) * g["t1"] + (rr * s) * g["t2"] + lz * g["n"]
+        return mi.Ray3f(mi.Point3f(o), mi.Vector3f(direction)), sd
+
+    def _chunk_indices(self, rows: np.ndarray):
+        """Per ray of a chunk of faces: its global face and its sample index."""
+        mi, dr = self.scene._mi, self.scene._dr
+        ids = mi.UInt32(np.ascontiguousarray(rows, dtype=np.uint32))
+        r = dr.arange(mi.UInt32, rows.size * self.k)
+        row = r // self.k
+        return row, dr.gather(mi.UInt32, ids, row), r - row * self.k
+
+    def rays(self, rows) -> tuple[np.ndarray, np.ndarray]:
+        """The rays of faces ``rows`` as NumPy ``(n K, 3)`` float32 origins and directions
+        (relative to :attr:`scene` ``.origin``), for tests and benchmarks: the same rays
+        :meth:`rows` traces."""
+        rows = np.asarray(rows, dtype=np.int64)
+        with self.scene._variant():
+            _, face, local = self._chunk_indices(rows)
+            ray, _ = self._rays(face, local)
+            return np.asarray(ray.o).T.copy(), np.asarray(ray.d).T.copy()
+
+    def device_rays(self, rows):
+        """The rays of faces ``rows`` as an evaluated Mitsuba ``Ray3f`` (on the device),
+        for benchmarks that trace the same rays bare."""
+        rows = np.asarray(rows, dtype=np.int64)
+        with self.scene._variant():
+            _, face, local = self._chunk_indices(rows)
+            ray, _ = self._rays(face, local)
+            self.scene._dr.eval(ray)
+            return ray
+
+    # ------------------------------------------------------------------ one launch
+    def _launch(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per-pair sums of the faces ``rows`` (sorted): ``(nnz per row, hit faces, counts)``,
+        the pairs grouped by row in the order of ``rows`` and sorted by hit face."""
+        mi, dr = self.scene._mi, self.scene._dr
+        UInt32 = mi.UInt32
+        t = 1 << self.bits
+        row, face, local = self._chunk_indices(rows)
+        ray, _ = self._rays(face, local)
+        pi = self.scene._scene.ray_intersect_preliminary(ray, coherent=False)
+        hit = UInt32(pi.prim_index)
+        keep = pi.is_valid() & (hit != face)
+        if not self.two_sided:  # a ray arriving on the unpainted side is absorbed there
+            n_hit = dr.gather(mi.Vector3f, self._face["n"], hit, keep)
+            keep &= dr.dot(ray.d, n_hit) < 0
+        # linear probing, each kept ray inserting its hit face into its row's table
+        table = dr.full(UInt32, _EMPTY, rows.size * t)
+        counts = dr.zeros(UInt32, rows.size * t)
+        base = row << self.bits
+        slot = (hit * _GOLDEN) >> (32 - self.bits)
+
+        def probing(slot, done):
+            return ~done
+
+        def probe(slot, done):
+            old, ok = dr.scatter_cas(table, UInt32(_EMPTY), hit, base + slot, active=~done)
+            done = done | ok | (old == hit)
+            return dr.select(done, slot, (slot + 1) & (t - 1)), done
+
+        slot, _ = dr.while_loop((slot, ~keep), probing, probe, labels=("slot", "done"))
+        dr.scatter_reduce(dr.ReduceOp.Add, counts, UInt32(1), base + slot, active=keep)
+        dr.eval(table, counts)
+        # the occupied slots, each row's pairs sorted by hit face
+        occupied = table != _EMPTY
+        per_row = dr.block_sum(UInt32(occupied), t)
+        where = dr.compress(occupied)
+        key = (mi.UInt64(where >> self.bits) << 32) | mi.UInt64(dr.gather(UInt32, table, where))
+        order = dr.gather(UInt32, where, dr.argsort(key))
+        cols = dr.gather(UInt32, table, order)
+        cnt = dr.gather(UInt32, counts, order)
+        dr.eval(per_row, cols, cnt)
+        return (np.asarray(per_row, dtype=np.int64), np.asarray(cols, dtype=np.int32),
+                np.asarray(cnt))
+
+    def rows(self, rows, progress: bool | Callable | None = None) -> sp.csr_matrix:
+        """``F`` with only ``rows`` (sorted unique face indices) filled, ``(N, N)`` CSR with
+        sorted indices; ``progress`` as in :func:`selfillum.view_factors`."""
+        todo = np.asarray(rows, dtype=np.int64)
+        check_memory(min(self.launch, max(todo.size, 1)) * float(8 << self.bits),
+                     f"view factors with {self.k} rays per face (tracer mitsuba)")
+        bar = None
+        if progress is True:
+            from tqdm.auto import tqdm
+
+            bar = tqdm(total=todo.size, desc="view factors", unit="face", leave=False)
+        nnz = np.zeros(self.n, dtype=np.int64)
+        cols, cnts = [], []
+        with self.scene._variant():
+            for a in range(0, todo.size, self.launch):
+                part = todo[a:a + self.launch]
+                per_row, c, w = self._launch(part)
+                nnz[part] = per_row
+                cols.append(c)
+                cnts.append(w)
+                done = a + part.size
+                if bar is not None:
+                    bar.update(part.size)
+                elif callable(progress):
+                    progress(done, todo.size)
+        if bar is not None:
+            bar.close()
+        indptr = np.zeros(self.n + 1, dtype=np.int64)
+        np.cumsum(nnz, out=indptr[1:])
+        indices = np.concatenate(cols) if cols else np.zeros(0, np.int32)
+        data = (np.concatenate(cnts).astype(np.float64) if cnts else np.zeros(0)) / self.k
+        F = sp.csr_matrix((data, indices, indptr), shape=(self.n, self.n))
+        F.has_sorted_indices = True  # each row sorted on the device
+        return F
+
+
+def _vector(mi, a: np.ndarray):
+    """A Dr.Jit ``Vector3f`` of the rows of an ``(n, 3)`` float32 array."""
+    a = np.asarray(a, dtype=np.float32)
+    return mi.Vector3f(*(mi.Float(np.ascontiguousarray(a[:, c])) for c in range(3)))
+
+
+def _reverse_bits(x: np.ndarray) -> np.ndarray:
+    """The 32 bits of each uint32 reversed (vectorised)."""
+    x = np.asarray(x, dtype=np.uint32).copy()
+    for shift, mask in ((1, 0x55555555), (2, 0x33333333), (4, 0x0F0F0F0F), (8, 0x00FF00FF)):
+        m = np.uint32(mask)
+        s = np.uint32(shift)
+        x = ((x >> s) & m) | ((x & m) << s)
+    return (x >> np.uint32(16)) | (x << np.uint32(16))
