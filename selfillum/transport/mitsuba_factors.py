@@ -36,7 +36,7 @@ import scipy.sparse as sp
 from resection.errors import InputError
 from resection.memory import check_memory
 from selfillum.transport.mitsuba_rays import MitsubaRayScene
-from selfillum.transport.sampling import _sobol_base, _tangent_frames, digital_shifts
+from selfillum.transport.sampling import _sobol_base, digital_shifts
 
 __all__ = ["MitsubaFactorTracer", "RAYS_PER_LAUNCH"]
 
@@ -112,11 +112,10 @@ class MitsubaFactorTracer:
         v = np.asarray(vertices, dtype=np.float64)
         tri = (v[np.asarray(faces, dtype=np.int64)] - self.scene.origin).astype(f32)
         nrm = np.asarray(normals, dtype=np.float64)
-        t1, t2 = _tangent_frames(nrm)
-        centre = (tri[:, 0] + tri[:, 1] + tri[:, 2]) / f32(3.0)
+        # 12 floats a face (gathers cost more than arithmetic: the centre and the tangent
+        # frame are rebuilt per ray)
         per_face = {"v0": tri[:, 0], "e1": tri[:, 1] - tri[:, 0], "e2": tri[:, 2] - tri[:, 0],
-                    "c": centre, "n": nrm.astype(f32), "t1": t1.astype(f32),
-                    "t2": t2.astype(f32)}
+                    "n": nrm.astype(f32)}
         base = _sobol_base(self.k, self.dims)  # (k, dims) uint32
         # the scramble works on bit-reversed Sobol integers (``sampling._reversed_base``)
         rbase = _reverse_bits(base)
@@ -127,6 +126,7 @@ class MitsubaFactorTracer:
             self._rbase = mi.UInt32(np.ascontiguousarray(rbase).ravel())
             self._keys = mi.UInt32(np.ascontiguousarray(keys).ravel())
             dr.eval(self._face, self._rbase, self._keys)
+        self._buffers = None
 
     # ------------------------------------------------------------------ the rays
     def _rays(self, face, local):
@@ -155,14 +155,15 @@ class MitsubaFactorTracer:
         o = g["v0"] + w1 * g["e1"] + w2 * g["e2"]
         off = float(self.offset)
         if off > 0:
-            to_c = g["c"] - o
+            to_c = g["v0"] + (g["e1"] + g["e2"]) * (1.0 / 3.0) - o
             d = dr.sqrt(dr.squared_norm(to_c))
             lift = off / dr.maximum(d, off)
             o = o + (to_c * lift + (sd * off) * g["n"])
         rr = dr.sqrt(p2)
         s, c = dr.sincos(p3 * float(np.float32(2.0 * np.pi)))
         lz = dr.sqrt(dr.maximum(0.0, 1.0 - p2)) * sd
-        direction = (rr * c) * g["t1"] + (rr * s) * g["t2"] + lz * g["n"]
+        t1, t2 = _frame(mi, dr, g["n"])
+        direction = (rr * c) * t1 + (rr * s) * t2 + lz * g["n"]
         return mi.Ray3f(mi.Point3f(o), mi.Vector3f(direction)), sd
 
     def _chunk_indices(self, rows: np.ndarray):
@@ -194,12 +195,26 @@ class MitsubaFactorTracer:
             return ray
 
     # ------------------------------------------------------------------ one launch
+    def _tables(self, n_rows: int):
+        """The buffers of a launch of ``n_rows`` faces, kept from one launch to the next:
+        the hash tables (empty) and their counts, and four lists of up to ``n_rows K``
+        entries (the kept rays' rows and hit faces, the pairs' slots and ranks)."""
+        mi, dr = self.scene._mi, self.scene._dr
+        if self._buffers is None or dr.width(self._buffers[0]) < n_rows << self.bits:
+            size = n_rows << self.bits
+            self._buffers = (dr.full(mi.UInt32, _EMPTY, size), dr.zeros(mi.UInt32, size),
+                             *(dr.empty(mi.UInt32, n_rows * self.k) for _ in range(4)))
+            dr.eval(self._buffers)
+        return self._buffers
+
     def _launch(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Per-pair sums of the faces ``rows`` (sorted): ``(nnz per row, hit faces, counts)``,
-        the pairs grouped by row in the order of ``rows`` and sorted by hit face."""
+        """Per-pair sums of the faces ``rows``: ``(nnz per row, hit faces, counts)``, the
+        pairs grouped by row in the order of ``rows`` (within a row, in no set order)."""
         mi, dr = self.scene._mi, self.scene._dr
         UInt32 = mi.UInt32
         t = 1 << self.bits
+        table, counts, kept_row, kept_hit, pair_slot, pair_rank = self._tables(rows.size)
+        # kernel 1: sample, trace, filter; the kept rays listed (stream compaction)
         row, face, local = self._chunk_indices(rows)
         ray, _ = self._rays(face, local)
         pi = self.scene._scene.ray_intersect_preliminary(ray, coherent=False)
@@ -208,32 +223,51 @@ class MitsubaFactorTracer:
         if not self.two_sided:  # a ray arriving on the unpainted side is absorbed there
             n_hit = dr.gather(mi.Vector3f, self._face["n"], hit, keep)
             keep &= dr.dot(ray.d, n_hit) < 0
-        # linear probing, each kept ray inserting its hit face into its row's table
-        table = dr.full(UInt32, _EMPTY, rows.size * t)
-        counts = dr.zeros(UInt32, rows.size * t)
+        n_kept = dr.zeros(UInt32, 1)
+        at = dr.scatter_inc(n_kept, UInt32(0), active=keep)
+        dr.scatter(kept_row, row, at, active=keep)
+        dr.scatter(kept_hit, hit, at, active=keep)
+        dr.eval(kept_row, kept_hit, n_kept)
+        # kernel 2: each kept ray adds one to its (row, hit face) pair in its row's table
+        m = dr.arange(UInt32, int(n_kept[0]))
+        row = dr.gather(UInt32, kept_row, m)
+        hit = dr.gather(UInt32, kept_hit, m)
         base = row << self.bits
         slot = (hit * _GOLDEN) >> (32 - self.bits)
 
-        def probing(slot, done):
+        def probing(slot, done, new):
             return ~done
 
-        def probe(slot, done):
+        def probe(slot, done, new):  # linear probing: claim an empty slot or find the pair
             old, ok = dr.scatter_cas(table, UInt32(_EMPTY), hit, base + slot, active=~done)
             done = done | ok | (old == hit)
-            return dr.select(done, slot, (slot + 1) & (t - 1)), done
+            return dr.select(done, slot, (slot + 1) & (t - 1)), done, new | ok
 
-        slot, _ = dr.while_loop((slot, ~keep), probing, probe, labels=("slot", "done"))
-        dr.scatter_reduce(dr.ReduceOp.Add, counts, UInt32(1), base + slot, active=keep)
+        slot, _, new = dr.while_loop((slot, dr.zeros(mi.Bool, dr.width(m)),
+                                      dr.zeros(mi.Bool, dr.width(m))),
+                                     probing, probe, labels=("slot", "done", "new"))
+        slot = base + slot
+        dr.scatter_reduce(dr.ReduceOp.Add, counts, UInt32(1), slot)
+        # the ray that made a pair lists its slot and its rank in the row
+        n_pairs = dr.zeros(UInt32, 1)
+        per_row = dr.zeros(UInt32, rows.size)
+        at = dr.scatter_inc(n_pairs, UInt32(0), active=new)
+        dr.scatter(pair_slot, slot, at, active=new)
+        dr.scatter(pair_rank, dr.scatter_inc(per_row, row, active=new), at, active=new)
+        dr.eval(table, counts, pair_slot, pair_rank, per_row, n_pairs)
+        # kernel 3: the pairs in CSR order (row by row); then the tables emptied
+        pairs = dr.arange(UInt32, int(n_pairs[0]))
+        where = dr.gather(UInt32, pair_slot, pairs)
+        dest = (dr.gather(UInt32, dr.prefix_sum(per_row), where >> self.bits)
+                + dr.gather(UInt32, pair_rank, pairs))
+        cols = dr.zeros(UInt32, dr.width(pairs))
+        cnt = dr.zeros(UInt32, dr.width(pairs))
+        dr.scatter(cols, dr.gather(UInt32, table, where), dest)
+        dr.scatter(cnt, dr.gather(UInt32, counts, where), dest)
+        dr.eval(cols, cnt)
+        dr.scatter(table, UInt32(_EMPTY), where)
+        dr.scatter(counts, UInt32(0), where)
         dr.eval(table, counts)
-        # the occupied slots, each row's pairs sorted by hit face
-        occupied = table != _EMPTY
-        per_row = dr.block_sum(UInt32(occupied), t)
-        where = dr.compress(occupied)
-        key = (mi.UInt64(where >> self.bits) << 32) | mi.UInt64(dr.gather(UInt32, table, where))
-        order = dr.gather(UInt32, where, dr.argsort(key))
-        cols = dr.gather(UInt32, table, order)
-        cnt = dr.gather(UInt32, counts, order)
-        dr.eval(per_row, cols, cnt)
         return (np.asarray(per_row, dtype=np.int64), np.asarray(cols, dtype=np.int32),
                 np.asarray(cnt))
 
@@ -251,8 +285,10 @@ class MitsubaFactorTracer:
         nnz = np.zeros(self.n, dtype=np.int64)
         cols, cnts = [], []
         with self.scene._variant():
-            for a in range(0, todo.size, self.launch):
-                part = todo[a:a + self.launch]
+            # launches of equal size (the tables are allocated once, for the first)
+            step = max(1, -(-todo.size // max(1, -(-todo.size // self.launch))))
+            for a in range(0, todo.size, step):
+                part = todo[a:a + step]
                 per_row, c, w = self._launch(part)
                 nnz[part] = per_row
                 cols.append(c)
@@ -269,8 +305,18 @@ class MitsubaFactorTracer:
         indices = np.concatenate(cols) if cols else np.zeros(0, np.int32)
         data = (np.concatenate(cnts).astype(np.float64) if cnts else np.zeros(0)) / self.k
         F = sp.csr_matrix((data, indices, indptr), shape=(self.n, self.n))
-        F.has_sorted_indices = True  # each row sorted on the device
+        F.has_sorted_indices = False  # each row's columns are unique, in hash order
         return F
+
+
+def _frame(mi, dr, n):
+    """The tangent frame of :func:`selfillum.transport.sampling._tangent_frames`, per
+    ray in float32: ``t1 = n x h / |n x h|`` (``h = x``, or ``y`` when ``|n_x| >= 0.9``),
+    ``t2 = n x t1``."""
+    x_axis = dr.abs(n.x) < 0.9
+    h = mi.Vector3f(dr.select(x_axis, 1.0, 0.0), dr.select(x_axis, 0.0, 1.0), 0.0)
+    t1 = dr.normalize(dr.cross(n, h))
+    return t1, dr.cross(n, t1)
 
 
 def _vector(mi, a: np.ndarray):
