@@ -228,6 +228,8 @@ class MitsubaFactorTracer:
         dr.scatter(kept_row, row, at, active=keep)
         dr.scatter(kept_hit, hit, at, active=keep)
         dr.eval(kept_row, kept_hit, n_kept)
+        if n_kept[0] == 0:  # nothing hit: empty rows
+            return np.zeros(rows.size, np.int64), np.zeros(0, np.int32), np.zeros(0, np.uint32)
         # kernel 2: each kept ray adds one to its (row, hit face) pair in its row's table
         m = dr.arange(UInt32, int(n_kept[0]))
         row = dr.gather(UInt32, kept_row, m)
