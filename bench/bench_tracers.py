@@ -2,11 +2,22 @@
 the same rays over threads) against Mitsuba / Dr.Jit (``selfillum.transport.mitsuba_rays``: OptiX
 with the ``cuda_ad_rgb`` variant on a GPU, Dr.Jit's LLVM backend on the CPU otherwise).
 
-Issue 14 item 6 asks for the GPU comparison: speed ratio, and the same ``F`` within the
-noise. The same script runs on a machine with a GPU (the cuda variant is then chosen) and on
-one without (the llvm variant): the variant used is printed with the figures.
+1. Bare rays (issue 14 item 6): the same float32 rays through Embree (one call, and over
+   the threads) and through Mitsuba; the same first hit.
+2. Whole ``view_factors(tracer="mitsuba")`` (issue 21 item 6: the rays sampled, traced and
+   summed per face pair in Dr.Jit, :mod:`selfillum.transport.mitsuba_factors`) against its
+   bare rays (``Scene.ray_intersect_preliminary`` on the very same rays, made beforehand on
+   the device, launch by launch: no sampling, no accumulation) and against whole
+   ``view_factors`` with Embree over the threads, interleaved, on the open corner and on the
+   real-size grid of ``bench_si_command.py`` (slab and box, 609k faces), K = 64 and 256.
+   The F of the two tracers are compared entry by entry.
 
-Run: ``.venv/bin/python bench/bench_tracers.py [--quick] [--variant auto|cuda|llvm]``
+The same script runs unchanged on a machine with a GPU (the cuda variant is then chosen by
+:mod:`selfillum.mitsuba_variants`) and on one without (the llvm variant): the variant used
+and the load average are printed with the figures.
+
+Run: ``.venv/bin/python bench/bench_tracers.py [--quick] [--variant auto|cuda|llvm]
+[--sections 1,2] [--scenes corner,sphere,grid] [--k 64,256] [--faces 609000]``
 """
 
 from __future__ import annotations
@@ -26,9 +37,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_viewfactors import same_rays  # noqa: E402
 
+from resection._threads import available_cores  # noqa: E402
 from scenes.corner import corner  # noqa: E402
 from selfillum import view_factors  # noqa: E402
+from selfillum.mesh import face_normals  # noqa: E402
+from selfillum.transport.mitsuba_factors import MitsubaFactorTracer  # noqa: E402
 from selfillum.transport.mitsuba_rays import MitsubaRayScene  # noqa: E402
+from selfillum.transport.viewfactors import _OFFSET  # noqa: E402
 
 
 def compare(mesh, k, label, variant, repeat):
@@ -71,40 +86,126 @@ def compare(mesh, k, label, variant, repeat):
     print(f"    same first hit on {100 * same:.4f} % of the rays")
 
 
-def whole_factors(mesh, k, label, repeat):
-    """view_factors with each tracer: time, and the F they give on the same rays."""
-    best = {"embree": float("inf"), "mitsuba": float("inf")}
-    F = {}
-    for tracer in best:
-        view_factors(mesh, k, seed=0, tracer=tracer)  # warm-up (pool, compilation)
+def _chunks(rows: np.ndarray, launch: int) -> list:
+    """The launches of ``MitsubaFactorTracer.rows``: equal blocks of at most ``launch``."""
+    step = max(1, -(-rows.size // max(1, -(-rows.size // launch))))
+    return [rows[i:i + step] for i in range(0, rows.size, step)]
+
+
+def whole_against_bare(mesh, k, label, repeat):
+    """Whole ``view_factors(tracer="mitsuba")`` (scene, sampling, tracing, sums per face
+    pair, the CSR matrix) against its bare rays (``ray_intersect_preliminary`` on the very
+    same rays, made beforehand on the device, launch by launch: no sampling, no
+    accumulation) and against ``view_factors`` with threaded Embree, interleaved."""
+    v = np.asarray(mesh.vertices, np.float64)
+    n = len(mesh.faces)
+    size = float(np.ptp(v, axis=0).max())
+    t0 = time.perf_counter()
+    tr = MitsubaFactorTracer(v, mesh.faces, face_normals(mesh), k, 0, offset=_OFFSET * size)
+    t_scene = time.perf_counter() - t0
+    mi, dr = tr.scene._mi, tr.scene._dr
+    chunks = _chunks(np.arange(n), tr.launch)
+
+    def bare():
+        spent = 0.0
+        for part in chunks:
+            ray = tr.device_rays(part)  # made and evaluated on the device: not timed
+            with tr.scene._variant():
+                dr.sync_thread()
+                t0 = time.perf_counter()
+                pi = tr.scene._scene.ray_intersect_preliminary(ray, coherent=False)
+                face = mi.UInt32(pi.prim_index)
+                dr.eval(face)
+                dr.sync_thread()
+                spent += time.perf_counter() - t0
+            del ray, pi, face
+        return spent
+
+    out = {}
+    calls = {"mitsuba": lambda: view_factors(mesh, k, seed=0, tracer="mitsuba"),
+             "bare": bare,
+             "embree": lambda: view_factors(mesh, k, seed=0)}
+    # warm-up: Dr.Jit's kernels compiled (or loaded from its cache), numba's loaded
+    few = np.arange(min(n, 2000))
+    view_factors(mesh, k, seed=0, tracer="mitsuba", rows=few)
+    view_factors(mesh, k, seed=0, rows=few)
+    bare_few = tr.device_rays(few[:10])
+    with tr.scene._variant():
+        dr.eval(tr.scene._scene.ray_intersect_preliminary(bare_few, coherent=False).prim_index)
+    best = dict.fromkeys(calls, float("inf"))
     for _ in range(repeat):
-        for tracer in best:
+        for key, fn in calls.items():
             t0 = time.perf_counter()
-            F[tracer] = view_factors(mesh, k, seed=0, tracer=tracer)
-            best[tracer] = min(best[tracer], time.perf_counter() - t0)
-    diff = abs(F["embree"] - F["mitsuba"])
-    rows = np.abs(np.asarray(F["embree"].sum(axis=1)) - np.asarray(F["mitsuba"].sum(axis=1)))
-    print(f"\nview_factors, {label}, K = {k}: embree (default workers) {best['embree']:.3f} s, "
-          f"mitsuba {best['mitsuba']:.3f} s: mitsuba / embree speed "
-          f"{best['embree'] / best['mitsuba']:.2f}x")
+            res = fn()
+            spent = time.perf_counter() - t0
+            if key == "bare":
+                spent = res
+            else:
+                out[key] = res
+            best[key] = min(best[key], spent)
+    rays = n * k
+    load = open("/proc/loadavg").read().split()[:3]
+    print(f"\n{label}, {n:,} faces, K = {k}: {rays / 1e6:.1f} M rays, variant "
+          f"{tr.scene.variant}, {len(chunks)} launch(es) of <= {tr.launch:,} faces, load "
+          f"{' '.join(load)} (best of {repeat})")
+    print(f"    whole view_factors, mitsuba    {best['mitsuba']:7.3f} s  "
+          f"({rays / best['mitsuba'] / 1e6:6.1f} M rays/s; its scene build {t_scene:.2f} s)")
+    print(f"    bare rays, mitsuba             {best['bare']:7.3f} s  "
+          f"({rays / best['bare'] / 1e6:6.1f} M rays/s)")
+    print(f"    whole view_factors, embree     {best['embree']:7.3f} s  "
+          f"({rays / best['embree'] / 1e6:6.1f} M rays/s, {available_cores()} threads)")
+    print(f"    whole mitsuba / its bare rays: {best['bare'] / best['mitsuba']:.2f}x the speed; "
+          f"/ embree threaded: {best['embree'] / best['mitsuba']:.2f}x")
+    diff = abs(out["embree"] - out["mitsuba"])
+    rows = np.abs(np.asarray(out["embree"].sum(axis=1))
+                  - np.asarray(out["mitsuba"].sum(axis=1)))
     print(f"    |F_embree - F_mitsuba|: largest entry {diff.max():.2e} (one ray = {1 / k:.2e}), "
-          f"entries that differ {diff.nnz}, largest row-sum difference {rows.max():.2e}")
+          f"{(diff > 1e-12).nnz} of {out['embree'].nnz:,} entries differ, largest row-sum "
+          f"difference {rows.max():.2e}", flush=True)
+
+
+def grid(faces: int):
+    """The real-size grid of ``bench_si_command.py`` (a slab carrying a box)."""
+    from bench_si_big import _FACE_FACTOR
+
+    from scenes.slab_block import slab_block
+
+    return slab_block(int(faces * _FACE_FACTOR)).mesh
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")
-    ap.add_argument("--variant", default="auto")
+    ap.add_argument("--variant", default="auto", help="of the bare-ray comparison [1]")
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--sections", default="1,2",
+                    help="1: bare rays, Embree against Mitsuba (corner, sphere); 2: whole "
+                         "view_factors against its bare rays and Embree")
+    ap.add_argument("--scenes", default="corner,grid", help="of section 2: corner, sphere, grid")
+    ap.add_argument("--k", default="64,256", help="rays per face of section 2")
+    ap.add_argument("--faces", type=int, default=609_000, help="of the grid")
     args = ap.parse_args()
-    sphere = trimesh.creation.icosphere(subdivisions=4 if args.quick else 5)
-    sphere.invert()
+    sections = {int(x) for x in args.sections.split(",")}
     res, k = (30, 64) if args.quick else (60, 256)
-    compare(corner(resolution=res).mesh, k, "open corner (most rays escape)", args.variant,
-            args.repeat)
-    compare(sphere, 64 if args.quick else 128, "inside a sphere (every ray hits)",
-            args.variant, args.repeat)
-    whole_factors(corner(resolution=res).mesh, 4 * k, "open corner", args.repeat)
+    if 1 in sections:
+        sphere = trimesh.creation.icosphere(subdivisions=4 if args.quick else 5)
+        sphere.invert()
+        compare(corner(resolution=res).mesh, k, "open corner (most rays escape)",
+                args.variant, args.repeat)
+        compare(sphere, 64 if args.quick else 128, "inside a sphere (every ray hits)",
+                args.variant, args.repeat)
+    if 2 in sections:
+        for name in args.scenes.split(","):
+            if name == "corner":
+                mesh, label = corner(resolution=res).mesh, "open corner"
+            elif name == "sphere":
+                mesh = trimesh.creation.icosphere(subdivisions=4 if args.quick else 5)
+                mesh.invert()
+                label = "inside a sphere"
+            else:
+                mesh, label = grid(args.faces), "slab and box grid (bench_si_command)"
+            for kk in (int(x) for x in args.k.split(",")):
+                whole_against_bare(mesh, kk, label, args.repeat)
 
 
 if __name__ == "__main__":

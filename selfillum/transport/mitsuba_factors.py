@@ -42,8 +42,9 @@ __all__ = ["MitsubaFactorTracer", "RAYS_PER_LAUNCH"]
 
 #: Rays in one launch by default (their hash tables take about 16 T / K bytes a ray).
 RAYS_PER_LAUNCH = 1 << 24
-#: An empty slot of the hash table (no face has this index).
-_EMPTY = 0xFFFFFFFF
+#: An empty slot of the hash table (slots hold the hit face + 1: a table is emptied by a
+#: plain memset).
+_EMPTY = 0
 #: Knuth's multiplicative hash (2**32 / golden ratio), for the first slot of a hit face.
 _GOLDEN = 0x9E3779B1
 #: The Laine-Karras constants of the Owen scramble (as in ``sampling._owen``).
@@ -103,7 +104,7 @@ class MitsubaFactorTracer:
         if self.launch * self.k >= 1 << 31 or self.launch << self.bits >= 1 << 31:
             raise InputError(f"tracer mitsuba: {self.launch} faces of {self.k} rays are too "
                              "many for one launch (32-bit indices)")
-        if self.n >= _EMPTY:
+        if self.n >= 0xFFFFFFFF:
             raise InputError(f"tracer mitsuba: {self.n} faces are too many (32-bit indices)")
         self.two_sided = bool(two_sided)
         self.dims = 5 if self.two_sided else 4
@@ -202,38 +203,24 @@ class MitsubaFactorTracer:
         mi, dr = self.scene._mi, self.scene._dr
         if self._buffers is None or dr.width(self._buffers[0]) < n_rows << self.bits:
             size = n_rows << self.bits
-            self._buffers = (dr.full(mi.UInt32, _EMPTY, size), dr.zeros(mi.UInt32, size),
+            self._buffers = (dr.zeros(mi.UInt32, size), dr.zeros(mi.UInt32, size),
                              *(dr.empty(mi.UInt32, n_rows * self.k) for _ in range(4)))
             dr.eval(self._buffers)
         return self._buffers
 
-    def _launch(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Per-pair sums of the faces ``rows``: ``(nnz per row, hit faces, counts)``, the
-        pairs grouped by row in the order of ``rows`` (within a row, in no set order)."""
+    def _insert(self, n_kept: int, n_rows: int):
+        """Kernel 2 of :meth:`_launch`: the ``n_kept`` rays listed by kernel 1 added to the
+        counts of their (row, hit face) pairs; each pair listed (its slot and its rank in
+        its row). Returns the evaluated pairs per row and their number. (A function of its
+        own: the loop's results refer to the table, which must be free to be emptied in
+        place afterwards.)"""
         mi, dr = self.scene._mi, self.scene._dr
         UInt32 = mi.UInt32
         t = 1 << self.bits
-        table, counts, kept_row, kept_hit, pair_slot, pair_rank = self._tables(rows.size)
-        # kernel 1: sample, trace, filter; the kept rays listed (stream compaction)
-        row, face, local = self._chunk_indices(rows)
-        ray, _ = self._rays(face, local)
-        pi = self.scene._scene.ray_intersect_preliminary(ray, coherent=False)
-        hit = UInt32(pi.prim_index)
-        keep = pi.is_valid() & (hit != face)
-        if not self.two_sided:  # a ray arriving on the unpainted side is absorbed there
-            n_hit = dr.gather(mi.Vector3f, self._face["n"], hit, keep)
-            keep &= dr.dot(ray.d, n_hit) < 0
-        n_kept = dr.zeros(UInt32, 1)
-        at = dr.scatter_inc(n_kept, UInt32(0), active=keep)
-        dr.scatter(kept_row, row, at, active=keep)
-        dr.scatter(kept_hit, hit, at, active=keep)
-        dr.eval(kept_row, kept_hit, n_kept)
-        if n_kept[0] == 0:  # nothing hit: empty rows
-            return np.zeros(rows.size, np.int64), np.zeros(0, np.int32), np.zeros(0, np.uint32)
-        # kernel 2: each kept ray adds one to its (row, hit face) pair in its row's table
-        m = dr.arange(UInt32, int(n_kept[0]))
+        table, counts, kept_row, kept_hit, pair_slot, pair_rank = self._buffers
+        m = dr.arange(UInt32, n_kept)
         row = dr.gather(UInt32, kept_row, m)
-        hit = dr.gather(UInt32, kept_hit, m)
+        hit = dr.gather(UInt32, kept_hit, m)  # the hit face + 1
         base = row << self.bits
         slot = (hit * _GOLDEN) >> (32 - self.bits)
 
@@ -249,14 +236,41 @@ class MitsubaFactorTracer:
                                       dr.zeros(mi.Bool, dr.width(m))),
                                      probing, probe, labels=("slot", "done", "new"))
         slot = base + slot
-        dr.scatter_reduce(dr.ReduceOp.Add, counts, UInt32(1), slot)
+        # plain atomics: the LLVM default would expand the tables once a thread first
+        dr.scatter_reduce(dr.ReduceOp.Add, counts, UInt32(1), slot, mode=dr.ReduceMode.Direct)
         # the ray that made a pair lists its slot and its rank in the row
         n_pairs = dr.zeros(UInt32, 1)
-        per_row = dr.zeros(UInt32, rows.size)
+        per_row = dr.zeros(UInt32, n_rows)
         at = dr.scatter_inc(n_pairs, UInt32(0), active=new)
         dr.scatter(pair_slot, slot, at, active=new)
         dr.scatter(pair_rank, dr.scatter_inc(per_row, row, active=new), at, active=new)
         dr.eval(table, counts, pair_slot, pair_rank, per_row, n_pairs)
+        return per_row, n_pairs
+
+    def _launch(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Per-pair sums of the faces ``rows``: ``(nnz per row, hit faces, counts)``, the
+        pairs grouped by row in the order of ``rows`` (within a row, in no set order)."""
+        mi, dr = self.scene._mi, self.scene._dr
+        UInt32 = mi.UInt32
+        table, counts, kept_row, kept_hit, pair_slot, pair_rank = self._tables(rows.size)
+        # kernel 1: sample, trace, filter; the kept rays listed (stream compaction)
+        row, face, local = self._chunk_indices(rows)
+        ray, _ = self._rays(face, local)
+        pi = self.scene._scene.ray_intersect_preliminary(ray, coherent=False)
+        hit = UInt32(pi.prim_index)
+        keep = pi.is_valid() & (hit != face)
+        if not self.two_sided:  # a ray arriving on the unpainted side is absorbed there
+            n_hit = dr.gather(mi.Vector3f, self._face["n"], hit, keep)
+            keep &= dr.dot(ray.d, n_hit) < 0
+        n_kept = dr.zeros(UInt32, 1)
+        at = dr.scatter_inc(n_kept, UInt32(0), active=keep)
+        dr.scatter(kept_row, row, at, active=keep)
+        dr.scatter(kept_hit, hit + 1, at, active=keep)
+        dr.eval(kept_row, kept_hit, n_kept)
+        if n_kept[0] == 0:  # nothing hit: empty rows
+            return np.zeros(rows.size, np.int64), np.zeros(0, np.int32), np.zeros(0, np.uint32)
+        # kernel 2: each kept ray adds one to its (row, hit face) pair in its row's table
+        per_row, n_pairs = self._insert(int(n_kept[0]), rows.size)
         # kernel 3: the pairs in CSR order (row by row); then the tables emptied
         pairs = dr.arange(UInt32, int(n_pairs[0]))
         where = dr.gather(UInt32, pair_slot, pairs)
@@ -264,7 +278,7 @@ class MitsubaFactorTracer:
                 + dr.gather(UInt32, pair_rank, pairs))
         cols = dr.zeros(UInt32, dr.width(pairs))
         cnt = dr.zeros(UInt32, dr.width(pairs))
-        dr.scatter(cols, dr.gather(UInt32, table, where), dest)
+        dr.scatter(cols, dr.gather(UInt32, table, where) - 1, dest)
         dr.scatter(cnt, dr.gather(UInt32, counts, where), dest)
         dr.eval(cols, cnt)
         dr.scatter(table, UInt32(_EMPTY), where)
