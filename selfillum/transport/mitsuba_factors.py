@@ -42,6 +42,9 @@ __all__ = ["MitsubaFactorTracer", "RAYS_PER_LAUNCH"]
 
 #: Rays in one launch by default (their hash tables take about 16 T / K bytes a ray).
 RAYS_PER_LAUNCH = 1 << 24
+#: Bytes a ray of a launch may take on the device: its listing (8) and, when it is kept,
+#: its hash table slots (up to 4 of 8 bytes) and pair lists (12).
+_BYTES_PER_RAY = 52
 #: An empty slot of the hash table (slots hold the hit face + 1: a table is emptied by a
 #: plain memset).
 _EMPTY = 0
@@ -49,11 +52,6 @@ _EMPTY = 0
 _GOLDEN = 0x9E3779B1
 #: The Laine-Karras constants of the Owen scramble (as in ``sampling._owen``).
 _LK = (0x6C50B47C, 0xB82F1E52, 0xC7AFE638, 0x8D22F6E6)
-
-
-def _table_bits(k: int) -> int:
-    """``log2 T``: slots a face, the power of two at or above ``2 k``."""
-    return max(1, int(np.ceil(np.log2(2 * k))))
 
 
 class MitsubaFactorTracer:
@@ -95,13 +93,12 @@ class MitsubaFactorTracer:
         self.k = int(rays_per_face)
         if self.k < 1:
             raise InputError(f"rays_per_face: expected a positive integer, got {rays_per_face}")
-        self.bits = _table_bits(self.k)
         self.launch = (max(1, RAYS_PER_LAUNCH // self.k) if faces_per_launch is None
                        else int(faces_per_launch))
         if self.launch < 1:
             raise InputError(f"faces_per_launch: expected a positive integer, got "
                              f"{faces_per_launch}")
-        if self.launch * self.k >= 1 << 31 or self.launch << self.bits >= 1 << 31:
+        if self.launch * self.k >= 1 << 30:  # the tables: up to 4 slots a kept ray
             raise InputError(f"tracer mitsuba: {self.launch} faces of {self.k} rays are too "
                              "many for one launch (32-bit indices)")
         if self.n >= 0xFFFFFFFF:
@@ -127,25 +124,29 @@ class MitsubaFactorTracer:
             self._rbase = mi.UInt32(np.ascontiguousarray(rbase).ravel())
             self._keys = mi.UInt32(np.ascontiguousarray(keys).ravel())
             dr.eval(self._face, self._rbase, self._keys)
-        self._buffers = None
 
     # ------------------------------------------------------------------ the rays
-    def _rays(self, face, local):
-        """Dr.Jit rays of the chunk: ``face`` (UInt32 per ray, global face index) and
-        ``local`` (UInt32 per ray, the sample index within the face). Returns the ray and
-        the side (+1/-1 Float)."""
+    def _face_data(self, face):
+        """What the rays of ``face`` (UInt32, global indices) need: its vertex, edges and
+        normal (``Vector3f``) and its scramble keys (one ``UInt32`` a dimension)."""
+        mi, dr = self.scene._mi, self.scene._dr
+        g = {name: dr.gather(mi.Vector3f, a, face) for name, a in self._face.items()}
+        keys = [dr.gather(mi.UInt32, self._keys, face * self.dims + d) for d in range(self.dims)]
+        return g, keys
+
+    def _rays(self, g, keys, local):
+        """Rays from the data of :meth:`_face_data` and ``local`` (UInt32, the sample index
+        within the face). Returns the ray and the side (+1/-1 Float)."""
         mi, dr = self.scene._mi, self.scene._dr
         UInt32, Float = mi.UInt32, mi.Float
 
         def point(d):
-            xr = dr.gather(UInt32, self._rbase, local * self.dims + d)
-            x = xr + dr.gather(UInt32, self._keys, face * self.dims + d)
+            x = dr.gather(UInt32, self._rbase, local * self.dims + d) + keys[d]
             for c in _LK:
                 x ^= x * c
             x = dr.brev(x)
             return (Float(x >> 8) + 0.5) * (2.0 ** -24)
 
-        g = {name: dr.gather(mi.Vector3f, a, face) for name, a in self._face.items()}
         p0, p1, p2, p3 = (point(d) for d in range(4))
         sd = Float(1.0)
         if self.two_sided:
@@ -182,7 +183,7 @@ class MitsubaFactorTracer:
         rows = np.asarray(rows, dtype=np.int64)
         with self.scene._variant():
             _, face, local = self._chunk_indices(rows)
-            ray, _ = self._rays(face, local)
+            ray, _ = self._rays(*self._face_data(face), local)
             return np.asarray(ray.o).T.copy(), np.asarray(ray.d).T.copy()
 
     def device_rays(self, rows):
@@ -191,99 +192,115 @@ class MitsubaFactorTracer:
         rows = np.asarray(rows, dtype=np.int64)
         with self.scene._variant():
             _, face, local = self._chunk_indices(rows)
-            ray, _ = self._rays(face, local)
+            ray, _ = self._rays(*self._face_data(face), local)
             self.scene._dr.eval(ray)
             return ray
 
     # ------------------------------------------------------------------ one launch
-    def _tables(self, n_rows: int):
-        """The buffers of a launch of ``n_rows`` faces, kept from one launch to the next:
-        the hash tables (empty) and their counts, and four lists of up to ``n_rows K``
-        entries (the kept rays' rows and hit faces, the pairs' slots and ranks)."""
-        mi, dr = self.scene._mi, self.scene._dr
-        if self._buffers is None or dr.width(self._buffers[0]) < n_rows << self.bits:
-            size = n_rows << self.bits
-            self._buffers = (dr.zeros(mi.UInt32, size), dr.zeros(mi.UInt32, size),
-                             *(dr.empty(mi.UInt32, n_rows * self.k) for _ in range(4)))
-            dr.eval(self._buffers)
-        return self._buffers
-
-    def _insert(self, n_kept: int, n_rows: int):
-        """Kernel 2 of :meth:`_launch`: the ``n_kept`` rays listed by kernel 1 added to the
-        counts of their (row, hit face) pairs; each pair listed (its slot and its rank in
-        its row). Returns the evaluated pairs per row and their number. (A function of its
-        own: the loop's results refer to the table, which must be free to be emptied in
-        place afterwards.)"""
+    def _trace(self, rows: np.ndarray):
+        """Kernel 1: one lane a face (its data gathered once), looping over its K rays:
+        sample, trace, filter, and list the kept rays (stream compaction). Returns, evaluated,
+        the kept rays' lanes and hit faces + 1 (the first ``n_kept`` entries), ``n_kept`` and
+        the kept rays of each lane."""
         mi, dr = self.scene._mi, self.scene._dr
         UInt32 = mi.UInt32
-        t = 1 << self.bits
-        table, counts, kept_row, kept_hit, pair_slot, pair_rank = self._buffers
+        face = UInt32(np.ascontiguousarray(rows, dtype=np.uint32))
+        lane = dr.arange(UInt32, rows.size)
+        g, keys = self._face_data(face)
+        kept_row = dr.empty(UInt32, rows.size * self.k)
+        kept_hit = dr.empty(UInt32, rows.size * self.k)
+        n_kept = dr.zeros(UInt32, 1)
+
+        def more(i, kept):
+            return i < self.k
+
+        def one_ray(i, kept):
+            ray, _ = self._rays(g, keys, i)
+            pi = self.scene._scene.ray_intersect_preliminary(ray, coherent=False)
+            hit = UInt32(pi.prim_index)
+            keep = pi.is_valid() & (hit != face)
+            if not self.two_sided:  # a ray arriving on the unpainted side is absorbed there
+                n_hit = dr.gather(mi.Vector3f, self._face["n"], hit, keep)
+                keep &= dr.dot(ray.d, n_hit) < 0
+            at = dr.scatter_inc(n_kept, UInt32(0), active=keep)
+            dr.scatter(kept_row, lane, at, active=keep)
+            dr.scatter(kept_hit, hit + 1, at, active=keep)
+            return i + 1, dr.select(keep, kept + 1, kept)
+
+        zero = dr.zeros(UInt32, rows.size)
+        _, kept = dr.while_loop((zero, UInt32(zero)), more, one_ray, labels=("i", "kept"))
+        dr.eval(kept_row, kept_hit, n_kept, kept)
+        return kept_row, kept_hit, int(n_kept[0]), kept
+
+    def _insert(self, kept_row, kept_hit, n_kept: int, kept, n_rows: int):
+        """Kernel 2: each kept ray adds one to the count of its (row, hit face) pair in its
+        row's hash table (``2**ceil(log2(2 c))`` slots for a row of ``c`` kept rays: at most
+        half full), by linear probing; the ray that makes a pair lists its slot, its row and
+        its rank in the row. Returns, evaluated: the tables and counts, the pairs' slots,
+        rows and ranks (first ``n_pairs``), the pairs per row and ``n_pairs``."""
+        mi, dr = self.scene._mi, self.scene._dr
+        UInt32 = mi.UInt32
+        bits = dr.select(kept > 0, 32 - dr.lzcnt(2 * kept - 1), 0)  # log2 of the row's slots
+        size = dr.select(kept > 0, UInt32(1) << bits, 0)
+        start = dr.prefix_sum(size)
+        dr.eval(bits, start)
+        total = int(dr.gather(UInt32, start, UInt32(n_rows - 1))[0]) + int(
+            dr.gather(UInt32, size, UInt32(n_rows - 1))[0])
+        table = dr.zeros(UInt32, total)  # slots hold the hit face + 1 (0: empty)
+        counts = dr.zeros(UInt32, total)
+        pair_slot, pair_row, pair_rank = (dr.empty(UInt32, n_kept) for _ in range(3))
         m = dr.arange(UInt32, n_kept)
         row = dr.gather(UInt32, kept_row, m)
-        hit = dr.gather(UInt32, kept_hit, m)  # the hit face + 1
-        base = row << self.bits
-        slot = (hit * _GOLDEN) >> (32 - self.bits)
+        hit = dr.gather(UInt32, kept_hit, m)
+        b = dr.gather(UInt32, bits, row)
+        base = dr.gather(UInt32, start, row)
+        mask = (UInt32(1) << b) - 1
+        slot = (hit * _GOLDEN) >> (32 - b)
 
         def probing(slot, done, new):
             return ~done
 
-        def probe(slot, done, new):  # linear probing: claim an empty slot or find the pair
+        def probe(slot, done, new):  # claim an empty slot, or find the pair's
             old, ok = dr.scatter_cas(table, UInt32(_EMPTY), hit, base + slot, active=~done)
             done = done | ok | (old == hit)
-            return dr.select(done, slot, (slot + 1) & (t - 1)), done, new | ok
+            return dr.select(done, slot, (slot + 1) & mask), done, new | ok
 
-        slot, _, new = dr.while_loop((slot, dr.zeros(mi.Bool, dr.width(m)),
-                                      dr.zeros(mi.Bool, dr.width(m))),
+        slot, _, new = dr.while_loop((slot, dr.zeros(mi.Bool, n_kept),
+                                      dr.zeros(mi.Bool, n_kept)),
                                      probing, probe, labels=("slot", "done", "new"))
         slot = base + slot
-        # plain atomics: the LLVM default would expand the tables once a thread first
+        # plain atomics (the LLVM backend's default would copy the counts once a thread)
         dr.scatter_reduce(dr.ReduceOp.Add, counts, UInt32(1), slot, mode=dr.ReduceMode.Direct)
-        # the ray that made a pair lists its slot and its rank in the row
         n_pairs = dr.zeros(UInt32, 1)
         per_row = dr.zeros(UInt32, n_rows)
         at = dr.scatter_inc(n_pairs, UInt32(0), active=new)
         dr.scatter(pair_slot, slot, at, active=new)
+        dr.scatter(pair_row, row, at, active=new)
         dr.scatter(pair_rank, dr.scatter_inc(per_row, row, active=new), at, active=new)
-        dr.eval(table, counts, pair_slot, pair_rank, per_row, n_pairs)
-        return per_row, n_pairs
+        dr.eval(table, counts, pair_slot, pair_row, pair_rank, per_row, n_pairs)
+        return table, counts, pair_slot, pair_row, pair_rank, per_row, int(n_pairs[0])
 
     def _launch(self, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Per-pair sums of the faces ``rows``: ``(nnz per row, hit faces, counts)``, the
         pairs grouped by row in the order of ``rows`` (within a row, in no set order)."""
         mi, dr = self.scene._mi, self.scene._dr
         UInt32 = mi.UInt32
-        table, counts, kept_row, kept_hit, pair_slot, pair_rank = self._tables(rows.size)
-        # kernel 1: sample, trace, filter; the kept rays listed (stream compaction)
-        row, face, local = self._chunk_indices(rows)
-        ray, _ = self._rays(face, local)
-        pi = self.scene._scene.ray_intersect_preliminary(ray, coherent=False)
-        hit = UInt32(pi.prim_index)
-        keep = pi.is_valid() & (hit != face)
-        if not self.two_sided:  # a ray arriving on the unpainted side is absorbed there
-            n_hit = dr.gather(mi.Vector3f, self._face["n"], hit, keep)
-            keep &= dr.dot(ray.d, n_hit) < 0
-        n_kept = dr.zeros(UInt32, 1)
-        at = dr.scatter_inc(n_kept, UInt32(0), active=keep)
-        dr.scatter(kept_row, row, at, active=keep)
-        dr.scatter(kept_hit, hit + 1, at, active=keep)
-        dr.eval(kept_row, kept_hit, n_kept)
-        if n_kept[0] == 0:  # nothing hit: empty rows
+        kept_row, kept_hit, n_kept, kept = self._trace(rows)
+        if n_kept == 0:  # nothing hit: empty rows
             return np.zeros(rows.size, np.int64), np.zeros(0, np.int32), np.zeros(0, np.uint32)
-        # kernel 2: each kept ray adds one to its (row, hit face) pair in its row's table
-        per_row, n_pairs = self._insert(int(n_kept[0]), rows.size)
-        # kernel 3: the pairs in CSR order (row by row); then the tables emptied
-        pairs = dr.arange(UInt32, int(n_pairs[0]))
+        table, counts, pair_slot, pair_row, pair_rank, per_row, n_pairs = self._insert(
+            kept_row, kept_hit, n_kept, kept, rows.size)
+        del kept_row, kept_hit
+        # kernel 3: the pairs in CSR order, row by row
+        pairs = dr.arange(UInt32, n_pairs)
         where = dr.gather(UInt32, pair_slot, pairs)
-        dest = (dr.gather(UInt32, dr.prefix_sum(per_row), where >> self.bits)
+        dest = (dr.gather(UInt32, dr.prefix_sum(per_row), dr.gather(UInt32, pair_row, pairs))
                 + dr.gather(UInt32, pair_rank, pairs))
-        cols = dr.zeros(UInt32, dr.width(pairs))
-        cnt = dr.zeros(UInt32, dr.width(pairs))
+        cols = dr.zeros(UInt32, n_pairs)
+        cnt = dr.zeros(UInt32, n_pairs)
         dr.scatter(cols, dr.gather(UInt32, table, where) - 1, dest)
         dr.scatter(cnt, dr.gather(UInt32, counts, where), dest)
         dr.eval(cols, cnt)
-        dr.scatter(table, UInt32(_EMPTY), where)
-        dr.scatter(counts, UInt32(0), where)
-        dr.eval(table, counts)
         return (np.asarray(per_row, dtype=np.int64), np.asarray(cols, dtype=np.int32),
                 np.asarray(cnt))
 
@@ -291,7 +308,7 @@ class MitsubaFactorTracer:
         """``F`` with only ``rows`` (sorted unique face indices) filled, ``(N, N)`` CSR with
         sorted indices; ``progress`` as in :func:`selfillum.view_factors`."""
         todo = np.asarray(rows, dtype=np.int64)
-        check_memory(min(self.launch, max(todo.size, 1)) * float(8 << self.bits),
+        check_memory(min(self.launch, max(todo.size, 1)) * float(self.k * _BYTES_PER_RAY),
                      f"view factors with {self.k} rays per face (tracer mitsuba)")
         bar = None
         if progress is True:
