@@ -152,3 +152,16 @@ def test_launches_rows_and_progress_give_the_full_rows():
     a = face_areas(mesh)
     AF = rec.multiply(a[:, None]).tocsr()
     assert abs(AF - AF.T).max() < 1e-12 * a.max()
+
+
+@pytest.mark.parametrize("k", [1, 7, 24])
+def test_rays_per_face_not_a_multiple_of_16(k):
+    """A lane of the trace kernel casts gcd(K, 16) rays of one face: any K gives Embree's
+    F on the same rays (up to rays grazing an edge), every row a multiple of 1/K."""
+    mesh = corner(resolution=20).mesh
+    E = view_factors(mesh, k, seed=9)
+    M = view_factors(mesh, k, seed=9, tracer="mitsuba")
+    assert abs(M - E).max() <= 2.0 / k + 1e-12
+    assert (abs(M - E) > 1e-12).nnz <= max(2, 1e-3 * E.nnz)
+    np.testing.assert_allclose(M.data * k, np.round(M.data * k), atol=1e-9)
+    assert np.asarray(M.sum(axis=1)).max() <= 1.0 + 1e-12

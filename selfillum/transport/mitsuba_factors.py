@@ -28,6 +28,7 @@ table and its counts): the default launch of ``2**24`` rays about 512 MB at most
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import numpy as np
@@ -42,6 +43,8 @@ __all__ = ["MitsubaFactorTracer", "RAYS_PER_LAUNCH"]
 
 #: Rays in one launch by default (their hash tables take about 16 T / K bytes a ray).
 RAYS_PER_LAUNCH = 1 << 24
+#: Rays a lane of the trace kernel casts at most (all from one face).
+_RAYS_PER_LANE = 16
 #: Bytes a ray of a launch may take on the device: its listing (8) and, when it is kept,
 #: its hash table slots (up to 4 of 8 bytes) and pair lists (12).
 _BYTES_PER_RAY = 52
@@ -198,24 +201,30 @@ class MitsubaFactorTracer:
 
     # ------------------------------------------------------------------ one launch
     def _trace(self, rows: np.ndarray):
-        """Kernel 1: one lane a face (its data gathered once), looping over its K rays:
-        sample, trace, filter, and list the kept rays (stream compaction). Returns, evaluated,
-        the kept rays' lanes and hit faces + 1 (the first ``n_kept`` entries), ``n_kept`` and
-        the kept rays of each lane."""
+        """Kernel 1: one lane for ``S`` rays of a face (``S = gcd(K, 16)``: the face's data
+        gathered once for them, while a launch keeps ``n K / S`` lanes to spread over a
+        GPU), looping over them: sample, trace, filter, and list the kept rays (stream
+        compaction). Returns, evaluated, the kept rays' rows (in the launch) and hit faces
+        + 1 (the first ``n_kept`` entries), ``n_kept`` and the kept rays of each row."""
         mi, dr = self.scene._mi, self.scene._dr
         UInt32 = mi.UInt32
-        face = UInt32(np.ascontiguousarray(rows, dtype=np.uint32))
-        lane = dr.arange(UInt32, rows.size)
+        per_lane = math.gcd(self.k, _RAYS_PER_LANE)
+        lanes = self.k // per_lane  # lanes a face
+        ids = UInt32(np.ascontiguousarray(rows, dtype=np.uint32))
+        j = dr.arange(UInt32, rows.size * lanes)
+        row = j // lanes
+        face = dr.gather(UInt32, ids, row)
+        first = (j - row * lanes) * per_lane
         g, keys = self._face_data(face)
         kept_row = dr.empty(UInt32, rows.size * self.k)
         kept_hit = dr.empty(UInt32, rows.size * self.k)
         n_kept = dr.zeros(UInt32, 1)
 
         def more(i, kept):
-            return i < self.k
+            return i < per_lane
 
         def one_ray(i, kept):
-            ray, _ = self._rays(g, keys, i)
+            ray, _ = self._rays(g, keys, first + i)
             pi = self.scene._scene.ray_intersect_preliminary(ray, coherent=False)
             hit = UInt32(pi.prim_index)
             keep = pi.is_valid() & (hit != face)
@@ -223,13 +232,15 @@ class MitsubaFactorTracer:
                 n_hit = dr.gather(mi.Vector3f, self._face["n"], hit, keep)
                 keep &= dr.dot(ray.d, n_hit) < 0
             at = dr.scatter_inc(n_kept, UInt32(0), active=keep)
-            dr.scatter(kept_row, lane, at, active=keep)
+            dr.scatter(kept_row, row, at, active=keep)
             dr.scatter(kept_hit, hit + 1, at, active=keep)
             return i + 1, dr.select(keep, kept + 1, kept)
 
-        zero = dr.zeros(UInt32, rows.size)
+        zero = dr.zeros(UInt32, rows.size * lanes)
         _, kept = dr.while_loop((zero, UInt32(zero)), more, one_ray, labels=("i", "kept"))
         dr.eval(kept_row, kept_hit, n_kept, kept)
+        if lanes > 1:
+            kept = dr.block_sum(kept, lanes, mode="evaluated")
         return kept_row, kept_hit, int(n_kept[0]), kept
 
     def _insert(self, kept_row, kept_hit, n_kept: int, kept, n_rows: int):
