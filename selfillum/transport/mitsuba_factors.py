@@ -2,28 +2,33 @@
 accumulation in Dr.Jit arrays (OptiX on a CUDA GPU, Dr.Jit's LLVM backend on the CPU).
 
 :func:`selfillum.view_factors` with ``tracer="mitsuba"`` uses :class:`MitsubaFactorTracer`.
-Each launch covers a block of faces and runs, for its ``n K`` rays, one Dr.Jit kernel that
+A launch covers a block of faces (``2**24`` rays by default) in three Dr.Jit kernels:
 
-1. makes the rays of :func:`selfillum.transport.sampling.sample_rays` (the same Sobol points
-   of Joe and Kuo's table, the same per-face Owen scramble keyed on the face index and the
-   seed, the same float32 arithmetic: uniform points of the face lifted by the offset,
-   cosine-distributed directions; only ``sin``/``cos``, Dr.Jit's own, may differ from
-   NumPy's by an ulp);
-2. traces them (``Scene.ray_intersect_preliminary``);
-3. drops misses, hits on the ray's own face and (one-sided) hits on a face's back, as the
-   Embree path does;
-4. adds each kept ray to the count of its (emitting face, hit face) pair in a hash table
-   of ``T`` slots a face (``T`` the power of two at or above ``2 K``: at most half full),
-   by lock-free linear probing with ``dr.scatter_cas`` and an atomic ``dr.scatter_reduce``
-   of the counts.
+1. **trace** (one lane for ``gcd(K, 16)`` rays of a face): make the rays of
+   :func:`selfillum.transport.sampling.sample_rays` (the same Sobol points of Joe and
+   Kuo's table, the same per-face Owen scramble keyed on the face index and the seed, the
+   same float32 formulas: uniform points of the face lifted by the offset,
+   cosine-distributed directions; Dr.Jit's ``sin``/``cos`` and the tangent frame rebuilt
+   in float32 differ from NumPy's by an ulp or so), trace them
+   (``Scene.ray_intersect_preliminary``), drop misses, hits on the ray's own face and
+   (one-sided) hits on a face's back as the Embree path does, and list the kept rays
+   (row, hit face) by stream compaction (``dr.scatter_inc``);
+2. **sum per pair**: each kept ray adds one to the count of its (emitting face, hit face)
+   pair in its row's hash table (``2**ceil(log2 2c)`` slots for a row of ``c`` kept rays:
+   at most half full), by lock-free linear probing (``dr.scatter_cas``) and atomic adds;
+   the ray that makes a pair lists it, with its rank in its row (``dr.scatter_inc``);
+3. **CSR order**: each pair written at its row's offset (``dr.prefix_sum`` of the pairs
+   per row) plus its rank.
 
-Nothing is kept per ray, and nothing goes back to NumPy per ray: a second pass compacts
-the occupied slots (``dr.compress``), sorts each row's pairs by hit face (``dr.argsort``
-of 64-bit keys) and counts the pairs of each row (``dr.block_sum``); only these per-pair
-sums (hit face, count) and per-row lengths come back to build the SciPy CSR matrix. The
-counts are integers, so ``F`` does not depend on the order of the atomic operations (nor
-on the thread count or the device). A launch holds about ``16 T / K`` bytes a ray (the
-table and its counts): the default launch of ``2**24`` rays about 512 MB at most.
+Nothing goes back to NumPy per ray: only the per-pair sums (hit face, count, row by row)
+and the pairs per row, from which the SciPy CSR matrix is built. Within a row the columns
+are unique but in no set order (``F.has_sorted_indices`` is False; a device sort would cost
+more than the rest on the CPU: Dr.Jit's radix sort there takes 25-100 ns a key). The
+counts are integers, so ``F`` does not depend on the order of the atomic operations, on
+the launch size, the thread count or the device. A launch holds at most about 52 bytes a
+ray on the device (8 for the list of kept rays; for a kept ray up to 32 of hash table and
+12 of pair lists): the default launch about 0.9 GB when every ray hits, much less when
+most escape.
 """
 
 from __future__ import annotations
@@ -41,7 +46,7 @@ from selfillum.transport.sampling import _sobol_base, digital_shifts
 
 __all__ = ["MitsubaFactorTracer", "RAYS_PER_LAUNCH"]
 
-#: Rays in one launch by default (their hash tables take about 16 T / K bytes a ray).
+#: Rays in one launch by default (at most :data:`_BYTES_PER_RAY` bytes each on the device).
 RAYS_PER_LAUNCH = 1 << 24
 #: Rays a lane of the trace kernel casts at most (all from one face).
 _RAYS_PER_LANE = 16
@@ -316,8 +321,8 @@ class MitsubaFactorTracer:
                 np.asarray(cnt))
 
     def rows(self, rows, progress: bool | Callable | None = None) -> sp.csr_matrix:
-        """``F`` with only ``rows`` (sorted unique face indices) filled, ``(N, N)`` CSR with
-        sorted indices; ``progress`` as in :func:`selfillum.view_factors`."""
+        """``F`` with only ``rows`` (sorted unique face indices) filled, ``(N, N)`` CSR (each
+        row's columns unique, not sorted); ``progress`` as in :func:`selfillum.view_factors`."""
         todo = np.asarray(rows, dtype=np.int64)
         check_memory(min(self.launch, max(todo.size, 1)) * float(self.k * _BYTES_PER_RAY),
                      f"view factors with {self.k} rays per face (tracer mitsuba)")
@@ -329,7 +334,7 @@ class MitsubaFactorTracer:
         nnz = np.zeros(self.n, dtype=np.int64)
         cols, cnts = [], []
         with self.scene._variant():
-            # launches of equal size (the tables are allocated once, for the first)
+            # launches of equal size
             step = max(1, -(-todo.size // max(1, -(-todo.size // self.launch))))
             for a in range(0, todo.size, step):
                 part = todo[a:a + step]
