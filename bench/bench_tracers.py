@@ -100,9 +100,12 @@ def whole_against_bare(mesh, k, label, repeat):
     v = np.asarray(mesh.vertices, np.float64)
     n = len(mesh.faces)
     size = float(np.ptp(v, axis=0).max())
-    t0 = time.perf_counter()
-    tr = MitsubaFactorTracer(v, mesh.faces, face_normals(mesh), k, 0, offset=_OFFSET * size)
-    t_scene = time.perf_counter() - t0
+    normals = face_normals(mesh)
+
+    def build():
+        return MitsubaFactorTracer(v, mesh.faces, normals, k, 0, offset=_OFFSET * size)
+
+    tr = build()
     mi, dr = tr.scene._mi, tr.scene._dr
     chunks = _chunks(np.arange(n), tr.launch)
 
@@ -122,7 +125,10 @@ def whole_against_bare(mesh, k, label, repeat):
         return spent
 
     out = {}
+    every = np.arange(n)
     calls = {"mitsuba": lambda: view_factors(mesh, k, seed=0, tracer="mitsuba"),
+             "launches": lambda: tr.rows(every),
+             "scene": build,
              "bare": bare,
              "embree": lambda: view_factors(mesh, k, seed=0)}
     # warm-up: Dr.Jit's kernels compiled (or loaded from its cache), numba's loaded
@@ -140,7 +146,7 @@ def whole_against_bare(mesh, k, label, repeat):
             spent = time.perf_counter() - t0
             if key == "bare":
                 spent = res
-            else:
+            elif key not in ("launches", "scene"):
                 out[key] = res
             best[key] = min(best[key], spent)
     rays = n * k
@@ -149,13 +155,18 @@ def whole_against_bare(mesh, k, label, repeat):
           f"{tr.scene.variant}, {len(chunks)} launch(es) of <= {tr.launch:,} faces, load "
           f"{' '.join(load)} (best of {repeat})")
     print(f"    whole view_factors, mitsuba    {best['mitsuba']:7.3f} s  "
-          f"({rays / best['mitsuba'] / 1e6:6.1f} M rays/s; its scene build {t_scene:.2f} s)")
+          f"({rays / best['mitsuba'] / 1e6:6.1f} M rays/s)")
+    print(f"      of which the launches        {best['launches']:7.3f} s  (sampling, tracing, "
+          f"sums per pair, CSR: MitsubaFactorTracer.rows on a built scene; a scene build "
+          f"{best['scene']:.2f} s)")
     print(f"    bare rays, mitsuba             {best['bare']:7.3f} s  "
           f"({rays / best['bare'] / 1e6:6.1f} M rays/s)")
     print(f"    whole view_factors, embree     {best['embree']:7.3f} s  "
           f"({rays / best['embree'] / 1e6:6.1f} M rays/s, {available_cores()} threads)")
-    print(f"    whole mitsuba / its bare rays: {best['bare'] / best['mitsuba']:.2f}x the speed; "
-          f"/ embree threaded: {best['embree'] / best['mitsuba']:.2f}x")
+    print(f"    speed of whole mitsuba / its bare rays {best['bare'] / best['mitsuba']:.2f}x, "
+          f"/ scene build + bare rays {(best['scene'] + best['bare']) / best['mitsuba']:.2f}x; "
+          f"launches / bare rays {best['bare'] / best['launches']:.2f}x; whole mitsuba / "
+          f"embree threaded {best['embree'] / best['mitsuba']:.2f}x")
     diff = abs(out["embree"] - out["mitsuba"])
     rows = np.abs(np.asarray(out["embree"].sum(axis=1))
                   - np.asarray(out["mitsuba"].sum(axis=1)))
