@@ -135,10 +135,13 @@ class MitsubaFactorTracer:
 
     # ------------------------------------------------------------------ the rays
     def _face_data(self, face):
-        """What the rays of ``face`` (UInt32, global indices) need: its vertex, edges and
-        normal (``Vector3f``) and its scramble keys (one ``UInt32`` a dimension)."""
+        """What the rays of ``face`` (UInt32, global indices) need: its vertex, edges,
+        centre, normal and tangent frame (``Vector3f``) and its scramble keys (one ``UInt32``
+        a dimension); in the trace kernel, once a lane."""
         mi, dr = self.scene._mi, self.scene._dr
         g = {name: dr.gather(mi.Vector3f, a, face) for name, a in self._face.items()}
+        g["c"] = g["v0"] + (g["e1"] + g["e2"]) * (1.0 / 3.0)
+        g["t1"], g["t2"] = _frame(mi, dr, g["n"])
         keys = [dr.gather(mi.UInt32, self._keys, face * self.dims + d) for d in range(self.dims)]
         return g, keys
 
@@ -165,15 +168,14 @@ class MitsubaFactorTracer:
         o = g["v0"] + w1 * g["e1"] + w2 * g["e2"]
         off = float(self.offset)
         if off > 0:
-            to_c = g["v0"] + (g["e1"] + g["e2"]) * (1.0 / 3.0) - o
+            to_c = g["c"] - o
             d = dr.sqrt(dr.squared_norm(to_c))
             lift = off / dr.maximum(d, off)
             o = o + (to_c * lift + (sd * off) * g["n"])
         rr = dr.sqrt(p2)
         s, c = dr.sincos(p3 * float(np.float32(2.0 * np.pi)))
         lz = dr.sqrt(dr.maximum(0.0, 1.0 - p2)) * sd
-        t1, t2 = _frame(mi, dr, g["n"])
-        direction = (rr * c) * t1 + (rr * s) * t2 + lz * g["n"]
+        direction = (rr * c) * g["t1"] + (rr * s) * g["t2"] + lz * g["n"]
         return mi.Ray3f(mi.Point3f(o), mi.Vector3f(direction)), sd
 
     def _chunk_indices(self, rows: np.ndarray):
