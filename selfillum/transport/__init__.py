@@ -9,6 +9,8 @@ to a set of faces.
 - :mod:`~selfillum.transport.sampling`: cosine-distributed RQMC rays;
 - :mod:`~selfillum.transport.kernel`: closed-form factors;
 - :mod:`~selfillum.transport.mitsuba_rays`: first hits through Mitsuba / Dr.Jit;
+- :mod:`~selfillum.transport.mitsuba_factors`: rows of ``F`` sampled, traced and summed in
+  Dr.Jit (``tracer="mitsuba"``);
 - :mod:`~selfillum.transport.coupling`: faces coupled through ``F``.
 """
 
@@ -17,6 +19,7 @@ from __future__ import annotations
 from resection._lazy import attach
 
 _EXPORTS: dict[str, str] = {
+    "MitsubaFactorTracer": ".mitsuba_factors",
     "MitsubaRayScene": ".mitsuba_rays",
     "RayScene": ".viewfactors",
     "RowTracer": ".viewfactors",

@@ -252,8 +252,10 @@ class RowTracer:
     Parameters
     ----------
     mesh, rays_per_face, seed, two_sided, chunk_size, workers, tracer
-        As in :func:`view_factors` (with ``tracer="mitsuba"`` the rays are traced in this
-        process: Dr.Jit spreads them over the device itself).
+        As in :func:`view_factors` (with ``tracer="mitsuba"`` the rays are made, traced and
+        summed per face pair in this process, by Dr.Jit on its device:
+        :class:`~selfillum.transport.mitsuba_factors.MitsubaFactorTracer`; ``chunk_size``
+        is then the faces of a launch, default about ``2**24 / K``).
     n_rows : int, optional
         Rows expected in all (decides whether threads pay off; default all faces).
 
