@@ -131,10 +131,16 @@ def test_same_f_as_embree_on_the_same_rays(two_sided):
 def test_launches_rows_and_progress_give_the_full_rows():
     """A row depends on its face only: F is the same whatever the launch size (the counts
     are integers, so the order of the atomic additions cannot change them), a subset of
-    rows gives those rows of the full F, and progress is reported launch by launch."""
+    rows gives those rows of the full F, and progress is reported launch by launch; the
+    Mitsuba variant set before the call is set again after it."""
+    from selfillum.mitsuba_variants import import_mitsuba
+
+    mi, _ = import_mitsuba()
+    mi.set_variant("scalar_rgb")
     mesh, _ = perpendicular_mesh(n=20)  # 1600 faces
     k = 32
     full = view_factors(mesh, k, seed=11, tracer="mitsuba")
+    assert mi.variant() == "scalar_rgb"  # the process's variant restored
     calls = []
     small = view_factors(mesh, k, seed=11, tracer="mitsuba", chunk_size=300,
                          progress=lambda d, t: calls.append((d, t)))
