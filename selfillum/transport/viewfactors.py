@@ -204,17 +204,26 @@ def view_factors(
         ``(faces_done, faces_total)`` after each chunk.
     tracer : {"embree", "mitsuba"}
         Who traces the rays: Embree through ``embreex`` (the default, CPU), or Mitsuba /
-        Dr.Jit (:mod:`selfillum.transport.mitsuba_rays`: OptiX on a CUDA GPU when one works, else
-        Dr.Jit's LLVM backend on every CPU core, in this process). The rays are the same;
-        the two differ only for rays that graze an edge in float32. Measured on one H100
-        (16 cores, Mitsuba 3.9 ``cuda`` variant; figures reported in issue 21, not
-        re-measured here, bench/README.md): the same F as Embree (one ray's weight in 6-22
-        entries); bare OptiX rays at 69 M rays/s against threaded Embree's 26 (every ray
-        hits) to 159 (most escape) M rays/s on the 16 cores; whole ``view_factors`` with
-        ``"mitsuba"`` at 0.23-0.57 times the speed of threaded Embree on a 609k-face grid
-        (K = 64 and 256), since the sampling and the accumulation into F run on one CPU
-        thread. An H100 has no RT cores: on such a GPU (and on any CPU) ``"embree"``, the
-        default, is the faster choice; ``"mitsuba"`` is the independent reference.
+        Dr.Jit (OptiX on a CUDA GPU when one works, else Dr.Jit's LLVM backend on every CPU
+        core, in this process). With ``"mitsuba"`` the rays are also made and summed per
+        face pair in Dr.Jit where they are traced
+        (:mod:`selfillum.transport.mitsuba_factors`): only the per-pair sums come back, and
+        each row's column indices are unique but not sorted. The rays are the same; the two
+        F differ only for rays that graze an edge in float32 (a ray's weight in a few
+        entries). On the CPU (``llvm`` variant, 2 cores, load 3-5; bench/README.md) whole
+        ``view_factors`` with ``"mitsuba"`` ran at 0.9-1.0x the speed of threaded Embree
+        where every ray hits and 1.7-3.3x where most rays escape, and at 0.26-0.60x the
+        speed of its bare rays (``ray_intersect_preliminary`` on the same rays): making a
+        ray costs about as much as tracing one that escapes, and the scene build and the
+        mesh checks are not in the bare figure. No GPU was at hand for this work, so the GPU
+        figures are still those of issue 21, measured on one H100 (16 cores, Mitsuba 3.9
+        ``cuda``) while the sampling and the accumulation still ran in NumPy on one CPU
+        thread: the same F as Embree (one ray's weight in 6-22 entries); bare OptiX rays at
+        69 M rays/s against threaded Embree's 26 (every ray hits) to 159 (most escape)
+        M rays/s on the 16 cores; whole ``view_factors`` at 0.23-0.57x the speed of
+        threaded Embree on a 609k-face grid (K = 64 and 256). An H100 has no RT cores: on
+        such a GPU threaded Embree was then the faster choice; the Dr.Jit sampling and sums
+        are not yet measured on a GPU. ``"embree"`` stays the default.
 
     Returns
     -------
