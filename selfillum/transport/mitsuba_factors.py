@@ -118,8 +118,8 @@ class MitsubaFactorTracer:
         v = np.asarray(vertices, dtype=np.float64)
         tri = (v[np.asarray(faces, dtype=np.int64)] - self.scene.origin).astype(f32)
         nrm = np.asarray(normals, dtype=np.float64)
-        # 12 floats a face (gathers cost more than arithmetic: the centre and the tangent
-        # frame are rebuilt per ray)
+        # 12 floats a face; the centre and the tangent frame are rebuilt in float32 on the
+        # device, once a lane (``_face_data``)
         per_face = {"v0": tri[:, 0], "e1": tri[:, 1] - tri[:, 0], "e2": tri[:, 2] - tri[:, 0],
                     "n": nrm.astype(f32)}
         base = _sobol_base(self.k, self.dims)  # (k, dims) uint32
