@@ -241,8 +241,8 @@ def _ideal_size(d: float, blur: float) -> float:
     half = int(np.ceil(r2)) + 2
     ar = np.arange(-half, half + 1, dtype=float)
     img = _diskmodel.windows([0.0], [0.0], [R], max(blur, 1e-3), ar, ar)[0]
-    _, meas = _screen.screen(np.ascontiguousarray(img, np.float32), None,
-                             np.array([half]), np.array([half]), d, 1.0, min_contrast=0.0)
+    _, meas = _screen.screen(img, np.zeros((0, 0), np.bool_), np.inf, 1.0, np.array([half]),
+                             np.array([half]), d, 1.0, min_contrast=0.0)
     return float(meas["size"][0])
 
 
@@ -410,7 +410,9 @@ def detect_markers(
     empty = Candidates(*(np.zeros(0) for _ in CANDIDATE_FIELDS), n_masked=n_masked, noise=noise,
                        threshold=thr, polarity=polarity, n_rejected=rejected)
     if pu.size and screen_contrast is not None:
-        keep, _ = _screen.screen(work, bad, pu, pv, d, _ideal_size(d, blur),
+        # read from the frame itself: ``work`` now holds the merit (the transforms ran in
+        # place)
+        keep, _ = _screen.screen(part, mpart, sat, sign, pu, pv, d, _ideal_size(d, blur),
                                  min_contrast=float(screen_contrast))
         rejected["screen"] = int((~keep).sum())
         pu, pv, m = pu[keep], pv[keep], m[keep]
