@@ -194,6 +194,11 @@ class RevolutionModel:
         SNR of a target seen face-on (its depth over the noise), PSF sigma (px), glare
         centre ``(u, v)`` (px).
     seed : int
+    supersample : int
+        Sub-samples along each side of a pixel for the dots' coverage. The coverage of a
+        ``n x n`` grid moves a 4-6 px dot's centroid off its true centre by about
+        ``0.06 / n`` px (median; 0.015 px for 4, 0.004 px for 16), a bias of the image, not
+        of a detector measured on it.
     """
 
     camera: Camera
@@ -214,6 +219,7 @@ class RevolutionModel:
     blur: float = 0.7
     glare: tuple = (520.0, 330.0)
     seed: int = 0
+    supersample: int = 4
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
@@ -279,15 +285,26 @@ class RevolutionModel:
 
     def _dots(self, cam: Camera, P, N, diameter: float, out: np.ndarray, depth: float):
         """Multiply ``out`` by ``1 - depth x coverage`` of the dots (exact perspective
-        ellipses, 4 x 4 sub-samples a pixel)."""
+        ellipses, ``supersample`` x ``supersample`` sub-samples a pixel)."""
         if len(P) == 0:
             return
+        H, W = out.shape
+        att = np.zeros(out.shape, np.float32)
+        ns = int(self.supersample)
+        step = max(1, 4096 // (ns * ns))  # dots a batch: bounded memory for fine sampling
+        for k in range(0, len(P), step):  # a loop over batches of dots
+            self._coverage(cam, P[k:k + step], N[k:k + step], diameter, depth, att)
+        out *= np.clip(1.0 - att, 0.0, 1.0)
+
+    def _coverage(self, cam: Camera, P, N, diameter: float, depth: float, att):
+        """Add ``depth x coverage`` of the dots ``P`` (normals ``N``) to ``att``."""
         uv = cam.project(P)
         C = cam.center
-        H, W = out.shape
+        H, W = att.shape
         h = int(np.ceil(0.5 * diameter * self.px_per_m)) + 2  # the major axis: diameter
         off = np.arange(-h, h + 1)
-        sub = (np.arange(4) + 0.5) / 4 - 0.5
+        ns = int(self.supersample)
+        sub = (np.arange(ns) + 0.5) / ns - 0.5
         c0 = np.rint(uv).astype(int)
         pu = c0[:, 0, None, None, None, None] + off[None, None, :, None, None] \
             + sub[None, None, None, None, :]
@@ -309,9 +326,7 @@ class RevolutionModel:
         uu = c0[:, 0, None, None] + off[None, None, :]
         vv, uu = np.broadcast_arrays(vv, uu)
         ok = (vv >= 0) & (vv < H) & (uu >= 0) & (uu < W) & (cover > 0)
-        att = np.zeros(out.shape, np.float32)
         np.add.at(att, (vv[ok], uu[ok]), depth * cover[ok])
-        out *= np.clip(1.0 - att, 0.0, 1.0)
 
     def image(self, k: int) -> np.ndarray:
         """Frame ``k``: (H, W) uint8."""
@@ -352,7 +367,8 @@ def revolution_model(n_frames: int = 200, *, shape=(800, 1280), fps: float = 100
                      period: int = 200, roll_deg: float = 25.0, vibration: float = 1.0,
                      marker_px: float = 5.0, tap_px: float = 2.5, speckle: float = 0.10,
                      grain: float = 2.0, snr: float = 20.0, roll0_deg: float = 0.0,
-                     glare=None, rings=(10, 8, 7, 7), seed: int = 0) -> RevolutionModel:
+                     glare=None, rings=(10, 8, 7, 7), seed: int = 0,
+                     supersample: int = 4) -> RevolutionModel:
     """The body of revolution pitching, yawing, heaving and rolling in front of a camera.
 
     Parameters
@@ -382,6 +398,8 @@ def revolution_model(n_frames: int = 200, *, shape=(800, 1280), fps: float = 100
         Glare centre; default on the body's upper side.
     seed : int
         Layout jitter, texture and noise seeds.
+    supersample : int
+        Sub-samples along a pixel's side for the dots (see :class:`RevolutionModel`).
     """
     H, W = int(shape[0]), int(shape[1])
     eye = np.array([0.0, -0.80, 0.25])
@@ -411,7 +429,8 @@ def revolution_model(n_frames: int = 200, *, shape=(800, 1280), fps: float = 100
     return RevolutionModel(cam, ids, pts, nrm, tpts, tnrm, marker_px / px_m, tap_px / px_m,
                            float(fps), np.column_stack([roll, pitch, yaw]), trans,
                            speckle=float(speckle), grain=float(grain), snr=float(snr),
-                           glare=tuple(float(g) for g in glare), seed=int(seed))
+                           glare=tuple(float(g) for g in glare), seed=int(seed),
+                           supersample=int(supersample))
 
 
 def paint_frame(seed: int, *, snr: float = 20.0, shape=(800, 1280),
@@ -420,7 +439,9 @@ def paint_frame(seed: int, *, snr: float = 20.0, shape=(800, 1280),
     target size 4-6 px, tap size 2-3 px, speckle contrast (RMS) 5-15 %, grain 1-3 px,
     glare position and roll angle (``speckle``: a given RMS contrast instead, 0 for plain
     paint). The body carries 59 targets (rings of 18, 13, 12 and 12,
-    four on the cone): 16 to 24 face the camera within 60 degrees.
+    four on the cone): 16 to 24 face the camera within 60 degrees. The dots are drawn with
+    16 x 16 sub-samples a pixel (their centroids within about 0.005 px of the truth; the
+    sequences' 4 x 4 leave about 0.015 px, as much as the noise's share at SNR 100).
 
     Returns
     -------
@@ -438,7 +459,7 @@ def paint_frame(seed: int, *, snr: float = 20.0, shape=(800, 1280),
                              speckle=rng.uniform(0.05, 0.15) if speckle is None else speckle,
                              grain=rng.uniform(1.0, 3.0),
                              snr=snr, roll0_deg=rng.uniform(0, 360), roll_deg=0.0,
-                             rings=(18, 13, 12, 12), seed=int(seed))
+                             rings=(18, 13, 12, 12), seed=int(seed), supersample=16)
     img = model.image(0)
     keep = model.visible(0, min_cos=np.cos(np.radians(60.0)))
     return img, model.uv(0)[keep], d, model
