@@ -10,18 +10,23 @@ from resection.markers import _prep
 
 
 def _reference(img, mask, saturation, sign):
-    """The NumPy preparation: masked pixels, fill level, signal (float64)."""
+    """The NumPy preparation: masked pixels, fill level, signal (float64): 0 at NaN,
+    infinite and user-masked pixels, ``sign * saturation - fill`` at the other saturated
+    ones."""
     x = img.astype(np.float64)
-    bad = ~np.isfinite(x)
+    void = ~np.isfinite(x)
+    if mask is not None:
+        void |= mask
+    saturated = np.zeros(x.shape, bool)
     if saturation is not None:
         with np.errstate(invalid="ignore"):
-            bad |= x >= saturation
-    if mask is not None:
-        bad |= mask
+            saturated = (x >= saturation) & ~void
+    bad = void | saturated
     k = max(1, int(np.sqrt(img.size / 16_000)))
     sub_ok = ~bad[::k, ::k]
     fill = float(np.median(sign * x[::k, ::k][sub_ok]))
-    signal = np.where(bad, 0.0, sign * x - fill)
+    signal = np.where(void, 0.0, np.where(saturated, sign * (saturation or 0.0) - fill,
+                                          sign * x - fill))
     return signal, bad, fill
 
 

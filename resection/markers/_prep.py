@@ -3,11 +3,13 @@
 
 * :func:`prepare`: one compiled pass over the (integer or float) frame: the masked pixels
   (NaN, infinite, saturated, user mask) are counted, the sign of dark markers flipped, the
-  fill level subtracted (masked pixels read 0, the fill level), and the result written as
-  float32, the input of the merit's transform (which overwrites it). No float64 copy of the
-  frame; the fit reads its windows from the frame itself. The float32 values are exact for
-  8- and 16-bit frames (integers under 2^24, the fill level a half-integer). The mask of
-  bad pixels is written only where there are some.
+  fill level subtracted (masked pixels read 0, the fill level; saturated ones their
+  saturation level, ``sign * sat - fill``, a bound on their true value: a dark marker
+  inside saturated glare stands out of it, a bright one's saturated core stays bright), and
+  the result written as float32, the input of the merit's transform (which overwrites
+  it). No float64 copy of the frame; the fit reads its windows from the frame itself. The
+  float32 values are exact for 8- and 16-bit frames (integers under 2^24, the fill level a
+  half-integer). The mask of bad pixels is written only where there are some.
 * :func:`merit`: the correlation of the prepared frame with the marker template, the frame
   extended by mirror symmetry at its borders (``np.pad(mode="symmetric")``), at every pixel
   of the frame. The template is even in each axis, so this symmetric convolution is
@@ -42,19 +44,25 @@ def _is_bad(x, sat):
 @njit(cache=True)
 def _prepare(img, mask, sat, sign, fill, out):
     """The compiled pass of :func:`prepare`: ``out = sign * img - fill``, 0 where masked
-    (``mask`` of shape (0, 0): none); returns the number of masked pixels. Branch-free per
-    pixel, so that the rows vectorise."""
+    (``mask`` of shape (0, 0): none; NaN, infinite), ``sign * sat - fill`` where saturated
+    (``>= sat``, finite, not in ``mask``); returns the number of masked pixels (saturated
+    ones included). Branch-free per pixel, so that the rows vectorise."""
     H, W = img.shape
     use_mask = mask.shape[0] == H and mask.shape[1] == W
     n_bad = 0
+    at_sat = np.float32(sign * sat - fill) if math.isfinite(sat) else np.float32(0.0)
     for i in range(H):
         for j in range(W):
             x = float(img[i, j])
             b = _is_bad(x, sat)
+            void = not math.isfinite(x)
             if use_mask:
                 b = b | mask[i, j]
+                void = void | mask[i, j]
             n_bad += b
-            out[i, j] = np.float32(0.0) if b else np.float32(sign * x - fill)
+            v = np.float32(sign * x - fill)
+            v = at_sat if b else v
+            out[i, j] = np.float32(0.0) if void else v
     return n_bad
 
 
@@ -112,7 +120,8 @@ def prepare(img: np.ndarray, mask: np.ndarray, sat: float,
     Returns
     -------
     work : (H, W) float32 array
-        ``sign * img - fill``, 0 at masked pixels, in a buffer with a padded row stride
+        ``sign * img - fill``, 0 at masked pixels (``sign * sat - fill`` at saturated
+        ones), in a buffer with a padded row stride
         (the input of :func:`merit`, which overwrites it).
     bad : (H, W) bool array, or None where no pixel is masked
         Masked pixels.
@@ -142,9 +151,8 @@ def prepare(img: np.ndarray, mask: np.ndarray, sat: float,
         bad = np.empty((H, W), np.bool_)
         _flag(img, mask, sat, bad)
         if not ok.any() and n_bad < img.size:
-            good = ~bad
-            fill = median(work[good].astype(np.float64))
-            work[good] -= np.float32(fill)
+            fill = median(work[~bad].astype(np.float64))
+            _prepare(img, mask, sat, float(sign), fill, work)  # again, with the fill level
     return work, bad, n_bad, fill
 
 

@@ -45,7 +45,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from resection.errors import InputError
-from resection.markers import _diskmodel, _peaks, _prep, _screen
+from resection.markers import _diskmodel, _peaks, _prep, _saturated, _screen
 from resection.markers.refine import fit_frame, refine_markers
 
 __all__ = [
@@ -92,8 +92,13 @@ class Candidates:
         Merit threshold used.
     polarity : str
     n_rejected : dict
-        Local maxima rejected at each step: ``border``, ``masked``, ``fit`` (failed or too
-        faint fit), ``double``.
+        Local maxima rejected at each step: ``screen``, ``border``, ``masked``, ``fit``
+        (failed or too faint fit), ``double``.
+    saturated : (K, 2) float array
+        Dark markers inside saturated glare, not among the candidates: islands of
+        unsaturated pixels (a marker's core) enclosed by saturated ones, at their centroid
+        weighted by the depth under saturation, ``(u, v)`` pixels (a few tenths of a pixel:
+        the edge that would locate them is clipped). Not written to candidate files.
     """
 
     u: np.ndarray
@@ -107,6 +112,7 @@ class Candidates:
     threshold: float = float("nan")
     polarity: str = "dark"
     n_rejected: dict = field(default_factory=dict)
+    saturated: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
 
     def __post_init__(self):
         n = None
@@ -117,6 +123,8 @@ class Candidates:
             elif a.size != n:
                 raise InputError(f"candidates: field {name!r} has {a.size} values, expected {n}")
             object.__setattr__(self, name, a)
+        object.__setattr__(self, "saturated",
+                           np.asarray(self.saturated, dtype=float).reshape(-1, 2))
 
     def __len__(self) -> int:
         return self.u.size
@@ -131,7 +139,7 @@ class Candidates:
         kw = {f: getattr(self, f)[index] for f in CANDIDATE_FIELDS}
         return Candidates(**kw, n_masked=self.n_masked, noise=self.noise,
                           threshold=self.threshold, polarity=self.polarity,
-                          n_rejected=dict(self.n_rejected))
+                          n_rejected=dict(self.n_rejected), saturated=self.saturated)
 
     @classmethod
     def from_uv(cls, uv, diameter=np.nan) -> Candidates:
@@ -383,14 +391,22 @@ def detect_markers(
         saturation = np.iinfo(img.dtype).max
     sat = np.inf if saturation is None else float(saturation)
     sign = -1.0 if polarity == "dark" else 1.0
-    # one compiled pass: sign, fill level removed, float32 (masked pixels 0), masked
-    # pixels counted (and flagged, where there are some)
+    # one compiled pass: sign, fill level removed, float32 (masked pixels 0, saturated
+    # ones their saturation level), masked pixels counted (and flagged, where there are
+    # some)
     work, bad, n_bad, fill = _prep.prepare(part, mpart, sat, sign)
     if n_bad == work.size:
         raise InputError("image: every pixel is masked (NaN, infinite or saturated)"
                          if roi is None else "image: every pixel of the roi is masked")
     n_masked = 0 if bad is None else int(bad[v0 - cv0:v1 - cv0 + 1, u0 - cu0:u1 - cu0 + 1].sum())
     noise = estimate_noise(work, bad)
+    # dark markers inside saturated glare: islands of unsaturated pixels that saturation
+    # encloses, reported apart (``Candidates.saturated``)
+    pits = np.zeros((0, 2))
+    if sign < 0 and n_bad:
+        pits = _saturated.saturated_pits(part, mpart, sat, d, min_snr * noise) + (cu0, cv0)
+        pits = pits[(pits[:, 0] >= u0) & (pits[:, 0] <= u1) & (pits[:, 1] >= v0)
+                    & (pits[:, 1] <= v1)]
     # the merit, the frame mirrored at its borders (zero padding would make the image edge
     # look like a marker); float32 after removing the fill level: the rounding of the
     # transforms stays far under the noise
@@ -408,7 +424,7 @@ def detect_markers(
     pu, pv, m = pu[order], pv[order], m[order]
     rejected = {"screen": 0, "border": 0, "masked": 0, "fit": 0, "double": 0}
     empty = Candidates(*(np.zeros(0) for _ in CANDIDATE_FIELDS), n_masked=n_masked, noise=noise,
-                       threshold=thr, polarity=polarity, n_rejected=rejected)
+                       threshold=thr, polarity=polarity, n_rejected=rejected, saturated=pits)
     if pu.size and screen_contrast is not None:
         # read from the frame itself: ``work`` now holds the merit (the transforms ran in
         # place)
@@ -455,6 +471,9 @@ def detect_markers(
         rejected["double"] = int((~keep).sum())
         idx = idx[keep]
     depth = fit["depth"][idx]
+    if len(pits) and idx.size:  # an island that was fitted all the same is a candidate
+        pits = pits[cKDTree(np.column_stack([fu[idx] + cu0, fv[idx] + cv0])).query(pits)[0]
+                    > R + 1.0]
     return Candidates(
         u=fu[idx] + cu0,
         v=fv[idx] + cv0,
@@ -467,6 +486,7 @@ def detect_markers(
         threshold=thr,
         polarity=polarity,
         n_rejected=rejected,
+        saturated=pits,
     )
 
 

@@ -132,7 +132,8 @@ def merge_candidates(parts, diameter, min_separation) -> Candidates:
                       n_masked=sum(c.n_masked for c in parts),
                       noise=float(np.median([c.noise for c in parts])),
                       threshold=float(np.median([c.threshold for c in parts])),
-                      polarity=parts[0].polarity, n_rejected=rejected)
+                      polarity=parts[0].polarity, n_rejected=rejected,
+                      saturated=np.concatenate([c.saturated for c in parts]))
 
 
 def window_mask(shape, windows) -> np.ndarray:
