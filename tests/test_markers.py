@@ -481,9 +481,11 @@ def test_background_enhancement_helps_on_hot_low_contrast_ir_image():
         cand = detect_in_image(img, 6.0, enhance="background")
         assert _found_false(cand, sc.uv) == (25, 0)
         assert _rms(_errors(cand.uv, sc.uv)[0]) <= 0.05
-    # without enhancement the hot spot's curvature hides markers; the false ones it makes
-    # are rejected by the screen (contrast against the local clutter, shape), not without
-    assert raw_missed >= 6 and unscreened_false >= 6 and raw_false == 0
+    # without enhancement the hot spot's curvature hides markers (3 of 75 since the fit
+    # solves the contrast first where the start has none, 6 or more before); the false ones
+    # it makes are rejected by the screen (contrast against the local clutter, shape), not
+    # without
+    assert raw_missed >= 1 and unscreened_false >= 6 and raw_false == 0
 
 
 def test_enhancement_in_windows_searches_only_there():
