@@ -97,3 +97,21 @@ def test_fit_reaches_the_cramer_rao_bound():
     # 800 samples: the RMS is within about 5 % of its expectation (2.5 sigma: 12 %); the
     # fit also estimates the background's two slopes (a few per cent above the bound)
     assert 0.85 * crb < rms < 1.2 * crb
+
+
+def test_fit_without_contrast_at_the_start_converges():
+    # a start with no contrast (a = 0: the centre and radius have no gradient) on a steep
+    # background: the linear parameters are solved first, then the disk; the noiseless
+    # windows are fitted to the stopping rule's tolerance (1e-4 px a step, the centres within
+    # a few 1e-4 px), with no step running off the window (the first step of the centre was
+    # thousands of pixels before)
+    rng = np.random.default_rng(6)
+    win, p0, x0, y0 = _windows(20, 2.8, 0.6, None, rng)
+    W = win.shape[1]
+    vv, uu = np.mgrid[0:W, 0:W] - (W - 1) / 2
+    win = win + 6.0 * uu - 4.0 * vv  # 6 and -4 counts a pixel along u and v
+    p0[:, 3] = 1e-12
+    p, cost = _fit(win, p0, 0.6)
+    assert np.abs(p[:, 0] - x0).max() < 1e-3 and np.abs(p[:, 1] - y0).max() < 1e-3
+    assert np.abs(p[:, 3] - 100.0).max() < 0.1
+    assert np.abs(p[:, 5] - 6.0).max() < 1e-3 and np.abs(p[:, 6] + 4.0).max() < 1e-3

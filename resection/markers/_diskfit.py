@@ -380,13 +380,16 @@ def fit_windows(win, w, p0, tab, T, h, rmin, rmax, iterations, tol, sizes, sn, c
         last = 0.0  # the last step taken (centre, pixels); 0: none yet
         lam = 1e-3
         nev[c] = 1
-        if iterations > 0 and not pc[3] > 1e-6:
-            # no contrast at the start (the volume above the ring's median is not positive:
-            # a ring partly masked on a steep background): the centre and radius have no
-            # gradient, and their step would be unbounded. The linear parameters (contrast,
-            # background, slopes) are solved first, the disk held where it starts.
+        if iterations > 0:
+            # a start far off in contrast (the volume above the ring's median, biased on a
+            # steep background, the more so with the ring partly masked; none at all: the
+            # centre and radius have no gradient, their step is unbounded): the linear
+            # parameters (contrast, background, slopes) are solved first with the disk held
+            # where it starts, when they change the contrast by more than half (a 4 x 4
+            # solve, no model evaluation, decides)
             step.fill(0.0)
-            if _solve_damped(JTJ[3:, 3:], JTr[3:], 0.0, step[3:]) and pc[3] + step[3] > 0:
+            if (_solve_damped(JTJ[3:, 3:], JTr[3:], 0.0, step[3:]) and pc[3] + step[3] > 0
+                    and not abs(step[3]) <= 0.5 * pc[3]):
                 for k in range(NP):
                     pt[k] = pc[k] + step[k]
                 ct = _normal(wn, ww, pt, tab, T, h, sizes, sn, cs, wc, M, sA, sB, JTJ, JTr)

@@ -455,6 +455,16 @@ def detect_markers(
         inb = (fu - reach >= bu0) & (fu + reach <= bu1) & (fv - reach >= bv0) & (fv + reach <= bv1)
     rejected["border"] = int((ok & ~inb).sum())
     ok &= inb
+    kept = np.flatnonzero(ok)
+    if len(pits) and kept.size:
+        # a candidate on an island of unsaturated pixels with more than half its disk
+        # saturated has its edge clipped all around: no sub-pixel position (the island is
+        # reported instead); with most of its disk seen, the fit locates it
+        near = cKDTree(pits).query(np.column_stack([fu[kept] + cu0, fv[kept] + cv0]),
+                                   distance_upper_bound=R + 1.0)[0] <= R + 1.0
+        clipped = near & (fit["masked_fraction"][kept] > 0.5)
+        rejected["masked"] += int(clipped.sum())
+        ok[kept[clipped]] = False
     idx = np.flatnonzero(ok)
     # doubles: keep the stronger merit (idx is sorted by decreasing merit)
     sep = min_separation if min_separation is not None else max(0.75 * d, 1.5)
