@@ -195,4 +195,5 @@ def test_screen_spares_the_fit_most_speckle_and_no_target():
     e_full, j_full = cKDTree(full.uv).query(truth)
     e_scr, j_scr = cKDTree(scr.uv).query(truth)
     assert (e_full < 1.5).all() and (e_scr < 1.5).all()
-    assert abs(np.median(e_scr) - np.median(e_full)) < 0.01
+    # as accurately or better (fewer speckle neighbours take pixels out of a target's fit)
+    assert np.median(e_scr) < np.median(e_full) + 0.01

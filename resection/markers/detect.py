@@ -27,7 +27,11 @@ Cost: on a 1 Mpx frame with 400 markers, about the time of OpenCV's blob detecto
 ``bench/bench_detect.py``); a ``roi`` reads and searches only its part of the frame.
 
 NaN, infinite and saturated pixels (and a user mask) are masked: excluded from the noise
-estimate and from the fit, counted in :attr:`Candidates.n_masked`.
+estimate, the screen and the fit, counted in :attr:`Candidates.n_masked`. Saturated pixels
+enter the merit at their saturation level (a bound on their true value), so a dark marker
+beside saturated glare stands out; a dark marker inside it (only its core under saturation,
+its edge clipped all around) is not fitted but reported in :attr:`Candidates.saturated`
+(:mod:`resection.markers._saturated`).
 
 Conventions: pixel ``(u, v)`` = (column, row), the centre of the top-left pixel at (0, 0),
 ``img[v, u]``. Candidate CSV files: ``u,v,diameter,depth,merit,snr`` (+ ``id`` once matched).
@@ -353,7 +357,9 @@ def detect_markers(
     Candidates
         Sorted by decreasing merit. ``n_rejected`` counts the maxima rejected at each step
         (``screen``, ``border``, ``masked``, ``fit``, ``double``); the candidates fitted
-        are the maxima less those screened out.
+        are the maxima less those screened out. ``saturated``: dark markers inside
+        saturated glare (islands of unsaturated pixels enclosed by saturation, no larger
+        than the marker), located to a few tenths of a pixel, not among the candidates.
 
     Raises
     ------
