@@ -277,8 +277,10 @@ def correct(
       plus a small Tikhonov term ``regularization * |B_h - mean(B_seen)|^2`` that fixes
       what the smoothness leaves free. A sparse least-squares problem, solved by
       conjugate gradients on its normal equations, preconditioned by the same problem
-      without interreflection between the hidden faces (a sparse graph Laplacian,
-      factored once): a few tens of iterations where plain LSMR needs hundreds.
+      written in the hidden faces' emission, with the light between them and the seen
+      faces on the diagonal only (a sparse graph Laplacian, factored once, between two
+      truncated Neumann series of ``(I - rho F)`` over the hidden faces): tens to a few
+      hundred iterations where plain LSMR needs hundreds to thousands.
     * ``"none"``: hidden faces emit nothing (``E_h = 0``);
     * an ``(N,)`` array: hidden faces emit these values (``"given"``; values of seen faces
       are ignored).
@@ -447,6 +449,27 @@ def _neumann(RF: sp.csr_matrix, rhs: np.ndarray, tol: float) -> np.ndarray:
     raise SolveError("unpainted faces: the Neumann series did not converge")
 
 
+def _neumann_terms(RF: sp.csr_matrix, target: float = 1e-3, most: int = 30) -> int:
+    """Terms of the Neumann series of ``(I - RF)^-1`` that bring its remainder under
+    ``target`` (``|RF|_inf^k``), at most ``most`` (0 for an empty ``RF``)."""
+    if RF.nnz == 0:
+        return 0
+    q = float(np.abs(RF).sum(axis=1).max())
+    if q <= 0.0:
+        return 0
+    if q >= 1.0:
+        return most
+    return int(min(most, max(1, np.ceil(np.log(target) / np.log(q)))))
+
+
+def _neumann_fixed(RF: sp.csr_matrix, rhs: np.ndarray, terms: int) -> np.ndarray:
+    """``sum_{k <= terms} RF^k rhs``: a fixed linear approximation of ``(I - RF)^-1 rhs``."""
+    x = rhs
+    for _ in range(terms):
+        x = rhs + RF @ x
+    return x
+
+
 def _continue_hidden(M, Bsub, loc_seen, paint_off, mesh, sub, regularization, tol, maxiter):
     """Radiosity of the coupled hidden faces under the smooth-continuation model.
 
@@ -499,6 +522,10 @@ def _continue_hidden(M, Bsub, loc_seen, paint_off, mesh, sub, regularization, to
         touches_unpainted = (abs(D) @ paint_off.astype(float)) > 0
         D = D[np.flatnonzero(~touches_unpainted)]
     D = D.tocsr()
+    # only the edges touching a face whose emission depends on B_P (the rows of G) change
+    # with it; the others add a constant to the objective: left out (the same minimiser)
+    moves = (np.diff(M_SP.indptr) > 0) | (np.diff(M_SU.indptr) > 0)
+    D = D[np.flatnonzero(abs(D) @ moves.astype(np.float64) > 0)]
     DT = D.T.tocsr()
     col_norm = np.sqrt(np.asarray(D.multiply(D).sum(axis=0)).ravel())[P]
     scale = float(np.median(col_norm[col_norm > 0])) if np.any(col_norm > 0) else 1.0
@@ -508,11 +535,28 @@ def _continue_hidden(M, Bsub, loc_seen, paint_off, mesh, sub, regularization, to
     def normal(x):  # (G^T D^T D G + lam^2) x
         return gt(DT @ (D @ g(np.ravel(x)))) + lam**2 * np.ravel(x)
 
-    # preconditioner: the same problem with G = I (no light between faces), a sparse
-    # SPD graph Laplacian over the hidden painted faces, factored once
+    # preconditioner: the problem in the hidden faces' emission y = M_PP x instead of
+    # their radiosity x, with the light between hidden and seen faces kept only on the
+    # diagonal (C = D_s M_sP: the seen faces lit by hidden ones): a sparse SPD graph
+    # Laplacian L (+ diag(C^T C)) over the hidden painted faces, factored once, and
+    # P = M_PP^-1 L^-1 M_PP^-T (M_PP^-1 by a fixed number of Neumann terms, so that P is
+    # linear and symmetric). The Laplacian alone (P = L^-1) left the interreflection
+    # among the hidden faces (rho F_PP, noisy with few rays a face) out of the
+    # preconditioner: smooth radiosity is rough emission there, and CG took thousands
+    # of iterations on a real grid (bench/README.md, "Unsteady run").
     DP = D[:, P].tocsc()
-    lap = (DP.T @ DP + lam**2 * sp.identity(nh, format="csc")).tocsc()
+    C = D[:, s_idx] @ M_SP[s_idx]  # the seen faces lit by the hidden ones: its diagonal
+    lap = (DP.T @ DP + sp.diags(np.asarray(C.multiply(C).sum(axis=0)).ravel() + lam**2)
+           ).tocsc()
     lu = spla.splu(lap)
+    RF_PP = (sp.identity(nh, format="csr") - M[P][:, P]).tocsr()
+    RF_PPt = RF_PP.T.tocsr()
+    n_terms = _neumann_terms(RF_PP)
+
+    def precondition(r):
+        return _neumann_fixed(RF_PP, lu.solve(_neumann_fixed(RF_PPt, np.ravel(r), n_terms)),
+                              n_terms)
+
     painted_seen = s_idx[~paint_off[s_idx]]
     prior = float(np.mean(Bsub[painted_seen] if painted_seen.size else Bsub[s_idx]))
     base = np.full(nh, prior)
@@ -524,7 +568,7 @@ def _continue_hidden(M, Bsub, loc_seen, paint_off, mesh, sub, regularization, to
         counter["k"] += 1
 
     N = spla.LinearOperator((nh, nh), matvec=normal, dtype=float)
-    prec = spla.LinearOperator((nh, nh), matvec=lambda r: lu.solve(np.ravel(r)), dtype=float)
+    prec = spla.LinearOperator((nh, nh), matvec=precondition, dtype=float)
     norm_rhs = float(np.linalg.norm(rhs))
     x = np.zeros(nh)
     if norm_rhs > 0:
