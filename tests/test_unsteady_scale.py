@@ -346,9 +346,10 @@ def test_fast_phase1_agrees_with_the_full_per_frame_map(monkeypatch):
 
     monkeypatch.setattr(fastmap.FrameOperator, "faces_moved", counted)
     a, b = values("track", False), values("track", True)
-    # most frames take the fast way (21 of 29 measured; the others moved past 3 px from
-    # every reference and were cast anew, becoming references)
-    assert sum(used) >= T // 2
+    # the frames take the fast way: the references are planned from the known poses
+    # (here frame 0's covers every frame: points move up to 2.4 px) and points moving off
+    # the sensor are left out instead of forcing a cast (before: 21 of 29 frames)
+    assert sum(used) >= T - 3
     both = np.isfinite(a) & np.isfinite(b)
     assert both.sum() > 0.25 * a.size
     assert (np.isfinite(a) != np.isfinite(b)).mean() < 0.005

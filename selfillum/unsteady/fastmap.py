@@ -32,7 +32,7 @@ import functools
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["FrameOperator"]
+__all__ = ["FrameOperator", "plan_references"]
 
 
 class FrameOperator:
@@ -99,6 +99,8 @@ class FrameOperator:
                       for X in self.X]
         self.seen = seen if unpainted is None else seen & ~np.asarray(unpainted, bool)
         self._nodes = None
+        self.frame = None  # the reference's frame number, and the last frame that used it
+        self.last_used = -1
 
     def node_matrix(self, W, grid):
         """(N, F) sparse: the area-weighted mean of the seen faces around each grid node
@@ -143,8 +145,9 @@ class FrameOperator:
         (bilinear) where the reference's surface points project (the camera's own
         projection with its distortion, :meth:`resection.Camera.project`); None when a
         point moved more than twice ``refresh_px`` (the reference was chosen on a sample
-        of its points, :meth:`displacement`) or falls off its sensor (the caller casts
-        anew)."""
+        of its points, :meth:`displacement`: the caller casts anew). Points that fall off
+        the sensor are left out, the face's other pixels of that camera taking their
+        weight; a face that keeps none of them is NaN (not seen in this frame)."""
         B = np.zeros(self.A[0].shape[0])
         for A, X, uv0, img, cam in zip(self.A, self.X, self.uv0, images, cameras,
                                        strict=True):
@@ -158,10 +161,121 @@ class FrameOperator:
                                      np.asarray(cam.dist, np.float64).ravel(),
                                      float(cam.max_radius), uv0, arr,
                                      2.0 * float(refresh_px), x)
-            if status.any() or not np.isfinite(x).all():
+            if (status == 1).any():
                 return None
-            B += A @ x
+            bad = (status != 0) | ~np.isfinite(x)
+            if not bad.any():
+                B += A @ x
+                continue
+            # points off the sensor: the face's other pixels of this camera, reweighted
+            # to the same share; a face left without any pixel of a camera that had a
+            # share is not seen in this frame (NaN)
+            share = A @ np.ones(len(x))
+            kept = A @ (~bad).astype(np.float64)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                part = np.where(kept > 0, (A @ np.where(bad, 0.0, x)) * (share / kept),
+                                np.nan)
+            B += np.where(share > 0, part, 0.0)
         return B
+
+
+def _probe_pixels(X, poses) -> np.ndarray:
+    """(T, m, 2) float32: the points ``X`` (m, 3) projected with every pose of ``poses``
+    (one camera's :class:`resection.Camera` a frame, same intrinsics), NaN where a point
+    cannot be projected (as :meth:`resection.Camera.project`)."""
+    from resection.camera.distortion import distort_normalized
+
+    cam = poses[0]
+    R = np.stack([np.asarray(c.R, np.float64) for c in poses])
+    t = np.stack([np.asarray(c.t, np.float64).ravel() for c in poses])
+    Xc = np.einsum("tij,mj->tmi", R, np.asarray(X, np.float64)) + t[:, None, :]
+    z = Xc[..., 2]
+    ok = z > 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xy = (Xc[..., :2] / np.where(ok, z, np.nan)[..., None]).reshape(-1, 2)
+    ok = ok.ravel() & (np.hypot(xy[:, 0], xy[:, 1]) <= cam.max_radius)
+    uv = cam.normalized_to_pixels(distort_normalized(xy, cam.dist))
+    uv[~ok] = np.nan
+    return uv.reshape(len(poses), len(X), 2).astype(np.float32)
+
+
+def plan_references(poses, probes, frames, refresh_px: float, *, first: int | None = None,
+                    block: int = 4096, n_candidates: int = 256, n_check: int = 2048,
+                    seed: int = 0) -> dict:
+    """The reference frames of a moving model, chosen before Phase 1 from the known poses,
+    so that every frame is within ``refresh_px`` of one and the references are few.
+
+    The distance between two frames is that of :meth:`FrameOperator.displacement`: the
+    largest move (pixels, either axis, any camera) of the probe points. Greedy cover: the
+    first frame not yet covered (in time order) picks, among the frames within
+    ``refresh_px`` of it (which all cover it), the one covering most of the uncovered
+    frames (counted on a sample of ``n_check`` of them, over a sample of
+    ``n_candidates`` candidates); repeated until every frame is covered. A periodic
+    vibration needs a handful; placing each new reference at the first frame beyond the
+    others (as frames come) needed up to 40 on 256 frames of the bench
+    (bench/README.md).
+
+    Parameters
+    ----------
+    poses : sequence of sequences of Camera
+        Per camera, the camera of every frame (indexed by frame number).
+    probes : sequence of (m, 3) arrays
+        Per camera, surface points seen in the first reference (model units).
+    frames : sequence of int
+        The frames to cover.
+    refresh_px : float
+        Pixels.
+    first : int, optional
+        A frame that is a reference already (the first frame's).
+
+    Returns
+    -------
+    dict
+        Frame number -> its reference's frame number (the nearest reference).
+    """
+    frames = np.asarray(list(frames), dtype=np.int64)
+    T = len(frames)
+    if T == 0:
+        return {}
+    parts = [_probe_pixels(X, [p[int(k)] for k in frames]) for X, p in
+             zip(probes, poses, strict=True) if len(X)]
+    if not parts:
+        return {int(k): int(frames[0] if first is None else first) for k in frames}
+    U = np.concatenate(parts, axis=1)  # (T, m, 2)
+
+    def dist(rows, c):  # (len(rows),): frames' distance to frame position c
+        d = np.abs(U[rows] - U[c][None])
+        d = np.where(np.isnan(d), np.inf, d)
+        return d.reshape(len(d), -1).max(axis=1)
+
+    def dist_all(c):
+        return np.concatenate([dist(np.arange(a, min(a + block, T)), c)
+                               for a in range(0, T, block)])
+
+    rng = np.random.default_rng(seed)
+    best_d = np.full(T, np.inf)
+    best_c = np.zeros(T, dtype=np.int64)
+
+    def add(c):
+        d = dist_all(c)
+        closer = d < best_d
+        best_d[closer] = d[closer]
+        best_c[closer] = c
+
+    if first is not None and first in set(frames.tolist()):
+        add(int(np.flatnonzero(frames == first)[0]))
+    while True:
+        open_ = np.flatnonzero(best_d > refresh_px)
+        if open_.size == 0:
+            break
+        f = int(open_[0])
+        cand = np.flatnonzero(dist_all(f) <= refresh_px)  # f itself at least
+        if cand.size > n_candidates:
+            cand = rng.choice(cand, n_candidates, replace=False)
+        chk = open_ if open_.size <= n_check else rng.choice(open_, n_check, replace=False)
+        counts = [int((dist(chk, int(c)) <= refresh_px).sum()) for c in cand]
+        add(int(cand[int(np.argmax(counts))]))
+    return {int(frames[i]): int(frames[best_c[i]]) for i in range(T)}
 
 
 @functools.cache

@@ -222,11 +222,31 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
     use_fast = fast and patcher == "none" and not (moving and filter != "none")
     ops: list = []  # references: frame 0's; for a moving model also later casts
     spot_px = [None] * len(cameras)
+    frame_numbers = [int(k) for k in frame_numbers]
+    plan = None  # a moving model: each frame's reference, planned from the known poses
+
+    def planned(k):  # the operator of frame k's planned reference (cast when missing)
+        nonlocal plan
+        if plan is None:
+            from selfillum.unsteady.fastmap import plan_references
+
+            plan = plan_references([c.poses for c in cameras],
+                                   [X[pr[::4]] for X, pr in zip(ops[0].X, ops[0].probe,
+                                                                strict=True)],
+                                   frame_numbers, refresh_px, first=ops[0].frame)
+        j = plan.get(k, k)
+        op = next((o for o in ops if o.frame == j), None)
+        if op is None:
+            op = _cast_reference(j, cameras, mesh, caster, max_obliqueness, spots,
+                                 spot_margin_px, merge_kw, ops[0].gains, off)
+            _keep(ops, op)
+        op.last_used = k
+        return op
+
     for k in frame_numbers:  # frames, one at a time
-        k = int(k)
         if ops:
             fv = _fast_frame(ops, cameras, k, regs, spots, spot_px, filter, filter_size,
-                             moving, refresh_px)
+                             moving, refresh_px, op=planned(k) if moving else None)
             if fv is not None:
                 B, cams, op_seen, _ = fv
                 seen = op_seen & np.isfinite(B)
@@ -268,9 +288,8 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
             from selfillum.unsteady.fastmap import FrameOperator
 
             op = FrameOperator(maps, finite, merge_kw, ops[0].gains, off, sample_points=True)
-            ops.append(op)
-            if len(ops) > MAX_REFERENCES:
-                ops.pop(1)  # the oldest after frame 0's
+            op.frame = op.last_used = k
+            _keep(ops, op)
             B = op.faces(imgs)
             seen = op.seen & np.isfinite(B)
             raw_f = np.where(seen, B, np.nan)
@@ -286,6 +305,7 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
 
             ops.append(FrameOperator(maps, finite, merge_kw, mv.gains, off,
                                      sample_points=moving))
+            ops[0].frame = ops[0].last_used = k
         B = mv.values
         seen = mv.seen & np.isfinite(B)
         if off is not None:
@@ -300,9 +320,40 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
 MAX_REFERENCES = 8
 
 
+def _keep(ops, op) -> None:
+    """Add a reference; past :data:`MAX_REFERENCES`, drop the least recently used one
+    (never the first frame's)."""
+    ops.append(op)
+    if len(ops) > MAX_REFERENCES:
+        ops.pop(1 + int(np.argmin([o.last_used for o in ops[1:-1]])))
+
+
+def _cast_reference(j, cameras, mesh, caster, max_obliqueness, spots, spot_margin_px,
+                    merge_kw, gains, unpainted):
+    """The operator of a moving model's reference at frame ``j``'s poses: a
+    :class:`resection.SurfaceMap` a camera (a ray cast), its dark spots left out; no image
+    is needed (a video's pixels are finite)."""
+    from resection.surface.surface_map import SurfaceMap
+    from selfillum.unsteady.fastmap import FrameOperator
+
+    maps, finite = [], []
+    for c in cameras:  # a few cameras
+        smap = SurfaceMap(mesh, c.poses[j], max_obliqueness=max_obliqueness, caster=caster)
+        fin = np.ones(smap.shape, bool)
+        if spots is not None and len(spots):
+            cen, rad = project_spots(spots, smap, margin_px=spot_margin_px)
+            fin = np.isfinite(mask_spots(np.zeros(smap.shape, np.float32), cen, rad))
+        maps.append(smap)
+        finite.append(fin)
+    op = FrameOperator(maps, finite, merge_kw, gains, unpainted, sample_points=True)
+    op.frame = op.last_used = j
+    return op
+
+
 def _fast_frame(ops, cameras, k, regs, spots, spot_px, filter, filter_size, moving,
-                refresh_px):
-    """Face values of frame ``k`` by the operator (None: take the full way)."""
+                refresh_px, op=None):
+    """Face values of frame ``k`` by the operator (None: take the full way); a moving
+    model uses ``op`` when given (its planned reference), else the nearest reference."""
     from selfillum.unsteady.spots import mask_spots
 
     imgs, cams = [], []
@@ -320,8 +371,11 @@ def _fast_frame(ops, cameras, k, regs, spots, spot_px, filter, filter_size, movi
                     img = mask_spots(img, *spot_px[ci])
                 img = _gaussian(img, filter_size)
         imgs.append(img)
+    if moving and op is not None:  # its planned reference
+        B = op.faces_moved(imgs, cams, refresh_px)
+        return None if B is None else (B, cams, op.seen, op)
     if moving:  # the reference nearest this pose (on a sample of its points)
-        d = [op.displacement(cams) for op in ops]
+        d = [o.displacement(cams) for o in ops]
         j = int(np.argmin(d))
         B = ops[j].faces_moved(imgs, cams, refresh_px) if d[j] <= refresh_px else None
     else:
