@@ -170,7 +170,7 @@ class FrameOperator:
             # points off the sensor: the face's other pixels of this camera, reweighted
             # to the same share; a face left without any pixel of a camera that had a
             # share is not seen in this frame (NaN)
-            share = A @ np.ones(len(x))
+            share = np.asarray(A.sum(axis=1)).ravel()
             kept = A @ (~bad).astype(np.float64)
             with np.errstate(invalid="ignore", divide="ignore"):
                 part = np.where(kept > 0, (A @ np.where(bad, 0.0, x)) * (share / kept),

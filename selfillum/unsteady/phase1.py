@@ -215,8 +215,10 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
         raise InputError(f"filter_size must be an odd number >= 3, got {filter_size}")
     mesh = grid.mesh
     caster = RayCaster(mesh)
-    maps0 = [SurfaceMap(mesh, c.camera, max_obliqueness=max_obliqueness, caster=caster)
-             for c in cameras]
+    # frame 0's maps of a model that does not move: built when first needed, dropped once
+    # the operator holds what they gave (a cast again only for a frame the operator
+    # cannot take); a moving model maps each cast with its own pose
+    maps0 = [None] * len(cameras)
     regs = [None] * len(cameras)
     W = _face_to_vertex(mesh)
     merge_kw = {"average_view": dict(method="weighted", feather_px=0, edge_margin=1,
@@ -267,14 +269,17 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
         maps, imgs, cams, finite = [], [], [], []
         for ci, c in enumerate(cameras):  # a few cameras
             img = np.asarray(c.frames[k], dtype=np.float64)
-            if img.shape != maps0[ci].shape:
+            shape = (c.camera.height, c.camera.width)
+            if img.shape != shape:
                 raise InputError(f"camera {c.number}: frame {k} is {img.shape}, its "
-                                 f"calibration {maps0[ci].shape}")
+                                 f"calibration {shape}")
             if registration == "track":
                 cam = c.poses[k]
-                smap = maps0[ci] if k == 0 and cam is c.camera else SurfaceMap(
-                    mesh, cam, max_obliqueness=max_obliqueness, caster=caster)
+                smap = SurfaceMap(mesh, cam, max_obliqueness=max_obliqueness, caster=caster)
             else:
+                if maps0[ci] is None:
+                    maps0[ci] = SurfaceMap(mesh, c.camera, max_obliqueness=max_obliqueness,
+                                           caster=caster)
                 cam, smap = c.camera, maps0[ci]
                 if registration == "first-frame":
                     if regs[ci] is None:
@@ -299,6 +304,7 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
             op.frame = op.last_used = k
             _keep(ops, op)
             B = op.faces(imgs)
+            maps = imgs = finite = None  # not held while the frame is out
             seen = op.seen & np.isfinite(B)
             raw_f = np.where(seen, B, np.nan)
             E = si(B, seen) if si is not None else raw_f
@@ -314,14 +320,15 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
             ops.append(FrameOperator(maps, finite, merge_kw, mv.gains, off,
                                      sample_points=moving))
             ops[0].frame = ops[0].last_used = k
-        B = mv.values
-        seen = mv.seen & np.isfinite(B)
+            maps0 = [None] * len(cameras)
+        B, seen, mv_gains = mv.values, mv.seen & np.isfinite(mv.values), mv.gains
+        maps = imgs = finite = mv = None  # not held while the frame is out
         if off is not None:
             seen = seen & ~off
         raw_f = np.where(seen, B, np.nan)
         E = si(B, seen) if si is not None else raw_f
         vals = _to_nodes(W, np.vstack([E, raw_f]), grid)
-        yield FrameNodes(k, vals[0], vals[1], cams, mv.gains)
+        yield FrameNodes(k, vals[0], vals[1], cams, mv_gains)
 
 
 #: References (full casts) a moving model keeps: a vibrating model returns to earlier poses.
@@ -393,15 +400,25 @@ def _fast_frame(ops, cameras, k, regs, spots, spot_px, filter, filter_size, movi
 
 def _fast_nodes(op, W, grid, E, B, seen) -> np.ndarray:
     """Node values of a frame of the fast way: the face-to-node operator of the
-    reference's seen faces (built once a reference) applied to ``E`` and ``B``; the
-    full way (:func:`_to_nodes`) when this frame's seen faces are not the reference's."""
-    if not np.array_equal(seen, op.seen):
+    reference's seen faces (built once a reference) applied to ``E`` and ``B``. When
+    some of the reference's faces are not seen in this frame (points off the sensor), the
+    same operator on them, divided by its weight of the faces left (the area-weighted
+    mean of the seen faces around each node, as :func:`_to_nodes`); the full way when this
+    frame sees a face the reference does not."""
+    same = np.array_equal(seen, op.seen)
+    if not same and (seen & ~op.seen).any():
         return _to_nodes(W, np.vstack([E, np.where(seen, B, np.nan)]), grid)
     Wn = op.node_matrix(W, grid)
-    X = np.zeros((len(B), 2))
+    X = np.zeros((len(B), 2 if same else 3))
     X[seen, 0], X[seen, 1] = E[seen], B[seen]
-    out = (Wn @ X).T
-    out[:, op.node_unseen] = np.nan
+    if same:
+        out = (Wn @ X).T
+        out[:, op.node_unseen] = np.nan
+        return out.astype(np.float32)
+    X[seen, 2] = 1.0
+    Y = Wn @ X
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = np.where(Y[:, 2:] > 0, Y[:, :2] / Y[:, 2:], np.nan).T
     return out.astype(np.float32)
 
 
