@@ -76,3 +76,32 @@ def test_continuation_matches_direct_solve_in_few_iterations(slab_frame):
     assert info.method == "pcg" and info.n_coupled == n_hidden > 500
     np.testing.assert_allclose(E[seen], ref[seen], rtol=1e-7)
     assert info.iterations <= 400
+
+
+def test_references_planned_cover_every_frame_with_few():
+    """A vibrating model's references, planned from the known poses: every frame is within
+    ``refresh_px`` of its reference (distance measured here with Camera.project on every
+    probe point), and a pitch oscillation of amplitude A pixels (about 15) needs at most
+    A / refresh + 1 references (5 here; a reference cast at each frame that moved past
+    the others gives 7)."""
+    from scipy.spatial.transform import Rotation
+
+    from scenes.slab_block import slab_camera
+    from selfillum.unsteady.fastmap import plan_references
+
+    cam = slab_camera(640, 480)
+    rng = np.random.default_rng(2)
+    X = np.column_stack([rng.uniform(-0.2, 0.2, 200), rng.uniform(-0.15, 0.15, 200),
+                         np.zeros(200)])
+    T, refresh = 300, 3.0
+    theta = np.radians(5.0) * np.sin(2 * np.pi * np.arange(T) / 67.0 + 0.3)
+    poses = [cam.with_pose(R=cam.R @ Rotation.from_rotvec([th, 0, 0]).as_matrix(), t=cam.t)
+             for th in theta]
+    uv = np.stack([p.project(X) for p in poses])
+    amp = np.abs(uv - uv[0]).max()
+    plan = plan_references([poses], [X], range(T), refresh, first=0)
+    refs = sorted(set(plan.values()))
+    assert set(plan) == set(range(T)) and 0 in refs
+    for k, j in plan.items():
+        assert np.abs(uv[k] - uv[j]).max() <= refresh
+    assert amp > 4 * refresh and len(refs) <= np.ceil(amp / refresh) + 1

@@ -211,9 +211,9 @@ def plan_references(poses, probes, frames, refresh_px: float, *, first: int | No
     ``refresh_px`` of it (which all cover it), the one covering most of the uncovered
     frames (counted on a sample of ``n_check`` of them, over a sample of
     ``n_candidates`` candidates); repeated until every frame is covered. A periodic
-    vibration needs a handful; placing each new reference at the first frame beyond the
-    others (as frames come) needed up to 40 on 256 frames of the bench
-    (bench/README.md).
+    vibration needs a handful (5 for a pitch oscillation of 15 px with ``refresh_px`` 3
+    in tests/test_si_reference.py, where a reference cast at each frame that moved past
+    the others gives 7).
 
     Parameters
     ----------
