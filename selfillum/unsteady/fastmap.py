@@ -101,6 +101,7 @@ class FrameOperator:
         self._nodes = None
         self.frame = None  # the reference's frame number, and the last frame that used it
         self.last_used = -1
+        self._shares: dict = {}
 
     def node_matrix(self, W, grid):
         """(N, F) sparse: the area-weighted mean of the seen faces around each grid node
@@ -127,6 +128,12 @@ class FrameOperator:
             B += A @ x
         return B
 
+    def _share(self, c) -> np.ndarray:
+        """Row sums of camera ``c``'s operator (its share of each face), kept."""
+        if c not in self._shares:
+            self._shares[c] = np.asarray(self.A[c].sum(axis=1)).ravel()
+        return self._shares[c]
+
     def displacement(self, cameras) -> float:
         """Largest move (pixels) of a sample of the reference's surface points under the
         poses ``cameras`` (inf if one falls behind a camera)."""
@@ -149,8 +156,8 @@ class FrameOperator:
         the sensor are left out, the face's other pixels of that camera taking their
         weight; a face that keeps none of them is NaN (not seen in this frame)."""
         B = np.zeros(self.A[0].shape[0])
-        for A, X, uv0, img, cam in zip(self.A, self.X, self.uv0, images, cameras,
-                                       strict=True):
+        for c, (A, X, uv0, img, cam) in enumerate(zip(self.A, self.X, self.uv0, images,
+                                                      cameras, strict=True)):
             arr = np.asarray(img)
             if arr.dtype.kind not in "fiu":
                 arr = arr.astype(np.float64)
@@ -170,7 +177,7 @@ class FrameOperator:
             # points off the sensor: the face's other pixels of this camera, reweighted
             # to the same share; a face left without any pixel of a camera that had a
             # share is not seen in this frame (NaN)
-            share = np.asarray(A.sum(axis=1)).ravel()
+            share = self._share(c)
             kept = A @ (~bad).astype(np.float64)
             with np.errstate(invalid="ignore", divide="ignore"):
                 part = np.where(kept > 0, (A @ np.where(bad, 0.0, x)) * (share / kept),
