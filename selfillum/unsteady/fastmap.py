@@ -104,11 +104,12 @@ class FrameOperator:
         self._shares: dict = {}
 
     def node_matrix(self, W, grid):
-        """(N, F) sparse: the area-weighted mean of the seen faces around each grid node
-        (rows of nodes with no seen face are empty: ``node_unseen``), built once."""
+        """(N, S) sparse over the ``S`` seen faces ``seen_faces``: the area-weighted mean
+        of the seen faces around each grid node (rows of nodes with no seen face are
+        empty: ``node_unseen``), built once."""
         if self._nodes is None:
-            s = self.seen.astype(np.float64)
-            Ws = W @ sp.diags(s)
+            self.seen_faces = np.flatnonzero(self.seen)
+            Ws = sp.csc_matrix(W)[:, self.seen_faces]
             den = np.asarray(Ws.sum(axis=1)).ravel()
             with np.errstate(divide="ignore"):
                 inv = np.where(den > 0, 1.0 / den, 0.0)

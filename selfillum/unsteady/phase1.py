@@ -411,15 +411,15 @@ def _fast_nodes(op, W, grid, E, B, seen) -> np.ndarray:
     same = np.array_equal(seen, op.seen)
     if not same and (seen & ~op.seen).any():
         return _to_nodes(W, np.vstack([E, np.where(seen, B, np.nan)]), grid)
-    Wn = op.node_matrix(W, grid)
-    X = np.zeros((len(B), 2 if same else 3))
-    X[seen, 0], X[seen, 1] = E[seen], B[seen]
+    Wn = op.node_matrix(W, grid)  # over the reference's seen faces
+    idx = op.seen_faces
     if same:
-        out = (Wn @ X).T
+        out = (Wn @ np.column_stack([E[idx], B[idx]])).T
         out[:, op.node_unseen] = np.nan
         return out.astype(np.float32)
-    X[seen, 2] = 1.0
-    Y = Wn @ X
+    s = seen[idx]
+    Y = Wn @ np.column_stack([np.where(s, E[idx], 0.0), np.where(s, B[idx], 0.0),
+                              s.astype(np.float64)])
     with np.errstate(invalid="ignore", divide="ignore"):
         out = np.where(Y[:, 2:] > 0, Y[:, :2] / Y[:, 2:], np.nan).T
     return out.astype(np.float32)
