@@ -317,17 +317,32 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
             release_freed_memory()
             yield FrameNodes(k, vals[0], vals[1], cams, op.gains)
             continue
-        mv = merge_views(maps, imgs, gains=gains, **merge_kw)
-        if overlap == "merge" and gains is None:
-            gains = mv.gains  # matched on frame 0, kept: no seam moving over time
-        if use_fast:  # the first reference
+        B = None
+        known = gains if gains is not None else (
+            np.ones(len(cameras)) if overlap != "merge" else None)
+        if use_fast and known is not None:  # the first reference, its gains known (not
+            # matched on this frame): the operator gives this frame's merge too
             from selfillum.unsteady.fastmap import FrameOperator
 
-            ops.append(FrameOperator(maps, finite, merge_kw, mv.gains, off,
-                                     sample_points=moving))
-            ops[0].frame = ops[0].last_used = k
-            maps0 = [None] * len(cameras)
-        B, seen, mv_gains = mv.values, mv.seen & np.isfinite(mv.values), mv.gains
+            op = FrameOperator(maps, finite, merge_kw, known, off, sample_points=moving)
+            B = op.faces(imgs)
+            if B is not None:
+                ops.append(op)
+                op.frame = op.last_used = k
+                maps0 = [None] * len(cameras)
+                seen, mv_gains = op.seen & np.isfinite(B), op.gains
+        if B is None:
+            mv = merge_views(maps, imgs, gains=gains, **merge_kw)
+            if overlap == "merge" and gains is None:
+                gains = mv.gains  # matched on frame 0, kept: no seam moving over time
+            if use_fast:  # the first reference
+                from selfillum.unsteady.fastmap import FrameOperator
+
+                ops.append(FrameOperator(maps, finite, merge_kw, mv.gains, off,
+                                         sample_points=moving))
+                ops[0].frame = ops[0].last_used = k
+                maps0 = [None] * len(cameras)
+            B, seen, mv_gains = mv.values, mv.seen & np.isfinite(mv.values), mv.gains
         maps = imgs = finite = mv = None  # not held while the frame is out
         if off is not None:
             seen = seen & ~off
