@@ -254,6 +254,7 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
             op = _cast_reference(j, cameras, mesh, caster, max_obliqueness, spots,
                                  spot_margin_px, merge_kw, ops[0].gains, off)
             _keep(ops, op)
+            _shed_mesh_cache(mesh)
             release_freed_memory()
         op.last_used = k
         return op
@@ -314,6 +315,7 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
             raw_f = np.where(seen, B, np.nan)
             E = si(B, seen) if si is not None else raw_f
             vals = _fast_nodes(op, W, grid, E, B, seen)
+            _shed_mesh_cache(mesh)
             release_freed_memory()
             yield FrameNodes(k, vals[0], vals[1], cams, op.gains)
             continue
@@ -349,12 +351,28 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
         raw_f = np.where(seen, B, np.nan)
         E = si(B, seen) if si is not None else raw_f
         vals = _to_nodes(W, np.vstack([E, raw_f]), grid)
+        if use_fast:
+            _shed_mesh_cache(mesh)
         release_freed_memory()  # the cast's, the merge's and the SI solve's work arrays
         yield FrameNodes(k, vals[0], vals[1], cams, mv_gains)
 
 
 #: References (full casts) a moving model keeps: a vibrating model returns to earlier poses.
 MAX_REFERENCES = 8
+
+
+#: trimesh's per-face arrays that a cast computes and caches on the mesh (1.1 M faces:
+#: about 160 MB, the corners alone 9 float64 a face).
+_MESH_CACHE = ("triangles", "triangles_cross", "triangles_center", "face_normals",
+               "area_faces")
+
+
+def _shed_mesh_cache(mesh) -> None:
+    """Drop trimesh's cached per-face arrays once a cast is done: the fast way's frames
+    do not use them, and the next cast computes them again."""
+    cache = getattr(mesh, "_cache", None)
+    for key in _MESH_CACHE if cache is not None else ():
+        cache.delete(key)
 
 
 def _keep(ops, op) -> None:
