@@ -60,6 +60,7 @@ class RayCaster:
         self._scale = 100.0 / extent if extent > 0 else 1.0
         scaled = ((vertices - self._origin) * self._scale).astype(np.float32)
         self._dual = None  # per-face data of _plane_hits, built on first use
+        self._normals = None
         self._scene = rtcore_scene.EmbreeScene()
         TriangleMesh(scene=self._scene, vertices=scaled,
                      indices=self._faces.astype(np.int32))
@@ -70,6 +71,37 @@ class RayCaster:
     @property
     def n_faces(self) -> int:
         return len(self._faces)
+
+    @property
+    def scene(self):
+        """The committed ``embreex`` scene, in the frame of :attr:`origin` and
+        :attr:`scale`: a model point ``x`` is at ``(x - origin) * scale`` (float32) in it.
+        Other ray casts of the same mesh may query it (from several threads) instead of
+        building their own: :class:`selfillum.transport.viewfactors.RowTracer` does."""
+        return self._scene
+
+    @property
+    def origin(self) -> np.ndarray:
+        """Model point at the scene's origin (the mesh's lowest corner), ``(3,)``."""
+        return self._origin.copy()
+
+    @property
+    def scale(self) -> float:
+        """Scene units per model unit (the mesh's box diagonal is 100 in the scene)."""
+        return self._scale
+
+    @property
+    def normals(self) -> np.ndarray:
+        """Unit face normals ``(F, 3)`` float64, right-hand rule on the vertex order
+        (``(v1 - v0) x (v2 - v0)`` normalised), computed once from the float64 vertices."""
+        if self._normals is None:
+            if self._dual is not None:  # the same cross products, already made
+                nrm = self._dual[:, 3:6]
+            else:
+                tri = self._vertices[self._faces]
+                nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+            self._normals = nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
+        return self._normals
 
     def first_hit(self, origins, directions, *, unit: bool = False,
                   workers: int | None = None):

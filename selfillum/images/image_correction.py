@@ -114,6 +114,7 @@ def correct_image(
     max_obliqueness: float = DEFAULT_MAX_OBLIQUENESS,
     progress: bool = False,
     saturation: float | None = None,
+    caster=None,
 ) -> ImageCorrection:
     """Remove self-illumination from a camera image of a painted model.
 
@@ -155,6 +156,10 @@ def correct_image(
         take no part in the faces' values, the faces they fall on count as unseen, and
         they come out as they came in (NaN in a float image), uncorrected
         (:mod:`resection.saturation`). Counted in ``saturated``, ``saturated_faces``.
+    caster : resection.surface.visibility.RayCaster, optional
+        The Embree scene of ``mesh`` (e.g. the one ``surface_map`` was built with): the
+        surface map, when built here, and the view factors trace in it, so the scene is
+        built once (or not at all). Built here when not given.
 
     Returns
     -------
@@ -203,8 +208,15 @@ def correct_image(
         unpainted, source = read_unpainted(unpainted, mesh)
     if isinstance(unseen, str | os.PathLike) and unseen not in ("continue", "none"):
         unseen = read_unseen(unseen, n)
-    smap = SurfaceMap(mesh, camera, max_obliqueness=lim) if surface_map is None \
-        else surface_map
+    if caster is not None and caster.n_faces != n:
+        raise InputError(f"caster: built for {caster.n_faces} faces, the mesh has {n}")
+    if surface_map is None:
+        from resection.surface.visibility import RayCaster
+
+        caster = RayCaster(mesh) if caster is None else caster
+        smap = SurfaceMap(mesh, camera, max_obliqueness=lim, caster=caster)
+    else:
+        smap = surface_map
     if smap.shape != stack.shape[1:] or smap.n_faces != n:
         raise InputError("surface_map: made for another camera size or mesh")
     _check_painted_side(smap, mesh, camera)
@@ -235,7 +247,8 @@ def correct_image(
         raise InputError(f"image: the camera sees no face of the model in frame {t}{why}")
     if F is None:
         F, _ = coupled_view_factors(
-            mesh, seen.any(axis=0), rays_per_face=rays_per_face, seed=seed, progress=progress
+            mesh, seen.any(axis=0), rays_per_face=rays_per_face, seed=seed, progress=progress,
+            caster=caster, checked=True,
         )
     elif not sp.issparse(F) or F.shape != (n, n):
         raise InputError(f"F: expected a sparse ({n}, {n}) matrix")
@@ -440,6 +453,7 @@ def correct_image_file(
     from resection.io.outputs import atomic_path, refuse_overwriting_inputs
     from resection.pose.camera_fit import check_camera
     from resection.surface.surface_map import SurfaceMap
+    from resection.surface.visibility import RayCaster
     from selfillum.summary import summarize, write_summary
 
     image_path, out_path = Path(image_path), Path(out_path)
@@ -464,7 +478,8 @@ def correct_image_file(
     target = output_dtype(image.dtype, out_path, dtype)  # refused before the work
     cf = read_camera_file(camera_path, image_size=image.shape[::-1][:2])
     camera = cf.camera
-    smap = SurfaceMap(mesh, camera, max_obliqueness=max_obliqueness)
+    caster = RayCaster(mesh)  # one Embree scene: the surface map's and the view factors'
+    smap = SurfaceMap(mesh, camera, max_obliqueness=max_obliqueness, caster=caster)
     for frame in (image if image.ndim == 3 else image[None])[:1]:  # the first frame
         line = check_camera(camera_path, cf, image_path, frame, mesh.vertices, mesh_path,
                             markers=read_markers(markers) if markers else None,
@@ -498,6 +513,7 @@ def correct_image_file(
             progress=progress,
             surface_map=smap,
             saturation=level,
+            caster=caster,
         )
     said = describe_unseen(unseen_value, unpainted_mask, source)
     corrected = _as_dtype(result.image if saturated is None

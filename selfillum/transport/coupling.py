@@ -84,6 +84,8 @@ def coupled_view_factors(
     seed: int = 0,
     *,
     progress: bool | Callable | None = False,
+    caster=None,
+    checked: bool = False,
 ) -> tuple[sp.csr_matrix, np.ndarray]:
     """The rows of ``F`` that the correction of the seen faces needs, and no others.
 
@@ -103,6 +105,12 @@ def coupled_view_factors(
     progress : bool or callable
         ``True``: a ``tqdm`` bar over the faces traced; a callable is called after each
         round with ``(faces traced, faces known to need a row)``.
+    caster : resection.surface.visibility.RayCaster, optional
+        An Embree scene of ``mesh`` already built (the surface map's): traced in, not
+        built again (the rows are the same: see
+        :class:`~selfillum.transport.viewfactors.RowTracer`).
+    checked : bool
+        ``mesh`` has passed :func:`selfillum.mesh.check_mesh` already.
 
     Returns
     -------
@@ -129,42 +137,30 @@ def coupled_view_factors(
 
         bar = tqdm(total=int(mask.sum()), desc="view factors (coupled rows)", unit="face",
                    leave=False)
-    with _Rounds(mesh, rays_per_face, seed) as trace:
+    with RowTracer(mesh, rays_per_face, seed, caster=caster, checked=checked) as tracer:
+        # one tracer (one Embree scene, one set of threads) for every round: building a
+        # 600,000-face scene and starting the threads at every round cost more than the
+        # rays of the later rounds; the hits of all rounds assembled into F once
         done = np.zeros(n, dtype=bool)
         todo = mask.copy()
+        counts = np.zeros(n, dtype=np.int64)
         parts = []
         while todo.any():
             rows = np.flatnonzero(todo)
-            part = trace(rows)  # (N, N) with the rows of this round filled
-            parts.append(part)
+            c, p = tracer.hits(rows)  # the rows of this round: disjoint from the others'
+            counts += c
+            parts += p
             done |= todo
             hit = np.zeros(n, dtype=bool)
-            hit[part.indices] = True  # columns hit by this round's rays
+            for _, h in p:
+                hit[h] = True  # faces hit by this round's rays
             todo = hit & ~done
             if bar is not None:
                 bar.total = int((done | todo).sum())
                 bar.update(rows.size)
             elif callable(progress):
                 progress(int(done.sum()), int((done | todo).sum()))
+        F = tracer.assemble(counts, parts)
     if bar is not None:
         bar.close()
-    F = parts[0] if len(parts) == 1 else sp.csr_matrix(sum(parts[1:], parts[0]))
-    return F.tocsr(), done
-
-
-class _Rounds:
-    """Rows of ``F`` traced round after round with one :class:`RowTracer` (one Embree
-    scene, or one set of worker threads, for all rounds): building a 600,000-face
-    scene and starting the workers at every round cost more than the rays of the later
-    rounds. Each row is the one :func:`view_factors` gives (tests/test_unseen.py checks
-    it against the full matrix)."""
-
-    def __init__(self, mesh, k: int, seed: int):
-        self.tracer = RowTracer(mesh, k, seed)
-
-    def __enter__(self):
-        return self.tracer.rows
-
-    def __exit__(self, *exc):
-        self.tracer.close()
-        return False
+    return F, done

@@ -47,6 +47,10 @@ _RAY_BYTES_MIN = 64
 class RayScene:
     """An Embree scene of a mesh, in float32 coordinates centred on the mesh's box.
 
+    A model point ``x`` is at ``(x - origin) * scale`` in the scene (``scale`` is 1 for a
+    scene built here; :meth:`from_caster` shares the scene of a
+    :class:`resection.surface.visibility.RayCaster`, in that caster's frame).
+
     Parameters
     ----------
     vertices : (V, 3) array_like
@@ -54,6 +58,9 @@ class RayScene:
     faces : (N, 3) array_like of int
         Triangles.
     """
+
+    #: Scene units per model unit.
+    scale = 1.0
 
     def __init__(self, vertices, faces):
         v = np.asarray(vertices, dtype=np.float64)
@@ -64,9 +71,18 @@ class RayScene:
         self._f = np.ascontiguousarray(faces, dtype=np.int32)
         TriangleMesh(scene=self.scene, vertices=self._v, indices=self._f)
 
+    @classmethod
+    def from_caster(cls, caster) -> RayScene:
+        """The scene of a :class:`~resection.surface.visibility.RayCaster`, not built
+        again: its frame (``origin``, ``scale``) and its committed Embree scene."""
+        self = cls.__new__(cls)
+        self.origin, self.scale, self.scene = caster.origin, caster.scale, caster.scene
+        self._caster = caster  # keeps the scene alive
+        return self
+
     def first_hit(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
         """Index of the first face hit by each ray (``-1`` for a miss), ``(M,)`` int64."""
-        o = np.ascontiguousarray(origins - self.origin, dtype=np.float32)
+        o = np.ascontiguousarray((origins - self.origin) * self.scale, dtype=np.float32)
         d = np.ascontiguousarray(directions, dtype=np.float32)
         return np.asarray(self.scene.run(o, d), dtype=np.int64)
 
@@ -96,25 +112,35 @@ class _Job:
     two_sided: bool
 
 
-def _scene(tracer: str, job: _Job, launch: int | None):
-    """The scene of ``tracer``: Embree's, or Mitsuba's (OptiX on a GPU, else LLVM), which
-    also samples the rays and sums them into ``F`` in Dr.Jit (``launch`` faces at once)."""
+def _scene(tracer: str, job: _Job, launch: int | None, mesh: trimesh.Trimesh, caster=None):
+    """The scene of ``tracer``: Embree's in the frame of a
+    :class:`~resection.surface.visibility.RayCaster` (``caster``'s, shared, or one built
+    here: the same frame either way, so the same rays and hits), or Mitsuba's (OptiX on a
+    GPU, else LLVM), which also samples the rays and sums them into ``F`` in Dr.Jit
+    (``launch`` faces at once)."""
     if tracer == "mitsuba":
         from selfillum.transport.mitsuba_factors import MitsubaFactorTracer
 
         return MitsubaFactorTracer(job.vertices, job.faces, job.normals, job.k, job.seed,
                                    offset=job.offset, two_sided=job.two_sided,
                                    faces_per_launch=launch)
-    return RayScene(job.vertices, job.faces)
+    if caster is None:
+        from resection.surface.visibility import RayCaster
+
+        caster = RayCaster(mesh)
+    return RayScene.from_caster(caster)
 
 
 def _trace_rows(job: _Job, scene: RayScene, rows: np.ndarray):
     """Hits of the rays of faces ``rows``: ``(counts per row, hit faces)``, both int32,
     the hits grouped by row in the order of ``rows`` (duplicates kept)."""
     k = job.k
-    tri = job.vertices[job.faces[rows]] - scene.origin  # the scene's centred frame
+    scale = getattr(scene, "scale", 1.0)
+    tri = job.vertices[job.faces[rows]] - scene.origin  # the scene's frame
+    if scale != 1.0:
+        tri *= scale
     nrm = job.normals[rows]
-    o, d, _ = sample_rays(tri, nrm, k, two_sided=job.two_sided, offset=job.offset,
+    o, d, _ = sample_rays(tri, nrm, k, two_sided=job.two_sided, offset=job.offset * scale,
                           face_ids=rows, seed=job.seed)
     hit = scene.run(o, d)
     return _keep_hits(hit, d, job.normals32, rows, k, job.two_sided)
@@ -242,7 +268,7 @@ def view_factors(
     if reciprocity and todo.size != n:
         raise InputError("view_factors: reciprocity needs every row (rows not given)")
     with RowTracer(mesh, rays_per_face, seed, two_sided=two_sided, chunk_size=chunk_size,
-                   workers=workers, n_rows=todo.size, tracer=tracer) as rt:
+                   workers=workers, n_rows=todo.size, tracer=tracer, checked=True) as rt:
         F = rt.rows(todo, progress=progress)
     if reciprocity:
         F = enforce_reciprocity(F, face_areas(mesh))
@@ -267,6 +293,14 @@ class RowTracer:
         is then the faces of a launch, default about ``2**24 / K``).
     n_rows : int, optional
         Rows expected in all (decides whether threads pay off; default all faces).
+    caster : resection.surface.visibility.RayCaster, optional
+        An Embree scene of ``mesh`` already built (e.g. the one a
+        :class:`~resection.surface.SurfaceMap` of the same mesh was cast with): its scene
+        and face normals are used, not built again. Without it the tracer builds one, in
+        the same frame, so a row is the same either way.
+    checked : bool
+        ``mesh`` has passed :func:`selfillum.mesh.check_mesh` already (the caller checked
+        it): not checked again.
 
     Use it as a context manager (the threads are stopped on exit), or call :meth:`close`.
     """
@@ -274,11 +308,17 @@ class RowTracer:
     def __init__(self, mesh: trimesh.Trimesh, rays_per_face: int = 256, seed: int = 0, *,
                  two_sided: bool = False, chunk_size: int | None = None,
                  workers: int | None = None, n_rows: int | None = None,
-                 tracer: str = "embree"):
-        check_mesh(mesh)
+                 tracer: str = "embree", caster=None, checked: bool = False):
+        if not checked:
+            check_mesh(mesh)
         if tracer not in TRACERS:
             raise InputError(f"tracer: expected one of {', '.join(TRACERS)}, got {tracer!r}")
+        if caster is not None and caster.n_faces != len(mesh.faces):
+            raise InputError(f"caster: built for {caster.n_faces} faces, the mesh has "
+                             f"{len(mesh.faces)}")
         self.tracer = tracer
+        self.mesh = mesh
+        self._caster = caster if tracer == "embree" else None
         k = _positive_int(rays_per_face, "rays_per_face")
         self.chunk = (max(1, _RAYS_PER_CHUNK // k) if chunk_size is None
                       else _positive_int(chunk_size, "chunk_size"))
@@ -295,7 +335,7 @@ class RowTracer:
         faces = np.asarray(mesh.faces, dtype=np.int64)
         self.n, self.k = len(faces), k
         size = float(np.ptp(vertices, axis=0).max())
-        normals = face_normals(mesh)
+        normals = face_normals(mesh) if self._caster is None else self._caster.normals
         self.job = _Job(vertices, faces, normals, normals.astype(np.float32), k, seed,
                         _OFFSET * size, bool(two_sided))
         rows = self.n if n_rows is None else int(n_rows)
@@ -317,15 +357,12 @@ class RowTracer:
             self._pool = None
 
     def _start(self) -> None:
-        self._scene = _scene(self.tracer, self.job, self._launch)
+        self._scene = _scene(self.tracer, self.job, self._launch, self.mesh, self._caster)
         if self.tracer == "mitsuba":
             return
         # Embree builds the scene on its first query: do it now, before threads query it
         # at once; and compile (or load) the kernels once, before the threads call them
-        j = self.job
-        o, d, _ = sample_rays(j.vertices[j.faces[:1]] - self._scene.origin, j.normals[:1], 1,
-                              two_sided=j.two_sided, offset=j.offset, face_ids=[0])
-        _keep_hits(self._scene.run(o, d), d, j.normals32, np.arange(1), 1, j.two_sided)
+        _trace_rows(self.job, self._scene, np.arange(1))
         if self.nproc > 1:
             from concurrent.futures import ThreadPoolExecutor
 
@@ -336,11 +373,25 @@ class RowTracer:
 
         ``progress`` as in :func:`view_factors`.
         """
+        if self.tracer == "mitsuba":  # sampled, traced and summed in Dr.Jit
+            if self._scene is None:
+                self._start()
+            return self._scene.rows(_as_rows(rows, self.n), progress=progress)
+        counts, hits = self.hits(rows, progress)
+        return _assemble(self.n, self.k, counts, hits)
+
+    def hits(self, rows, progress: bool | Callable | None = None) -> tuple[np.ndarray, list]:
+        """The rays' hits of ``rows`` before they are assembled into ``F``: ``(counts,
+        parts)``, ``counts`` the kept hits of every face (``(N,)`` int64, 0 outside
+        ``rows``) and ``parts`` a list of ``(faces, hit faces)`` arrays, the hits grouped
+        by face in the order of ``faces``. :meth:`assemble` makes ``F`` of one or more
+        such results of disjoint rows (one sparse assembly for several rounds). Embree
+        only (Mitsuba sums the rays into ``F`` itself: :meth:`rows`)."""
+        if self.tracer != "embree":
+            raise InputError("RowTracer.hits: the embree tracer only (use rows)")
         todo = _as_rows(rows, self.n)
         if self._scene is None:
             self._start()
-        if self.tracer == "mitsuba":  # sampled, traced and summed in Dr.Jit
-            return self._scene.rows(todo, progress=progress)
         # as many chunks of at most ``chunk`` faces as it takes, a multiple of the
         # workers, of equal size: no worker idles while another traces a last chunk
         n_chunks = -(-todo.size // self.chunk)
@@ -370,6 +421,11 @@ class RowTracer:
                 progress(done, todo.size)
         if bar is not None:
             bar.close()
+        return counts, hits
+
+    def assemble(self, counts: np.ndarray, hits: list) -> sp.csr_matrix:
+        """``F`` (``(N, N)`` CSR) from what :meth:`hits` returned (counts summed and parts
+        joined over calls of disjoint rows)."""
         return _assemble(self.n, self.k, counts, hits)
 
 
