@@ -182,48 +182,80 @@ def print_parts(tag: str, runs: list[dict]) -> None:
 
 
 def thread_efficiency(mesh, threads: list[int], repeat: int, rows) -> None:
+    """``view_factors`` with each thread count; its one-thread parts timed apart: the
+    tracer's set-up (mesh check, normals), the Embree scene (the arrays, ``embreex``'s
+    copy of them into Embree's buffers, which holds the GIL, and Embree's BVH build,
+    which runs on Embree's own TBB threads: its CPU over wall is printed) and the
+    assembly of ``F``. Everything else is the threads' sampling and tracing."""
+    from embreex import rtcore_scene
+
+    from resection.surface import visibility as vis
     from selfillum.transport import viewfactors as vf
 
+    spent: dict[str, list[float]] = {}
+
+    def timed(label, fn):
+        def call(*a, **kw):
+            t, c = time.perf_counter(), time.process_time()
+            try:
+                return fn(*a, **kw)
+            finally:
+                r = spent.setdefault(label, [0.0, 0.0])
+                r[0] += time.perf_counter() - t
+                r[1] += time.process_time() - c
+        return call
+
+    class Scene(rtcore_scene.EmbreeScene):  # the first query commits (builds the BVH)
+        def run(self, *a, **kw):
+            if self.is_committed:
+                return super().run(*a, **kw)
+            return timed("BVH build", super().run)(*a, **kw)
+
+    saved = (vf.RowTracer.__init__, vf.RowTracer._start, vf._assemble, vis.TriangleMesh,
+             vis.rtcore_scene)
+    vf.RowTracer.__init__ = timed("set-up", vf.RowTracer.__init__)
+    vf.RowTracer._start = timed("scene + kernels", vf.RowTracer._start)
+    vf._assemble = timed("F assembly", vf._assemble)
+    vis.TriangleMesh = timed("buffer copy", vis.TriangleMesh)
+    vis.rtcore_scene = type("rtcore_scene", (), {"EmbreeScene": Scene})
     times: dict[int, float] = {}
-    starts, assembly = {}, {}
-    orig_start, orig_asm = vf.RowTracer._start, vf._assemble
-    spent = {"start": 0.0, "asm": 0.0}
-
-    def t_start(self):
-        t = time.perf_counter()
-        orig_start(self)
-        spent["start"] += time.perf_counter() - t
-
-    def t_asm(*a):
-        t = time.perf_counter()
-        out = orig_asm(*a)
-        spent["asm"] += time.perf_counter() - t
-        return out
-
-    vf.RowTracer._start, vf._assemble = t_start, t_asm
-    vf.view_factors(mesh, 256, rows=rows[:1000], workers=2)  # kernels loaded
-    for _ in range(repeat):
-        for w in threads:
-            spent["start"] = spent["asm"] = 0.0
-            t = time.perf_counter()
-            vf.view_factors(mesh, 256, rows=rows, workers=w)
-            dt = time.perf_counter() - t
-            if dt < times.get(w, float("inf")):
-                times[w], starts[w], assembly[w] = dt, spent["start"], spent["asm"]
-    vf.RowTracer._start, vf._assemble = orig_start, orig_asm
+    parts: dict[int, dict] = {}
+    try:
+        vf.view_factors(mesh, 256, rows=rows[:1000], workers=2)  # kernels loaded
+        for _ in range(repeat):
+            for w in threads:
+                spent.clear()
+                t = time.perf_counter()
+                vf.view_factors(mesh, 256, rows=rows, workers=w)
+                dt = time.perf_counter() - t
+                if dt < times.get(w, float("inf")):
+                    times[w], parts[w] = dt, {k: list(v) for k, v in spent.items()}
+    finally:
+        (vf.RowTracer.__init__, vf.RowTracer._start, vf._assemble, vis.TriangleMesh,
+         vis.rtcore_scene) = saved
     cores = os.cpu_count() or 1
     print(f"\nview_factors, {len(rows):,} rows, K = 256, {cores} cores, load average "
           f"{os.getloadavg()[0]:.1f}:")
     base = times.get(2)
     for w in threads:
+        p = parts[w]
         eff = (f"{base * 2 / (times[w] * min(w, cores)):.2f}" if base else "-")
-        print(f"  {w:2d} threads: {times[w]:6.2f} s (scene + kernels {starts[w]:.2f} s, "
-              f"F assembly {assembly[w]:.2f} s)  efficiency from 2: {eff}")
+        bvh = p.get("BVH build", [0.0, 0.0])
+        print(f"  {w:2d} threads: {times[w]:6.2f} s (set-up {p['set-up'][0]:.2f} s, scene + "
+              f"kernels {p['scene + kernels'][0]:.2f} s of which buffer copy "
+              f"{p['buffer copy'][0]:.2f} s and BVH build {bvh[0]:.2f} s at cpu/wall "
+              f"{bvh[1] / max(bvh[0], 1e-9):.2f}, F assembly {p['F assembly'][0]:.2f} s)  "
+              f"efficiency from 2: {eff}")
     if base:
-        ser = (starts[2] + assembly[2]) / times[2]
-        print(f"  serial share of view_factors at 2 threads: {100 * ser:.0f} %: Amdahl bound "
-              f"from 2 to 16 cores {1 / (ser + (1 - ser) / 8):.1f}x "
-              f"(efficiency {1 / (ser + (1 - ser) / 8) / 8:.2f})")
+        p = parts[2]
+        one = p["set-up"][0] + p["scene + kernels"][0] + p["F assembly"][0]
+        bvh = p.get("BVH build", [0.0, 0.0])[0]
+        for what, ser in (("every one-thread part serial", one / base),
+                          ("the BVH build parallel (Embree's TBB threads)",
+                           (one - bvh) / base)):
+            print(f"  serial share at 2 threads, {what}: {100 * ser:.0f} %: Amdahl bound "
+                  f"from 2 to 16 cores {1 / (ser + (1 - ser) / 8):.1f}x "
+                  f"(efficiency {1 / (ser + (1 - ser) / 8) / 8:.2f})")
 
 
 def track_share(frames: list[int], workers: list[str]) -> None:
