@@ -156,3 +156,23 @@ def test_first_hit_threads_over_blocks_of_rays_against_closed_form():
         one = caster.first_hit(o, d, workers=1)
         np.testing.assert_array_equal(one[0], face)
         np.testing.assert_allclose(one[1], dist, rtol=1e-12, equal_nan=True)
+
+
+def test_caster_frame_and_normals_against_closed_form():
+    """The frame a caster's scene is in (shared with the view factors) and its normals:
+    a right triangle and its mirror, normals by the right-hand rule, and a ray aimed in
+    the scene's frame by hand hits the face it should."""
+    from resection.surface.visibility import RayCaster
+
+    v = np.array([[0, 0, 0], [2, 0, 0], [0, 2, 0], [5, 5, 1]], float)
+    mesh = trimesh.Trimesh(v, [[0, 1, 2], [0, 2, 3]], process=False)
+    c = RayCaster(mesh)
+    n2 = np.cross(v[2] - v[0], v[3] - v[0])
+    np.testing.assert_allclose(c.normals, [[0, 0, 1], n2 / np.linalg.norm(n2)], atol=1e-15)
+    np.testing.assert_allclose(c.origin, [0, 0, 0])
+    assert c.scale == pytest.approx(100 / np.linalg.norm([5, 5, 1]))
+    o = ((np.array([[1.5, 0.2, 1.0]]) - c.origin) * c.scale).astype(np.float32)
+    assert list(c.scene.run(o, np.array([[0, 0, -1]], np.float32))) == [0]
+    c.first_hit(np.zeros(3), np.array([[1.0, 1.0, 0.0]]))  # the per-face duals are built
+    c._normals = None
+    np.testing.assert_allclose(c.normals[0], [0, 0, 1], atol=1e-15)
