@@ -85,7 +85,8 @@ def _check_obliqueness(max_obliqueness) -> float | None:
 
 
 def oblique_faces(
-    mesh: trimesh.Trimesh, center, max_obliqueness: float | None = DEFAULT_MAX_OBLIQUENESS
+    mesh: trimesh.Trimesh, center, max_obliqueness: float | None = DEFAULT_MAX_OBLIQUENESS,
+    *, normals=None, centroids=None,
 ) -> np.ndarray:
     """Faces seen from ``center`` more obliquely than a cut-off.
 
@@ -100,6 +101,10 @@ def oblique_faces(
         Perspective centre (``Camera.center``), model units.
     max_obliqueness : float or None
         Cut-off in degrees, in (0, 90]. None: no cut-off (no face is oblique).
+    normals, centroids : (F, 3) array_like, optional
+        The faces' unit normals and centroids when already at hand (e.g.
+        :attr:`RayCaster.normals <resection.surface.visibility.RayCaster.normals>`);
+        computed from ``mesh`` otherwise.
 
     Returns
     -------
@@ -110,9 +115,10 @@ def oblique_faces(
     nf = len(mesh.faces)
     if lim is None:
         return np.zeros(nf, dtype=bool)
-    cen, _ = _face_geometry(mesh)
+    cen = np.asarray(mesh.triangles_center if centroids is None else centroids,
+                     dtype=np.float64)
     view = np.asarray(center, dtype=np.float64)[None, :] - cen
-    n = np.asarray(mesh.face_normals, dtype=np.float64)
+    n = np.asarray(mesh.face_normals if normals is None else normals, dtype=np.float64)
     cosang = np.abs(np.einsum("ij,ij->i", n, view)) / np.linalg.norm(view, axis=1)
     return cosang < np.cos(np.radians(lim)) - 1e-12
 
@@ -316,7 +322,8 @@ class SurfaceMap:
                              f"{len(mesh.faces)}")
         _, dirs = camera.rays()  # every pixel, from the camera's undistortion map
         face, dist, bary = caster.first_hit(camera.center, dirs, unit=True)
-        self.oblique = oblique_faces(mesh, camera.center, self.max_obliqueness)
+        self.oblique = oblique_faces(mesh, camera.center, self.max_obliqueness,
+                                     normals=caster.normals, centroids=caster.centroids)
         if self.oblique.any():
             bad = np.flatnonzero(face >= 0)
             bad = bad[self.oblique[face[bad]]]

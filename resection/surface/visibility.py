@@ -60,7 +60,7 @@ class RayCaster:
         self._scale = 100.0 / extent if extent > 0 else 1.0
         scaled = ((vertices - self._origin) * self._scale).astype(np.float32)
         self._dual = None  # per-face data of _plane_hits, built on first use
-        self._normals = None
+        self._normals = self._centroids = None
         self._scene = rtcore_scene.EmbreeScene()
         TriangleMesh(scene=self._scene, vertices=scaled,
                      indices=self._faces.astype(np.int32))
@@ -102,6 +102,14 @@ class RayCaster:
                 nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
             self._normals = nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
         return self._normals
+
+    @property
+    def centroids(self) -> np.ndarray:
+        """Face centroids ``(F, 3)`` float64 (model units), computed once."""
+        if self._centroids is None:
+            v, f = self._vertices, self._faces
+            self._centroids = (v[f[:, 0]] + v[f[:, 1]] + v[f[:, 2]]) / 3.0
+        return self._centroids
 
     def first_hit(self, origins, directions, *, unit: bool = False,
                   workers: int | None = None):

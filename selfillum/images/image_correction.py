@@ -219,7 +219,7 @@ def correct_image(
         smap = surface_map
     if smap.shape != stack.shape[1:] or smap.n_faces != n:
         raise InputError("surface_map: made for another camera size or mesh")
-    _check_painted_side(smap, mesh, camera)
+    _check_painted_side(smap, mesh, camera, None if caster is None else caster.normals)
 
     from resection.saturation import faces_touched, level_of
 
@@ -306,15 +306,16 @@ class UnseenFacesWarning(UserWarning):
     """The correction rests on faces no camera sees over a meaningful area."""
 
 
-def _check_painted_side(smap, mesh, camera) -> None:
-    """Refuse a model whose seen pixels mostly land on the back of faces."""
+def _check_painted_side(smap, mesh, camera, normals=None) -> None:
+    """Refuse a model whose seen pixels mostly land on the back of faces (``normals``:
+    the faces' unit normals when at hand)."""
     f = smap.face_index[smap.mask]
     if f.size == 0:
         return
     # a pixel sees the back of its face when the camera is behind the face's plane: one
     # sign per face (centre minus any point of the plane, along the normal), gathered
     tri0 = np.asarray(mesh.vertices, dtype=np.float64)[np.asarray(mesh.faces)[:, 0]]
-    normals = np.asarray(mesh.face_normals, dtype=np.float64)
+    normals = np.asarray(mesh.face_normals if normals is None else normals, dtype=np.float64)
     behind = np.einsum("ij,ij->i", np.asarray(camera.center, dtype=np.float64) - tri0,
                        normals) < 0
     back = behind[f]
