@@ -125,7 +125,8 @@ def child(argv: list[str]) -> None:
         if hasattr(obj, name):  # an older tree may lack a function (then not timed)
             setattr(obj, name, wrap(label, getattr(obj, name)))
     w, c = time.perf_counter(), time.process_time()
-    cli.main(argv)
+    sys.argv = ["selfillum", *argv]
+    cli.main()  # as the console script calls it (a process that exits next)
     total_w, total_c = time.perf_counter() - w, time.process_time() - c
     covered = [sum(r[i] for r in records.values()) for i in (0, 1)]
     records["other"] = [total_w - covered[0], total_c - covered[1]]
@@ -293,6 +294,23 @@ def track_share(frames: list[int], workers: list[str]) -> None:
                   flush=True)
 
 
+def correct_parts(args, argv: list[str], cache: Path, mesh) -> None:
+    """The correct command of each ``--roots`` tree, parts timed, interleaved."""
+    roots = [Path(r) for r in args.roots.split(",")]
+    print(f"{len(mesh.faces):,} faces; load average at start {os.getloadavg()}")
+    runs: dict[Path, list[dict]] = {r: [] for r in roots}
+    argvs = {r: argv + ["--out", str(cache / f"corrected_amdahl_{i}.npy")]
+             for i, r in enumerate(roots)}  # an output of its own each
+    for r in roots:
+        run_command(r, argvs[r])  # numba caches warm
+    for _ in range(args.repeat):
+        for r in roots:
+            runs[r].append(run_command(r, argvs[r]))
+    for r in roots:
+        print_parts(str(r), runs[r])
+    print(f"load average at end {os.getloadavg()}")
+
+
 def main() -> None:
     if len(sys.argv) > 1 and sys.argv[1] == "--child":
         child(sys.argv[2:])
@@ -325,21 +343,8 @@ def main() -> None:
     argv = ["correct", "--mesh", f["mesh"], "--camera", f["camera"], "--image", f["image"],
             "--reflectance", "0.5", "--unpainted", f["unpainted"],
             "--quiet"]
-    if args.skip_correct:
-        return
-    roots = [Path(r) for r in args.roots.split(",")]
-    print(f"{len(mesh.faces):,} faces; load average at start {os.getloadavg()}")
-    runs: dict[Path, list[dict]] = {r: [] for r in roots}
-    argvs = {r: argv + ["--out", str(cache / f"corrected_amdahl_{i}.npy")]
-             for i, r in enumerate(roots)}  # an output of its own each
-    for r in roots:
-        run_command(r, argvs[r])  # numba caches warm
-    for _ in range(args.repeat):
-        for r in roots:
-            runs[r].append(run_command(r, argvs[r]))
-    for r in roots:
-        print_parts(str(r), runs[r])
-    print(f"load average at end {os.getloadavg()}")
+    if not args.skip_correct:
+        correct_parts(args, argv, cache, mesh)
     if args.threads:
         import numpy as np
 

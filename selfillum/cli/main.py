@@ -8,7 +8,9 @@ Errors on bad input are printed as one line and exit with status 2.
 from __future__ import annotations
 
 import argparse
+import gc
 import sys
+from contextlib import contextmanager
 
 from resection.cli.paths import FolderOutput
 from resection.cli.util import OneLineParser, add_camera_check_options, add_mesh_format, run
@@ -56,9 +58,10 @@ def _cmd_corner(args) -> int:
 
 
 def _cmd_correct(args) -> int:
-    from resection.saturation import report
-    from selfillum.images.image_correction import correct_image_file
-    from selfillum.summary import summarize
+    with _no_collections():  # the imports allocate many objects and leave no garbage
+        from resection.saturation import report
+        from selfillum.images.image_correction import correct_image_file
+        from selfillum.summary import summarize
 
     result = correct_image_file(
         args.mesh,
@@ -103,6 +106,19 @@ def _cmd_correct(args) -> int:
     if args.surface:
         print(f"wrote {args.surface}")
     return 0
+
+
+@contextmanager
+def _no_collections():
+    """Python's cyclic garbage collector off inside (imports: about 15 % of their time
+    goes to collections that find nothing), back as it was after."""
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            gc.enable()
 
 
 def _positive(kind):
@@ -274,7 +290,17 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    return run(build_parser(), argv)
+    """Run the command of ``argv`` (default: the process's arguments); the exit status.
+
+    Called without ``argv`` (the console script, ``python -m selfillum.cli``) the process
+    ends right after: the objects left are frozen out of the collector
+    (:func:`gc.freeze`), so that the interpreter's exit does not walk them all again
+    (0.2-0.3 s after ``correct`` on a 600,000-face grid). Called with ``argv`` (in a
+    process that goes on) nothing is frozen."""
+    status = run(build_parser(), argv)
+    if argv is None:
+        gc.freeze()
+    return status
 
 
 if __name__ == "__main__":  # pragma: no cover
