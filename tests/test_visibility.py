@@ -173,6 +173,6 @@ def test_caster_frame_and_normals_against_closed_form():
     assert c.scale == pytest.approx(100 / np.linalg.norm([5, 5, 1]))
     o = ((np.array([[1.5, 0.2, 1.0]]) - c.origin) * c.scale).astype(np.float32)
     assert list(c.scene.run(o, np.array([[0, 0, -1]], np.float32))) == [0]
-    c.first_hit(np.zeros(3), np.array([[1.0, 1.0, 0.0]]))  # the per-face duals are built
-    c._normals = None
-    np.testing.assert_allclose(c.normals[0], [0, 0, 1], atol=1e-15)
+    np.testing.assert_allclose(c.centroids, [[2 / 3, 2 / 3, 0], (v[0] + v[2] + v[3]) / 3],
+                               atol=1e-15)
+    np.testing.assert_allclose(c.areas, [2.0, np.linalg.norm(n2) / 2], rtol=1e-15)

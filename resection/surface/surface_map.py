@@ -180,7 +180,7 @@ def _vertex_matrix(mesh: trimesh.Trimesh, face_weight: np.ndarray, linear: bool)
     faces = np.asarray(mesh.faces, dtype=np.int64)
     verts = np.asarray(mesh.vertices, dtype=np.float64)
     nv, nf = len(verts), len(faces)
-    cen, _ = _face_geometry(mesh)
+    cen = np.asarray(mesh.triangles_center, dtype=np.float64)  # (not the areas' cross products)
     vid = faces.ravel()  # incidence pairs (vertex, face)
     fid = np.repeat(np.arange(nf), 3)
     w = face_weight[fid]
@@ -343,7 +343,7 @@ class SurfaceMap:
             shape=(nf, self._hit.size),
         )
         self.pixel_counts = np.bincount(self._hit_face, minlength=nf).astype(np.int64)
-        _, self._area = _face_geometry(mesh)
+        self._area = caster.areas
         self._vcache: dict = {}
         self._interp = None
 

@@ -60,7 +60,7 @@ class RayCaster:
         self._scale = 100.0 / extent if extent > 0 else 1.0
         scaled = ((vertices - self._origin) * self._scale).astype(np.float32)
         self._dual = None  # per-face data of _plane_hits, built on first use
-        self._normals = self._centroids = None
+        self._normals = None  # (normals, centroids, areas), built on first use
         self._scene = rtcore_scene.EmbreeScene()
         TriangleMesh(scene=self._scene, vertices=scaled,
                      indices=self._faces.astype(np.int32))
@@ -94,22 +94,26 @@ class RayCaster:
     def normals(self) -> np.ndarray:
         """Unit face normals ``(F, 3)`` float64, right-hand rule on the vertex order
         (``(v1 - v0) x (v2 - v0)`` normalised), computed once from the float64 vertices."""
-        if self._normals is None:
-            if self._dual is not None:  # the same cross products, already made
-                nrm = self._dual[:, 3:6]
-            else:
-                tri = self._vertices[self._faces]
-                nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-            self._normals = nrm / np.linalg.norm(nrm, axis=1, keepdims=True)
-        return self._normals
+        return self._geometry()[0]
 
     @property
     def centroids(self) -> np.ndarray:
         """Face centroids ``(F, 3)`` float64 (model units), computed once."""
-        if self._centroids is None:
-            v, f = self._vertices, self._faces
-            self._centroids = (v[f[:, 0]] + v[f[:, 1]] + v[f[:, 2]]) / 3.0
-        return self._centroids
+        return self._geometry()[1]
+
+    @property
+    def areas(self) -> np.ndarray:
+        """Face areas ``(F,)`` float64 (model units squared), computed once."""
+        return self._geometry()[2]
+
+    def _geometry(self):
+        """``(normals, centroids, areas)`` of the faces, in one compiled pass."""
+        if self._normals is None:
+            nf = len(self._faces)
+            out = (np.empty((nf, 3)), np.empty((nf, 3)), np.empty(nf))
+            _unit_normals(self._face_duals(), self._vertices, self._faces, *out)
+            self._normals = out
+        return self._normals
 
     def first_hit(self, origins, directions, *, unit: bool = False,
                   workers: int | None = None):
@@ -208,6 +212,23 @@ def _duals(vertices, faces, start, stop, dual):  # pragma: no cover - compiled
         dual[f, 9] = (ny * e1z - nz * e1y) / nn
         dual[f, 10] = (nz * e1x - nx * e1z) / nn
         dual[f, 11] = (nx * e1y - ny * e1x) / nn
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _unit_normals(dual, vertices, faces, normals, centroids, areas):  # pragma: no cover
+    """Unit normals (the duals' ``n`` over its length), centroids and areas
+    (``|n| / 2``) of every face."""
+    third = 1.0 / 3.0
+    for f in range(dual.shape[0]):
+        nx, ny, nz = dual[f, 3], dual[f, 4], dual[f, 5]
+        length = np.sqrt(nx * nx + ny * ny + nz * nz)
+        normals[f, 0] = nx / length
+        normals[f, 1] = ny / length
+        normals[f, 2] = nz / length
+        areas[f] = length / 2.0
+        i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
+        for c in range(3):
+            centroids[f, c] = (vertices[i0, c] + vertices[i1, c] + vertices[i2, c]) * third
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
