@@ -30,7 +30,7 @@ from resection._threads import run_blocks, split_range
 from resection.camera.model import Camera
 from resection.errors import InputError
 
-__all__ = ["RayCaster", "visible_faces", "face_sample_points"]
+__all__ = ["RayCaster", "visible_faces", "face_sample_points", "face_geometry"]
 
 
 class RayCaster:
@@ -109,10 +109,7 @@ class RayCaster:
     def _geometry(self):
         """``(normals, centroids, areas)`` of the faces, in one compiled pass."""
         if self._normals is None:
-            nf = len(self._faces)
-            out = (np.empty((nf, 3)), np.empty((nf, 3)), np.empty(nf))
-            _unit_normals(self._face_duals(), self._vertices, self._faces, *out)
-            self._normals = out
+            self._normals = _geometry_of(self._face_duals(), self._vertices, self._faces)
         return self._normals
 
     def first_hit(self, origins, directions, *, unit: bool = False,
@@ -212,6 +209,25 @@ def _duals(vertices, faces, start, stop, dual):  # pragma: no cover - compiled
         dual[f, 9] = (ny * e1z - nz * e1y) / nn
         dual[f, 10] = (nz * e1x - nx * e1z) / nn
         dual[f, 11] = (nx * e1y - ny * e1x) / nn
+
+
+def face_geometry(vertices, faces) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unit normals ``(F, 3)`` (right-hand rule on the vertex order), centroids ``(F, 3)``
+    and areas ``(F,)`` of triangles, float64, in two compiled passes (about 25 ns a
+    face): the values :attr:`RayCaster.normals`, :attr:`RayCaster.centroids` and
+    :attr:`RayCaster.areas` give for the same mesh."""
+    v = np.ascontiguousarray(vertices, dtype=np.float64)
+    f = np.ascontiguousarray(faces, dtype=np.int64)
+    dual = np.empty((len(f), 12))
+    _duals(v, f, 0, len(f), dual)
+    return _geometry_of(dual, v, f)
+
+
+def _geometry_of(dual, vertices, faces):
+    nf = len(faces)
+    out = (np.empty((nf, 3)), np.empty((nf, 3)), np.empty(nf))
+    _unit_normals(dual, vertices, faces, *out)
+    return out
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")

@@ -265,7 +265,7 @@ def correct_image(
         else:
             share[t][seen[t]] = 0.0
         infos.append(info)
-    areas = face_areas(mesh)
+    areas = face_areas(mesh) if caster is None else caster.areas
     with np.errstate(divide="ignore", invalid="ignore"):
         si = np.where(seen & (B != 0), (B - E) / B, np.nan)
     warns = []

@@ -29,7 +29,8 @@ from numba import njit
 from resection._threads import available_cores
 from resection.errors import InputError
 from resection.memory import check_memory
-from selfillum.mesh import check_mesh, face_areas, face_normals
+from resection.surface.visibility import face_geometry
+from selfillum.mesh import check_mesh, face_areas
 from selfillum.transport.sampling import digital_shifts, rqmc_points, sample_rays
 
 __all__ = ["view_factors", "RowTracer", "enforce_reciprocity", "RayScene", "sample_rays",
@@ -335,7 +336,9 @@ class RowTracer:
         faces = np.asarray(mesh.faces, dtype=np.int64)
         self.n, self.k = len(faces), k
         size = float(np.ptp(vertices, axis=0).max())
-        normals = face_normals(mesh) if self._caster is None else self._caster.normals
+        # unit normals, compiled (the caster's when given): face_normals' values
+        normals = (face_geometry(vertices, faces)[0] if self._caster is None
+                   else self._caster.normals)
         self.job = _Job(vertices, faces, normals, normals.astype(np.float32), k, seed,
                         _OFFSET * size, bool(two_sided))
         rows = self.n if n_rows is None else int(n_rows)
