@@ -213,12 +213,13 @@ def thread_efficiency(mesh, threads: list[int], repeat: int, rows) -> None:
             return timed("BVH build", super().run)(*a, **kw)
 
     saved = (vf.RowTracer.__init__, vf.RowTracer._start, vf._assemble, vis.TriangleMesh,
-             vis.rtcore_scene)
+             vis.rtcore_scene, vf.TriangleMesh, vf.rtcore_scene)
     vf.RowTracer.__init__ = timed("set-up", vf.RowTracer.__init__)
     vf.RowTracer._start = timed("scene + kernels", vf.RowTracer._start)
     vf._assemble = timed("F assembly", vf._assemble)
-    vis.TriangleMesh = timed("buffer copy", vis.TriangleMesh)
-    vis.rtcore_scene = type("rtcore_scene", (), {"EmbreeScene": Scene})
+    for mod in (vis, vf):  # the scene is a RayCaster's (a RayScene's in older trees)
+        mod.TriangleMesh = timed("buffer copy", mod.TriangleMesh)
+        mod.rtcore_scene = type("rtcore_scene", (), {"EmbreeScene": Scene})
     times: dict[int, float] = {}
     parts: dict[int, dict] = {}
     try:
@@ -233,7 +234,7 @@ def thread_efficiency(mesh, threads: list[int], repeat: int, rows) -> None:
                     times[w], parts[w] = dt, {k: list(v) for k, v in spent.items()}
     finally:
         (vf.RowTracer.__init__, vf.RowTracer._start, vf._assemble, vis.TriangleMesh,
-         vis.rtcore_scene) = saved
+         vis.rtcore_scene, vf.TriangleMesh, vf.rtcore_scene) = saved
     cores = os.cpu_count() or 1
     print(f"\nview_factors, {len(rows):,} rows, K = 256, {cores} cores, load average "
           f"{os.getloadavg()[0]:.1f}:")
