@@ -163,7 +163,8 @@ def _fit_pairs(vid, fid, w, cen, verts, nv, linear):
     return coef, rank, W
 
 
-def _vertex_matrix(mesh: trimesh.Trimesh, face_weight: np.ndarray, linear: bool) -> sp.csr_matrix:
+def _vertex_matrix(mesh: trimesh.Trimesh, face_weight: np.ndarray, linear: bool,
+                   centroids=None) -> sp.csr_matrix:
     """Sparse (V, F) matrix turning face values into vertex values.
 
     Each vertex gets the area-weighted mean of the face values around it; with ``linear``
@@ -180,7 +181,8 @@ def _vertex_matrix(mesh: trimesh.Trimesh, face_weight: np.ndarray, linear: bool)
     faces = np.asarray(mesh.faces, dtype=np.int64)
     verts = np.asarray(mesh.vertices, dtype=np.float64)
     nv, nf = len(verts), len(faces)
-    cen = np.asarray(mesh.triangles_center, dtype=np.float64)  # (not the areas' cross products)
+    cen = np.asarray(mesh.triangles_center if centroids is None else centroids,
+                     dtype=np.float64)
     vid = faces.ravel()  # incidence pairs (vertex, face)
     fid = np.repeat(np.arange(nf), 3)
     w = face_weight[fid]
@@ -233,7 +235,7 @@ def vertex_values(
     return _apply_vertex(mesh, area, fv, interpolation == "linear", cache=None)
 
 
-def _apply_vertex(mesh, area, fv, linear, cache):
+def _apply_vertex(mesh, area, fv, linear, cache, centroids=None):
     """Vertex values of (F,) or (F, K) face values; columns are handled in groups sharing
     the same set of NaN faces (each group gets its own reconstruction matrix)."""
     flat = fv.reshape(len(fv), -1)
@@ -254,7 +256,7 @@ def _apply_vertex(mesh, area, fv, linear, cache):
         if pattern.all() and cache is not None and linear in cache:
             M = cache[linear]
         else:
-            M = _vertex_matrix(mesh, area * pattern, linear)
+            M = _vertex_matrix(mesh, area * pattern, linear, centroids)
             if pattern.all() and cache is not None:
                 cache[linear] = M
         res = M @ np.where(pattern[:, None], flat[:, cols], 0.0)
@@ -343,7 +345,7 @@ class SurfaceMap:
             shape=(nf, self._hit.size),
         )
         self.pixel_counts = np.bincount(self._hit_face, minlength=nf).astype(np.int64)
-        self._area = caster.areas
+        self._area, self._centroids = caster.areas, caster.centroids
         self._vcache: dict = {}
         self._interp = None
 
@@ -492,7 +494,8 @@ class SurfaceMap:
                              f"for the mesh's faces, got shape {fv.shape}")
         if interpolation not in ("linear", "mean"):
             raise InputError(f"interpolation must be 'linear' or 'mean', got {interpolation!r}")
-        return _apply_vertex(self.mesh, self._area, fv, interpolation == "linear", self._vcache)
+        return _apply_vertex(self.mesh, self._area, fv, interpolation == "linear", self._vcache,
+                             self._centroids)
 
     def to_image(self, face_values, background=None, *, interpolation: str = "linear"):
         """Backproject per-face values into this camera's image.
