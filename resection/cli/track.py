@@ -95,9 +95,16 @@ def _json_options(text: str | None, option: str) -> dict | None:
 
 
 def run_track(args: argparse.Namespace) -> int:
+    from resection.sequence.plot_worker import MotionPlotter
+
+    # the plot's process starts first: its imports run beside this process's and the run's
+    with MotionPlotter() as plotter:
+        return _run(args, plotter)
+
+
+def _run(args: argparse.Namespace, plotter) -> int:
     from resection.io.cameras import read_camera
-    from resection.sequence import track
-    from resection.sequence.motion_plots import plot_motion
+    from resection.sequence.run import track
 
     # the acceptance options given (the defaults are solve_pose's: a run made without
     # them, from the library or the CLI, resumes with the same settings)
@@ -121,7 +128,7 @@ def run_track(args: argparse.Namespace) -> int:
         print(f"interrupted: {n}/{len(frames)} frames finished are kept in {frames_dir}; "
               "run the same command again to resume", file=sys.stderr)
         return 130
-    plot_motion(result, os.path.join(args.out, "pose_vs_time.png"), fps=args.fps)
+    plotter.plot(result, os.path.join(args.out, "pose_vs_time.png"), fps=args.fps)
     n_ok = int(result.ok.sum())
     print(f"{n_ok}/{len(result)} frames solved ({result.n_computed} computed now), "
           f"motion relative to frame {result.reference}; results in {args.out}")

@@ -81,10 +81,20 @@ with the frames.
 
 from __future__ import annotations
 
-from resection.sequence.motion import relative_motion
-from resection.sequence.outputs import read_track
-from resection.sequence.results import MARKER_COLUMNS, POSE_COLUMNS, FrameResult, TrackResult
-from resection.sequence.run import track
+from resection._lazy import attach
+
+#: Public name -> the submodule that defines it, imported on first use (PEP 562): a
+#: process that needs only one module of the package (the plot process of ``resection
+#: track``, :mod:`~resection.sequence.plot_worker`) does not load the tracker's imports.
+_EXPORTS: dict[str, str] = {
+    "FrameResult": ".results",
+    "TrackResult": ".results",
+    "POSE_COLUMNS": ".results",
+    "MARKER_COLUMNS": ".results",
+    "track": ".run",
+    "read_track": ".outputs",
+    "relative_motion": ".motion",
+}
 
 __all__ = [
     "FrameResult",
@@ -95,3 +105,5 @@ __all__ = [
     "POSE_COLUMNS",
     "MARKER_COLUMNS",
 ]
+
+__getattr__, __dir__ = attach(__name__, _EXPORTS)

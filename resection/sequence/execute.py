@@ -9,6 +9,7 @@ from pathlib import Path
 
 from resection.errors import InputError
 from resection.sequence.outputs import (
+    FrameWriter,
     atomic_write_text,
     frame_path,
     frame_text,
@@ -46,10 +47,7 @@ def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
     place), each written to ``frames_dir`` as soon as it is finished. Returns the number
     computed. Memory does not grow with the frames: a finished frame is kept as its file
     and those two numbers; the frames are read one at a time, where they are processed."""
-    from tqdm.auto import tqdm
-
-    bar = tqdm(total=len(frames), initial=len(done), desc="track", unit="frame",
-               disable=not progress)
+    bar = _progress_bar(len(frames), len(done), progress)
     computed = 0
 
     def note(d: dict) -> None:
@@ -60,9 +58,12 @@ def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
             computed += 1
             bar.update(1)
 
+    writer = FrameWriter(frames_dir)
+
     def record(res: FrameResult) -> None:
-        write_frame(frames_dir, res)
-        note(res.to_dict())
+        d = res.to_dict()
+        writer.write(d)
+        note(d)
 
     try:
         d0 = read_frame(frame_path(frames_dir, 0)) if 0 in done else None
@@ -96,6 +97,8 @@ def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
                           _on_poll(frames_dir, todo, note), scheduler, n_local,
                           str(frames_dir.resolve()))
 
+        writer.flush()  # the repair pass reads the frames' files
+
         def rerecord(res: FrameResult) -> None:
             nonlocal computed
             write_frame(frames_dir, res)
@@ -106,8 +109,27 @@ def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
 
         repair(frames, setup, done, rerecord, frames_dir)
     finally:
+        writer.close()  # the finished frames are written, also when the run is interrupted
         bar.close()
     return computed
+
+
+class _NoBar:
+    """A progress bar that shows nothing (tqdm is not imported for it: 25 ms)."""
+
+    def update(self, n: int = 1) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+def _progress_bar(total: int, initial: int, show: bool):
+    if not show:
+        return _NoBar()
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, initial=initial, desc="track", unit="frame")
 
 
 def cluster_pays(seconds: float, workers: float, start_s: float | None = None) -> bool:

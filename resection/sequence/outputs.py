@@ -50,6 +50,45 @@ def write_frame(frames_dir: Path, res: FrameResult) -> None:
                        sync=False)
 
 
+class FrameWriter:
+    """The per-frame files written by a thread, beside the tracking: encoding a frame's
+    record and writing its file (:func:`write_frame`) cost a sixth of a tracked frame.
+    :meth:`write` queues a frame's dictionary (at most :attr:`MAX_PENDING` wait: memory
+    stays flat); :meth:`flush` waits until every queued file is written and raises the
+    first error of the thread (a full disk, ...), as the write itself would have."""
+
+    MAX_PENDING = 16
+
+    def __init__(self, frames_dir: Path) -> None:
+        from collections import deque
+        from concurrent.futures import ThreadPoolExecutor
+
+        self._dir = frames_dir
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="track-write")
+        self._pending: deque = deque()
+
+    def write(self, d: dict) -> None:
+        """Queue the file of the frame whose record is ``d`` (not changed afterwards)."""
+        while self._pending and (self._pending[0].done()
+                                 or len(self._pending) >= self.MAX_PENDING):
+            self._pending.popleft().result()  # raises the thread's error
+        self._pending.append(self._pool.submit(_write_record, self._dir, d))
+
+    def flush(self) -> None:
+        """Wait for every queued file; raise the first error."""
+        while self._pending:
+            self._pending.popleft().result()
+
+    def close(self) -> None:
+        """Write what is queued (errors are raised by :meth:`flush`, not here) and stop."""
+        self._pool.shutdown(wait=True)
+        self._pending.clear()
+
+
+def _write_record(frames_dir: Path, d: dict) -> None:
+    atomic_write_text(frame_path(frames_dir, d["frame"]), frame_text(d), sync=False)
+
+
 def try_write_frame(frames_dir: Path, res: FrameResult) -> None:
     """A worker's write of a finished frame. A worker that cannot reach the output directory
     (a remote cluster without a shared filesystem) leaves it to the client, which writes
