@@ -25,7 +25,18 @@ steady cost per frame split by step.
 
 Start-up and steady cost come from two run lengths: ``T(N) = S + N c``.
 
-Run: ``.venv/bin/python bench/bench_track_command.py --frames 200 2000 [--repeat 2]``
+``--split N1,N2`` also times the command's steps inside its process (best of ``--repeat``,
+the rounds alternating): the CLI's imports, the camera and tracker imports, the checks (the
+detection, matching and pose modules imported: numba, SciPy), frame 0 (the compiled kernels
+loaded from numba's cache, the detection, the linked pose), the frames, the CSVs, the wait
+for the plot's process, and what is left of the whole process's wall time (the interpreter's
+start and exit); and the plot's process alone (its imports, its warm-up figure, the
+figure of N2 frames and its PNG). ``--amdahl N`` runs the command on one core
+(``taskset -c 0``) and on the two, alternating: the serial share of the 2-core time is
+``s = 2 T2 / T1 - 1`` (Amdahl: ``T2 = T1 (s + (1 - s) / 2)``).
+
+Run: ``flock /tmp/bench.lock .venv/bin/python bench/bench_track_command.py --frames 200 2000
+[--repeat 2] [--opencv-step 20] [--split 2,200] [--amdahl 200]``
 """
 
 from __future__ import annotations
@@ -99,6 +110,168 @@ np.save(args["out"], np.hstack([rv, tv]))
 """
 
 
+SPLIT_RUNNER = """
+import time
+T0 = time.perf_counter()
+import functools, importlib.abc, importlib.machinery, json, sys
+sys.path.insert(0, {root!r})
+spans = {{}}
+
+
+def wrap(obj, name, label):
+    f = getattr(obj, name)
+
+    @functools.wraps(f)
+    def timed(*a, **k):
+        t = time.perf_counter()
+        try:
+            return f(*a, **k)
+        finally:
+            s = spans.setdefault(label, [t - T0, 0.0])
+            s[1] += time.perf_counter() - t
+    setattr(obj, name, timed)
+
+
+WRAP = {{"resection.sequence.run": [("checked", "checks (detection, matching, pose imported)"),
+                                    ("track", "track()"),
+                                    ("write_csvs", "CSVs")],
+        "resection.sequence.execute": [("process_linked", "frame 0 (kernels, detection, link)"),
+                                       ("_execute_local", "frames 1..N-1")],
+        "resection.cli.track": [("_run", "command")],
+        "resection.sequence.plot_worker": [("_draw_there", "plot (waiting for its process)")]}}
+
+
+class After(importlib.abc.MetaPathFinder):
+    # wraps the timed functions as soon as their module is imported by the command
+    def find_spec(self, name, path, target=None):
+        if name not in WRAP:
+            return None
+        spec = importlib.machinery.PathFinder.find_spec(name, path)
+        run = spec.loader.exec_module
+
+        def exec_module(module):
+            run(module)
+            for fn, label in WRAP[name]:
+                wrap(module, fn, label)
+        spec.loader.exec_module = exec_module
+        return spec
+
+
+sys.meta_path.insert(0, After())
+from resection.cli.main import main
+args = json.load(open({args!r}))
+t = time.perf_counter()
+rc = main(args["argv"])
+spans["end"] = [time.perf_counter() - T0, 0.0]
+print(json.dumps(spans))
+"""
+
+PLOT_RUNNER = """
+import time
+T0 = time.perf_counter()
+import pickle, sys
+sys.path.insert(0, {root!r})
+import io
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from resection.sequence.motion_plots import motion_figure, save_figure
+t1 = time.perf_counter()
+k = np.arange(3)
+FigureCanvasAgg(motion_figure(k, np.ones((3, 3)), np.ones((3, 3)), np.ones(3), k > 0,
+                              reference=0)).print_png(io.BytesIO(),
+                                                      pil_kwargs={{"compress_level": 1}})
+t2 = time.perf_counter()
+data = pickle.load(open({data!r}, "rb"))
+fig = motion_figure(**data)
+t3 = time.perf_counter()
+save_figure(fig, {png!r})
+t4 = time.perf_counter()
+print(f"{{t1 - T0:.3f}} {{t2 - t1:.3f}} {{t3 - t2:.3f}} {{t4 - t3:.3f}}")
+"""
+
+
+def split(sc: dict, ns: list[int], repeat: int, env: dict) -> None:
+    """The command's steps timed inside its process, and the plot's process alone."""
+    import pickle
+
+    from resection.sequence import read_track
+    from resection.sequence.motion_plots import motion_data
+
+    cache = Path(sc["frames"][0]).parent
+    py = sys.executable
+    best: dict = {}
+    for _ in range(repeat):
+        for n in ns:
+            frames = [sc["frames"][k % PERIOD] for k in range(n)]
+            out = cache / f"split_{n}"
+            argv = ["track", *frames, "--camera", sc["camera"], "--markers", sc["markers"],
+                    "--link", sc["link"], "--diameter", "5", "--out", str(out),
+                    "--no-progress", "--no-resume"]
+            a = cache / f"split_{n}.json"
+            a.write_text(json.dumps({"argv": argv}))
+            load = os.getloadavg()[0]
+            wall, _, stdout = timed([py, "-c", SPLIT_RUNNER.format(root=str(ROOT),
+                                                                    args=str(a))], env)
+            spans = json.loads(stdout.strip().splitlines()[-1])
+            if n not in best or wall < best[n][0]:
+                best[n] = (wall, spans, load)
+    print("\nsplit of the command (seconds; best of the rounds):")
+    for n, (wall, spans, load) in sorted(best.items()):
+        cmd0, cmd = spans["command"]
+        tr0, tr = spans["track()"]
+        ck0, ck = spans["checks (detection, matching, pose imported)"]
+        rows = [("interpreter start, CLI imports and parsing", cmd0),
+                ("camera and tracker imports", ck0 - cmd0)]
+        rows += [(k, v[1]) for k, v in spans.items()
+                 if k not in ("command", "track()", "end")]
+        rows.append(("track(): the rest (folder, lock, manifest, assembling)",
+                     tr - sum(spans[k][1] for k in spans
+                              if k in ("checks (detection, matching, pose imported)",
+                                       "frame 0 (kernels, detection, link)",
+                                       "frames 1..N-1", "CSVs"))))
+        rows.append(("command: the rest (read camera, messages)",
+                     cmd - tr - (ck0 - cmd0)
+                     - spans.get("plot (waiting for its process)", [0, 0])[1]))
+        rows.append(("interpreter exit and process start (whole wall - end)",
+                     wall - spans["end"][0]))
+        print(f"  {n} frames, whole process {wall:.2f} s (load {load:.1f}):")
+        for label, v in rows:
+            print(f"    {label:55s} {v:6.3f}")
+    n2 = max(best)
+    data = cache / "plot_data.pkl"
+    with open(data, "wb") as fh:
+        pickle.dump(motion_data(read_track(cache / f"split_{n2}")), fh)
+    runs = []
+    for _ in range(repeat):
+        _, _, stdout = timed([py, "-c", PLOT_RUNNER.format(root=str(ROOT), data=str(data),
+                                                           png=str(cache / "plot.png"))], env)
+        runs.append([float(x) for x in stdout.split()])
+    imp, warm, fig, png = min(runs, key=sum)
+    print(f"  the plot's process alone ({n2} frames): imports {imp:.3f} s, warm-up figure "
+          f"{warm:.3f} s (both while the command runs), then the figure {fig:.3f} s and "
+          f"its drawing and PNG {png:.3f} s")
+
+
+def amdahl(sc: dict, n: int, repeat: int, env: dict) -> None:
+    """The whole command on one core and on two, alternating: the serial share."""
+    frames = [sc["frames"][k % PERIOD] for k in range(n)]
+    cmd = [sys.executable, "-m", "resection.cli", "track", *frames, "--camera", sc["camera"],
+           "--markers", sc["markers"], "--link", sc["link"], "--diameter", "5", "--out",
+           str(Path(sc["frames"][0]).parent / f"amdahl_{n}"), "--no-progress", "--no-resume"]
+    best = {1: np.inf, 2: np.inf}
+    loads = []
+    for _ in range(repeat):
+        for cores in (1, 2):
+            loads.append(os.getloadavg()[0])
+            wall, _, _ = timed((["taskset", "-c", "0"] if cores == 1 else []) + cmd, env)
+            best[cores] = min(best[cores], wall)
+            print(f"  {n} frames on {cores} core(s): {wall:.2f} s")
+    s = 2.0 * best[2] / best[1] - 1.0
+    print(f"Amdahl, {n} frames: 1 core {best[1]:.2f} s, 2 cores {best[2]:.2f} s, speed-up "
+          f"{best[1] / best[2]:.2f}, serial share of the 2-core time {100 * s:.0f} % (load "
+          f"{min(loads):.1f}-{max(loads):.1f})")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, nargs="+", default=[200, 2000])
@@ -107,6 +280,10 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=None,
                     help="track's --workers (default: its own choice)")
     ap.add_argument("--profile", action="store_true")
+    ap.add_argument("--split", help="N1,N2: the command's steps timed in its process")
+    ap.add_argument("--amdahl", type=int, help="frames of the 1-core / 2-core runs")
+    ap.add_argument("--skip-ratio", action="store_true",
+                    help="only --split / --amdahl / --profile, not the runs against OpenCV")
     ap.add_argument("--opencv-step", type=int, default=10,
                     help="the blob detector's threshold step (bench_track.py: 10; 20 halves "
                     "its time)")
@@ -120,7 +297,7 @@ def main() -> None:
     cam0 = model.camera_at(0)
     print(f"load average at start: {os.getloadavg()}")
     results = {}
-    for n in args.frames:
+    for n in ([] if args.skip_ratio else args.frames):
         frames = [sc["frames"][k % PERIOD] for k in range(n)]
         out = cache / f"out_{n}"
         track_cmd = [py, "-m", "resection.cli", "track", *frames, "--camera", sc["camera"],
@@ -170,13 +347,17 @@ def main() -> None:
               f"track {e_track:.3f} deg, OpenCV {e_cv:.3f} deg; load during the runs "
               f"{min(loads):.1f}-{max(loads):.1f}")
         print("  " + " | ".join(summary))
-    if len(args.frames) >= 2:
+    if len(args.frames) >= 2 and not args.skip_ratio:
         n1, n2 = sorted(args.frames)[:2]
         for key in ("track", "opencv"):
             c = (results[n2][key][0] - results[n1][key][0]) / (n2 - n1)
             s = results[n1][key][0] - n1 * c
             print(f"{key}: start-up {s:.2f} s, steady {1e3 * c:.2f} ms a frame "
                   f"({1 / c:.0f} frames/s)")
+    if args.split:
+        split(sc, [int(x) for x in args.split.split(",")], args.repeat, env)
+    if args.amdahl:
+        amdahl(sc, args.amdahl, args.repeat, env)
     if args.profile:
         profile(sc, min(args.frames))
     print(f"load average at the end: {os.getloadavg()}")
