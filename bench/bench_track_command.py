@@ -282,6 +282,9 @@ def main() -> None:
     ap.add_argument("--profile", action="store_true")
     ap.add_argument("--split", help="N1,N2: the command's steps timed in its process")
     ap.add_argument("--amdahl", type=int, help="frames of the 1-core / 2-core runs")
+    ap.add_argument("--baseline", metavar="DIR",
+                    help="also run the command from this source tree (a checkout of "
+                    "another commit) in every round: before -> after in the same run")
     ap.add_argument("--skip-ratio", action="store_true",
                     help="only --split / --amdahl / --profile, not the runs against OpenCV")
     ap.add_argument("--opencv-step", type=int, default=10,
@@ -314,11 +317,17 @@ def main() -> None:
         cv_cmd = [py, "-c", OPENCV_RUNNER.format(root=str(ROOT), bench=str(ROOT / "bench"),
                                                  args=str(cv_args))]
         best = {"track": (np.inf, 0.0), "opencv": (np.inf, 0.0)}
+        runs = [("track", track_cmd, env), ("opencv", cv_cmd, env)]
+        if args.baseline:
+            best["baseline"] = (np.inf, 0.0)
+            base_cmd = [*track_cmd]
+            base_cmd[base_cmd.index("--out") + 1] = str(out) + "_baseline"
+            runs.insert(1, ("baseline", base_cmd, {**env, "PYTHONPATH": args.baseline}))
         loads = []
         for _ in range(args.repeat):
-            for key, cmd in (("track", track_cmd), ("opencv", cv_cmd)):
+            for key, cmd, cmd_env in runs:
                 loads.append(os.getloadavg()[0])
-                wall, rss, stdout = timed(cmd, env)
+                wall, rss, stdout = timed(cmd, cmd_env)
                 if key == "track":
                     summary = stdout.strip().splitlines()
                 if wall < best[key][0]:
@@ -346,10 +355,15 @@ def main() -> None:
               f"failed {int((~res.ok).sum())}; largest attitude difference to the truth "
               f"track {e_track:.3f} deg, OpenCV {e_cv:.3f} deg; load during the runs "
               f"{min(loads):.1f}-{max(loads):.1f}")
+        if args.baseline:
+            b_fps = n / best["baseline"][0]
+            print(f"  baseline ({args.baseline}): {b_fps:.1f} frames/s (peak "
+                  f"{best['baseline'][1]:.0f} MiB), ratio to OpenCV {b_fps / c_fps:.2f}; "
+                  f"this tree / baseline {t_fps / b_fps:.2f}")
         print("  " + " | ".join(summary))
     if len(args.frames) >= 2 and not args.skip_ratio:
         n1, n2 = sorted(args.frames)[:2]
-        for key in ("track", "opencv"):
+        for key in results[n1]:
             c = (results[n2][key][0] - results[n1][key][0]) / (n2 - n1)
             s = results[n1][key][0] - n1 * c
             print(f"{key}: start-up {s:.2f} s, steady {1e3 * c:.2f} ms a frame "
@@ -387,19 +401,25 @@ def profile(sc: dict, n: int) -> None:
         pr.disable()
         wall = time.perf_counter() - t
     st = pstats.Stats(pr)
-    steps = {"read frame": "_load_image", "fingerprint": "fingerprint",
-             "predict + gate (whole)": "track_predicted", "window fits": "refine_markers",
-             "pose (Gauss-Newton)": "refine_pose", "acceptance": "judge",
-             "statistical matcher": "match_markers", "detection (matcher frames)":
-             "detect_markers", "write frame file": "_write_frame",
-             "assemble + CSVs": "_write_csvs"}
+    # cProfile sees the main thread only: the frames are read (fingerprint, file, float
+    # conversion) and their files written by two other threads; here, the main thread's
+    # wait for the frame read ahead and its queueing of the frame's file
+    steps = {"read frame (wait for the read-ahead)": ("process.py", "take"),
+             "predict + gate (whole)": ("predict.py", "track_predicted"),
+             "  window fits": ("refine.py", "refine_markers"),
+             "  pose (Gauss-Newton)": ("predict.py", "refine_pose"),
+             "  acceptance": ("acceptance.py", "judge"),
+             "statistical matcher": ("match.py", "match_markers"),
+             "detection (frame 0, matcher frames)": ("detect.py", "detect_markers"),
+             "frame record + file queued": ("execute.py", "record"),
+             "CSVs": ("outputs.py", "write_csvs")}
     cum = {}
     for (file, _, fn), (_, _, _, ct, _) in st.stats.items():
-        for label, name in steps.items():
-            if fn == name and "resection" in file:
+        for label, (where, name) in steps.items():
+            if fn == name and file.endswith(where) and "resection" in file:
                 cum[label] = cum.get(label, 0.0) + ct
-    print(f"\nprofile, {n} frames in this process (cProfile adds overhead): {wall:.2f} s, "
-          f"{1e3 * wall / n:.2f} ms a frame")
+    print(f"\nprofile, {n} frames in this process, main thread (cProfile adds overhead): "
+          f"{wall:.2f} s, {1e3 * wall / n:.2f} ms a frame")
     for label in steps:
         if label in cum:
             print(f"  {label:28s} {1e3 * cum[label] / n:7.3f} ms a frame")

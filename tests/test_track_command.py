@@ -196,3 +196,31 @@ def test_frame_writer_writes_every_record_and_raises_its_errors(tmp_path, monkey
     assert frame_path(tmp_path, 6).name in written
     assert frame_path(tmp_path, 7).name not in written
     assert json.loads((tmp_path / "again" / written[0]).read_text()) == records[0]
+
+
+def test_numba_cache_falls_back_to_a_writable_folder(tmp_path, monkeypatch):
+    from numba.core import config
+
+    from resection._numba_cache import ensure_numba_cache
+
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    monkeypatch.setattr(config, "CACHE_DIR", config.CACHE_DIR)  # restored afterwards
+    blocked = tmp_path / "blocked"
+    blocked.write_text("a file where a folder should be: unwritable, even for root")
+    ok = tmp_path / "ok"
+    # the sources' folders writable: numba's own choice
+    assert ensure_numba_cache([str(ok / "a"), str(ok / "b")], str(blocked / "u"),
+                              str(blocked / "f")) is None
+    # read-only sources, writable user-wide folder: numba's own choice too
+    assert ensure_numba_cache([str(blocked / "a")], str(ok / "u"), str(blocked / "f")) is None
+    # neither: the fallback folder, given to numba
+    fb = tmp_path / "fallback"
+    assert ensure_numba_cache([str(blocked / "a")], str(blocked / "u"), str(fb)) == str(fb)
+    assert config.CACHE_DIR == str(fb) and fb.is_dir()
+    # nowhere to write: one line that says what to do
+    with pytest.raises(InputError, match="NUMBA_CACHE_DIR"):
+        ensure_numba_cache([str(blocked / "a")], str(blocked / "u"), str(blocked / "f"))
+    # a cache folder set by the user is left alone
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "mine"))
+    assert ensure_numba_cache([str(blocked / "a")], str(blocked / "u"),
+                              str(blocked / "f")) is None

@@ -7,6 +7,7 @@ import shutil
 from collections.abc import Sequence
 from pathlib import Path
 
+from resection._numba_cache import ensure_numba_cache
 from resection.camera.model import Camera
 from resection.defaults import TRACK_FILES, TRACK_PRODUCER
 from resection.io.lock import lock_folder
@@ -116,6 +117,7 @@ def track(
         message names it; see :mod:`resection.io.lock`). Failures of single frames are not
         raised: they are recorded.
     """
+    ensure_numba_cache()  # before the kernels are imported: a fresh read-only install
     frames, setup, link_d, workers, chunk_size = checked(
         frames, camera, markers3d, link=link, diameter=diameter, polarity=polarity,
         workers=workers, chunk_size=chunk_size, min_markers=min_markers,
