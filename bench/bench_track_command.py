@@ -87,10 +87,14 @@ def render(cache: Path) -> dict:
 
 
 def timed(cmd: list[str], env: dict) -> tuple[float, float, str]:
-    """Wall seconds, peak RSS (MiB) of a command, and its stdout."""
+    """Wall seconds, peak RSS (MiB) of a command, and its stdout. It runs in the temporary
+    folder: ``python -m`` puts the working folder before PYTHONPATH, and the tree it
+    imports must be the one PYTHONPATH names (``--baseline``)."""
+    import tempfile
+
     t = time.perf_counter()
     p = subprocess.run(["/usr/bin/time", "-f", "%M", *cmd], env=env, capture_output=True,
-                       text=True, check=True)
+                       text=True, check=True, cwd=tempfile.gettempdir())
     wall = time.perf_counter() - t
     rss = float(p.stderr.strip().splitlines()[-1]) / 1024.0
     return wall, rss, p.stdout
@@ -164,6 +168,8 @@ t = time.perf_counter()
 rc = main(args["argv"])
 spans["end"] = [time.perf_counter() - T0, 0.0]
 print(json.dumps(spans))
+from resection.cli.main import end_process
+end_process(rc)  # as the command run as the program ends
 """
 
 PLOT_RUNNER = """
@@ -232,7 +238,7 @@ def split(sc: dict, ns: list[int], repeat: int, env: dict) -> None:
         rows.append(("command: the rest (read camera, messages)",
                      cmd - tr - (ck0 - cmd0)
                      - spans.get("plot (waiting for its process)", [0, 0])[1]))
-        rows.append(("interpreter exit and process start (whole wall - end)",
+        rows.append(("process start and end (whole wall - the rest)",
                      wall - spans["end"][0]))
         print(f"  {n} frames, whole process {wall:.2f} s (load {load:.1f}):")
         for label, v in rows:
