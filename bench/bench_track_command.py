@@ -407,10 +407,10 @@ def profile(sc: dict, n: int) -> None:
         pr.disable()
         wall = time.perf_counter() - t
     st = pstats.Stats(pr)
-    # cProfile sees the main thread only: the frames are read (fingerprint, file, float
-    # conversion) and their files written by two other threads; here, the main thread's
-    # wait for the frame read ahead and its queueing of the frame's file
-    steps = {"read frame (wait for the read-ahead)": ("process.py", "take"),
+    # cProfile sees the main thread only: the frames' files are written by another thread;
+    # here, the main thread's queueing of the frame's file
+    steps = {"fingerprint": ("frames.py", "fingerprint"),
+             "read frame": ("frames.py", "load_image"),
              "predict + gate (whole)": ("predict.py", "track_predicted"),
              "  window fits": ("refine.py", "refine_markers"),
              "  pose (Gauss-Newton)": ("predict.py", "refine_pose"),

@@ -1,11 +1,10 @@
 """The pieces of ``resection track`` that run beside the tracking: the motion plot drawn
-by a second process (:mod:`resection.sequence.plot_worker`), the frames read one ahead
-(:class:`resection.sequence.process.FrameReader`) and the frame files written by a thread
-(:class:`resection.sequence.outputs.FrameWriter`).
+by a second process (:mod:`resection.sequence.plot_worker`), the frame files written by a
+thread (:class:`resection.sequence.outputs.FrameWriter`), numba's cache folder.
 
 References: the plot process's picture against the same figure drawn in this process by
-``plot_motion`` (whose curves ``test_sequence.py`` checks against the result); the frames
-against the files they came from; the frame files against the records written.
+``plot_motion`` (whose curves ``test_sequence.py`` checks against the result); the frame
+files against the records written.
 """
 
 from __future__ import annotations
@@ -22,7 +21,6 @@ import pytest
 from resection import InputError
 from resection.sequence import motion_plots, plot_worker
 from resection.sequence.outputs import FrameWriter, frame_path, read_frame
-from resection.sequence.process import FrameReader, process_frame, read_frame_image
 from resection.sequence.results import TrackResult
 
 
@@ -129,39 +127,6 @@ def _ignores_sigint(pid: int) -> bool:
     except (OSError, StopIteration):
         return False
     return bool(int(mask, 16) & (1 << (signal.SIGINT - 1)))
-
-
-def test_frame_reader_reads_ahead_the_frames_asked(tmp_path):
-    from resection.io.images import write_image
-
-    rng = np.random.default_rng(3)
-    imgs = [rng.uniform(0, 1000, (24, 32)).astype(np.float32) for _ in range(6)]
-    paths = []
-    for i, im in enumerate(imgs):
-        paths.append(tmp_path / f"f{i}.npy")
-        write_image(paths[-1], im)
-    (tmp_path / "f4.npy").write_bytes(b"not an array")  # a corrupt frame
-    items = [(i, str(p)) for i, p in enumerate(paths)]
-    reader = FrameReader([items[k] for k in (0, 1, 2, 4, 5)], {})
-    try:
-        for i in (0, 2, 4, 5):  # 1 is skipped (read for nothing)
-            source, img, error = reader.take(i)
-            assert source == read_frame_image(str(paths[i]))[0]  # its fingerprint
-            if i == 4:
-                assert img is None and isinstance(error, InputError)
-                assert "f4.npy" in str(error)
-            else:
-                assert error is None
-                np.testing.assert_array_equal(img, imgs[i])
-        assert reader.take(3) is None  # not in the list: the caller reads it
-    finally:
-        reader.close()
-    # a frame whose reading raised is recorded as failed, with the reason
-    res = process_frame(str(paths[4]), 4, None, None, loaded=read_frame_image(str(paths[4])))
-    assert res.status == "failed" and "f4.npy" in res.reason
-    # Ctrl-C while reading is not a bad frame: it stops the run
-    with pytest.raises(KeyboardInterrupt):
-        process_frame(str(paths[0]), 0, None, None, loaded=(None, None, KeyboardInterrupt()))
 
 
 def test_frame_writer_writes_every_record_and_raises_its_errors(tmp_path, monkeypatch):

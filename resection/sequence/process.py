@@ -117,32 +117,16 @@ def _solve(ids: np.ndarray, uv: np.ndarray, setup: Setup, frame: int, file: str,
                        residuals=res, method=method)
 
 
-def read_frame_image(frame_data, sources: dict | None = None) -> tuple:
-    """``(fingerprint, image, error)`` of a frame: its fingerprint taken before it is read
-    (a later change is seen next time), then the image, or the exception that reading it
-    raised (image None)."""
-    source = fingerprint(frame_data)
-    try:
-        return source, load_image(frame_data, sources), None
-    except BaseException as exc:  # noqa: BLE001 - given back to the frame's processing
-        return source, None, exc
-
-
 def process_frame(frame_data, index: int, setup: Setup, reference: FrameResult | None,
-                   previous: FrameResult | None = None, sources: dict | None = None,
-                   loaded: tuple | None = None) -> FrameResult:
+                   previous: FrameResult | None = None, sources: dict | None = None
+                   ) -> FrameResult:
     """Read one frame, track its markers by prediction from ``reference`` (and the good
     frame before it, ``previous``) or, when the prediction's gate fails, detect and match
     them from ``reference`` with the statistical matcher; solve the pose. Never raises for
     a bad frame: the failure is returned with its reason. ``sources``: multi-frame files
-    kept open between frames (see :func:`resection.sequence.frames._load_image`).
-    ``loaded``: the frame already read, :func:`read_frame_image`'s result."""
-    source, img, error = loaded if loaded is not None else read_frame_image(frame_data,
-                                                                           sources)
-    if error is not None and not isinstance(error, Exception):
-        raise error  # KeyboardInterrupt, SystemExit: not a bad frame
-    res = _process_frame_unlabelled(frame_data, index, setup, reference, previous,
-                                    (img, error))
+    kept open between frames (see :func:`resection.sequence.frames._load_image`)."""
+    source = fingerprint(frame_data)  # before reading: a later change is seen next time
+    res = _process_frame_unlabelled(frame_data, index, setup, reference, previous, sources)
     return dataclasses.replace(res, matched_from=-1 if reference is None else reference.frame,
                                source=source,
                                ref_source=None if reference is None else reference.source)
@@ -150,12 +134,10 @@ def process_frame(frame_data, index: int, setup: Setup, reference: FrameResult |
 
 def _process_frame_unlabelled(frame_data, index: int, setup: Setup,
                               reference: FrameResult | None,
-                              previous: FrameResult | None, loaded: tuple) -> FrameResult:
+                              previous: FrameResult | None, sources) -> FrameResult:
     name = frame_name(frame_data)
     try:
-        img, error = loaded
-        if error is not None:
-            raise error
+        img = load_image(frame_data, sources)
         if img.shape != (setup.camera.height, setup.camera.width):
             raise InputError(f"image is {img.shape[1]}x{img.shape[0]} px, the camera "
                              f"{setup.camera.width}x{setup.camera.height}")
@@ -253,7 +235,6 @@ def run_chunk(setup: Setup, items: list, seed: FrameResult | None,
     sources: dict = {}  # multi-frame files, opened once for the chunk
     far_seed = seed is not None and bool(items) and seed.frame < items[0][0] - 1
     deferred = None
-    reader = FrameReader([(i, f) for i, f in items if i not in done], sources)
     try:
         for index, frame in items:
             if index in done:
@@ -267,8 +248,7 @@ def run_chunk(setup: Setup, items: list, seed: FrameResult | None,
                 if on_frame is not None:
                     on_frame(res)
             else:
-                res = process_frame(frame, index, setup, ref, prev, sources=sources,
-                                    loaded=reader.take(index))
+                res = process_frame(frame, index, setup, ref, prev, sources=sources)
                 if far_seed and not res.ok and ref is seed:
                     deferred = (f"not computed in its chunk: frame {index} failed from "
                                 f"frame {seed.frame}")
@@ -280,53 +260,9 @@ def run_chunk(setup: Setup, items: list, seed: FrameResult | None,
                 ref, prev = res, ref
             out.append(res.to_dict())
     finally:
-        reader.close()
         for src in sources.values():
             src.close()
     return out
-
-
-class FrameReader:
-    """The frames of a chunk read one ahead, in a thread: frame ``k + 1`` is read (file,
-    decoding, conversion to float; NumPy and the file system release the GIL there) while
-    frame ``k`` is tracked on the calling thread. At most two frames are in memory. The
-    thread reads the chunk's multi-frame files (``sources``) alone. A frame the caller does
-    not take (a chunk that stops computing) was read for nothing, nothing more."""
-
-    def __init__(self, items: list, sources: dict) -> None:
-        self._items = iter(items)
-        self._sources = sources
-        self._pool = None
-        self._ahead: tuple | None = None  # (index, future)
-        if len(items) > 1:
-            from concurrent.futures import ThreadPoolExecutor
-
-            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="track-read")
-            self._next()
-
-    def _next(self) -> None:
-        item = next(self._items, None)
-        self._ahead = None if item is None else (
-            item[0], self._pool.submit(read_frame_image, item[1], self._sources))
-
-    def take(self, index: int) -> tuple | None:
-        """Frame ``index`` read (:func:`read_frame_image`'s result), the next one asked
-        for; None when it was not read ahead (the caller reads it)."""
-        if self._pool is None:
-            return None
-        while self._ahead is not None and self._ahead[0] < index:  # skipped frames
-            self._ahead[1].result()
-            self._next()
-        if self._ahead is None or self._ahead[0] != index:
-            return None
-        future = self._ahead[1]
-        self._next()
-        return future.result()
-
-    def close(self) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(wait=True, cancel_futures=True)
-            self._pool = None
 
 
 def repair(frames: list, setup: Setup, done: dict, record, frames_dir: Path) -> None:
