@@ -37,7 +37,9 @@ fingerprints), :mod:`~resection.sequence.predict` (motion model, gated associati
 :mod:`~resection.sequence.process` (one frame, a chunk of frames, the repair pass),
 :mod:`~resection.sequence.execute` (in this process or on Dask),
 :mod:`~resection.sequence.outputs` (per-frame files, CSVs, :func:`read_track`),
-:mod:`~resection.sequence.inputs` (checks), :mod:`~resection.sequence.run` (:func:`track`).
+:mod:`~resection.sequence.inputs` (checks), :mod:`~resection.sequence.run` (:func:`track`),
+:mod:`~resection.sequence.motion_plots` (the motion plot) and
+:mod:`~resection.sequence.plot_worker` (the plot drawn by a second process, beside the run).
 
 Parallelism and resume
 ----------------------
