@@ -104,6 +104,10 @@ def _draw_there(proc: subprocess.Popen, request: dict) -> bool:
         proc.kill()
         proc.communicate()
         return False
+    except BaseException:  # Ctrl-C while waiting: the process goes with the command
+        proc.kill()
+        proc.communicate()
+        raise
     return proc.returncode == 0 and out.strip() == b"ok"
 
 
