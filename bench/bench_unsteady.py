@@ -23,6 +23,7 @@ Phase 2 with the outputs), peak RSS, and ``uptime``'s load.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import re
 import subprocess
@@ -107,7 +108,8 @@ def make_inputs(folder: Path, nodes: int, frames: int, width: int, height: int,
             "vibration_px": amp}
 
 
-def run_case(folder: Path, name: str, extra: list, fps: float, rays: int) -> dict:
+def run_case(folder: Path, name: str, extra: list, fps: float, rays: int,
+             root: Path = ROOT) -> dict:
     out = folder / f"{name}.h5"
     for p in folder.glob(f"{name}*"):
         if p.is_file():
@@ -121,7 +123,7 @@ def run_case(folder: Path, name: str, extra: list, fps: float, rays: int) -> dic
            "--paint-calibration", str(folder / "paint.txt"), "--steady",
            str(folder / "steady.f"), "--fps", str(fps), "--out", str(out), "--rays",
            str(rays), "--no-plots", "--quiet", "--overlap", "average_view", *extra]
-    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    env = dict(os.environ, PYTHONPATH=str(root))
     t0 = time.perf_counter()
     res = subprocess.run(cmd, capture_output=True, text=True, env=env)
     wall = time.perf_counter() - t0
@@ -154,13 +156,27 @@ def main() -> None:
                     help="pitch amplitude (the heave 0.6 mm per 0.1 degree), 30 Hz")
     ap.add_argument("--cases", default="fixed,fixed+si,moving+si")
     ap.add_argument("--memory", default="512", help="--memory of the runs, MiB")
+    ap.add_argument("--baseline", help="a checkout of another revision: each case is run "
+                    "with it too, alternating (e.g. `git archive REV | tar -x -C DIR`)")
+    ap.add_argument("--repeat", type=int, default=1, help="runs of each case")
+    ap.add_argument("--extra", default="", help="more flags for every run")
     ap.add_argument("--folder", help="keep the inputs here (default: a temporary folder)")
+    ap.add_argument("--reuse", action="store_true",
+                    help="use the inputs already in --folder (made by an earlier run with "
+                    "the same sizes)")
     args = ap.parse_args()
     folder = Path(args.folder) if args.folder else Path(tempfile.mkdtemp(prefix="bench_u_"))
     folder.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    info = make_inputs(folder, args.nodes, args.frames, args.width, args.height,
-                       vibration_deg=args.vibration_deg)
+    key = {"nodes": args.nodes, "frames": args.frames, "width": args.width,
+           "height": args.height, "vibration_deg": args.vibration_deg}
+    made = folder / "inputs.json"
+    if args.reuse and made.exists() and json.loads(made.read_text())["key"] == key:
+        info = json.loads(made.read_text())["info"]
+    else:
+        info = make_inputs(folder, args.nodes, args.frames, args.width, args.height,
+                           vibration_deg=args.vibration_deg)
+        made.write_text(json.dumps({"key": key, "info": info}))
     print(f"inputs: {info['nodes']} nodes, {info['faces']} faces, {args.frames} frames of "
           f"{args.width}x{args.height} uint16 ({time.perf_counter() - t0:.0f} s to make); "
           f"vibration {args.vibration_deg} deg: points move up to {info['vibration_px']:.1f} "
@@ -170,12 +186,16 @@ def main() -> None:
              "fixed+si": ["--registration", "none"],
              "moving+si": ["--registration", "track", "--track", str(folder / "track1")]}
     rows = []
-    for name in args.cases.split(","):
-        extra = cases[name] + ["--memory", args.memory]
-        rows.append(run_case(folder, name, extra, info["fps"], args.rays))
-        if args.full:
-            rows.append(run_case(folder, name + "(full)", extra + ["--full-maps"],
-                                 info["fps"], args.rays))
+    for _ in range(args.repeat):
+        for name in args.cases.split(","):
+            extra = cases[name] + ["--memory", args.memory] + args.extra.split()
+            rows.append(run_case(folder, name, extra, info["fps"], args.rays))
+            if args.baseline:
+                rows.append(run_case(folder, name + "(base)", extra, info["fps"], args.rays,
+                                     Path(args.baseline)))
+            if args.full:
+                rows.append(run_case(folder, name + "(full)", extra + ["--full-maps"],
+                                     info["fps"], args.rays))
     print("load:", subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip())
     print(f"{'case':<18}{'frames/s':>9}{'(p1+p2)':>9}{'set-up s':>10}{'phase1 s':>10}"
           f"{'frame0 s':>9}{'p1 f/s':>8}{'phase2 s':>10}{'p1 %':>6}{'p2 %':>6}"

@@ -100,9 +100,13 @@ _MEMORY_CHILD = textwrap.dedent("""
     import h5py, numpy as np, scipy.signal  # imports: the fixed part, before tracing
     from selfillum.unsteady.budget import plan_blocks
     from selfillum.unsteady.output import chunk_shape
-    from selfillum.unsteady.phase2 import run_phase2
-    from selfillum.unsteady.spectra import Spectra
+    from selfillum.unsteady.phase2 import phase2_block, run_phase2
+    from selfillum.unsteady.spectra import Spectra, welch_block
     path, budget_mb = sys.argv[1], float(sys.argv[2])
+    # the compiled kernels loaded (the fixed part, like the imports)
+    x = np.ones((64, 3), np.uint16)
+    welch_block(phase2_block(x, np.arange(64), np.ones(3), 1.0, scale=np.ones(64), raw=x,
+                             raw_scale=np.ones(64))[0], 1.0, 16)
     with h5py.File(path, "r+") as f:
         vals, raw = f["values"], f["raw"]
         T, N = vals.shape
@@ -113,6 +117,7 @@ _MEMORY_CHILD = textwrap.dedent("""
         spectra = Spectra(N, 1000.0, T, probes=[0, N - 1], n_bands=8, band_out=band)
         tracemalloc.start()
         run_phase2(vals, dcp, np.arange(T), np.full(N, 2.0), 600.0, raw=raw,
+                   scale=f["values_scale"][()], raw_scale=f["raw_scale"][()],
                    block=plan.nodes_per_block, spectra=spectra)
         peak = tracemalloc.get_traced_memory()[1]
     print(peak, plan.nodes_per_block)
@@ -120,21 +125,25 @@ _MEMORY_CHILD = textwrap.dedent("""
 
 
 def test_phase2_on_data_4x_the_budget_stays_within_it(tmp_path):
-    """Phase 2 with the SI change and spectra over (T, N) float32 intensities of 32 MiB
-    each (values and raw: 64 MiB read, 32 MiB written) within an 8 MiB budget: the peak
-    of the arrays allocated (tracemalloc, in a fresh process) stays under the budget, and
-    dCp equals the one-block answer."""
-    T, N = 1024, 8192  # 32 MiB per dataset
+    """Phase 2 with the SI change and spectra over (T, N) intensities whose dCp takes
+    32 MiB (the work file's uint16 codes: values and raw, 32 MiB read) within an 8 MiB
+    budget: the peak of the arrays allocated (tracemalloc, in a fresh process) stays under
+    the budget, and dCp equals the one-block answer."""
+    from selfillum.unsteady.work import decode_columns, encode_rows
+
+    T, N = 1024, 8192  # dCp: 32 MiB
     budget = 8.0
     rng = np.random.default_rng(3)
     path = tmp_path / "p1.h5"
     with h5py.File(path, "w") as f:
-        v = f.create_dataset("values", (T, N), "f4", chunks=(64, 1024))
-        r = f.create_dataset("raw", (T, N), "f4", chunks=(64, 1024))
+        v = f.create_dataset("values", (T, N), "u2", chunks=(64, 1024))
+        r = f.create_dataset("raw", (T, N), "u2", chunks=(64, 1024))
+        vs = f.create_dataset("values_scale", (T,), "f8")
+        rs = f.create_dataset("raw_scale", (T,), "f8")
         for a in range(0, T, 64):
             x = 1000 + 5 * rng.standard_normal((64, N)).astype(np.float32)
-            v[a:a + 64] = x
-            r[a:a + 64] = x * 1.01
+            v[a:a + 64], vs[a:a + 64] = encode_rows(x)
+            r[a:a + 64], rs[a:a + 64] = encode_rows(x * 1.01)
     assert T * N * 4 >= 4 * budget * 2**20
     res = subprocess.run([sys.executable, "-c", _MEMORY_CHILD, str(path), str(budget)],
                          capture_output=True, text=True, check=True)
@@ -146,7 +155,8 @@ def test_phase2_on_data_4x_the_budget_stays_within_it(tmp_path):
     with h5py.File(path) as f:
         cols = [5, N // 2, N - 3]
         got = f["dcp"][:, cols]
-        want = dcp_block(f["values"][:, cols], np.arange(T), np.full(3, 2.0), 600.0)
+        want = dcp_block(decode_columns(f["values"][:, cols], f["values_scale"][()]),
+                         np.arange(T), np.full(3, 2.0), 600.0)
     np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-7)
 
 

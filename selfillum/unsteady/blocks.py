@@ -4,9 +4,8 @@ on Dask (:func:`cluster_phase1`, blocks finishing in any order, written here).""
 
 from __future__ import annotations
 
-import numpy as np
-
 from selfillum.unsteady.phase1 import map_run
+from selfillum.unsteady.work import BlockBuffer
 
 __all__ = ["local_phase1", "cluster_phase1"]
 
@@ -15,8 +14,7 @@ def local_phase1(cfg, grid, runs, todo, spots, si, unpainted, store, R, t, done,
                   prog):
     """Phase 1 in this process, committing blocks of ``fb`` frames; returns frame 0's
     gains."""
-    block_v = np.empty((fb, N), np.float32)
-    block_r = np.empty((fb, N), np.float32)
+    buf = BlockBuffer(fb, N, with_raw=si is not None)
     a = done
     gains0 = None
     for fn in map_run(grid, runs, todo, spots=spots, registration=cfg.registration,
@@ -27,13 +25,12 @@ def local_phase1(cfg, grid, runs, todo, spots, si, unpainted, store, R, t, done,
         gains0 = fn.gains if gains0 is None else gains0
         if k < done:
             continue  # frame 0 again, already stored
-        block_v[k - a], block_r[k - a] = fn.values, fn.raw
+        buf.put(k - a, fn.values, fn.raw)
         for ci, cm in enumerate(fn.cameras):
             R[ci, k], t[ci, k] = cm.R, cm.t
         if k - a + 1 == fb or k == T - 1:  # a block of frames (whole chunk rows when the
             # budget allows), committed
-            store.write_block(a, block_v[:k + 1 - a], block_r[:k + 1 - a], R[:, a:k + 1],
-                              t[:, a:k + 1])
+            store.write_block(a, buf.rows(k + 1 - a), R[:, a:k + 1], t[:, a:k + 1])
             a = k + 1
         prog.frame(k + 1)
     return gains0
@@ -52,13 +49,13 @@ def cluster_phase1(client, cfg, grid, runs, spots, unpainted, rho, F, store, R, 
                     cfg.filter_size, cfg.oblique_angle, unpainted, rho, None, cfg.fast)
     blocks = [(a, min(a + fb, T)) for a in range(done, T, fb)]
     finished, prefix, count = set(), done, done
-    for a, vals, raw, Rb, tb in phase1_blocks(client, job, F, blocks):
-        b = a + len(vals)
+    for a, rows, Rb, tb in phase1_blocks(client, job, F, blocks):
+        b = a + len(rows["values"][0])
         finished.add(a)
         while prefix in finished:  # frames_done: the blocks done from frame 0 on
             prefix = min(prefix + fb, T)
         R[:, a:b], t[:, a:b] = Rb, tb
-        store.write_block(a, vals, raw, Rb, tb, frames_done=prefix)
+        store.write_block(a, rows, Rb, tb, frames_done=prefix)
         count += b - a
         prog.frame(count)
     fn = next(map_run(grid, runs, [0], spots=spots, registration="none",

@@ -72,6 +72,7 @@ def _map_block(job: Phase1Job, F, a: int, b: int):
     """Frames ``a .. b`` of every camera (frame 0 first), on a worker."""
     from resection.io.video import open_frames
     from selfillum.unsteady.phase1 import CameraRun, SelfIllumination, map_run
+    from selfillum.unsteady.work import BlockBuffer
 
     grid = _grid(job.grid)
     srcs = [open_frames(v) for v in job.videos]
@@ -81,8 +82,7 @@ def _map_block(job: Phase1Job, F, a: int, b: int):
                                                   strict=True))]
         si = None if F is None else SelfIllumination(grid.mesh, F, job.rho, job.unpainted)
         frames = list(range(a, b)) if a == 0 else [0, *range(a, b)]
-        vals = np.empty((b - a, grid.n_nodes), np.float32)
-        raw = np.empty_like(vals)
+        buf = BlockBuffer(b - a, grid.n_nodes, with_raw=si is not None)
         C = len(runs)
         R, t = np.empty((C, b - a, 3, 3)), np.empty((C, b - a, 3))
         for fn in map_run(grid, runs, frames, spots=job.spots, registration=job.registration,
@@ -92,10 +92,10 @@ def _map_block(job: Phase1Job, F, a: int, b: int):
             k = fn.index
             if k < a:
                 continue  # frame 0 again: the references
-            vals[k - a], raw[k - a] = fn.values, fn.raw
+            buf.put(k - a, fn.values, fn.raw)
             for ci, cm in enumerate(fn.cameras):
                 R[ci, k - a], t[ci, k - a] = cm.R, cm.t
-        return a, vals, raw, R, t
+        return a, buf.rows(b - a), R, t
     finally:
         for s in srcs:
             with contextlib.suppress(Exception):
@@ -103,7 +103,8 @@ def _map_block(job: Phase1Job, F, a: int, b: int):
 
 
 def phase1_blocks(client, job: Phase1Job, F, blocks):
-    """Yield ``(a, values, raw, R, t)`` for every ``(a, b)`` of ``blocks``, as they finish."""
+    """Yield ``(a, rows, R, t)`` for every ``(a, b)`` of ``blocks``, as they finish
+    (``rows``: :meth:`selfillum.unsteady.work.BlockBuffer.rows`)."""
     from distributed import as_completed
 
     Ff = client.scatter(F, broadcast=True) if F is not None else None
@@ -116,22 +117,17 @@ def phase1_blocks(client, job: Phase1Job, F, blocks):
 def _phase2_block(path: str, a: int, b: int, times, gain, q: float, with_raw: bool,
                   fs: float | None, nperseg: int | None):
     """dCp of nodes ``a .. b`` from the work file, its statistics and spectra."""
-    import warnings
-
     import h5py
 
-    from selfillum.unsteady.phase2 import dcp_block
+    from selfillum.unsteady.phase2 import phase2_block
     from selfillum.unsteady.spectra import welch_block
 
     with h5py.File(path, "r") as f:
-        d = dcp_block(f["values"][:, a:b], times, gain, q)
-        d0 = dcp_block(f["raw"][:, a:b], times, gain, q) if with_raw else None
-    with np.errstate(invalid="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        mean = np.nanmean(d, axis=0).astype(np.float32)
-        rms = np.sqrt(np.nanmean(d.astype(np.float64) ** 2, axis=0)).astype(np.float32)
-        change = (np.sqrt(np.nanmean((d.astype(np.float64) - d0) ** 2, axis=0))
-                  .astype(np.float32) if d0 is not None else None)
+        raw = f["raw"][:, a:b] if with_raw else None
+        raw_scale = f["raw_scale"][()] if with_raw else None
+        d, mean, rms, change = phase2_block(f["values"][:, a:b], times, gain, q,
+                                            scale=f["values_scale"][()], raw=raw,
+                                            raw_scale=raw_scale)
     psd = welch_block(d, fs, nperseg)[1] if fs is not None else None
     return a, d, mean, rms, change, psd
 

@@ -21,6 +21,7 @@ import numpy as np
 
 from resection.errors import InputError
 from selfillum.unsteady.phase1 import CameraRun, SelfIllumination, map_run
+from selfillum.unsteady.work import decode_columns
 
 __all__ = ["tap_nodes", "insitu_gain", "insitu_inputs", "insitu_fit"]
 
@@ -84,13 +85,14 @@ def insitu_inputs(cfg, grid):
     return taps, nodes, offs
 
 
-def insitu_fit(cfg, grid, runs, vals, taps, nodes, offs, spots, unpainted, F, rho, gains):
+def insitu_fit(cfg, grid, runs, work, taps, nodes, offs, spots, unpainted, F, rho, gains):
     """Stern-Volmer ``A, B`` from the wind-off / time-mean intensity ratio at the taps."""
     from selfillum.images.psp import fit_stern_volmer
 
     order, inverse = np.unique(nodes, return_inverse=True)  # h5py reads sorted columns
     with _quiet():
-        on = np.nanmean(vals[:, order], axis=0)[inverse]
+        on = np.nanmean(decode_columns(work["values"][:, order], work["values_scale"][()]),
+                        axis=0)[inverse]
     off_runs = [CameraRun(r.number, r.camera, [img]) for r, img in zip(runs, offs,
                                                                          strict=True)]
     si = SelfIllumination(grid.mesh, F, rho, unpainted) if F is not None else None

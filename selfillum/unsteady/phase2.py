@@ -12,16 +12,25 @@ memory bounded by the block, whatever the number of nodes.
 Frames where a node is unseen (NaN) are left out of its mean and of its fit, and stay NaN;
 a node seen in fewer than half the frames (or fewer than ``order + 2``) gets NaN throughout:
 its drift cannot be told from its signal.
+
+The nodes seen in every frame (all of them for a fixed model) go through one compiled pass
+(:func:`phase2_block`: the ratio, the fit by the basis' pseudo-inverse, dCp, its mean and
+mean square, reading the work file's uint16 intensities as they are, with their per-frame
+scale, :mod:`selfillum.unsteady.work`); the others through the NumPy path
+(:func:`intensity_ratio`, :func:`detrend`: weighted normal equations per node).
 """
 
 from __future__ import annotations
+
+import functools
+import warnings
 
 import numpy as np
 
 from resection.errors import InputError
 
-__all__ = ["DETREND_ORDER", "intensity_ratio", "detrend", "dcp_block", "node_gain",
-           "run_phase2"]
+__all__ = ["DETREND_ORDER", "intensity_ratio", "detrend", "dcp_block", "phase2_block",
+           "node_gain", "run_phase2"]
 
 #: Order of the polynomial in time fitted to ``I'`` and subtracted (uPSP: 6).
 DETREND_ORDER = 6
@@ -105,12 +114,187 @@ def dcp_block(intensity, times, gain, q: float, order: int = DETREND_ORDER) -> n
     -------
     (T, n) float32
     """
-    g = np.asarray(gain, dtype=np.float64)
+    return phase2_block(intensity, times, gain, q, order=order)[0]
+
+
+def phase2_block(intensity, times, gain, q: float, *, scale=None, raw=None, raw_scale=None,
+                 order: int = DETREND_ORDER, basis=None):
+    """dCp of a ``(T, n)`` block and its per-node statistics, in one pass.
+
+    Parameters
+    ----------
+    intensity : (T, n) array_like
+        Node intensities: float (NaN or <= 0 unseen), or the work file's uint16 codes with
+        ``scale`` (0 unseen; intensity = code / scale of its frame).
+    times : (T,) array_like
+    gain : (n,) array_like
+        psi per unit of ``I'``.
+    q : float
+        psf.
+    scale : (T,) array_like, optional
+        Per-frame scale of uint16 codes (:func:`selfillum.unsteady.work.encode_rows`).
+    raw, raw_scale : optional
+        The same block without the SI removal: the change of dCp it makes is returned.
+    basis : tuple, optional
+        ``legendre_basis(times, order)`` when the caller has it (one a run).
+
+    Returns
+    -------
+    dcp : (T, n) float32
+    mean, rms : (n,) float32
+        Mean and RMS about zero of dCp over the frames seen (NaN for a node never seen).
+    change : (n,) float32 or None
+        RMS over time of dCp minus dCp without the SI removal (with ``raw``).
+    """
     I = np.asarray(intensity)
-    if g.shape != (I.shape[1],):
-        raise InputError(f"dcp_block: {g.size} gains for {I.shape[1]} nodes")
-    res = detrend(intensity_ratio(I), times, order)
-    return (res * (g * 144.0 / float(q))[None, :]).astype(np.float32)
+    if I.ndim != 2:
+        raise InputError(f"phase 2: expected a (frames, nodes) block, got shape {I.shape}")
+    T, n = I.shape
+    g = np.asarray(gain, dtype=np.float64)
+    if g.shape != (n,):
+        raise InputError(f"dcp_block: {g.size} gains for {n} nodes")
+    if np.shape(times) != (T,):
+        raise InputError(f"detrend: {np.size(times)} times for {T} frames")
+    G = g * (144.0 / float(q))
+    if basis is None and T > order:
+        basis = legendre_basis(times, order)
+    d, mean, ms = _dcp_stats(I, scale, times, G, order, basis)
+    change = None
+    if raw is not None:
+        d0 = _dcp_stats(np.asarray(raw), raw_scale, times, G, order, basis)[0]
+        change = np.empty(n, np.float32)
+        _kernels()[1](d, d0, change)
+        del d0
+    with np.errstate(invalid="ignore"):
+        rms = np.sqrt(ms).astype(np.float32)
+    return d, mean.astype(np.float32), rms, change
+
+
+def _decoded(I, scale) -> np.ndarray:
+    """Float64 intensities of a block (NaN where unseen: NaN, <= 0, or code 0)."""
+    x = np.asarray(I, dtype=np.float64)
+    if scale is not None:
+        x = x / np.asarray(scale, dtype=np.float64)[:, None]
+    return np.where(x > 0, x, np.nan)
+
+
+def legendre_basis(times, order: int = DETREND_ORDER) -> tuple[np.ndarray, np.ndarray]:
+    """``V`` (T, order + 1), the Legendre basis on the frame times mapped to [-1, 1], and
+    its pseudo-inverse ``P`` (order + 1, T): the fit of a series ``y`` is ``V (P y)``."""
+    V = _vandermonde(times, order)
+    return np.ascontiguousarray(V), np.ascontiguousarray(np.linalg.pinv(V))
+
+
+def _dcp_stats(I, scale, times, G, order, basis):
+    """dCp (T, n) float32, mean and mean square (n,) float64 of a block."""
+    T, n = I.shape
+    d = np.empty((T, n), np.float32)
+    mean = np.full(n, np.nan)
+    ms = np.full(n, np.nan)
+    count = np.zeros(n, np.int64)
+    if T > order and n:
+        V, P = basis
+        inv = np.ones(T) if scale is None else 1.0 / np.asarray(scale, dtype=np.float64)
+        blk = I if I.dtype in (np.uint16, np.float32, np.float64) else I.astype(np.float64)
+        _kernels()[0](np.ascontiguousarray(blk), inv, P, V, G, d, mean, ms, count)
+    need = max(order + 2, (T + 1) // 2)  # frames a node needs (as detrend)
+    never = np.flatnonzero(count < need)
+    if never.size:
+        d[:, never] = np.nan
+    part = np.flatnonzero((count != T) & (count >= need))
+    if part.size:  # nodes unseen in some frames: the NumPy path (weighted fit per node)
+        dp = (detrend(intensity_ratio(_decoded(I[:, part], scale)), times, order)
+              * G[part]).astype(np.float32)
+        d[:, part] = dp
+        with np.errstate(invalid="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # nodes never seen
+            mean[part] = np.nanmean(dp, axis=0, dtype=np.float64)
+            ms[part] = np.nanmean(np.square(dp, dtype=np.float64), axis=0)
+    return d, mean, ms
+
+
+@functools.cache
+def _kernels():
+    import numba
+
+    @numba.njit(parallel=True, cache=True, error_model="numpy")
+    def full_columns(block, inv_scale, P, V, G, out, mean, ms, count):  # pragma: no cover
+        """Nodes seen in every frame: ``I' = mean / I``, the fit ``V (P I')``, dCp, its
+        mean and mean square; ``count`` = frames seen (the caller redoes the others).
+        Nodes in groups of 64, frames in the inner sweeps (rows read contiguously)."""
+        T, n = block.shape
+        K = P.shape[0]
+        W = 64
+        for c in numba.prange((n + W - 1) // W):
+            a = c * W
+            w = min(W, n - a)
+            cnt = np.zeros(w, np.int64)
+            s = np.zeros(w)
+            for t in range(T):
+                f = inv_scale[t]
+                for j in range(w):
+                    v = block[t, a + j] * f
+                    if v > 0.0:  # False on NaN
+                        cnt[j] += 1
+                        s[j] += v
+            mu = np.ones(w)
+            for j in range(w):
+                count[a + j] = cnt[j]
+                if cnt[j] == T:
+                    mu[j] = s[j] / T
+            coef = np.zeros((K, w))
+            y = np.empty(w)
+            for t in range(T):
+                f = inv_scale[t]
+                for j in range(w):
+                    y[j] = mu[j] / (block[t, a + j] * f)
+                for k in range(K):
+                    pk = P[k, t]
+                    for j in range(w):
+                        coef[k, j] += pk * y[j]
+            sd = np.zeros(w)
+            sdd = np.zeros(w)
+            fit = np.empty(w)
+            for t in range(T):
+                f = inv_scale[t]
+                for j in range(w):
+                    y[j] = mu[j] / (block[t, a + j] * f)
+                    fit[j] = 0.0
+                for k in range(K):
+                    vk = V[t, k]
+                    for j in range(w):
+                        fit[j] += vk * coef[k, j]
+                for j in range(w):
+                    dv = np.float32((y[j] - fit[j]) * G[a + j])
+                    out[t, a + j] = dv
+                    sd[j] += dv
+                    sdd[j] += np.float64(dv) * dv
+            for j in range(w):
+                if cnt[j] == T:
+                    mean[a + j] = sd[j] / T
+                    ms[a + j] = sdd[j] / T
+
+    @numba.njit(parallel=True, cache=True, error_model="numpy")
+    def rms_difference(d, d0, out):  # pragma: no cover - compiled
+        """RMS over the frames where both are finite of ``d - d0``, per column (NaN if
+        none)."""
+        T, n = d.shape
+        W = 64
+        for c in numba.prange((n + W - 1) // W):
+            a = c * W
+            w = min(W, n - a)
+            s = np.zeros(w)
+            k = np.zeros(w, np.int64)
+            for t in range(T):
+                for j in range(w):
+                    x = np.float64(d[t, a + j]) - d0[t, a + j]
+                    if x == x:  # finite both
+                        s[j] += x * x
+                        k[j] += 1
+            for j in range(w):
+                out[a + j] = np.sqrt(s[j] / k[j]) if k[j] > 0 else np.nan
+
+    return full_columns, rms_difference
 
 
 def node_gain(calibration, surface_temperature, cp_steady, conditions) -> np.ndarray:
@@ -132,13 +316,14 @@ def node_gain(calibration, surface_temperature, cp_steady, conditions) -> np.nda
 
 
 def run_phase2(intensity, out, times, gain, q: float, *, raw=None, block: int | None = None,
-               order: int = DETREND_ORDER, spectra=None, progress=None) -> dict:
+               order: int = DETREND_ORDER, spectra=None, progress=None, scale=None,
+               raw_scale=None) -> dict:
     """Phase 2 over a whole run, block by block of nodes.
 
     Parameters
     ----------
     intensity : (T, N) array-like readable by column slices (an h5py dataset)
-        Node intensities, SI removed.
+        Node intensities, SI removed: float, or uint16 codes with ``scale``.
     out : (T, N) array-like writable by column slices
         Receives dCp (float32).
     times : (T,) array_like
@@ -154,6 +339,8 @@ def run_phase2(intensity, out, times, gain, q: float, *, raw=None, block: int | 
         Receives every block's dCp (Welch spectra, no second pass over the run).
     progress : callable, optional
         Called with the number of nodes done after each block.
+    scale, raw_scale : (T,) array_like, optional
+        Per-frame scales of uint16 ``intensity`` / ``raw`` (:mod:`selfillum.unsteady.work`).
 
     Returns
     -------
@@ -161,26 +348,22 @@ def run_phase2(intensity, out, times, gain, q: float, *, raw=None, block: int | 
         ``mean``, ``rms`` (RMS about zero) of dCp per node and ``si_change`` (RMS over time
         of dCp minus dCp without SI; NaN without ``raw``), each (N,) float32.
     """
-    import warnings
-
     T, N = intensity.shape
     nc = block or (getattr(out, "chunks", None) or (None, 4096))[1]
     g = np.asarray(gain, dtype=np.float64)
     mean = np.full(N, np.nan, np.float32)
     rms = np.full(N, np.nan, np.float32)
     change = np.full(N, np.nan, np.float32)
+    basis = legendre_basis(times, order) if T > order else None
     for a in range(0, N, nc):  # blocks of nodes: whole chunk columns
         b = min(a + nc, N)
-        d = dcp_block(intensity[:, a:b], times, g[a:b], q, order)
+        d, mean[a:b], rms[a:b], ch = phase2_block(
+            intensity[:, a:b], times, g[a:b], q, scale=scale,
+            raw=raw[:, a:b] if raw is not None else None, raw_scale=raw_scale, order=order,
+            basis=basis)
+        if ch is not None:
+            change[a:b] = ch
         out[:, a:b] = d
-        with np.errstate(invalid="ignore"), warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN nodes
-            mean[a:b] = np.nanmean(d, axis=0)
-            rms[a:b] = np.sqrt(np.nanmean(d.astype(np.float64) ** 2, axis=0))
-            if raw is not None:
-                d0 = dcp_block(raw[:, a:b], times, g[a:b], q, order)
-                change[a:b] = np.sqrt(np.nanmean((d.astype(np.float64) - d0) ** 2, axis=0))
-                del d0
         if spectra is not None:
             spectra.add(a, d)
         del d

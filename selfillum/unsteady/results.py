@@ -15,12 +15,13 @@ from selfillum.unsteady.phase2 import DETREND_ORDER, run_phase2
 __all__ = ["write_results"]
 
 
-def write_results(f, cfg, grid, cond, cp, gain, vals, raw, times, frames, runs, R, t, tc, nc,
-               with_si: bool, *, plan=None, spectra=None, progress=None, client=None,
-               work=None) -> dict:
+def write_results(f, cfg, grid, cond, cp, gain, s1, times, frames, runs, R, t, tc, nc, *,
+                  plan=None, spectra=None, progress=None, client=None, work=None) -> dict:
     """Write the run into the open HDF5 file ``f``; returns ``seen``, ``si_median``,
     ``si_p95`` and the per-node ``rms``."""
+    vals = s1["values"]
     T, N = vals.shape
+    with_si = "raw" in s1  # the work keeps the intensities without SI only in a SI run
     f.attrs["format"] = FORMAT
     f.attrs["version"] = VERSION
     g = f.create_group("grid")
@@ -47,7 +48,9 @@ def write_results(f, cfg, grid, cond, cp, gain, vals, raw, times, frames, runs, 
         spectra.band = f.create_dataset("psd/band_psd", (N, spectra.n_bands), "f4",
                                         fillvalue=np.nan)
     if client is None:
-        p2 = run_phase2(vals, dcp, frames, gain, cond.q, raw=raw if with_si else None,
+        p2 = run_phase2(vals, dcp, frames, gain, cond.q, raw=s1["raw"] if with_si else None,
+                        scale=s1["values_scale"][()],
+                        raw_scale=s1["raw_scale"][()] if with_si else None,
                         block=plan.nodes_per_block if plan is not None else None,
                         spectra=spectra, progress=progress)
     else:  # on Dask: blocks of nodes on the workers, written here

@@ -113,7 +113,7 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
         else None
     t_start = time.perf_counter()
     store = Phase1Store(out, work_inputs(cfg, T, N, fps), (T, N), (tc, nc), len(cfg.cameras),
-                        resume=cfg.resume)
+                        resume=cfg.resume, with_raw=cfg.si)
     done = store.frames_done
     prog = Progress(T, N, enabled=cfg.progress, start=done)
     finished = False
@@ -156,12 +156,11 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
         # a chunk column of each dataset held in HDF5's cache: node blocks narrower than a
         # chunk (a small budget, a long run) then read each chunk once, not once a block
         # (each dataset has its cache; only when the blocks are narrower than a chunk)
-        col = (T // tc + 1) * tc * nc * 4 if plan.nodes_per_block < nc else 0
+        col = (T // tc + 1) * tc * nc * 2 if plan.nodes_per_block < nc else 0  # uint16
         with h5py.File(store.path, "r", rdcc_nbytes=col + 2**20, rdcc_nslots=100_003,
                        rdcc_w0=1.0) as s1:
-            vals, raw = s1["values"], s1["raw"]
             if gain is None:  # the in-situ fit on the taps
-                law = insitu_fit(cfg, grid, runs, vals, taps, tapn, offs, spots, unpainted,
+                law = insitu_fit(cfg, grid, runs, s1, taps, tapn, offs, spots, unpainted,
                                   F, rho, gains0)
                 gain = insitu_gain(law, cp, cond)
             # -------------------------------------------------------- Phase 2 + output
@@ -169,10 +168,10 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
             with contextlib.ExitStack() as stack:
                 tmp = [stack.enter_context(atomic_path(p)) for p in files]
                 with h5py.File(tmp[0], "w") as f:
-                    stats = write_results(f, cfg, grid, cond, cp, gain, vals, raw, times, frames,
-                                       runs, R, t, tc, nc, si is not None, plan=plan,
-                                       spectra=spectra, progress=prog.nodes,
-                                       client=client, work=store.path)
+                    stats = write_results(f, cfg, grid, cond, cp, gain, s1, times, frames,
+                                          runs, R, t, tc, nc, plan=plan, spectra=spectra,
+                                          progress=prog.nodes, client=client,
+                                          work=store.path)
                     prog.close()
                     if law is not None:
                         f.attrs["stern_volmer"] = json_attr(

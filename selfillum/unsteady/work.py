@@ -2,8 +2,9 @@
 recomputing its finished blocks of frames, and never reuses stale work.
 
 The work folder ``OUT.h5.work/`` (next to the output) holds ``phase1.h5``: the node
-intensities with and without the SI removal (``values``, ``raw``, ``(T, N)`` float32,
-chunked as ``/dcp``), every camera's pose per frame (``R``, ``t``), ``frames_done`` (the
+intensities with the SI removal (``values``) and, in a run that removes it, without
+(``raw``), ``(T, N)``, chunked as ``/dcp``, every camera's pose per frame (``R``, ``t``),
+``frames_done`` (the
 frames committed, a whole number of blocks) and ``inputs`` (JSON: every input file with its
 size and modification time, every setting that changes Phase 1's numbers, the software's
 version). It is written through the project's undo journal
@@ -12,6 +13,14 @@ committed when its rows, the poses and ``frames_done`` are flushed; a run killed
 middle of a block (Ctrl-C, ``kill -9``, a full disk) leaves the file as it was at its last
 commit. The form factors (``F.npz``) and the tracking (``trackN/``) are kept there too.
 
+The intensities are stored as uint16 codes with a power-of-two scale per frame
+(``values_scale``, ``raw_scale``: :func:`encode_rows`): ``I = code / scale``, code 0 = unseen
+(NaN, or an intensity <= 0, which Phase 2 treats as unseen too). The scale is the largest
+power of two that keeps the frame's brightest node within 65,535, so the rounding error of
+a node is under ``max_frame / 65535`` (1.5e-5 of the frame's brightest node; for 12-bit
+video at most 1/32 of a count, a sixteenth of the sensor's own rounding). Half the bytes of
+float32 to write in Phase 1 and to read in Phase 2.
+
 A folder found without ``--resume`` is refused (it is the work of an interrupted run); with
 ``--resume``, a folder whose ``inputs`` differ from this run's is refused by name (the keys
 that differ): remove it to start again. The folder is removed when the run has succeeded.
@@ -19,6 +28,7 @@ that differ): remove it to start again. The folder is removed when the run has s
 
 from __future__ import annotations
 
+import functools
 import json
 import shutil
 from pathlib import Path
@@ -27,9 +37,92 @@ import numpy as np
 
 from resection.errors import InputError
 
-__all__ = ["work_folder", "Phase1Store"]
+__all__ = ["work_folder", "Phase1Store", "BlockBuffer", "encode_rows", "decode_columns",
+           "CODE_MAX", "ENCODING"]
 
 FORMAT = "selfillum-unsteady-work"
+#: Largest code of the work file's intensities.
+CODE_MAX = 65535
+#: The encoding's name (a key of the work's inputs: a resume needs the same).
+ENCODING = "uint16, power-of-two scale per frame"
+
+
+def encode_rows(rows, codes=None) -> tuple[np.ndarray, np.ndarray]:
+    """Intensities ``(n, N)`` (NaN unseen) to uint16 codes and a scale per row.
+
+    Returns
+    -------
+    codes : (n, N) uint16
+        ``rint(I scale)`` (at least 1 where ``I > 0``), 0 where ``I`` is NaN or <= 0.
+    scale : (n,) float64
+        ``2 ** floor(log2(65535 / max_row))`` (1 for a row with nothing seen).
+    """
+    x = np.ascontiguousarray(np.atleast_2d(rows), dtype=np.float32)
+    if codes is None:
+        codes = np.empty(x.shape, np.uint16)
+    scale = np.empty(len(x))
+    _encoder()(x, codes, scale, float(CODE_MAX))
+    return codes, scale
+
+
+def decode_columns(codes, scale) -> np.ndarray:
+    """uint16 codes ``(T, n)`` with their per-frame ``scale`` (T,) back to float64
+    intensities, NaN where the code is 0."""
+    c = np.asarray(codes)
+    x = c / np.asarray(scale, dtype=np.float64)[:, None]
+    return np.where(c > 0, x, np.nan)
+
+
+@functools.cache
+def _encoder():
+    import numba
+
+    @numba.njit(parallel=True, cache=True)
+    def encode(x, codes, scale, cmax):  # pragma: no cover - compiled
+        n, N = x.shape
+        for i in range(n):
+            mx = 0.0
+            for j in range(N):
+                v = x[i, j]
+                if v > mx:  # False on NaN
+                    mx = v
+            s = 2.0 ** np.floor(np.log2(cmax / mx)) if mx > 0 else 1.0
+            scale[i] = s
+            for j in numba.prange(N):
+                v = x[i, j]
+                if v > 0:
+                    c = np.rint(v * s)
+                    codes[i, j] = max(min(c, cmax), 1.0)
+                else:
+                    codes[i, j] = 0
+
+    return encode
+
+
+class BlockBuffer:
+    """A block of ``n`` frames of ``N`` nodes, encoded frame by frame as they come
+    (uint16 codes and scales; ``raw`` only in a run that removes the SI)."""
+
+    def __init__(self, n: int, N: int, with_raw: bool):
+        self.values = np.zeros((n, N), np.uint16)
+        self.values_scale = np.ones(n)
+        self.raw = np.zeros((n, N), np.uint16) if with_raw else None
+        self.raw_scale = np.ones(n) if with_raw else None
+
+    def put(self, i: int, values, raw=None) -> None:
+        """Frame ``i`` of the block (node intensities, (N,), NaN unseen)."""
+        _, s = encode_rows(values, self.values[i:i + 1])
+        self.values_scale[i] = s[0]
+        if self.raw is not None:
+            _, s = encode_rows(raw, self.raw[i:i + 1])
+            self.raw_scale[i] = s[0]
+
+    def rows(self, n: int) -> dict:
+        """The first ``n`` frames: ``{name: (codes, scale)}``."""
+        out = {"values": (self.values[:n], self.values_scale[:n])}
+        if self.raw is not None:
+            out["raw"] = (self.raw[:n], self.raw_scale[:n])
+        return out
 
 
 def work_folder(out) -> Path:
@@ -51,9 +144,12 @@ class Phase1Store:
     chunks : (tc, nc)
     n_cameras : int
     resume : bool
+    with_raw : bool
+        Keep the intensities without the SI removal too (a run that removes it).
     """
 
-    def __init__(self, out, inputs: dict, shape, chunks, n_cameras: int, *, resume: bool):
+    def __init__(self, out, inputs: dict, shape, chunks, n_cameras: int, *, resume: bool,
+                 with_raw: bool = True):
         import h5py
 
         from resection.io.journal import JournaledFile, discard
@@ -61,7 +157,9 @@ class Phase1Store:
 
         self.folder = work_folder(out)
         self.path = self.folder / "phase1.h5"
-        self.inputs = json.dumps(inputs, sort_keys=True, default=str)
+        self.inputs = json.dumps(dict(inputs, encoding=ENCODING), sort_keys=True,
+                                 default=str)
+        self.with_raw = bool(with_raw)
         T, N = shape
         self.resumed = self.path.exists()
         if self.folder.exists() and not resume:
@@ -74,8 +172,9 @@ class Phase1Store:
                 f.attrs["format"] = FORMAT
                 f.attrs["frames_done"] = 0
                 f.create_dataset("inputs", data=self.inputs)
-                for name in ("values", "raw"):
-                    f.create_dataset(name, (T, N), "f4", chunks=tuple(chunks))
+                for name in ("values", "raw") if with_raw else ("values",):
+                    f.create_dataset(name, (T, N), "u2", chunks=tuple(chunks))
+                    f.create_dataset(name + "_scale", (T,), "f8", fillvalue=np.nan)
                 f.create_dataset("R", (n_cameras, T, 3, 3), "f8", fillvalue=np.nan)
                 f.create_dataset("t", (n_cameras, T, 3), "f8", fillvalue=np.nan)
         try:
@@ -101,36 +200,32 @@ class Phase1Store:
             keys = sorted(k for k in set(a) | set(b) if a.get(k) != b.get(k))
             raise InputError(f"{self.folder}: the interrupted run was made from other inputs "
                              f"({', '.join(keys)}); cannot resume it: remove the folder")
-        if f["values"].shape != (T, N) or f["R"].shape[0] != C:
+        if f["values"].shape != (T, N) or f["R"].shape[0] != C or \
+                ("raw" in f) != self.with_raw:
             raise InputError(f"{self.path}: damaged work (shapes); remove {self.folder}")
 
     @property
     def frames_done(self) -> int:
         return int(self._f.attrs["frames_done"])
 
-    @property
-    def values(self):
-        return self._f["values"]
-
-    @property
-    def raw(self):
-        return self._f["raw"]
 
     def poses(self) -> tuple[np.ndarray, np.ndarray]:
         """``R`` (C, T, 3, 3), ``t`` (C, T, 3) as stored (NaN for frames not done)."""
         return self._f["R"][()], self._f["t"][()]
 
-    def write_block(self, a: int, values, raw, R, t, frames_done: int | None = None) -> None:
-        """Commit frames ``a .. a + len(values)``: their node rows and poses
-        (``R`` (C, n, 3, 3), ``t`` (C, n, 3)), then ``frames_done`` (default the block's
-        end; blocks finishing out of order: the end of the blocks done from frame 0)."""
+    def write_block(self, a: int, rows: dict, R, t, frames_done: int | None = None) -> None:
+        """Commit frames ``a .. a + n``: their node rows (``rows``:
+        :meth:`BlockBuffer.rows`) and poses (``R`` (C, n, 3, 3), ``t`` (C, n, 3)), then
+        ``frames_done`` (default the block's end; blocks finishing out of order: the end
+        of the blocks done from frame 0)."""
         from resection.io.history import interrupt_after
 
-        b = a + len(values)
+        b = a + len(rows["values"][0])
         with interrupt_after():  # Ctrl-C waits for the commit (never inside HDF5)
             f = self._f
-            f["values"][a:b] = values
-            f["raw"][a:b] = raw
+            for name, (codes, scale) in rows.items():
+                f[name][a:b] = codes
+                f[name + "_scale"][a:b] = scale
             f["R"][:, a:b] = R
             f["t"][:, a:b] = t
             f.attrs["frames_done"] = b if frames_done is None else int(frames_done)
