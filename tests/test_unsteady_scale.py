@@ -336,16 +336,38 @@ def test_fast_phase1_agrees_with_the_full_per_frame_map(monkeypatch):
     poses = [cam.with_pose(R=run.poses[0, k, :3], t=run.poses[0, k, 3]) for k in range(T)]
     F = view_factors(grid.mesh, rays_per_face=256, seed=0, progress=False)
 
-    def values(reg, fast):
-        si = SelfIllumination(grid.mesh, F, 0.6)
-        res = map_run(grid, [CameraRun(1, cam, frames, poses)], range(T), spots=spots,
+    def values(reg, fast, with_si=True, video=frames):
+        si = SelfIllumination(grid.mesh, F, 0.6) if with_si else None
+        res = map_run(grid, [CameraRun(1, cam, video, poses)], range(T), spots=spots,
                       registration=reg, si=si, fast=fast)
         return np.array([r.values for r in res], dtype=np.float64)
 
     a, b = values("none", False), values("none", True)
     np.testing.assert_array_equal(np.isfinite(a), np.isfinite(b))
     np.testing.assert_allclose(b[np.isfinite(a)], a[np.isfinite(a)], rtol=1e-6)
+    # without SI the fixed map goes from the video's stored counts to the nodes in one
+    # product (Wn A): the same node values as the full per-frame map
     import selfillum.unsteady.fastmap as fastmap
+
+    real_nodes, direct = fastmap.FrameOperator.nodes, []
+
+    def spied(self, images, *a):
+        direct.append(images[0].dtype)
+        return real_nodes(self, images, *a)
+
+    monkeypatch.setattr(fastmap.FrameOperator, "nodes", spied)
+    with tempfile.TemporaryDirectory() as d:
+        np.save(Path(d) / "v.npy", np.rint(np.asarray(frames)).astype(np.uint16))
+        src = open_frames(Path(d) / "v.npy")
+        try:
+            a = values("none", False, False, src)
+            b = values("none", True, False, src)
+        finally:
+            src.close()
+    assert direct == [np.uint16] * (T - 1)  # frames after frame 0, counts as stored
+    assert np.isfinite(a).mean() > 0.25
+    np.testing.assert_array_equal(np.isfinite(a), np.isfinite(b))
+    np.testing.assert_allclose(b[np.isfinite(a)], a[np.isfinite(a)], rtol=1e-6)
 
     real, used = fastmap.FrameOperator.faces_moved, []
 

@@ -106,6 +106,21 @@ class FrameSource:
             img[raw >= (1 << self.bits) - 1] = np.nan
         return img
 
+    def native(self, i: int) -> np.ndarray:
+        """Frame ``i`` as the file stores it (integer counts stay integers: no float32
+        copy), without the saturation mask: for callers that read counts in their own
+        loop (the unsteady run's sparse products)."""
+        i = int(i)
+        if i < 0:
+            i += self.n
+        if not 0 <= i < self.n:
+            raise IndexError(f"{self.path}: frame {i} out of range (0..{self.n - 1})")
+        raw = np.asarray(self._reader(i))
+        if raw.shape != self.shape:
+            raise InputError(f"{self.label(i)}: frame of shape {raw.shape}, expected "
+                             f"{self.shape} like the others")
+        return raw
+
     def __iter__(self) -> Iterator[np.ndarray]:
         for i in range(self.n):
             yield self[i]

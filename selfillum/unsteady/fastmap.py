@@ -23,6 +23,11 @@ What this leaves out: visibility and view angles changing with the pose (held at
 reference), so the reference is cast anew (the slow path for that frame) when a point
 moves by more than ``refresh_px`` pixels from where the reference saw it. The spots move
 with the model, so frame 0's spot pixels stay the right ones.
+
+Without the self-illumination removal the faces are only a step on the way to the nodes
+(the area-weighted mean of the seen faces around each node, ``Wn``): a fixed map then goes
+from pixels to nodes in one product a camera, ``nodes = sum_c (Wn A_c) img_c``
+(:meth:`FrameOperator.nodes`), reading the video's counts as they are stored.
 """
 
 from __future__ import annotations
@@ -102,6 +107,7 @@ class FrameOperator:
         self.frame = None  # the reference's frame number, and the last frame that used it
         self.last_used = -1
         self._shares: dict = {}
+        self._direct = None
 
     def node_matrix(self, W, grid):
         """(N, S) sparse over the ``S`` seen faces ``seen_faces``: the area-weighted mean
@@ -117,6 +123,33 @@ class FrameOperator:
             self._nodes = sp.csr_matrix(Wv[grid.node_vertex])
             self.node_unseen = (den == 0)[grid.node_vertex]
         return self._nodes
+
+    def nodes(self, images, W, grid) -> np.ndarray | None:
+        """Node values (N,) float32 (NaN where no seen face) of a frame whose pose is the
+        reference's, without the SI removal: one product a camera from its pixels (counts
+        read as stored) to the nodes, ``Wn A_c`` (built once; the same sums as
+        :meth:`faces` then :meth:`node_matrix`, in another order). None when a pixel that
+        counts is not finite (the caller maps that frame the full way)."""
+        if self._direct is None:
+            Wn = self.node_matrix(W, grid)  # over the seen faces
+            ops = []
+            for A, used in zip(self.A, self.cols, strict=True):
+                M = sp.csr_matrix(Wn @ A[self.seen_faces])
+                M.sort_indices()
+                ops.append((M.indptr.astype(np.int64), used[M.indices].astype(np.int64),
+                            M.data.astype(np.float64)))
+            self._direct = ops
+        N = len(self.node_unseen)
+        out = np.zeros(N, np.float64)
+        for (indptr, cols, data), img in zip(self._direct, images, strict=True):
+            x = np.asarray(img)
+            if x.dtype.kind not in "fiu" or x.dtype == np.float16:
+                x = x.astype(np.float64)
+            if not _spmv_kernel()(indptr, cols, data, np.ascontiguousarray(x).ravel(), out):
+                return None
+        v = out.astype(np.float32)
+        v[self.node_unseen] = np.nan
+        return v
 
     def faces(self, images) -> np.ndarray | None:
         """Face values of a frame whose pose is the reference's; None when a pixel that
@@ -336,6 +369,28 @@ def _kernel():
         return status
 
     return project_sample
+
+
+@functools.cache
+def _spmv_kernel():
+    import numba
+
+    @numba.njit(parallel=True, cache=True)
+    def spmv_add(indptr, cols, data, x, out):  # pragma: no cover - compiled
+        """``out += M x`` for a CSR ``M`` whose columns index ``x`` directly; False if an
+        ``x`` it reads is not finite."""
+        n = len(indptr) - 1
+        bad = np.zeros(n, np.bool_)
+        for r in numba.prange(n):
+            acc = 0.0
+            for k in range(indptr[r], indptr[r + 1]):
+                acc += data[k] * x[cols[k]]
+            if acc - acc != 0.0:  # NaN or inf
+                bad[r] = True
+            out[r] += acc
+        return not bad.any()
+
+    return spmv_add
 
 
 def _project_sample(*args):

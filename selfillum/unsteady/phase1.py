@@ -260,7 +260,13 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
         return op
 
     for k in frame_numbers:  # frames, one at a time
-        if ops:
+        if ops and si is None and not moving:  # a fixed map, no SI: pixels to nodes
+            imgs = _fixed_images(cameras, k, regs, spot_px, filter, filter_size)
+            v = ops[0].nodes(imgs, W, grid)
+            if v is not None:
+                yield FrameNodes(k, v, v, [c.camera for c in cameras], ops[0].gains)
+                continue
+        elif ops:
             fv = _fast_frame(ops, cameras, k, regs, spots, spot_px, filter, filter_size,
                              moving, refresh_px, op=planned(k) if moving else None)
             if fv is not None:
@@ -405,19 +411,21 @@ def _cast_reference(j, cameras, mesh, caster, max_obliqueness, spots, spot_margi
     return op
 
 
-def _fast_frame(ops, cameras, k, regs, spots, spot_px, filter, filter_size, moving,
-                refresh_px, op=None):
-    """Face values of frame ``k`` by the operator (None: take the full way); a moving
-    model uses ``op`` when given (its planned reference), else the nearest reference."""
-    from selfillum.unsteady.spots import mask_spots
+def _frame(frames, k: int) -> np.ndarray:
+    """Frame ``k`` as stored (a video's integer counts, no float copy) where the source
+    can (:meth:`resection.io.video.FrameSource.native`, no saturation mask asked)."""
+    if hasattr(frames, "native") and not getattr(frames, "mask_saturated", False):
+        return frames.native(k)
+    return np.asarray(frames[k])
 
-    imgs, cams = [], []
+
+def _fixed_images(cameras, k, regs, spot_px, filter, filter_size) -> list:
+    """Frame ``k`` of every camera for frame 0's map: as stored, or warped onto frame 0
+    (``first-frame``) and filtered, in float64."""
+    imgs = []
     for ci, c in enumerate(cameras):  # a few cameras
-        img = np.asarray(c.frames[k])
-        if moving:  # sampled as it is (uint16 from a video)
-            cams.append(c.poses[k])
-        else:
-            cams.append(c.camera)
+        img = _frame(c.frames, k)
+        if regs[ci] is not None or filter == "gaussian":
             img = img.astype(np.float64)
             if regs[ci] is not None:  # first-frame: warped onto frame 0
                 img = regs[ci].warp(img, regs[ci].fit(img))
@@ -426,14 +434,26 @@ def _fast_frame(ops, cameras, k, regs, spots, spot_px, filter, filter_size, movi
                     img = mask_spots(img, *spot_px[ci])
                 img = _gaussian(img, filter_size)
         imgs.append(img)
-    if moving and op is not None:  # its planned reference
-        B = op.faces_moved(imgs, cams, refresh_px)
-        return None if B is None else (B, cams, op.seen, op)
-    if moving:  # the reference nearest this pose (on a sample of its points)
+    return imgs
+
+
+def _fast_frame(ops, cameras, k, regs, spots, spot_px, filter, filter_size, moving,
+                refresh_px, op=None):
+    """Face values of frame ``k`` by the operator (None: take the full way); a moving
+    model uses ``op`` when given (its planned reference), else the nearest reference."""
+    if moving:  # sampled as it is (a video's counts)
+        imgs = [_frame(c.frames, k) for c in cameras]
+        cams = [c.poses[k] for c in cameras]
+        if op is not None:  # its planned reference
+            B = op.faces_moved(imgs, cams, refresh_px)
+            return None if B is None else (B, cams, op.seen, op)
+        # the reference nearest this pose (on a sample of its points)
         d = [o.displacement(cams) for o in ops]
         j = int(np.argmin(d))
         B = ops[j].faces_moved(imgs, cams, refresh_px) if d[j] <= refresh_px else None
     else:
+        imgs = _fixed_images(cameras, k, regs, spot_px, filter, filter_size)
+        cams = [c.camera for c in cameras]
         j, B = 0, ops[0].faces(imgs)
     return None if B is None else (B, cams, ops[j].seen, ops[j])
 
