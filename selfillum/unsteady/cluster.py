@@ -125,10 +125,10 @@ def _phase2_block(path: str, a: int, b: int, times, gain, q: float, with_raw: bo
     with h5py.File(path, "r") as f:
         raw = f["raw"][:, a:b] if with_raw else None
         raw_scale = f["raw_scale"][()] if with_raw else None
-        d, mean, rms, change = phase2_block(f["values"][:, a:b], times, gain, q,
-                                            scale=f["values_scale"][()], raw=raw,
-                                            raw_scale=raw_scale)
-    psd = welch_block(d, fs, nperseg)[1] if fs is not None else None
+        d, mean, rms, change, share = phase2_block(
+            f["values"][:, a:b], times, gain, q, scale=f["values_scale"][()], raw=raw,
+            raw_scale=raw_scale, workers=1, return_share=True)
+    psd = welch_block(d, fs, nperseg, workers=1, share=share)[1] if fs is not None else None
     return a, d, mean, rms, change, psd
 
 

@@ -108,6 +108,7 @@ class FrameOperator:
         self.last_used = -1
         self._shares: dict = {}
         self._direct = None
+        self.workers = None  # threads of the products (default: the available cores)
 
     def node_matrix(self, W, grid):
         """(N, S) sparse over the ``S`` seen faces ``seen_faces``: the area-weighted mean
@@ -139,17 +140,23 @@ class FrameOperator:
                 ops.append((M.indptr.astype(np.int64), used[M.indices].astype(np.int64),
                             M.data.astype(np.float64)))
             self._direct = ops
+        from resection._threads import run_blocks, split_range
+
         N = len(self.node_unseen)
-        out = np.zeros(N, np.float64)
-        for (indptr, cols, data), img in zip(self._direct, images, strict=True):
+        out = np.zeros(N, np.float32)
+        kern = _spmv_kernel()
+        for c, ((indptr, cols, data), img) in enumerate(zip(self._direct, images,
+                                                             strict=True)):
             x = np.asarray(img)
             if x.dtype.kind not in "fiu" or x.dtype == np.float16:
                 x = x.astype(np.float64)
-            if not _spmv_kernel()(indptr, cols, data, np.ascontiguousarray(x).ravel(), out):
+            args = (indptr, cols, data, np.ascontiguousarray(x).ravel(), out)
+            ok = run_blocks(lambda b, args=args, add=c > 0: kern(*args, b[0], b[1], add),
+                            split_range(N, self.workers, min_size=65536), self.workers)
+            if not all(ok):
                 return None
-        v = out.astype(np.float32)
-        v[self.node_unseen] = np.nan
-        return v
+        out[self.node_unseen] = np.nan
+        return out
 
     def faces(self, images) -> np.ndarray | None:
         """Face values of a frame whose pose is the reference's; None when a pixel that
@@ -375,20 +382,19 @@ def _kernel():
 def _spmv_kernel():
     import numba
 
-    @numba.njit(parallel=True, cache=True)
-    def spmv_add(indptr, cols, data, x, out):  # pragma: no cover - compiled
-        """``out += M x`` for a CSR ``M`` whose columns index ``x`` directly; False if an
-        ``x`` it reads is not finite."""
-        n = len(indptr) - 1
-        bad = np.zeros(n, np.bool_)
-        for r in numba.prange(n):
+    @numba.njit(cache=True, nogil=True)
+    def spmv_add(indptr, cols, data, x, out, r0, r1, add):  # pragma: no cover - compiled
+        """Rows ``r0 .. r1`` of ``out (+)= M x`` for a CSR ``M`` whose columns index ``x``
+        directly; False if an ``x`` it reads is not finite."""
+        ok = True
+        for r in range(r0, r1):
             acc = 0.0
             for k in range(indptr[r], indptr[r + 1]):
                 acc += data[k] * x[cols[k]]
             if acc - acc != 0.0:  # NaN or inf
-                bad[r] = True
-            out[r] += acc
-        return not bad.any()
+                ok = False
+            out[r] = out[r] + acc if add else acc
+        return ok
 
     return spmv_add
 

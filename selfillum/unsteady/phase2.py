@@ -27,6 +27,7 @@ import warnings
 
 import numpy as np
 
+from resection._threads import run_blocks
 from resection.errors import InputError
 
 __all__ = ["DETREND_ORDER", "intensity_ratio", "detrend", "dcp_block", "phase2_block",
@@ -118,7 +119,8 @@ def dcp_block(intensity, times, gain, q: float, order: int = DETREND_ORDER) -> n
 
 
 def phase2_block(intensity, times, gain, q: float, *, scale=None, raw=None, raw_scale=None,
-                 order: int = DETREND_ORDER, basis=None):
+                 order: int = DETREND_ORDER, basis=None, workers: int | None = None,
+                 return_share: bool = False):
     """dCp of a ``(T, n)`` block and its per-node statistics, in one pass.
 
     Parameters
@@ -137,6 +139,11 @@ def phase2_block(intensity, times, gain, q: float, *, scale=None, raw=None, raw_
         The same block without the SI removal: the change of dCp it makes is returned.
     basis : tuple, optional
         ``legendre_basis(times, order)`` when the caller has it (one a run).
+    workers : int, optional
+        Threads over groups of nodes (default: the available cores).
+    return_share : bool
+        Also return ``share`` (n,): the share of frames where each node's dCp is finite
+        (0 for a node without dCp), for :func:`selfillum.unsteady.spectra.welch_block`.
 
     Returns
     -------
@@ -158,15 +165,19 @@ def phase2_block(intensity, times, gain, q: float, *, scale=None, raw=None, raw_
     G = g * (144.0 / float(q))
     if basis is None and T > order:
         basis = legendre_basis(times, order)
-    d, mean, ms = _dcp_stats(I, scale, times, G, order, basis)
+    d, mean, ms, share = _dcp_stats(I, scale, times, G, order, basis, workers)
     change = None
     if raw is not None:
-        d0 = _dcp_stats(np.asarray(raw), raw_scale, times, G, order, basis)[0]
+        d0 = _dcp_stats(np.asarray(raw), raw_scale, times, G, order, basis, workers)[0]
         change = np.empty(n, np.float32)
-        _kernels()[1](d, d0, change)
+        kern = _kernels()[1]
+        run_blocks(lambda b: kern(d, d0, change, b[0], b[1]), _col_blocks(n, workers),
+                   workers)
         del d0
     with np.errstate(invalid="ignore"):
         rms = np.sqrt(ms).astype(np.float32)
+    if return_share:
+        return d, mean.astype(np.float32), rms, change, share
     return d, mean.astype(np.float32), rms, change
 
 
@@ -185,7 +196,14 @@ def legendre_basis(times, order: int = DETREND_ORDER) -> tuple[np.ndarray, np.nd
     return np.ascontiguousarray(V), np.ascontiguousarray(np.linalg.pinv(V))
 
 
-def _dcp_stats(I, scale, times, G, order, basis):
+def _col_blocks(n: int, workers: int | None) -> list:
+    """Column blocks for the threads (whole groups of 64 nodes, a few a thread)."""
+    from resection._threads import split_range
+
+    return [(a * 64, min(b * 64, n)) for a, b in split_range((n + 63) // 64, workers)]
+
+
+def _dcp_stats(I, scale, times, G, order, basis, workers=None):
     """dCp (T, n) float32, mean and mean square (n,) float64 of a block."""
     T, n = I.shape
     d = np.empty((T, n), np.float32)
@@ -195,12 +213,14 @@ def _dcp_stats(I, scale, times, G, order, basis):
     if T > order and n:
         V, P = basis
         inv = np.ones(T) if scale is None else 1.0 / np.asarray(scale, dtype=np.float64)
-        blk = I if I.dtype in (np.uint16, np.float32, np.float64) else I.astype(np.float64)
-        _kernels()[0](np.ascontiguousarray(blk), inv, P, V, G, d, mean, ms, count)
+        blk = np.ascontiguousarray(
+            I if I.dtype in (np.uint16, np.float32, np.float64) else I.astype(np.float64))
+        kern = _kernels()[0]
+        run_blocks(lambda b: kern(blk, inv, P, V, G, d, mean, ms, count, b[0], b[1]),
+                   _col_blocks(n, workers), workers)
+    else:
+        d[:] = np.nan
     need = max(order + 2, (T + 1) // 2)  # frames a node needs (as detrend)
-    never = np.flatnonzero(count < need)
-    if never.size:
-        d[:, never] = np.nan
     part = np.flatnonzero((count != T) & (count >= need))
     if part.size:  # nodes unseen in some frames: the NumPy path (weighted fit per node)
         dp = (detrend(intensity_ratio(_decoded(I[:, part], scale)), times, order)
@@ -210,24 +230,25 @@ def _dcp_stats(I, scale, times, G, order, basis):
             warnings.simplefilter("ignore", RuntimeWarning)  # nodes never seen
             mean[part] = np.nanmean(dp, axis=0, dtype=np.float64)
             ms[part] = np.nanmean(np.square(dp, dtype=np.float64), axis=0)
-    return d, mean, ms
+    share = np.where(count >= need, count / max(T, 1), 0.0)
+    return d, mean, ms, share
 
 
 @functools.cache
 def _kernels():
     import numba
 
-    @numba.njit(parallel=True, cache=True, error_model="numpy")
-    def full_columns(block, inv_scale, P, V, G, out, mean, ms, count):  # pragma: no cover
-        """Nodes seen in every frame: ``I' = mean / I``, the fit ``V (P I')``, dCp, its
-        mean and mean square; ``count`` = frames seen (the caller redoes the others).
-        Nodes in groups of 64, frames in the inner sweeps (rows read contiguously)."""
-        T, n = block.shape
+    @numba.njit(cache=True, nogil=True, error_model="numpy")
+    def full_columns(block, inv_scale, P, V, G, out, mean, ms, count, c0, c1):
+        """Nodes ``c0 .. c1`` seen in every frame: ``I' = mean / I``, the fit ``V (P I')``,
+        dCp, its mean and mean square; ``count`` = frames seen; the other nodes' dCp NaN
+        (the caller redoes those seen in enough frames). Nodes in groups of 64, frames in
+        the inner sweeps (rows read contiguously)."""  # pragma: no cover - compiled
+        T = block.shape[0]
         K = P.shape[0]
         W = 64
-        for c in numba.prange((n + W - 1) // W):
-            a = c * W
-            w = min(W, n - a)
+        for a in range(c0, c1, W):
+            w = min(W, c1 - a)
             cnt = np.zeros(w, np.int64)
             s = np.zeros(w)
             for t in range(T):
@@ -238,10 +259,17 @@ def _kernels():
                         cnt[j] += 1
                         s[j] += v
             mu = np.ones(w)
+            full = np.zeros(w, np.bool_)
             for j in range(w):
                 count[a + j] = cnt[j]
                 if cnt[j] == T:
                     mu[j] = s[j] / T
+                    full[j] = True
+            if not full.any():  # nodes unseen in some frame (most often: in all)
+                for t in range(T):
+                    for j in range(w):
+                        out[t, a + j] = np.nan
+                continue
             coef = np.zeros((K, w))
             y = np.empty(w)
             for t in range(T):
@@ -266,7 +294,7 @@ def _kernels():
                         fit[j] += vk * coef[k, j]
                 for j in range(w):
                     dv = np.float32((y[j] - fit[j]) * G[a + j])
-                    out[t, a + j] = dv
+                    out[t, a + j] = dv if full[j] else np.nan
                     sd[j] += dv
                     sdd[j] += np.float64(dv) * dv
             for j in range(w):
@@ -274,15 +302,14 @@ def _kernels():
                     mean[a + j] = sd[j] / T
                     ms[a + j] = sdd[j] / T
 
-    @numba.njit(parallel=True, cache=True, error_model="numpy")
-    def rms_difference(d, d0, out):  # pragma: no cover - compiled
-        """RMS over the frames where both are finite of ``d - d0``, per column (NaN if
-        none)."""
-        T, n = d.shape
+    @numba.njit(cache=True, nogil=True, error_model="numpy")
+    def rms_difference(d, d0, out, c0, c1):  # pragma: no cover - compiled
+        """RMS over the frames where both are finite of ``d - d0``, per column ``c0 ..
+        c1`` (NaN if none)."""
+        T = d.shape[0]
         W = 64
-        for c in numba.prange((n + W - 1) // W):
-            a = c * W
-            w = min(W, n - a)
+        for a in range(c0, c1, W):
+            w = min(W, c1 - a)
             s = np.zeros(w)
             k = np.zeros(w, np.int64)
             for t in range(T):
@@ -348,6 +375,8 @@ def run_phase2(intensity, out, times, gain, q: float, *, raw=None, block: int | 
         ``mean``, ``rms`` (RMS about zero) of dCp per node and ``si_change`` (RMS over time
         of dCp minus dCp without SI; NaN without ``raw``), each (N,) float32.
     """
+    from threadpoolctl import threadpool_limits
+
     T, N = intensity.shape
     nc = block or (getattr(out, "chunks", None) or (None, 4096))[1]
     g = np.asarray(gain, dtype=np.float64)
@@ -355,18 +384,26 @@ def run_phase2(intensity, out, times, gain, q: float, *, raw=None, block: int | 
     rms = np.full(N, np.nan, np.float32)
     change = np.full(N, np.nan, np.float32)
     basis = legendre_basis(times, order) if T > order else None
+    with threadpool_limits(1, "blas"):  # small products; the threads are over nodes
+        _phase2_blocks(intensity, out, times, g, q, raw, nc, order, spectra, progress,
+                       scale, raw_scale, basis, mean, rms, change)
+    return {"mean": mean, "rms": rms, "si_change": change}
+
+
+def _phase2_blocks(intensity, out, times, g, q, raw, nc, order, spectra, progress, scale,
+                   raw_scale, basis, mean, rms, change) -> None:
+    N = intensity.shape[1]
     for a in range(0, N, nc):  # blocks of nodes: whole chunk columns
         b = min(a + nc, N)
-        d, mean[a:b], rms[a:b], ch = phase2_block(
+        d, mean[a:b], rms[a:b], ch, share = phase2_block(
             intensity[:, a:b], times, g[a:b], q, scale=scale,
             raw=raw[:, a:b] if raw is not None else None, raw_scale=raw_scale, order=order,
-            basis=basis)
+            basis=basis, return_share=True)
         if ch is not None:
             change[a:b] = ch
         out[:, a:b] = d
         if spectra is not None:
-            spectra.add(a, d)
+            spectra.add(a, d, share=share)
         del d
         if progress is not None:
             progress(b)
-    return {"mean": mean, "rms": rms, "si_change": change}

@@ -27,7 +27,8 @@ from resection.errors import InputError
 __all__ = ["welch_block", "band_edges", "band_average", "Spectra"]
 
 
-def welch_block(dcp, fs: float, nperseg: int) -> tuple[np.ndarray, np.ndarray]:
+def welch_block(dcp, fs: float, nperseg: int, workers: int | None = None, share=None
+                ) -> tuple[np.ndarray, np.ndarray]:
     """Welch PSD of every column of a ``(T, n)`` block.
 
     The estimate of :func:`scipy.signal.welch` (its defaults: periodic Hann window,
@@ -44,6 +45,11 @@ def welch_block(dcp, fs: float, nperseg: int) -> tuple[np.ndarray, np.ndarray]:
         Frame rate, Hz.
     nperseg : int
         Frames per Welch segment (at most ``T``).
+    workers : int, optional
+        Threads over groups of nodes (default: the available cores).
+    share : (n,) array_like, optional
+        The share of frames where each column is finite, when the caller knows it (Phase
+        2 does): 1 = no NaN, 0 = nothing seen (not computed).
 
     Returns
     -------
@@ -52,8 +58,9 @@ def welch_block(dcp, fs: float, nperseg: int) -> tuple[np.ndarray, np.ndarray]:
     psd : (n, K) float64
         ``dCp^2 / Hz``; NaN for a node never seen.
     """
-    from scipy import fft
     from scipy.signal import get_window
+
+    from resection._threads import run_blocks, split_range
 
     d = np.asarray(dcp)
     if d.dtype not in (np.float32, np.float64):
@@ -64,21 +71,26 @@ def welch_block(dcp, fs: float, nperseg: int) -> tuple[np.ndarray, np.ndarray]:
     nper = int(min(nperseg, T))
     if nper < 2:
         raise InputError(f"welch_block: {T} frames are too few for a spectrum")
-    fin = np.isfinite(d)
-    share = fin.mean(axis=0)
-    if not fin.all():
-        d = np.where(fin, d, d.dtype.type(0))
-    del fin
+    if share is None:
+        share = np.isfinite(d).mean(axis=0)
+    share = np.asarray(share, dtype=np.float64)
     win64 = get_window("hann", nper)
     win = win64.astype(d.dtype)[:, None]
-    step = nper - nper // 2
-    nseg = (T - nper) // step + 1
-    acc = np.zeros((nper // 2 + 1, n))
-    for s0 in range(0, nseg * step, step):  # segments: (nper, n) each
-        seg = d[s0:s0 + nper]
-        X = fft.rfft((seg - seg.mean(axis=0, keepdims=True)) * win, axis=0)
-        acc += X.real * X.real
-        acc += X.imag * X.imag
+    acc = np.full((nper // 2 + 1, n), np.nan)
+    # columns seen in every frame as they are (runs of them, small gaps of unseen
+    # columns computed along: their result is dropped), those seen in some frames with
+    # the unseen frames set to zero
+    blocks = [(a + c, a + e) for a, b in _runs(share > 0) for c, e in
+              split_range(b - a, workers, min_size=256)]
+    run_blocks(lambda b: _welch_sum(d[:, b[0]:b[1]], win, acc[:, b[0]:b[1]]), blocks,
+               workers)
+    part = np.flatnonzero((share > 0) & (share < 1))
+    if part.size:
+        dp = d[:, part]
+        sub = np.zeros((acc.shape[0], part.size))
+        _welch_sum(np.where(np.isfinite(dp), dp, dp.dtype.type(0)), win, sub)
+        acc[:, part] = sub
+    nseg = (T - nper) // (nper - nper // 2) + 1
     acc *= 1.0 / (fs * float(win64 @ win64) * nseg)
     if nper % 2:
         acc[1:] *= 2.0
@@ -87,6 +99,33 @@ def welch_block(dcp, fs: float, nperseg: int) -> tuple[np.ndarray, np.ndarray]:
     with np.errstate(invalid="ignore", divide="ignore"):
         p = np.where(share > 0, acc / share, np.nan)
     return np.fft.rfftfreq(nper, 1.0 / float(fs)), p.T
+
+
+def _runs(mask, gap: int = 64) -> list[tuple[int, int]]:
+    """``(start, stop)`` of the runs of True in ``mask``, runs closer than ``gap`` merged."""
+    idx = np.flatnonzero(mask)
+    if idx.size == 0:
+        return []
+    cut = np.flatnonzero(np.diff(idx) > gap)
+    starts = np.concatenate([[idx[0]], idx[cut + 1]])
+    stops = np.concatenate([idx[cut], [idx[-1]]]) + 1
+    return list(zip(starts.tolist(), stops.tolist(), strict=True))
+
+
+def _welch_sum(d, win, acc) -> None:
+    """``acc`` = the sum over the half-overlapping segments of ``|rfft((seg - mean) win)|^2``
+    for the columns of ``d`` (T, m)."""
+    from scipy import fft
+
+    nper = len(win)
+    step = nper - nper // 2
+    nseg = (d.shape[0] - nper) // step + 1
+    acc[...] = 0.0
+    for s0 in range(0, nseg * step, step):  # segments: (nper, m) each
+        seg = d[s0:s0 + nper]
+        X = fft.rfft((seg - seg.mean(axis=0, keepdims=True)) * win, axis=0)
+        acc += X.real * X.real
+        acc += X.imag * X.imag
 
 
 def band_edges(freq, n_bands: int) -> np.ndarray:
@@ -161,11 +200,12 @@ class Spectra:
         self._sum = np.zeros(K)
         self._count = 0
 
-    def add(self, a: int, dcp_block, psd=None) -> None:
+    def add(self, a: int, dcp_block, psd=None, share=None) -> None:
         """Spectra of nodes ``a .. a + n`` from their ``(T, n)`` dCp block (or their
-        ``psd`` (n, K), :func:`welch_block` of it, computed elsewhere)."""
+        ``psd`` (n, K), :func:`welch_block` of it, computed elsewhere; ``share``: see
+        :func:`welch_block`)."""
         if psd is None:
-            freq, p = welch_block(dcp_block, self.fs, self.nperseg)
+            freq, p = welch_block(dcp_block, self.fs, self.nperseg, share=share)
         else:
             freq, p = self.freq, np.asarray(psd)
         n = p.shape[0]

@@ -77,7 +77,7 @@ def decode_columns(codes, scale) -> np.ndarray:
 def _encoder():
     import numba
 
-    @numba.njit(parallel=True, cache=True)
+    @numba.njit(cache=True, nogil=True)
     def encode(x, codes, scale, cmax):  # pragma: no cover - compiled
         n, N = x.shape
         for i in range(n):
@@ -88,7 +88,7 @@ def _encoder():
                     mx = v
             s = 2.0 ** np.floor(np.log2(cmax / mx)) if mx > 0 else 1.0
             scale[i] = s
-            for j in numba.prange(N):
+            for j in range(N):
                 v = x[i, j]
                 if v > 0:
                     c = np.rint(v * s)
