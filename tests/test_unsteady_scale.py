@@ -414,3 +414,50 @@ def test_dask_two_workers_give_the_one_process_dcp(run, capsys):
                 np.testing.assert_array_equal(np.isnan(got), np.isnan(v), err_msg=f"{name}: {k}")
                 np.testing.assert_allclose(got, v, rtol=1e-5, atol=1e-7 * np.nanmax(np.abs(v)),
                                            err_msg=f"{name}: {k}")
+
+
+def _true_track(run, folder):
+    """A ``--track`` folder holding the scene's true pose of every frame (camera 1)."""
+    from scipy.spatial.transform import Rotation
+
+    from resection.sequence.results import MARKER_COLUMNS, POSE_COLUMNS
+
+    folder.mkdir(exist_ok=True)
+    rows = [",".join(POSE_COLUMNS)]
+    for k, P in enumerate(run.poses[0]):
+        rv = Rotation.from_matrix(P[:3]).as_rotvec()
+        rows.append(",".join([str(k), f"f{k}", "ok", "", "0", "0", "0", "0", "0", "0", "0.1",
+                              "20", *(repr(float(v)) for v in rv),
+                              *(repr(float(v)) for v in P[3])]))
+    (folder / "poses.csv").write_text("\n".join(rows) + "\n")
+    (folder / "markers.csv").write_text(",".join(MARKER_COLUMNS) + "\n")
+    return folder
+
+
+def test_dask_tracked_run_gives_the_one_process_dcp(run, capsys):
+    """``--registration track`` (each frame's own pose, here the true ones as a track
+    folder) with a map cast every frame (``--full-maps``) on 2 Dask workers gives the
+    one-process dCp to float32 rounding (rtol 1e-5, the same NaN pattern); each Phase 1
+    task is sent the poses of frame 0 and of its own frames only. (The fast way of a
+    moving model does not: its references depend on the frames mapped before in the same
+    process, docs/unsteady.md.)"""
+    from selfillum.unsteady.cluster import block_poses
+
+    track = _true_track(run, run.folder / "true_track")
+    common = ("--registration", "track", "--track", str(track), "--no-si", "--memory",
+              "0.5", "--no-plots", "--quiet", "--psd-bands", "0", "--full-maps")
+    outs = {}
+    for name, extra in (("local", ()), ("w2", ("--workers", "2"))):
+        outs[name] = run.folder / f"dask_track_{name}.h5"
+        assert _cli(run, outs[name], *common, *extra) == 0, capsys.readouterr().err
+    with h5py.File(outs["local"]) as f, h5py.File(outs["w2"]) as g:
+        a, b = f["dcp"][()], g["dcp"][()]
+        np.testing.assert_array_equal(g["cameras/cam01/R"][()], f["cameras/cam01/R"][()])
+    assert np.isfinite(a).any(axis=0).mean() > 0.2
+    np.testing.assert_array_equal(np.isnan(b), np.isnan(a))
+    np.testing.assert_allclose(b, a, rtol=1e-5, atol=1e-7 * np.nanmax(np.abs(a)))
+    poses = [list(range(200))]
+    got = block_poses(poses, 90, 135)
+    assert len(got) == 1 and sorted(got[0]) == [0, *range(90, 135)]
+    assert all(got[0][k] == k for k in got[0])
+    assert block_poses(None, 0, 10) is None

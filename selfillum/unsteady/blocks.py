@@ -44,12 +44,12 @@ def cluster_phase1(client, cfg, grid, runs, spots, unpainted, rho, F, store, R, 
 
     job = Phase1Job(str(cfg.grid), tuple(str(c.video) for c in cfg.cameras),
                     tuple(r.camera for r in runs), tuple(r.number for r in runs),
-                    None if runs[0].poses is None else tuple(tuple(r.poses) for r in runs),
                     spots, cfg.registration, cfg.target_patcher, cfg.overlap, cfg.filter,
                     cfg.filter_size, cfg.oblique_angle, unpainted, rho, None, cfg.fast)
+    poses = None if runs[0].poses is None else [r.poses for r in runs]
     blocks = [(a, min(a + fb, T)) for a in range(done, T, fb)]
     finished, prefix, count = set(), done, done
-    for a, rows, Rb, tb in phase1_blocks(client, job, F, blocks):
+    for a, rows, Rb, tb in phase1_blocks(client, job, F, blocks, poses):
         b = a + len(rows["values"][0])
         finished.add(a)
         while prefix in finished:  # frames_done: the blocks done from frame 0 on

@@ -8,8 +8,10 @@ Phase 2 into ``/dcp``), so the files are the same with one worker or many.
 
 A Phase 1 task maps frame 0 and then its block (frame 0 fixes the cameras' gains, the
 self-illumination's reference and the registration's, exactly as the run on one process
-does, so the blocks do not depend on how the frames were split). The form factors are
-sent to every worker once. A Phase 2 task reads its block of nodes from the work file,
+does, so the blocks do not depend on how the frames were split). The form factors and the
+job's settings are sent to every worker once; with ``registration = track`` each task
+receives only the poses of its frames and of frame 0 (:func:`block_poses`), not the run's.
+A Phase 2 task reads its block of nodes from the work file,
 computes dCp, its statistics and Welch spectra, and returns them.
 """
 
@@ -21,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Phase1Job", "open_client", "phase1_blocks", "phase2_blocks"]
+__all__ = ["Phase1Job", "open_client", "phase1_blocks", "phase2_blocks", "block_poses"]
 
 
 @dataclass(frozen=True)
@@ -32,7 +34,6 @@ class Phase1Job:
     videos: tuple
     cameras: tuple  # frame 0's Camera of each camera
     numbers: tuple
-    poses: tuple | None  # per camera, every frame's Camera ("track")
     spots: object
     registration: str
     patcher: str
@@ -68,8 +69,17 @@ def _grid(path: str):
     return load_run_grid(path)  # once a worker process
 
 
-def _map_block(job: Phase1Job, F, a: int, b: int):
-    """Frames ``a .. b`` of every camera (frame 0 first), on a worker."""
+def block_poses(poses, a: int, b: int):
+    """The poses a Phase 1 task needs: per camera ``{frame: Camera}`` for frame 0 and the
+    frames ``a .. b`` (None without per-frame poses)."""
+    if poses is None:
+        return None
+    return tuple({k: p[k] for k in (0, *range(a, b))} for p in poses)
+
+
+def _map_block(job: Phase1Job, F, a: int, b: int, poses=None):
+    """Frames ``a .. b`` of every camera (frame 0 first), on a worker; ``poses``:
+    :func:`block_poses`."""
     from resection.io.video import open_frames
     from selfillum.unsteady.phase1 import CameraRun, SelfIllumination, map_run
     from selfillum.unsteady.work import BlockBuffer
@@ -77,7 +87,7 @@ def _map_block(job: Phase1Job, F, a: int, b: int):
     grid = _grid(job.grid)
     srcs = [open_frames(v) for v in job.videos]
     try:
-        runs = [CameraRun(n, c, s, None if job.poses is None else job.poses[i])
+        runs = [CameraRun(n, c, s, None if poses is None else poses[i])
                 for i, (n, c, s) in enumerate(zip(job.numbers, job.cameras, srcs,
                                                   strict=True))]
         si = None if F is None else SelfIllumination(grid.mesh, F, job.rho, job.unpainted)
@@ -88,7 +98,8 @@ def _map_block(job: Phase1Job, F, a: int, b: int):
         for fn in map_run(grid, runs, frames, spots=job.spots, registration=job.registration,
                           patcher=job.patcher, overlap=job.overlap, filter=job.filter,
                           filter_size=job.filter_size, max_obliqueness=job.oblique_angle,
-                          si=si, unpainted=job.unpainted, gains=job.gains, fast=job.fast):
+                          si=si, unpainted=job.unpainted, gains=job.gains, fast=job.fast,
+                          workers=1):
             k = fn.index
             if k < a:
                 continue  # frame 0 again: the references
@@ -102,13 +113,16 @@ def _map_block(job: Phase1Job, F, a: int, b: int):
                 s.close()
 
 
-def phase1_blocks(client, job: Phase1Job, F, blocks):
+def phase1_blocks(client, job: Phase1Job, F, blocks, poses=None):
     """Yield ``(a, rows, R, t)`` for every ``(a, b)`` of ``blocks``, as they finish
-    (``rows``: :meth:`selfillum.unsteady.work.BlockBuffer.rows`)."""
+    (``rows``: :meth:`selfillum.unsteady.work.BlockBuffer.rows`); ``poses``: per camera
+    every frame's Camera (``registration = track``), each task sent its own."""
     from distributed import as_completed
 
     Ff = client.scatter(F, broadcast=True) if F is not None else None
-    futs = [client.submit(_map_block, job, Ff, a, b, pure=False) for a, b in blocks]
+    jobf = client.scatter(job, broadcast=True)
+    futs = [client.submit(_map_block, jobf, Ff, a, b, block_poses(poses, a, b), pure=False)
+            for a, b in blocks]
     for fut in as_completed(futs):
         yield fut.result()
         fut.release()

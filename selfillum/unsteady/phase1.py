@@ -162,7 +162,7 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
             filter: str = "none", filter_size: int = 3, max_obliqueness: float = 70.0,
             si: SelfIllumination | None = None, unpainted=None,
             spot_margin_px: float = 1.0, gains=None, fast: bool = True,
-            refresh_px: float = 3.0) -> Iterator[FrameNodes]:
+            refresh_px: float = 3.0, workers: int | None = None) -> Iterator[FrameNodes]:
     """Map the frames ``frame_numbers`` of every camera onto the grid's nodes.
 
     Parameters
@@ -196,6 +196,9 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
         the full way.
     refresh_px : float
         Pixels (``track`` with ``fast``).
+    workers : int, optional
+        Threads of the fast way's products (default: the available cores; 1 on a Dask
+        worker of one thread).
 
     Yields
     ------
@@ -337,6 +340,7 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
             if B is not None:
                 ops.append(op)
                 op.frame = op.last_used = k
+                op.workers = workers
                 maps0 = [None] * len(cameras)
                 seen, mv_gains = op.seen & np.isfinite(B), op.gains
         if B is None:
@@ -349,6 +353,7 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
                 ops.append(FrameOperator(maps, finite, merge_kw, mv.gains, off,
                                          sample_points=moving))
                 ops[0].frame = ops[0].last_used = k
+                ops[0].workers = workers
                 maps0 = [None] * len(cameras)
             B, seen, mv_gains = mv.values, mv.seen & np.isfinite(mv.values), mv.gains
         maps = imgs = finite = mv = None  # not held while the frame is out
