@@ -1,10 +1,12 @@
 """The run's memory budget and its progress line.
 
 :func:`plan_blocks` turns a memory budget (``--memory MB``) into the blocks the run holds
-at a time: Phase 1 keeps ``frames_per_block`` frames of every node (two float32 buffers,
-with and without the self-illumination removed) before writing them, Phase 2 reads
-``nodes_per_block`` nodes of every frame and works on them in float64 (detrend, dCp, the
-change made by the SI removal, Welch spectra). Both are whole chunk rows / columns of the
+at a time: Phase 1 keeps ``frames_per_block`` frames of every node (uint16 codes, with and
+without the self-illumination removed, :mod:`selfillum.unsteady.work`) before writing them,
+Phase 2 reads ``nodes_per_block`` nodes of every frame (codes) and makes their dCp (float32),
+statistics, the change made by the SI removal and Welch spectra; when its blocks are
+narrower than a chunk column, HDF5's cache of one chunk column of codes comes on top and is
+counted. Both are whole chunk rows / columns of the
 ``(tc, nc)`` chunks when the budget allows, and smaller (partial chunks: slower, never
 wrong) when it does not. The budget bounds the memory that grows with frames x nodes; the
 fixed part of a run (the interpreter and libraries, one frame's images and surface maps,
@@ -23,15 +25,17 @@ from dataclasses import dataclass
 from resection.errors import InputError
 
 __all__ = ["PHASE1_BYTES_PER_CELL", "PHASE2_BYTES_PER_CELL", "BlockPlan", "plan_blocks",
+           "chunk_column_bytes",
            "peak_rss_mb", "Progress", "DEFAULT_MEMORY_MB"]
 
-#: Bytes a (frame, node) cell costs in Phase 1's block: two float32 buffers.
-PHASE1_BYTES_PER_CELL = 8
-#: Bytes a (frame, node) cell costs at Phase 2's peak (float32 read, float64 ratio,
-#: detrend and its fit, dCp with and without SI, Welch's segments and their FFT): measured
-#: with tracemalloc at 52 to 62 (1,024 frames, blocks of 40 and 163 nodes,
-#: tests/test_unsteady_scale.py), with a margin.
-PHASE2_BYTES_PER_CELL = 96
+#: Bytes a (frame, node) cell costs in Phase 1's block: two uint16 buffers.
+PHASE1_BYTES_PER_CELL = 4
+#: Bytes a (frame, node) cell costs at Phase 2's peak (codes with and without SI, dCp with
+#: and without SI in float32, Welch's segments and their FFT; the NumPy path of nodes seen
+#: in some frames only works a quarter of the block at a time): measured with tracemalloc
+#: at 12 to 20 (1,024 frames, blocks of 85 to 2,160 nodes, every node seen), with a
+#: margin for the nodes seen in part of the frames (float64 fits).
+PHASE2_BYTES_PER_CELL = 48
 #: The default budget of the blocks, MiB.
 DEFAULT_MEMORY_MB = 512.0
 
@@ -74,13 +78,32 @@ def plan_blocks(n_frames: int, n_nodes: int, chunks: tuple[int, int],
     b = int(memory_mb * 2**20)
     fpb = _fit(b // (N * PHASE1_BYTES_PER_CELL), tc, T)
     npb = _fit(b // (T * PHASE2_BYTES_PER_CELL), nc, N)
+    if npb < nc:  # HDF5 then caches a chunk column of codes (each chunk read once)
+        npb = _fit(max(b - chunk_column_bytes(T, (tc, nc)), 0)
+                   // (T * PHASE2_BYTES_PER_CELL), nc, N)
     return BlockPlan(fpb, npb, b)
 
 
+def chunk_column_bytes(n_frames: int, chunks: tuple[int, int]) -> int:
+    """Bytes of one chunk column of the work file's codes (uint16) over ``n_frames``."""
+    tc, nc = (int(c) for c in chunks)
+    return (int(n_frames) // tc + 1) * tc * nc * 2
+
+
 def peak_rss_mb() -> float:
-    """The process's peak resident memory so far, MiB (``getrusage``; Linux kB)."""
+    """The process's peak resident memory so far, MiB: Linux's ``VmHWM`` (this program's
+    own high-water mark; ``getrusage``'s ``ru_maxrss`` also holds the peak of the process
+    it was started from, which a spawned child inherits through ``exec``), else
+    ``getrusage``."""
     import resource
 
+    try:
+        with open("/proc/self/status", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024
+    except OSError:
+        pass
     kb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     return kb / (2**20 if sys.platform == "darwin" else 1024)
 

@@ -222,14 +222,16 @@ def _dcp_stats(I, scale, times, G, order, basis, workers=None):
         d[:] = np.nan
     need = max(order + 2, (T + 1) // 2)  # frames a node needs (as detrend)
     part = np.flatnonzero((count != T) & (count >= need))
-    if part.size:  # nodes unseen in some frames: the NumPy path (weighted fit per node)
-        dp = (detrend(intensity_ratio(_decoded(I[:, part], scale)), times, order)
-              * G[part]).astype(np.float32)
-        d[:, part] = dp
+    step = max(1, n // 4)  # the NumPy path's float64 copies: a quarter of the block
+    for i in range(0, part.size, step):  # nodes unseen in some frames: weighted fits
+        cols = part[i:i + step]
+        dp = (detrend(intensity_ratio(_decoded(I[:, cols], scale)), times, order)
+              * G[cols]).astype(np.float32)
+        d[:, cols] = dp
         with np.errstate(invalid="ignore"), warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # nodes never seen
-            mean[part] = np.nanmean(dp, axis=0, dtype=np.float64)
-            ms[part] = np.nanmean(np.square(dp, dtype=np.float64), axis=0)
+            mean[cols] = np.nanmean(dp, axis=0, dtype=np.float64)
+            ms[cols] = np.nanmean(np.square(dp, dtype=np.float64), axis=0)
     share = np.where(count >= need, count / max(T, 1), 0.0)
     return d, mean, ms, share
 

@@ -21,7 +21,12 @@ import numpy as np
 
 from resection.errors import InputError
 from selfillum.unsteady.blocks import cluster_phase1, local_phase1
-from selfillum.unsteady.budget import Progress, peak_rss_mb, plan_blocks
+from selfillum.unsteady.budget import (
+    Progress,
+    chunk_column_bytes,
+    peak_rss_mb,
+    plan_blocks,
+)
 from selfillum.unsteady.config import (
     CameraInput,
     UnsteadyConfig,
@@ -156,7 +161,7 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
         # a chunk column of each dataset held in HDF5's cache: node blocks narrower than a
         # chunk (a small budget, a long run) then read each chunk once, not once a block
         # (each dataset has its cache; only when the blocks are narrower than a chunk)
-        col = (T // tc + 1) * tc * nc * 2 if plan.nodes_per_block < nc else 0  # uint16
+        col = chunk_column_bytes(T, (tc, nc)) if plan.nodes_per_block < nc else 0
         with h5py.File(store.path, "r", rdcc_nbytes=col + 2**20, rdcc_nslots=100_003,
                        rdcc_w0=1.0) as s1:
             if gain is None:  # the in-situ fit on the taps
