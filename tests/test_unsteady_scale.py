@@ -302,7 +302,7 @@ def test_resume_skips_finished_blocks_and_refuses_stale_work(run, capsys, monkey
     from selfillum.unsteady.work import work_folder
 
     whole = run.folder / "whole.h5"
-    common = ("--memory", "0.5", "--no-plots", "--quiet", "--psd-bands", "0")
+    common = ("--memory", "0.25", "--no-plots", "--quiet", "--psd-bands", "0")
     assert _cli(run, whole, *common) == 0
     real = phase1.FrameNodes  # made once a frame mapped, either way
     calls = []
