@@ -137,8 +137,10 @@ class FrameOperator:
             for A, used in zip(self.A, self.cols, strict=True):
                 M = sp.csr_matrix(Wn @ A[self.seen_faces])
                 M.sort_indices()
-                ops.append((M.indptr.astype(np.int64), used[M.indices].astype(np.int64),
-                            M.data.astype(np.float64)))
+                # int32 pixel numbers and float32 weights (summed in float64): half the
+                # bytes a frame reads
+                ops.append((M.indptr.astype(np.int64), used[M.indices].astype(np.int32),
+                            M.data.astype(np.float32)))
             self._direct = ops
         from resection._threads import run_blocks, split_range
 
@@ -390,7 +392,7 @@ def _spmv_kernel():
         for r in range(r0, r1):
             acc = 0.0
             for k in range(indptr[r], indptr[r + 1]):
-                acc += data[k] * x[cols[k]]
+                acc += np.float64(data[k]) * x[cols[k]]
             if acc - acc != 0.0:  # NaN or inf
                 ok = False
             out[r] = out[r] + acc if add else acc
