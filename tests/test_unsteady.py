@@ -90,6 +90,31 @@ def test_phase2_by_blocks_of_nodes_equals_one_block():
     np.testing.assert_allclose(stats["si_change"], 0.0, atol=1e-6)  # a gain cancels in I'
 
 
+def test_phase2_leaves_chunks_of_unseen_nodes_unwritten(tmp_path):
+    """Chunks of /dcp whose nodes have no dCp are not written (HDF5 stores nothing for
+    them) and read as NaN, the dataset's fill value: the file equals the in-memory answer."""
+    import h5py
+
+    from selfillum.unsteady.phase2 import run_phase2
+
+    rng = np.random.default_rng(4)
+    T, N = 40, 50
+    I = 1000 + 20 * rng.standard_normal((T, N))
+    I[:, 10:30] = np.nan  # nodes 10-29 never seen: chunk columns 2 to 5 of 5 nodes
+    I[:, 12] = 900.0  # ... but one of them is (chunk column 2 holds a dCp)
+    gain = np.full(N, 2.0)
+    want = np.empty((T, N), np.float32)
+    run_phase2(I, want, np.arange(T), gain, 600.0, block=7)
+    with h5py.File(tmp_path / "d.h5", "w") as f:
+        ds = f.create_dataset("dcp", (T, N), "f4", chunks=(8, 5), fillvalue=np.nan)
+        run_phase2(I, ds, np.arange(T), gain, 600.0, block=7)
+        got = ds[()]
+        n_chunks = ds.id.get_num_chunks()
+    np.testing.assert_array_equal(got, want)
+    assert np.all(np.isnan(got[:, 15:30])) and np.isfinite(got[:, 12]).all()
+    assert n_chunks == 5 * (10 - 3)  # 5 chunk rows x the 7 of 10 chunk columns with a dCp
+
+
 def test_conditions_from_wtd(tmp_path):
     from resection.io.wtd import read_wtd
 

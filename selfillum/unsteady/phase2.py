@@ -31,7 +31,7 @@ from resection._threads import run_blocks
 from resection.errors import InputError
 
 __all__ = ["DETREND_ORDER", "intensity_ratio", "detrend", "dcp_block", "phase2_block",
-           "node_gain", "run_phase2"]
+           "node_gain", "run_phase2", "seen_ranges"]
 
 #: Order of the polynomial in time fitted to ``I'`` and subtracted (uPSP: 6).
 DETREND_ORDER = 6
@@ -392,6 +392,29 @@ def run_phase2(intensity, out, times, gain, q: float, *, raw=None, block: int | 
     return {"mean": mean, "rms": rms, "si_change": change}
 
 
+def seen_ranges(seen, chunks, offset: int = 0) -> list[tuple[int, int]]:
+    """``(start, stop)`` ranges of a block's columns (block starting at column ``offset``
+    of a dataset chunked ``chunks``) to write: the whole block without chunks, else the
+    runs of chunk columns holding a True of ``seen``. An HDF5 chunk never written is not
+    stored and reads as the fill value (NaN for ``/dcp``, 0 = unseen for the work file's
+    codes): nodes no camera sees cost no bytes."""
+    n = len(seen)
+    if not chunks or n == 0:
+        return [(0, n)]
+    nc = int(chunks[1])
+    first = offset // nc * nc - offset  # the block's first chunk column (may start before)
+    starts = np.arange(first, n, nc)
+    any_ = np.maximum.reduceat(np.asarray(seen, bool), np.maximum(starts, 0))
+    out = []
+    for k in np.flatnonzero(any_):
+        c, e = max(int(starts[k]), 0), min(int(starts[k]) + nc, n)
+        if out and out[-1][1] == c:
+            out[-1] = (out[-1][0], e)
+        else:
+            out.append((c, e))
+    return out
+
+
 def _phase2_blocks(intensity, out, times, g, q, raw, nc, order, spectra, progress, scale,
                    raw_scale, basis, mean, rms, change) -> None:
     N = intensity.shape[1]
@@ -403,7 +426,8 @@ def _phase2_blocks(intensity, out, times, g, q, raw, nc, order, spectra, progres
             basis=basis, return_share=True)
         if ch is not None:
             change[a:b] = ch
-        out[:, a:b] = d
+        for c, e in seen_ranges(share > 0, getattr(out, "chunks", None), a):
+            out[:, a + c:a + e] = d[:, c:e]  # chunks of nodes without dCp stay unwritten
         if spectra is not None:
             spectra.add(a, d, share=share)
         del d

@@ -219,12 +219,15 @@ class Phase1Store:
         ``frames_done`` (default the block's end; blocks finishing out of order: the end
         of the blocks done from frame 0)."""
         from resection.io.history import interrupt_after
+        from selfillum.unsteady.phase2 import seen_ranges
 
         b = a + len(rows["values"][0])
         with interrupt_after():  # Ctrl-C waits for the commit (never inside HDF5)
             f = self._f
             for name, (codes, scale) in rows.items():
-                f[name][a:b] = codes
+                ds = f[name]
+                for c, e in seen_ranges(codes.any(axis=0), ds.chunks):
+                    ds[a:b, c:e] = codes[:, c:e]  # chunks all 0 (unseen) stay unwritten
                 f[name + "_scale"][a:b] = scale
             f["R"][:, a:b] = R
             f["t"][:, a:b] = t
