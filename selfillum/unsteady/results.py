@@ -10,7 +10,7 @@ import os
 import numpy as np
 
 from selfillum.unsteady.output import FORMAT, VERSION, json_attr, provenance
-from selfillum.unsteady.phase2 import DETREND_ORDER, run_phase2
+from selfillum.unsteady.phase2 import DETREND_ORDER, run_phase2, seen_ranges
 
 __all__ = ["write_results"]
 
@@ -62,7 +62,8 @@ def write_results(f, cfg, grid, cond, cp, gain, s1, times, frames, runs, R, t, t
                 client, str(work), N, plan.nodes_per_block, frames, np.asarray(gain), cond.q,
                 with_si, spectra):
             b = a + d.shape[1]
-            dcp[:, a:b] = d
+            for c, e in seen_ranges(np.isfinite(d).any(axis=0), dcp.chunks, a):
+                dcp[:, a + c:a + e] = d[:, c:e]  # chunks without a dCp stay unwritten
             p2["mean"][a:b], p2["rms"][a:b] = mean, rms
             if change is not None:
                 p2["si_change"][a:b] = change
