@@ -27,7 +27,7 @@ import warnings
 
 import numpy as np
 
-from resection._threads import run_blocks
+from resection._threads import run_blocks, split_range
 from resection.errors import InputError
 
 __all__ = ["DETREND_ORDER", "intensity_ratio", "detrend", "dcp_block", "phase2_block",
@@ -198,8 +198,6 @@ def legendre_basis(times, order: int = DETREND_ORDER) -> tuple[np.ndarray, np.nd
 
 def _col_blocks(n: int, workers: int | None) -> list:
     """Column blocks for the threads (whole groups of 64 nodes, a few a thread)."""
-    from resection._threads import split_range
-
     return [(a * 64, min(b * 64, n)) for a, b in split_range((n + 63) // 64, workers)]
 
 
