@@ -55,7 +55,8 @@ def run_case(folder: Path, name: str, extra: list, fps: float, rays: int,
            str(rays), "--no-plots", "--quiet", "--overlap", "average_view", *extra]
     env = dict(os.environ, PYTHONPATH=str(root))
     t0 = time.perf_counter()
-    res = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    # cwd = the revision: "python -c" puts the working folder first on sys.path
+    res = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=str(root))
     wall = time.perf_counter() - t0
     if res.returncode != 0:
         raise SystemExit(f"{name}: {res.stderr.strip()[-2000:]}")
