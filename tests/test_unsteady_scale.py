@@ -81,6 +81,52 @@ def test_spectra_by_blocks_equal_scipy_and_refuse_bad_probes():
         Spectra(N, fs, T, probes=[37])
 
 
+# ---------------------------------------------------------------------------- work file
+
+
+def test_work_file_codes_within_the_stated_error():
+    """uint16 codes with a power-of-two scale per frame: every intensity comes back within
+    max_frame / 65535 (12-bit counts: within 1/32 of a count); NaN, 0 and negative values
+    are unseen (code 0); a tiny positive value stays seen; dCp from the codes equals dCp
+    from the float32 intensities within that error carried through I' (hand bound)."""
+    from selfillum.unsteady.phase2 import dcp_block, phase2_block
+    from selfillum.unsteady.work import decode_columns, encode_rows
+
+    rng = np.random.default_rng(5)
+    x = rng.uniform(0, 4095, (6, 1000)).astype(np.float32)
+    x[0, :3] = [np.nan, 0.0, -5.0]
+    x[1, 0] = 1e-6
+    x[2] *= 1000.0  # a frame of large values: its own scale
+    codes, scale = encode_rows(x)
+    assert codes.dtype == np.uint16 and scale.shape == (6,)
+    assert np.all(np.log2(scale) == np.round(np.log2(scale)))  # powers of two
+    back = decode_columns(codes, scale)
+    assert np.all(np.isnan(back[0, :3])) and back[1, 0] > 0
+    ok = np.isfinite(x) & (x > 0)
+    top = np.nanmax(np.where(ok, x, 0), axis=1, keepdims=True)
+    err = np.abs(back - x)[ok & (np.arange(1000) > 0)]
+    assert np.all(err <= (top / 65535 * np.ones_like(x))[ok & (np.arange(1000) > 0)])
+    twelve = np.rint(x[3:] / x[3:].max() * 4095).astype(np.float32)  # 12-bit counts
+    c12, s12 = encode_rows(twelve)
+    assert np.abs(decode_columns(c12, s12) - twelve).max() <= 1 / 32
+    # dCp from codes and from float32: an intensity's relative error is at most e, so
+    # I' = mean / I moves by at most 2 e I' (to first order), and the residual after the
+    # fit (I - V P) by at most (1 + |V P|_inf) times that
+    from selfillum.unsteady.phase2 import legendre_basis
+
+    T, n = 400, 50
+    I = (1500 * (1 + 0.01 * rng.standard_normal((T, n)))).astype(np.float32)
+    c, sc = encode_rows(I)
+    a = dcp_block(I, np.arange(T), np.full(n, 2.0), 600.0)
+    b = phase2_block(c, np.arange(T), np.full(n, 2.0), 600.0, scale=sc)[0]
+    e = I.max() / 65535 / I.min()
+    V, P = legendre_basis(np.arange(T))
+    lebesgue = np.abs(V @ P).sum(axis=1).max()
+    ratio_max = (I.mean(axis=0) / I.min(axis=0)).max()
+    bound = (1 + lebesgue) * 2.02 * e * ratio_max * 2.0 * 144 / 600
+    assert np.abs(a - b).max() <= bound
+
+
 # ---------------------------------------------------------------------------- memory
 
 
