@@ -86,7 +86,8 @@ def main() -> None:
     ap.add_argument("--vibration-deg", type=float, default=0.1,
                     help="pitch amplitude (the heave 0.6 mm per 0.1 degree), 30 Hz")
     ap.add_argument("--cases", default="fixed,fixed+si,moving+si")
-    ap.add_argument("--memory", default="512", help="--memory of the runs, MiB")
+    ap.add_argument("--memory", default="256",
+                    help="--memory of the runs, MiB (the command's default)")
     ap.add_argument("--baseline", help="a checkout of another revision: each case is run "
                     "with it too, alternating (e.g. `git archive REV | tar -x -C DIR`)")
     ap.add_argument("--repeat", type=int, default=1, help="runs of each case")

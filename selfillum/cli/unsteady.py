@@ -8,6 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from resection.errors import InputError
+from selfillum.unsteady.budget import DEFAULT_MEMORY_MB
 
 
 def _node_list(text: str | None) -> list:
@@ -176,9 +177,9 @@ def register(sub) -> None:
                    "0: none; default 8)")
     p.add_argument("--psd-nperseg", type=int, metavar="FRAMES",
                    help="frames per Welch segment (default min(frames, 256))")
-    p.add_argument("--memory", type=float, default=512.0, metavar="MB",
+    p.add_argument("--memory", type=float, default=DEFAULT_MEMORY_MB, metavar="MB",
                    help="memory budget of the blocks of frames (Phase 1) and nodes "
-                   "(Phase 2), MiB (default 512); the fixed part of the run (libraries, "
+                   "(Phase 2), MiB (default 256); the fixed part of the run (libraries, "
                    "one frame's images and maps, grid, form factors) comes on top")
     p.add_argument("--no-plots", action="store_true",
                    help="do not write OUT_rms.png (dCp RMS on the model) nor OUT_psd.png")

@@ -36,8 +36,10 @@ PHASE1_BYTES_PER_CELL = 4
 #: at 12 to 20 (1,024 frames, blocks of 85 to 2,160 nodes, every node seen), with a
 #: margin for the nodes seen in part of the frames (float64 fits).
 PHASE2_BYTES_PER_CELL = 48
-#: The default budget of the blocks, MiB.
-DEFAULT_MEMORY_MB = 512.0
+#: The default budget of the blocks, MiB: with the fixed part of a 1280x800 run on a
+#: 600k-node grid with SI and a moving model (about 1.05 GB), the whole run peaks under
+#: 1.5 GB (bench/bench_unsteady.py); larger blocks only batch the writes more.
+DEFAULT_MEMORY_MB = 256.0
 
 
 @dataclass(frozen=True)
