@@ -534,11 +534,7 @@ def test_dask_tracked_run_gives_the_one_process_dcp(run, capsys):
     """``--registration track`` (each frame's own pose, here the true ones as a track
     folder) with a map cast every frame (``--full-maps``) on 2 Dask workers gives the
     one-process dCp to float32 rounding (rtol 1e-5, the same NaN pattern); each Phase 1
-    task is sent the poses of frame 0 and of its own frames only. (The fast way of a
-    moving model does not: its references depend on the frames mapped before in the same
-    process, docs/unsteady.md.)"""
-    from selfillum.unsteady.cluster import block_poses
-
+    task is sent every frame's pose (once a worker, as arrays)."""
     track = _true_track(run, run.folder / "true_track")
     common = ("--registration", "track", "--track", str(track), "--no-si", "--memory",
               "0.5", "--no-plots", "--quiet", "--psd-bands", "0", "--full-maps")
@@ -552,8 +548,67 @@ def test_dask_tracked_run_gives_the_one_process_dcp(run, capsys):
     assert np.isfinite(a).any(axis=0).mean() > 0.2
     np.testing.assert_array_equal(np.isnan(b), np.isnan(a))
     np.testing.assert_allclose(b, a, rtol=1e-5, atol=1e-7 * np.nanmax(np.abs(a)))
-    poses = [list(range(200))]
-    got = block_poses(poses, 90, 135)
-    assert len(got) == 1 and sorted(got[0]) == [0, *range(90, 135)]
-    assert all(got[0][k] == k for k in got[0])
-    assert block_poses(None, 0, 10) is None
+
+
+def test_dask_tracked_fast_run_plans_the_one_process_references(tmp_path, capsys,
+                                                                monkeypatch):
+    """``--registration track`` with the fast way (references planned from the poses) on 2
+    Dask workers gives the one-process dCp (rtol 1e-5, the same NaN pattern) on a run that
+    needs several references (a 3-degree vibration): every task plans over all the
+    frames, as one process does. The scene is checked to tell: the references planned over
+    a task's own block (frame 0 and its frames, as before) differ from the whole run's."""
+    from scenes.unsteady_run import make_unsteady_run
+    from selfillum.unsteady import cluster, fastmap
+
+    run = make_unsteady_run(tmp_path / "scene", frames=100, vibration_deg=3.0)
+    track = _true_track(run, run.folder / "true_track")
+    plans, blocks = [], []
+    real_plan, real_blocks = fastmap.plan_references, cluster.phase1_blocks
+
+    def plan(*a, **k):
+        plans.append((a, k, real_plan(*a, **k)))
+        return plans[-1][2]
+
+    def phase1(client, job, F, bl, poses=None):
+        blocks.extend(bl)
+        yield from real_blocks(client, job, F, bl, poses)
+
+    monkeypatch.setattr(fastmap, "plan_references", plan)
+    monkeypatch.setattr(cluster, "phase1_blocks", phase1)
+    common = ("--registration", "track", "--track", str(track), "--no-si", "--memory",
+              "0.5", "--no-plots", "--quiet", "--psd-bands", "0")
+    outs = {}
+    for name, extra in (("local", ()), ("w2", ("--workers", "2"))):
+        outs[name] = run.folder / f"dask_fast_{name}.h5"
+        assert _cli(run, outs[name], *common, *extra) == 0, capsys.readouterr().err
+    assert len(plans) == 1  # the local run's (the workers plan in their processes)
+    (poses, probes, frames, refresh), kw, whole = plans[0]
+    assert list(frames) == list(range(100))
+    assert len(set(whole.values())) >= 2  # several references
+    assert len(blocks) >= 2
+    own = [real_plan(poses, probes, [0, *range(a, b)], refresh, **kw) for a, b in blocks
+           if a > 0]
+    assert any(p[k] != whole[k] for p in own for k in p if k > 0)  # the old way differs
+    with h5py.File(outs["local"]) as f, h5py.File(outs["w2"]) as g:
+        a, b = f["dcp"][()], g["dcp"][()]
+        np.testing.assert_array_equal(g["cameras/cam01/R"][()], f["cameras/cam01/R"][()])
+    assert np.isfinite(a).any(axis=0).mean() > 0.2
+    np.testing.assert_array_equal(np.isnan(b), np.isnan(a))
+    np.testing.assert_allclose(b, a, rtol=1e-5, atol=1e-7 * np.nanmax(np.abs(a)))
+
+
+def test_pose_arrays_give_the_cameras_back():
+    """The compact poses sent to the workers give back each frame's Camera exactly."""
+    from resection.camera.model import Camera
+    from selfillum.unsteady.cluster import PoseArrays
+
+    cam = Camera(width=64, height=48, K=np.array([[50.0, 0, 32], [0, 50, 24], [0, 0, 1]]),
+                 dist=np.zeros(5), R=np.eye(3), t=np.zeros(3))
+    poses = [cam.with_pose(rvec=[0.01 * k, -0.02, 0.003 * k], t=[0.1, -0.2 * k, 1.5])
+             for k in range(5)]
+    got = PoseArrays.of(poses)
+    assert len(got) == 5
+    for k, c in enumerate(poses):
+        np.testing.assert_array_equal(got[k].R, c.R)
+        np.testing.assert_array_equal(got[k].t, c.t)
+        np.testing.assert_array_equal(got[k].K, c.K)

@@ -20,8 +20,9 @@ def local_phase1(cfg, grid, runs, todo, spots, si, unpainted, store, R, t, done,
     for fn in map_run(grid, runs, todo, spots=spots, registration=cfg.registration,
                       patcher=cfg.target_patcher, overlap=cfg.overlap, filter=cfg.filter,
                       filter_size=cfg.filter_size, max_obliqueness=cfg.oblique_angle, si=si,
-                      unpainted=unpainted, fast=cfg.fast):
-        k = fn.index
+                      unpainted=unpainted, fast=cfg.fast, plan_frames=range(T)):
+        k = fn.index  # (a moving model's references planned over the whole run, also on
+        # a resume: as on Dask)
         gains0 = fn.gains if gains0 is None else gains0
         if k < done:
             continue  # frame 0 again, already stored

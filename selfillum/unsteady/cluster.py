@@ -9,8 +9,13 @@ Phase 2 into ``/dcp``), so the files are the same with one worker or many.
 A Phase 1 task maps frame 0 and then its block (frame 0 fixes the cameras' gains, the
 self-illumination's reference and the registration's, exactly as the run on one process
 does, so the blocks do not depend on how the frames were split). The form factors and the
-job's settings are sent to every worker once; with ``registration = track`` each task
-receives only the poses of its frames and of frame 0 (:func:`block_poses`), not the run's.
+job's settings are sent to every worker once; with ``registration = track`` so are the
+poses of every frame, in a compact form (:class:`PoseArrays`: a camera's rotations and
+translations as two arrays), and each task plans a moving model's references over all the
+run's frames (:func:`selfillum.unsteady.fastmap.plan_references`, deterministic given the
+poses, frame 0's probe points and the frames), so it samples each of its frames through
+the same reference as one process (a reference outside its block is cast from its pose
+alone: no image).
 A Phase 2 task reads its block of nodes from the work file,
 computes dCp, its statistics and Welch spectra, and returns them.
 """
@@ -23,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Phase1Job", "open_client", "phase1_blocks", "phase2_blocks", "block_poses"]
+__all__ = ["Phase1Job", "PoseArrays", "open_client", "phase1_blocks", "phase2_blocks"]
 
 
 @dataclass(frozen=True)
@@ -69,17 +74,39 @@ def _grid(path: str):
     return load_run_grid(path)  # once a worker process
 
 
-def block_poses(poses, a: int, b: int):
-    """The poses a Phase 1 task needs: per camera ``{frame: Camera}`` for frame 0 and the
-    frames ``a .. b`` (None without per-frame poses)."""
-    if poses is None:
-        return None
-    return tuple({k: p[k] for k in (0, *range(a, b))} for p in poses)
+class PoseArrays:
+    """One camera's pose of every frame as arrays, indexed like a list of Camera.
+
+    Parameters
+    ----------
+    camera : resection.Camera
+        The intrinsics (any frame's camera).
+    R : (T, 3, 3) array
+        Rotations model -> camera, frame by frame.
+    t : (T, 3) array
+        Translations, model units.
+    """
+
+    def __init__(self, camera, R, t):
+        self.camera, self.R, self.t = camera, np.asarray(R), np.asarray(t)
+
+    @classmethod
+    def of(cls, poses) -> PoseArrays:
+        """From a sequence of Camera (every frame's, same intrinsics)."""
+        return cls(poses[0], np.stack([np.asarray(c.R, np.float64) for c in poses]),
+                   np.stack([np.asarray(c.t, np.float64).ravel() for c in poses]))
+
+    def __len__(self) -> int:
+        return len(self.R)
+
+    def __getitem__(self, k: int):
+        return self.camera.with_pose(R=self.R[k], t=self.t[k])
 
 
 def _map_block(job: Phase1Job, F, a: int, b: int, poses=None):
-    """Frames ``a .. b`` of every camera (frame 0 first), on a worker; ``poses``:
-    :func:`block_poses`."""
+    """Frames ``a .. b`` of every camera (frame 0 first), on a worker; ``poses``: per
+    camera a :class:`PoseArrays` of every frame (a moving model's references planned
+    over them all)."""
     from resection.io.video import open_frames
     from selfillum.unsteady.phase1 import CameraRun, SelfIllumination, map_run
     from selfillum.unsteady.work import BlockBuffer
@@ -92,6 +119,7 @@ def _map_block(job: Phase1Job, F, a: int, b: int, poses=None):
                                                   strict=True))]
         si = None if F is None else SelfIllumination(grid.mesh, F, job.rho, job.unpainted)
         frames = list(range(a, b)) if a == 0 else [0, *range(a, b)]
+        every = None if poses is None else range(len(poses[0]))  # the one-process plan
         buf = BlockBuffer(b - a, grid.n_nodes, with_raw=si is not None)
         C = len(runs)
         R, t = np.empty((C, b - a, 3, 3)), np.empty((C, b - a, 3))
@@ -99,7 +127,7 @@ def _map_block(job: Phase1Job, F, a: int, b: int, poses=None):
                           patcher=job.patcher, overlap=job.overlap, filter=job.filter,
                           filter_size=job.filter_size, max_obliqueness=job.oblique_angle,
                           si=si, unpainted=job.unpainted, gains=job.gains, fast=job.fast,
-                          workers=1):
+                          workers=1, plan_frames=every):
             k = fn.index
             if k < a:
                 continue  # frame 0 again: the references
@@ -116,12 +144,15 @@ def _map_block(job: Phase1Job, F, a: int, b: int, poses=None):
 def phase1_blocks(client, job: Phase1Job, F, blocks, poses=None):
     """Yield ``(a, rows, R, t)`` for every ``(a, b)`` of ``blocks``, as they finish
     (``rows``: :meth:`selfillum.unsteady.work.BlockBuffer.rows`); ``poses``: per camera
-    every frame's Camera (``registration = track``), each task sent its own."""
+    every frame's Camera (``registration = track``), sent to every worker once as
+    :class:`PoseArrays`."""
     from distributed import as_completed
 
     Ff = client.scatter(F, broadcast=True) if F is not None else None
     jobf = client.scatter(job, broadcast=True)
-    futs = [client.submit(_map_block, jobf, Ff, a, b, block_poses(poses, a, b), pure=False)
+    posef = None if poses is None else client.scatter(
+        tuple(PoseArrays.of(p) for p in poses), broadcast=True)
+    futs = [client.submit(_map_block, jobf, Ff, a, b, posef, pure=False)
             for a, b in blocks]
     for fut in as_completed(futs):
         yield fut.result()

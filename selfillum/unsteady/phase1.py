@@ -162,7 +162,8 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
             filter: str = "none", filter_size: int = 3, max_obliqueness: float = 70.0,
             si: SelfIllumination | None = None, unpainted=None,
             spot_margin_px: float = 1.0, gains=None, fast: bool = True,
-            refresh_px: float = 3.0, workers: int | None = None) -> Iterator[FrameNodes]:
+            refresh_px: float = 3.0, workers: int | None = None,
+            plan_frames=None) -> Iterator[FrameNodes]:
     """Map the frames ``frame_numbers`` of every camera onto the grid's nodes.
 
     Parameters
@@ -199,6 +200,11 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
     workers : int, optional
         Threads of the fast way's products (default: the available cores; 1 on a Dask
         worker of one thread).
+    plan_frames : sequence of int, optional
+        The frames a moving model's references are planned over (``track`` with
+        ``fast``; default: ``frame_numbers``). A Dask task mapping a block of the run
+        passes all the run's frames, so it samples each frame through the same reference
+        as one process mapping the whole run (the cameras' ``poses`` must hold them all).
 
     Yields
     ------
@@ -240,6 +246,7 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
     ops: list = []  # references: frame 0's; for a moving model also later casts
     spot_px = [None] * len(cameras)
     frame_numbers = [int(k) for k in frame_numbers]
+    plan_frames = frame_numbers if plan_frames is None else [int(k) for k in plan_frames]
     plan = None  # a moving model: each frame's reference, planned from the known poses
 
     def planned(k):  # the operator of frame k's planned reference (cast when missing)
@@ -250,7 +257,7 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
             plan = plan_references([c.poses for c in cameras],
                                    [X[pr[::4]] for X, pr in zip(ops[0].X, ops[0].probe,
                                                                 strict=True)],
-                                   frame_numbers, refresh_px, first=ops[0].frame)
+                                   plan_frames, refresh_px, first=ops[0].frame)
         j = plan.get(k, k)
         op = next((o for o in ops if o.frame == j), None)
         if op is None:
