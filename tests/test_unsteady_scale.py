@@ -612,3 +612,10 @@ def test_pose_arrays_give_the_cameras_back():
         np.testing.assert_array_equal(got[k].R, c.R)
         np.testing.assert_array_equal(got[k].t, c.t)
         np.testing.assert_array_equal(got[k].K, c.K)
+    # the plan from the arrays is the plan from the cameras (a 2 px move a frame)
+    from selfillum.unsteady.fastmap import plan_references
+
+    X = np.random.default_rng(1).uniform(-0.3, 0.3, (40, 3))
+    a = plan_references([poses], [X], range(5), 3.0, first=0)
+    assert plan_references([got], [X], range(5), 3.0, first=0) == a
+    assert len(set(a.values())) >= 2

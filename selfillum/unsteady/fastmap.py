@@ -229,15 +229,25 @@ class FrameOperator:
         return B
 
 
-def _probe_pixels(X, poses) -> np.ndarray:
-    """(T, m, 2) float32: the points ``X`` (m, 3) projected with every pose of ``poses``
-    (one camera's :class:`resection.Camera` a frame, same intrinsics), NaN where a point
-    cannot be projected (as :meth:`resection.Camera.project`)."""
+def _frame_poses(poses, frames):
+    """``(camera, R (T, 3, 3), t (T, 3))`` of ``frames`` from one camera's poses: a
+    sequence of :class:`resection.Camera` (same intrinsics), or arrays of them (an object
+    with ``camera``, ``R`` and ``t``, as :class:`selfillum.unsteady.cluster.PoseArrays`:
+    no Camera built a frame)."""
+    if all(hasattr(poses, a) for a in ("camera", "R", "t")):
+        return (poses.camera, np.asarray(poses.R, np.float64)[frames],
+                np.asarray(poses.t, np.float64).reshape(-1, 3)[frames])
+    cams = [poses[int(k)] for k in frames]
+    return (cams[0], np.stack([np.asarray(c.R, np.float64) for c in cams]),
+            np.stack([np.asarray(c.t, np.float64).ravel() for c in cams]))
+
+
+def _probe_pixels(X, cam, R, t) -> np.ndarray:
+    """(T, m, 2) float32: the points ``X`` (m, 3) projected with the intrinsics of
+    ``cam`` (a :class:`resection.Camera`) and the poses ``R`` (T, 3, 3), ``t`` (T, 3),
+    NaN where a point cannot be projected (as :meth:`resection.Camera.project`)."""
     from resection.camera.distortion import distort_normalized
 
-    cam = poses[0]
-    R = np.stack([np.asarray(c.R, np.float64) for c in poses])
-    t = np.stack([np.asarray(c.t, np.float64).ravel() for c in poses])
     Xc = np.einsum("tij,mj->tmi", R, np.asarray(X, np.float64)) + t[:, None, :]
     z = Xc[..., 2]
     ok = z > 0
@@ -246,7 +256,7 @@ def _probe_pixels(X, poses) -> np.ndarray:
     ok = ok.ravel() & (np.hypot(xy[:, 0], xy[:, 1]) <= cam.max_radius)
     uv = cam.normalized_to_pixels(distort_normalized(xy, cam.dist))
     uv[~ok] = np.nan
-    return uv.reshape(len(poses), len(X), 2).astype(np.float32)
+    return uv.reshape(len(R), len(X), 2).astype(np.float32)
 
 
 def plan_references(poses, probes, frames, refresh_px: float, *, first: int | None = None,
@@ -268,7 +278,8 @@ def plan_references(poses, probes, frames, refresh_px: float, *, first: int | No
     Parameters
     ----------
     poses : sequence of sequences of Camera
-        Per camera, the camera of every frame (indexed by frame number).
+        Per camera, the camera of every frame (indexed by frame number), or its poses as
+        arrays (:class:`selfillum.unsteady.cluster.PoseArrays`).
     probes : sequence of (m, 3) arrays
         Per camera, surface points seen in the first reference (model units).
     frames : sequence of int
@@ -287,7 +298,7 @@ def plan_references(poses, probes, frames, refresh_px: float, *, first: int | No
     T = len(frames)
     if T == 0:
         return {}
-    parts = [_probe_pixels(X, [p[int(k)] for k in frames]) for X, p in
+    parts = [_probe_pixels(X, *_frame_poses(p, frames)) for X, p in
              zip(probes, poses, strict=True) if len(X)]
     if not parts:
         return {int(k): int(frames[0] if first is None else first) for k in frames}
