@@ -173,27 +173,7 @@ def test_coupled_rows_are_those_of_the_full_matrix(slab, k):
     assert diff.nnz == 0 or abs(diff).max() < 1e-12
 
 
-def _count_scenes(monkeypatch) -> list:
-    """Count the Embree scenes built (RayCaster's and RayScene's) from now on."""
-    from embreex import rtcore_scene
-
-    from resection.surface import visibility
-    from selfillum.transport import viewfactors
-
-    built = []
-
-    class Counted:
-        @staticmethod
-        def EmbreeScene(*a, **kw):  # noqa: N802 - embreex's name
-            built.append(1)
-            return rtcore_scene.EmbreeScene(*a, **kw)
-
-    monkeypatch.setattr(visibility, "rtcore_scene", Counted)
-    monkeypatch.setattr(viewfactors, "rtcore_scene", Counted)
-    return built
-
-
-def test_coupled_rows_in_the_surface_maps_scene(slab, monkeypatch):
+def test_coupled_rows_in_the_surface_maps_scene(slab, embree_scenes):
     """Traced in the surface map's Embree scene (``caster=``), the coupled rows are the
     full matrix's rows, and no scene is built for them."""
     from resection.surface.visibility import RayCaster
@@ -201,9 +181,9 @@ def test_coupled_rows_in_the_surface_maps_scene(slab, monkeypatch):
     sc, cam, smap, F_ref, F, B = slab
     seen = smap.pixel_counts > 0
     caster = RayCaster(sc.mesh)
-    built = _count_scenes(monkeypatch)
+    assert len(embree_scenes) == 1  # the caster's
     Fc, rows = coupled_view_factors(sc.mesh, seen, rays_per_face=128, seed=0, caster=caster)
-    assert built == []
+    assert len(embree_scenes) == 1
     np.testing.assert_array_equal(rows, coupled_faces(F, seen))
     diff = (Fc - sp.diags(rows.astype(float)) @ F).tocsr()
     assert diff.nnz == 0 or abs(diff).max() < 1e-12
@@ -212,18 +192,17 @@ def test_coupled_rows_in_the_surface_maps_scene(slab, monkeypatch):
         coupled_view_factors(other, np.ones(len(other.faces), bool), caster=caster)
 
 
-def test_correct_command_builds_one_embree_scene(slab, tmp_path, monkeypatch, capsys):
+def test_correct_command_builds_one_embree_scene(slab, tmp_path, embree_scenes, capsys):
     """``selfillum correct`` casts its surface map and its view factors in one scene."""
     sc, cam, smap, F_ref, F, B = slab
     img = smap.to_image(B, background=0.0)
     sc.mesh.export(tmp_path / "slab.ply")
     write_camera(tmp_path / "cam.json", cam)
     np.save(tmp_path / "img.npy", img.astype(np.float32))
-    built = _count_scenes(monkeypatch)
     assert main(["correct", "--mesh", str(tmp_path / "slab.ply"), "--camera",
                  str(tmp_path / "cam.json"), "--image", str(tmp_path / "img.npy"),
                  "--reflectance", "0.5", "--out", str(tmp_path / "out.npy"), "--quiet"]) == 0
-    assert len(built) == 1
+    assert len(embree_scenes) == 1
     assert np.load(tmp_path / "out.npy").shape == img.shape
 
 

@@ -360,6 +360,19 @@ def _bad(case, capsys, *extra, deck="run.inp", paint="paint.txt", steady="steady
     return err
 
 
+def test_one_embree_scene_for_the_view_factors_and_the_maps(run, tmp_path, embree_scenes,
+                                                            capsys):
+    """A run with SI in one process traces its view factors and casts its maps in one
+    Embree scene of the grid (the same answer as two scenes: the scene is a function of
+    the mesh)."""
+    assert _cli(run, tmp_path / "one.h5", "--registration", "none", "--rays", "8",
+                "--no-plots") == 0, capsys.readouterr().err
+    assert len(embree_scenes) == 1
+    with h5py.File(tmp_path / "one.h5") as f:
+        d = f["dcp"][()]
+    assert np.isfinite(d).any()
+
+
 def test_bad_deck_missing_file(case, capsys):
     (case / "model.grid").unlink()
     err = _bad(case, capsys)

@@ -183,6 +183,7 @@ def view_factors(
     workers: int | None = None,
     progress: bool | Callable | None = False,
     tracer: str = "embree",
+    caster=None,
 ) -> sp.csr_matrix:
     """Form factors between the faces of a mesh, with occlusion, by Embree ray casting.
 
@@ -251,6 +252,9 @@ def view_factors(
         threaded Embree on a 609k-face grid (K = 64 and 256). An H100 has no RT cores: on
         such a GPU threaded Embree was then the faster choice; the Dr.Jit sampling and sums
         are not yet measured on a GPU. ``"embree"`` stays the default.
+    caster : resection.surface.visibility.RayCaster, optional
+        An Embree scene of ``mesh`` already built, traced in instead of building one (see
+        :class:`RowTracer`): a command that also maps images onto ``mesh`` builds one scene.
 
     Returns
     -------
@@ -269,7 +273,8 @@ def view_factors(
     if reciprocity and todo.size != n:
         raise InputError("view_factors: reciprocity needs every row (rows not given)")
     with RowTracer(mesh, rays_per_face, seed, two_sided=two_sided, chunk_size=chunk_size,
-                   workers=workers, n_rows=todo.size, tracer=tracer, checked=True) as rt:
+                   workers=workers, n_rows=todo.size, tracer=tracer, checked=True,
+                   caster=caster) as rt:
         F = rt.rows(todo, progress=progress)
     if reciprocity:
         F = enforce_reciprocity(F, face_areas(mesh))

@@ -11,16 +11,17 @@ __all__ = ["local_phase1", "cluster_phase1"]
 
 
 def local_phase1(cfg, grid, runs, todo, spots, si, unpainted, store, R, t, done, fb, T, N,
-                  prog):
+                  prog, caster=None):
     """Phase 1 in this process, committing blocks of ``fb`` frames; returns frame 0's
-    gains."""
+    gains. ``caster``: the grid's Embree scene when built already (the view factors')."""
     buf = BlockBuffer(fb, N, with_raw=si is not None)
     a = done
     gains0 = None
     for fn in map_run(grid, runs, todo, spots=spots, registration=cfg.registration,
                       patcher=cfg.target_patcher, overlap=cfg.overlap, filter=cfg.filter,
                       filter_size=cfg.filter_size, max_obliqueness=cfg.oblique_angle, si=si,
-                      unpainted=unpainted, fast=cfg.fast, plan_frames=range(T)):
+                      unpainted=unpainted, fast=cfg.fast, plan_frames=range(T),
+                      caster=caster):
         k = fn.index  # (a moving model's references planned over the whole run, also on
         # a resume: as on Dask)
         gains0 = fn.gains if gains0 is None else gains0

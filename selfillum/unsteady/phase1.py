@@ -163,7 +163,7 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
             si: SelfIllumination | None = None, unpainted=None,
             spot_margin_px: float = 1.0, gains=None, fast: bool = True,
             refresh_px: float = 3.0, workers: int | None = None,
-            plan_frames=None) -> Iterator[FrameNodes]:
+            plan_frames=None, caster=None) -> Iterator[FrameNodes]:
     """Map the frames ``frame_numbers`` of every camera onto the grid's nodes.
 
     Parameters
@@ -205,6 +205,9 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
         ``fast``; default: ``frame_numbers``). A Dask task mapping a block of the run
         passes all the run's frames, so it samples each frame through the same reference
         as one process mapping the whole run (the cameras' ``poses`` must hold them all).
+    caster : resection.surface.visibility.RayCaster, optional
+        The grid mesh's Embree scene when built already (the view factors'), cast in
+        instead of building another.
 
     Yields
     ------
@@ -227,7 +230,7 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
     if filter == "gaussian" and (filter_size < 3 or filter_size % 2 == 0):
         raise InputError(f"filter_size must be an odd number >= 3, got {filter_size}")
     mesh = grid.mesh
-    caster = RayCaster(mesh)
+    caster = RayCaster(mesh) if caster is None else caster
     # frame 0's maps of a model that does not move: built when first needed, dropped once
     # the operator holds what they gave (a cast again only for a frame the operator
     # cannot take); a moving model maps each cast with its own pose

@@ -57,6 +57,7 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     from resection.io.outputs import atomic_path
     from resection.io.upsp_inputs import read_paint_calibration
     from resection.io.wtd import read_wtd
+    from resection.surface.visibility import RayCaster
     from selfillum.images.image_correction import read_reflectance
     from selfillum.solve.unseen import read_unpainted
     from selfillum.unsteady.conditions import Conditions
@@ -133,12 +134,18 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
                 failed += nf
             runs.append(CameraRun(c.number, cam, s, poses))
         si = F = None
+        local = not (cfg.workers or cfg.scheduler)
+        # one Embree scene of the grid for the view factors and this process's maps
+        caster = RayCaster(mesh) if cfg.si or local else None
         if cfg.si:
             from selfillum.transport.viewfactors import view_factors
 
             F = store.form_factors(lambda: view_factors(
-                mesh, rays_per_face=cfg.rays, seed=cfg.seed, progress=cfg.progress))
+                mesh, rays_per_face=cfg.rays, seed=cfg.seed, progress=cfg.progress,
+                caster=caster))
             si = SelfIllumination(mesh, F, rho, unpainted)
+        if not local:
+            caster = None  # the workers build their own
         # ------------------------------------------------------------ Phase 1
         R, t = store.poses()
         t_p1 = time.perf_counter()
@@ -155,7 +162,8 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
                                      store, R, t, done, fb, T, prog)
         else:
             gains0 = local_phase1(cfg, grid, runs, todo, spots, si, unpainted, store, R, t,
-                                   done, fb, T, N, prog)
+                                   done, fb, T, N, prog, caster=caster)
+            caster = None
         store.close()
         t_p2 = time.perf_counter()
         # a chunk column of each dataset held in HDF5's cache: node blocks narrower than a
