@@ -92,15 +92,7 @@ class FrameSource:
         return self._labeler(i)
 
     def __getitem__(self, i: int) -> np.ndarray:
-        i = int(i)
-        if i < 0:
-            i += self.n
-        if not 0 <= i < self.n:
-            raise IndexError(f"{self.path}: frame {i} out of range (0..{self.n - 1})")
-        raw = np.asarray(self._reader(i))
-        if raw.shape != self.shape:
-            raise InputError(f"{self.label(i)}: frame of shape {raw.shape}, expected "
-                             f"{self.shape} like the others")
+        raw = self.native(i)
         img = raw.astype(np.float32)
         if self.mask_saturated and self.bits is not None and raw.dtype.kind in "ui":
             img[raw >= (1 << self.bits) - 1] = np.nan
