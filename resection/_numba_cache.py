@@ -20,8 +20,9 @@ from resection.errors import InputError
 
 __all__ = ["ensure_numba_cache"]
 
-#: the package's folders that hold compiled kernels
-KERNEL_FOLDERS = ("markers", "camera", "surface")
+#: the folders that hold compiled kernels, relative to the folder of the packages
+KERNEL_FOLDERS = ("resection", "resection/markers", "resection/camera", "resection/surface",
+                  "selfillum/transport", "selfillum/unsteady")
 
 
 def _writable(folder: str) -> bool:
@@ -72,8 +73,9 @@ def ensure_numba_cache(in_tree: list[str] | None = None, user_wide: str | None =
     if os.environ.get("NUMBA_CACHE_DIR"):
         return None
     if in_tree is None:
-        root = os.path.dirname(os.path.abspath(__file__))
-        in_tree = [os.path.join(root, sub, "__pycache__") for sub in KERNEL_FOLDERS]
+        root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+        in_tree = [os.path.join(root, sub, "__pycache__") for sub in KERNEL_FOLDERS
+                   if os.path.isdir(os.path.join(root, sub))]
     if all(_writable(f) for f in in_tree):
         return None
     user_wide = _user_wide() if user_wide is None else user_wide

@@ -189,3 +189,36 @@ def test_numba_cache_falls_back_to_a_writable_folder(tmp_path, monkeypatch):
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "mine"))
     assert ensure_numba_cache([str(blocked / "a")], str(blocked / "u"),
                               str(blocked / "f")) is None
+
+
+def test_every_command_checks_numba_cache_first(tmp_path, monkeypatch, capsys):
+    """Both command lines check numba's cache before any work: where no folder can be
+    written, a ``resection`` and a ``selfillum`` command end with the one-line error
+    (not numba's traceback at the kernels' import); the folders checked are those of
+    every cached kernel of both packages."""
+    from resection import _numba_cache
+    from resection.cli.main import main as resection_main
+    from selfillum.cli.main import main as selfillum_main
+
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    monkeypatch.setattr(_numba_cache, "_writable", lambda folder: False)
+    monkeypatch.setattr(_numba_cache, "_user_wide", lambda: None)
+    out = tmp_path / "corner"
+    assert selfillum_main(["corner", "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "NUMBA_CACHE_DIR" in err and "selfillum corner" in err
+    assert not out.exists()
+    # every folder of the packages with a cached kernel is among those checked
+    from pathlib import Path
+
+    root = Path(_numba_cache.__file__).resolve().parents[1]
+    kernels = {p.parent.relative_to(root).as_posix() for pkg in ("resection", "selfillum")
+               for p in (root / pkg).rglob("*.py") if "cache=True" in p.read_text()}
+    assert kernels and kernels <= set(_numba_cache.KERNEL_FOLDERS), kernels
+    img = tmp_path / "img.npy"
+    np.save(img, np.zeros((32, 32), np.float32))
+    assert resection_main(["detect", str(img), "--diameter", "5", "--out",
+                           str(tmp_path / "c.csv")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "NUMBA_CACHE_DIR" in err and "resection detect" in err
+    assert not (tmp_path / "c.csv").exists()

@@ -43,6 +43,7 @@ class OneLineParser(argparse.ArgumentParser):
 def run(parser: argparse.ArgumentParser, argv: list[str] | None) -> int:
     """Parse ``argv`` and call the chosen sub-command's ``func(args)``; return the exit
     status."""
+    from resection._numba_cache import ensure_numba_cache
     from resection.cli.paths import check_command_paths
     from resection.io.paths import os_error_text
 
@@ -51,6 +52,7 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None) -> int:
     try:
         check_command_paths(args)  # inputs readable, every output writable, before any work
         check_command_outputs(args)  # no output may be one of the inputs
+        ensure_numba_cache()  # before any kernel is imported: a read-only install
         return int(args.func(args) or 0)
     except USER_ERRORS as exc:
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
