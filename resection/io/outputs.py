@@ -32,6 +32,7 @@ __all__ = [
     "atomic_write",
     "check_command_outputs",
     "output_folder",
+    "picture_format",
     "refuse_overwriting_inputs",
     "same_file",
     "side_path",
@@ -126,6 +127,18 @@ def check_command_outputs(args, output_options: Iterable[str] = OUTPUT_OPTIONS) 
     inputs = {f"input {k.replace('_', '-')}": as_paths(v)
               for k, v in opts.items() if k not in output_options + ("command", "func")}
     refuse_overwriting_inputs(outputs, inputs)
+
+
+def picture_format(fig, path: str | os.PathLike) -> str:
+    """The picture format of ``path`` (its suffix, lower case) when ``fig``'s canvas can
+    write it; a one-line :class:`InputError` naming the formats it can write otherwise."""
+    path = os.fspath(path)
+    suffix = os.path.splitext(path)[1].lower().lstrip(".")
+    formats = fig.canvas.get_supported_filetypes()
+    if suffix not in formats:
+        raise InputError(f"{path}: unknown picture format {suffix!r} (use one of "
+                         f"{', '.join(sorted(formats))})")
+    return suffix
 
 
 def _temporary_name(path: Path) -> Path:

@@ -141,14 +141,10 @@ def motion_figure(frame, angles, translation, rms, ok, *, reference: int,
 def save_figure(fig, path: str | os.PathLike) -> None:
     """Write ``fig`` to ``path`` (format from the suffix; a PNG at zlib level
     :data:`PNG_COMPRESS_LEVEL`) through a temporary file renamed into place."""
-    from resection.io.outputs import atomic_path
+    from resection.io.outputs import atomic_path, picture_format
 
     path = os.fspath(path)
-    suffix = os.path.splitext(path)[1].lower().lstrip(".")
-    formats = fig.canvas.get_supported_filetypes()
-    if suffix not in formats:
-        raise InputError(f"{path}: unknown picture format {suffix!r} (use one of "
-                         f"{', '.join(sorted(formats))})")
+    suffix = picture_format(fig, path)
     kw = {"pil_kwargs": {"compress_level": PNG_COMPRESS_LEVEL}} if suffix == "png" else {}
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format=suffix, dpi=fig.dpi, **kw)

@@ -28,6 +28,7 @@ from matplotlib.figure import Figure
 from resection._checks import as_points
 from resection.camera.model import Camera
 from resection.errors import InputError
+from resection.io.outputs import picture_format
 from resection.memory import PICTURE_BYTES_PER_PIXEL, check_pixel_memory
 from resection.surface.outline import outline_edges, visible_segments
 from resection.surface.surface_map import SurfaceMap
@@ -168,11 +169,7 @@ def finish_figure(fig: Figure, path, dpi: float | None = None) -> Figure:
     """Save ``fig`` to ``path`` (format from the suffix) when given; return it."""
     if path is not None:
         path = os.fspath(path)
-        suffix = os.path.splitext(path)[1].lower().lstrip(".")
-        formats = fig.canvas.get_supported_filetypes()
-        if suffix not in formats:
-            raise InputError(f"{path}: unknown picture format {suffix!r} (use one of "
-                             f"{', '.join(sorted(formats))})")
+        picture_format(fig, path)
         fig.savefig(path, dpi=fig.dpi if dpi is None else dpi)
     return fig
 
