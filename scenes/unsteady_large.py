@@ -22,10 +22,9 @@ def make_large_run(folder: Path, nodes: int, frames: int, width: int, height: in
     """Write the run's files into ``folder`` (see the module notes); returns ``nodes``,
     ``faces``, ``fps`` and ``vibration_px`` (the largest move of a point in the image)."""
     from resection.io.cameras import write_camera
-    from resection.io.plot3d import write_plot3d_function
     from resection.surface.surface_map import SurfaceMap
     from scenes.slab_block import paint, slab_block, write_slab_block
-    from scenes.unsteady_run import CONDITIONS, PAINT, _camera, _pitch
+    from scenes.unsteady_run import CONDITIONS, PAINT, _camera, _pitch, write_node_function
     from selfillum.unsteady.grid import load_run_grid
 
     rng = np.random.default_rng(seed)
@@ -73,14 +72,7 @@ def make_large_run(folder: Path, nodes: int, frames: int, width: int, height: in
               for a, b in zip(theta[:200], heave[:200], strict=True))
     (tr / "markers.csv").write_text(",".join(MARKER_COLUMNS) + "\n")
     # the rest of the inputs
-    dims = grid.dims
-    cp = -0.3 + 0.4 * grid.points[:, 0]
-    blocks, a = [], 0
-    for dd in dims:
-        n = int(np.prod(dd))
-        blocks.append(cp[a:a + n].reshape(dd, order="F"))
-        a += n
-    write_plot3d_function(folder / "steady.f", blocks)
+    write_node_function(folder / "steady.f", grid, -0.3 + 0.4 * grid.points[:, 0])
     names = list(CONDITIONS)
     (folder / "run.wtd").write_text("# " + "\t".join(names) + "\n"
                                     + "\t".join(repr(CONDITIONS[n]) for n in names) + "\n")

@@ -94,6 +94,19 @@ def _pitch(theta, heave):
     return M, np.array([0.0, 0.0, heave])
 
 
+def write_node_function(path, grid, values) -> None:
+    """Write one value a node of ``grid`` (its file order) as a Plot3D function file,
+    one block a grid block (``i`` fastest)."""
+    from resection.io.plot3d import write_plot3d_function
+
+    blocks, a = [], 0
+    for d in grid.dims:  # a few blocks
+        n = int(np.prod(d))
+        blocks.append(values[a:a + n].reshape(d, order="F"))
+        a += n
+    write_plot3d_function(path, blocks)
+
+
 def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: int = 100,
                       fps: float = 1000.0, width: int = 200, height: int = 150,
                       noise: float = 0.003, vibration_deg: float = 0.5, texture: float = 0.08,
@@ -105,7 +118,6 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
     ``I_ref / I = A + B p / p_ref`` instead of the paint calibration, and a wind-off image
     per camera at ``p_ref`` is written (``wind_off_camNN.npy``) for the in-situ fit."""
     from resection.io.cameras import write_camera
-    from resection.io.plot3d import write_plot3d_function
     from resection.surface.surface_map import SurfaceMap
     from scenes.slab_block import paint, slab_block, write_slab_block
     from selfillum.solve.radiosity import check_reflectance
@@ -239,14 +251,7 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
                     (img * (1.0 + noise * rng.standard_normal(img.shape))).astype(np.float32))
         write_camera(out / f"cam{c + 1:02d}.json", camc)
     # ------------------------------------------------------------------ other inputs
-    dims = grid.dims
-    cp_nodes = cp_steady(grid.points)
-    blocks, a = [], 0
-    for d in dims:
-        n = int(np.prod(d))
-        blocks.append(cp_nodes[a:a + n].reshape(d, order="F"))
-        a += n
-    write_plot3d_function(out / "steady.f", blocks)
+    write_node_function(out / "steady.f", grid, cp_steady(grid.points))
     names = list(CONDITIONS)
     (out / "run.wtd").write_text("# " + "\t".join(names) + "\n"
                                  + "\t".join(repr(CONDITIONS[n]) for n in names) + "\n"
@@ -266,7 +271,7 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
         "    oblique_angle = 70\n    number_frames = -1\n"
         "@output\n    dir = $dir\n")
     # ------------------------------------------------------------------ truth per node
-    nblock_of_node = np.concatenate([np.full(int(np.prod(d)), b) for b, d in enumerate(dims)])
+    nblock_of_node = np.concatenate([np.full(int(np.prod(d)), b) for b, d in enumerate(grid.dims)])
     vb = np.zeros(len(mesh.vertices), bool)
     vp = np.zeros(len(mesh.vertices), bool)
     vb[np.asarray(mesh.faces)[on_block].ravel()] = True
