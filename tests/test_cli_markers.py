@@ -47,6 +47,16 @@ def _run(args, capsys):
     return rc, out.out, out.err
 
 
+def _candidates(d, capsys):
+    """A candidate file of the scene's image made here, so that a test run on its own
+    does not depend on the file another test writes."""
+    path = d / "c_own.csv"
+    if not path.exists():
+        rc, _, _ = _run(["detect", d / "img.tif", "--diameter", 6, "-o", path], capsys)
+        assert rc == 0
+    return path
+
+
 def test_detect_match_link_pose(scene, capsys):
     d = scene["dir"]
     rc, out, _ = _run(["detect", d / "img.tif", "--diameter", 6, "-o", d / "c.csv"], capsys)
@@ -128,20 +138,21 @@ def test_detect_match_link_pose(scene, capsys):
 
 def test_cli_errors(scene, capsys):
     d = scene["dir"]
+    c = _candidates(d, capsys)
     rc, _, err = _run(["detect", d / "none.tif", "--diameter", 6, "-o", d / "x.csv"], capsys)
     assert rc == 2 and "none.tif" in err
     rc, _, err = _run(["detect", d / "img.tif", "--diameter", -6, "-o", d / "x.csv"], capsys)
     assert rc == 2 and "diameter" in err
-    rc, _, err = _run(["match", "--candidates", d / "c.csv", "--markers", d / "markers.csv",
+    rc, _, err = _run(["match", "--candidates", c, "--markers", d / "markers.csv",
                        "-o", d / "x.csv"], capsys)
     assert rc == 2 and "--camera" in err
     bad = d / "bad_links.csv"
     bad.write_text("id,candidate\nT0,99999\n")
-    rc, _, err = _run(["link", d / "img.tif", "--candidates", d / "c.csv", "--links", bad,
+    rc, _, err = _run(["link", d / "img.tif", "--candidates", c, "--links", bad,
                        "-o", d / "x.csv"], capsys)
     assert rc == 2 and "99999" in err
     bad.write_text("id,candidate\nT0,1\nT0,2\n")
-    rc, _, err = _run(["link", d / "img.tif", "--candidates", d / "c.csv", "--links", bad,
+    rc, _, err = _run(["link", d / "img.tif", "--candidates", c, "--links", bad,
                        "-o", d / "x.csv"], capsys)
     assert rc == 2 and "twice" in err
     # spurious-only candidates: matching refuses, pose --image refuses
@@ -162,7 +173,7 @@ def test_cli_image_size_saturation_and_enhance_windows(scene, capsys):
                        "--image", d / "half.tif", "--out", d / "x.json"], capsys)
     assert rc == 2 and "320x480" in err and "640x480" in err
     tifffile.imwrite(d / "t.tif", np.ascontiguousarray(img.T))
-    rc, _, err = _run(["link", d / "t.tif", "--candidates", d / "c.csv", "--camera",
+    rc, _, err = _run(["link", d / "t.tif", "--candidates", _candidates(d, capsys), "--camera",
                        d / "approx.json", "--markers", d / "markers.csv", "--png",
                        d / "x.png"], capsys)
     assert rc == 2 and "480x640" in err
