@@ -52,6 +52,17 @@ _TEXEL = 2.5e-4  #: speckle texture sampling on the surface, metres
 _TEX_SHAPE = (2600, 2600)  #: texels along x (from x = -0.33) and along the arc
 
 
+def _shading(cosine):
+    """The paint's brightness relative to face-on at the cosine of the view angle."""
+    return 0.3 + 0.7 * cosine
+
+
+def _vignetting(u, v, H: int, W: int):
+    """The lens' vignetting at pixel ``(u, v)`` of an ``H x W`` frame (1 at the centre)."""
+    r2 = ((u - W / 2) ** 2 + (v - H / 2) ** 2) / ((W / 2) ** 2 + (H / 2) ** 2)
+    return 1.0 - 0.12 * r2
+
+
 def _radial(theta):
     """Unit radial direction ``(0, cos, sin)`` at roll angle(s) ``theta``."""
     theta = np.asarray(theta, float)
@@ -194,6 +205,9 @@ class RevolutionModel:
         SNR of a target seen face-on (its depth over the noise), PSF sigma (px), glare
         centre ``(u, v)`` (px).
     seed : int
+    target_depth, tap_depth : float
+        Relative depth of the dots (their reflectance under the paint's is
+        ``1 - depth``): a dot's depth in counts is ``depth`` times the paint as shaded there.
     supersample : int
         Sub-samples along each side of a pixel for the dots' coverage. The coverage of a
         ``n x n`` grid moves a 4-6 px dot's centroid off its true centre by about
@@ -220,6 +234,8 @@ class RevolutionModel:
     glare: tuple = (520.0, 330.0)
     seed: int = 0
     supersample: int = 4
+    target_depth: float = 0.7
+    tap_depth: float = 0.6
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
@@ -259,6 +275,20 @@ class RevolutionModel:
         hidden = np.isfinite(t) & (t < dist - 1e-5)
         return (cosine > min_cos) & ~hidden
 
+    def drawn_depth(self, k: int, points=None, normals=None) -> np.ndarray:
+        """``(N,)`` depth of the dots (targets by default) as drawn in frame ``k``, counts:
+        ``target_depth`` times the plain paint as shaded at the dot's centre (the cosine of
+        the view angle, the vignetting), before the blur; the speckle (mean 1) left out."""
+        P = self.points3d if points is None else points
+        N = self.normals if normals is None else normals
+        cam = self.camera_at(k)
+        v = cam.center[None, :] - P
+        cosine = np.einsum("ij,ij->i", N, v) / np.linalg.norm(v, axis=1)
+        H, W = self.shape
+        uv = cam.project(P)
+        return self.target_depth * self.paint * _shading(cosine) * _vignetting(uv[:, 0],
+                                                                             uv[:, 1], H, W)
+
     def _texture(self) -> np.ndarray:
         if "tex" not in self._cache:
             rng = np.random.default_rng([self.seed, 7])
@@ -275,8 +305,7 @@ class RevolutionModel:
             bg = self._cache["bg"]
             yy, xx = np.mgrid[0:H, 0:W].astype(np.float32)
             bg = 0.12 * self.paint * (1 + 0.1 * (xx / W)) * (1 + 1.0 * bg)
-            r2 = ((xx - W / 2) ** 2 + (yy - H / 2) ** 2) / ((W / 2) ** 2 + (H / 2) ** 2)
-            vig = 1.0 - 0.12 * r2
+            vig = _vignetting(xx, yy, H, W)
             gu, gv = self.glare
             glare = 1.4 * self.paint * np.exp(-((xx - gu) ** 2 + (yy - gv) ** 2) / (2 * 22.0**2))
             self._cache["static"] = (bg.astype(np.float32), vig.astype(np.float32),
@@ -328,8 +357,22 @@ class RevolutionModel:
         ok = (vv >= 0) & (vv < H) & (uu >= 0) & (uu < W) & (cover > 0)
         np.add.at(att, (vv[ok], uu[ok]), depth * cover[ok])
 
+    @property
+    def noise_sigma(self) -> float:
+        """Standard deviation of the frames' white noise (counts, before the rounding to
+        8 bits): the depth of a target seen face-on at the image's centre over ``snr``."""
+        return float(self.target_depth * self.paint / self.snr)
+
     def image(self, k: int) -> np.ndarray:
-        """Frame ``k``: (H, W) uint8."""
+        """Frame ``k``: (H, W) uint8, :meth:`render` plus white noise of
+        :attr:`noise_sigma`, rounded and clipped to 0-255."""
+        img = self.render(k)
+        rng = np.random.default_rng([self.seed, 11, k])
+        img += rng.standard_normal(img.shape, dtype=np.float32) * np.float32(self.noise_sigma)
+        return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+
+    def render(self, k: int) -> np.ndarray:
+        """Frame ``k`` without noise, before rounding: (H, W) float32 counts."""
         cam = self.camera_at(k)
         H, W = self.shape
         bg, vig, glare = self._static()
@@ -350,17 +393,15 @@ class RevolutionModel:
         ix = (x[hit] + 0.33) / _TEXEL
         ia = arc[hit] / _TEXEL
         s = ndimage.map_coordinates(tex, [ix, ia], order=1, mode="grid-wrap")
-        box[hit] = self.paint * (0.3 + 0.7 * cosine[hit]) * (1.0 + self.speckle * s)
+        box[hit] = self.paint * _shading(cosine[hit]) * (1.0 + self.speckle * s)
         img[v0:v1, u0:u1] = box.reshape(v1 - v0, u1 - u0)
         vis = self.visible(k)
-        self._dots(cam, self.points3d[vis], self.normals[vis], self.marker_diameter, img, 0.7)
+        self._dots(cam, self.points3d[vis], self.normals[vis], self.marker_diameter, img,
+                   self.target_depth)
         tv = self.visible(k, self.tap_points, self.tap_normals)
         self._dots(cam, self.tap_points[tv], self.tap_normals[tv], self.tap_diameter, img,
-                   0.6)
-        img = ndimage.gaussian_filter(img * vig + glare, self.blur)
-        rng = np.random.default_rng([self.seed, 11, k])
-        img += rng.standard_normal(img.shape, dtype=np.float32) * (0.7 * self.paint / self.snr)
-        return np.clip(np.rint(img), 0, 255).astype(np.uint8)
+                   self.tap_depth)
+        return ndimage.gaussian_filter(img * vig + glare, self.blur)
 
 
 def revolution_model(n_frames: int = 200, *, shape=(800, 1280), fps: float = 100.0,
