@@ -59,15 +59,104 @@ def opencv_detector(diameter: float):
     return run
 
 
-def errors(found: np.ndarray, truth: np.ndarray, gate: float = 1.5):
-    """(found share, median error, RMS error) of the targets against the found points."""
+def errors(found: np.ndarray, truth: np.ndarray, gate: float = 1.5, pool=None):
+    """(found share, median error, RMS error) of the targets against the found points; the
+    errors of those found are appended to ``pool`` (a list)."""
     if len(found) == 0:
         return 0.0, float("nan"), float("nan")
     d, _ = cKDTree(found).query(truth)
     ok = d < gate
+    if pool is not None:
+        pool.append(d[ok])
     if not ok.any():
         return 0.0, float("nan"), float("nan")
     return float(ok.mean()), float(np.median(d[ok])), float(np.sqrt(np.mean(d[ok] ** 2)))
+
+
+def bound_run(args) -> None:
+    """Per target, the Cramér-Rao bound of its centre from the noise-free render
+    (``scenes.paint_bound``) against both detectors' errors over ``--draws`` noise draws of
+    the same frame (8-bit, the generator's noise)."""
+    from scenes.paint_bound import median_at_bound, target_bounds
+
+    sets = ("known", "fit", "shape", "shading")
+    pooled = {"ours": [], "opencv": [], "cov": {k: [] for k in sets}, "ratio": [],
+              "bias": [], "snr": [], "bias_ratio": []}
+    per_target = []
+    for seed in args.seeds:
+        img, truth, d, model = paint_frame(seed, snr=args.snr, speckle=args.speckle,
+                                           snr_of=args.snr_of)
+        keep = model.visible(0, min_cos=0.5)
+        t = time.perf_counter()
+        b = target_bounds(model, 0, keep, supersample=args.bound_supersample)
+        t_b = time.perf_counter() - t
+        if not np.allclose(b["uv"], truth):
+            raise RuntimeError(f"seed {seed}: the bound's targets are not the frame's")
+        clean = model.render(0)
+        cv = opencv_detector(d)
+        rng = np.random.default_rng([seed, 555])
+        E = {"ours": [], "opencv": []}
+        for _ in range(args.draws):
+            noise = rng.standard_normal(clean.shape, dtype=np.float32)
+            noisy = np.clip(np.rint(clean + noise * np.float32(model.noise_sigma)), 0, 255)
+            noisy = noisy.astype(np.uint8)
+            for name, pts in (("ours", detect_markers(noisy, d).uv), ("opencv", cv(noisy))):
+                e = np.full((len(truth), 2), np.nan)
+                if len(pts):
+                    dist, idx = cKDTree(pts).query(truth)
+                    ok = dist < 1.5
+                    e[ok] = pts[idx[ok]] - truth[ok]
+                E[name].append(e)
+        E = {k: np.array(v) for k, v in E.items()}  # (draws, targets, 2)
+        mse = np.nanmean((E["ours"] ** 2).sum(-1), axis=0)
+        bias = np.hypot(*np.nanmean(E["ours"], axis=0).T)
+        tr = np.trace(b["cov"]["shape"], axis1=1, axis2=2)
+        clear = ~b["saturated"]
+        snr = b["drawn"] / b["sigma"]
+        peak = np.median(b["peak"] / b["sigma"])
+        for k in sets:
+            pooled["cov"][k].append(b["cov"][k])
+        for k in ("ours", "opencv"):
+            pooled[k].append(np.hypot(E[k][..., 0], E[k][..., 1]).ravel())
+        pooled["ratio"].append(np.sqrt(mse / tr)[clear])
+        pooled["bias_ratio"].append((bias / np.sqrt(tr))[clear])
+        pooled["snr"].append(snr)
+        if args.save:
+            P, N = model.points3d[keep], model.normals[keep]
+            C = model.camera_at(0).center
+            per_target.append(np.column_stack([
+                np.full(len(truth), seed), truth, snr, np.sqrt(tr), np.sqrt(mse), bias,
+                np.einsum("ij,ij->i", N, C - P) / np.linalg.norm(C - P, axis=1),
+                b["saturated"]]))
+        med = {k: np.nanmedian(pooled[k][-1]) for k in ("ours", "opencv")}
+        r = pooled["ratio"][-1]
+        print(f"seed {seed}: d {d:.2f} px, {len(truth)} targets ({int((~clear).sum())} with "
+              f"saturated pixels in the window), SNR as drawn median {np.median(snr):.1f} "
+              f"({snr.min():.1f}-{snr.max():.1f}; peak after blur {peak:.1f}) | "
+              f"median error over {args.draws} draws ours {med['ours']:.4f} / OpenCV "
+              f"{med['opencv']:.4f} px, at the bound (known / fit / shape / shading) "
+              + " / ".join(f"{median_at_bound(b['cov'][k]):.4f}" for k in sets)
+              + f" px | per target RMS error / bound (shape): median {np.median(r):.2f} "
+              f"({r.min():.2f}-{r.max():.2f}), bias / bound median "
+              f"{np.median(pooled['bias_ratio'][-1]):.2f} | bound {t_b:.0f} s")
+    ratio = np.concatenate(pooled["ratio"])
+    snr = np.concatenate(pooled["snr"])
+    print(f"\npooled ({len(snr)} targets, {args.draws} draws): SNR as drawn median "
+          f"{np.median(snr):.1f} ({snr.min():.1f}-{snr.max():.1f}); median error ours "
+          f"{np.nanmedian(np.concatenate(pooled['ours'])):.4f} px, OpenCV "
+          f"{np.nanmedian(np.concatenate(pooled['opencv'])):.4f} px; at the bound "
+          + ", ".join(f"{k} {median_at_bound(np.concatenate(pooled['cov'][k])):.4f}"
+                      for k in sets)
+          + f" px; per target RMS error / bound (shape, windows without saturation): median "
+          f"{np.median(ratio):.3f}, 10-90 % {np.percentile(ratio, 10):.2f}-"
+          f"{np.percentile(ratio, 90):.2f}; bias / bound median "
+          f"{np.median(np.concatenate(pooled['bias_ratio'])):.2f} (the draws' own spread "
+          f"gives ~{np.sqrt(np.pi / 4 / args.draws):.2f})")
+    if args.save:
+        np.savetxt(args.save, np.concatenate(per_target), delimiter=",", fmt="%.6g",
+                   header="seed,u,v,snr_drawn,bound_px,rms_error_px,bias_px,cos_view,"
+                   "saturated")
+    print(f"load average: {os.getloadavg()}")
 
 
 def main() -> None:
@@ -79,14 +168,28 @@ def main() -> None:
     ap.add_argument("--speckle", type=float, default=None,
                     help="RMS speckle contrast of every frame (default: drawn, 5-15 %%; 0: "
                     "plain paint, the accuracy without the paint's texture)")
+    ap.add_argument("--snr-of", default="targets", choices=("targets", "face-on"),
+                    help="SNR of the median target as drawn (default) or of a target "
+                    "face-on at the image's centre (the former definition)")
+    ap.add_argument("--draws", type=int, default=0,
+                    help="instead of the timing: the per-target Cramér-Rao bound against "
+                    "the errors over this many noise draws of each frame")
+    ap.add_argument("--bound-supersample", type=int, default=32)
+    ap.add_argument("--save", default=None,
+                    help="with --draws: write the per-target figures to this CSV file")
     args = ap.parse_args()
     print(f"load average: {os.getloadavg()}")
+    if args.draws:
+        bound_run(args)
+        return
     # compile / load the kernels before timing
-    img0, _, d0, _ = paint_frame(args.seeds[0], snr=args.snr, speckle=args.speckle)
+    img0, _, d0, _ = paint_frame(args.seeds[0], snr=args.snr, speckle=args.speckle,
+                                 snr_of=args.snr_of)
     detect_markers(img0, d0)
-    rows = []
+    rows, pool_o, pool_c = [], [], []
     for seed in args.seeds:
-        img, truth, d, model = paint_frame(seed, snr=args.snr, speckle=args.speckle)
+        img, truth, d, model = paint_frame(seed, snr=args.snr, speckle=args.speckle,
+                                           snr_of=args.snr_of)
         cv = opencv_detector(d)
         fns = {"ours": functools.partial(detect_markers, img, d),
                "opencv": functools.partial(cv, img)}
@@ -104,8 +207,8 @@ def main() -> None:
         rej = c.n_rejected
         maxima = len(c) + sum(rej.values())
         fitted = maxima - rej["screen"]
-        f_o, med_o, rms_o = errors(c.uv, truth)
-        f_c, med_c, rms_c = errors(out["opencv"], truth)
+        f_o, med_o, rms_o = errors(c.uv, truth, pool=pool_o)
+        f_c, med_c, rms_c = errors(out["opencv"], truth, pool=pool_c)
         unfound = truth[cKDTree(c.uv).query(truth)[0] >= 1.5] if len(c) else truth
         n_sat = int((cKDTree(c.saturated).query(unfound)[0] < 1.5).sum()) \
             if len(c.saturated) and len(unfound) else 0
@@ -135,7 +238,9 @@ def main() -> None:
           f"saturated {sum(x[17] for x in rows)}, missed {sum(x[18] for x in rows)}; "
           f"median error over "
           f"frames ours {np.median([x[12] for x in rows]):.3f} px, OpenCV "
-          f"{np.nanmedian([x[15] for x in rows]):.3f} px")
+          f"{np.nanmedian([x[15] for x in rows]):.3f} px; pooled over the targets found "
+          f"ours {np.median(np.concatenate(pool_o)):.4f} px ({sum(map(len, pool_o))}), "
+          f"OpenCV {np.median(np.concatenate(pool_c)):.4f} px ({sum(map(len, pool_c))})")
     print(f"load average: {os.getloadavg()}")
 
 

@@ -101,8 +101,9 @@ def target_bounds(model, k: int = 0, targets=None, *, step_px: float = 0.1,
     -------
     dict
         ``uv`` (N, 2) true centres; ``cov`` dict set name -> (N, 2, 2) bound (px²);
-        ``depth`` (N,) the target's depth in the noise-free frame (counts, the largest
-        difference from the same frame without the targets within the window);
+        ``drawn`` (N,) the targets' depth as drawn (counts, ``drawn_depth``); ``peak`` (N,)
+        their depth in the noise-free frame (the largest difference from the same frame
+        without the targets within the window: blur and pixel integration included);
         ``sigma`` the noise (counts, rounding included); ``saturated`` (N,) bool, a window
         with a pixel at or above 254.5 counts; ``half`` the windows' half-size (pixels).
     """
@@ -168,10 +169,10 @@ def target_bounds(model, k: int = 0, targets=None, *, step_px: float = 0.1,
     sigma = float(np.sqrt(m.noise_sigma**2 + 1.0 / 12.0))
     cov = {name: fisher_bounds(J, weights, sigma, [PARAMETERS.index(p) for p in cols_])
            for name, cols_ in SETS.items()}
-    depth = np.max((win(flat) - win(base)) * inside, axis=1)
+    peak = np.max((win(flat) - win(base)) * inside, axis=1)
     saturated = np.any((win(base) >= 254.5) & inside, axis=1)
-    return {"uv": uv, "cov": cov, "depth": depth, "sigma": sigma, "saturated": saturated,
-            "half": half}
+    return {"uv": uv, "cov": cov, "drawn": m.drawn_depth(k)[sel], "peak": peak,
+            "sigma": sigma, "saturated": saturated, "half": half}
 
 
 def median_at_bound(cov: np.ndarray, draws: int = 4000, seed: int = 0) -> float:

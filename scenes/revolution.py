@@ -33,6 +33,7 @@ speckle contrast 5-15 %, glare position, roll) from a seed, for detection benchm
 from __future__ import annotations
 
 import csv
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -202,8 +203,9 @@ class RevolutionModel:
         Metres.
     paint, speckle, grain, snr, blur, glare :
         Paint level (counts of 255), relative speckle contrast, speckle grain (px), the
-        SNR of a target seen face-on (its depth over the noise), PSF sigma (px), glare
-        centre ``(u, v)`` (px).
+        SNR of a target seen face-on at the image's centre (its depth over the noise: the
+        frame's other targets, shaded by the view angle and vignetted, have less), PSF
+        sigma (px), glare centre ``(u, v)`` (px).
     seed : int
     target_depth, tap_depth : float
         Relative depth of the dots (their reflectance under the paint's is
@@ -475,7 +477,7 @@ def revolution_model(n_frames: int = 200, *, shape=(800, 1280), fps: float = 100
 
 
 def paint_frame(seed: int, *, snr: float = 20.0, shape=(800, 1280),
-                speckle: float | None = None):
+                speckle: float | None = None, snr_of: str = "targets"):
     """One real-looking frame for detection benchmarks, its parameters drawn from ``seed``:
     target size 4-6 px, tap size 2-3 px, speckle contrast (RMS) 5-15 %, grain 1-3 px,
     glare position and roll angle (``speckle``: a given RMS contrast instead, 0 for plain
@@ -483,6 +485,13 @@ def paint_frame(seed: int, *, snr: float = 20.0, shape=(800, 1280),
     four on the cone): 16 to 24 face the camera within 60 degrees. The dots are drawn with
     16 x 16 sub-samples a pixel (their centroids within about 0.005 px of the truth; the
     sequences' 4 x 4 leave about 0.015 px, as much as the noise's share at SNR 100).
+
+    ``snr`` is the median, over the targets that face the camera within 60 degrees, of a
+    target's depth as drawn (:meth:`RevolutionModel.drawn_depth`: shaded by the view angle
+    and vignetted) over the noise's standard deviation (``snr_of="targets"``). The targets'
+    own SNR then spreads about it (about 0.7 to 1.15 times). ``snr_of="face-on"``: the
+    former definition, the depth of a target seen face-on at the image's centre, which
+    none of the frame's targets is (their median drawn depth is about 0.85 of it).
 
     Returns
     -------
@@ -493,6 +502,8 @@ def paint_frame(seed: int, *, snr: float = 20.0, shape=(800, 1280),
     diameter : float
         The targets' nominal diameter on the image, pixels.
     model : RevolutionModel
+        Its ``snr`` is that of a target face-on at the image's centre (``snr`` divided by
+        the median target's shading and vignetting with the default ``snr_of``).
     """
     rng = np.random.default_rng([int(seed), 99])
     d = rng.uniform(4.0, 6.0)
@@ -501,8 +512,14 @@ def paint_frame(seed: int, *, snr: float = 20.0, shape=(800, 1280),
                              grain=rng.uniform(1.0, 3.0),
                              snr=snr, roll0_deg=rng.uniform(0, 360), roll_deg=0.0,
                              rings=(18, 13, 12, 12), seed=int(seed), supersample=16)
-    img = model.image(0)
     keep = model.visible(0, min_cos=np.cos(np.radians(60.0)))
+    if snr_of == "targets":
+        face_on = model.target_depth * model.paint
+        median = float(np.median(model.drawn_depth(0)[keep])) if keep.any() else face_on
+        model = dataclasses.replace(model, snr=float(snr) * face_on / median)
+    elif snr_of != "face-on":
+        raise ValueError(f"snr_of: expected 'targets' or 'face-on', got {snr_of!r}")
+    img = model.image(0)
     return img, model.uv(0)[keep], d, model
 
 
