@@ -172,7 +172,8 @@ def test_every_target_found_on_speckled_paint_eight_seeds():
 
 
 def _accuracy(seeds):
-    """Pooled errors (px) of ours and OpenCV's on plain paint (no speckle) at SNR 20."""
+    """Pooled errors (px) of ours and OpenCV's on plain paint (no speckle) at SNR 20 (the
+    median target's drawn depth over the noise: ``paint_frame``'s definition)."""
     from scenes.revolution import paint_frame
 
     ours, cv = [], []
@@ -188,7 +189,8 @@ def _accuracy(seeds):
 
 
 def test_accuracy_on_plain_paint_snr20():
-    # two frames, 37 targets: the median error's sampling spread is about 12 %
+    # two frames, 38 targets: the median error's sampling spread is about 12 %, so the
+    # issue's 0.05 px is asserted on eight frames (below); here 0.049 px, OpenCV 0.077 px
     ours, cv = _accuracy([202, 203])
     assert np.median(ours) <= 0.06
     assert np.median(ours) < 0.8 * np.median(cv)
@@ -196,11 +198,12 @@ def test_accuracy_on_plain_paint_snr20():
 
 @pytest.mark.slow
 def test_accuracy_on_plain_paint_snr20_eight_seeds():
-    # 8 frames, 153 targets seen within 60 degrees of face-on, some near the glare: median
-    # error 0.053 px here (0.045 px over the frames of bench_detect_paint.py's seeds, 0.047
-    # on the development seeds; the Cramer-Rao bound of these 4-6 px targets at SNR 20,
-    # shaded by obliquity, puts the median near 0.045 px); OpenCV 0.079 px. The bound
-    # stated here is the issue's 0.05 px plus the spread of a median of 150 (~6 %)
+    # the issue's target: 8 frames, 153 targets seen within 60 degrees of face-on, some
+    # near the glare: median error 0.046 px here, OpenCV 0.072 px. On fresh seeds 300-315
+    # 0.0425 px (301 targets), on the bench's 100-111 0.0425 px, on 300-305 0.042 px over
+    # 12 noise draws each, where the per-target Cramer-Rao bound puts the median at
+    # 0.037 px (bench/README.md, issue 21). The seeds fix the frames; the margin (8 %) is
+    # far above float rounding and about one sampling spread of a median of 150 targets
     ours, cv = _accuracy(range(200, 208))
-    assert np.median(ours) <= 0.055
+    assert np.median(ours) <= 0.05
     assert np.median(ours) < 0.8 * np.median(cv)
