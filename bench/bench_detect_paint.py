@@ -18,7 +18,18 @@ targets (0.3 to 3 times a disk of the nominal diameter; its default minimum area
 would drop 4-5 px targets) and the shape filters off, thresholds 10 to 250 by 10, as
 ``bench/bench_track.py``'s OpenCV pipeline.
 
-Run: ``.venv/bin/python bench/bench_detect_paint.py [--seeds 100 101 ...] [--snr 20]``
+SNR: that of the median target as drawn (``paint_frame``'s default), or with ``--snr-of
+face-on`` of a target face-on at the image's centre (the definition before 2026-11-27).
+
+``--draws N`` (instead of the timing): for each frame, the Cramér-Rao bound of each target's
+centre from the noise-free render (``scenes.paint_bound``; for the sets of unknowns there)
+against both detectors' errors over ``N`` noise draws of the same frame: the pooled median
+error, the median an unbiased estimator on the bound would have, the per-target RMS error
+over the bound and the bias over the bound (``--save``: the per-target figures as CSV).
+About 1-2 minutes a frame at the default 32 x 32 sub-samples.
+
+Run: ``.venv/bin/python bench/bench_detect_paint.py [--seeds 100 101 ...] [--snr 20]
+[--speckle 0] [--draws 12]``
 """
 
 from __future__ import annotations
