@@ -489,9 +489,9 @@ def paint_frame(seed: int, *, snr: float = 20.0, shape=(800, 1280),
     ``snr`` is the median, over the targets that face the camera within 60 degrees, of a
     target's depth as drawn (:meth:`RevolutionModel.drawn_depth`: shaded by the view angle
     and vignetted) over the noise's standard deviation (``snr_of="targets"``). The targets'
-    own SNR then spreads about it (about 0.7 to 1.15 times). ``snr_of="face-on"``: the
+    own SNR then spreads about it (about 0.7 to 1.2 times). ``snr_of="face-on"``: the
     former definition, the depth of a target seen face-on at the image's centre, which
-    none of the frame's targets is (their median drawn depth is about 0.85 of it).
+    none of the frame's targets is (their median drawn depth is 0.83 to 0.91 of it).
 
     Returns
     -------

@@ -64,9 +64,10 @@ def test_paint_frame_snr_is_the_median_targets_drawn_depth_over_the_noise():
     keep = model.visible(0, min_cos=0.5)
     drawn = model.drawn_depth(0)[keep]
     assert np.median(drawn) / model.noise_sigma == pytest.approx(20.0, rel=1e-9)
-    # the old definition: a target face-on at the image's centre; none is, the median 10-25 %
-    # shallower
-    assert 0.75 < model.noise_sigma / (model.target_depth * model.paint / 20.0) < 0.9
+    # the old definition: a target face-on at the image's centre; none is, the median one
+    # is 9-17 % shallower on the seeds measured (shading by the view angle, vignetting)
+    assert 0.75 < model.noise_sigma / (model.target_depth * model.paint / 20.0) < 0.95
+    assert np.all(drawn < 1.001 * model.target_depth * model.paint)
     clean = model.render(0)
     r = img.astype(float) - clean
     ok = (clean > 20) & (clean < 235)  # neither rounding to 0 nor clipping at 255
