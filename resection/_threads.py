@@ -1,6 +1,6 @@
 """Threads over blocks of independent work whose kernels release the GIL.
 
-Embree's ray queries (``embreex`` ``EmbreeScene.run``) and the package's numba kernels
+Embree's ray queries (:mod:`resection.surface.embree`) and the package's numba kernels
 compiled with ``nogil=True`` run without Python's global interpreter lock, so a few threads
 over contiguous blocks of rays or image rows use every core with no copies and no process
 start-up. The thread count defaults to the cores this process may use; nothing is kept
@@ -12,9 +12,10 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from typing import TypeVar
 
-__all__ = ["available_cores", "split_range", "run_blocks"]
+__all__ = ["available_cores", "split_range", "run_blocks", "numba_threads"]
 
 T = TypeVar("T")
 
@@ -58,3 +59,21 @@ def run_blocks(fn: Callable[[tuple[int, int]], T], blocks: Sequence[tuple[int, i
         return [fn(b) for b in blocks]
     with ThreadPoolExecutor(max_workers=w) as pool:
         return list(pool.map(fn, blocks))
+
+
+@contextmanager
+def numba_threads(workers: int | None):
+    """numba's thread count for the parallel kernels called inside the ``with`` block:
+    ``workers`` (at most numba's ``NUMBA_NUM_THREADS``, the cores by default), or left as
+    it is when ``None``; the previous count is restored on exit (it is per calling thread)."""
+    if workers is None:
+        yield
+        return
+    import numba
+
+    old = numba.get_num_threads()
+    numba.set_num_threads(max(1, min(int(workers), numba.config.NUMBA_NUM_THREADS)))
+    try:
+        yield
+    finally:
+        numba.set_num_threads(old)

@@ -5,21 +5,17 @@ import pytest
 
 @pytest.fixture
 def embree_scenes(monkeypatch) -> list:
-    """The Embree scenes built (RayCaster's and RayScene's) while the test runs: a list
-    that grows by one a scene."""
-    from embreex import rtcore_scene
-
-    from resection.surface import visibility
-    from selfillum.transport import viewfactors
+    """The Embree scenes built (RayCaster's and RayScene's, all of them
+    :class:`resection.surface.embree.Scene`) while the test runs: a list that grows by one
+    a scene."""
+    from resection.surface.embree import Scene
 
     built = []
+    init = Scene.__init__
 
-    class Counted:
-        @staticmethod
-        def EmbreeScene(*a, **kw):  # noqa: N802 - embreex's name
-            built.append(1)
-            return rtcore_scene.EmbreeScene(*a, **kw)
+    def counted(self, *a, **kw):
+        built.append(1)
+        init(self, *a, **kw)
 
-    monkeypatch.setattr(visibility, "rtcore_scene", Counted)
-    monkeypatch.setattr(viewfactors, "rtcore_scene", Counted)
+    monkeypatch.setattr(Scene, "__init__", counted)
     return built

@@ -11,6 +11,7 @@ import trimesh
 from resection.errors import InputError
 from selfillum import enforce_reciprocity, view_factors
 from selfillum.mesh import check_mesh, face_areas
+from selfillum.transport.viewfactors import RowTracer
 
 
 # ---------------------------------------------------------------- closed forms (Howell)
@@ -280,24 +281,28 @@ def test_deterministic_for_a_seed_and_any_chunk_size():
 
 
 def test_chunking_bounds_memory():
-    """Rays are generated and traced chunk by chunk: the peak memory (NumPy allocations,
-    traced by tracemalloc) with chunks of 512 faces is a fraction of that of one chunk of
-    all 6400 faces, while F is the same."""
+    """Rays are made, traced and filtered chunk by chunk, with no ray arrays: the tracing's
+    peak memory (NumPy allocations, traced by tracemalloc; the hits kept, before ``F`` is
+    assembled) with chunks of 512 faces is a fraction of that of one chunk of all 6400
+    faces, while F is the same."""
     import tracemalloc
 
     mesh, _ = perpendicular_mesh(n=40)  # 6400 faces
 
     def peak(chunk):
-        tracemalloc.start()
-        try:
-            F = view_factors(mesh, rays_per_face=64, seed=1, chunk_size=chunk)
-            return tracemalloc.get_traced_memory()[1], F
-        finally:
-            tracemalloc.stop()
+        with RowTracer(mesh, 64, 1, chunk_size=chunk) as rt:
+            rt.hits(np.arange(1))  # the scene built and the kernels loaded
+            tracemalloc.start()
+            try:
+                counts, hits = rt.hits(None)
+                return tracemalloc.get_traced_memory()[1], rt.assemble(counts, hits)
+            finally:
+                tracemalloc.stop()
 
     small, F1 = peak(512)
     large, F2 = peak(6400)
     assert (F1 != F2).nnz == 0
+    assert (F1 != view_factors(mesh, rays_per_face=64, seed=1)).nnz == 0
     assert small < 0.4 * large
 
 

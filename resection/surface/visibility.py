@@ -9,10 +9,11 @@ A face is *visible* from a camera when
 4. the ray from the perspective centre to its sample points hits that face first (no other
    part of the model in between).
 
-Ray casting goes through Embree (``embreex``, the binding trimesh uses for
-``trimesh.ray.ray_pyembree``). Embree works in float32; hit distances and barycentric
-coordinates are recomputed here in float64 from the face Embree reports, so that they are
-exact to double precision for the face that was hit.
+Ray casting goes through Embree 4 (the library the ``embreex`` wheel ships, called through
+:mod:`resection.surface.embree`: the scene shares this module's float32 vertex and index
+arrays, and rays are traced from compiled kernels without the GIL). Embree works in
+float32; hit distances and barycentric coordinates are recomputed here in float64 from the
+face Embree reports, so that they are exact to double precision for the face that was hit.
 
 Face winding gives the normal: counter-clockwise seen from outside, as trimesh.
 """
@@ -22,13 +23,12 @@ from __future__ import annotations
 import numba
 import numpy as np
 import trimesh
-from embreex import rtcore_scene
-from embreex.mesh_construction import TriangleMesh
 
 from resection._checks import as_points
 from resection._threads import run_blocks, split_range
 from resection.camera.model import Camera
 from resection.errors import InputError
+from resection.surface import embree
 
 __all__ = ["RayCaster", "visible_faces", "face_sample_points", "face_geometry"]
 
@@ -58,15 +58,10 @@ class RayCaster:
         self._origin = vertices.min(axis=0)
         extent = float(np.linalg.norm(vertices.max(axis=0) - self._origin))
         self._scale = 100.0 / extent if extent > 0 else 1.0
-        scaled = ((vertices - self._origin) * self._scale).astype(np.float32)
         self._dual = None  # per-face data of _plane_hits, built on first use
         self._normals = None  # (normals, centroids, areas), built on first use
-        self._scene = rtcore_scene.EmbreeScene()
-        TriangleMesh(scene=self._scene, vertices=scaled,
-                     indices=self._faces.astype(np.int32))
-        # commit the scene now (Embree builds it on the first query), before any threads
-        # query it at once
-        self._scene.run(np.zeros((1, 3), np.float32), np.array([[0, 0, 1]], np.float32))
+        # committed (BVH built) here, on Embree's threads; Embree reads the arrays in place
+        self._scene = embree.Scene((vertices - self._origin) * self._scale, self._faces)
 
     @property
     def n_faces(self) -> int:
@@ -74,10 +69,11 @@ class RayCaster:
 
     @property
     def scene(self):
-        """The committed ``embreex`` scene, in the frame of :attr:`origin` and
-        :attr:`scale`: a model point ``x`` is at ``(x - origin) * scale`` (float32) in it.
-        Other ray casts of the same mesh may query it (from several threads) instead of
-        building their own: :class:`selfillum.transport.viewfactors.RowTracer` does."""
+        """The committed Embree scene (:class:`resection.surface.embree.Scene`), in the
+        frame of :attr:`origin` and :attr:`scale`: a model point ``x`` is at
+        ``(x - origin) * scale`` (float32) in it. Other ray casts of the same mesh may
+        query it (from several threads) instead of building their own:
+        :class:`selfillum.transport.viewfactors.RowTracer` does."""
         return self._scene
 
     @property
@@ -154,6 +150,7 @@ class RayCaster:
         bary = np.empty((n, 3))
         dual = self._face_duals()
         shift = np.ascontiguousarray(self._origin, dtype=np.float64)
+        scene = self._scene
 
         def block(b: tuple[int, int]) -> None:
             start, stop = b
@@ -164,9 +161,10 @@ class RayCaster:
                               face, dist, bary)
             if k == 0:
                 return
-            o_run = np.broadcast_to(o32, (k, 3)) if single else o32[:k]
-            hit = self._scene.run(np.ascontiguousarray(o_run), d32[:k])
-            _plane_hits(o, d, keep[:k], np.asarray(hit), unit, dual, face, dist, bary)
+            hit = np.empty(k, np.int64)
+            embree.trace(scene.intersect, scene.handle, o32 if single else o32[:k], d32[:k],
+                         hit)
+            _plane_hits(o, d, keep[:k], hit, unit, dual, face, dist, bary)
 
         run_blocks(block, split_range(n, workers, min_size=16384), workers)
         return face, dist, bary

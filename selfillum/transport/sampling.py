@@ -167,14 +167,36 @@ def rqmc_points(k: int, face_ids: np.ndarray, seed: int, dims: int = 4) -> np.nd
     return out
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _frame(n0, n1, n2):  # pragma: no cover - compiled
+    """Two unit vectors ``(t1, t2)`` completing the unit normal ``n`` (float64) to a
+    right-handed frame: ``t1 = n x h / |n x h|`` with ``h`` the x axis (the y axis when
+    ``|n_x| >= 0.9``), ``t2 = n x t1``; as six float64 values."""
+    h0, h1 = (1.0, 0.0) if abs(n0) < 0.9 else (0.0, 1.0)
+    a0 = n1 * 0.0 - n2 * h1
+    a1 = n2 * h0 - n0 * 0.0
+    a2 = n0 * h1 - n1 * h0
+    s = np.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+    a0, a1, a2 = a0 / s, a1 / s, a2 / s
+    return a0, a1, a2, n1 * a2 - n2 * a1, n2 * a0 - n0 * a2, n0 * a1 - n1 * a0
+
+
+@njit(cache=True, nogil=True)
+def _frames(normals, t1, t2):  # pragma: no cover - compiled
+    """:func:`_frame` of every row of ``normals`` into ``t1``, ``t2`` (float32)."""
+    for f in range(normals.shape[0]):
+        a0, a1, a2, b0, b1, b2 = _frame(normals[f, 0], normals[f, 1], normals[f, 2])
+        t1[f, 0], t1[f, 1], t1[f, 2] = a0, a1, a2
+        t2[f, 0], t2[f, 1], t2[f, 2] = b0, b1, b2
+
+
 def _tangent_frames(normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit vectors ``(t1, t2)`` completing each unit normal to a right-handed frame."""
-    helper = np.where(
-        (np.abs(normals[:, 0]) < 0.9)[:, None], np.array([1.0, 0.0, 0.0]), [0.0, 1.0, 0.0]
-    )
-    t1 = np.cross(normals, helper)
-    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
-    t2 = np.cross(normals, t1)
+    """Two unit vectors ``(t1, t2)`` completing each unit normal to a right-handed frame,
+    float32 (:func:`_frame`, the values the fused row kernel uses)."""
+    n = np.ascontiguousarray(normals, dtype=np.float64)
+    t1 = np.empty((len(n), 3), dtype=np.float32)
+    t2 = np.empty((len(n), 3), dtype=np.float32)
+    _frames(n, t1, t2)
     return t1, t2
 
 
@@ -221,52 +243,93 @@ def _build_rays(tri, nrm, t1, t2, pts, side, offset, origins,
                 directions[r, c] = lx * t1[f, c] + ly * t2[f, c] + lz * nrm[f, c]
 
 
+@njit(cache=True, inline="always")
+def _shift(seed, face, dim):  # pragma: no cover - compiled
+    """:func:`digital_shifts` of one face and dimension (uint64 holding 32 bits)."""
+    key = (_U(seed) * _U(0x9E3779B97F4A7C15) + _U(face) * _U(0xD1B54A32D192ED03)
+           + _U(dim) * _U(0x8CB92BA72F3D8DD7))
+    for _ in range(2):  # SplitMix64's finaliser, twice
+        key = key ^ (key >> _U(30))
+        key = key * _U(0xBF58476D1CE4E5B9)
+        key = key ^ (key >> _U(27))
+        key = key * _U(0x94D049BB133111EB)
+        key = key ^ (key >> _U(31))
+    return key >> _U(32)
+
+
+@njit(cache=True, nogil=True)
+def _shifts(seed, face_ids, dims):  # pragma: no cover - compiled
+    """:func:`_shift` of every face and dimension, ``(n, dims)`` uint32."""
+    out = np.empty((face_ids.shape[0], dims), dtype=np.uint32)
+    for f in range(face_ids.shape[0]):
+        for d in range(dims):
+            out[f, d] = _shift(seed, face_ids[f], d)
+    return out
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _rqmc_ray(rbase, i, keys, two_sided, tri, c, nrm, t1, t2, offset, o,
+              d):  # pragma: no cover - compiled
+    """Ray ``i`` of a face from its RQMC point (Sobol point ``rbase[i]`` scrambled with
+    the face's ``keys``, uint64): its origin into ``o[0:3]`` and its unit direction into
+    ``d[0:3]`` (float32), as :func:`_build_rays` places them; ``tri`` the face's (3, 3)
+    float32 vertices, ``c`` its centroid, ``nrm``, ``t1``, ``t2`` its float32 frame.
+    Returns the side, +1 or -1."""
+    p0 = _owen(rbase[i, 0], keys[0])
+    p1 = _owen(rbase[i, 1], keys[1])
+    p2 = _owen(rbase[i, 2], keys[2])
+    p3 = _owen(rbase[i, 3], keys[3])
+    sd = np.float32(1.0)
+    if two_sided and _owen(rbase[i, 4], keys[4]) >= np.float32(0.5):
+        sd = np.float32(-1.0)
+    sa = np.sqrt(p0)
+    w2 = sa * p1
+    w1 = sa - w2
+    for a in range(3):
+        o[a] = tri[0, a] + w1 * (tri[1, a] - tri[0, a]) + w2 * (tri[2, a] - tri[0, a])
+    if offset > 0:
+        ix, iy, iz = c[0] - o[0], c[1] - o[1], c[2] - o[2]
+        dd = np.sqrt(ix * ix + iy * iy + iz * iz)
+        g = offset / max(dd, offset)
+        o[0] += ix * g + sd * offset * nrm[0]
+        o[1] += iy * g + sd * offset * nrm[1]
+        o[2] += iz * g + sd * offset * nrm[2]
+    rr = np.sqrt(p2)
+    phi = np.float32(2.0 * np.pi) * p3
+    lx = rr * np.cos(phi)
+    ly = rr * np.sin(phi)
+    lz = np.sqrt(max(np.float32(0.0), np.float32(1.0) - p2)) * sd
+    for a in range(3):
+        d[a] = lx * t1[a] + ly * t2[a] + lz * nrm[a]
+    return sd
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _centroid(tri, c):  # pragma: no cover - compiled
+    """The float32 centroid of a face's (3, 3) float32 vertices into ``c``."""
+    for a in range(3):
+        c[a] = (tri[0, a] + tri[1, a] + tri[2, a]) / np.float32(3.0)
+
+
 @njit(cache=True, nogil=True)
 def _rqmc_rays(rbase, keys, tri, nrm, t1, t2, offset, origins, directions,
                side):  # pragma: no cover - compiled
     """The rays of :func:`_build_rays` from the RQMC points of :func:`rqmc_points`, made
     in one pass (no ``(n, k, dims)`` array of points in between): the same points, the
-    same arithmetic. ``keys`` has 5 columns for two-sided faces (the 5th coordinate
-    picks the side) and 4 otherwise."""
+    same arithmetic (:func:`_rqmc_ray`). ``keys`` has 5 columns for two-sided faces (the
+    5th coordinate picks the side) and 4 otherwise."""
     n, k = keys.shape[0], rbase.shape[0]
     two_sided = keys.shape[1] > 4
-    two_pi = np.float32(2.0 * np.pi)
+    key = np.zeros(5, dtype=np.uint64)
+    c = np.empty(3, dtype=np.float32)
     for f in range(n):
-        k0, k1, k2, k3 = _U(keys[f, 0]), _U(keys[f, 1]), _U(keys[f, 2]), _U(keys[f, 3])
-        k4 = _U(keys[f, 4]) if two_sided else _U(0)
-        cx = (tri[f, 0, 0] + tri[f, 1, 0] + tri[f, 2, 0]) / np.float32(3.0)
-        cy = (tri[f, 0, 1] + tri[f, 1, 1] + tri[f, 2, 1]) / np.float32(3.0)
-        cz = (tri[f, 0, 2] + tri[f, 1, 2] + tri[f, 2, 2]) / np.float32(3.0)
+        for a in range(keys.shape[1]):
+            key[a] = _U(keys[f, a])
+        _centroid(tri[f], c)
         for i in range(k):
             r = f * k + i
-            p0 = _owen(rbase[i, 0], k0)
-            p1 = _owen(rbase[i, 1], k1)
-            p2 = _owen(rbase[i, 2], k2)
-            p3 = _owen(rbase[i, 3], k3)
-            sd = np.float32(1.0)
-            if two_sided and _owen(rbase[i, 4], k4) >= np.float32(0.5):
-                sd = np.float32(-1.0)
-            side[r] = np.int8(sd)
-            sa = np.sqrt(p0)
-            w2 = sa * p1
-            w1 = sa - w2
-            for c in range(3):
-                origins[r, c] = (tri[f, 0, c] + w1 * (tri[f, 1, c] - tri[f, 0, c])
-                                 + w2 * (tri[f, 2, c] - tri[f, 0, c]))
-            if offset > 0:
-                ix, iy, iz = cx - origins[r, 0], cy - origins[r, 1], cz - origins[r, 2]
-                d = np.sqrt(ix * ix + iy * iy + iz * iz)
-                g = offset / max(d, offset)
-                origins[r, 0] += ix * g + sd * offset * nrm[f, 0]
-                origins[r, 1] += iy * g + sd * offset * nrm[f, 1]
-                origins[r, 2] += iz * g + sd * offset * nrm[f, 2]
-            rr = np.sqrt(p2)
-            phi = two_pi * p3
-            lx = rr * np.cos(phi)
-            ly = rr * np.sin(phi)
-            lz = np.sqrt(max(np.float32(0.0), np.float32(1.0) - p2)) * sd
-            for c in range(3):
-                directions[r, c] = lx * t1[f, c] + ly * t2[f, c] + lz * nrm[f, c]
+            side[r] = np.int8(_rqmc_ray(rbase, i, key, two_sided, tri[f], c, nrm[f], t1[f],
+                                        t2[f], offset, origins[r], directions[r]))
 
 
 def sample_rays(
@@ -326,7 +389,7 @@ def sample_rays(
             side = np.ones((n, k), dtype=np.int8)
     t1, t2 = _tangent_frames(normals)
     frame = (np.ascontiguousarray(triangles, dtype=f32), np.ascontiguousarray(normals, f32),
-             np.ascontiguousarray(t1, f32), np.ascontiguousarray(t2, f32))
+             t1, t2)
     origins = np.empty((n * k, 3), dtype=f32)
     directions = np.empty((n * k, 3), dtype=f32)
     if rng is not None:

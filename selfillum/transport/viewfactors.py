@@ -22,16 +22,21 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 import trimesh
-from embreex import rtcore_scene
-from embreex.mesh_construction import TriangleMesh
-from numba import njit
 
-from resection._threads import available_cores
+from resection._threads import available_cores, numba_threads
 from resection.errors import InputError
 from resection.memory import check_memory
+from resection.surface.embree import Scene
 from resection.surface.visibility import face_geometry
 from selfillum.mesh import check_mesh, face_areas
-from selfillum.transport.sampling import digital_shifts, rqmc_points, sample_rays
+from selfillum.transport.rowtrace import trace_rows
+from selfillum.transport.sampling import (
+    _reversed_base,
+    _sobol_base,
+    digital_shifts,
+    rqmc_points,
+    sample_rays,
+)
 
 __all__ = ["view_factors", "RowTracer", "enforce_reciprocity", "RayScene", "sample_rays",
            "rqmc_points", "digital_shifts"]
@@ -40,13 +45,14 @@ __all__ = ["view_factors", "RowTracer", "enforce_reciprocity", "RayScene", "samp
 _OFFSET = 1e-6
 #: Default number of rays in flight per chunk.
 _RAYS_PER_CHUNK = 1 << 20
-#: Bytes a ray in flight costs at least (origin, direction, hit record), for the memory
-#: check before a chunk is allocated (about 150 in practice).
-_RAY_BYTES_MIN = 64
+#: Bytes a ray of a chunk costs (its hit, before the misses are dropped), for the memory
+#: check before a chunk is allocated.
+_RAY_BYTES_MIN = 8
 
 
 class RayScene:
-    """An Embree scene of a mesh, in float32 coordinates centred on the mesh's box.
+    """An Embree scene of a mesh (:class:`resection.surface.embree.Scene`), in float32
+    coordinates centred on the mesh's box.
 
     A model point ``x`` is at ``(x - origin) * scale`` in the scene (``scale`` is 1 for a
     scene built here; :meth:`from_caster` shares the scene of a
@@ -66,11 +72,7 @@ class RayScene:
     def __init__(self, vertices, faces):
         v = np.asarray(vertices, dtype=np.float64)
         self.origin = 0.5 * (v.min(axis=0) + v.max(axis=0))
-        self.scene = rtcore_scene.EmbreeScene()
-        # keep references: Embree reads these buffers
-        self._v = np.ascontiguousarray(v - self.origin, dtype=np.float32)
-        self._f = np.ascontiguousarray(faces, dtype=np.int32)
-        TriangleMesh(scene=self.scene, vertices=self._v, indices=self._f)
+        self.scene = Scene(v - self.origin, faces)
 
     @classmethod
     def from_caster(cls, caster) -> RayScene:
@@ -85,12 +87,12 @@ class RayScene:
         """Index of the first face hit by each ray (``-1`` for a miss), ``(M,)`` int64."""
         o = np.ascontiguousarray((origins - self.origin) * self.scale, dtype=np.float32)
         d = np.ascontiguousarray(directions, dtype=np.float32)
-        return np.asarray(self.scene.run(o, d), dtype=np.int64)
+        return self.scene.run(o, d).astype(np.int64)
 
     def run(self, origins: np.ndarray, directions: np.ndarray) -> np.ndarray:
-        """First face hit by rays already in the scene's centred frame, float32
-        ``(M, 3)`` arrays (``-1`` for a miss), ``(M,)`` int32."""
-        return np.asarray(self.scene.run(origins, directions))
+        """First face hit by rays already in the scene's frame, float32 ``(M, 3)`` arrays
+        (``-1`` for a miss), ``(M,)`` int32, traced on numba's threads."""
+        return self.scene.run(origins, directions)
 
 
 #: The ray tracers :func:`view_factors` can use.
@@ -111,6 +113,7 @@ class _Job:
     seed: int
     offset: float
     two_sided: bool
+    rbase: np.ndarray  # bit-reversed Sobol base points (K, 4 or 5), uint64
 
 
 def _scene(tracer: str, job: _Job, launch: int | None, mesh: trimesh.Trimesh, caster=None):
@@ -134,41 +137,11 @@ def _scene(tracer: str, job: _Job, launch: int | None, mesh: trimesh.Trimesh, ca
 
 def _trace_rows(job: _Job, scene: RayScene, rows: np.ndarray):
     """Hits of the rays of faces ``rows``: ``(counts per row, hit faces)``, both int32,
-    the hits grouped by row in the order of ``rows`` (duplicates kept)."""
-    k = job.k
-    scale = getattr(scene, "scale", 1.0)
-    tri = job.vertices[job.faces[rows]] - scene.origin  # the scene's frame
-    if scale != 1.0:
-        tri *= scale
-    nrm = job.normals[rows]
-    o, d, _ = sample_rays(tri, nrm, k, two_sided=job.two_sided, offset=job.offset * scale,
-                          face_ids=rows, seed=job.seed)
-    hit = scene.run(o, d)
-    return _keep_hits(hit, d, job.normals32, rows, k, job.two_sided)
-
-
-@njit(cache=True, nogil=True)
-def _keep_hits(hit, directions, normals, rows, k, two_sided):  # pragma: no cover - compiled
-    """Counts per row and the kept hits (grouped by row: a face's rays are consecutive),
-    dropping misses, hits on the ray's own face and, one-sided, hits on a face's back
-    (a ray arriving on the unpainted side is absorbed there)."""
-    counts = np.zeros(rows.shape[0], dtype=np.int32)
-    out = np.empty(hit.shape[0], dtype=np.int32)
-    m = 0
-    for r in range(hit.shape[0]):
-        h = hit[r]
-        row = r // k
-        if h < 0 or h == rows[row]:
-            continue
-        if not two_sided:
-            dn = (directions[r, 0] * normals[h, 0] + directions[r, 1] * normals[h, 1]
-                  + directions[r, 2] * normals[h, 2])
-            if dn >= 0:
-                continue
-        out[m] = h
-        m += 1
-        counts[row] += 1
-    return counts, out[:m]
+    the hits grouped by row in the order of ``rows`` (duplicates kept); made, traced and
+    filtered in one compiled pass on numba's threads
+    (:func:`selfillum.transport.rowtrace.trace_rows`)."""
+    return trace_rows(scene, rows, job.vertices, job.faces, job.normals, job.normals32,
+                      job.rbase, job.seed, job.two_sided, job.offset)
 
 
 def view_factors(
@@ -223,9 +196,10 @@ def view_factors(
         other rows of ``F`` are empty. Each computed row is the one the full
         computation gives.
     workers : int, optional
-        Threads tracing chunks in parallel over one Embree scene (Embree's queries and
-        the compiled sampling and filtering release Python's GIL). Default: the CPUs
-        this process may use, when there are at least 2 chunks; ``1`` traces in the
+        numba threads over the faces of each chunk, tracing in one Embree scene (the rays
+        are made, traced and filtered in one compiled pass that releases Python's GIL;
+        numba's thread count is set for the call and restored after; at most numba's
+        ``NUMBA_NUM_THREADS``). Default: the CPUs this process may use; ``1`` traces in the
         calling thread.
     progress : bool or callable
         ``True`` shows a ``tqdm`` bar over chunks; a callable is called with
@@ -282,12 +256,11 @@ def view_factors(
 
 
 class RowTracer:
-    """Rows of ``F`` traced on demand, with one Embree scene (and a pool of threads
-    querying it) kept for every call.
+    """Rows of ``F`` traced on demand, with one Embree scene kept for every call.
 
     :func:`view_factors` is one call of this; callers that need rows in rounds (the
     faces coupled to the seen ones, :mod:`selfillum.transport.coupling`) keep one tracer, so that
-    the scene is built and the workers started once. Each row is the one the full
+    the scene is built once. Each row is the one the full
     computation gives (the RQMC points of a face are keyed on its index).
 
     Parameters
@@ -308,7 +281,8 @@ class RowTracer:
         ``mesh`` has passed :func:`selfillum.mesh.check_mesh` already (the caller checked
         it): not checked again.
 
-    Use it as a context manager (the threads are stopped on exit), or call :meth:`close`.
+    Use it as a context manager, or call :meth:`close` (nothing is left running either
+    way: the threads are numba's, set for each call).
     """
 
     def __init__(self, mesh: trimesh.Trimesh, rays_per_face: int = 256, seed: int = 0, *,
@@ -344,12 +318,12 @@ class RowTracer:
         # unit normals, compiled (the caster's when given): face_normals' values
         normals = (face_geometry(vertices, faces)[0] if self._caster is None
                    else self._caster.normals)
+        rbase = _reversed_base(_sobol_base(k, 5 if two_sided else 4))
         self.job = _Job(vertices, faces, normals, normals.astype(np.float32), k, seed,
-                        _OFFSET * size, bool(two_sided))
-        rows = self.n if n_rows is None else int(n_rows)
-        self.nproc = 1 if tracer == "mitsuba" else _workers(workers, -(-rows // self.chunk))
+                        _OFFSET * size, bool(two_sided), rbase)
+        self.nproc = 1 if tracer == "mitsuba" else _workers(workers)
         self._launch = None if chunk_size is None else self.chunk  # faces a Dr.Jit launch
-        self._scene = self._pool = None
+        self._scene = None
 
     def __enter__(self) -> RowTracer:
         return self
@@ -359,22 +333,16 @@ class RowTracer:
         return False
 
     def close(self) -> None:
-        """Stop the worker threads (if any)."""
-        if self._pool is not None:
-            self._pool.shutdown()
-            self._pool = None
+        """Drop the scene (a caster's scene stays with its caster)."""
+        self._scene = None
 
     def _start(self) -> None:
         self._scene = _scene(self.tracer, self.job, self._launch, self.mesh, self._caster)
         if self.tracer == "mitsuba":
             return
-        # Embree builds the scene on its first query: do it now, before threads query it
-        # at once; and compile (or load) the kernels once, before the threads call them
-        _trace_rows(self.job, self._scene, np.arange(1))
-        if self.nproc > 1:
-            from concurrent.futures import ThreadPoolExecutor
-
-            self._pool = ThreadPoolExecutor(self.nproc, thread_name_prefix="view_factors")
+        # compile (or load from numba's cache) the kernels once, on one face
+        with numba_threads(1):
+            _trace_rows(self.job, self._scene, np.arange(1))
 
     def rows(self, rows, progress: bool | Callable | None = None) -> sp.csr_matrix:
         """``F`` with only ``rows`` filled (indices or a boolean mask), ``(N, N)`` CSR.
@@ -400,11 +368,9 @@ class RowTracer:
         todo = _as_rows(rows, self.n)
         if self._scene is None:
             self._start()
-        # as many chunks of at most ``chunk`` faces as it takes, a multiple of the
-        # workers, of equal size: no worker idles while another traces a last chunk
+        # as many chunks of at most ``chunk`` faces as it takes, of equal size; each is
+        # split over the threads
         n_chunks = -(-todo.size // self.chunk)
-        if self._pool is not None:
-            n_chunks = -(-n_chunks // self.nproc) * self.nproc
         step = max(1, -(-todo.size // max(1, n_chunks)))
         chunks = [todo[i:i + step] for i in range(0, todo.size, step)]
         bar = None
@@ -412,14 +378,12 @@ class RowTracer:
             from tqdm.auto import tqdm
 
             bar = tqdm(total=todo.size, desc="view factors", unit="face", leave=False)
-        if self._pool is not None:
-            results = self._pool.map(lambda c: _trace_rows(self.job, self._scene, c), chunks)
-        else:
-            results = (_trace_rows(self.job, self._scene, c) for c in chunks)
         done = 0
         counts = np.zeros(self.n, dtype=np.int64)
         hits = []
-        for part, (c, h) in zip(chunks, results, strict=True):
+        for part in chunks:
+            with numba_threads(self.nproc):
+                c, h = _trace_rows(self.job, self._scene, part)
             counts[part] = c
             hits.append((part, h))
             done += part.size
@@ -471,14 +435,11 @@ def _as_rows(rows, n: int) -> np.ndarray:
     return r
 
 
-def _workers(workers, n_chunks: int) -> int:
-    """Number of tracing threads: ``workers`` if given, else the usable CPUs when there
-    are at least 2 chunks to share."""
+def _workers(workers) -> int:
+    """Number of tracing threads: ``workers`` if given, else the usable CPUs."""
     if workers is not None:
-        return min(_positive_int(workers, "workers"), max(1, n_chunks))
-    if n_chunks < 2:
-        return 1
-    return max(1, min(available_cores(), n_chunks))
+        return _positive_int(workers, "workers")
+    return available_cores()
 
 
 def enforce_reciprocity(F, areas, *, tol: float = 1e-10, maxiter: int = 500) -> sp.csr_matrix:

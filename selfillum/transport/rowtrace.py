@@ -1,0 +1,136 @@
+"""Rows of the view factors in one compiled pass: each face's rays made, traced in Embree
+and filtered, on numba's threads.
+
+:func:`trace_rows` makes the RQMC rays of each face (the rays of
+:func:`selfillum.transport.sampling.sample_rays` for the same face index and seed, bit for
+bit: the same per-ray code, :func:`~selfillum.transport.sampling._rqmc_ray`), traces each
+one as it is made (:func:`resection.surface.embree.first_hit`, ``rtcIntersect1``) and keeps
+the hits that count (not a miss, not the ray's own face, and, one-sided, not the back of a
+face). No ``(M, 3)`` ray arrays are made and no Python thread pool runs: the faces of a
+call are split over numba's threads (``numba.set_num_threads``), and Python's GIL is
+released throughout.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from resection.surface.embree import first_hit
+from selfillum.transport.sampling import _U, _centroid, _frame, _rqmc_ray, _shift
+
+__all__ = ["trace_rows"]
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def _trace_faces(fn, scene, rows, vertices, faces, origin, scale, normals, normals32, rbase,
+                 seed, two_sided, offset, hits, counts, nb):  # pragma: no cover - compiled
+    """Face ``rows[j]``'s kept hits into ``hits[j * K : j * K + counts[j]]``.
+
+    ``fn`` is ``rtcIntersect1`` and ``scene`` the Embree scene's handle, in the frame where
+    a model point ``x`` is at ``(x - origin) * scale``; ``vertices`` (float64, model
+    units), ``faces``, ``normals`` (unit, float64) and ``normals32`` (float32) cover the
+    whole mesh; ``rbase`` is the bit-reversed Sobol base (``(K, dims)``, dims 5 when
+    ``two_sided``); ``offset`` (float32, scene units) lifts the origins. The faces are
+    split into ``nb`` blocks (a scratch ray each)."""
+    n, k = rows.shape[0], rbase.shape[0]
+    dims = rbase.shape[1]
+    for b in numba.prange(nb):
+        raw = np.empty(36, dtype=np.float32)  # a 16-byte aligned RTCRayHit in it
+        start = ((16 - raw.ctypes.data % 16) % 16) // 4
+        buf = raw[start:start + 32]
+        ib = buf.view(np.uint32)
+        tri = np.empty((3, 3), dtype=np.float32)
+        c = np.empty(3, dtype=np.float32)
+        nrm = np.empty(3, dtype=np.float32)
+        t1 = np.empty(3, dtype=np.float32)
+        t2 = np.empty(3, dtype=np.float32)
+        ro = np.empty(3, dtype=np.float32)
+        rd = np.empty(3, dtype=np.float32)
+        key = np.zeros(5, dtype=np.uint64)
+        for j in range(b * n // nb, (b + 1) * n // nb):
+            f = rows[j]
+            for a in range(3):
+                vi = faces[f, a]
+                for x in range(3):
+                    tri[a, x] = np.float32((vertices[vi, x] - origin[x]) * scale)
+            _centroid(tri, c)
+            a0, a1, a2, b0, b1, b2 = _frame(normals[f, 0], normals[f, 1], normals[f, 2])
+            t1[0], t1[1], t1[2] = a0, a1, a2
+            t2[0], t2[1], t2[2] = b0, b1, b2
+            for x in range(3):
+                nrm[x] = normals32[f, x]
+            for x in range(dims):
+                key[x] = _shift(seed, f, x)
+            m = 0
+            base = j * k
+            for i in range(k):
+                _rqmc_ray(rbase, i, key, two_sided, tri, c, nrm, t1, t2, offset, ro, rd)
+                h = first_hit(fn, scene, buf, ib, ro[0], ro[1], ro[2], rd[0], rd[1], rd[2])
+                if h < 0 or h == f:
+                    continue
+                if not two_sided:
+                    dn = (rd[0] * normals32[h, 0] + rd[1] * normals32[h, 1]
+                          + rd[2] * normals32[h, 2])
+                    if dn >= 0:
+                        continue
+                hits[base + m] = h
+                m += 1
+            counts[j] = m
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def _compact(hits, counts, k, starts, out):  # pragma: no cover - compiled
+    """Row ``j``'s ``counts[j]`` hits (at ``j * k`` in ``hits``) to ``starts[j]`` in
+    ``out``."""
+    for j in numba.prange(counts.shape[0]):
+        for i in range(counts[j]):
+            out[starts[j] + i] = hits[j * k + i]
+
+
+def trace_rows(scene, rows: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
+               normals: np.ndarray, normals32: np.ndarray, rbase: np.ndarray, seed: int,
+               two_sided: bool, offset: float) -> tuple[np.ndarray, np.ndarray]:
+    """The kept hits of the rays of faces ``rows``.
+
+    Parameters
+    ----------
+    scene : selfillum.transport.viewfactors.RayScene
+        The Embree scene (its ``scene`` a :class:`resection.surface.embree.Scene`) and its
+        frame (``origin``, ``scale``).
+    rows : (n,) int64
+        Faces whose rays are traced.
+    vertices, faces, normals, normals32
+        The whole mesh: float64 vertices (model units), int64 faces, unit normals float64
+        and float32.
+    rbase : (K, dims) uint64
+        Bit-reversed Sobol base points (``sampling._reversed_base``), dims 5 two-sided.
+    seed : int
+        Seed of the RQMC scramble.
+    two_sided : bool
+        Rays leave both sides (``rbase``'s 5th column picks the side) and hits count on
+        either side of a face.
+    offset : float
+        Lift of the ray origins off their face (model units).
+
+    Returns
+    -------
+    counts : (n,) int32
+        Kept hits of each face.
+    hits : (counts.sum(),) int32
+        The hit faces, grouped by face in the order of ``rows``.
+    """
+    k = rbase.shape[0]
+    n = rows.shape[0]
+    counts = np.zeros(n, dtype=np.int32)
+    padded = np.empty(n * k, dtype=np.int32)
+    scale = float(scene.scale)
+    _trace_faces(scene.scene.intersect, scene.scene.handle, rows, vertices, faces,
+                 np.asarray(scene.origin, dtype=np.float64), scale, normals, normals32,
+                 rbase, _U(seed), bool(two_sided), np.float32(offset * scale), padded,
+                 counts, min(n, 4 * numba.get_num_threads()))
+    starts = np.zeros(n, dtype=np.int64)
+    np.cumsum(counts[:-1], out=starts[1:])
+    out = np.empty(int(counts.sum()), dtype=np.int32)
+    _compact(padded, counts, k, starts, out)
+    return counts, out
