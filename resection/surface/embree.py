@@ -131,7 +131,8 @@ class Scene:
             raise InputError(f"{name}: face indices must be integers, got {f.dtype}")
         # Embree may read 16 bytes from the last vertex: one row of padding
         vbuf = np.zeros((len(v) + 1, 3), dtype=np.float32)
-        vbuf[:-1] = v
+        with np.errstate(over="ignore", invalid="ignore"):  # checked next
+            vbuf[:-1] = v
         if not np.isfinite(vbuf).all():
             raise InputError(f"{name}: vertices contain NaN or infinite values (in float32)")
         lo, hi = int(f.min()), int(f.max())
