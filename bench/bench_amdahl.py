@@ -47,6 +47,9 @@ import time
 from pathlib import Path
 
 T_START = time.perf_counter()
+#: The caller's NUMBA_NUM_THREADS: the commands run with it (the thread bench raises the
+#: cap of this process to its largest thread count).
+_NUMBA_THREADS = os.environ.get("NUMBA_NUM_THREADS")
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -135,8 +138,16 @@ def child(argv: list[str]) -> None:
                       "before_imports": t0 - T_START}), flush=True)
 
 
-def run_command(root: Path, argv: list[str]) -> dict:
+def _env(root: Path) -> dict:
     env = {**os.environ, "PYTHONPATH": str(root)}
+    env.pop("NUMBA_NUM_THREADS", None)
+    if _NUMBA_THREADS is not None:
+        env["NUMBA_NUM_THREADS"] = _NUMBA_THREADS
+    return env
+
+
+def run_command(root: Path, argv: list[str]) -> dict:
+    env = _env(root)
     t = time.perf_counter()
     proc = subprocess.Popen([sys.executable, str(Path(__file__).resolve()), "--child", *argv],
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
@@ -184,10 +195,76 @@ def print_parts(tag: str, runs: list[dict]) -> None:
 
 def thread_efficiency(mesh, threads: list[int], repeat: int, rows) -> None:
     """``view_factors`` with each thread count; its one-thread parts timed apart: the
-    tracer's set-up (mesh check, normals), the Embree scene (the arrays, ``embreex``'s
-    copy of them into Embree's buffers, which holds the GIL, and Embree's BVH build,
-    which runs on Embree's own TBB threads: its CPU over wall is printed) and the
-    assembly of ``F``. Everything else is the threads' sampling and tracing."""
+    tracer's set-up (mesh check, normals), the Embree scene (``scene arrays``: the
+    checks and the padded float32 / uint32 arrays Embree reads in place, and Embree's
+    BVH build, ``rtcCommitScene``, which runs on Embree's own TBB threads: its CPU over
+    wall is printed), loading the kernels and the assembly of ``F``; the numba threads'
+    kernel (sampling, tracing, filtering) is timed, and what is left (the mesh check,
+    a little Python a chunk) counts as serial.
+    Older trees (``embreex``'s scene) are timed as before: their buffer copy instead of
+    the arrays."""
+    from selfillum.transport import viewfactors as vf
+
+    try:
+        from resection.surface import embree
+    except ImportError:  # a tree before the native binding
+        return _thread_efficiency_embreex(mesh, threads, repeat, rows)
+
+    spent: dict[str, list[float]] = {}
+
+    def timed(label, fn):
+        def call(*a, **kw):
+            t, c = time.perf_counter(), time.process_time()
+            try:
+                return fn(*a, **kw)
+            finally:
+                r = spent.setdefault(label, [0.0, 0.0])
+                r[0] += time.perf_counter() - t
+                r[1] += time.process_time() - c
+        return call
+
+    from selfillum.transport import rowtrace
+
+    lib = embree.library()
+    saved = (vf.RowTracer.__init__, vf.RowTracer._start, vf._assemble, embree.Scene.__init__,
+             lib.rtcCommitScene, rowtrace._trace_faces)
+    vf.RowTracer.__init__ = timed("set-up", vf.RowTracer.__init__)
+    vf.RowTracer._start = timed("scene + kernels", vf.RowTracer._start)
+    vf._assemble = timed("F assembly", vf._assemble)
+    embree.Scene.__init__ = timed("scene arrays", embree.Scene.__init__)
+    lib.rtcCommitScene = timed("BVH build", lib.rtcCommitScene)
+    # the numba threads' kernel; the rest (Python, the mesh check) is serial
+    rowtrace._trace_faces = timed("kernels", rowtrace._trace_faces)
+    try:
+        times, parts = _thread_runs(vf, mesh, threads, repeat, rows, spent)
+    finally:
+        (vf.RowTracer.__init__, vf.RowTracer._start, vf._assemble, embree.Scene.__init__,
+         lib.rtcCommitScene, rowtrace._trace_faces) = saved
+    for p in parts.values():  # the scene's own time, without the BVH inside it
+        if "scene arrays" in p:
+            p["scene arrays"][0] -= p.get("BVH build", [0.0, 0.0])[0]
+    _print_threads(threads, rows, times, parts, "scene arrays")
+
+
+def _thread_runs(vf, mesh, threads, repeat, rows, spent):
+    """Best of ``repeat`` of ``view_factors`` at each thread count, interleaved, with the
+    parts ``spent`` recorded for the best run."""
+    times: dict[int, float] = {}
+    parts: dict[int, dict] = {}
+    vf.view_factors(mesh, 256, rows=rows[:1000], workers=2)  # kernels loaded
+    for _ in range(repeat):
+        for w in threads:
+            spent.clear()
+            t = time.perf_counter()
+            vf.view_factors(mesh, 256, rows=rows, workers=w)
+            dt = time.perf_counter() - t
+            if dt < times.get(w, float("inf")):
+                times[w], parts[w] = dt, {k: list(v) for k, v in spent.items()}
+    return times, parts
+
+
+def _thread_efficiency_embreex(mesh, threads, repeat, rows) -> None:
+    """:func:`thread_efficiency` of a tree whose scenes are ``embreex``'s."""
     from embreex import rtcore_scene
 
     from resection.surface import visibility as vis
@@ -213,44 +290,44 @@ def thread_efficiency(mesh, threads: list[int], repeat: int, rows) -> None:
             return timed("BVH build", super().run)(*a, **kw)
 
     saved = (vf.RowTracer.__init__, vf.RowTracer._start, vf._assemble, vis.TriangleMesh,
-             vis.rtcore_scene, vf.TriangleMesh, vf.rtcore_scene)
+             vis.rtcore_scene)
     vf.RowTracer.__init__ = timed("set-up", vf.RowTracer.__init__)
     vf.RowTracer._start = timed("scene + kernels", vf.RowTracer._start)
     vf._assemble = timed("F assembly", vf._assemble)
-    for mod in (vis, vf):  # the scene is a RayCaster's (a RayScene's in older trees)
-        mod.TriangleMesh = timed("buffer copy", mod.TriangleMesh)
-        mod.rtcore_scene = type("rtcore_scene", (), {"EmbreeScene": Scene})
-    times: dict[int, float] = {}
-    parts: dict[int, dict] = {}
+    vis.TriangleMesh = timed("buffer copy", vis.TriangleMesh)
+    vis.rtcore_scene = type("rtcore_scene", (), {"EmbreeScene": Scene})
     try:
-        vf.view_factors(mesh, 256, rows=rows[:1000], workers=2)  # kernels loaded
-        for _ in range(repeat):
-            for w in threads:
-                spent.clear()
-                t = time.perf_counter()
-                vf.view_factors(mesh, 256, rows=rows, workers=w)
-                dt = time.perf_counter() - t
-                if dt < times.get(w, float("inf")):
-                    times[w], parts[w] = dt, {k: list(v) for k, v in spent.items()}
+        times, parts = _thread_runs(vf, mesh, threads, repeat, rows, spent)
     finally:
         (vf.RowTracer.__init__, vf.RowTracer._start, vf._assemble, vis.TriangleMesh,
-         vis.rtcore_scene, vf.TriangleMesh, vf.rtcore_scene) = saved
+         vis.rtcore_scene) = saved
+    _print_threads(threads, rows, times, parts, "buffer copy")
+
+
+def _print_threads(threads, rows, times, parts, scene_part: str) -> None:
+    """Times, parts and efficiency of each thread count; Amdahl's bound from 2 to 16
+    cores from the one-thread parts of the 2-thread run."""
     cores = os.cpu_count() or 1
     print(f"\nview_factors, {len(rows):,} rows, K = 256, {cores} cores, load average "
           f"{os.getloadavg()[0]:.1f}:")
     base = times.get(2)
     for w in threads:
         p = parts[w]
+        if "kernels" in p:  # what is neither a named part nor the threads' kernels
+            named = sum(p[k][0] for k in ("set-up", "scene + kernels", "F assembly", "kernels"))
+            p["bookkeeping"] = [times[w] - named, 0.0]
         eff = (f"{base * 2 / (times[w] * min(w, cores)):.2f}" if base else "-")
         bvh = p.get("BVH build", [0.0, 0.0])
         print(f"  {w:2d} threads: {times[w]:6.2f} s (set-up {p['set-up'][0]:.2f} s, scene + "
-              f"kernels {p['scene + kernels'][0]:.2f} s of which buffer copy "
-              f"{p['buffer copy'][0]:.2f} s and BVH build {bvh[0]:.2f} s at cpu/wall "
-              f"{bvh[1] / max(bvh[0], 1e-9):.2f}, F assembly {p['F assembly'][0]:.2f} s)  "
+              f"kernels {p['scene + kernels'][0]:.2f} s of which {scene_part} "
+              f"{p.get(scene_part, [0.0])[0]:.2f} s and BVH build {bvh[0]:.2f} s at cpu/wall "
+              f"{bvh[1] / max(bvh[0], 1e-9):.2f}, F assembly {p['F assembly'][0]:.2f} s, "
+              f"mesh check and chunks' bookkeeping {p.get('bookkeeping', [0.0])[0]:.2f} s)  "
               f"efficiency from 2: {eff}")
     if base:
         p = parts[2]
-        one = p["set-up"][0] + p["scene + kernels"][0] + p["F assembly"][0]
+        one = (p["set-up"][0] + p["scene + kernels"][0] + p["F assembly"][0]
+               + p.get("bookkeeping", [0.0])[0])
         bvh = p.get("BVH build", [0.0, 0.0])[0]
         for what, ser in (("every one-thread part serial", one / base),
                           ("the BVH build parallel (Embree's TBB threads)",
@@ -273,7 +350,7 @@ def track_share(frames: list[int], workers: list[str]) -> None:
     cache = Path("/tmp/bench_track_revolution")
     cache.mkdir(parents=True, exist_ok=True)
     sc = render(cache)
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    env = _env(ROOT)
     print(f"\nresection track (revolution body, 1280 x 800 frames), load average "
           f"{os.getloadavg()[0]:.1f}:")
     for n in frames:
@@ -316,10 +393,6 @@ def main() -> None:
     if len(sys.argv) > 1 and sys.argv[1] == "--child":
         child(sys.argv[2:])
         return
-    sys.path.insert(0, str(ROOT))
-    sys.path.insert(0, str(ROOT / "bench"))
-    from bench_si_command import files
-
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--faces", type=int, default=609_000)
     ap.add_argument("--repeat", type=int, default=2)
@@ -335,6 +408,13 @@ def main() -> None:
                     help="track's --workers values, e.g. auto,1,2")
     ap.add_argument("--skip-correct", action="store_true")
     args = ap.parse_args()
+    if args.threads:  # numba's pool must hold the largest count (before numba loads)
+        most = max(int(t) for t in args.threads.split(","))
+        os.environ["NUMBA_NUM_THREADS"] = str(max(most, int(_NUMBA_THREADS or 0)))
+    sys.path.insert(0, str(ROOT))
+    sys.path.insert(0, str(ROOT / "bench"))
+    from bench_si_command import files
+
     if args.track_frames:
         track_share([int(x) for x in args.track_frames.split(",")],
                     args.track_workers.split(","))

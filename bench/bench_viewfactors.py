@@ -46,11 +46,18 @@ from selfillum.transport.viewfactors import _OFFSET, RayScene, sample_rays  # no
 
 
 def _scene_frame(mesh):
-    """Embree scene, triangles in its centred frame, normals and the ray-origin lift, as
-    view_factors prepares them."""
+    """A bare ``embreex`` scene (the peer: its own copy of the buffers), triangles in
+    its centred frame (``RayScene``'s), normals and the ray-origin lift, as view_factors
+    prepares them."""
+    from embreex import rtcore_scene
+    from embreex.mesh_construction import TriangleMesh
+
     v = np.asarray(mesh.vertices, dtype=np.float64)
-    scene = RayScene(v, mesh.faces)
-    tri = (v - scene.origin)[np.asarray(mesh.faces)]
+    origin = RayScene(v, mesh.faces).origin
+    scene = rtcore_scene.EmbreeScene()
+    TriangleMesh(scene=scene, vertices=np.ascontiguousarray(v - origin, dtype=np.float32),
+                 indices=np.ascontiguousarray(mesh.faces, dtype=np.int32))
+    tri = (v - origin)[np.asarray(mesh.faces)]
     return scene, tri, face_normals(mesh), _OFFSET * float(np.ptp(v, axis=0).max())
 
 
@@ -80,7 +87,7 @@ def throughput(mesh, k, label, workers=(1, None), repeat=3):
             F = view_factors(mesh, k, seed=0, workers=w)
             best[w] = min(best[w], time.perf_counter() - t0)
         t0 = time.perf_counter()
-        hits = scene.scene.run(o32, d32)
+        hits = scene.run(o32, d32)
         t_bare = min(t_bare, time.perf_counter() - t0)
     # the same rays: every ray of view_factors hits what the bare call hits
     assert np.count_nonzero(np.asarray(hits) >= 0) >= F.nnz

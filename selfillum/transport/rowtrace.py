@@ -24,17 +24,20 @@ __all__ = ["trace_rows"]
 
 @numba.njit(cache=True, nogil=True, parallel=True)
 def _trace_faces(fn, scene, rows, vertices, faces, origin, scale, normals, normals32, rbase,
-                 seed, two_sided, offset, hits, counts, nb):  # pragma: no cover - compiled
-    """Face ``rows[j]``'s kept hits into ``hits[j * K : j * K + counts[j]]``.
+                 seed, two_sided, offset, hits, counts, totals):  # pragma: no cover
+    """The kept hits of faces ``rows``, in ``len(totals)`` blocks of consecutive faces:
+    block ``b`` (faces ``b n // nb <= j < (b + 1) n // nb``) writes its hits, grouped by
+    face, from ``hits[(b n // nb) K]`` on, face ``rows[j]``'s count into ``counts[j]`` and
+    the block's into ``totals[b]``.
 
     ``fn`` is ``rtcIntersect1`` and ``scene`` the Embree scene's handle, in the frame where
     a model point ``x`` is at ``(x - origin) * scale``; ``vertices`` (float64, model
     units), ``faces``, ``normals`` (unit, float64) and ``normals32`` (float32) cover the
     whole mesh; ``rbase`` is the bit-reversed Sobol base (``(K, dims)``, dims 5 when
-    ``two_sided``); ``offset`` (float32, scene units) lifts the origins. The faces are
-    split into ``nb`` blocks (a scratch ray each)."""
+    ``two_sided``); ``offset`` (float32, scene units) lifts the origins."""
     n, k = rows.shape[0], rbase.shape[0]
     dims = rbase.shape[1]
+    nb = totals.shape[0]
     for b in numba.prange(nb):
         raw = np.empty(36, dtype=np.float32)  # a 16-byte aligned RTCRayHit in it
         start = ((16 - raw.ctypes.data % 16) % 16) // 4
@@ -48,6 +51,7 @@ def _trace_faces(fn, scene, rows, vertices, faces, origin, scale, normals, norma
         ro = np.empty(3, dtype=np.float32)
         rd = np.empty(3, dtype=np.float32)
         key = np.zeros(5, dtype=np.uint64)
+        m = (b * n // nb) * k
         for j in range(b * n // nb, (b + 1) * n // nb):
             f = rows[j]
             for a in range(3):
@@ -62,8 +66,7 @@ def _trace_faces(fn, scene, rows, vertices, faces, origin, scale, normals, norma
                 nrm[x] = normals32[f, x]
             for x in range(dims):
                 key[x] = _shift(seed, f, x)
-            m = 0
-            base = j * k
+            m0 = m
             for i in range(k):
                 _rqmc_ray(rbase, i, key, two_sided, tri, c, nrm, t1, t2, offset, ro, rd)
                 h = first_hit(fn, scene, buf, ib, ro[0], ro[1], ro[2], rd[0], rd[1], rd[2])
@@ -74,18 +77,10 @@ def _trace_faces(fn, scene, rows, vertices, faces, origin, scale, normals, norma
                           + rd[2] * normals32[h, 2])
                     if dn >= 0:
                         continue
-                hits[base + m] = h
+                hits[m] = h
                 m += 1
-            counts[j] = m
-
-
-@numba.njit(cache=True, nogil=True, parallel=True)
-def _compact(hits, counts, k, starts, out):  # pragma: no cover - compiled
-    """Row ``j``'s ``counts[j]`` hits (at ``j * k`` in ``hits``) to ``starts[j]`` in
-    ``out``."""
-    for j in numba.prange(counts.shape[0]):
-        for i in range(counts[j]):
-            out[starts[j] + i] = hits[j * k + i]
+            counts[j] = m - m0
+        totals[b] = m - (b * n // nb) * k
 
 
 def trace_rows(scene, rows: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
@@ -124,13 +119,12 @@ def trace_rows(scene, rows: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
     n = rows.shape[0]
     counts = np.zeros(n, dtype=np.int32)
     padded = np.empty(n * k, dtype=np.int32)
+    nb = max(1, min(n, 4 * numba.get_num_threads()))  # blocks of faces, a scratch ray each
+    totals = np.zeros(nb, dtype=np.int64)
     scale = float(scene.scale)
     _trace_faces(scene.scene.intersect, scene.scene.handle, rows, vertices, faces,
                  np.asarray(scene.origin, dtype=np.float64), scale, normals, normals32,
                  rbase, _U(seed), bool(two_sided), np.float32(offset * scale), padded,
-                 counts, min(n, 4 * numba.get_num_threads()))
-    starts = np.zeros(n, dtype=np.int64)
-    np.cumsum(counts[:-1], out=starts[1:])
-    out = np.empty(int(counts.sum()), dtype=np.int32)
-    _compact(padded, counts, k, starts, out)
-    return counts, out
+                 counts, totals)
+    first = np.arange(nb) * n // nb * k  # where each block's hits start
+    return counts, np.concatenate([padded[a:a + t] for a, t in zip(first, totals, strict=True)])
