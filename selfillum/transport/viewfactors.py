@@ -43,8 +43,8 @@ __all__ = ["view_factors", "RowTracer", "enforce_reciprocity", "RayScene", "samp
 
 #: Ray origins are lifted off their face by this fraction of the mesh size.
 _OFFSET = 1e-6
-#: Default number of rays in flight per chunk.
-_RAYS_PER_CHUNK = 1 << 20
+#: Default number of rays a chunk (4 bytes each in flight: their hits).
+_RAYS_PER_CHUNK = 1 << 22
 #: Bytes a ray of a chunk costs (its hit, before the misses are dropped), for the memory
 #: check before a chunk is allocated.
 _RAY_BYTES_MIN = 8
@@ -184,8 +184,9 @@ def view_factors(
         pattern then is the union of those of ``F`` and ``F.T`` (up to ``2 K`` non-zeros
         a row). Needs every row (``rows`` not given).
     chunk_size : int, optional
-        Faces traced at once; memory in flight is about ``chunk_size * K * 150`` bytes
-        per worker. Default: about ``2**20 / K`` faces (about 1 million rays a chunk).
+        Faces traced at once (split over the threads); memory in flight is about
+        ``chunk_size * K * 4`` bytes (the hits, before the misses are dropped). Default:
+        about ``2**22 / K`` faces (about 4 million rays a chunk).
     two_sided : bool
         Faces painted on both sides with the same radiosity (thin sheets): half the
         rays of a face leave from its back, and hits on either side count. With the
