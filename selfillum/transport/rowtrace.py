@@ -15,11 +15,12 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+import scipy.sparse as sp
 
 from resection.surface.embree import first_hit
 from selfillum.transport.sampling import _U, _centroid, _frame, _rqmc_ray, _shift
 
-__all__ = ["trace_rows"]
+__all__ = ["trace_rows", "assemble_rows"]
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)
@@ -128,3 +129,68 @@ def trace_rows(scene, rows: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
                  counts, totals)
     first = np.arange(nb) * n // nb * k  # where each block's hits start
     return counts, np.concatenate([padded[a:a + t] for a, t in zip(first, totals, strict=True)])
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def _sort_rows(hits, starts, counts, unique):  # pragma: no cover - compiled
+    """Sort each row's hits in place (row ``i``: ``hits[starts[i]:starts[i] + counts[i]]``)
+    and count its distinct faces into ``unique[i]``."""
+    for i in numba.prange(counts.shape[0]):
+        c = counts[i]
+        if c == 0:
+            unique[i] = 0
+            continue
+        a = starts[i]
+        hits[a:a + c] = np.sort(hits[a:a + c])
+        u = 1
+        for j in range(a + 1, a + c):
+            if hits[j] != hits[j - 1]:
+                u += 1
+        unique[i] = u
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def _fill_rows(hits, starts, counts, out_start, weight, indices, data):  # pragma: no cover
+    """Each row's distinct faces (sorted) into ``indices`` from ``out_start[i]`` on, and
+    in ``data`` the sum of ``weight`` once for every hit on that face (summed one hit at a
+    time, as ``scipy.sparse``'s ``sum_duplicates`` does)."""
+    for i in numba.prange(counts.shape[0]):
+        c = counts[i]
+        if c == 0:
+            continue
+        a = starts[i]
+        o = out_start[i]
+        indices[o] = hits[a]
+        data[o] = weight
+        for j in range(a + 1, a + c):
+            if hits[j] == hits[j - 1]:
+                data[o] += weight
+            else:
+                o += 1
+                indices[o] = hits[j]
+                data[o] = weight
+
+
+def assemble_rows(n: int, k: int, counts: np.ndarray, hits: list) -> sp.csr_matrix:
+    """``F`` (``(n, n)`` CSR, sorted distinct columns) from the kept hits: ``counts`` the
+    hits of every face (``(n,)``), ``hits`` a list of ``(faces, hit faces)`` arrays (the
+    hits grouped by face in the order of ``faces``; the faces of different parts
+    distinct). Each hit adds ``1 / k``. Sorted and summed per row on numba's threads."""
+    faces = (np.concatenate([p for p, _ in hits]) if hits else np.zeros(0, np.int64))
+    flat = (np.concatenate([h for _, h in hits]) if hits else np.zeros(0, np.int32))
+    c = np.ascontiguousarray(counts[faces], dtype=np.int64)
+    starts = np.zeros(c.size, dtype=np.int64)
+    np.cumsum(c[:-1], out=starts[1:])
+    unique = np.empty(c.size, dtype=np.int64)
+    _sort_rows(flat, starts, c, unique)
+    per_row = np.zeros(n, dtype=np.int64)
+    per_row[faces] = unique
+    indptr = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(per_row, out=indptr[1:])
+    indices = np.empty(int(indptr[-1]), dtype=np.int32)
+    data = np.empty(indices.size, dtype=np.float64)
+    _fill_rows(flat, starts, c, indptr[faces], 1.0 / k, indices, data)
+    F = sp.csr_matrix((data, indices, indptr), shape=(n, n))
+    F.has_sorted_indices = True
+    F.has_canonical_format = True
+    return F

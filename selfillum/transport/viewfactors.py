@@ -29,7 +29,7 @@ from resection.memory import check_memory
 from resection.surface.embree import Scene
 from resection.surface.visibility import face_geometry
 from selfillum.mesh import check_mesh, face_areas
-from selfillum.transport.rowtrace import trace_rows
+from selfillum.transport.rowtrace import assemble_rows, trace_rows
 from selfillum.transport.sampling import (
     _reversed_base,
     _sobol_base,
@@ -355,7 +355,8 @@ class RowTracer:
                 self._start()
             return self._scene.rows(_as_rows(rows, self.n), progress=progress)
         counts, hits = self.hits(rows, progress)
-        return _assemble(self.n, self.k, counts, hits)
+        with numba_threads(self.nproc):
+            return _assemble(self.n, self.k, counts, hits)
 
     def hits(self, rows, progress: bool | Callable | None = None) -> tuple[np.ndarray, list]:
         """The rays' hits of ``rows`` before they are assembled into ``F``: ``(counts,
@@ -399,24 +400,14 @@ class RowTracer:
     def assemble(self, counts: np.ndarray, hits: list) -> sp.csr_matrix:
         """``F`` (``(N, N)`` CSR) from what :meth:`hits` returned (counts summed and parts
         joined over calls of disjoint rows)."""
-        return _assemble(self.n, self.k, counts, hits)
+        with numba_threads(self.nproc):
+            return _assemble(self.n, self.k, counts, hits)
 
 
 def _assemble(n: int, k: int, counts: np.ndarray, hits: list) -> sp.csr_matrix:
-    """CSR ``F`` from the per-row hit counts and the hit lists of each chunk."""
-    indptr = np.zeros(n + 1, dtype=np.int64)
-    np.cumsum(counts, out=indptr[1:])
-    indices = np.empty(int(indptr[-1]), dtype=np.int32)
-    for part, h in hits:
-        # the rows of one chunk are consecutive in F's order only when sorted: place
-        # each row's hits at its own offset (vectorised over the chunk)
-        c = counts[part]
-        start = np.repeat(indptr[part], c)
-        within = np.arange(h.size) - np.repeat(np.cumsum(c) - c, c)
-        indices[start + within] = h
-    F = sp.csr_matrix((np.full(indices.size, 1.0 / k), indices, indptr), shape=(n, n))
-    F.sum_duplicates()
-    return F
+    """CSR ``F`` from the per-row hit counts and the hit lists of each chunk
+    (:func:`selfillum.transport.rowtrace.assemble_rows`, on numba's threads)."""
+    return assemble_rows(n, k, counts, hits)
 
 
 def _as_rows(rows, n: int) -> np.ndarray:
