@@ -68,6 +68,8 @@ PARTS = [
     ("ray tracing", "selfillum.transport.viewfactors", "RowTracer.rows", True),
     ("ray tracing", "selfillum.transport.viewfactors", "RowTracer.hits", True),
     ("F assembly", "selfillum.transport.viewfactors", "_assemble", False),
+    ("F assembly (threads)", "selfillum.transport.rowtrace", "_sort_rows", True),
+    ("F assembly (threads)", "selfillum.transport.rowtrace", "_fill_rows", True),
     ("solve (CG)", "selfillum.images.image_correction", "correct", False),
     ("to_surface", "resection.surface.surface_map", "SurfaceMap.to_surface", False),
     ("to_image", "resection.surface.surface_map", "SurfaceMap.to_image", False),
@@ -121,7 +123,10 @@ def child(argv: list[str]) -> None:
         return timed
 
     for label, mod, attr, _ in PARTS:
-        obj = importlib.import_module(mod)
+        try:
+            obj = importlib.import_module(mod)
+        except ImportError:  # an older tree may lack a module (then not timed)
+            continue
         *owner, name = attr.split(".")
         for o in owner:
             obj = getattr(obj, o)
@@ -235,11 +240,19 @@ def thread_efficiency(mesh, threads: list[int], repeat: int, rows) -> None:
     lib.rtcCommitScene = timed("BVH build", lib.rtcCommitScene)
     # the numba threads' kernel; the rest (Python, the mesh check) is serial
     rowtrace._trace_faces = timed("kernels", rowtrace._trace_faces)
+    asm = (rowtrace._sort_rows, rowtrace._fill_rows)  # inside "F assembly"
+    rowtrace._sort_rows = timed("assembly kernels", rowtrace._sort_rows)
+    rowtrace._fill_rows = timed("assembly kernels", rowtrace._fill_rows)
     try:
         times, parts = _thread_runs(vf, mesh, threads, repeat, rows, spent)
     finally:
         (vf.RowTracer.__init__, vf.RowTracer._start, vf._assemble, embree.Scene.__init__,
          lib.rtcCommitScene, rowtrace._trace_faces) = saved
+        rowtrace._sort_rows, rowtrace._fill_rows = asm
+    for p in parts.values():  # F assembly: its serial part; its kernels run on the threads
+        if "assembly kernels" in p:
+            p["F assembly"][0] -= p["assembly kernels"][0]
+            p["kernels"][0] += p["assembly kernels"][0]
     for p in parts.values():  # the scene's own time, without the BVH inside it
         if "scene arrays" in p:
             p["scene arrays"][0] -= p.get("BVH build", [0.0, 0.0])[0]
@@ -318,10 +331,13 @@ def _print_threads(threads, rows, times, parts, scene_part: str) -> None:
             p["bookkeeping"] = [times[w] - named, 0.0]
         eff = (f"{base * 2 / (times[w] * min(w, cores)):.2f}" if base else "-")
         bvh = p.get("BVH build", [0.0, 0.0])
-        print(f"  {w:2d} threads: {times[w]:6.2f} s (set-up {p['set-up'][0]:.2f} s, scene + "
+        print(f"  {w:2d} threads: {times[w]:6.2f} s (threads' kernels "
+              f"{p.get('kernels', [0.0])[0]:.2f} s; one thread: set-up "
+              f"{p['set-up'][0]:.2f} s, scene + "
               f"kernels {p['scene + kernels'][0]:.2f} s of which {scene_part} "
               f"{p.get(scene_part, [0.0])[0]:.2f} s and BVH build {bvh[0]:.2f} s at cpu/wall "
-              f"{bvh[1] / max(bvh[0], 1e-9):.2f}, F assembly {p['F assembly'][0]:.2f} s, "
+              f"{bvh[1] / max(bvh[0], 1e-9):.2f}, F assembly (serial part) "
+              f"{p['F assembly'][0]:.2f} s, "
               f"mesh check and chunks' bookkeeping {p.get('bookkeeping', [0.0])[0]:.2f} s)  "
               f"efficiency from 2: {eff}")
     if base:
