@@ -421,7 +421,9 @@ def _as_rows(rows, n: int) -> np.ndarray:
         return np.flatnonzero(r)
     if r.size and not np.issubdtype(r.dtype, np.integer):
         raise InputError(f"rows: expected face indices or a boolean mask, got {r.dtype}")
-    r = np.unique(r.astype(np.int64).ravel())
+    r = r.astype(np.int64).ravel()
+    if r.size > 1 and not np.all(r[1:] > r[:-1]):  # already sorted and unique: kept
+        r = np.unique(r)
     if r.size and (r[0] < 0 or r[-1] >= n):
         raise InputError(f"rows: face indices must be in [0, {n}), got {r[0]}..{r[-1]}")
     return r
