@@ -57,7 +57,11 @@ def check_mesh(mesh, name: str = "mesh", *, rel_area_tol: float = 1e-12) -> trim
     faces = np.asarray(mesh.faces)
     if faces.ndim != 2 or faces.shape[0] == 0 or faces.shape[1] != 3:
         raise InputError(f"{name}: empty mesh (no triangles)")
-    bad_v = np.flatnonzero(~np.all(np.isfinite(vertices), axis=1))
+    from resection.surface.visibility import bounds, cross_norms2  # compiled passes
+
+    lo, hi = bounds(vertices)
+    bad_v = (np.zeros(0, np.int64) if np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))
+             else np.flatnonzero(~np.all(np.isfinite(vertices), axis=1)))
     if bad_v.size:
         raise InputError(
             f"{name}: {bad_v.size} vertex(es) with NaN or infinite coordinates "
@@ -66,10 +70,8 @@ def check_mesh(mesh, name: str = "mesh", *, rel_area_tol: float = 1e-12) -> trim
     if faces.min() < 0 or faces.max() >= len(vertices):
         bad_f = np.flatnonzero(np.any((faces < 0) | (faces >= len(vertices)), axis=1))
         raise InputError(f"{name}: face(s) {_first(bad_f)} index missing vertices")
-    from resection.surface.visibility import cross_norms2  # one compiled pass
-
     area2 = cross_norms2(vertices, faces)  # |(v1 - v0) x (v2 - v0)|^2
-    scale = float(np.ptp(vertices, axis=0).max()) if len(vertices) else 0.0
+    scale = float((hi - lo).max()) if len(vertices) else 0.0
     bad_f = np.flatnonzero(~(area2 > (rel_area_tol * scale**2) ** 2))
     if bad_f.size:
         raise InputError(

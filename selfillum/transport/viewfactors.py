@@ -27,7 +27,7 @@ from resection._threads import available_cores, numba_threads
 from resection.errors import InputError
 from resection.memory import check_memory
 from resection.surface.embree import Scene
-from resection.surface.visibility import face_geometry
+from resection.surface.visibility import bounds, unit_normals
 from selfillum.mesh import check_mesh, face_areas
 from selfillum.transport.rowtrace import assemble_rows, trace_rows
 from selfillum.transport.sampling import (
@@ -315,9 +315,10 @@ class RowTracer:
         vertices = np.asarray(mesh.vertices, dtype=np.float64)
         faces = np.asarray(mesh.faces, dtype=np.int64)
         self.n, self.k = len(faces), k
-        size = float(np.ptp(vertices, axis=0).max())
+        lo, hi = bounds(vertices)
+        size = float((hi - lo).max())
         # unit normals, compiled (the caster's when given): face_normals' values
-        normals = (face_geometry(vertices, faces)[0] if self._caster is None
+        normals = (unit_normals(vertices, faces) if self._caster is None
                    else self._caster.normals)
         rbase = _reversed_base(_sobol_base(k, 5 if two_sided else 4))
         self.job = _Job(vertices, faces, normals, normals.astype(np.float32), k, seed,
