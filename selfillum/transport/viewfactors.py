@@ -206,14 +206,22 @@ def view_factors(
         ``True`` shows a ``tqdm`` bar over chunks; a callable is called with
         ``(faces_done, faces_total)`` after each chunk.
     tracer : {"embree", "mitsuba"}
-        Who traces the rays: Embree through ``embreex`` (the default, CPU), or Mitsuba /
+        Who traces the rays: Embree (the default, CPU: the Embree 4 library of the
+        ``embreex`` wheel, called through :mod:`resection.surface.embree` on shared buffers;
+        each face's rays are made, traced and filtered in one compiled pass on numba's
+        threads, :mod:`selfillum.transport.rowtrace`), or Mitsuba /
         Dr.Jit (OptiX on a CUDA GPU when one works, else Dr.Jit's LLVM backend on every CPU
         core, in this process). With ``"mitsuba"`` the rays are also made and summed per
         face pair in Dr.Jit where they are traced
         (:mod:`selfillum.transport.mitsuba_factors`): only the per-pair sums come back, and
         each row's column indices are unique but not sorted. The rays are the same; the two
         F differ only for rays that graze an edge in float32 (a ray's weight in a few
-        entries). On the CPU (``llvm`` variant, 2 cores, load 3-5; bench/README.md) whole
+        entries). The Embree path runs at 0.68-0.99x the speed of one bare ``embreex``
+        call on the same prepared rays (making the rays included; main before the native
+        binding: 0.54-0.84x in the same run, load 4-5; bench/README.md, issue 21 items
+        4-5, fourth pass). The Mitsuba figures that follow were measured against the
+        previous Embree path (``embreex`` from a Python thread pool), which took about 1.2x
+        the time of today's. On the CPU (``llvm`` variant, 2 cores, load 3-5) whole
         ``view_factors`` with ``"mitsuba"`` ran at 0.9-1.0x the speed of threaded Embree
         where every ray hits and 1.7-3.3x where most rays escape, and at 0.26-0.60x the
         speed of its bare rays (``ray_intersect_preliminary`` on the same rays): making a
