@@ -149,3 +149,31 @@ def test_row_kernel_equals_sample_rays_traced_by_embreex(two_sided):
         assert ref.nnz > 10 * len(mesh.faces)
         assert diff.max() <= 2.0 / k + 1e-12  # a grazing ray moves one weight at most
         assert (diff > 1e-12).nnz <= GRAZING * len(mesh.faces) * k
+
+
+def test_rays_through_edges_and_vertices_of_a_grid_hit_it():
+    """A ray aimed at a vertex, an edge or a cell diagonal of a flat grid hits one of the
+    faces sharing it (watertight tests): closed form, every aimed point is on the grid."""
+    n, m = 24, 16
+    xs, ys = np.linspace(-1, 1, n + 1), np.linspace(-0.7, 0.7, m + 1)
+    X, Y = np.meshgrid(xs, ys, indexing="ij")
+    v = np.column_stack([X.ravel(), Y.ravel(), np.zeros(X.size)])
+    idx = np.arange(len(v)).reshape(n + 1, m + 1)
+    a, b, c, d = (idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(),
+                  idx[:-1, 1:].ravel())
+    f = np.vstack([np.column_stack([a, b, c]), np.column_stack([a, c, d])])
+    # the vertices, the edges' midpoints and points along the cell diagonals, inside
+    cells = np.stack([X[:-1, :-1], Y[:-1, :-1]], -1).reshape(-1, 2)
+    dx, dy = xs[1] - xs[0], ys[1] - ys[0]
+    aims = [v[:, :2]] + [cells + [t * dx, t * dy] for t in (0.25, 0.5, 0.75)] \
+        + [cells + [0.5 * dx, 0], cells + [0, 0.5 * dy]]
+    p = np.concatenate(aims)
+    p = p[(np.abs(p[:, 0]) < 1 - 1e-9) & (np.abs(p[:, 1]) < 0.7 - 1e-9)]
+    target = np.column_stack([p, np.zeros(len(p))]) * 40.0  # a box of about 100
+    scene = embree.Scene(v * 40.0, f)
+    for eye in ([0.0, 0.0, 20.0], [3.0, -2.0, 25.0]):  # a camera above, head-on and not
+        d = target - np.array(eye)
+        hit = scene.run(np.broadcast_to(np.float32(eye), d.shape), d)
+        assert np.all(hit >= 0)
+        straight = scene.run(target + [0, 0, 10.0], np.broadcast_to([0, 0, -1.0], d.shape))
+        assert np.all(straight >= 0)

@@ -43,6 +43,10 @@ _ERRORS = {1: "unknown error", 2: "invalid argument", 3: "invalid operation",
 _GEOMETRY_TRIANGLE = 0
 _BUFFER_INDEX, _BUFFER_VERTEX = 0, 1
 _FORMAT_UINT3, _FORMAT_FLOAT3 = 0x5003, 0x9003
+#: ``RTC_SCENE_FLAG_ROBUST``: watertight triangle tests (a ray through an edge or a vertex
+#: shared by two faces hits one of them; without it, rays through a regular grid's edges
+#: were seen to pass between the faces). ``embreex`` sets it too.
+_SCENE_ROBUST = 1 << 2
 #: Rays per block of the parallel trace (one scratch ray a block).
 _BLOCK = 4096
 
@@ -72,6 +76,7 @@ def library() -> ctypes.CDLL:
         "rtcNewScene": (p, [p]),
         "rtcReleaseScene": (None, [p]),
         "rtcCommitScene": (None, [p]),
+        "rtcSetSceneFlags": (None, [p, c_int]),
         "rtcNewGeometry": (p, [p, c_int]),
         "rtcSetSharedGeometryBuffer": (None, [p, c_int, c_uint, c_int, p, p, p, p]),
         "rtcCommitGeometry": (None, [p]),
@@ -147,6 +152,7 @@ class Scene:
         scene = 0
         try:
             scene = lib.rtcNewScene(device)
+            lib.rtcSetSceneFlags(scene, _SCENE_ROBUST)
             geom = lib.rtcNewGeometry(device, _GEOMETRY_TRIANGLE)
             lib.rtcSetSharedGeometryBuffer(geom, _BUFFER_VERTEX, 0, _FORMAT_FLOAT3,
                                            vbuf.ctypes.data, 0, 12, len(v))
