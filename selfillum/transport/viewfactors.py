@@ -216,12 +216,13 @@ def view_factors(
         (:mod:`selfillum.transport.mitsuba_factors`): only the per-pair sums come back, and
         each row's column indices are unique but not sorted. The rays are the same; the two
         F differ only for rays that graze an edge in float32 (a ray's weight in a few
-        entries). The Embree path runs at 0.68-0.99x the speed of one bare ``embreex``
-        call on the same prepared rays (making the rays included; main before the native
-        binding: 0.54-0.84x in the same run, load 4-5; bench/README.md, issue 21 items
-        4-5, fourth pass). The Mitsuba figures that follow were measured against the
-        previous Embree path (``embreex`` from a Python thread pool), which took about 1.2x
-        the time of today's. On the CPU (``llvm`` variant, 2 cores, load 3-5) whole
+        entries). The Embree path, making the rays included, runs at 0.64-0.81x the speed
+        of one bare ``embreex`` call on the same prepared rays on one thread and at
+        1.20-1.66x on two (main before the native binding: 0.60-0.81x and 1.08-1.47x in the
+        same run, 2 cores, load 5-6; bench/README.md, issue 21 items 4-5, fourth pass).
+        The Mitsuba figures that follow were measured against that previous Embree path
+        (``embreex`` from a Python thread pool), which took up to 1.13x the time of
+        today's. On the CPU (``llvm`` variant, 2 cores, load 3-5) whole
         ``view_factors`` with ``"mitsuba"`` ran at 0.9-1.0x the speed of threaded Embree
         where every ray hits and 1.7-3.3x where most rays escape, and at 0.26-0.60x the
         speed of its bare rays (``ray_intersect_preliminary`` on the same rays): making a
