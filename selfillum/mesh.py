@@ -13,6 +13,7 @@ import numpy as np
 import scipy.sparse as sp
 import trimesh
 
+from resection._mesh_graph import shared_edges, vertex_classes
 from resection.errors import InputError
 
 __all__ = ["check_mesh", "face_areas", "face_normals", "face_adjacency_weights"]
@@ -104,20 +105,24 @@ def face_adjacency_weights(mesh: trimesh.Trimesh) -> sp.csr_matrix:
     so that ``|D x|^2`` approximates the Dirichlet energy ``integral |grad x|^2 dA`` of a
     per-face field ``x``. Only edges shared by exactly two faces (manifold edges) count.
     Faces that touch through coincident but distinct vertices (a mesh built or read
-    without merging them) are adjacent too: the vertices are merged on a copy first.
+    without merging them) are adjacent too: vertices that trimesh's ``merge_vertices``
+    would merge (equal coordinates to ``trimesh.tol.merge``) count as one, the first of
+    them giving the position (:func:`resection._mesh_graph.vertex_classes`); the mesh is
+    not changed. The pairs are those of ``trimesh.graph.face_adjacency`` of the merged
+    faces (:func:`resection._mesh_graph.shared_edges`), in another row order.
     """
     n = len(mesh.faces)
-    mesh = mesh.copy()
-    mesh.merge_vertices()  # keeps the faces and their order
-    if len(mesh.faces) != n:  # pragma: no cover - trimesh keeps every face here
-        raise InputError("mesh: merging coincident vertices changed the faces")
-    pairs = np.asarray(mesh.face_adjacency, dtype=np.int64).reshape(-1, 2)
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    if n == 0:
+        return sp.csr_matrix((0, n))
+    rep, _, _ = vertex_classes(v, faces, trimesh.util.decimal_to_digits(trimesh.tol.merge))
+    merged = rep[faces]
+    pairs, edges = shared_edges(merged)
     if pairs.size == 0:
         return sp.csr_matrix((0, n))
-    edges = np.asarray(mesh.face_adjacency_edges, dtype=np.int64)
-    v = np.asarray(mesh.vertices, dtype=np.float64)
     length = np.linalg.norm(v[edges[:, 0]] - v[edges[:, 1]], axis=1)
-    c = np.asarray(mesh.triangles_center, dtype=np.float64)
+    c = v[merged].mean(axis=1)  # the centroids of the merged faces (trimesh's)
     dist = np.linalg.norm(c[pairs[:, 0]] - c[pairs[:, 1]], axis=1)
     w = np.sqrt(length / np.maximum(dist, np.finfo(float).tiny))
     p = np.arange(len(pairs))
