@@ -125,42 +125,85 @@ def oblique_faces(
 
 def _fit_pairs(vid, fid, w, cen, verts, nv, linear):
     """Coefficients of the (vertex, face) pairs and the number of directions the centroids
-    span around each vertex (see :func:`_vertex_matrix`)."""
-    W = np.bincount(vid, weights=w, minlength=nv)
+    span around each vertex (see :func:`_vertex_matrix`).
+
+    The per-vertex work runs over the vertices the pairs touch only (numbered 0..n-1
+    here), not over every vertex of the mesh: a camera sees a fraction of a large grid."""
+    present = np.zeros(nv, dtype=bool)
+    present[vid] = True
+    ids = np.flatnonzero(present)  # compact vertex number -> mesh vertex
+    loc = (np.cumsum(present) - 1)[vid]
+    n = ids.size
+    rank_c = np.zeros(n, dtype=np.int64)
+    if linear:  # the same sums, in pair order, as one bincount per entry
+        W_c, cbar, cov = _vertex_moments(loc, fid, w, cen, n)
+    else:
+        W_c = np.bincount(loc, weights=w, minlength=n)
     with np.errstate(invalid="ignore", divide="ignore"):
-        coef = w / W[vid]
-    rank = np.zeros(nv, dtype=np.int64)
+        coef = w / W_c[loc]
     if linear:
-        Wsafe = np.where(W > 0, W, 1.0)
-        cbar = np.column_stack(
-            [np.bincount(vid, weights=w * cen[fid, k], minlength=nv) / Wsafe for k in range(3)]
-        )
-        dc = cen[fid] - cbar[vid]  # (P, 3)
-        cov = np.empty((nv, 3, 3))
-        for i in range(3):  # 3 x 3 entries, each one bincount over all pairs
-            for j in range(i, 3):
-                cov[:, i, j] = cov[:, j, i] = np.bincount(
-                    vid, weights=w * dc[:, i] * dc[:, j], minlength=nv)
-        evals = np.zeros((nv, 3))
-        evecs = np.zeros((nv, 3, 3))
-        act = W > 0  # vertices with no weighted face keep a zero covariance: no gradient
+        dc = cen[fid] - cbar[loc]  # (P, 3)
+        evals = np.zeros((n, 3))
+        evecs = np.zeros((n, 3, 3))
+        act = W_c > 0  # vertices with no weighted face keep a zero covariance: no gradient
         evals[act], evecs[act] = np.linalg.eigh(cov[act])
         scale = evals[:, -1:]
         # a spread below the round-off of the coordinates is none (one valued face around a
         # vertex far from the origin: its centroid minus their mean is round-off, and its
         # inverse would blow the gradient up to 1e17)
         reach = np.abs(verts).max() if len(verts) else 0.0
-        floor = W[:, None] * (1e-8 * reach) ** 2
+        floor = W_c[:, None] * (1e-8 * reach) ** 2
         keep = (evals > 1e-2 * scale) & (evals > floor)
-        rank = keep.sum(axis=1)
+        rank_c = keep.sum(axis=1)
         with np.errstate(invalid="ignore", divide="ignore"):
             inv = np.where(keep, 1.0 / evals, 0.0)
         cinv = np.einsum("vij,vj,vkj->vik", evecs[act], inv[act], evecs[act])
-        lever = np.zeros((nv, 3))  # (x_v - cbar)^T C^+
-        lever[act] = np.einsum("vi,vij->vj", verts[act] - cbar[act], cinv)
-        coef = coef + w * np.einsum("pj,pj->p", lever[vid], dc)
+        lever = np.zeros((n, 3))  # (x_v - cbar)^T C^+
+        lever[act] = np.einsum("vi,vij->vj", verts[ids[act]] - cbar[act], cinv)
+        coef = coef + w * np.einsum("pj,pj->p", lever[loc], dc)
     coef = np.where(np.isfinite(coef) & (w > 0), coef, 0.0)
+    rank = np.zeros(nv, dtype=np.int64)
+    rank[ids] = rank_c
+    W = np.zeros(nv)
+    W[ids] = W_c
     return coef, rank, W
+
+
+@numba.njit(cache=True, nogil=True)
+def _vertex_moments(loc, fid, w, cen, n):  # pragma: no cover - compiled
+    """Weight ``W``, weighted mean centroid ``cbar`` and weighted covariance of the
+    centroids about it, ``(n, 3, 3)``, of each vertex from its pairs, summed in pair
+    order with NumPy's operations (``bincount`` of ``w * c``, then of
+    ``w * dc_i * dc_j``): the same floats as those bincounts."""
+    W = np.zeros(n)
+    sums = np.zeros((n, 3))
+    for p in range(loc.size):
+        v = loc[p]
+        W[v] += w[p]
+        for k in range(3):
+            sums[v, k] += w[p] * cen[fid[p], k]
+    cbar = np.empty((n, 3))
+    for v in range(n):
+        ws = W[v] if W[v] > 0 else 1.0
+        for k in range(3):
+            cbar[v, k] = sums[v, k] / ws
+    cov = np.zeros((n, 3, 3))
+    for p in range(loc.size):
+        v = loc[p]
+        d0 = cen[fid[p], 0] - cbar[v, 0]
+        d1 = cen[fid[p], 1] - cbar[v, 1]
+        d2 = cen[fid[p], 2] - cbar[v, 2]
+        cov[v, 0, 0] += w[p] * d0 * d0
+        cov[v, 0, 1] += w[p] * d0 * d1
+        cov[v, 0, 2] += w[p] * d0 * d2
+        cov[v, 1, 1] += w[p] * d1 * d1
+        cov[v, 1, 2] += w[p] * d1 * d2
+        cov[v, 2, 2] += w[p] * d2 * d2
+    for v in range(n):
+        cov[v, 1, 0] = cov[v, 0, 1]
+        cov[v, 2, 0] = cov[v, 0, 2]
+        cov[v, 2, 1] = cov[v, 1, 2]
+    return W, cbar, cov
 
 
 def _vertex_matrix(mesh: trimesh.Trimesh, face_weight: np.ndarray, linear: bool,
