@@ -464,3 +464,37 @@ def test_backproject_png_scaled_or_refused(tmp_path, capsys):
     back = 600 + (got[fin].astype(float) - 1) / 65534 * 800
     # half a count of the map, plus the float32 rounding of the .npy reference
     assert np.abs(back - ref[fin]).max() <= 0.5 * 800 / 65534 + 1376 * 2**-23
+
+
+def test_vertex_values_are_the_weighted_least_squares_fit_of_each_vertex():
+    """On a sphere with a third of its faces NaN (and an unused vertex), each vertex value
+    is the area-weighted mean of its valued faces plus the least-squares gradient of
+    their centroids (directions spreading less than 1e-2 of the largest dropped),
+    written here vertex by vertex with NumPy's pseudo-inverse."""
+    from resection import vertex_values
+
+    sphere = trimesh.creation.icosphere(3)
+    mesh = trimesh.Trimesh(np.vstack([sphere.vertices, [[5.0, 5.0, 5.0]]]), sphere.faces,
+                           process=False)
+    c = mesh.triangles_center
+    f = np.sin(2.0 * c[:, 0]) + c[:, 1] ** 2 - 0.5 * c[:, 2]
+    f[np.random.default_rng(3).random(len(f)) < 0.33] = np.nan
+    got = vertex_values(mesh, f)
+    area = mesh.area_faces
+    checked = 0
+    for v in range(len(sphere.vertices)):
+        around = np.flatnonzero((mesh.faces == v).any(axis=1) & np.isfinite(f))
+        if around.size < 3:  # too few faces for a 2-D gradient: the 2-ring's rule
+            continue
+        w, cc = area[around], c[around]
+        cbar = w @ cc / w.sum()
+        d = cc - cbar
+        C = (w[:, None] * d).T @ d
+        if np.sum(np.linalg.eigvalsh(C) > 1e-2 * np.linalg.eigvalsh(C)[-1]) < 2:
+            continue
+        grad = np.linalg.pinv(C, rcond=1e-2, hermitian=True) @ ((w[:, None] * d).T @ f[around])
+        ref = w @ f[around] / w.sum() + grad @ (mesh.vertices[v] - cbar)
+        np.testing.assert_allclose(got[v], ref, rtol=1e-9, atol=1e-12)
+        checked += 1
+    assert checked > 0.6 * len(sphere.vertices)
+    assert np.isnan(got[-1])  # the unused vertex has no face

@@ -373,7 +373,8 @@ def correct(
 
     reach = coupled_faces(F, mask)
     sub = np.flatnonzero(reach)  # seen + coupled hidden faces, the whole problem
-    M = (sp.identity(n, format="csr") - sp.diags(rho) @ F).tocsr()[sub][:, sub]
+    Fs = F[sub][:, sub]  # the sub-problem first: I - rho F over its faces only
+    M = (sp.identity(sub.size, format="csr") - sp.diags(rho[sub]) @ Fs).tocsr()
     loc_seen = mask[sub]
     Bsub = np.where(loc_seen, B[sub], 0.0)
     hid = np.flatnonzero(~loc_seen)
@@ -387,7 +388,7 @@ def correct(
         target = np.zeros(n) if given is None else given.copy()
         target[paint_off] = 0.0
         rho_h = rho[sub][hid]
-        Fh = F[sub][:, sub][hid].tocsc()
+        Fh = Fs[hid].tocsc()
         s_loc = np.flatnonzero(loc_seen)
         # the forward problem of the hidden faces, lit by the seen ones:
         # (I - rho F)_hh B_h = E_h + rho_h F_hs B_s
