@@ -62,7 +62,7 @@ _EXPORTS: dict[str, str] = {
     "track": ".sequence",
     "SurfaceMap": ".surface.surface_map",
     "SurfaceSample": ".surface.surface_map",
-    "vertex_values": ".surface.surface_map",
+    "vertex_values": ".surface.vertex_fit",
     "RayCaster": ".surface.visibility",
     "visible_faces": ".surface.visibility",
 }

@@ -498,3 +498,30 @@ def test_vertex_values_are_the_weighted_least_squares_fit_of_each_vertex():
         checked += 1
     assert checked > 0.6 * len(sphere.vertices)
     assert np.isnan(got[-1])  # the unused vertex has no face
+
+
+def test_prepared_vertex_fit_gives_the_same_image(plane_map, monkeypatch):
+    """SurfaceMap.prepare builds the vertex matrix of a pattern of valued faces ahead:
+    to_image then builds none and returns the same image as a map that was not
+    prepared; another pattern is built as before."""
+    from resection.surface import vertex_fit
+
+    mesh, cam, smap, _ = plane_map
+    c = mesh.triangles_center
+    f = linear(c)
+    f[::3] = np.nan
+    ref = SurfaceMap(mesh, cam).to_image(f, background=0.0)
+    smap.prepare(np.isfinite(f))
+    built = []
+    real = vertex_fit._vertex_matrix
+    monkeypatch.setattr(vertex_fit, "_vertex_matrix",
+                        lambda *a, **kw: built.append(1) or real(*a, **kw))
+    np.testing.assert_array_equal(smap.to_image(f, background=0.0), ref)
+    assert not built
+    g = f.copy()
+    g[1] = np.nan
+    np.testing.assert_array_equal(smap.to_image(g, background=0.0),
+                                  SurfaceMap(mesh, cam).to_image(g, background=0.0))
+    assert built
+    with pytest.raises(InputError, match="valued"):
+        smap.prepare(np.ones(3, bool))

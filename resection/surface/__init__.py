@@ -6,7 +6,8 @@ matrix: images onto faces and back), several cameras merged onto the grid, image
 each other, outlines and pictures.
 
 - :mod:`~resection.surface.visibility`: :class:`RayCaster`, :func:`visible_faces`;
-- :mod:`~resection.surface.surface_map`: :class:`SurfaceMap`, :func:`vertex_values`;
+- :mod:`~resection.surface.surface_map`: :class:`SurfaceMap`;
+- :mod:`~resection.surface.vertex_fit`: :func:`vertex_values` (face values to vertex values);
 - :mod:`~resection.surface.merge`: multi-camera merge (feathered weights, matched gains);
 - :mod:`~resection.surface.align`: wind-on onto wind-off (:func:`warp_image`);
 - :mod:`~resection.surface.outline`, :mod:`~resection.surface.plots`: outlines, virtual
@@ -37,7 +38,7 @@ _EXPORTS: dict[str, str] = {
     "pixel_weights": ".merge",
     "plot_resection": ".plots",
     "plot_surface": ".plots",
-    "vertex_values": ".surface_map",
+    "vertex_values": ".vertex_fit",
     "virtual_camera": ".plots",
     "visible_faces": ".visibility",
     "visible_segments": ".outline",

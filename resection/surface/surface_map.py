@@ -28,21 +28,12 @@ from resection.camera.model import Camera
 from resection.defaults import DEFAULT_MAX_OBLIQUENESS
 from resection.errors import InputError
 from resection.memory import SURFACE_MAP_BYTES_PER_PIXEL, check_pixel_memory
+from resection.surface.vertex_fit import _apply_vertex, _as_float, prepare_pattern, vertex_values
 from resection.surface.visibility import RayCaster
 
 __all__ = ["DEFAULT_MAX_OBLIQUENESS", "SurfaceMap", "SurfaceSample", "oblique_faces",
            "vertex_values"]
 
-
-
-def _as_float(a, name: str) -> np.ndarray:
-    """float64 array of real numbers, or InputError naming ``name``."""
-    arr = np.asarray(a)
-    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.number)
-                                   or arr.dtype == bool) \
-            or np.issubdtype(arr.dtype, np.complexfloating):
-        raise InputError(f"{name}: expected real numbers, got dtype {arr.dtype}")
-    return arr.astype(np.float64, copy=False)
 
 
 class SurfaceSample(NamedTuple):
@@ -64,12 +55,6 @@ class SurfaceSample(NamedTuple):
     counts: np.ndarray
     unseen: np.ndarray
     nan_counts: np.ndarray
-
-
-def _face_geometry(mesh: trimesh.Trimesh):
-    """Face centroids and areas, from trimesh's cache (computed once per mesh state)."""
-    return (np.asarray(mesh.triangles_center, dtype=np.float64),
-            np.asarray(mesh.area_faces, dtype=np.float64))
 
 
 def _check_obliqueness(max_obliqueness) -> float | None:
@@ -121,192 +106,6 @@ def oblique_faces(
     n = np.asarray(mesh.face_normals if normals is None else normals, dtype=np.float64)
     cosang = np.abs(np.einsum("ij,ij->i", n, view)) / np.linalg.norm(view, axis=1)
     return cosang < np.cos(np.radians(lim)) - 1e-12
-
-
-def _fit_pairs(vid, fid, w, cen, verts, nv, linear):
-    """Coefficients of the (vertex, face) pairs and the number of directions the centroids
-    span around each vertex (see :func:`_vertex_matrix`).
-
-    The per-vertex work runs over the vertices the pairs touch only (numbered 0..n-1
-    here), not over every vertex of the mesh: a camera sees a fraction of a large grid."""
-    present = np.zeros(nv, dtype=bool)
-    present[vid] = True
-    ids = np.flatnonzero(present)  # compact vertex number -> mesh vertex
-    loc = (np.cumsum(present) - 1)[vid]
-    n = ids.size
-    rank_c = np.zeros(n, dtype=np.int64)
-    if linear:  # the same sums, in pair order, as one bincount per entry
-        W_c, cbar, cov = _vertex_moments(loc, fid, w, cen, n)
-    else:
-        W_c = np.bincount(loc, weights=w, minlength=n)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        coef = w / W_c[loc]
-    if linear:
-        dc = cen[fid] - cbar[loc]  # (P, 3)
-        evals = np.zeros((n, 3))
-        evecs = np.zeros((n, 3, 3))
-        act = W_c > 0  # vertices with no weighted face keep a zero covariance: no gradient
-        evals[act], evecs[act] = np.linalg.eigh(cov[act])
-        scale = evals[:, -1:]
-        # a spread below the round-off of the coordinates is none (one valued face around a
-        # vertex far from the origin: its centroid minus their mean is round-off, and its
-        # inverse would blow the gradient up to 1e17)
-        reach = np.abs(verts).max() if len(verts) else 0.0
-        floor = W_c[:, None] * (1e-8 * reach) ** 2
-        keep = (evals > 1e-2 * scale) & (evals > floor)
-        rank_c = keep.sum(axis=1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            inv = np.where(keep, 1.0 / evals, 0.0)
-        cinv = np.einsum("vij,vj,vkj->vik", evecs[act], inv[act], evecs[act])
-        lever = np.zeros((n, 3))  # (x_v - cbar)^T C^+
-        lever[act] = np.einsum("vi,vij->vj", verts[ids[act]] - cbar[act], cinv)
-        coef = coef + w * np.einsum("pj,pj->p", lever[loc], dc)
-    coef = np.where(np.isfinite(coef) & (w > 0), coef, 0.0)
-    rank = np.zeros(nv, dtype=np.int64)
-    rank[ids] = rank_c
-    W = np.zeros(nv)
-    W[ids] = W_c
-    return coef, rank, W
-
-
-@numba.njit(cache=True, nogil=True)
-def _vertex_moments(loc, fid, w, cen, n):  # pragma: no cover - compiled
-    """Weight ``W``, weighted mean centroid ``cbar`` and weighted covariance of the
-    centroids about it, ``(n, 3, 3)``, of each vertex from its pairs, summed in pair
-    order with NumPy's operations (``bincount`` of ``w * c``, then of
-    ``w * dc_i * dc_j``): the same floats as those bincounts."""
-    W = np.zeros(n)
-    sums = np.zeros((n, 3))
-    for p in range(loc.size):
-        v = loc[p]
-        W[v] += w[p]
-        for k in range(3):
-            sums[v, k] += w[p] * cen[fid[p], k]
-    cbar = np.empty((n, 3))
-    for v in range(n):
-        ws = W[v] if W[v] > 0 else 1.0
-        for k in range(3):
-            cbar[v, k] = sums[v, k] / ws
-    cov = np.zeros((n, 3, 3))
-    for p in range(loc.size):
-        v = loc[p]
-        d0 = cen[fid[p], 0] - cbar[v, 0]
-        d1 = cen[fid[p], 1] - cbar[v, 1]
-        d2 = cen[fid[p], 2] - cbar[v, 2]
-        cov[v, 0, 0] += w[p] * d0 * d0
-        cov[v, 0, 1] += w[p] * d0 * d1
-        cov[v, 0, 2] += w[p] * d0 * d2
-        cov[v, 1, 1] += w[p] * d1 * d1
-        cov[v, 1, 2] += w[p] * d1 * d2
-        cov[v, 2, 2] += w[p] * d2 * d2
-    for v in range(n):
-        cov[v, 1, 0] = cov[v, 0, 1]
-        cov[v, 2, 0] = cov[v, 0, 2]
-        cov[v, 2, 1] = cov[v, 1, 2]
-    return W, cbar, cov
-
-
-def _vertex_matrix(mesh: trimesh.Trimesh, face_weight: np.ndarray, linear: bool,
-                   centroids=None) -> sp.csr_matrix:
-    """Sparse (V, F) matrix turning face values into vertex values.
-
-    Each vertex gets the area-weighted mean of the face values around it; with ``linear``
-    it is corrected by an area-weighted least-squares gradient fitted to the face centroids
-    (``f_v = mean + g . (x_v - c_mean)``), which makes the reconstruction exact for fields
-    linear in space wherever the centroids around a vertex span the needed directions.
-    Directions in which the centroids spread less than a tenth of their largest spread
-    (eigenvalue ratio 1e-2 of the weighted covariance) get no gradient: the normal
-    direction of a smooth curved fan, where a fitted normal gradient would only amplify
-    noise. Across a crease (e.g. a 90-degree corner) the centroids spread in 3-D and the
-    full gradient is used. Vertices whose faces span fewer than 2 directions (a grid
-    corner with one or two faces) use the faces around their neighbours too (2-ring).
-    """
-    faces = np.asarray(mesh.faces, dtype=np.int64)
-    verts = np.asarray(mesh.vertices, dtype=np.float64)
-    nv, nf = len(verts), len(faces)
-    cen = np.asarray(mesh.triangles_center if centroids is None else centroids,
-                     dtype=np.float64)
-    vid = faces.ravel()  # incidence pairs (vertex, face)
-    fid = np.repeat(np.arange(nf), 3)
-    w = face_weight[fid]
-    on = w > 0  # pairs of weightless (NaN) faces add nothing and get no coefficient: out
-    coef, rank, W = _fit_pairs(vid[on], fid[on], w[on], cen, verts, nv, linear)
-    vid_on, fid_on = vid[on], fid[on]
-    M = sp.csr_matrix((coef, (vid_on, fid_on)), shape=(nv, nf))
-    poor = np.flatnonzero((rank < 2) & (W > 0)) if linear else np.array([], dtype=int)
-    if poor.size:
-        inc = sp.csr_matrix((np.ones(vid.size), (vid, fid)), shape=(nv, nf))
-        ring2 = (inc[poor] @ inc.T) @ inc  # faces around the neighbours of poor vertices
-        ring2 = ring2.tocoo()
-        v2, f2 = poor[ring2.row], ring2.col
-        c2, r2, _ = _fit_pairs(v2, f2, face_weight[f2], cen, verts, nv, True)
-        better = r2[poor] >= 2
-        if better.any():
-            sel = np.isin(v2, poor[better])
-            keep_rows = np.ones(nv)
-            keep_rows[poor[better]] = 0.0
-            M = sp.diags(keep_rows) @ M + sp.csr_matrix(
-                (c2[sel], (v2[sel], f2[sel])), shape=(nv, nf))
-    return M.tocsr()
-
-
-def vertex_values(
-    mesh: trimesh.Trimesh, face_values, *, interpolation: str = "linear"
-) -> np.ndarray:
-    """Per-vertex values from per-face values (see :meth:`SurfaceMap.to_image`).
-
-    Parameters
-    ----------
-    face_values : (F,) or (F, K) array_like
-        NaN faces are left out of the vertex values.
-    interpolation : {"linear", "mean"}
-        ``"mean"``: area-weighted mean of the faces around the vertex; ``"linear"``: that
-        mean corrected by an area-weighted least-squares gradient (exact for linear fields).
-
-    Returns
-    -------
-    (V,) or (V, K) float64, NaN for vertices whose faces are all NaN.
-    """
-    fv = _as_float(face_values, "face_values")
-    nf = len(mesh.faces)
-    if fv.ndim not in (1, 2) or fv.shape[0] != nf:
-        raise InputError(f"face_values: expected ({nf},) or ({nf}, K) for the mesh's {nf} "
-                         f"faces, got shape {fv.shape}")
-    if interpolation not in ("linear", "mean"):
-        raise InputError(f"interpolation must be 'linear' or 'mean', got {interpolation!r}")
-    _, area = _face_geometry(mesh)
-    return _apply_vertex(mesh, area, fv, interpolation == "linear", cache=None)
-
-
-def _apply_vertex(mesh, area, fv, linear, cache, centroids=None):
-    """Vertex values of (F,) or (F, K) face values; columns are handled in groups sharing
-    the same set of NaN faces (each group gets its own reconstruction matrix)."""
-    flat = fv.reshape(len(fv), -1)
-    finite = np.isfinite(flat)
-    faces = np.asarray(mesh.faces)
-    nv = len(mesh.vertices)
-    out = np.empty((nv, flat.shape[1]))
-    if finite.all():  # the usual case: one group, no sorting of NaN patterns
-        patterns, group = np.ones((1, len(flat)), dtype=bool), np.zeros(flat.shape[1], int)
-    else:  # distinct NaN patterns as byte strings (np.unique(axis=0) on F-wide boolean
-        # rows builds an F-field dtype: 28 s for one 600,000-face frame)
-        packed = np.ascontiguousarray(np.packbits(finite.T, axis=1))
-        keys = packed.view(np.dtype((np.void, packed.shape[1]))).ravel()
-        _, first, group = np.unique(keys, return_index=True, return_inverse=True)
-        patterns = finite.T[first]
-    for g, pattern in enumerate(patterns):  # loop over distinct NaN patterns, not faces
-        cols = np.flatnonzero(group.ravel() == g)
-        if pattern.all() and cache is not None and linear in cache:
-            M = cache[linear]
-        else:
-            M = _vertex_matrix(mesh, area * pattern, linear, centroids)
-            if pattern.all() and cache is not None:
-                cache[linear] = M
-        res = M @ np.where(pattern[:, None], flat[:, cols], 0.0)
-        has = np.bincount(faces[pattern].ravel(), minlength=nv) > 0
-        res[~has] = np.nan  # vertices with no finite face around them
-        out[:, cols] = res
-    return out.reshape((nv,) + fv.shape[1:])
 
 
 class SurfaceMap:
@@ -539,6 +338,31 @@ class SurfaceMap:
             raise InputError(f"interpolation must be 'linear' or 'mean', got {interpolation!r}")
         return _apply_vertex(self.mesh, self._area, fv, interpolation == "linear", self._vcache,
                              self._centroids)
+
+    def prepare(self, valued, interpolation: str = "linear") -> None:
+        """Build now what :meth:`to_image` and :meth:`vertex_values` will need for face
+        values that are finite exactly on ``valued``: the vertex matrix of that pattern
+        of faces (kept until the next call) and the pixels' interpolation matrix.
+
+        Meant for a thread while other work runs (``selfillum correct`` calls it while the
+        view factors' rays are traced): sparse and NumPy work that mostly runs without
+        the GIL. The results are the same with or without it.
+
+        Parameters
+        ----------
+        valued : (F,) array_like of bool
+            The faces that will have a value.
+        interpolation : {"linear", "mean"}
+        """
+        valued = np.asarray(valued, dtype=bool)
+        if valued.shape != (self.n_faces,):
+            raise InputError(f"valued: expected ({self.n_faces},) booleans, got shape "
+                             f"{valued.shape}")
+        if interpolation not in ("linear", "mean"):
+            raise InputError(f"interpolation must be 'linear' or 'mean', got {interpolation!r}")
+        prepare_pattern(self.mesh, self._area, valued, interpolation == "linear",
+                        self._vcache, self._centroids)
+        self._interpolation_matrix()
 
     def to_image(self, face_values, background=None, *, interpolation: str = "linear"):
         """Backproject per-face values into this camera's image.

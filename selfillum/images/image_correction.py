@@ -23,6 +23,7 @@ from __future__ import annotations
 import csv
 import os
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -246,10 +247,8 @@ def correct_image(
             ": likely causes: " + nothing_seen_causes(camera, mesh.vertices, "the mesh")
         raise InputError(f"image: the camera sees no face of the model in frame {t}{why}")
     if F is None:
-        F, _ = coupled_view_factors(
-            mesh, seen.any(axis=0), rays_per_face=rays_per_face, seed=seed, progress=progress,
-            caster=caster, checked=True,
-        )
+        F = _view_factors_and_fit(mesh, seen, B, mode, smap, rays_per_face=rays_per_face,
+                                  seed=seed, progress=progress, caster=caster)
     elif not sp.issparse(F) or F.shape != (n, n):
         raise InputError(f"F: expected a sparse ({n}, {n}) matrix")
     E = np.empty_like(B)
@@ -300,6 +299,21 @@ def correct_image(
                                share[0], said, tuple(warns), grazing, ~painted, **counts)
     return ImageCorrection(out, corr, B, E, seen, mode, tuple(infos), share, said,
                            tuple(warns), grazing, ~painted, **counts)
+
+
+def _view_factors_and_fit(mesh, seen, B, mode, smap, **kw) -> sp.csr_matrix:
+    """The coupled rows of ``F``; for one frame, the surface map's vertex fit of the
+    faces the correction will have a value on (:meth:`SurfaceMap.prepare
+    <resection.surface.surface_map.SurfaceMap.prepare>`) is built on a thread meanwhile:
+    it needs the seen faces only, and the main thread just waits for the rays."""
+    if len(seen) != 1:
+        return coupled_view_factors(mesh, seen.any(axis=0), checked=True, **kw)[0]
+    valued = seen[0] if mode == "subtract" else seen[0] & (B[0] != 0)  # where E/B is
+    with ThreadPoolExecutor(1) as pool:
+        fit = pool.submit(smap.prepare, valued)
+        F, _ = coupled_view_factors(mesh, seen[0], checked=True, **kw)
+    fit.result()  # its error, if any, here
+    return F
 
 
 class UnseenFacesWarning(UserWarning):
