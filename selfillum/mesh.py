@@ -122,11 +122,10 @@ def face_adjacency_weights(mesh: trimesh.Trimesh) -> sp.csr_matrix:
     if pairs.size == 0:
         return sp.csr_matrix((0, n))
     length = np.linalg.norm(v[edges[:, 0]] - v[edges[:, 1]], axis=1)
-    c = v[merged].mean(axis=1)  # the centroids of the merged faces (trimesh's)
+    # the centroids of the merged faces, as trimesh's triangles_center sums and divides
+    c = (v[merged[:, 0]] + v[merged[:, 1]] + v[merged[:, 2]]) / 3.0
     dist = np.linalg.norm(c[pairs[:, 0]] - c[pairs[:, 1]], axis=1)
     w = np.sqrt(length / np.maximum(dist, np.finfo(float).tiny))
-    p = np.arange(len(pairs))
-    rows = np.concatenate([p, p])
-    cols = np.concatenate([pairs[:, 0], pairs[:, 1]])
-    data = np.concatenate([w, -w])
-    return sp.csr_matrix((data, (rows, cols)), shape=(len(pairs), n))
+    # row p: w at face pairs[p, 0], -w at pairs[p, 1] (the smaller index first: sorted)
+    return sp.csr_matrix((np.column_stack([w, -w]).ravel(), pairs.ravel(),
+                          np.arange(0, 2 * len(pairs) + 1, 2)), shape=(len(pairs), n))

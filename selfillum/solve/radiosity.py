@@ -400,13 +400,13 @@ def correct(
         np.zeros(n) if given is None else given.copy())
     E[sub] = M @ Bsub
     E[paint_off] = 0.0
-    Bfull = np.zeros(n)
-    Bfull[sub] = Bsub
-    total = rho * (F @ Bfull)
-    from_hidden = rho * (F @ np.where(mask, 0.0, Bfull))
+    # a seen face's row of F reaches faces of sub only (they are what it couples to):
+    # its sums over sub's columns are its sums over all of them
+    total = rho[sub] * (Fs @ Bsub)
+    from_hidden = rho[sub] * (Fs @ np.where(loc_seen, 0.0, Bsub))
+    share = np.full(n, np.nan)
     with np.errstate(divide="ignore", invalid="ignore"):
-        share = np.where(total != 0, from_hidden / total, 0.0)
-    share[~mask] = np.nan
+        share[sub[loc_seen]] = np.where(total != 0, from_hidden / total, 0.0)[loc_seen]
     info = SolveInfo(method, int(itn), float(rel), n_seen, n - n_seen,
                      int(hid.size), kind, share)
     return (E, info) if return_info else E
