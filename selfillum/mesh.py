@@ -58,7 +58,8 @@ def check_mesh(mesh, name: str = "mesh", *, rel_area_tol: float = 1e-12) -> trim
     faces = np.asarray(mesh.faces)
     if faces.ndim != 2 or faces.shape[0] == 0 or faces.shape[1] != 3:
         raise InputError(f"{name}: empty mesh (no triangles)")
-    from resection.surface.visibility import bounds, cross_norms2  # compiled passes
+    from resection._mesh_graph import cross_squares  # compiled passes
+    from resection.surface.visibility import bounds
 
     lo, hi = bounds(vertices)
     bad_v = (np.zeros(0, np.int64) if np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))
@@ -71,7 +72,7 @@ def check_mesh(mesh, name: str = "mesh", *, rel_area_tol: float = 1e-12) -> trim
     if faces.min() < 0 or faces.max() >= len(vertices):
         bad_f = np.flatnonzero(np.any((faces < 0) | (faces >= len(vertices)), axis=1))
         raise InputError(f"{name}: face(s) {_first(bad_f)} index missing vertices")
-    area2 = cross_norms2(vertices, faces)  # |(v1 - v0) x (v2 - v0)|^2
+    area2 = cross_squares(vertices, faces)  # |(v1 - v0) x (v2 - v0)|^2
     scale = float((hi - lo).max()) if len(vertices) else 0.0
     bad_f = np.flatnonzero(~(area2 > (rel_area_tol * scale**2) ** 2))
     if bad_f.size:

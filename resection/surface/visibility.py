@@ -31,7 +31,7 @@ from resection.errors import InputError
 from resection.surface import embree
 
 __all__ = ["RayCaster", "visible_faces", "face_sample_points", "face_geometry",
-           "cross_norms2", "bounds", "unit_normals"]
+           "bounds", "unit_normals"]
 
 
 class RayCaster:
@@ -280,33 +280,6 @@ def _normals_only(vertices, faces, out):  # pragma: no cover - compiled
         out[f, 0] = nx / length
         out[f, 1] = ny / length
         out[f, 2] = nz / length
-
-
-def cross_norms2(vertices, faces) -> np.ndarray:
-    """``|(v1 - v0) x (v2 - v0)|^2`` of every triangle (four times its squared area),
-    ``(F,)`` float64, in one compiled pass (a few ns a face; a mesh check's degenerate
-    faces are those where it is 0)."""
-    v = np.ascontiguousarray(vertices, dtype=np.float64)
-    f = np.ascontiguousarray(faces, dtype=np.int64)
-    out = np.empty(len(f))
-    _cross_norms2(v, f, out)
-    return out
-
-
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _cross_norms2(vertices, faces, out):  # pragma: no cover - compiled
-    for f in range(faces.shape[0]):
-        i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
-        e1x = vertices[i1, 0] - vertices[i0, 0]
-        e1y = vertices[i1, 1] - vertices[i0, 1]
-        e1z = vertices[i1, 2] - vertices[i0, 2]
-        e2x = vertices[i2, 0] - vertices[i0, 0]
-        e2y = vertices[i2, 1] - vertices[i0, 1]
-        e2z = vertices[i2, 2] - vertices[i0, 2]
-        nx = e1y * e2z - e1z * e2y
-        ny = e1z * e2x - e1x * e2z
-        nz = e1x * e2y - e1y * e2x
-        out[f] = nx * nx + ny * ny + nz * nz
 
 
 def _geometry_of(dual, vertices, faces):
