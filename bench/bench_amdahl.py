@@ -198,6 +198,22 @@ def print_parts(tag: str, runs: list[dict]) -> None:
               f"{kind}")
 
 
+def _timer(spent: dict[str, list[float]]):
+    """``timed(label, fn)``: ``fn`` wrapped so that each call adds its wall and CPU
+    seconds to ``spent[label]``."""
+    def timed(label, fn):
+        def call(*a, **kw):
+            t, c = time.perf_counter(), time.process_time()
+            try:
+                return fn(*a, **kw)
+            finally:
+                r = spent.setdefault(label, [0.0, 0.0])
+                r[0] += time.perf_counter() - t
+                r[1] += time.process_time() - c
+        return call
+    return timed
+
+
 def thread_efficiency(mesh, threads: list[int], repeat: int, rows) -> None:
     """``view_factors`` with each thread count; its one-thread parts timed apart: the
     tracer's set-up (mesh check, normals), the Embree scene (``scene arrays``: the
@@ -216,17 +232,7 @@ def thread_efficiency(mesh, threads: list[int], repeat: int, rows) -> None:
         return _thread_efficiency_embreex(mesh, threads, repeat, rows)
 
     spent: dict[str, list[float]] = {}
-
-    def timed(label, fn):
-        def call(*a, **kw):
-            t, c = time.perf_counter(), time.process_time()
-            try:
-                return fn(*a, **kw)
-            finally:
-                r = spent.setdefault(label, [0.0, 0.0])
-                r[0] += time.perf_counter() - t
-                r[1] += time.process_time() - c
-        return call
+    timed = _timer(spent)
 
     from selfillum.transport import rowtrace
 
@@ -284,17 +290,7 @@ def _thread_efficiency_embreex(mesh, threads, repeat, rows) -> None:
     from selfillum.transport import viewfactors as vf
 
     spent: dict[str, list[float]] = {}
-
-    def timed(label, fn):
-        def call(*a, **kw):
-            t, c = time.perf_counter(), time.process_time()
-            try:
-                return fn(*a, **kw)
-            finally:
-                r = spent.setdefault(label, [0.0, 0.0])
-                r[0] += time.perf_counter() - t
-                r[1] += time.process_time() - c
-        return call
+    timed = _timer(spent)
 
     class Scene(rtcore_scene.EmbreeScene):  # the first query commits (builds the BVH)
         def run(self, *a, **kw):

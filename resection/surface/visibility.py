@@ -25,6 +25,7 @@ import numpy as np
 import trimesh
 
 from resection._checks import as_points
+from resection._mesh_graph import edge_cross
 from resection._threads import run_blocks, split_range
 from resection.camera.model import Camera
 from resection.errors import InputError
@@ -189,16 +190,9 @@ def _duals(vertices, faces, start, stop, dual):  # pragma: no cover - compiled
     ``w1 = (p - v0) . a1``, ``w2 = (p - v0) . a2`` (NaN or infinite for a degenerate
     face)."""
     for f in range(start, stop):
-        i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
-        e1x = vertices[i1, 0] - vertices[i0, 0]
-        e1y = vertices[i1, 1] - vertices[i0, 1]
-        e1z = vertices[i1, 2] - vertices[i0, 2]
-        e2x = vertices[i2, 0] - vertices[i0, 0]
-        e2y = vertices[i2, 1] - vertices[i0, 1]
-        e2z = vertices[i2, 2] - vertices[i0, 2]
-        nx = e1y * e2z - e1z * e2y
-        ny = e1z * e2x - e1x * e2z
-        nz = e1x * e2y - e1y * e2x
+        i0 = faces[f, 0]
+        e1x, e1y, e1z, e2x, e2y, e2z, nx, ny, nz = edge_cross(vertices, i0, faces[f, 1],
+                                                              faces[f, 2])
         nn = nx * nx + ny * ny + nz * nz
         for c in range(3):
             dual[f, c] = vertices[i0, c]
@@ -266,16 +260,7 @@ def unit_normals(vertices, faces) -> np.ndarray:
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _normals_only(vertices, faces, out):  # pragma: no cover - compiled
     for f in range(faces.shape[0]):
-        i0, i1, i2 = faces[f, 0], faces[f, 1], faces[f, 2]
-        e1x = vertices[i1, 0] - vertices[i0, 0]
-        e1y = vertices[i1, 1] - vertices[i0, 1]
-        e1z = vertices[i1, 2] - vertices[i0, 2]
-        e2x = vertices[i2, 0] - vertices[i0, 0]
-        e2y = vertices[i2, 1] - vertices[i0, 1]
-        e2z = vertices[i2, 2] - vertices[i0, 2]
-        nx = e1y * e2z - e1z * e2y
-        ny = e1z * e2x - e1x * e2z
-        nz = e1x * e2y - e1y * e2x
+        nx, ny, nz = edge_cross(vertices, faces[f, 0], faces[f, 1], faces[f, 2])[6:]
         length = np.sqrt(nx * nx + ny * ny + nz * nz)
         out[f, 0] = nx / length
         out[f, 1] = ny / length
