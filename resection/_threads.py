@@ -10,6 +10,7 @@ between calls.
 from __future__ import annotations
 
 import os
+import threading
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
@@ -18,6 +19,12 @@ from typing import TypeVar
 __all__ = ["available_cores", "split_range", "run_blocks", "numba_threads"]
 
 T = TypeVar("T")
+
+#: Held while a parallel numba kernel runs (see :func:`numba_threads`). numba's fallback
+#: threading layer (``workqueue``, used where neither OpenMP's libgomp nor TBB is
+#: installed) aborts the process when two Python threads launch parallel kernels at once;
+#: each launch already uses every core, so launches from several threads take turns.
+_PARALLEL = threading.RLock()
 
 
 def available_cores() -> int:
@@ -65,15 +72,21 @@ def run_blocks(fn: Callable[[tuple[int, int]], T], blocks: Sequence[tuple[int, i
 def numba_threads(workers: int | None):
     """numba's thread count for the parallel kernels called inside the ``with`` block:
     ``workers`` (at most numba's ``NUMBA_NUM_THREADS``, the cores by default), or left as
-    it is when ``None``; the previous count is restored on exit (it is per calling thread)."""
-    if workers is None:
-        yield
-        return
-    import numba
+    it is when ``None``; the previous count is restored on exit (it is per calling thread).
 
-    old = numba.get_num_threads()
-    numba.set_num_threads(max(1, min(int(workers), numba.config.NUMBA_NUM_THREADS)))
-    try:
-        yield
-    finally:
-        numba.set_num_threads(old)
+    Every parallel kernel of the package runs inside such a block, which Python threads
+    enter one at a time (re-entrant within a thread): numba's ``workqueue`` layer cannot
+    run two parallel launches at once, and aborts the process if it is asked to.
+    """
+    with _PARALLEL:
+        if workers is None:
+            yield
+            return
+        import numba
+
+        old = numba.get_num_threads()
+        numba.set_num_threads(max(1, min(int(workers), numba.config.NUMBA_NUM_THREADS)))
+        try:
+            yield
+        finally:
+            numba.set_num_threads(old)

@@ -446,3 +446,35 @@ def test_sobol_base_is_scipys_sobol_sequence(dims):
         assert np.array_equal(_sobol_base(k, dims), ref), k
     with pytest.raises(ValueError, match="dims"):
         _sobol_base(16, 6)
+
+
+def test_view_factors_from_two_threads_on_numbas_workqueue_layer(tmp_path):
+    """numba's fallback threading layer (workqueue: no libgomp, no TBB) aborts the process
+    when two Python threads launch parallel kernels at once; view_factors from two threads
+    must still finish there, with the rows one thread gives."""
+    import os
+    import subprocess
+    import sys
+
+    script = tmp_path / "two_threads.py"
+    script.write_text(
+        "import threading\n"
+        "import numba, trimesh\n"
+        "from selfillum.transport.viewfactors import view_factors\n"
+        "m = trimesh.creation.icosphere(subdivisions=3)\n"
+        "m.faces = m.faces[:, ::-1]\n"  # painted inside: every ray hits
+        "ref = view_factors(m, 32, workers=2)\n"
+        "out = []\n"
+        "def go():\n"
+        "    for _ in range(4):\n"
+        "        out.append(view_factors(m, 32, workers=2))\n"
+        "ts = [threading.Thread(target=go) for _ in range(2)]\n"
+        "[t.start() for t in ts]\n"
+        "[t.join() for t in ts]\n"
+        "assert numba.threading_layer() == 'workqueue'\n"
+        "assert len(out) == 8 and all(abs(F - ref).max() == 0 for F in out)\n"
+        "print('ok')\n")
+    env = dict(os.environ, NUMBA_THREADING_LAYER="workqueue")
+    r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                       env=env, timeout=300)
+    assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr[-2000:]

@@ -25,6 +25,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from resection._threads import numba_threads
+
 __all__ = ["point_polygon_factor", "triangle_rule", "pair_factors"]
 
 
@@ -177,5 +179,6 @@ def pair_factors(vertices, faces, normals, src, dst, *, order: int = 5) -> np.nd
     dst = np.ascontiguousarray(dst, dtype=np.int64).ravel()
     bary, w = triangle_rule(order)
     out = np.empty(src.size)
-    _pairs_kernel(v, f, nrm, src, dst, bary, w, out)
+    with numba_threads(None):  # one parallel launch at a time (numba's workqueue layer)
+        _pairs_kernel(v, f, nrm, src, dst, bary, w, out)
     return out

@@ -413,4 +413,7 @@ def _spmv_kernel():
 
 
 def _project_sample(*args):
-    return _kernel()(*args)  # compiled on first use (and cached on disk by numba)
+    from resection._threads import numba_threads
+
+    with numba_threads(None):  # one parallel launch at a time (numba's workqueue layer)
+        return _kernel()(*args)  # compiled on first use (and cached on disk by numba)
