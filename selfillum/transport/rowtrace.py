@@ -17,7 +17,7 @@ import numba
 import numpy as np
 import scipy.sparse as sp
 
-from resection.surface.embree import first_hit
+from resection.surface.embree import first_hit, ray_buffer
 from selfillum.transport.sampling import _U, _centroid, _frame, _rqmc_ray, _shift
 
 __all__ = ["trace_rows", "assemble_rows"]
@@ -40,10 +40,7 @@ def _trace_faces(fn, scene, rows, vertices, faces, origin, scale, normals, norma
     dims = rbase.shape[1]
     nb = totals.shape[0]
     for b in numba.prange(nb):
-        raw = np.empty(36, dtype=np.float32)  # a 16-byte aligned RTCRayHit in it
-        start = ((16 - raw.ctypes.data % 16) % 16) // 4
-        buf = raw[start:start + 32]
-        ib = buf.view(np.uint32)
+        buf, ib = ray_buffer()  # the block's scratch RTCRayHit
         tri = np.empty((3, 3), dtype=np.float32)
         c = np.empty(3, dtype=np.float32)
         nrm = np.empty(3, dtype=np.float32)
