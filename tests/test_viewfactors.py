@@ -478,3 +478,22 @@ def test_view_factors_from_two_threads_on_numbas_workqueue_layer(tmp_path):
     r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
                        env=env, timeout=300)
     assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr[-2000:]
+
+
+@pytest.mark.parametrize("blocks,threads", [(512, 16), (64, 2), (10, 3), (5, 8), (1, 1)])
+def test_interleaved_blocks_give_each_thread_the_whole_mesh(blocks, threads):
+    """numba's prange gives each thread one contiguous share of the iterations (static
+    scheduling: ``ceil`` / ``floor`` of ``blocks / threads``); taken in the order of
+    ``interleaved``, each share is a permutation slice whose blocks spread over the whole
+    mesh: every thread's blocks cover each quarter of the faces where it has 4 or more."""
+    from selfillum.transport.rowtrace import interleaved
+
+    order = interleaved(blocks, threads)
+    assert np.array_equal(np.sort(order), np.arange(blocks))
+    t = min(threads, blocks)
+    edges = np.linspace(0, blocks, t + 1).round().astype(int)  # contiguous shares
+    for a, b in zip(edges[:-1], edges[1:], strict=True):
+        share = order[a:b]
+        if share.size >= 4 and blocks >= 4 * t:
+            quarters = np.unique(share * 4 // blocks)
+            assert quarters.size == 4, (share, quarters)

@@ -20,16 +20,22 @@ import scipy.sparse as sp
 from resection.surface.embree import first_hit, ray_buffer
 from selfillum.transport.sampling import _U, _centroid, _frame, _rqmc_ray, _shift
 
-__all__ = ["trace_rows", "assemble_rows"]
+__all__ = ["trace_rows", "assemble_rows", "interleaved"]
+
+#: Blocks of consecutive faces a thread, taken interleaved (:func:`interleaved`): small
+#: enough for every thread to sample the whole mesh, large enough to keep each block's
+#: faces (and their BVH nodes) together.
+_BLOCKS_PER_THREAD = 32
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)
 def _trace_faces(fn, scene, rows, vertices, faces, origin, scale, normals, normals32, rbase,
-                 seed, two_sided, offset, hits, counts, totals):  # pragma: no cover
+                 seed, two_sided, offset, order, hits, counts, totals):  # pragma: no cover
     """The kept hits of faces ``rows``, in ``len(totals)`` blocks of consecutive faces:
     block ``b`` (faces ``b n // nb <= j < (b + 1) n // nb``) writes its hits, grouped by
     face, from ``hits[(b n // nb) K]`` on, face ``rows[j]``'s count into ``counts[j]`` and
-    the block's into ``totals[b]``.
+    the block's into ``totals[b]``. The parallel loop takes the blocks in the order
+    ``order`` (see :func:`interleaved`).
 
     ``fn`` is ``rtcIntersect1`` and ``scene`` the Embree scene's handle, in the frame where
     a model point ``x`` is at ``(x - origin) * scale``; ``vertices`` (float64, model
@@ -39,7 +45,8 @@ def _trace_faces(fn, scene, rows, vertices, faces, origin, scale, normals, norma
     n, k = rows.shape[0], rbase.shape[0]
     dims = rbase.shape[1]
     nb = totals.shape[0]
-    for b in numba.prange(nb):
+    for q in numba.prange(nb):
+        b = order[q]
         buf, ib = ray_buffer()  # the block's scratch RTCRayHit
         tri = np.empty((3, 3), dtype=np.float32)
         c = np.empty(3, dtype=np.float32)
@@ -81,6 +88,28 @@ def _trace_faces(fn, scene, rows, vertices, faces, origin, scale, normals, norma
         totals[b] = m - (b * n // nb) * k
 
 
+def interleaved(blocks: int, threads: int) -> np.ndarray:
+    """The order in which a parallel loop takes ``blocks`` consecutive blocks of faces so
+    that each of ``threads`` threads gets blocks from all over the mesh.
+
+    numba splits a ``prange`` into one contiguous share of iterations a thread (static
+    scheduling). Faces next to each other cost alike and faces far apart do not (rays
+    that escape against rays that hit: on the 610k-face grid, sixteen contiguous shares
+    took from 0.4 to 1.6 times their mean), so contiguous shares leave threads idle.
+    Iteration ``q`` takes block ``order[q]``: thread ``t``'s share is blocks
+    ``t, t + threads, t + 2 threads, ...``.
+
+    Returns
+    -------
+    (blocks,) int64
+        A permutation of ``range(blocks)``.
+    """
+    threads = max(1, min(int(threads), int(blocks)))
+    per = -(-blocks // threads)
+    grid = np.arange(per * threads, dtype=np.int64).reshape(per, threads).T.ravel()
+    return grid[grid < blocks]
+
+
 def trace_rows(scene, rows: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
                normals: np.ndarray, normals32: np.ndarray, rbase: np.ndarray, seed: int,
                two_sided: bool, offset: float) -> tuple[np.ndarray, np.ndarray]:
@@ -117,13 +146,14 @@ def trace_rows(scene, rows: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
     n = rows.shape[0]
     counts = np.zeros(n, dtype=np.int32)
     padded = np.empty(n * k, dtype=np.int32)
-    nb = max(1, min(n, 4 * numba.get_num_threads()))  # blocks of faces, a scratch ray each
+    threads = numba.get_num_threads()
+    nb = max(1, min(n, _BLOCKS_PER_THREAD * threads))  # blocks of faces, a scratch ray each
     totals = np.zeros(nb, dtype=np.int64)
     scale = float(scene.scale)
     _trace_faces(scene.scene.intersect, scene.scene.handle, rows, vertices, faces,
                  np.asarray(scene.origin, dtype=np.float64), scale, normals, normals32,
-                 rbase, _U(seed), bool(two_sided), np.float32(offset * scale), padded,
-                 counts, totals)
+                 rbase, _U(seed), bool(two_sided), np.float32(offset * scale),
+                 interleaved(nb, threads), padded, counts, totals)
     first = np.arange(nb) * n // nb * k  # where each block's hits start
     return counts, np.concatenate([padded[a:a + t] for a, t in zip(first, totals, strict=True)])
 
