@@ -16,8 +16,11 @@ target: at 16 cores, at least 3x the 2-core speed (``s`` at or under 20 %).
 The package's thread counts follow the process's CPU affinity
 (:func:`resection._threads.available_cores`), so nothing else is set per run.
 
+With ``--roots A,B`` each source tree's command runs in every round (``PYTHONPATH``):
+before and after in the same run.
+
 Run: ``.venv/bin/python bench/bench_cores.py [--cores 2,4,8,16] [--repeat 2]
-[--faces 609000] [--track-frames 200]``
+[--faces 609000] [--track-frames 200] [--roots A,B]``
 """
 
 from __future__ import annotations
@@ -35,10 +38,11 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "bench"))
 
 
-def pinned(cores: int, cmd: list[str]) -> float:
-    """Wall seconds of ``cmd`` on the first ``cores`` cores (fails loudly)."""
+def pinned(cores: int, cmd: list[str], root: Path = ROOT) -> float:
+    """Wall seconds of ``cmd`` on the first ``cores`` cores, importing the package from the
+    source tree ``root`` (fails loudly)."""
     t = time.perf_counter()
-    path = os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))
+    path = os.pathsep.join(filter(None, [str(root), os.environ.get("PYTHONPATH")]))
     subprocess.run(["taskset", "-c", f"0-{cores - 1}", *cmd], check=True,
                    stdout=subprocess.DEVNULL, cwd=tempfile.gettempdir(),
                    env={**os.environ, "PYTHONPATH": path})
@@ -64,6 +68,9 @@ def main() -> None:
     ap.add_argument("--faces", type=int, default=609_000)
     ap.add_argument("--track-frames", type=int, default=200)
     ap.add_argument("--cache", default=str(Path(tempfile.gettempdir()) / "bench_cores"))
+    ap.add_argument("--roots", default=str(ROOT),
+                    help="comma-separated source trees, run in turn in every round (e.g. an "
+                    "earlier commit unpacked with git archive, against this one)")
     args = ap.parse_args()
     cores = sorted({int(c) for c in args.cores.split(",")})
     if max(cores) > len(os.sched_getaffinity(0)):
@@ -90,21 +97,27 @@ def main() -> None:
                          sc["camera"], "--markers", sc["markers"], "--link", sc["link"],
                          "--diameter", "5", "--out", str(cache / "track_out"),
                          "--no-progress", "--no-resume"]
+    roots = [Path(r).resolve() for r in args.roots.split(",")]
     for name, cmd in cmds.items():
-        if name == "correct":
-            for p in cache.glob("corrected.npy*"):  # outputs are never overwritten
-                p.unlink()
-        pinned(max(cores), cmd)  # warm-up: numba's cache, the OS's file cache
-        best = dict.fromkeys(cores, float("inf"))
+        best = {(r, c): float("inf") for r in roots for c in cores}
+        for r in roots:
+            clean(cache)
+            pinned(max(cores), cmd, r)  # warm-up: numba's cache, the OS's file cache
         for _ in range(args.repeat):
             for c in cores:
-                if name == "correct":
-                    for p in cache.glob("corrected.npy*"):
-                        p.unlink()
-                best[c] = min(best[c], pinned(c, cmd))
-        report(f"{name} ({args.faces:,} faces)" if name == "correct"
-               else f"{name} ({args.track_frames} frames)", best)
+                for r in roots:
+                    clean(cache)
+                    best[r, c] = min(best[r, c], pinned(c, cmd, r))
+        for r in roots:
+            label = (f"{name} ({args.faces:,} faces)" if name == "correct"
+                     else f"{name} ({args.track_frames} frames)")
+            report(f"{label}, {r}", {c: best[r, c] for c in cores})
 
+
+def clean(cache: Path) -> None:
+    """Remove the corrected image of the last run (outputs are never overwritten)."""
+    for p in cache.glob("corrected.npy*"):
+        p.unlink()
 
 if __name__ == "__main__":
     main()
