@@ -227,15 +227,17 @@ def view_factors(
         where every ray hits and 1.7-3.3x where most rays escape, and at 0.26-0.60x the
         speed of its bare rays (``ray_intersect_preliminary`` on the same rays): making a
         ray costs about as much as tracing one that escapes, and the scene build and the
-        mesh checks are not in the bare figure. No GPU was at hand for this work, so the GPU
-        figures are still those of issue 21, measured on one H100 (16 cores, Mitsuba 3.9
-        ``cuda``) while the sampling and the accumulation still ran in NumPy on one CPU
-        thread: the same F as Embree (one ray's weight in 6-22 entries); bare OptiX rays at
-        69 M rays/s against threaded Embree's 26 (every ray hits) to 159 (most escape)
-        M rays/s on the 16 cores; whole ``view_factors`` at 0.23-0.57x the speed of
-        threaded Embree on a 609k-face grid (K = 64 and 256). An H100 has no RT cores: on
-        such a GPU threaded Embree was then the faster choice; the Dr.Jit sampling and sums
-        are not yet measured on a GPU. ``"embree"`` stays the default.
+        mesh checks are not in the bare figure. On a GPU (one H100 without RT cores, 16 CPU
+        cores, Mitsuba 3.9.1 ``cuda``, measured 2026-11-27, bench/README.md "Issue 21 item 6
+        on an H100"), whole ``view_factors`` with ``"mitsuba"`` ran at 1.5-4.9x the speed
+        of ``"embree"`` over the 16 threads on a 609k-face grid (0.26-0.27 s against
+        0.41-1.29 s at K = 64 and 256, 144-596 M rays/s; the issue's bare OptiX rays from
+        NumPy: 69 M rays/s) and 3.0-3.2x on a 14k-face corner, with the same F but for a
+        ray's weight in 4-134 entries. There the scene build (0.22-0.24 s, its arrays made
+        in NumPy) is most of the call: the launches take 3-4 times the bare traversal of
+        the same rays already on the device. So on a CUDA GPU ``"mitsuba"`` is the faster
+        choice for large grids; ``"embree"`` stays the default (every machine, the tests'
+        reference path).
     caster : resection.surface.visibility.RayCaster, optional
         An Embree scene of ``mesh`` already built, traced in instead of building one (see
         :class:`RowTracer`): a command that also maps images onto ``mesh`` builds one scene.
