@@ -171,3 +171,25 @@ def test_rays_per_face_not_a_multiple_of_16(k):
     assert (abs(M - E) > 1e-12).nnz <= max(2, 1e-3 * E.nnz)
     np.testing.assert_allclose(M.data * k, np.round(M.data * k), atol=1e-9)
     assert np.asarray(M.sum(axis=1)).max() <= 1.0 + 1e-12
+
+
+@pytest.mark.parametrize("seed", [0, 7, 2**64 - 1])
+def test_scramble_keys_made_on_the_device_are_numpys(seed):
+    """The per-face scramble keys hashed on the device (64-bit wrapping arithmetic in
+    Dr.Jit) equal :func:`selfillum.transport.sampling.digital_shifts` (NumPy uint64), for
+    large seeds and the five dimensions of the two-sided rays."""
+    from selfillum.mitsuba_variants import import_mitsuba
+    from selfillum.transport.mitsuba_factors import _digital_shifts
+    from selfillum.transport.mitsuba_rays import tracing_variant
+    from selfillum.transport.sampling import digital_shifts
+
+    mi, dr = import_mitsuba()
+    previous = mi.variant()
+    mi.set_variant(tracing_variant(None))
+    try:
+        n, dims = 1000, 5
+        got = np.asarray(_digital_shifts(mi, dr, seed, n, dims)).reshape(n, dims)
+    finally:
+        if previous is not None:
+            mi.set_variant(previous)
+    np.testing.assert_array_equal(got, digital_shifts(seed, np.arange(n), dims))

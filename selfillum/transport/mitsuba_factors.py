@@ -42,7 +42,7 @@ import scipy.sparse as sp
 from resection.errors import InputError
 from resection.memory import check_memory
 from selfillum.transport.mitsuba_rays import MitsubaRayScene
-from selfillum.transport.sampling import _sobol_base, digital_shifts
+from selfillum.transport.sampling import _sobol_base
 
 __all__ = ["MitsubaFactorTracer", "RAYS_PER_LAUNCH"]
 
@@ -114,23 +114,27 @@ class MitsubaFactorTracer:
         self.two_sided = bool(two_sided)
         self.dims = 5 if self.two_sided else 4
         self.offset = np.float32(offset)
-        f32 = np.float32
-        v = np.asarray(vertices, dtype=np.float64)
-        tri = (v[np.asarray(faces, dtype=np.int64)] - self.scene.origin).astype(f32)
-        nrm = np.asarray(normals, dtype=np.float64)
-        # 12 floats a face; the centre and the tangent frame are rebuilt in float32 on the
-        # device, once a lane (``_face_data``)
-        per_face = {"v0": tri[:, 0], "e1": tri[:, 1] - tri[:, 0], "e2": tri[:, 2] - tri[:, 0],
-                    "n": nrm.astype(f32)}
+        seed = int(seed)
+        if not 0 <= seed < 1 << 64:
+            raise InputError(f"seed: expected an integer in [0, 2**64), got {seed}")
+        nrm = np.asarray(normals, dtype=np.float32)
         base = _sobol_base(self.k, self.dims)  # (k, dims) uint32
         # the scramble works on bit-reversed Sobol integers (``sampling._reversed_base``)
         rbase = _reverse_bits(base)
-        keys = digital_shifts(int(seed), np.arange(self.n), self.dims)
         mi, dr = self.scene._mi, self.scene._dr
         with self.scene._variant():
-            self._face = {name: _vector(mi, a) for name, a in per_face.items()}
+            # 12 floats a face, made on the device from the scene's float32 vertices (the
+            # values NumPy gives for ``(v[faces] - origin).astype(float32)`` and its float32
+            # edges); the centre and the tangent frame are rebuilt once a lane
+            # (``_face_data``)
+            corner = [dr.gather(mi.Vector3f, self.scene.positions,
+                                dr.gather(mi.UInt32, self.scene.faces,
+                                          dr.arange(mi.UInt32, self.n) * 3 + c))
+                      for c in range(3)]
+            self._face = {"v0": corner[0], "e1": corner[1] - corner[0],
+                          "e2": corner[2] - corner[0], "n": _vector(mi, nrm)}
             self._rbase = mi.UInt32(np.ascontiguousarray(rbase).ravel())
-            self._keys = mi.UInt32(np.ascontiguousarray(keys).ravel())
+            self._keys = _digital_shifts(mi, dr, seed, self.n, self.dims)
             dr.eval(self._face, self._rbase, self._keys)
 
     # ------------------------------------------------------------------ the rays
@@ -358,6 +362,26 @@ class MitsubaFactorTracer:
         F = sp.csr_matrix((data, indices, indptr), shape=(self.n, self.n))
         F.has_sorted_indices = False  # each row's columns are unique, in hash order
         return F
+
+
+def _digital_shifts(mi, dr, seed: int, n: int, dims: int):
+    """:func:`selfillum.transport.sampling.digital_shifts` of faces ``0 .. n - 1`` made on
+    the device: ``(n dims,)`` UInt32, face ``f``'s key of dimension ``d`` at ``f dims + d``
+    (the same 64-bit SplitMix hash, wrapping unsigned arithmetic)."""
+    u64 = mi.UInt64
+
+    def mix(x):
+        x = x ^ (x >> 30)
+        x = x * u64(0xBF58476D1CE4E5B9)
+        x = x ^ (x >> 27)
+        x = x * u64(0x94D049BB133111EB)
+        return x ^ (x >> 31)
+
+    i = dr.arange(mi.UInt32, n * dims)
+    face = i // dims
+    key = (u64(seed) * u64(0x9E3779B97F4A7C15) + u64(face) * u64(0xD1B54A32D192ED03)
+           + u64(i - face * dims) * u64(0x8CB92BA72F3D8DD7))
+    return mi.UInt32(mix(mix(key)) >> 32)
 
 
 def _frame(mi, dr, n):

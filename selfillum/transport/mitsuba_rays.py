@@ -94,9 +94,14 @@ class MitsubaRayScene:
         with self._variant():
             mesh = mi.Mesh("model", len(v), len(f))
             params = mi.traverse(mesh)
-            params["vertex_positions"] = mi.Float(
+            #: the float32 vertices (relative to ``origin``) and the faces, flat, on the
+            #: device: :class:`~selfillum.transport.mitsuba_factors.MitsubaFactorTracer`
+            #: gathers its per-face data there
+            self.positions = mi.Float(
                 np.ascontiguousarray(v - self.origin, dtype=np.float32).ravel())
-            params["faces"] = mi.UInt32(np.ascontiguousarray(f, dtype=np.uint32).ravel())
+            self.faces = mi.UInt32(np.ascontiguousarray(f, dtype=np.uint32).ravel())
+            params["vertex_positions"] = self.positions
+            params["faces"] = self.faces
             params.update()
             self._scene = mi.load_dict({"type": "scene", "model": mesh})
 
