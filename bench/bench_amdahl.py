@@ -19,8 +19,9 @@ covers (argument checks, ``to_surface``, the painted-side check, ...) is "other"
 
 A part is *parallel* when its code runs on several threads (the ray tracing, the
 SurfaceMap's Embree queries, which are inside "SurfaceMap", the Embree scene, whose BVH
-Embree builds on its own threads); every other part runs on one thread and is *serial*. The serial share is serial wall seconds over the command's wall
-seconds (the interpreter's start included, timed by the parent). ``cpu/wall`` of each part
+Embree builds on its own threads); every other part runs on one thread and is *serial*.
+The serial share is serial wall seconds over the command's wall seconds (the
+interpreter's start included, timed by the parent). ``cpu/wall`` of each part
 is printed as a check: about 1 for a serial part, up to 2 for a parallel one on 2 free
 cores (less when other processes take the cores).
 
