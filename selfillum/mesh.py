@@ -9,12 +9,17 @@ painted side.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 import scipy.sparse as sp
-import trimesh
 
 from resection._mesh_graph import shared_edges, vertex_classes
 from resection.errors import InputError
+from resection.trisurface import MERGE_DIGITS, is_mesh
+
+if TYPE_CHECKING:
+    import trimesh
 
 __all__ = ["check_mesh", "face_areas", "face_normals", "face_adjacency_weights"]
 
@@ -52,8 +57,9 @@ def check_mesh(mesh, name: str = "mesh", *, rel_area_tol: float = 1e-12) -> trim
         indices out of range, or degenerate (zero-area) triangles; the message names the
         offending vertex or face indices.
     """
-    if not isinstance(mesh, trimesh.Trimesh):
-        raise InputError(f"{name}: expected a trimesh.Trimesh, got {type(mesh).__name__}")
+    if not is_mesh(mesh):
+        raise InputError(f"{name}: expected a trimesh.Trimesh or TriSurface, got "
+                         f"{type(mesh).__name__}")
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces)
     if faces.ndim != 2 or faces.shape[0] == 0 or faces.shape[1] != 3:
@@ -117,7 +123,7 @@ def face_adjacency_weights(mesh: trimesh.Trimesh) -> sp.csr_matrix:
     faces = np.asarray(mesh.faces, dtype=np.int64)
     if n == 0:
         return sp.csr_matrix((0, n))
-    rep, _, _ = vertex_classes(v, faces, trimesh.util.decimal_to_digits(trimesh.tol.merge))
+    rep, _, _ = vertex_classes(v, faces, MERGE_DIGITS)  # trimesh's merge precision
     merged = rep[faces]
     pairs, edges = shared_edges(merged)
     if pairs.size == 0:

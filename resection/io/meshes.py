@@ -1,7 +1,10 @@
 """Model surface grids in and per-face results out.
 
 Reading (:func:`load_mesh`) gives a :class:`trimesh.Trimesh` built with ``process=False``,
-so the face order is that of the file and every per-face array of the package follows it:
+so the face order is that of the file and every per-face array of the package follows it;
+:func:`read_surface` gives the same triangles as a :class:`~resection.trisurface.TriSurface`
+without importing trimesh for PLY, STL, Plot3D and Cart3D files (the other formats still
+go through trimesh):
 
 * anything trimesh reads (STL, OBJ, PLY, GLB, OFF, ...); a scene of several geometries is
   concatenated and ``face_attributes["component"]`` says which geometry a face came from;
@@ -29,9 +32,9 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import trimesh
 
 from resection._mesh_graph import cross_squares, repeated_faces, vertex_classes
 from resection.defaults import MESH_FORMATS
@@ -44,9 +47,16 @@ from resection.io.plot3d import (  # noqa: F401 - re-exported: Plot3D lives in i
     split_records,
     write_plot3d,
 )
+from resection.io.triangle_files import read_ply, read_stl
+from resection.trisurface import MERGE_DIGITS, TriSurface
+
+if TYPE_CHECKING:
+    import trimesh
 
 __all__ = [
     "load_mesh",
+    "read_surface",
+    "merged",
     "check_mesh",
     "duplicate_faces",
     "MESH_FORMATS",
@@ -150,28 +160,12 @@ def load_mesh(path: str | os.PathLike, *, format: str | None = None,
         ``process=False``: faces in file order, with ``face_attributes`` as described in
         the module docstring and ``metadata["source"]``, ``metadata["format"]``.
     """
-    path = Path(os.fspath(path))
-    if not path.exists():
-        raise InputError(f"mesh file not found: {path}")
-    if path.is_dir():
-        raise InputError(f"mesh path is a directory: {path}")
-    suffix = path.suffix.lower()
-    fmt = (format or "").lower().lstrip(".")
-    if fmt and fmt not in MESH_FORMATS:
-        raise InputError(f"{path}: unknown mesh format {format!r}; one of "
-                         f"{', '.join(MESH_FORMATS)}")
-    if not fmt:
-        fmt = _format_by_content(path, suffix)
-    if fmt == "plot3d":
-        mesh = plot3d_to_mesh(read_plot3d(path), merge_vertices=merge_vertices,
-                              source=str(path))
-        mesh.metadata["format"] = "plot3d"
-    elif fmt == "cart3d":
-        mesh = read_cart3d_tri(path)
-    else:
-        if fmt == "stl":
-            _check_stl(path)
-        mesh = _load_trimesh(path, fmt)
+    path, fmt = _resolve(path, format)
+    if fmt in ("plot3d", "cart3d"):
+        return read_surface(path, format=fmt, merge_vertices=merge_vertices).to_trimesh()
+    if fmt == "stl":
+        _check_stl(path)
+    mesh = _load_trimesh(path, fmt)
     mesh.metadata["source"] = str(path)
     verts, faces = _check_indices(mesh, str(path))  # what merging needs; the rest after
     if merge_vertices and _needs_merging(verts, faces):
@@ -179,16 +173,81 @@ def load_mesh(path: str | os.PathLike, *, format: str | None = None,
     return check_mesh(mesh, str(path))
 
 
+def read_surface(path: str | os.PathLike, *, format: str | None = None,
+                 merge_vertices: bool = True) -> TriSurface | trimesh.Trimesh:
+    """Read a model surface as :func:`load_mesh` does, into a
+    :class:`~resection.trisurface.TriSurface` without importing trimesh.
+
+    The same vertices, faces, face order, face attributes and ``metadata["source"]``,
+    ``["format"]`` as :func:`load_mesh` for PLY (all triangles), STL (binary, or ASCII
+    with one solid), Plot3D and Cart3D files; the vertex merge is trimesh's
+    (:data:`~resection.trisurface.MERGE_DIGITS`). Any other file goes through
+    :func:`load_mesh` and comes back as its ``trimesh.Trimesh``. Parameters and errors as
+    :func:`load_mesh`.
+    """
+    path, fmt = _resolve(path, format)
+    if fmt == "plot3d":
+        surface = plot3d_to_mesh(read_plot3d(path), merge_vertices=merge_vertices,
+                                 source=str(path))
+        surface.metadata["format"] = "plot3d"
+    elif fmt == "cart3d":
+        surface = read_cart3d_tri(path)
+    elif fmt == "stl":
+        surface = read_stl(path, _check_stl(path))
+    elif fmt == "ply":
+        surface = read_ply(path)
+    else:
+        surface = None
+    if surface is None:
+        return load_mesh(path, format=fmt, merge_vertices=merge_vertices)
+    if fmt in ("stl", "ply"):
+        surface.face_attributes.setdefault(
+            "component", np.zeros(len(surface.faces), dtype=np.int64))
+        surface.metadata["format"] = path.suffix.lower().lstrip(".")
+    surface.metadata["source"] = str(path)
+    _check_indices(surface, str(path))  # what merging needs; the rest after
+    if merge_vertices:
+        surface = merged(surface)
+    return check_mesh(surface, str(path))
+
+
+def merged(surface: TriSurface) -> TriSurface:
+    """``surface`` with coincident vertices merged as trimesh's
+    ``merge_vertices(merge_tex=True, merge_norm=True)`` merges them: vertices equal once
+    scaled by ``10**MERGE_DIGITS`` and rounded become the first of them, unused vertices
+    are dropped, the kept ones stay in their order; faces, their order and the face
+    attributes are unchanged. ``surface`` itself when nothing merges."""
+    verts, faces = surface.vertices, surface.faces
+    rep, classes, all_used = vertex_classes(verts, faces, MERGE_DIGITS)
+    if all_used and classes == len(verts):
+        return surface
+    keep = rep == np.arange(len(verts))  # the first used vertex of each class
+    new = np.cumsum(keep) - 1
+    return TriSurface(verts[keep], new[rep[faces]], surface.face_attributes,
+                      surface.metadata)
+
+
+def _resolve(path: str | os.PathLike, format: str | None) -> tuple[Path, str]:
+    """The checked path and the format name (given, or from the extension / content)."""
+    path = Path(os.fspath(path))
+    if not path.exists():
+        raise InputError(f"mesh file not found: {path}")
+    if path.is_dir():
+        raise InputError(f"mesh path is a directory: {path}")
+    fmt = (format or "").lower().lstrip(".")
+    if fmt and fmt not in MESH_FORMATS:
+        raise InputError(f"{path}: unknown mesh format {format!r}; one of "
+                         f"{', '.join(MESH_FORMATS)}")
+    return path, fmt or _format_by_content(path, path.suffix.lower())
+
+
 def _needs_merging(verts: np.ndarray, faces: np.ndarray) -> bool:
     """Whether ``merge_vertices(merge_tex=True, merge_norm=True)`` would change the mesh:
     some vertex is unused, or two coincide at trimesh's merge precision. A grid written
     merged (most are) then skips trimesh's sort of every vertex row (0.2 s for 300,000
     vertices) for one hashed pass."""
-    digits = trimesh.util.decimal_to_digits(trimesh.tol.merge)
-    _, classes, all_used = vertex_classes(verts, faces, digits)
+    _, classes, all_used = vertex_classes(verts, faces, MERGE_DIGITS)
     return not all_used or classes != len(verts)
-
-
 
 
 def _format_by_content(path: Path, suffix: str) -> str:
@@ -207,16 +266,16 @@ def _format_by_content(path: Path, suffix: str) -> str:
     )
 
 
-def _check_stl(path: Path) -> None:
+def _check_stl(path: Path) -> bytes:
     """Refuse a truncated or random STL with a clear message (trimesh would otherwise try
-    to decode it as text and fail on an unrelated import)."""
+    to decode it as text and fail on an unrelated import); the file's bytes otherwise."""
     data = read_bytes(str(path), "STL", "empty file")
     if len(data) >= 84:
         n = int(np.frombuffer(data, "<u4", 1, 80)[0])
         if len(data) == 84 + 50 * n:
             if n == 0:
                 raise InputError(f"{path}: empty mesh (binary STL with 0 triangles)")
-            return  # a well-formed binary STL
+            return data  # a well-formed binary STL
     head = data[:512].lstrip().lower()
     if head.startswith(b"solid"):
         try:
@@ -227,7 +286,7 @@ def _check_stl(path: Path) -> None:
             body = text.lower()
             if "facet" in body and body.count("endfacet") == body.count("facet normal") \
                     and "endsolid" in body:
-                return
+                return data
             raise InputError(f"{path}: truncated or malformed ASCII STL ("
                              f"{body.count('facet normal')} facets opened, "
                              f"{body.count('endfacet')} closed"
@@ -241,6 +300,8 @@ def _check_stl(path: Path) -> None:
 
 
 def _load_trimesh(path: Path, file_type: str | None) -> trimesh.Trimesh:
+    import trimesh
+
     try:
         loaded = trimesh.load(str(path), file_type=file_type, process=False)
     except Exception as exc:  # trimesh raises many kinds; report one line
@@ -285,8 +346,9 @@ def _ply_face_properties(mesh: trimesh.Trimesh) -> None:
 
 # --------------------------------------------------------------------------- Plot3D
 def plot3d_to_mesh(blocks, *, merge_vertices: bool = True,
-                   source: str = "plot3d") -> trimesh.Trimesh:
-    """Triangulate Plot3D surface blocks.
+                   source: str = "plot3d") -> TriSurface:
+    """Triangulate Plot3D surface blocks (into a :class:`~resection.trisurface.TriSurface`;
+    ``.to_trimesh()`` for a trimesh).
 
     Each block must be 2-D: exactly one of ``ni, nj, nk`` equal to 1. Cell ``(i, j)`` with
     corners ``p00, p10, p11, p01`` gives triangles ``(p00, p10, p11)`` (face ``2 c``) and
@@ -338,12 +400,12 @@ def plot3d_to_mesh(blocks, *, merge_vertices: bool = True,
         off += len(Pf)
     if not verts or off == 0:
         raise InputError(f"{source}: empty mesh (no blocks)")
-    mesh = trimesh.Trimesh(np.vstack(verts), np.vstack(faces).astype(np.int64), process=False)
+    mesh = TriSurface(np.vstack(verts), np.vstack(faces))
     if len(mesh.faces) == 0:
         raise InputError(f"{source}: empty mesh (every cell blanked or collapsed)")
-    faces0 = np.array(mesh.faces)
+    faces0 = mesh.faces
     if merge_vertices:
-        mesh.merge_vertices()
+        mesh = merged(mesh)
     # grid node (blocks in order, each block's nodes as reshape(-1)) -> mesh vertex, -1 for a
     # node no face uses (blanked); merging keeps the faces and their order
     node_vertex = np.full(off, -1, dtype=np.int64)
@@ -359,8 +421,9 @@ def plot3d_to_mesh(blocks, *, merge_vertices: bool = True,
 
 
 # --------------------------------------------------------------------------- Cart3D
-def read_cart3d_tri(path: str | os.PathLike) -> trimesh.Trimesh:
-    """Read a Cart3D ``.tri`` surface (ASCII or Fortran unformatted).
+def read_cart3d_tri(path: str | os.PathLike) -> TriSurface:
+    """Read a Cart3D ``.tri`` surface (ASCII or Fortran unformatted) into a
+    :class:`~resection.trisurface.TriSurface` (``.to_trimesh()`` for a trimesh).
 
     Layout: ``nVerts nTris``; the vertices (x y z); the triangles (1-based vertex indices);
     optionally one component id per triangle (kept as ``face_attributes["component"]``,
@@ -427,8 +490,7 @@ def read_cart3d_tri(path: str | os.PathLike) -> trimesh.Trimesh:
         )
     if not np.all(np.isfinite(V)):
         raise InputError(f"{path}: vertices contain NaN or infinite coordinates")
-    mesh = trimesh.Trimesh(V, T - 1, process=False)
-    mesh.face_attributes["component"] = comp
+    mesh = TriSurface(V, T - 1, {"component": comp})
     mesh.metadata["format"] = "cart3d"
     return check_mesh(mesh, path)
 

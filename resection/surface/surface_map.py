@@ -17,12 +17,11 @@ model units of the mesh.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numba
 import numpy as np
 import scipy.sparse as sp
-import trimesh
 
 from resection.camera.model import Camera
 from resection.defaults import DEFAULT_MAX_OBLIQUENESS
@@ -30,6 +29,10 @@ from resection.errors import InputError
 from resection.memory import SURFACE_MAP_BYTES_PER_PIXEL, check_pixel_memory
 from resection.surface.vertex_fit import _apply_vertex, _as_float, prepare_pattern, vertex_values
 from resection.surface.visibility import RayCaster
+from resection.trisurface import is_mesh
+
+if TYPE_CHECKING:
+    import trimesh
 
 __all__ = ["DEFAULT_MAX_OBLIQUENESS", "SurfaceMap", "SurfaceSample", "oblique_faces",
            "vertex_values"]
@@ -152,8 +155,9 @@ class SurfaceMap:
     ):
         if not isinstance(camera, Camera):
             raise InputError(f"camera: expected a resection.Camera, got {type(camera).__name__}")
-        if not isinstance(mesh, trimesh.Trimesh):
-            raise InputError(f"mesh: expected a trimesh.Trimesh, got {type(mesh).__name__}")
+        if not is_mesh(mesh):
+            raise InputError(f"mesh: expected a trimesh.Trimesh or TriSurface, got "
+                             f"{type(mesh).__name__}")
         self.mesh = mesh
         self.camera = camera
         self.max_obliqueness = _check_obliqueness(max_obliqueness)

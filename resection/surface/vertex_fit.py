@@ -12,12 +12,16 @@ pairs touch only, so a camera that sees a fraction of a large grid pays for that
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numba
 import numpy as np
 import scipy.sparse as sp
-import trimesh
 
 from resection.errors import InputError
+
+if TYPE_CHECKING:
+    import trimesh
 
 __all__ = ["vertex_values"]
 

@@ -20,9 +20,10 @@ Face winding gives the normal: counter-clockwise seen from outside, as trimesh.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numba
 import numpy as np
-import trimesh
 
 from resection._checks import as_points
 from resection._mesh_graph import edge_cross
@@ -30,6 +31,10 @@ from resection._threads import run_blocks, split_range
 from resection.camera.model import Camera
 from resection.errors import InputError
 from resection.surface import embree
+from resection.trisurface import is_mesh
+
+if TYPE_CHECKING:
+    import trimesh
 
 __all__ = ["RayCaster", "visible_faces", "face_sample_points", "face_geometry",
            "bounds", "unit_normals"]
@@ -48,8 +53,9 @@ class RayCaster:
     """
 
     def __init__(self, mesh: trimesh.Trimesh):
-        if not isinstance(mesh, trimesh.Trimesh):
-            raise InputError(f"mesh: expected a trimesh.Trimesh, got {type(mesh).__name__}")
+        if not is_mesh(mesh):
+            raise InputError(f"mesh: expected a trimesh.Trimesh or TriSurface, got "
+                             f"{type(mesh).__name__}")
         if len(mesh.faces) == 0:
             raise InputError("mesh: has no faces")
         vertices = np.asarray(mesh.vertices, dtype=np.float64)

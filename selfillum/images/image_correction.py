@@ -26,10 +26,10 @@ import warnings
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.sparse as sp
-import trimesh
 
 from resection.camera.model import Camera
 from resection.errors import InputError
@@ -40,6 +40,9 @@ from selfillum.mesh import check_mesh, face_areas
 from selfillum.solve.radiosity import SolveInfo, check_reflectance, correct
 from selfillum.solve.unseen import describe_unseen, read_unpainted, read_unseen, unseen_warning
 from selfillum.transport.coupling import coupled_view_factors
+
+if TYPE_CHECKING:
+    import trimesh
 
 __all__ = ["ImageCorrection", "correct_image", "read_reflectance", "correct_image_file",
            "UnseenFacesWarning", "DEFAULT_MAX_OBLIQUENESS"]
@@ -443,7 +446,7 @@ def correct_image_file(
     saturation: float | None = None,
 ) -> ImageCorrection:
     """File-level :func:`correct_image`: read the mesh (any format of
-    :func:`resection.io.meshes.load_mesh`), the camera JSON and the image (TIFF or NPY),
+    :func:`resection.io.meshes.read_surface`), the camera JSON and the image (TIFF or NPY),
     correct, write the corrected image (TIFF, PNG or NPY, from ``out_path``'s suffix) as
     float32 for an 8-bit image and with the input's type otherwise, or as ``dtype``
     (``"float32"``, ``"uint16"``, ``"uint8"``) when asked (:mod:`selfillum.images.output_dtype`),
@@ -464,7 +467,7 @@ def correct_image_file(
     from resection.io.cameras import read_camera_file
     from resection.io.markers import read_markers
     from resection.io.marks import claim_side_file, mark
-    from resection.io.meshes import load_mesh, write_surface
+    from resection.io.meshes import read_surface, write_surface
     from resection.io.outputs import atomic_path, refuse_overwriting_inputs
     from resection.pose.camera_fit import check_camera
     from resection.surface.surface_map import SurfaceMap
@@ -488,7 +491,7 @@ def correct_image_file(
          "--unseen": [unseen] if isinstance(unseen, str | os.PathLike) else [],
          "--unpainted": [unpainted] if isinstance(unpainted, str | os.PathLike) else [],
          "--markers": [markers] if markers else []})
-    mesh = load_mesh(mesh_path, format=mesh_format)
+    mesh = read_surface(mesh_path, format=mesh_format)
     image = _read_native(image_path)
     target = output_dtype(image.dtype, out_path, dtype)  # refused before the work
     cf = read_camera_file(camera_path, image_size=image.shape[::-1][:2])

@@ -18,9 +18,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
-import trimesh
 
 from resection.errors import InputError, SolveError
+from resection.trisurface import TriSurface
 from selfillum.transport.coupling import coupled_faces
 
 __all__ = [
@@ -516,8 +516,7 @@ def _continue_hidden(M, Bsub, loc_seen, paint_off, mesh, sub, regularization, to
         return out
 
     # smoothness over edges between painted faces of the sub-problem
-    submesh = trimesh.Trimesh(np.asarray(mesh.vertices), np.asarray(mesh.faces)[sub],
-                              process=False)
+    submesh = TriSurface(mesh.vertices, np.asarray(mesh.faces)[sub])
     D = face_adjacency_weights(submesh)
     if D.shape[0]:
         touches_unpainted = (abs(D) @ paint_off.astype(float)) > 0

@@ -23,11 +23,14 @@ from __future__ import annotations
 import os
 import re
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import trimesh
 
 from resection.errors import InputError
+
+if TYPE_CHECKING:
+    import trimesh
 
 __all__ = ["read_unpainted", "read_unseen", "describe_unseen", "unseen_warning",
            "WARN_LEVEL", "WARN_AREA"]

@@ -27,14 +27,17 @@ those rays hit, and so on until no new face is hit: the rays cast are those of
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.sparse as sp
-import trimesh
 from scipy.sparse.csgraph import breadth_first_order
 
 from resection.errors import InputError
 from selfillum.transport.viewfactors import RowTracer
+
+if TYPE_CHECKING:
+    import trimesh
 
 __all__ = ["coupled_faces", "coupled_view_factors"]
 

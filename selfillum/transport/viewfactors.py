@@ -18,10 +18,10 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.sparse as sp
-import trimesh
 
 from resection._threads import available_cores, numba_threads
 from resection.errors import InputError
@@ -37,6 +37,9 @@ from selfillum.transport.sampling import (
     rqmc_points,
     sample_rays,
 )
+
+if TYPE_CHECKING:
+    import trimesh
 
 __all__ = ["view_factors", "RowTracer", "enforce_reciprocity", "RayScene", "sample_rays",
            "rqmc_points", "digital_shifts"]
