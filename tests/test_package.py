@@ -57,3 +57,27 @@ def test_resection_command_line_builds_without_the_numerical_stacks():
     assert not {"matplotlib", "dask", "trimesh", "embreex", "numba", "scipy"} & loaded
     loaded = _modules_after("from selfillum.cli.main import build_parser\nbuild_parser()")
     assert not {"matplotlib", "dask", "trimesh", "embreex", "numba", "scipy", "mitsuba"} & loaded
+
+
+def test_correct_command_does_not_import_trimesh(tmp_path):
+    """``selfillum correct`` on a PLY reads it without trimesh (0.3-0.4 s of imports:
+    scipy.spatial, networkx, ...): at the end of the command trimesh is not loaded."""
+    import numpy as np
+
+    from resection import Camera
+    from resection.io.cameras import write_camera
+    from scenes.corner import corner
+
+    sc = corner(resolution=4)
+    sc.mesh.export(tmp_path / "corner.ply")
+    write_camera(tmp_path / "cam.json", Camera.look_at(
+        [1.6, 0.5, 1.3], [0.3, 0.5, 0.3], [0.0, 1.0, 0.0],
+        K=[[40.0, 0.0, 23.5], [0.0, 40.0, 17.5], [0.0, 0.0, 1.0]], width=48, height=36))
+    np.save(tmp_path / "img.npy", np.ones((36, 48), np.float32))
+    args = ["correct", "--mesh", "corner.ply", "--camera", "cam.json", "--image", "img.npy",
+            "--reflectance", "0.5", "--rays", "16", "--out", "out.npy", "--quiet"]
+    code = (f"import os\nos.chdir({str(tmp_path)!r})\nfrom selfillum.cli.main import main\n"
+            f"assert main({args!r}) == 0\nassert os.path.exists('out.npy')")
+    loaded = _modules_after(code)
+    assert "selfillum.images.image_correction" in loaded  # the command ran
+    assert "trimesh" not in loaded

@@ -63,7 +63,9 @@ __all__ = [
     "read_plot3d",
     "write_plot3d",
     "plot3d_to_mesh",
+    "plot3d_to_surface",
     "read_cart3d_tri",
+    "read_cart3d_surface",
     "write_cart3d_tri",
     "write_surface",
     "read_face_fields",
@@ -187,11 +189,11 @@ def read_surface(path: str | os.PathLike, *, format: str | None = None,
     """
     path, fmt = _resolve(path, format)
     if fmt == "plot3d":
-        surface = plot3d_to_mesh(read_plot3d(path), merge_vertices=merge_vertices,
-                                 source=str(path))
+        surface = plot3d_to_surface(read_plot3d(path), merge_vertices=merge_vertices,
+                                    source=str(path))
         surface.metadata["format"] = "plot3d"
     elif fmt == "cart3d":
-        surface = read_cart3d_tri(path)
+        surface = read_cart3d_surface(path)
     elif fmt == "stl":
         surface = read_stl(path, _check_stl(path))
     elif fmt == "ply":
@@ -346,9 +348,14 @@ def _ply_face_properties(mesh: trimesh.Trimesh) -> None:
 
 # --------------------------------------------------------------------------- Plot3D
 def plot3d_to_mesh(blocks, *, merge_vertices: bool = True,
-                   source: str = "plot3d") -> TriSurface:
-    """Triangulate Plot3D surface blocks (into a :class:`~resection.trisurface.TriSurface`;
-    ``.to_trimesh()`` for a trimesh).
+                   source: str = "plot3d") -> trimesh.Trimesh:
+    """:func:`plot3d_to_surface` as a ``trimesh.Trimesh`` (``process=False``)."""
+    return plot3d_to_surface(blocks, merge_vertices=merge_vertices, source=source).to_trimesh()
+
+
+def plot3d_to_surface(blocks, *, merge_vertices: bool = True,
+                      source: str = "plot3d") -> TriSurface:
+    """Triangulate Plot3D surface blocks into a :class:`~resection.trisurface.TriSurface`.
 
     Each block must be 2-D: exactly one of ``ni, nj, nk`` equal to 1. Cell ``(i, j)`` with
     corners ``p00, p10, p11, p01`` gives triangles ``(p00, p10, p11)`` (face ``2 c``) and
@@ -421,9 +428,14 @@ def plot3d_to_mesh(blocks, *, merge_vertices: bool = True,
 
 
 # --------------------------------------------------------------------------- Cart3D
-def read_cart3d_tri(path: str | os.PathLike) -> TriSurface:
+def read_cart3d_tri(path: str | os.PathLike) -> trimesh.Trimesh:
+    """:func:`read_cart3d_surface` as a ``trimesh.Trimesh`` (``process=False``)."""
+    return read_cart3d_surface(path).to_trimesh()
+
+
+def read_cart3d_surface(path: str | os.PathLike) -> TriSurface:
     """Read a Cart3D ``.tri`` surface (ASCII or Fortran unformatted) into a
-    :class:`~resection.trisurface.TriSurface` (``.to_trimesh()`` for a trimesh).
+    :class:`~resection.trisurface.TriSurface`.
 
     Layout: ``nVerts nTris``; the vertices (x y z); the triangles (1-based vertex indices);
     optionally one component id per triangle (kept as ``face_attributes["component"]``,

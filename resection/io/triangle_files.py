@@ -8,11 +8,13 @@ The vertices, faces and face order are those ``trimesh.load(..., process=False)`
   ``vertex`` element as float64, the ``vertex_indices`` (or ``vertex_index``) lists of the
   ``face`` element; every scalar numeric face property (as
   :func:`~resection.io.meshes.write_surface` writes them) becomes a face attribute;
-* STL: binary (``84 + 50 n`` bytes) as float32 corners, or ASCII with one ``solid``; three
-  vertices per triangle, in file order.
+* STL: binary (``84 + 50 n`` bytes) as float32 corners (the 2-byte attribute of each
+  triangle as face attribute ``stl``), or ASCII with one ``solid``; three vertices per
+  triangle, in file order.
 
 Files these readers do not cover (polygons other than triangles, several ASCII ``solid``
-blocks, a PLY without faces) give ``None``: the caller reads them through trimesh.
+blocks, a PLY without faces or with types plyfile does not know) give ``None``: the caller
+reads them through trimesh.
 """
 
 from __future__ import annotations
@@ -31,13 +33,9 @@ _STL_RECORD = np.dtype([("normal", "<f4", 3), ("corners", "<f4", (3, 3)), ("attr
 
 
 def read_ply(path: Path) -> TriSurface | None:
-    """The triangles of a PLY file; ``None`` for a PLY that is not all triangles.
-
-    Raises
-    ------
-    InputError
-        The file is not a readable PLY (one line: the file and plyfile's reason).
-    """
+    """The triangles of a PLY file; ``None`` for a PLY that is not all triangles or that
+    plyfile cannot read (a broken file, or non-standard property types such as the
+    ``int64`` of trimesh's exports): trimesh reads it, or says what is wrong."""
     import plyfile
 
     known = {"face": {"vertex_indices": 3, "vertex_index": 3}}
@@ -46,10 +44,8 @@ def read_ply(path: Path) -> TriSurface | None:
             ply = plyfile.PlyData.read(str(path), known_list_len=known)
         except plyfile.PlyElementParseError:  # lists of other lengths: read them as they are
             ply = plyfile.PlyData.read(str(path), mmap=False)
-    except (plyfile.PlyParseError, plyfile.PlyHeaderParseError, ValueError, OSError,
-            EOFError, IndexError, KeyError) as exc:
-        raise InputError(f"{path}: cannot be read as a mesh ({type(exc).__name__}: {exc})") \
-            from None
+    except (plyfile.PlyParseError, ValueError, OSError, EOFError, IndexError, KeyError):
+        return None  # not plyfile's PLY (e.g. trimesh's int64 properties): trimesh's turn
     names = [e.name for e in ply.elements]
     if "vertex" not in names or "face" not in names:
         return None
@@ -82,6 +78,7 @@ def read_stl(path: Path, data: bytes) -> TriSurface | None:
     if len(data) == 84 + 50 * n:
         rec = np.frombuffer(data, _STL_RECORD, n, 84)
         vertices = rec["corners"].reshape(-1, 3).astype(np.float64)
+        attrs = {"stl": np.array(rec["attr"])}  # the attribute count, as trimesh keeps it
     else:
         text = data.decode("ascii").lower()
         if text.count("endsolid") != 1:
@@ -95,6 +92,6 @@ def read_stl(path: Path, data: bytes) -> TriSurface | None:
         if vertices.size == 0 or vertices.size % 9:
             raise InputError(f"{path}: ASCII STL with {vertices.size} vertex coordinates "
                              "(not three 3-D corners per facet)")
-        vertices = vertices.reshape(-1, 3)
+        vertices, attrs = vertices.reshape(-1, 3), {}
     faces = np.arange(len(vertices), dtype=np.int64).reshape(-1, 3)
-    return TriSurface(vertices, faces, {}, {"format": "stl"})
+    return TriSurface(vertices, faces, attrs, {"format": "stl"})
