@@ -57,6 +57,7 @@ ROOT = Path(__file__).resolve().parents[1]
 #: (label, module, attribute path, parallel?) of the functions timed in the child.
 PARTS = [
     ("grid reading", "resection.io.meshes", "load_mesh", False),
+    ("grid reading", "resection.io.meshes", "read_surface", False),
     ("camera reading", "resection.io.cameras", "read_camera_file", False),
     ("image reading", "resection.io.images", "read_native", False),
     # the BVH build runs on Embree's own threads (cpu/wall 1.8-1.95 on 2 free cores)
@@ -82,7 +83,9 @@ PARTS = [
     ("writing", "selfillum.summary", "write_summary", False),
     ("writing", "numpy", "save", False),
 ]
-IMPORTS = ["numpy", "scipy.sparse", "scipy.sparse.linalg", "trimesh", "numba", "embreex",
+#: Imported up front (their time is "imports"); trimesh is not: a tree whose command needs it
+#: imports it through these modules or later, inside the part that needs it.
+IMPORTS = ["numpy", "scipy.sparse", "scipy.sparse.linalg", "numba", "embreex",
            "selfillum.images.image_correction", "selfillum.summary", "resection.saturation",
            "resection.io.cameras", "resection.io.meshes", "resection.io.markers",
            "resection.io.marks", "resection.io.outputs", "resection.pose.camera_fit",
@@ -142,7 +145,8 @@ def child(argv: list[str]) -> None:
     records["other"] = [total_w - covered[0], total_c - covered[1]]
     records["imports"] = [t_imp, c_imp]
     print(json.dumps({"parts": records, "run": [total_w, total_c],
-                      "before_imports": t0 - T_START}), flush=True)
+                      "before_imports": t0 - T_START, "trimesh": "trimesh" in sys.modules}),
+          flush=True)
 
 
 def _env(root: Path) -> dict:
@@ -188,7 +192,8 @@ def print_parts(tag: str, runs: list[dict]) -> None:
     walls = ", ".join(f"{r['wall']:.2f}" for r in runs)
     shares = ", ".join(f"{100 * serial_share(r):.0f}" for r in runs)
     print(f"\n{tag}: whole command {best['wall']:.2f} s (best of {len(runs)}; all: {walls}); "
-          f"serial share {100 * serial_share(best):.0f} % (all: {shares} %)")
+          f"serial share {100 * serial_share(best):.0f} % (all: {shares} %); trimesh "
+          f"{'imported' if best.get('trimesh', True) else 'not imported'}")
     order = ["start-up", "imports", "exit"] + list(dict.fromkeys(p[0] for p in PARTS)) + ["other"]
     for k in order:
         if k not in best["parts"]:

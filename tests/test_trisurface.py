@@ -6,6 +6,7 @@ vertex merge, and the ``selfillum correct`` result with a trimesh mesh."""
 from __future__ import annotations
 
 import numpy as np
+import plyfile
 import pytest
 import trimesh
 
@@ -131,11 +132,20 @@ def _files(tmp_path):
     fields = {"Cp": np.linspace(0, 1, len(sph.faces)), "seen": np.arange(len(sph.faces)) % 2}
     write_surface(tmp_path / "f.ply", sph, fields)
     out["ply fields"] = tmp_path / "f.ply"
+    grid = corner(resolution=6).mesh  # trimesh writes its int64 face attributes
+    grid.face_attributes["block"] = np.arange(len(grid.faces), dtype=np.int64) - 5
+    grid.face_attributes["cell_i"] = np.arange(len(grid.faces), dtype=np.uint64) * 2**40
+    grid.export(tmp_path / "g.ply")
+    out["ply int64"] = tmp_path / "g.ply"
+    ply = plyfile.PlyData.read(str(tmp_path / "f.ply"))
+    ply.byte_order = ">"
+    ply.write(str(tmp_path / "big.ply"))
+    out["ply big-endian"] = tmp_path / "big.ply"
     return out
 
 
 @pytest.mark.parametrize("kind", ["stl binary", "stl ascii", "ply binary", "ply ascii",
-                                  "ply fields"])
+                                  "ply fields", "ply int64", "ply big-endian"])
 @pytest.mark.parametrize("merge", [True, False])
 def test_read_surface_reads_what_trimesh_reads(tmp_path, kind, merge):
     path = _files(tmp_path)[kind]
@@ -202,6 +212,11 @@ def test_other_files_still_go_through_trimesh(tmp_path):
             + "\n4 0 1 2 3\n4 1 4 5 2\n")
     (tmp_path / "q.ply").write_text(text)
     got = read_surface(tmp_path / "q.ply")
+    assert isinstance(got, trimesh.Trimesh) and len(got.faces) == 4
+    ply = plyfile.PlyData.read(str(tmp_path / "q.ply"))
+    ply.text = False
+    ply.write(str(tmp_path / "qb.ply"))
+    got = read_surface(tmp_path / "qb.ply")
     assert isinstance(got, trimesh.Trimesh) and len(got.faces) == 4
     solid = trimesh.creation.box().export(file_type="stl_ascii")
     (tmp_path / "two.stl").write_text(solid + "\n" + solid.replace("solid", "solid b"))

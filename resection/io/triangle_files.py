@@ -4,8 +4,8 @@ trimesh.
 The vertices, faces and face order are those ``trimesh.load(..., process=False)`` gives
 (the tests compare them), before any vertex merge:
 
-* PLY (binary either byte order, or ASCII) through ``plyfile``: ``x, y, z`` of the
-  ``vertex`` element as float64, the ``vertex_indices`` (or ``vertex_index``) lists of the
+* PLY (binary of either byte order with NumPy, ASCII through ``plyfile``): ``x, y, z`` of
+  the ``vertex`` element as float64, the ``vertex_indices`` (or ``vertex_index``) lists of the
   ``face`` element; every scalar numeric face property (as
   :func:`~resection.io.meshes.write_surface` writes them) becomes a face attribute;
 * STL: binary (``84 + 50 n`` bytes) as float32 corners (the 2-byte attribute of each
@@ -13,8 +13,8 @@ The vertices, faces and face order are those ``trimesh.load(..., process=False)`
   triangle, in file order.
 
 Files these readers do not cover (polygons other than triangles, several ASCII ``solid``
-blocks, a PLY without faces or with types plyfile does not know) give ``None``: the caller
-reads them through trimesh.
+blocks, a PLY without faces, lists other than the corners, unknown types) give ``None``:
+the caller reads them through trimesh.
 """
 
 from __future__ import annotations
@@ -34,25 +34,93 @@ _STL_RECORD = np.dtype([("normal", "<f4", 3), ("corners", "<f4", (3, 3)), ("attr
 
 def read_ply(path: Path) -> TriSurface | None:
     """The triangles of a PLY file; ``None`` for a PLY that is not all triangles or that
-    plyfile cannot read (a broken file, or non-standard property types such as the
-    ``int64`` of trimesh's exports): trimesh reads it, or says what is wrong."""
+    cannot be read here (a broken file, an unknown type): trimesh reads it, or says what
+    is wrong. Binary files are read with NumPy (which also takes the ``int64`` and
+    ``uint64`` properties of trimesh's exports), ASCII ones with plyfile."""
+    data = path.read_bytes()
+    head = _ply_header(data)
+    if head is None:
+        return None
+    fmt, elements, start = head
+    if fmt == "ascii":
+        return _read_ply_ascii(path)
+    if fmt not in ("binary_little_endian", "binary_big_endian"):
+        return None
+    order = "<" if fmt == "binary_little_endian" else ">"
+    arrays, offset = {}, start
+    for name, count, props in elements:  # a handful of elements
+        fields, lists = [], []
+        for pname, ptype in props:
+            if isinstance(ptype, tuple):  # a list: only the face's corners, three each
+                if name != "face" or pname not in _CORNERS:
+                    return None
+                if ptype[0] not in _PLY_TYPES or ptype[1] not in _PLY_TYPES:
+                    return None
+                fields += [(pname + " n", order + _PLY_TYPES[ptype[0]]),
+                           (pname, order + _PLY_TYPES[ptype[1]], (3,))]
+                lists.append(pname)
+            elif ptype in _PLY_TYPES:
+                fields.append((pname, order + _PLY_TYPES[ptype]))
+            else:
+                return None
+        try:
+            dtype = np.dtype(fields)
+        except (TypeError, ValueError):  # repeated property names
+            return None
+        if count < 0 or offset + count * dtype.itemsize > len(data):
+            return None  # truncated
+        arr = np.frombuffer(data, dtype, count, offset)
+        offset += count * dtype.itemsize
+        if any(np.any(arr[k + " n"] != 3) for k in lists):
+            return None  # polygons, or rows this layout misreads from there on
+        arrays[name] = arr
+    return _surface(arrays.get("vertex"), arrays.get("face"))
+
+
+#: PLY scalar types as NumPy's (with the 64-bit integers trimesh writes).
+_PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2",
+              "int16": "i2", "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4",
+              "uint": "u4", "uint32": "u4", "float": "f4", "float32": "f4", "double": "f8",
+              "float64": "f8", "int64": "i8", "uint64": "u8"}
+_CORNERS = ("vertex_indices", "vertex_index")
+
+
+def _ply_header(data: bytes):
+    """``(format, [(element, count, [(property, type or (count type, item type))])],
+    offset of the body)``, or ``None`` when ``data`` has no PLY header."""
+    end = data.find(b"end_header", 0, 1 << 20)
+    if not data.startswith(b"ply") or end < 0:
+        return None
+    nl = data.find(b"\n", end)
+    fmt, elements = None, []
+    for line in data[:end].decode("ascii", "replace").splitlines()[1:]:  # header lines
+        w = line.split()
+        try:
+            if w and w[0] == "format":
+                fmt = w[1]
+            elif w and w[0] == "element":
+                elements.append((w[1], int(w[2]), []))
+            elif w and w[0] == "property" and elements:
+                elements[-1][2].append((w[4], (w[2], w[3])) if w[1] == "list"
+                                       else (w[2], w[1]))
+        except (IndexError, ValueError):
+            return None
+    return (fmt, elements, nl + 1) if nl >= 0 else None
+
+
+def _read_ply_ascii(path: Path) -> TriSurface | None:
     import plyfile
 
-    known = {"face": {"vertex_indices": 3, "vertex_index": 3}}
     try:
-        try:
-            ply = plyfile.PlyData.read(str(path), known_list_len=known)
-        except plyfile.PlyElementParseError:  # lists of other lengths: read them as they are
-            ply = plyfile.PlyData.read(str(path), mmap=False)
+        ply = plyfile.PlyData.read(str(path))
     except (plyfile.PlyParseError, ValueError, OSError, EOFError, IndexError, KeyError):
-        return None  # not plyfile's PLY (e.g. trimesh's int64 properties): trimesh's turn
+        return None  # trimesh's turn
     names = [e.name for e in ply.elements]
     if "vertex" not in names or "face" not in names:
         return None
-    vert, face = ply["vertex"].data, ply["face"].data
-    fnames = face.dtype.names or ()
-    key = next((k for k in ("vertex_indices", "vertex_index") if k in fnames), None)
-    if key is None or not all(k in (vert.dtype.names or ()) for k in "xyz"):
+    face = ply["face"].data
+    key = next((k for k in _CORNERS if k in (face.dtype.names or ())), None)
+    if key is None:
         return None
     lists = face[key]
     if lists.dtype == object:  # rows of any length: triangles only
@@ -60,14 +128,25 @@ def read_ply(path: Path) -> TriSurface | None:
         if len(lists) == 0 or np.any(lengths != 3):
             return None
         lists = np.stack(lists)
-    faces = np.array(lists, dtype=np.int64).reshape(-1, 3)
+    return _surface(ply["vertex"].data, face, np.asarray(lists).reshape(-1, 3))
+
+
+def _surface(vert, face, corners=None) -> TriSurface | None:
+    """The TriSurface of a PLY's vertex and face records (``None`` when one is missing)."""
+    if vert is None or face is None or not all(k in (vert.dtype.names or ()) for k in "xyz"):
+        return None
+    names = face.dtype.names or ()
+    key = next((k for k in _CORNERS if k in names), None)
+    if key is None:
+        return None
+    faces = np.array(face[key] if corners is None else corners, dtype=np.int64).reshape(-1, 3)
     vertices = np.column_stack([np.asarray(vert[k], dtype=np.float64) for k in "xyz"])
     attrs = {}
-    for name in fnames:
+    for name in names:
         a = face[name]
-        if name != key and a.ndim == 1 and len(a) == len(faces) \
-                and np.issubdtype(a.dtype, np.number):
-            attrs[name] = np.array(a)
+        if name != key and not name.endswith(" n") and a.ndim == 1 \
+                and len(a) == len(faces) and np.issubdtype(a.dtype, np.number):
+            attrs[name] = a.astype(a.dtype.newbyteorder("="))  # a native-order copy
     return TriSurface(vertices, faces, attrs, {"format": "ply"})
 
 
