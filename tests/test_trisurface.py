@@ -92,6 +92,11 @@ def test_consumers_accept_the_container_and_refuse_other_objects():
     a, b = SurfaceMap(s, _camera()), SurfaceMap(sc.mesh, _camera())
     np.testing.assert_array_equal(a.face_index, b.face_index)
     assert check_mesh(s) is s
+    from resection.sequence.inputs import _mesh_normals  # trimesh's nearest-point query
+
+    pts = sc.mesh.triangles_center[::7] + 0.01
+    np.testing.assert_array_equal(_mesh_normals(s, pts, None),
+                                  _mesh_normals(sc.mesh, pts, None))
     for call in (lambda: SurfaceMap("m.ply", _camera()), lambda: RayCaster([1, 2]),
                  lambda: check_mesh({"faces": []})):
         with pytest.raises(InputError, match="expected a trimesh.Trimesh or TriSurface"):

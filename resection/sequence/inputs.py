@@ -14,6 +14,7 @@ from resection.errors import InputError
 from resection.sequence.frames import VideoFrame, expand_frames
 from resection.sequence.process import Setup
 from resection.sequence.results import FORMAT_VERSION
+from resection.trisurface import TriSurface
 
 
 def _as_markers(markers3d) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
@@ -49,14 +50,16 @@ def _as_markers(markers3d) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
 
 
 def _mesh_normals(mesh, points: np.ndarray, normals: np.ndarray | None) -> np.ndarray:
-    """Normals at the markers from the mesh (a path or a trimesh): the normal of the face
-    nearest each marker, where the marker file gives none."""
+    """Normals at the markers from the mesh (a path, a trimesh or a TriSurface): the normal
+    of the face nearest each marker, where the marker file gives none."""
     import trimesh
 
     if isinstance(mesh, (str, os.PathLike)):
         from resection.io.meshes import load_mesh
 
         mesh = load_mesh(mesh)
+    if isinstance(mesh, TriSurface):  # trimesh's nearest-point query needs its mesh
+        mesh = mesh.to_trimesh()
     if not isinstance(mesh, trimesh.Trimesh):
         raise InputError(f"mesh: expected a mesh file or a trimesh.Trimesh, got "
                          f"{type(mesh).__name__}")
