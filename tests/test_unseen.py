@@ -43,6 +43,26 @@ def test_coupled_faces_follow_the_light_paths():
     np.testing.assert_array_equal(coupled_faces(F, seen2), [True, True, True, True, False])
 
 
+def test_coupled_faces_match_scipy_breadth_first_search():
+    """A random sparse graph: the faces reached from the seen ones are those SciPy's
+    breadth-first search reaches from a super-source linked to them."""
+    from scipy.sparse.csgraph import breadth_first_order
+
+    rng = np.random.default_rng(5)
+    n = 3000
+    F = sp.random(n, n, density=0.6 / n, format="csr", random_state=rng)
+    seen = rng.random(n) < 0.01
+    link = sp.csr_matrix((np.ones(seen.sum()), (np.zeros(seen.sum(), int),
+                                                np.flatnonzero(seen))), shape=(1, n))
+    graph = sp.bmat([[F, None], [link, None]], format="csr")
+    graph.resize(n + 1, n + 1)
+    ref = np.zeros(n + 1, bool)
+    ref[breadth_first_order(graph, n, directed=True, return_predecessors=False)] = True
+    got = coupled_faces(F, seen)
+    assert 0 < got.sum() - seen.sum() < n - seen.sum()  # some reached, not every face
+    np.testing.assert_array_equal(got, ref[:n] | seen)
+
+
 @pytest.fixture(scope="module")
 def slab():
     """A small slab carrying a black unpainted box, the camera above it, a converged

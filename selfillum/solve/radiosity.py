@@ -21,6 +21,7 @@ import scipy.sparse.linalg as spla
 
 from resection.errors import InputError, SolveError
 from resection.trisurface import TriSurface
+from selfillum.solve.csr import column_blocks, identity_minus
 from selfillum.transport.coupling import coupled_faces
 
 __all__ = [
@@ -373,8 +374,10 @@ def correct(
 
     reach = coupled_faces(F, mask)
     sub = np.flatnonzero(reach)  # seen + coupled hidden faces, the whole problem
-    Fs = F[sub][:, sub]  # the sub-problem first: I - rho F over its faces only
-    M = (sp.identity(sub.size, format="csr") - sp.diags(rho[sub]) @ Fs).tocsr()
+    # the sub-problem first: I - rho F over its faces only (compiled passes on numba's
+    # threads: SciPy's F[sub][:, sub] and products run on one)
+    Fs = column_blocks(F, sub, np.where(reach, 0, -1), 1)[0]
+    M = identity_minus(Fs, rho[sub])
     loc_seen = mask[sub]
     Bsub = np.where(loc_seen, B[sub], 0.0)
     hid = np.flatnonzero(~loc_seen)
@@ -486,14 +489,17 @@ def _continue_hidden(M, Bsub, loc_seen, paint_off, mesh, sub, regularization, to
     P = hid[~paint_off[hid]]
     U = hid[paint_off[hid]]
     s_idx = np.flatnonzero(loc_seen)
-    Mc = M.tocsc()
-    e_s = Mc[:, s_idx] @ Bsub[s_idx]
-    M_SP = Mc[:, P].tocsr()
-    M_SU = Mc[:, U].tocsr()
-    RF_UU = (sp.identity(U.size, format="csr") - M[U][:, U]).tocsr()
-    RF_UUt = RF_UU.T.tocsr()
-    M_UP = M[U][:, P].tocsr()
-    M_Us = M[U][:, s_idx].tocsr()
+    # the blocks of M by columns (seen, P, U), each in one compiled pass over its rows
+    group = np.where(loc_seen, 0, np.where(paint_off, 2, 1))
+    M_Ss, M_SP, M_SU = column_blocks(M, None, group, 3)
+    e_s = M_Ss @ Bsub[s_idx]
+    M_Us, M_UP, M_UU = column_blocks(M, U, group, 3)
+    M_PP = column_blocks(M, P, np.where(group == 1, 0, -1), 1)[0]
+    C_sP = column_blocks(M_SP, s_idx, np.zeros(P.size, np.int64), 1)[0]  # M_SP[s_idx]
+    RF_UU = (sp.identity(U.size, format="csr") - M_UU).tocsr()
+    RF_UUt = RF_UU.T
+    # which rows of sub the hidden faces reach (what the smoothness terms below keep)
+    moves = (np.diff(M_SP.indptr) > 0) | (np.diff(M_SU.indptr) > 0)
 
     def u_of(bp):  # B_U from B_P with E_U = 0
         return _neumann(RF_UU, -(M_Us @ Bsub[s_idx] + M_UP @ bp), tol)
@@ -524,13 +530,13 @@ def _continue_hidden(M, Bsub, loc_seen, paint_off, mesh, sub, regularization, to
     D = D.tocsr()
     # only the edges touching a face whose emission depends on B_P (the rows of G) change
     # with it; the others add a constant to the objective: left out (the same minimiser)
-    moves = (np.diff(M_SP.indptr) > 0) | (np.diff(M_SU.indptr) > 0)
     D = D[np.flatnonzero(abs(D) @ moves.astype(np.float64) > 0)]
-    DT = D.T.tocsr()
     col_norm = np.sqrt(np.asarray(D.multiply(D).sum(axis=0)).ravel())[P]
     scale = float(np.median(col_norm[col_norm > 0])) if np.any(col_norm > 0) else 1.0
     lam = np.sqrt(regularization) * scale
     nh = P.size
+
+    DT = D.T.tocsr()
 
     def normal(x):  # (G^T D^T D G + lam^2) x
         return gt(DT @ (D @ g(np.ravel(x)))) + lam**2 * np.ravel(x)
@@ -544,12 +550,12 @@ def _continue_hidden(M, Bsub, loc_seen, paint_off, mesh, sub, regularization, to
     # among the hidden faces (rho F_PP, noisy with few rays a face) out of the
     # preconditioner: smooth radiosity is rough emission there, and CG took thousands
     # of iterations on a real grid (bench/README.md, "Unsteady run").
-    DP = D[:, P].tocsc()
-    C = D[:, s_idx] @ M_SP[s_idx]  # the seen faces lit by the hidden ones: its diagonal
+    D_s, DP = column_blocks(D, None, np.where(loc_seen, 0, np.where(paint_off, -1, 1)), 2)
+    C = D_s @ C_sP  # the seen faces lit by the hidden ones: its diagonal
     lap = (DP.T @ DP + sp.diags(np.asarray(C.multiply(C).sum(axis=0)).ravel() + lam**2)
            ).tocsc()
     lu = spla.splu(lap)
-    RF_PP = (sp.identity(nh, format="csr") - M[P][:, P]).tocsr()
+    RF_PP = (sp.identity(nh, format="csr") - M_PP).tocsr()
     RF_PPt = RF_PP.T.tocsr()
     n_terms = _neumann_terms(RF_PP)
 

@@ -29,9 +29,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
+import numba
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.csgraph import breadth_first_order
 
 from resection.errors import InputError
 from selfillum.transport.viewfactors import RowTracer
@@ -63,21 +63,33 @@ def coupled_faces(F, seen) -> np.ndarray:
     mask = np.asarray(seen, dtype=bool)
     if mask.shape != (n,):
         raise InputError(f"seen: expected shape ({n},), got {mask.shape}")
-    # a super-source (node n) linked to every seen face; one breadth-first search
-    src = np.flatnonzero(mask)
-    pattern = sp.csr_matrix(
-        (np.ones(F.nnz, dtype=np.int8), F.indices, F.indptr), shape=(n, n)
-    )
-    link = sp.csr_matrix(
-        (np.ones(src.size, dtype=np.int8), (np.zeros(src.size, dtype=np.int64), src)),
-        shape=(1, n),
-    )
-    graph = sp.bmat([[pattern, sp.csr_matrix((n, 1), dtype=np.int8)],
-                     [link, sp.csr_matrix((1, 1), dtype=np.int8)]], format="csr")
-    order = breadth_first_order(graph, n, directed=True, return_predecessors=False)
-    out = np.zeros(n + 1, dtype=bool)
-    out[order] = True
-    return out[:n] | mask
+    # one compiled breadth-first search from every seen face at once (SciPy's needs the
+    # graph with a super-source appended: two copies of the pattern)
+    return _reach(F.indptr, F.indices, np.ascontiguousarray(mask))
+
+
+@numba.njit(cache=True, nogil=True)
+def _reach(indptr, indices, seen):  # pragma: no cover - compiled
+    """Nodes reachable from the ``seen`` ones along the stored entries of a CSR pattern
+    (the seen ones included)."""
+    out = seen.copy()
+    queue = np.empty(seen.size, np.int64)
+    tail = 0
+    for i in range(seen.size):
+        if seen[i]:
+            queue[tail] = i
+            tail += 1
+    head = 0
+    while head < tail:
+        i = queue[head]
+        head += 1
+        for k in range(indptr[i], indptr[i + 1]):
+            j = indices[k]
+            if not out[j]:
+                out[j] = True
+                queue[tail] = j
+                tail += 1
+    return out
 
 
 def coupled_view_factors(

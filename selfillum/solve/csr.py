@@ -1,0 +1,184 @@
+"""Blocks of a CSR matrix and ``I - diag(r) A`` in compiled passes, for the solves.
+
+SciPy's fancy indexing ``A[rows][:, cols]`` goes through a row gather, a column
+re-indexing and, for column blocks, a CSC copy; ``identity - diags(r) @ A`` through a
+sparse product and a sparse difference. The smooth continuation of
+:func:`selfillum.correct` cuts the sub-problem's ``I - rho F`` into blocks by seen,
+hidden painted and hidden unpainted faces; here each such cut is two passes over the
+rows taken (count, fill), every block of a row split at once:
+
+* :func:`column_blocks`: ``A[rows][:, cols_g]`` for several disjoint column sets ``g``;
+* :func:`identity_minus`: ``I - diag(r) A`` of a square matrix.
+
+The passes run on one thread. Run on numba's threads, the solve's sparse passes and
+products (each 0.2-20 ms on the 610,704-face grid) were slower on a loaded machine: a
+parallel launch waits for every thread of the team, and with other processes on the
+cores a thread waits a scheduler time slice (measured 4-5 ms a launch at a load of 2.7
+on 2 cores, bench/README.md, issue 21 item 5).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import scipy.sparse as sp
+
+__all__ = ["column_blocks", "identity_minus"]
+
+
+def _csr(A) -> sp.csr_matrix:
+    """``A`` as float64 CSR with sorted indices and no duplicates (a copy only if not)."""
+    A = sp.csr_matrix(A, dtype=np.float64)
+    if not A.has_canonical_format:
+        A = A.copy()
+        A.sum_duplicates()
+    return A
+
+
+def column_blocks(A, rows, groups, n_groups: int) -> list[sp.csr_matrix]:
+    """The blocks ``A[rows][:, cols_g]``, ``g = 0 .. n_groups - 1``, in one pass.
+
+    Parameters
+    ----------
+    A : sparse matrix
+        ``(n, m)``, converted to float64 CSR (sorted indices) if it is not.
+    rows : (r,) array_like of int or None
+        The rows taken, in this order (``None``: all).
+    groups : (m,) array_like of int
+        The block of each column (``-1``: in none). Block ``g``'s columns are the columns
+        of group ``g`` in increasing order (``np.flatnonzero(groups == g)``).
+    n_groups : int
+        Number of blocks.
+
+    Returns
+    -------
+    list of scipy.sparse.csr_matrix
+        Block ``g``, ``(r, count of group g)``, the same as ``A[rows][:, cols_g]``.
+    """
+    C = _csr(A)
+    g = np.asarray(groups, dtype=np.int64)
+    if g.shape != (C.shape[1],):
+        raise ValueError(f"groups: expected shape ({C.shape[1]},), got {g.shape}")
+    local = np.empty(g.size, np.int64)  # the rank of each column within its group
+    sizes = []
+    for k in range(n_groups):
+        idx = np.flatnonzero(g == k)
+        local[idx] = np.arange(idx.size)
+        sizes.append(idx.size)
+    r = np.arange(C.shape[0]) if rows is None else np.asarray(rows, dtype=np.int64)
+    counts = np.zeros((r.size, n_groups), np.int64)
+    _count_blocks(C.indptr, C.indices, r, g, counts)
+    ptrs = np.zeros((n_groups, r.size + 1), np.int64)
+    np.cumsum(counts.T, axis=1, out=ptrs[:, 1:])
+    offsets = np.zeros(n_groups + 1, np.int64)
+    np.cumsum(ptrs[:, -1], out=offsets[1:])
+    idx_dtype = C.indices.dtype if offsets[-1] < np.iinfo(np.int32).max else np.int64
+    out_idx = np.empty(offsets[-1], idx_dtype)
+    out_data = np.empty(offsets[-1])
+    pos = ptrs[:, :-1].T + offsets[:-1]  # (r, n_groups): where each row's entries go
+    _fill_blocks(C.indptr, C.indices, C.data, r, g, local, np.ascontiguousarray(pos),
+                 out_idx, out_data)
+    ptrs = ptrs.astype(idx_dtype)  # one index dtype: SciPy keeps the arrays as given
+    return [sp.csr_matrix((out_data[offsets[k]:offsets[k + 1]],
+                           out_idx[offsets[k]:offsets[k + 1]], ptrs[k]),
+                          shape=(r.size, sizes[k]), copy=False) for k in range(n_groups)]
+
+
+def identity_minus(A, scale) -> sp.csr_matrix:
+    """``I - diag(scale) A`` of a square sparse matrix in two compiled passes.
+
+    The diagonal entry of row ``i`` is ``1 - scale_i A_ii`` (stored even where ``A_ii``
+    is not); every other entry is ``-scale_i A_ij``, stored where it is not 0 (as SciPy
+    stores the products: the same sparsity as ``identity - diags(scale) @ A``).
+    """
+    C = _csr(A)
+    n = C.shape[0]
+    if C.shape[1] != n:
+        raise ValueError(f"identity_minus: A must be square, got {C.shape}")
+    s = np.ascontiguousarray(scale, dtype=np.float64)
+    if s.shape != (n,):
+        raise ValueError(f"scale: expected shape ({n},), got {s.shape}")
+    counts = np.empty(n, np.int64)
+    _count_identity_minus(C.indptr, C.indices, C.data, s, counts)
+    indptr = np.zeros(n + 1, np.int64)
+    np.cumsum(counts, out=indptr[1:])
+    idx_dtype = C.indices.dtype if indptr[-1] < np.iinfo(np.int32).max else np.int64
+    indices = np.empty(indptr[-1], idx_dtype)
+    data = np.empty(indptr[-1])
+    _fill_identity_minus(C.indptr, C.indices, C.data, s, indptr, indices, data)
+    return sp.csr_matrix((data, indices, indptr.astype(idx_dtype)), shape=(n, n),
+                         copy=False)
+
+
+# --------------------------------------------------------------------------- kernels
+@numba.njit(cache=True, nogil=True)
+def _matvec(indptr, indices, data, x, out):  # pragma: no cover - compiled
+    for i in range(out.size):
+        s = 0.0
+        for k in range(indptr[i], indptr[i + 1]):
+            s += data[k] * x[indices[k]]
+        out[i] = s
+
+
+@numba.njit(cache=True, nogil=True)
+def _count_blocks(indptr, indices, rows, groups, counts):  # pragma: no cover - compiled
+    for r in range(rows.size):
+        i = rows[r]
+        for k in range(indptr[i], indptr[i + 1]):
+            g = groups[indices[k]]
+            if g >= 0:
+                counts[r, g] += 1
+
+
+@numba.njit(cache=True, nogil=True)
+def _fill_blocks(indptr, indices, data, rows, groups, local, pos, out_idx,
+                 out_data):  # pragma: no cover - compiled
+    for r in range(rows.size):
+        i = rows[r]
+        for k in range(indptr[i], indptr[i + 1]):
+            j = indices[k]
+            g = groups[j]
+            if g >= 0:
+                p = pos[r, g]
+                out_idx[p] = local[j]
+                out_data[p] = data[k]
+                pos[r, g] = p + 1
+
+
+@numba.njit(cache=True, nogil=True)
+def _count_identity_minus(indptr, indices, data, s, counts):  # pragma: no cover - compiled
+    for i in range(s.size):
+        c = 1  # the diagonal
+        for k in range(indptr[i], indptr[i + 1]):
+            if indices[k] != i and s[i] * data[k] != 0.0:
+                c += 1
+        counts[i] = c
+
+
+@numba.njit(cache=True, nogil=True)
+def _fill_identity_minus(indptr, indices, data, s, out_ptr, out_idx,
+                         out_data):  # pragma: no cover - compiled
+    for i in range(s.size):
+        p = out_ptr[i]
+        done = False  # the diagonal written
+        for k in range(indptr[i], indptr[i + 1]):
+            j = indices[k]
+            if j == i:
+                out_idx[p] = i
+                out_data[p] = 1.0 - s[i] * data[k]
+                p += 1
+                done = True
+                continue
+            if not done and j > i:
+                out_idx[p] = i
+                out_data[p] = 1.0
+                p += 1
+                done = True
+            v = s[i] * data[k]
+            if v != 0.0:
+                out_idx[p] = j
+                out_data[p] = -v
+                p += 1
+        if not done:
+            out_idx[p] = i
+            out_data[p] = 1.0
