@@ -14,6 +14,10 @@ the NumPy and trimesh functions they replace (the tests compare them):
   that exactly two faces use) with its edges;
 * :func:`repeated_faces`: the faces that are the same triangle as an earlier face (the
   same three vertex indices in the same cyclic order);
+* :func:`pair_weights`: the finite-volume weight ``sqrt(l / d)`` of each pair of faces
+  sharing an edge (``l`` the edge length, ``d`` the distance between the face
+  centroids), the NumPy gathers and norms of ``selfillum.mesh.face_adjacency_weights``
+  in one pass;
 * :func:`cross_squares`: the squared length of each face's edge cross product (four
   times its squared area), what the mesh checks compare with their size limits, without
   the ``(F, 3, 3)`` gather and the cross products of NumPy.
@@ -26,7 +30,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["vertex_classes", "shared_edges", "repeated_faces", "cross_squares"]
+__all__ = ["vertex_classes", "shared_edges", "repeated_faces", "cross_squares", "pair_weights"]
 
 _SMALL = 24  # buckets up to this size are sorted by insertion, larger ones by argsort
 
@@ -124,6 +128,50 @@ def cross_squares(vertices, faces) -> np.ndarray:
     v = np.ascontiguousarray(vertices, dtype=np.float64)
     f = np.ascontiguousarray(faces, dtype=np.int64)
     return _cross_squares(v, f)
+
+
+def pair_weights(vertices, faces, pairs, edges) -> np.ndarray:
+    """``sqrt(l / max(d, tiny))`` of each pair of faces sharing an edge, ``(P,)`` float64.
+
+    Parameters
+    ----------
+    vertices : (V, 3) array_like of float
+        Coordinates (model units).
+    faces : (F, 3) array_like of int
+        Vertex indices (those the pairs were found on, e.g. merged ones).
+    pairs, edges : (P, 2) array_like of int
+        Faces of each pair and their shared edge's vertices (:func:`shared_edges`).
+
+    Returns
+    -------
+    (P,) float64 ndarray
+        ``l`` the edge's length, ``d`` the distance between the two faces' centroids
+        (the mean of their three vertices, summed in vertex order and divided by 3, as
+        trimesh's ``triangles_center``), ``tiny`` the smallest normal float64 (square
+        root of model units).
+    """
+    v = np.ascontiguousarray(vertices, dtype=np.float64)
+    f = np.ascontiguousarray(faces, dtype=np.int64)
+    p = np.ascontiguousarray(pairs, dtype=np.int64)
+    e = np.ascontiguousarray(edges, dtype=np.int64)
+    return _pair_weights(v, f, p, e, np.finfo(np.float64).tiny)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _pair_weights(v, f, pairs, edges, tiny):  # pragma: no cover - compiled
+    out = np.empty(pairs.shape[0])
+    for q in range(pairs.shape[0]):
+        a, b = edges[q, 0], edges[q, 1]
+        dx, dy, dz = v[a, 0] - v[b, 0], v[a, 1] - v[b, 1], v[a, 2] - v[b, 2]
+        length = np.sqrt(dx * dx + dy * dy + dz * dz)
+        i, j = pairs[q, 0], pairs[q, 1]
+        d2 = 0.0
+        for k in range(3):
+            ci = (v[f[i, 0], k] + v[f[i, 1], k] + v[f[i, 2], k]) / 3.0
+            cj = (v[f[j, 0], k] + v[f[j, 1], k] + v[f[j, 2], k]) / 3.0
+            d2 += (ci - cj) * (ci - cj)
+        out[q] = np.sqrt(length / max(np.sqrt(d2), tiny))
+    return out
 
 
 @numba.njit(cache=True, nogil=True, inline="always")

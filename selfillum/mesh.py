@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import scipy.sparse as sp
 
-from resection._mesh_graph import shared_edges, vertex_classes
+from resection._mesh_graph import pair_weights, shared_edges, vertex_classes
 from resection.errors import InputError
 from resection.trisurface import MERGE_DIGITS, is_mesh
 
@@ -128,11 +128,8 @@ def face_adjacency_weights(mesh: trimesh.Trimesh) -> sp.csr_matrix:
     pairs, edges = shared_edges(merged)
     if pairs.size == 0:
         return sp.csr_matrix((0, n))
-    length = np.linalg.norm(v[edges[:, 0]] - v[edges[:, 1]], axis=1)
-    # the centroids of the merged faces, as trimesh's triangles_center sums and divides
-    c = (v[merged[:, 0]] + v[merged[:, 1]] + v[merged[:, 2]]) / 3.0
-    dist = np.linalg.norm(c[pairs[:, 0]] - c[pairs[:, 1]], axis=1)
-    w = np.sqrt(length / np.maximum(dist, np.finfo(float).tiny))
+    # edge lengths over the merged faces' centroid distances, in one compiled pass
+    w = pair_weights(v, merged, pairs, edges)
     # row p: w at face pairs[p, 0], -w at pairs[p, 1] (the smaller index first: sorted)
     return sp.csr_matrix((np.column_stack([w, -w]).ravel(), pairs.ravel(),
                           np.arange(0, 2 * len(pairs) + 1, 2)), shape=(len(pairs), n))

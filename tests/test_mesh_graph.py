@@ -10,7 +10,13 @@ import numpy as np
 import pytest
 import trimesh
 
-from resection._mesh_graph import cross_squares, repeated_faces, shared_edges, vertex_classes
+from resection._mesh_graph import (
+    cross_squares,
+    pair_weights,
+    repeated_faces,
+    shared_edges,
+    vertex_classes,
+)
 
 DIGITS = trimesh.util.decimal_to_digits(trimesh.tol.merge)
 
@@ -61,6 +67,20 @@ def test_passes_match_trimesh_and_numpy_on_random_faces(seed):
         c = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
         np.testing.assert_allclose(cross_squares(v, f), np.einsum("ij,ij->i", c, c),
                                    rtol=1e-13, atol=0.0)
+
+
+def test_pair_weights_are_the_numpy_formula():
+    """sqrt(edge length / centroid distance) of each adjacent pair, against NumPy norms
+    and trimesh's triangles_center on a perturbed sphere."""
+    sphere = trimesh.creation.icosphere(3)
+    v = sphere.vertices * (1.0 + 0.05 * np.random.default_rng(3).random((len(sphere.vertices),
+                                                                          1)))
+    m = trimesh.Trimesh(v, sphere.faces, process=False)
+    pairs, edges = shared_edges(m.faces)
+    length = np.linalg.norm(v[edges[:, 0]] - v[edges[:, 1]], axis=1)
+    c = m.triangles_center
+    ref = np.sqrt(length / np.linalg.norm(c[pairs[:, 0]] - c[pairs[:, 1]], axis=1))
+    np.testing.assert_allclose(pair_weights(v, m.faces, pairs, edges), ref, rtol=1e-13)
 
 
 def test_shared_edges_of_a_closed_grid_are_trimesh_s():

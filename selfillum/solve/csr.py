@@ -56,32 +56,20 @@ def column_blocks(A, rows, groups, n_groups: int) -> list[sp.csr_matrix]:
         Block ``g``, ``(r, count of group g)``, the same as ``A[rows][:, cols_g]``.
     """
     C = _csr(A)
-    g = np.asarray(groups, dtype=np.int64)
+    g = np.asarray(groups)
     if g.shape != (C.shape[1],):
         raise ValueError(f"groups: expected shape ({C.shape[1]},), got {g.shape}")
-    local = np.empty(g.size, np.int64)  # the rank of each column within its group
-    sizes = []
-    for k in range(n_groups):
-        idx = np.flatnonzero(g == k)
-        local[idx] = np.arange(idx.size)
-        sizes.append(idx.size)
+    if n_groups > 127 or (g.size and (g.min() < -1 or g.max() >= n_groups)):
+        raise ValueError(f"groups: values must lie in [-1, {n_groups}) (at most 127 groups)")
+    g = g.astype(np.int8)  # small: the random reads stay in cache
     r = np.arange(C.shape[0]) if rows is None else np.asarray(rows, dtype=np.int64)
-    counts = np.zeros((r.size, n_groups), np.int64)
-    _count_blocks(C.indptr, C.indices, r, g, counts)
-    ptrs = np.zeros((n_groups, r.size + 1), np.int64)
-    np.cumsum(counts.T, axis=1, out=ptrs[:, 1:])
-    offsets = np.zeros(n_groups + 1, np.int64)
-    np.cumsum(ptrs[:, -1], out=offsets[1:])
-    idx_dtype = C.indices.dtype if offsets[-1] < np.iinfo(np.int32).max else np.int64
-    out_idx = np.empty(offsets[-1], idx_dtype)
-    out_data = np.empty(offsets[-1])
-    pos = ptrs[:, :-1].T + offsets[:-1]  # (r, n_groups): where each row's entries go
-    _fill_blocks(C.indptr, C.indices, C.data, r, g, local, np.ascontiguousarray(pos),
-                 out_idx, out_data)
-    ptrs = ptrs.astype(idx_dtype)  # one index dtype: SciPy keeps the arrays as given
+    wide = C.nnz >= np.iinfo(np.int32).max or C.shape[1] >= np.iinfo(np.int32).max
+    ptrs, out_idx, out_data, offsets, sizes = _blocks(
+        C.indptr, C.indices, C.data, r, g, int(n_groups), np.int64(0) if wide else np.int32(0))
     return [sp.csr_matrix((out_data[offsets[k]:offsets[k + 1]],
                            out_idx[offsets[k]:offsets[k + 1]], ptrs[k]),
-                          shape=(r.size, sizes[k]), copy=False) for k in range(n_groups)]
+                          shape=(r.size, int(sizes[k])), copy=False)
+            for k in range(n_groups)]
 
 
 def identity_minus(A, scale) -> sp.csr_matrix:
@@ -121,28 +109,47 @@ def _matvec(indptr, indices, data, x, out):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True)
-def _count_blocks(indptr, indices, rows, groups, counts):  # pragma: no cover - compiled
-    for r in range(rows.size):
+def _blocks(indptr, indices, data, rows, groups, n_groups, like):  # pragma: no cover
+    """``(ptrs, indices, data, offsets, sizes)`` of the column blocks: block ``g`` is
+    ``data[offsets[g]:offsets[g + 1]]`` (and its indices) with row pointers ``ptrs[g]``;
+    ``like`` gives the index dtype."""
+    m = groups.size
+    local = np.empty(m, type(like))  # each column's rank within its group
+    sizes = np.zeros(n_groups, np.int64)
+    for j in range(m):
+        g = groups[j]
+        if g >= 0:
+            local[j] = sizes[g]
+            sizes[g] += 1
+    nr = rows.size
+    ptrs = np.zeros((n_groups, nr + 1), type(like))
+    for r in range(nr):
         i = rows[r]
         for k in range(indptr[i], indptr[i + 1]):
             g = groups[indices[k]]
             if g >= 0:
-                counts[r, g] += 1
-
-
-@numba.njit(cache=True, nogil=True)
-def _fill_blocks(indptr, indices, data, rows, groups, local, pos, out_idx,
-                 out_data):  # pragma: no cover - compiled
-    for r in range(rows.size):
+                ptrs[g, r + 1] += 1
+    offsets = np.zeros(n_groups + 1, np.int64)
+    for g in range(n_groups):
+        for r in range(nr):
+            ptrs[g, r + 1] += ptrs[g, r]
+        offsets[g + 1] = offsets[g] + ptrs[g, nr]
+    out_idx = np.empty(offsets[n_groups], type(like))
+    out_data = np.empty(offsets[n_groups])
+    pos = np.empty(n_groups, np.int64)
+    for r in range(nr):
         i = rows[r]
+        for g in range(n_groups):
+            pos[g] = offsets[g] + ptrs[g, r]
         for k in range(indptr[i], indptr[i + 1]):
             j = indices[k]
             g = groups[j]
             if g >= 0:
-                p = pos[r, g]
+                p = pos[g]
                 out_idx[p] = local[j]
                 out_data[p] = data[k]
-                pos[r, g] = p + 1
+                pos[g] = p + 1
+    return ptrs, out_idx, out_data, offsets, sizes
 
 
 @numba.njit(cache=True, nogil=True)

@@ -489,13 +489,13 @@ def _continue_hidden(M, Bsub, loc_seen, paint_off, mesh, sub, regularization, to
     P = hid[~paint_off[hid]]
     U = hid[paint_off[hid]]
     s_idx = np.flatnonzero(loc_seen)
-    # the blocks of M by columns (seen, P, U), each in one compiled pass over its rows
+    # the blocks of M by columns (seen, P, U) in one compiled pass; by rows, gathers
     group = np.where(loc_seen, 0, np.where(paint_off, 2, 1))
     M_Ss, M_SP, M_SU = column_blocks(M, None, group, 3)
     e_s = M_Ss @ Bsub[s_idx]
-    M_Us, M_UP, M_UU = column_blocks(M, U, group, 3)
-    M_PP = column_blocks(M, P, np.where(group == 1, 0, -1), 1)[0]
-    C_sP = column_blocks(M_SP, s_idx, np.zeros(P.size, np.int64), 1)[0]  # M_SP[s_idx]
+    M_Us, M_UP, M_UU = M_Ss[U], M_SP[U], M_SU[U]
+    M_PP = M_SP[P]
+    C_sP = M_SP[s_idx]
     RF_UU = (sp.identity(U.size, format="csr") - M_UU).tocsr()
     RF_UUt = RF_UU.T
     # which rows of sub the hidden faces reach (what the smoothness terms below keep)
