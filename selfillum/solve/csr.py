@@ -4,8 +4,8 @@ SciPy's fancy indexing ``A[rows][:, cols]`` goes through a row gather, a column
 re-indexing and, for column blocks, a CSC copy; ``identity - diags(r) @ A`` through a
 sparse product and a sparse difference. The smooth continuation of
 :func:`selfillum.correct` cuts the sub-problem's ``I - rho F`` into blocks by seen,
-hidden painted and hidden unpainted faces; here each such cut is two passes over the
-rows taken (count, fill), every block of a row split at once:
+hidden painted and hidden unpainted faces. Here a cut is one kernel (a count pass and a
+fill pass over the rows taken, every block at once) and the difference one pass:
 
 * :func:`column_blocks`: ``A[rows][:, cols_g]`` for several disjoint column sets ``g``;
 * :func:`identity_minus`: ``I - diag(r) A`` of a square matrix.
@@ -73,7 +73,7 @@ def column_blocks(A, rows, groups, n_groups: int) -> list[sp.csr_matrix]:
 
 
 def identity_minus(A, scale) -> sp.csr_matrix:
-    """``I - diag(scale) A`` of a square sparse matrix in two compiled passes.
+    """``I - diag(scale) A`` of a square sparse matrix in one compiled pass.
 
     The diagonal entry of row ``i`` is ``1 - scale_i A_ii`` (stored even where ``A_ii``
     is not); every other entry is ``-scale_i A_ij``, stored where it is not 0 (as SciPy
@@ -86,16 +86,10 @@ def identity_minus(A, scale) -> sp.csr_matrix:
     s = np.ascontiguousarray(scale, dtype=np.float64)
     if s.shape != (n,):
         raise ValueError(f"scale: expected shape ({n},), got {s.shape}")
-    counts = np.empty(n, np.int64)
-    _count_identity_minus(C.indptr, C.indices, C.data, s, counts)
-    indptr = np.zeros(n + 1, np.int64)
-    np.cumsum(counts, out=indptr[1:])
-    idx_dtype = C.indices.dtype if indptr[-1] < np.iinfo(np.int32).max else np.int64
-    indices = np.empty(indptr[-1], idx_dtype)
-    data = np.empty(indptr[-1])
-    _fill_identity_minus(C.indptr, C.indices, C.data, s, indptr, indices, data)
-    return sp.csr_matrix((data, indices, indptr.astype(idx_dtype)), shape=(n, n),
-                         copy=False)
+    wide = C.nnz + n >= np.iinfo(np.int32).max
+    indptr, indices, data = _identity_minus(C.indptr, C.indices, C.data, s,
+                                            np.int64(0) if wide else np.int32(0))
+    return sp.csr_matrix((data, indices, indptr), shape=(n, n), copy=False)
 
 
 # --------------------------------------------------------------------------- kernels
@@ -153,20 +147,15 @@ def _blocks(indptr, indices, data, rows, groups, n_groups, like):  # pragma: no 
 
 
 @numba.njit(cache=True, nogil=True)
-def _count_identity_minus(indptr, indices, data, s, counts):  # pragma: no cover - compiled
-    for i in range(s.size):
-        c = 1  # the diagonal
-        for k in range(indptr[i], indptr[i + 1]):
-            if indices[k] != i and s[i] * data[k] != 0.0:
-                c += 1
-        counts[i] = c
-
-
-@numba.njit(cache=True, nogil=True)
-def _fill_identity_minus(indptr, indices, data, s, out_ptr, out_idx,
-                         out_data):  # pragma: no cover - compiled
-    for i in range(s.size):
-        p = out_ptr[i]
+def _identity_minus(indptr, indices, data, s, like):  # pragma: no cover - compiled
+    """``(indptr, indices, data)`` of ``I - diag(s) A`` in one pass (room for ``nnz + n``
+    entries, trimmed); ``like`` gives the index dtype."""
+    n = s.size
+    out_ptr = np.zeros(n + 1, type(like))
+    out_idx = np.empty(indptr[n] + n, type(like))
+    out_data = np.empty(indptr[n] + n)
+    p = 0
+    for i in range(n):
         done = False  # the diagonal written
         for k in range(indptr[i], indptr[i + 1]):
             j = indices[k]
@@ -189,3 +178,6 @@ def _fill_identity_minus(indptr, indices, data, s, out_ptr, out_idx,
         if not done:
             out_idx[p] = i
             out_data[p] = 1.0
+            p += 1
+        out_ptr[i + 1] = p
+    return out_ptr, out_idx[:p], out_data[:p]
