@@ -27,11 +27,16 @@ __all__ = ["column_blocks", "identity_minus"]
 
 
 def _csr(A) -> sp.csr_matrix:
-    """``A`` as float64 CSR with sorted indices and no duplicates (a copy only if not)."""
+    """``A`` as float64 CSR with sorted indices and no duplicates (a copy only if not),
+    its index arrays int32 where they fit (SciPy's choice; one compiled signature of the
+    kernels to load from numba's cache, not one per index type)."""
     A = sp.csr_matrix(A, dtype=np.float64)
     if not A.has_canonical_format:
         A = A.copy()
         A.sum_duplicates()
+    if A.indices.dtype != np.int32 and max(A.nnz, *A.shape) < np.iinfo(np.int32).max:
+        A = sp.csr_matrix((A.data, A.indices.astype(np.int32), A.indptr.astype(np.int32)),
+                          shape=A.shape, copy=False)
     return A
 
 
