@@ -374,8 +374,8 @@ def correct(
 
     reach = coupled_faces(F, mask)
     sub = np.flatnonzero(reach)  # seen + coupled hidden faces, the whole problem
-    # the sub-problem first: I - rho F over its faces only (compiled passes on numba's
-    # threads: SciPy's F[sub][:, sub] and products run on one)
+    # the sub-problem first: I - rho F over its faces only (one compiled pass each, in
+    # place of SciPy's F[sub][:, sub], a sparse product and a sparse difference)
     Fs = column_blocks(F, sub, np.where(reach, 0, -1), 1)[0]
     M = identity_minus(Fs, rho[sub])
     loc_seen = mask[sub]
