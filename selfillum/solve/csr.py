@@ -10,11 +10,11 @@ fill pass over the rows taken, every block at once) and the difference one pass:
 * :func:`column_blocks`: ``A[rows][:, cols_g]`` for several disjoint column sets ``g``;
 * :func:`identity_minus`: ``I - diag(r) A`` of a square matrix.
 
-The passes run on one thread. Run on numba's threads, the solve's sparse passes and
-products (each 0.2-20 ms on the 610,704-face grid) were slower on a loaded machine: a
-parallel launch waits for every thread of the team, and with other processes on the
-cores a thread waits a scheduler time slice (measured 4-5 ms a launch at a load of 2.7
-on 2 cores, bench/README.md, issue 21 item 5).
+The passes run on one thread. On numba's threads, the solve's sparse passes and products
+(0.2-20 ms each on the 610,704-face grid) were slower on a busy machine: a parallel
+launch waits for every thread of the team, and a thread whose core another process holds
+waits for its turn (``bench/bench_launch.py``: 0.67-0.86x SciPy's one-thread product
+with no process beside, 1.1-3.2x with 2 CPU-bound processes beside, on 2 cores).
 """
 
 from __future__ import annotations
