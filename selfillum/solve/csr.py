@@ -83,6 +83,18 @@ def identity_minus(A, scale) -> sp.csr_matrix:
     The diagonal entry of row ``i`` is ``1 - scale_i A_ii`` (stored even where ``A_ii``
     is not); every other entry is ``-scale_i A_ij``, stored where it is not 0 (as SciPy
     stores the products: the same sparsity as ``identity - diags(scale) @ A``).
+
+    Parameters
+    ----------
+    A : (n, n) sparse matrix
+        Converted to float64 CSR (sorted indices) if it is not.
+    scale : (n,) array_like of float
+        The row factors (the reflectance for ``I - rho F``).
+
+    Returns
+    -------
+    (n, n) scipy.sparse.csr_matrix
+        With sorted indices.
     """
     C = _csr(A)
     n = C.shape[0]
@@ -98,15 +110,6 @@ def identity_minus(A, scale) -> sp.csr_matrix:
 
 
 # --------------------------------------------------------------------------- kernels
-@numba.njit(cache=True, nogil=True)
-def _matvec(indptr, indices, data, x, out):  # pragma: no cover - compiled
-    for i in range(out.size):
-        s = 0.0
-        for k in range(indptr[i], indptr[i + 1]):
-            s += data[k] * x[indices[k]]
-        out[i] = s
-
-
 @numba.njit(cache=True, nogil=True)
 def _blocks(indptr, indices, data, rows, groups, n_groups, like):  # pragma: no cover
     """``(ptrs, indices, data, offsets, sizes)`` of the column blocks: block ``g`` is
