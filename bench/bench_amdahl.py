@@ -270,6 +270,49 @@ def thread_efficiency(mesh, threads: list[int], repeat: int, rows) -> None:
         if "scene arrays" in p:
             p["scene arrays"][0] -= p.get("BVH build", [0.0, 0.0])[0]
     _print_threads(threads, rows, times, parts, "scene arrays")
+    bare_embree_threads(mesh, threads, repeat)
+
+
+def bare_embree_threads(mesh, threads: list[int], repeat: int, faces: int = 40_000,
+                        k: int = 256) -> None:
+    """The peer of the thread efficiency: bare Embree rays over the same thread counts.
+
+    The rays of ``view_factors`` (the same RQMC rays, made beforehand in NumPy) of
+    ``faces`` faces spread over the mesh, traced by ``resection.surface.embree.Scene.run``
+    (``rtcIntersect1`` from a numba ``prange`` over blocks of rays: no sampling, no
+    filtering, no assembly) with ``workers`` = each count, interleaved, best of
+    ``repeat``. Its efficiency from 2 threads is what the machine gives Embree's rays
+    alone: ``view_factors``' own efficiency is to be read against it."""
+    import numpy as np
+
+    from selfillum.mesh import face_normals
+    from selfillum.transport.sampling import sample_rays
+    from selfillum.transport.viewfactors import _OFFSET, RayScene
+
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    f = np.asarray(mesh.faces)
+    scene = RayScene(v, f)
+    ids = np.linspace(0, len(f) - 1, min(faces, len(f))).astype(np.int64)
+    tri = (v - scene.origin)[f[ids]]
+    o, d, _ = sample_rays(tri, face_normals(mesh)[ids], k, face_ids=ids, seed=0,
+                          offset=_OFFSET * float(np.ptp(v, axis=0).max()))
+    o = np.ascontiguousarray(o, dtype=np.float32)
+    d = np.ascontiguousarray(d, dtype=np.float32)
+    scene.scene.run(o[:1000], d[:1000], workers=2)  # the kernel loaded
+    best = dict.fromkeys(threads, float("inf"))
+    for _ in range(repeat):
+        for w in threads:
+            t = time.perf_counter()
+            scene.scene.run(o, d, workers=w)
+            best[w] = min(best[w], time.perf_counter() - t)
+    cores = len(os.sched_getaffinity(0))
+    base = threads[0]
+    print(f"\nbare Embree rays (the peer): {len(d) / 1e6:.1f} M rays of {ids.size:,} faces, "
+          f"Scene.run on numba's threads, load average {os.getloadavg()[0]:.1f}:")
+    for w in threads:
+        eff = best[base] * min(base, cores) / (best[w] * min(w, cores))
+        print(f"  {w:3d} threads: {best[w]:7.3f} s ({len(d) / best[w] / 1e6:6.1f} M rays/s)"
+              f"  efficiency from {base}: {eff:.2f}")
 
 
 def _thread_runs(vf, mesh, threads, repeat, rows, spent):

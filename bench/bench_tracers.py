@@ -43,25 +43,25 @@ from selfillum import view_factors  # noqa: E402
 from selfillum.mesh import face_normals  # noqa: E402
 from selfillum.transport.mitsuba_factors import MitsubaFactorTracer  # noqa: E402
 from selfillum.transport.mitsuba_rays import MitsubaRayScene  # noqa: E402
-from selfillum.transport.viewfactors import _OFFSET  # noqa: E402
+from selfillum.transport.viewfactors import _OFFSET, RayScene  # noqa: E402
 
 
 def compare(mesh, k, label, variant, repeat):
     scene, o32, d32 = same_rays(mesh, k, 0)
     v = np.asarray(mesh.vertices, np.float64)
     ms = MitsubaRayScene(v, mesh.faces, variant=variant)
-    assert np.allclose(ms.origin, scene.origin)
+    assert np.allclose(ms.origin, RayScene(v, mesh.faces).origin)  # the rays' frame
     cores = len(os.sched_getaffinity(0))
     edges = np.linspace(0, len(d32), 4 * cores + 1).astype(int)
 
     def embree_threads():
         with ThreadPoolExecutor(cores) as pool:
-            parts = pool.map(lambda i: scene.scene.run(o32[edges[i]:edges[i + 1]],
+            parts = pool.map(lambda i: scene.run(o32[edges[i]:edges[i + 1]],
                                                        d32[edges[i]:edges[i + 1]]),
                              range(4 * cores))
             return np.concatenate(list(parts))
 
-    calls = {"embree": lambda: np.asarray(scene.scene.run(o32, d32)),
+    calls = {"embree": lambda: np.asarray(scene.run(o32, d32)),
              "embree_threads": embree_threads,
              "mitsuba": lambda: ms.run(o32, d32)}
     for fn in calls.values():  # warm-up: scene commit, Dr.Jit kernel compilation
