@@ -18,7 +18,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from resection._checks import as_matrix, as_points, json_array, json_number
 from resection.camera.distortion import (  # re-exported: the camera model's functions
@@ -26,6 +25,7 @@ from resection.camera.distortion import (  # re-exported: the camera model's fun
     max_monotonic_radius,
     undistort_normalized,
 )
+from resection.camera.rotation import matrix_to_rotvec, rotvec_to_matrix
 from resection.errors import InputError
 
 __all__ = [
@@ -173,7 +173,7 @@ class Camera:
     @property
     def rvec(self) -> np.ndarray:
         """Rotation vector (axis * angle, radians) of ``R``, as OpenCV's Rodrigues."""
-        return Rotation.from_matrix(self.R).as_rotvec()
+        return matrix_to_rotvec(self.R)
 
     @property
     def P(self) -> np.ndarray:
@@ -198,7 +198,7 @@ class Camera:
         """A copy with another pose, given as ``R`` or ``rvec``, and ``t``."""
         if rvec is not None:
             rv = as_matrix(np.asarray(rvec, dtype=float).ravel(), (3,), "rvec")
-            R = Rotation.from_rotvec(rv).as_matrix()
+            R = rotvec_to_matrix(rv)
         new = self.replace(R=self.R if R is None else R, t=self.t if t is None else t)
         # same intrinsics, same lines of sight: the copy shares this camera's cache
         object.__setattr__(new, "_icache", self._intrinsics_cache())
@@ -451,7 +451,7 @@ class Camera:
         dist[: min(5, d.size)] = d[:5]
         rv = as_matrix(np.asarray(rvec, dtype=float).ravel(), (3,), "rvec")
         tv = as_matrix(np.asarray(tvec, dtype=float).ravel(), (3,), "tvec")
-        return cls(width, height, camera_matrix, dist, Rotation.from_rotvec(rv).as_matrix(), tv,
+        return cls(width, height, camera_matrix, dist, rotvec_to_matrix(rv), tv,
                    **kwargs)
 
     def to_opencv(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

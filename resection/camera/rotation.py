@@ -1,0 +1,86 @@
+"""Rotation vectors and rotation matrices (OpenCV's Rodrigues convention), in NumPy.
+
+A rotation vector is the rotation's unit axis times its angle in radians (right-hand
+rule), the angle in ``[0, pi]``; the matrix rotates column vectors (``x' = R x``). These
+are the conversions of ``cv2.Rodrigues`` and of SciPy's
+``Rotation.from_rotvec(...).as_matrix()`` / ``Rotation.from_matrix(...).as_rotvec()``,
+written out so that the camera model does not import ``scipy.spatial`` (0.1 s of imports
+in every command that reads a camera).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["rotvec_to_matrix", "matrix_to_rotvec"]
+
+
+def rotvec_to_matrix(rvec) -> np.ndarray:
+    """The rotation matrix of a rotation vector.
+
+    Parameters
+    ----------
+    rvec : (3,) array_like
+        Axis times angle (radians).
+
+    Returns
+    -------
+    (3, 3) float64
+        ``R = I + sin(a) [k]x + (1 - cos(a)) [k]x^2`` for the unit axis ``k`` and angle
+        ``a``; written with ``sin(a) / a`` and ``(1 - cos(a)) / a^2`` (their Taylor series
+        below 1e-4 rad), so that small angles keep full precision.
+    """
+    r = np.asarray(rvec, dtype=np.float64).reshape(3)
+    a2 = float(r @ r)
+    a = np.sqrt(a2)
+    if a < 1e-4:
+        s = 1.0 - a2 / 6.0 + a2 * a2 / 120.0  # sin(a) / a
+        c = 0.5 - a2 / 24.0 + a2 * a2 / 720.0  # (1 - cos(a)) / a^2
+    else:
+        s = np.sin(a) / a
+        c = (1.0 - np.cos(a)) / a2
+    x, y, z = r
+    cross = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+    return np.eye(3) + s * cross + c * (cross @ cross)
+
+
+def matrix_to_rotvec(R) -> np.ndarray:
+    """The rotation vector of a rotation matrix (angle in ``[0, pi]``).
+
+    Parameters
+    ----------
+    R : (3, 3) array_like
+        A rotation matrix (orthonormal, determinant +1).
+
+    Returns
+    -------
+    (3,) float64
+        Through the unit quaternion of ``R`` (Shepperd's method: from the largest of the
+        trace and the diagonal, stable at every angle), then
+        ``2 atan2(|v|, w) v / |v|`` (its series below 1e-3 rad).
+    """
+    m = np.asarray(R, dtype=np.float64).reshape(3, 3)
+    tr = m[0, 0] + m[1, 1] + m[2, 2]
+    pick = int(np.argmax([tr, m[0, 0], m[1, 1], m[2, 2]]))
+    if pick == 0:
+        w = 0.5 * np.sqrt(1.0 + tr)
+        f = 0.25 / w
+        v = np.array([m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1]]) * f
+    else:
+        i = pick - 1
+        j, k = (i + 1) % 3, (i + 2) % 3
+        v = np.empty(3)
+        v[i] = 0.5 * np.sqrt(1.0 + 2.0 * m[i, i] - tr)
+        f = 0.25 / v[i]
+        w = (m[k, j] - m[j, k]) * f
+        v[j] = (m[j, i] + m[i, j]) * f
+        v[k] = (m[k, i] + m[i, k]) * f
+    if w < 0:  # the quaternion with w >= 0: the angle in [0, pi]
+        w, v = -w, -v
+    n = float(np.sqrt(v @ v))
+    angle = 2.0 * np.arctan2(n, w)
+    if angle < 1e-3:
+        scale = 2.0 + angle**2 / 12.0 + 7.0 * angle**4 / 2880.0  # angle / sin(angle / 2)
+    else:
+        scale = angle / np.sin(angle / 2.0)
+    return scale * v
