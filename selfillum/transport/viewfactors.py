@@ -232,15 +232,14 @@ def view_factors(
         ray costs about as much as tracing one that escapes, and the scene build and the
         mesh checks are not in the bare figure. On a GPU (one H100 without RT cores, 16 CPU
         cores, Mitsuba 3.9.1 ``cuda``, measured 2026-11-27, bench/README.md "Issue 21 item 6
-        on an H100"), whole ``view_factors`` with ``"mitsuba"`` ran at 1.5-4.9x the speed
-        of ``"embree"`` over the 16 threads on a 609k-face grid (0.26-0.27 s against
-        0.41-1.29 s at K = 64 and 256, 144-596 M rays/s; the issue's bare OptiX rays from
-        NumPy: 69 M rays/s) and 3.0-3.2x on a 14k-face corner, with the same F but for a
-        ray's weight in 4-134 entries. There the scene build (0.22-0.24 s, its arrays made
-        in NumPy) is most of the call: the launches take 3-4 times the bare traversal of
-        the same rays already on the device. So on a CUDA GPU ``"mitsuba"`` is the faster
-        choice for large grids; ``"embree"`` stays the default (every machine, the tests'
-        reference path).
+        on an H100"), whole ``view_factors`` with ``"mitsuba"`` ran at 4.3-13.4x the speed
+        of ``"embree"`` over the 16 threads on a 609k-face grid (0.08 s against 0.35-1.10 s
+        at K = 64 and 256: 485-1,903 M rays/s) and 4.4-5.4x inside a sphere where every ray
+        hits (78-99 M rays/s, against 69 M rays/s for bare OptiX rays made and read back in
+        NumPy), with the same F but for a ray's weight in 20-134 entries; its scene build
+        takes 0.03-0.04 s, its launches 2.6-4.8 times the bare traversal of the same rays
+        already on the device. So on a CUDA GPU ``"mitsuba"`` is the faster choice;
+        ``"embree"`` stays the default (every machine, the tests' reference path).
     caster : resection.surface.visibility.RayCaster, optional
         An Embree scene of ``mesh`` already built, traced in instead of building one (see
         :class:`RowTracer`): a command that also maps images onto ``mesh`` builds one scene.
