@@ -19,7 +19,6 @@ from resection import sequence as seq
 from resection.cli.main import main
 from resection.io.cameras import read_camera
 from resection.sequence import execute as seq_execute
-from resection.sequence import prefetch as seq_prefetch
 from resection.sequence import process as seq_process
 from resection.sequence import read_track, relative_motion
 from resection.sequence import track as _track
@@ -153,9 +152,7 @@ def test_interrupt_and_resume(run60, tmp_path, monkeypatch):
             raise KeyboardInterrupt
         return load(frame, *args)
 
-    # frame 0 is read where it is processed, the others by the chunk's reading thread
     monkeypatch.setattr(seq_process, "load_image", interrupted)
-    monkeypatch.setattr(seq_prefetch, "load_image", interrupted)
     with pytest.raises(KeyboardInterrupt):
         track(frames, cam, files["markers"], diameter=5.6, out_dir=out, progress=False)
     assert len(list((out / "frames").glob("*.json"))) == 30 + 11
@@ -493,7 +490,6 @@ def test_cli_ctrl_c_says_what_is_kept(run60, tmp_path, monkeypatch, capsys):
         return load(frame, *args)
 
     monkeypatch.setattr(seq_process, "load_image", interrupted)
-    monkeypatch.setattr(seq_prefetch, "load_image", interrupted)
     out = tmp_path / "o"
     args = ["track", *files["frames"][:4], "--camera", files["camera"], "--markers",
             files["markers"], "--diameter", "5.6", "--out", str(out), "--no-progress",
@@ -502,7 +498,6 @@ def test_cli_ctrl_c_says_what_is_kept(run60, tmp_path, monkeypatch, capsys):
     err = capsys.readouterr().err
     assert "interrupted: 2/4 frames finished are kept" in err and "again to resume" in err
     monkeypatch.setattr(seq_process, "load_image", load)
-    monkeypatch.setattr(seq_prefetch, "load_image", load)
     assert main(args) == 0
     out = capsys.readouterr().out
     assert "4/4 frames solved (2 computed now)" in out

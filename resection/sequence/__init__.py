@@ -33,9 +33,7 @@ to the 3-D markers from the previous good frame (:func:`resection.markers.match.
 and the pose (:func:`resection.pose.solve.solve_pose`). Either way a frame is right or refused.
 
 The package is split by step: :mod:`~resection.sequence.frames` (reading frames, their
-fingerprints), :mod:`~resection.sequence.prefetch` (the frames of a chunk read ahead on a
-thread while the frames before them are tracked),
-:mod:`~resection.sequence.predict` (motion model, gated association, pose),
+fingerprints), :mod:`~resection.sequence.predict` (motion model, gated association, pose),
 :mod:`~resection.sequence.process` (one frame, a chunk of frames, the repair pass),
 :mod:`~resection.sequence.execute` (in this process or on Dask),
 :mod:`~resection.sequence.outputs` (per-frame files, CSVs, :func:`read_track`),

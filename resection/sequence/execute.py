@@ -217,7 +217,7 @@ def _execute_local(setup, tasks, on_frame, last=None):
     last = last or (None, None)
     for items, seed, done in tasks:
         ref, prev = last if last[0] is not None else (seed, None)
-        dicts = run_chunk(setup, items, ref, done, on_frame, previous=prev, read_ahead=True)
+        dicts = run_chunk(setup, items, ref, done, on_frame, previous=prev)
         good = [d for d in dicts if d["status"] == "ok"]
         if good:
             tail = [FrameResult.from_dict(d) for d in good[-2:]]

@@ -16,7 +16,6 @@ from resection.errors import InputError, SolveError
 from resection.sequence.frames import failure_reason, fingerprint, frame_name, load_image
 from resection.sequence.outputs import try_write_frame
 from resection.sequence.predict import track_predicted
-from resection.sequence.prefetch import FramePrefetcher, LoadedFrame
 from resection.sequence.results import FrameResult
 
 
@@ -119,19 +118,15 @@ def _solve(ids: np.ndarray, uv: np.ndarray, setup: Setup, frame: int, file: str,
 
 
 def process_frame(frame_data, index: int, setup: Setup, reference: FrameResult | None,
-                   previous: FrameResult | None = None, sources: dict | None = None,
-                   loaded: LoadedFrame | None = None) -> FrameResult:
+                   previous: FrameResult | None = None, sources: dict | None = None
+                   ) -> FrameResult:
     """Read one frame, track its markers by prediction from ``reference`` (and the good
     frame before it, ``previous``) or, when the prediction's gate fails, detect and match
     them from ``reference`` with the statistical matcher; solve the pose. Never raises for
     a bad frame: the failure is returned with its reason. ``sources``: multi-frame files
-    kept open between frames (see :func:`resection.sequence.frames.load_image`);
-    ``loaded``: the frame already read (:class:`~resection.sequence.prefetch.
-    FramePrefetcher`), its fingerprint and image, instead of reading it here."""
-    # the fingerprint before reading: a later change is seen next time
-    source = fingerprint(frame_data) if loaded is None else loaded.source
-    res = _process_frame_unlabelled(frame_data, index, setup, reference, previous, sources,
-                                    loaded)
+    kept open between frames (see :func:`resection.sequence.frames._load_image`)."""
+    source = fingerprint(frame_data)  # before reading: a later change is seen next time
+    res = _process_frame_unlabelled(frame_data, index, setup, reference, previous, sources)
     return dataclasses.replace(res, matched_from=-1 if reference is None else reference.frame,
                                source=source,
                                ref_source=None if reference is None else reference.source)
@@ -139,11 +134,10 @@ def process_frame(frame_data, index: int, setup: Setup, reference: FrameResult |
 
 def _process_frame_unlabelled(frame_data, index: int, setup: Setup,
                               reference: FrameResult | None,
-                              previous: FrameResult | None, sources,
-                              loaded: LoadedFrame | None = None) -> FrameResult:
+                              previous: FrameResult | None, sources) -> FrameResult:
     name = frame_name(frame_data)
     try:
-        img = load_image(frame_data, sources) if loaded is None else loaded.get()
+        img = load_image(frame_data, sources)
         if img.shape != (setup.camera.height, setup.camera.width):
             raise InputError(f"image is {img.shape[1]}x{img.shape[0]} px, the camera "
                              f"{setup.camera.width}x{setup.camera.height}")
@@ -221,7 +215,7 @@ def run_chunk(setup: Setup, items: list, seed: FrameResult | None,
                done: dict | None = None,
                on_frame: Callable[[FrameResult], None] | None = None,
                frames_dir: str | None = None,
-               previous: FrameResult | None = None, read_ahead: bool = False) -> list[dict]:
+               previous: FrameResult | None = None) -> list[dict]:
     """Process consecutive frames ``items = [(index, frame), ...]``, each matched from the
     previous good one (the first from ``seed``, and ``previous``, the good frame before it,
     when known). Frames already in ``done`` (index -> dict) are not recomputed but serve as
@@ -234,21 +228,13 @@ def run_chunk(setup: Setup, items: list, seed: FrameResult | None,
     too far since the seed, and every frame would fail alike, each at the price of a
     detection and a statistical match. Its frames are recorded as failed with
     ``matched_from = DEFERRED``, and the sequential pass (:func:`repair`) computes them
-    from the good frame before them.
-
-    With ``read_ahead`` the frames are read on a thread ahead of the one being tracked
-    (:class:`~resection.sequence.prefetch.FramePrefetcher`): for a chunk run alone in its
-    process, where another core is free to read (not in a Dask task, where every core
-    runs a chunk)."""
+    from the good frame before them."""
     done = done or {}
     ref, prev = seed, previous
     out = []
+    sources: dict = {}  # multi-frame files, opened once for the chunk
     far_seed = seed is not None and bool(items) and seed.frame < items[0][0] - 1
     deferred = None
-    # the frames to compute, read ahead on a thread while the ones before are tracked
-    reader = (FramePrefetcher([frame for index, frame in items if index not in done])
-              if read_ahead else None)
-    sources: dict = {}  # multi-frame files opened in this thread, once for the chunk
     try:
         for index, frame in items:
             if index in done:
@@ -262,13 +248,10 @@ def run_chunk(setup: Setup, items: list, seed: FrameResult | None,
                 if on_frame is not None:
                     on_frame(res)
             else:
-                res = process_frame(frame, index, setup, ref, prev, sources=sources,
-                                    loaded=None if reader is None else reader.take())
+                res = process_frame(frame, index, setup, ref, prev, sources=sources)
                 if far_seed and not res.ok and ref is seed:
                     deferred = (f"not computed in its chunk: frame {index} failed from "
                                 f"frame {seed.frame}")
-                    if reader is not None:
-                        reader.close()  # the chunk's other frames are not read
                 if frames_dir is not None:
                     try_write_frame(Path(frames_dir), res)
                 if on_frame is not None:
@@ -277,8 +260,6 @@ def run_chunk(setup: Setup, items: list, seed: FrameResult | None,
                 ref, prev = res, ref
             out.append(res.to_dict())
     finally:
-        if reader is not None:
-            reader.close()
         for src in sources.values():
             src.close()
     return out
