@@ -22,7 +22,7 @@ __all__ = ["ensure_numba_cache"]
 
 #: the folders that hold compiled kernels, relative to the folder of the packages
 KERNEL_FOLDERS = ("resection", "resection/markers", "resection/camera", "resection/surface",
-                  "selfillum/transport", "selfillum/unsteady")
+                  "selfillum/solve", "selfillum/transport", "selfillum/unsteady")
 
 
 def _writable(folder: str) -> bool:
