@@ -42,7 +42,7 @@ import scipy.sparse as sp
 from resection.errors import InputError
 from resection.memory import check_memory
 from selfillum.transport.mitsuba_rays import MitsubaRayScene
-from selfillum.transport.sampling import _sobol_base
+from selfillum.transport.sampling import _KEY_DIM, _KEY_FACE, _KEY_SEED, _MIX1, _MIX2, _sobol_base
 
 __all__ = ["MitsubaFactorTracer", "RAYS_PER_LAUNCH"]
 
@@ -369,18 +369,19 @@ def _digital_shifts(mi, dr, seed: int, n: int, dims: int):
     the device: ``(n dims,)`` UInt32, face ``f``'s key of dimension ``d`` at ``f dims + d``
     (the same 64-bit SplitMix hash, wrapping unsigned arithmetic)."""
     u64 = mi.UInt64
+    mix1, mix2 = u64(int(_MIX1)), u64(int(_MIX2))
 
     def mix(x):
         x = x ^ (x >> 30)
-        x = x * u64(0xBF58476D1CE4E5B9)
+        x = x * mix1
         x = x ^ (x >> 27)
-        x = x * u64(0x94D049BB133111EB)
+        x = x * mix2
         return x ^ (x >> 31)
 
     i = dr.arange(mi.UInt32, n * dims)
     face = i // dims
-    key = (u64(seed) * u64(0x9E3779B97F4A7C15) + u64(face) * u64(0xD1B54A32D192ED03)
-           + u64(i - face * dims) * u64(0x8CB92BA72F3D8DD7))
+    key = (u64(seed) * u64(int(_KEY_SEED)) + u64(face) * u64(int(_KEY_FACE))
+           + u64(i - face * dims) * u64(int(_KEY_DIM)))
     return mi.UInt32(mix(mix(key)) >> 32)
 
 

@@ -74,12 +74,22 @@ def _sobol_base(k: int, dims: int) -> np.ndarray:
     return out.astype(np.uint32)
 
 
+#: The per-face scramble key before hashing, ``seed * SEED + face * FACE + dim * DIM``
+#: (wrapping uint64), and SplitMix64's finaliser, ``x ^= x >> 30; x *= MIX1;
+#: x ^= x >> 27; x *= MIX2; x ^= x >> 31``: the constants of :func:`digital_shifts`, of
+#: its compiled twin :func:`_shift` and of its Dr.Jit twin in
+#: :mod:`selfillum.transport.mitsuba_factors`.
+_KEY_SEED, _KEY_FACE, _KEY_DIM = (np.uint64(0x9E3779B97F4A7C15), np.uint64(0xD1B54A32D192ED03),
+                                  np.uint64(0x8CB92BA72F3D8DD7))
+_MIX1, _MIX2 = np.uint64(0xBF58476D1CE4E5B9), np.uint64(0x94D049BB133111EB)
+
+
 def _mix64(x: np.ndarray) -> np.ndarray:
     """SplitMix64 finaliser: a bijective 64-bit hash, element-wise on uint64."""
     x = x ^ (x >> np.uint64(30))
-    x = x * np.uint64(0xBF58476D1CE4E5B9)
+    x = x * _MIX1
     x = x ^ (x >> np.uint64(27))
-    x = x * np.uint64(0x94D049BB133111EB)
+    x = x * _MIX2
     return x ^ (x >> np.uint64(31))
 
 
@@ -90,8 +100,7 @@ def digital_shifts(seed: int, face_ids: np.ndarray, dims: int) -> np.ndarray:
     f = np.asarray(face_ids, dtype=np.uint64)[:, None]
     d = np.arange(dims, dtype=np.uint64)[None, :]
     with np.errstate(over="ignore"):
-        key = (np.uint64(seed) * np.uint64(0x9E3779B97F4A7C15)
-               + f * np.uint64(0xD1B54A32D192ED03) + d * np.uint64(0x8CB92BA72F3D8DD7))
+        key = np.uint64(seed) * _KEY_SEED + f * _KEY_FACE + d * _KEY_DIM
         return (_mix64(_mix64(key)) >> np.uint64(32)).astype(np.uint32)
 
 
@@ -246,13 +255,12 @@ def _build_rays(tri, nrm, t1, t2, pts, side, offset, origins,
 @njit(cache=True, inline="always")
 def _shift(seed, face, dim):  # pragma: no cover - compiled
     """:func:`digital_shifts` of one face and dimension (uint64 holding 32 bits)."""
-    key = (_U(seed) * _U(0x9E3779B97F4A7C15) + _U(face) * _U(0xD1B54A32D192ED03)
-           + _U(dim) * _U(0x8CB92BA72F3D8DD7))
+    key = _U(seed) * _KEY_SEED + _U(face) * _KEY_FACE + _U(dim) * _KEY_DIM
     for _ in range(2):  # SplitMix64's finaliser, twice
         key = key ^ (key >> _U(30))
-        key = key * _U(0xBF58476D1CE4E5B9)
+        key = key * _MIX1
         key = key ^ (key >> _U(27))
-        key = key * _U(0x94D049BB133111EB)
+        key = key * _MIX2
         key = key ^ (key >> _U(31))
     return key >> _U(32)
 
