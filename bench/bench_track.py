@@ -125,7 +125,6 @@ def main() -> None:
     from scipy.spatial import cKDTree
 
     from resection.sequence import relative_motion, track
-    from resection.sequence.execute import LOCAL_WORKER_CONFIG
     from scenes.moving_model import pitch_oscillation, write_sequence
 
     n, size = args.frames, args.size
@@ -177,7 +176,10 @@ def main() -> None:
                                    np.asarray(cam0.t), diameter)
 
         t = time.perf_counter()
-        with dask.config.set(LOCAL_WORKER_CONFIG):  # as track's own local cluster
+        # the nanny's MALLOC_TRIM_THRESHOLD_ freezes glibc's mmap threshold: every
+        # frame-sized array is then mmap'ed afresh (twice the CPU of a tracked frame)
+        with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_":
+                              None}):
             cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                    dashboard_address=None, silence_logs=logging.ERROR)
         times = {"one": [], "two": [], "cv": []}

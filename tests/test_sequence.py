@@ -368,22 +368,21 @@ def test_dask_interruption_keeps_every_finished_frame(run60, tmp_path, monkeypat
     np.testing.assert_allclose(res.marker_uv, ref.marker_uv[ref.marker_frame < n], atol=1e-9)
 
 
-def test_default_is_a_local_cluster_and_client_writes_unshared_frames(run60, tmp_path,
-                                                                      monkeypatch, capsys):
-    # Without --workers/--scheduler the CLI (and track) start a local cluster with one
-    # worker per CPU core. The executor is replaced here by one that runs the chunks as a
-    # remote worker without the client's filesystem would: it writes no file, so the
-    # client must write every frame when the chunk comes back.
+def test_default_is_local_workers_and_client_writes_unshared_frames(run60, tmp_path,
+                                                                    monkeypatch, capsys):
+    # Without --workers/--scheduler the CLI (and track) use local worker processes, one
+    # per CPU core. The executor is replaced here by one that runs the chunks as a worker
+    # that cannot write would: it writes no file, so the client must write every frame
+    # when the chunk comes back.
     model, files, cam, ref, _ = run60
     seen = {}
 
-    def fake_dask(setup, tasks, on_chunk, on_poll, scheduler, workers, frames_dir):
-        seen.update(scheduler=scheduler, workers=workers, frames_dir=frames_dir)
-        on_poll()  # nothing written yet: no frame may be taken as done
+    def fake_pool(setup, tasks, before, on_chunk, on_poll, workers, frames_dir):
+        seen.update(workers=workers, frames_dir=frames_dir, polls=on_poll is not None)
         for items, s, done in tasks:
             on_chunk(seq_process.run_chunk(setup, items, s, done))
 
-    monkeypatch.setattr(seq_execute, "_execute_dask", fake_dask)
+    monkeypatch.setattr(seq_execute, "_execute_pool", fake_pool)
     monkeypatch.setattr(os, "cpu_count", lambda: 3)
     # a run this short is finished sooner in this process than by starting workers
     out = tmp_path / "short"
@@ -400,7 +399,7 @@ def test_default_is_a_local_cluster_and_client_writes_unshared_frames(run60, tmp
                files["markers"], "--diameter", "5.6", "--out", str(out), "--no-progress",
                "--chunk-size", "3"])
     assert rc == 0 and "8/8 frames solved" in capsys.readouterr().out
-    assert seen["workers"] == 2 and seen["scheduler"] is None
+    assert seen["workers"] == 2 and not seen["polls"]  # no progress bar: no polling
     assert os.path.isabs(seen["frames_dir"])
     assert len(list((out / "frames").glob("frame_*.json"))) == 8
     np.testing.assert_allclose(read_track(out).angles, ref.angles[:8], atol=1e-9)

@@ -32,8 +32,8 @@ def register(sub) -> None:
         "the motion reported is the model's, relative to the first frame. A failed frame is "
         "recorded with its reason and the run goes on. Interrupted runs resume (each "
         "finished frame is kept in --out/frames; frames whose file changed are computed "
-        "again); one run at a time writes into --out. Frames run in parallel on a local "
-        "Dask cluster (one worker per CPU core) or on --scheduler. See docs/tracking.md.",
+        "again); one run at a time writes into --out. Frames run in parallel on local "
+        "worker processes (one per CPU core) or on a Dask --scheduler. See docs/tracking.md.",
     )
     p.add_argument("frames", nargs="+", metavar="FRAME",
                    help="frame images in time order (TIFF/PNG/NPY; glob patterns allowed), "
@@ -50,9 +50,8 @@ def register(sub) -> None:
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--scheduler", metavar="ADDRESS", help="running Dask scheduler address")
     p.add_argument("--workers", type=int, default=None,
-                   help="worker processes of the local Dask cluster started when no "
-                   "--scheduler is given (default: one per CPU core; 1: in this process, "
-                   "without Dask)")
+                   help="local worker processes when no --scheduler is given (default: one "
+                   "per CPU core; 1: in this process)")
     p.add_argument("--chunk-size", type=int, default=50, help="frames per task (default 50)")
     p.add_argument("--fps", type=float, help="frame rate, for the time axis of the plot")
     p.add_argument("--moving-camera", action="store_true",

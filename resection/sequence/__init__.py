@@ -35,7 +35,9 @@ and the pose (:func:`resection.pose.solve.solve_pose`). Either way a frame is ri
 The package is split by step: :mod:`~resection.sequence.frames` (reading frames, their
 fingerprints), :mod:`~resection.sequence.predict` (motion model, gated association, pose),
 :mod:`~resection.sequence.process` (one frame, a chunk of frames, the repair pass),
-:mod:`~resection.sequence.execute` (in this process or on Dask),
+:mod:`~resection.sequence.execute` (in this process, on local workers or on Dask),
+:mod:`~resection.sequence.pool` (the local worker processes),
+:mod:`~resection.sequence.chain` (a deferred chunk started again from the one before it),
 :mod:`~resection.sequence.outputs` (per-frame files, CSVs, :func:`read_track`),
 :mod:`~resection.sequence.inputs` (checks), :mod:`~resection.sequence.run` (:func:`track`),
 :mod:`~resection.sequence.motion_plots` (the motion plot) and
@@ -46,15 +48,19 @@ Parallelism and resume
 Frames are split into chunks of ``chunk_size`` consecutive frames. Within a chunk every frame
 is matched from the previous successful frame; each chunk starts from the reference frame
 (frame 0, linked through ``link`` or matched from the approximate ``camera``), so chunks are
-independent and run in parallel on a Dask cluster (by default a ``LocalCluster`` with one
-worker process per CPU core, or ``workers`` of them, or the scheduler at ``scheduler``;
-``workers=1`` runs in this process, without Dask); the matcher therefore has to bridge
-the motion between frame 0 and a chunk's first frame (several pixels are fine; a failed
-match is retried once with twice the landing tolerance). After a large excursion that can
-still fail: a second, sequential pass then processes again, from the last good frame before
-them, the frames that failed while matched from an older frame (corrupt frames, which failed
-although matched from the previous good frame, are not redone). The chunking does not depend
-on the number of workers, so 1 and N workers give the same results.
+independent and run in parallel: on local worker processes forked from a server that has
+loaded the package (:mod:`~resection.sequence.pool`; one per CPU core, or ``workers`` of
+them; ``workers=1`` runs in this process), or on the Dask cluster at ``scheduler``. A
+chunk's first frame is predicted from frame 0. When that fails (the model moved too far
+since, e.g. in a roll sweep) the chunk computes nothing and is started again, on a worker,
+from the last good frames of the chunk before it as soon as that one is done
+(:mod:`~resection.sequence.chain`), as the chunks run in this process are. What still fails
+from an older frame goes to a second, sequential pass, which processes those frames again
+from the last good frame before them (corrupt frames, which failed although matched from
+the previous good frame, are not redone). The chunking does not depend on the number of
+workers, so 1 and N workers give the same results, to the solver's convergence where they
+match the same markers (in fast motion the frame after a chunk start tracked from frame 0,
+predicted with the mean velocity since frame 0, may miss a marker that one process keeps).
 
 Every finished frame is written at once to ``out_dir/frames/frame_NNNNNN.json`` (written to
 a temporary file and renamed, so a file is either complete or absent; not fsync'ed: after a
@@ -63,12 +69,12 @@ A run that is interrupted and started again with ``resume=True`` loads these fil
 computes only the missing frames, and the frames whose file has changed since (its size,
 modification and status-change times or inode differ from those recorded:
 :func:`~resection.sequence.frames.fingerprint`); ``poses.csv`` and ``markers.csv`` are
-merged from them at the end. On a Dask cluster the file is written by the worker, inside
-the task, as soon as the frame is finished (the workers of a local cluster share the
-filesystem), so an interruption loses at most the frames in progress, one per worker; the
-progress bar follows these files. A worker that cannot write there (a remote cluster
-without a shared filesystem) leaves the file to the client, which writes it when the chunk
-comes back. A failed frame is recorded (status ``failed`` and the reason, which names its
+merged from them at the end. On workers the file is written by the worker, inside the
+task, as soon as the frame is finished (local workers share the filesystem); on Ctrl-C the
+local workers finish the chunks they run and no other starts, so an interruption loses no
+finished frame; the progress bar follows these files. A worker that cannot write there
+(a remote cluster without a shared filesystem) leaves the file to the client, which writes
+it when the chunk comes back. A failed frame is recorded (status ``failed`` and the reason, which names its
 file) and the run goes on; the next frame is then matched from the last good one.
 
 While a run writes into ``out_dir`` it holds the folder's lock

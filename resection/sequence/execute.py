@@ -1,5 +1,7 @@
 """Running the frames: the reference frame in this process, then chunks of consecutive
-frames in this process or on a Dask cluster, then the repair pass."""
+frames in this process, on local worker processes (:mod:`resection.sequence.pool`) or on a
+Dask cluster, a deferred chunk started again from the chunk before it
+(:mod:`resection.sequence.chain`), then the repair pass."""
 
 from __future__ import annotations
 
@@ -8,6 +10,7 @@ import time
 from pathlib import Path
 
 from resection.errors import InputError
+from resection.sequence.chain import ChunkChain
 from resection.sequence.outputs import (
     FrameWriter,
     atomic_write_text,
@@ -17,6 +20,7 @@ from resection.sequence.outputs import (
     summary,
     write_frame,
 )
+from resection.sequence.pool import WorkerPool, start_server
 from resection.sequence.process import (
     DEFERRED,
     Setup,
@@ -27,35 +31,30 @@ from resection.sequence.process import (
 )
 from resection.sequence.results import FrameResult
 
-#: Dask configuration of the local cluster's workers. The nanny sets
-#: ``MALLOC_TRIM_THRESHOLD_`` by default, which freezes glibc's dynamic mmap threshold: every
-#: frame-sized array (4 MB) is then mmap'ed and faulted in afresh, which doubled the CPU time
-#: of a tracked frame in a worker (20 ms against 11 ms in this process, 1 Mpx frames,
-#: bench_track.py). Unset (None), the workers allocate as this process does.
-LOCAL_WORKER_CONFIG = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
-#: seconds to start a local cluster of worker processes and load the package and its
-#: compiled kernels in them (measured 2.7 s on the 2-core development machine, more
-#: under load: ``bench/bench_track.py``). A run starts them only when the work left after
-#: the first chunk, timed in this process, takes longer than that plus its share.
-LOCAL_CLUSTER_START_S = 3.0
+#: seconds to start the local worker processes (:mod:`resection.sequence.pool`): forked
+#: from a server that has loaded the package and its kernels beside the first chunk, they
+#: start in milliseconds; this allows for a server not ready yet, or a loaded machine. A
+#: run starts them only when the work left after the first chunk, timed in this process,
+#: takes longer than that plus its share.
+LOCAL_CLUSTER_START_S = 0.5
 
 
 def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
                chunk_size: int, workers: int, scheduler: str | None, frames_dir: Path,
                progress: bool) -> int:
     """Compute every frame not in ``done`` (index -> ``(ok, matched_from)``, completed in
-    place), each written to ``frames_dir`` as soon as it is finished. Returns the number
-    computed. Memory does not grow with the frames: a finished frame is kept as its file
-    and those two numbers; the frames are read one at a time, where they are processed."""
+    place), each written to ``frames_dir`` as soon as it is finished. Returns the number of
+    frames computed (each counted once). Memory does not grow with the frames: a finished
+    frame is kept as its file and those two numbers; the frames are read one at a time,
+    where they are processed."""
     bar = _progress_bar(len(frames), len(done), progress)
-    computed = 0
+    computed: set[int] = set()
 
     def note(d: dict) -> None:
         """A frame finished (its file is written; a deferred one is computed later)."""
-        nonlocal computed
         done[d["frame"]] = summary(d)
-        if d.get("matched_from") != DEFERRED:
-            computed += 1
+        if d.get("matched_from") != DEFERRED and d["frame"] not in computed:
+            computed.add(d["frame"])
             bar.update(1)
 
     writer = FrameWriter(frames_dir)
@@ -70,6 +69,9 @@ def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
         if d0 is not None:  # the reference frame, in this process
             first = FrameResult.from_dict(d0)
         else:
+            tasks = 1 + (len(frames) - 1 - len(done)) // max(int(chunk_size), 1)
+            if scheduler is None and min(workers, tasks - 1) > 1 and free_cores() >= 2:
+                start_server()  # readied beside the reference frame and first chunk
             first = (process_linked(frames[0], 0, setup, link) if link is not None
                      else process_frame(frames[0], 0, setup, None))
             record(first)
@@ -78,8 +80,8 @@ def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
         n_local = min(workers, len(tasks))  # no idle local workers: start-up costs
         if tasks and scheduler is None and n_local > 1:
             # no worker processes for a run that this process finishes sooner: the first
-            # chunk runs here, timed, and the rest goes to a local cluster only if that
-            # pays its start-up
+            # chunk runs here, timed, and the rest goes to local workers only if that pays
+            # their start-up
             t0 = time.perf_counter()
             last = _execute_local(setup, tasks[:1], record, (seed0, None))
             per_frame = (time.perf_counter() - t0) / max(_to_compute(tasks[:1]), 1)
@@ -89,29 +91,29 @@ def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
                 n_local = 1
         else:
             last = (seed0, None)
+        before = last if last[0] is not None else None
         if tasks and scheduler is None and n_local == 1:
             _execute_local(setup, tasks, record, last)
         elif tasks:
-            todo = {i for items, _, _ in tasks for i, _ in items if i not in done}
-            _execute_dask(setup, tasks, _on_chunk(frames_dir, todo, note),
-                          _on_poll(frames_dir, todo, note), scheduler, n_local,
-                          str(frames_dir.resolve()))
+            on_poll = _on_poll(frames_dir, tasks, done, note) if progress else None
+            if scheduler is None:
+                _execute_pool(setup, tasks, before, _on_chunk(frames_dir, note, False),
+                              on_poll, n_local, str(frames_dir.resolve()))
+            else:
+                _execute_dask(setup, tasks, before, _on_chunk(frames_dir, note, True),
+                              on_poll, scheduler, n_local, str(frames_dir.resolve()))
 
         writer.flush()  # the repair pass reads the frames' files
 
         def rerecord(res: FrameResult) -> None:
-            nonlocal computed
             write_frame(frames_dir, res)
-            if done.get(res.frame, (False, -1))[1] == DEFERRED:
-                bar.update(1)
-            done[res.frame] = summary(res.to_dict())
-            computed += 1
+            note(res.to_dict())
 
         repair(frames, setup, done, rerecord, frames_dir)
     finally:
         writer.close()  # the finished frames are written, also when the run is interrupted
         bar.close()
-    return computed
+    return len(computed)
 
 
 class _NoBar:
@@ -175,8 +177,11 @@ def _chunks(frames: list, done: dict, seed: FrameResult | None, chunk_size: int,
     return tasks
 
 
-def _on_poll(frames_dir: Path, todo: set, note):
-    """While Dask runs: pick up the frames the workers have written (shared filesystem)."""
+def _on_poll(frames_dir: Path, tasks: list, done: dict, note):
+    """While the workers run: pick up the frames they have written (shared filesystem),
+    for the progress bar."""
+    todo = {i for items, _, _ in tasks for i, _ in items if i not in done}
+
     def on_poll() -> None:
         names = set(os.listdir(frames_dir))
         for i in sorted(todo):
@@ -188,24 +193,63 @@ def _on_poll(frames_dir: Path, todo: set, note):
     return on_poll
 
 
-def _on_chunk(frames_dir: Path, todo: set, note):
+def _on_chunk(frames_dir: Path, note, remote: bool):
     """A chunk came back: write what its worker could not (no shared filesystem with a
-    remote cluster)."""
+    remote cluster, ``remote``; a local worker that could not write, e.g. a full disk:
+    the write here raises), and note its frames."""
     def on_chunk(dicts: list) -> None:
         for dct in dicts:
-            i = dct["frame"]
-            if i not in todo:
-                continue
-            path, text = frame_path(frames_dir, i), frame_text(dct)
-            try:
-                same = path.read_text(encoding="utf-8") == text
-            except OSError:
-                same = False
-            if not same:
-                atomic_write_text(path, text, sync=False)
-            todo.discard(i)
+            path = frame_path(frames_dir, dct["frame"])
+            if remote:
+                text = frame_text(dct)
+                try:
+                    same = path.read_text(encoding="utf-8") == text
+                except OSError:
+                    same = False
+                if not same:
+                    atomic_write_text(path, text, sync=False)
+            elif not path.is_file():
+                atomic_write_text(path, frame_text(dct), sync=False)
             note(dct)
     return on_chunk
+
+
+def _run_chain(submit, wait, tasks, before, on_chunk, on_poll, poll_s: float) -> None:
+    """Run ``tasks`` through ``submit(items, seed, done, previous) -> future``, each
+    chunk seeded from its first seed (frame 0), and start a deferred chunk again from the
+    chunk before it once that is back (:mod:`resection.sequence.chain`). ``wait(futures,
+    timeout)`` returns the futures finished (possibly none)."""
+    chain = ChunkChain([-1 if seed is None else seed.frame for _, seed, _ in tasks], before)
+    running = {submit(items, seed, done, None): k
+               for k, (items, seed, done) in enumerate(tasks)}
+    while running:
+        finished = wait(list(running), poll_s)
+        if not finished and on_poll is not None:
+            on_poll()
+        for fut in finished:
+            k = running.pop(fut)
+            dicts = fut.result()
+            on_chunk(dicts)
+            for j, (ref, prev) in chain.came_back(k, dicts):
+                items, _, done = tasks[j]
+                running[submit(items, ref, done, prev)] = j
+
+
+def _execute_pool(setup, tasks, before, on_chunk, on_poll, workers, frames_dir,
+                  poll_s: float = 0.25) -> None:
+    """Run the chunks on ``workers`` local processes (:mod:`resection.sequence.pool`).
+    The tasks write every finished frame to ``frames_dir`` themselves; ``on_chunk(dicts)``
+    is called when a chunk comes back, ``on_poll()`` (if given) while waiting."""
+    from concurrent.futures import FIRST_COMPLETED
+    from concurrent.futures import wait as wait_futures
+
+    def wait(futures, timeout):
+        return wait_futures(futures, timeout=timeout, return_when=FIRST_COMPLETED).done
+
+    with WorkerPool(setup, workers) as pool:
+        _run_chain(lambda items, seed, done, prev: pool.submit(items, seed, done,
+                                                               frames_dir, prev),
+                   wait, tasks, before, on_chunk, on_poll, poll_s)
 
 
 def _execute_local(setup, tasks, on_frame, last=None):
@@ -227,57 +271,46 @@ def _execute_local(setup, tasks, on_frame, last=None):
     return last
 
 
-def _execute_dask(setup, tasks, on_chunk, on_poll, scheduler, workers, frames_dir,
+def _execute_dask(setup, tasks, before, on_chunk, on_poll, scheduler, workers, frames_dir,
                   poll_s: float = 0.25, connect_timeout: float = 20.0):
-    """Run the chunks on Dask. The tasks write every finished frame to ``frames_dir``
-    themselves; ``on_poll()`` is called while waiting (it picks those files up, for the
-    progress bar) and ``on_chunk(dicts)`` when a chunk comes back."""
-    import logging
+    """Run the chunks on the Dask cluster at ``scheduler``. The tasks write every finished
+    frame to ``frames_dir`` when they can (a shared filesystem); ``on_chunk(dicts)`` is
+    called when a chunk comes back, ``on_poll()`` (if given) while waiting."""
     import time
 
-    import dask
-    from dask.distributed import Client, LocalCluster, as_completed
+    from dask.distributed import Client
 
-    cluster = None
-    if scheduler is None:
-        with dask.config.set(LOCAL_WORKER_CONFIG):
-            cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1,
-                                   processes=True, dashboard_address=None,
-                                   silence_logs=logging.ERROR)
-        client = Client(cluster)
-    else:
-        msg = None
-        try:
-            client = Client(scheduler, timeout=connect_timeout)
-        except (OSError, ValueError, TypeError) as exc:  # unreachable or malformed address
-            msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        if msg is not None:
-            # the half-built Client must be collected now: left to a later garbage
-            # collection, its __del__ can run while another cluster starts and hang it
-            import gc
+    del workers  # the cluster's own
+    msg = None
+    try:
+        client = Client(scheduler, timeout=connect_timeout)
+    except (OSError, ValueError, TypeError) as exc:  # unreachable or malformed address
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    if msg is not None:
+        # the half-built Client must be collected now: left to a later garbage
+        # collection, its __del__ can run while another cluster starts and hang it
+        import gc
 
-            gc.collect()
-            raise InputError(f"scheduler: cannot connect to the Dask scheduler at "
-                             f"{scheduler!r} ({msg})")
+        gc.collect()
+        raise InputError(f"scheduler: cannot connect to the Dask scheduler at "
+                         f"{scheduler!r} ({msg})")
+
+    def wait(futures, timeout):
+        ready = [f for f in futures if f.done()]
+        if not ready:
+            time.sleep(timeout)
+        return ready
+
     try:
         s = client.scatter(setup, broadcast=True)
-        futures = [client.submit(run_chunk, s, items, seed, done, None, frames_dir,
-                                 pure=False)
-                   for items, seed, done in tasks]
-        pending = as_completed(futures)
-        while not pending.is_empty():
-            if pending.has_ready():
-                for fut in pending.next_batch(block=False):
-                    on_chunk(fut.result())
-            else:
-                on_poll()
-                time.sleep(poll_s)
+        _run_chain(lambda items, seed, done, prev: client.submit(
+                       run_chunk, s, items, seed, done, None, frames_dir, previous=prev,
+                       pure=False),
+                   wait, tasks, before, on_chunk, on_poll, poll_s)
     finally:
         client.close()
-        if cluster is not None:
-            cluster.close()
 
 
 def default_workers() -> int:
-    """Worker processes of the default local cluster: one per CPU core."""
+    """Local worker processes by default: one per CPU core."""
     return max(int(os.cpu_count() or 1), 1)

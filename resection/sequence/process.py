@@ -118,15 +118,17 @@ def _solve(ids: np.ndarray, uv: np.ndarray, setup: Setup, frame: int, file: str,
 
 
 def process_frame(frame_data, index: int, setup: Setup, reference: FrameResult | None,
-                   previous: FrameResult | None = None, sources: dict | None = None
-                   ) -> FrameResult:
+                   previous: FrameResult | None = None, sources: dict | None = None,
+                   match: bool = True) -> FrameResult:
     """Read one frame, track its markers by prediction from ``reference`` (and the good
     frame before it, ``previous``) or, when the prediction's gate fails, detect and match
-    them from ``reference`` with the statistical matcher; solve the pose. Never raises for
-    a bad frame: the failure is returned with its reason. ``sources``: multi-frame files
-    kept open between frames (see :func:`resection.sequence.frames._load_image`)."""
+    them from ``reference`` with the statistical matcher (unless ``match`` is false: the
+    frame then fails); solve the pose. Never raises for a bad frame: the failure is
+    returned with its reason. ``sources``: multi-frame files kept open between frames
+    (see :func:`resection.sequence.frames._load_image`)."""
     source = fingerprint(frame_data)  # before reading: a later change is seen next time
-    res = _process_frame_unlabelled(frame_data, index, setup, reference, previous, sources)
+    res = _process_frame_unlabelled(frame_data, index, setup, reference, previous, sources,
+                                    match)
     return dataclasses.replace(res, matched_from=-1 if reference is None else reference.frame,
                                source=source,
                                ref_source=None if reference is None else reference.source)
@@ -134,7 +136,8 @@ def process_frame(frame_data, index: int, setup: Setup, reference: FrameResult |
 
 def _process_frame_unlabelled(frame_data, index: int, setup: Setup,
                               reference: FrameResult | None,
-                              previous: FrameResult | None, sources) -> FrameResult:
+                              previous: FrameResult | None, sources,
+                              match: bool = True) -> FrameResult:
     name = frame_name(frame_data)
     try:
         img = load_image(frame_data, sources)
@@ -145,6 +148,8 @@ def _process_frame_unlabelled(frame_data, index: int, setup: Setup,
             res = track_predicted(img, setup, reference, previous, index, name)
             if res is not None:
                 return res
+            if not match:
+                raise SolveError(f"the prediction from frame {reference.frame} failed")
         if not np.isfinite(img).any():
             raise InputError("image has no finite pixel (all NaN or infinite)")
         cands = _detect(img, setup, _search_roi(setup, reference, img.shape))
@@ -224,11 +229,13 @@ def run_chunk(setup: Setup, items: list, seed: FrameResult | None,
     frame in progress. Returns the frames' dictionaries.
 
     A chunk seeded from a frame other than the one just before it (frame 0, for chunks run
-    in parallel) whose first frame fails from the seed computes no more: the model moved
-    too far since the seed, and every frame would fail alike, each at the price of a
-    detection and a statistical match. Its frames are recorded as failed with
-    ``matched_from = DEFERRED``, and the sequential pass (:func:`repair`) computes them
-    from the good frame before them."""
+    in parallel) whose first frame is not tracked by prediction from the seed computes no
+    more (the statistical matcher is not tried there): the model moved too far since the
+    seed, and every frame would fail alike, each at the price of a detection and a
+    statistical match. Its frames are recorded as failed with ``matched_from = DEFERRED``;
+    the chunk is started again from the chunk before it once that is done
+    (:mod:`resection.sequence.chain`), or the sequential pass (:func:`repair`) computes
+    them from the good frame before them."""
     done = done or {}
     ref, prev = seed, previous
     out = []
@@ -248,8 +255,10 @@ def run_chunk(setup: Setup, items: list, seed: FrameResult | None,
                 if on_frame is not None:
                     on_frame(res)
             else:
-                res = process_frame(frame, index, setup, ref, prev, sources=sources)
-                if far_seed and not res.ok and ref is seed:
+                first_far = far_seed and ref is seed
+                res = process_frame(frame, index, setup, ref, prev, sources=sources,
+                                    match=not first_far)
+                if first_far and not res.ok:
                     deferred = (f"not computed in its chunk: frame {index} failed from "
                                 f"frame {seed.frame}")
                 if frames_dir is not None:

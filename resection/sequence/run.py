@@ -71,10 +71,11 @@ def track(
     scheduler : str, optional
         Address of a running Dask scheduler (``tcp://host:8786``).
     workers : int, optional
-        Worker processes of the local Dask cluster started when no ``scheduler`` is given;
-        default: one per CPU core, at most one per chunk. 1 (or a single chunk to do) runs
-        in this process, without Dask (same chunks, same results). The workers are spawned
-        processes: a script that calls ``track`` with more than one worker needs the usual
+        Local worker processes when no ``scheduler`` is given
+        (:mod:`resection.sequence.pool`); default: one per CPU core, at most one per chunk.
+        1 (or a single chunk to do) runs in this process (same chunks, same results). The
+        workers are forked from a fresh server process (spawned on Windows): a script that
+        calls ``track`` with more than one worker needs the usual
         ``if __name__ == "__main__":`` guard.
     out_dir : path-like
         Output directory (created): ``poses.csv``, ``markers.csv``, ``frames/``, ``track.json``.

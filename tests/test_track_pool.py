@@ -1,0 +1,166 @@
+"""Local worker processes of ``track`` and the restart of deferred chunks.
+
+A pitch oscillation of +-16 degrees (scenes.moving_model): the chunks that start far from
+frame 0 cannot be tracked from it. On two real worker processes (forked from the pool's
+server) they must be started again from the chunk before them, give the scene's truth and
+the same result as one process, and leave nothing to the sequential repair pass.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from resection.io.cameras import read_camera
+from resection.sequence import execute as seq_execute
+from resection.sequence import process as seq_process
+from resection.sequence import track
+from resection.sequence.chain import ChunkChain, is_deferred
+from resection.sequence.process import DEFERRED
+from resection.sequence.results import FrameResult
+from scenes.moving_model import pitch_oscillation, write_sequence
+
+
+def _ok(frame: int, matched_from: int | None = None) -> dict:
+    return FrameResult(frame=frame, file="", status="ok", rvec=np.zeros(3),
+                       tvec=np.array([0.0, 0.0, 1.0]), rms=0.1,
+                       matched_from=frame - 1 if matched_from is None else matched_from
+                       ).to_dict()
+
+
+def _failed(frames, matched_from) -> list[dict]:
+    return [FrameResult(frame=f, file="", status="failed", reason="x",
+                        matched_from=matched_from).to_dict() for f in frames]
+
+
+def _deferred(frames) -> list[dict]:
+    return _failed(frames, DEFERRED)
+
+
+def test_chain_starts_a_deferred_chunk_from_the_one_before():
+    # three chunks of 3 frames after a first one (frames 1-3) run here: 4-6, 7-9, 10-12
+    chain = ChunkChain([0, 0, 0], before=None)
+    # chunk 1 (7-9) defers while chunk 0 runs: it waits
+    assert chain.came_back(1, _deferred([7, 8, 9])) == []
+    assert chain.waiting == [1]
+    # chunk 0 comes back good: chunk 1 starts from its last two good frames (6, then 5)
+    ready = chain.came_back(0, [_ok(4), _ok(5), _ok(6)])
+    assert [(k, ref.frame, prev.frame) for k, (ref, prev) in ready] == [(1, 6, 5)]
+    assert chain.waiting == []
+    # chunk 2 deferred after chunk 1 is known to be restarted, not done: waits for it
+    assert chain.came_back(2, _deferred([10, 11, 12])) == []
+    # chunk 1's second run comes back with its last frame failed: chunk 2 starts from 8, 7
+    res = [_ok(7), _ok(8), *_failed([9], 8)]
+    ready = chain.came_back(1, res)
+    assert [(k, ref.frame, prev.frame) for k, (ref, prev) in ready] == [(2, 8, 7)]
+    # a chunk deferred a second time is not started again (left to the repair pass)
+    assert chain.came_back(2, _deferred([10, 11, 12])) == []
+    assert chain.waiting == []
+    assert is_deferred(_deferred([1])) and not is_deferred([_ok(3)])
+
+
+def test_chain_does_not_restart_from_the_same_seed():
+    # the first chunk after frame 0, seeded from frame 0 (a Dask scheduler: no chunk here)
+    zero = FrameResult.from_dict(_ok(0, -1))
+    chain = ChunkChain([0, 0], before=(zero, None))
+    assert chain.came_back(0, _deferred([1, 2])) == []  # no closer frame than frame 0
+    assert chain.waiting == []
+    # one chunk with no good frame passes on the frames before it
+    chain = ChunkChain([0, 0, 0], before=(zero, None))
+    assert chain.came_back(2, _deferred([7, 8, 9])) == []
+    assert chain.came_back(0, _failed([1, 2, 3], 0)) == []
+    ready = chain.came_back(1, [_ok(4), _ok(5), _ok(6)])
+    assert [(k, ref.frame) for k, (ref, _) in ready] == [(2, 6)]
+
+
+@pytest.fixture(scope="module")
+def sweep(tmp_path_factory):
+    base = tmp_path_factory.mktemp("sweep")
+    model = pitch_oscillation(32, amplitude_deg=16.0, frequency_hz=2.0)
+    files = write_sequence(model, base / "frames")
+    return model, files, read_camera(files["camera"])
+
+
+def test_workers_restart_deferred_chunks_and_agree_with_one_process(sweep, tmp_path,
+                                                                     monkeypatch):
+    model, files, cam = sweep
+    kw = dict(diameter=5.6, progress=False, chunk_size=8)
+    one = track(files["frames"], cam, files["markers"], out_dir=tmp_path / "one", workers=1,
+                **kw)
+    assert one.ok.all()
+    # workers that cost nothing to start on an idle machine: the three chunks after the
+    # first (run here, timed) go to two worker processes
+    monkeypatch.setattr(seq_execute, "LOCAL_CLUSTER_START_S", 0.0)
+    monkeypatch.setattr(seq_execute, "free_cores", lambda: 2.0)
+    here = {"frames": [], "repaired": 0}
+    process = seq_process.process_frame
+
+    def spy(frame, index, *a, **k):
+        here["frames"].append(index)
+        return process(frame, index, *a, **k)
+
+    repair = seq_execute.repair
+
+    def spy_repair(frames, setup, done, record, frames_dir):
+        def counted(res):
+            here["repaired"] += 1
+            record(res)
+        return repair(frames, setup, done, counted, frames_dir)
+
+    monkeypatch.setattr(seq_process, "process_frame", spy)
+    monkeypatch.setattr(seq_execute, "process_frame", spy)
+    monkeypatch.setattr(seq_execute, "repair", spy_repair)
+    out = tmp_path / "two"
+    res = track(files["frames"], cam, files["markers"], out_dir=out, workers=2, **kw)
+    # frames 0-8 here, the rest in the workers (the spy does not reach them)
+    assert here["frames"] == list(range(9))
+    assert res.ok.all() and res.n_computed == 32
+    assert here["repaired"] == 0  # the deferred chunks were started again on the workers
+    used = [json.load(open(p))["matched_from"] for p in sorted((out / "frames").glob("*.json"))]
+    starts = [k for k in (9, 17, 25) if used[k] == k - 1]
+    assert starts, used  # at least one chunk start tracked from the frame before it
+    assert all(used[k] in (0, k - 1) for k in (9, 17, 25))
+    # the scene's truth, and one process's result: the same to the solver's convergence
+    # where the same markers are matched. The frame after a chunk start tracked from frame
+    # 0 is predicted with the mean velocity since frame 0 (one process: since the frame
+    # before), and in this fast motion (+-16 deg at 2 Hz) may miss a marker or two.
+    assert np.abs(res.angles - np.degrees(model.angles)).max() < 0.01
+    ids = [json.load(open(d / "frames" / f"frame_{k:06d}.json"))["ids"]
+           for d in (tmp_path / "one", out) for k in range(32)]
+    same = np.array([a == b for a, b in zip(ids[:32], ids[32:], strict=True)])
+    assert same.sum() >= 32 - 3, np.flatnonzero(~same)  # at most one frame a chunk
+    np.testing.assert_allclose(res.angles[same], one.angles[same], atol=1e-6)
+    np.testing.assert_allclose(res.translation[same], one.translation[same], atol=1e-9)
+    np.testing.assert_allclose(res.angles, one.angles, atol=2e-3)
+
+
+def test_interrupt_with_workers_keeps_finished_frames(sweep, tmp_path, monkeypatch):
+    model, files, cam = sweep
+    monkeypatch.setattr(seq_execute, "LOCAL_CLUSTER_START_S", 0.0)
+    monkeypatch.setattr(seq_execute, "free_cores", lambda: 2.0)
+    on_chunk = seq_execute._on_chunk
+
+    def stopped(frames_dir, note, remote):
+        handle = on_chunk(frames_dir, note, remote)
+
+        def first_back(dicts):
+            handle(dicts)
+            raise KeyboardInterrupt  # Ctrl-C when the first chunk comes back
+        return first_back
+
+    monkeypatch.setattr(seq_execute, "_on_chunk", stopped)
+    out = tmp_path / "o"
+    kw = dict(diameter=5.6, progress=False, chunk_size=8, workers=2)
+    with pytest.raises(KeyboardInterrupt):
+        track(files["frames"], cam, files["markers"], out_dir=out, **kw)
+    kept = sorted(int(p.stem.split("_")[1]) for p in (out / "frames").glob("frame_*.json"))
+    assert kept[:9] == list(range(9)) and len(kept) >= 9 + 8  # and the chunk(s) that ran
+    assert all(json.load(open(out / "frames" / f"frame_{k:06d}.json"))["frame"] == k
+               for k in kept)
+    assert not list((out / "frames").glob("*.tmp"))
+    monkeypatch.setattr(seq_execute, "_on_chunk", on_chunk)
+    res = track(files["frames"], cam, files["markers"], out_dir=out, **kw)
+    assert res.ok.all() and res.n_computed <= 32 - 9
+    assert np.abs(res.angles - np.degrees(model.angles)).max() < 0.01
