@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["rotvec_to_matrix", "matrix_to_rotvec"]
+__all__ = ["rotvec_to_matrix", "rotvecs_to_matrices", "matrix_to_rotvec", "euler_zyx"]
 
 
 def rotvec_to_matrix(rvec) -> np.ndarray:
@@ -42,6 +42,60 @@ def rotvec_to_matrix(rvec) -> np.ndarray:
     x, y, z = r
     cross = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
     return np.eye(3) + s * cross + c * (cross @ cross)
+
+
+def rotvecs_to_matrices(rvecs) -> np.ndarray:
+    """The rotation matrices of ``N`` rotation vectors at once.
+
+    Parameters
+    ----------
+    rvecs : (N, 3) array_like
+        Axes times angles (radians).
+
+    Returns
+    -------
+    (N, 3, 3) float64
+        :func:`rotvec_to_matrix` of each row (the same formulas, series included).
+    """
+    r = np.asarray(rvecs, dtype=np.float64).reshape(-1, 3)
+    a2 = np.einsum("ij,ij->i", r, r)
+    a = np.sqrt(a2)
+    small = a < 1e-4
+    safe = np.where(small, 1.0, a)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        s = np.where(small, 1.0 - a2 / 6.0 + a2 * a2 / 120.0, np.sin(safe) / safe)
+        c = np.where(small, 0.5 - a2 / 24.0 + a2 * a2 / 720.0,
+                     (1.0 - np.cos(safe)) / (safe * safe))
+    x, y, z = r.T
+    zero = np.zeros_like(x)
+    cross = np.stack([np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1),
+                      np.stack([-y, x, zero], -1)], -2)
+    return np.eye(3) + s[:, None, None] * cross + c[:, None, None] * (cross @ cross)
+
+
+def euler_zyx(R) -> np.ndarray:
+    """Yaw, pitch and roll of rotation matrices, ``R = Rz(yaw) Ry(pitch) Rx(roll)``.
+
+    Parameters
+    ----------
+    R : (N, 3, 3) array_like
+        Rotation matrices.
+
+    Returns
+    -------
+    (N, 3) float64
+        ``(yaw, pitch, roll)`` in radians, pitch in ``[-pi/2, pi/2]``, the others in
+        ``(-pi, pi]`` (SciPy's ``Rotation.as_euler("ZYX")``). At pitch +-90 degrees
+        (gimbal lock) yaw and roll are one angle: roll is set to 0, as SciPy does.
+    """
+    m = np.asarray(R, dtype=np.float64).reshape(-1, 3, 3)
+    cp = np.hypot(m[:, 0, 0], m[:, 1, 0])
+    pitch = np.arctan2(-m[:, 2, 0], cp)
+    lock = cp < 1e-7
+    yaw = np.where(lock, np.arctan2(-m[:, 0, 1], m[:, 1, 1]),
+                   np.arctan2(m[:, 1, 0], m[:, 0, 0]))
+    roll = np.where(lock, 0.0, np.arctan2(m[:, 2, 1], m[:, 2, 2]))
+    return np.column_stack([yaw, pitch, roll])
 
 
 def matrix_to_rotvec(R) -> np.ndarray:

@@ -74,8 +74,9 @@ task, as soon as the frame is finished (local workers share the filesystem); on 
 local workers finish the chunks they run and no other starts, so an interruption loses no
 finished frame; the progress bar follows these files. A worker that cannot write there
 (a remote cluster without a shared filesystem) leaves the file to the client, which writes
-it when the chunk comes back. A failed frame is recorded (status ``failed`` and the reason, which names its
-file) and the run goes on; the next frame is then matched from the last good one.
+it when the chunk comes back. A failed frame is recorded (status ``failed`` and the
+reason, which names its file) and the run goes on; the next frame is then matched from the
+last good one.
 
 While a run writes into ``out_dir`` it holds the folder's lock
 (:func:`resection.io.lock.lock_folder`): a second run into the same folder is refused with

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from resection._checks import as_points
+from resection.camera.rotation import euler_zyx, rotvec_to_matrix, rotvecs_to_matrices
 from resection.errors import InputError
 
 
@@ -42,8 +42,8 @@ def relative_motion(rvecs, tvecs, reference: int = 0, *,
     trans = np.full((len(rv), 3), np.nan)
     if not good.any():
         return angles, trans
-    R = Rotation.from_rotvec(rv[good]).as_matrix()
-    R0 = Rotation.from_rotvec(rv[reference]).as_matrix()
+    R = rotvecs_to_matrices(rv[good])
+    R0 = rotvec_to_matrix(rv[reference])
     t0 = tv[reference]
     if fixed_camera:
         M = np.einsum("ji,njk->nik", R0, R)
@@ -52,7 +52,7 @@ def relative_motion(rvecs, tvecs, reference: int = 0, *,
         M = np.einsum("nji,jk->nik", R, R0)
         C = -np.einsum("nji,nj->ni", R, tv[good])
         d = C - (-R0.T @ t0)
-    ypr = Rotation.from_matrix(M).as_euler("ZYX")
+    ypr = euler_zyx(M)
     angles[good] = np.degrees(ypr[:, ::-1])
     trans[good] = d
     return angles, trans

@@ -47,10 +47,9 @@ import inspect
 import math
 
 import numpy as np
-from scipy.spatial import cKDTree
-from scipy.spatial.transform import Rotation
 
 from resection.camera.model import Camera, distort_normalized
+from resection.camera.rotation import matrix_to_rotvec, rotvec_to_matrix, rotvecs_to_matrices
 from resection.pose.acceptance import judge
 from resection.sequence.results import FrameResult
 
@@ -78,6 +77,12 @@ PROBE_GATE = 0.5
 PROBE_LIKE = 0.7
 
 
+def _distances(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``(len(a), len(b))`` distances between two small sets of image points (a frame's
+    markers: all pairs at once is cheaper than a k-d tree at these sizes)."""
+    return np.sqrt(((a[:, None, :] - b[None, :, :]) ** 2).sum(axis=-1))
+
+
 def predict_pose(reference: FrameResult, previous: FrameResult | None,
                  index: int) -> tuple[np.ndarray, np.ndarray]:
     """Camera pose ``(rvec, tvec)`` of frame ``index`` at constant velocity from the two
@@ -86,10 +91,10 @@ def predict_pose(reference: FrameResult, previous: FrameResult | None,
     if previous is None or previous.frame >= reference.frame or not previous.ok:
         return r1.copy(), t1.copy()
     s = (index - reference.frame) / float(reference.frame - previous.frame)
-    R0 = Rotation.from_rotvec(np.asarray(previous.rvec, float))
-    R1 = Rotation.from_rotvec(r1)
-    step = (R1 * R0.inv()).as_rotvec()
-    rvec = (Rotation.from_rotvec(s * step) * R1).as_rotvec()
+    R0 = rotvec_to_matrix(np.asarray(previous.rvec, float))
+    R1 = rotvec_to_matrix(r1)
+    step = matrix_to_rotvec(R1 @ R0.T)
+    rvec = matrix_to_rotvec(rotvec_to_matrix(s * step) @ R1)
     return rvec, t1 + s * (t1 - np.asarray(previous.tvec, float))
 
 
@@ -102,7 +107,7 @@ def project_poses(camera: Camera, rvecs, tvecs, points3d, *,
     rv = np.asarray(rvecs, float).reshape(-1, 3)
     tv = np.asarray(tvecs, float).reshape(-1, 3)
     X = np.asarray(points3d, float).reshape(-1, 3)
-    R = Rotation.from_rotvec(rv).as_matrix()
+    R = rotvecs_to_matrices(rv)
     Xc = np.einsum("pij,nj->pni", R, X) + tv[:, None, :]
     z = Xc[..., 2]
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -249,7 +254,7 @@ def track_predicted(img: np.ndarray, setup, reference: FrameResult,
     with np.errstate(invalid="ignore"):
         inside = ((pred[:, 0] >= u0 + half + 1) & (pred[:, 0] <= u1 - half - 1)
                   & (pred[:, 1] >= v0 + half + 1) & (pred[:, 1] <= v1 - half - 1))
-    center = -Rotation.from_rotvec(rvec0).as_matrix().T @ tvec0
+    center = -rotvec_to_matrix(rvec0).T @ tvec0
     expected, away = expected_markers(setup, reference, previous, center)
     vis = np.flatnonzero(inside & expected)
     min_matches = int(_match_default("min_matches", setup.match_kw))
@@ -262,11 +267,13 @@ def track_predicted(img: np.ndarray, setup, reference: FrameResult,
     if index % PROBE_EVERY == 0:
         probe = np.flatnonzero(inside & ~expected & ~away)
         if probe.size:
-            dist_to_expected = cKDTree(pred[vis]).query(pred[probe])[0]
+            dist_to_expected = _distances(pred[probe], pred[vis]).min(axis=1)
             probe = probe[dist_to_expected > 2.0 * half]
     look = np.concatenate([vis, probe])
     pv = pred[look]
-    nn = cKDTree(pv).query(pv, k=2)[0][:, 1]
+    between = _distances(pv, pv)
+    np.fill_diagonal(between, np.inf)
+    nn = between.min(axis=1)  # each window's nearest other
     gate = np.minimum(R + 1.5, GATE_SPACING_FRACTION * nn)
     # only the box around the predicted markers is read (and negated, for dark markers)
     c0 = np.maximum(np.floor(pv.min(axis=0)).astype(int) - half - 1, 0)
@@ -298,9 +305,9 @@ def track_predicted(img: np.ndarray, setup, reference: FrameResult,
     n_vis = vis.size
     sel = np.flatnonzero(ok[:n_vis])
     if sel.size > 1:  # two windows on one blob: neither is trusted
-        close = cKDTree(found[sel]).query_pairs(max(0.75 * d, 1.5), output_type="ndarray")
-        if close.size:
-            sel = np.setdiff1d(sel, sel[np.unique(close)])
+        near = _distances(found[sel], found[sel]) <= max(0.75 * d, 1.5)
+        np.fill_diagonal(near, False)
+        sel = sel[~near.any(axis=1)]
     if sel.size < need:
         return None
     idx, uv = vis[sel], found[sel]
@@ -363,7 +370,7 @@ def _probed(fit, found, ok, n_vis, probe, tracked, uv_tracked, cam, rvec, tvec, 
                 & (fit["radius"][at] >= PROBE_LIKE * r_med)
                 & (fit["depth"][at] >= PROBE_LIKE * a_med))
     if uv_tracked.size:
-        good &= cKDTree(uv_tracked).query(found[at])[0] > max(1.5 * d, 3.0)
+        good &= _distances(found[at], uv_tracked).min(axis=1) > max(1.5 * d, 3.0)
     if not good.any():
         return None
     return probe[j[good]], found[at[good]]
