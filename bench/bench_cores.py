@@ -20,7 +20,7 @@ With ``--roots A,B`` each source tree's command runs in every round (``PYTHONPAT
 before and after in the same run.
 
 Run: ``.venv/bin/python bench/bench_cores.py [--cores 2,4,8,16] [--repeat 2]
-[--faces 609000] [--track-frames 200] [--roots A,B]``
+[--faces 609000] [--track-frames 200] [--roots A,B] [--commands correct,track]``
 """
 
 from __future__ import annotations
@@ -67,6 +67,8 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--faces", type=int, default=609_000)
     ap.add_argument("--track-frames", type=int, default=200)
+    ap.add_argument("--commands", default="correct,track",
+                    help="which commands to time (default both)")
     ap.add_argument("--cache", default=str(Path(tempfile.gettempdir()) / "bench_cores"))
     ap.add_argument("--roots", default=str(ROOT),
                     help="comma-separated source trees, run in turn in every round (e.g. an "
@@ -82,13 +84,15 @@ def main() -> None:
     cmds = {}
     from bench_si_command import files
 
-    (cache / "grid").mkdir(exist_ok=True)
-    f, _ = files(args.faces, cache / "grid")
-    cmds["correct"] = [py, "-m", "selfillum.cli", "correct", "--mesh", f["mesh"], "--camera",
-                       f["camera"], "--image", f["image"], "--reflectance", "0.5",
-                       "--unpainted", f["unpainted"], "--quiet", "--out",
-                       str(cache / "corrected.npy")]
-    if args.track_frames:
+    wanted = set(args.commands.split(","))
+    if "correct" in wanted:
+        (cache / "grid").mkdir(exist_ok=True)
+        f, _ = files(args.faces, cache / "grid")
+        cmds["correct"] = [py, "-m", "selfillum.cli", "correct", "--mesh", f["mesh"],
+                           "--camera", f["camera"], "--image", f["image"], "--reflectance",
+                           "0.5", "--unpainted", f["unpainted"], "--quiet", "--out",
+                           str(cache / "corrected.npy")]
+    if args.track_frames and "track" in wanted:
         from bench_track_command import PERIOD, render
 
         sc = render(cache / "track")
