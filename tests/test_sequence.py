@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -393,7 +394,7 @@ def test_default_is_local_workers_and_client_writes_unshared_frames(run60, tmp_p
     # with workers that start at no cost, the chunks after the first (timed here) go to
     # the cluster: three chunks, the first here, two workers for the two others
     monkeypatch.setattr(seq_execute, "LOCAL_CLUSTER_START_S", 0.0)
-    monkeypatch.setattr(seq_execute, "free_cores", lambda: 3.0)  # an idle machine
+    monkeypatch.setattr(seq_execute, "free_cores", lambda *a: 3.0)  # an idle machine
     out = tmp_path / "cli"
     rc = main(["track", *files["frames"][:8], "--camera", files["camera"], "--markers",
                files["markers"], "--diameter", "5.6", "--out", str(out), "--no-progress",
@@ -431,15 +432,50 @@ def test_cluster_pays_only_when_it_finishes_sooner():
     assert cluster_pays(4.0, 4, start_s=2.0) and not cluster_pays(100.0, 1, start_s=0.0)
 
 
-def test_free_cores_count_the_load(monkeypatch):
+def test_free_cores_count_the_load(monkeypatch, tmp_path):
     from resection.sequence import execute
+    from resection.sequence.load import LoadWindow, cpu_ticks
 
+    # without a window: the 1-minute load average, this process counted back
     monkeypatch.setattr(os, "getloadavg", lambda: (3.9, 3.0, 2.0))
     monkeypatch.setattr("resection._threads.available_cores", lambda: 2)
     assert execute.free_cores() == 1.0  # 2 cores, 2.9 busy besides this process
     monkeypatch.setattr(os, "getloadavg", lambda: (1.5, 1.0, 1.0))
     monkeypatch.setattr("resection._threads.available_cores", lambda: 16)
     assert execute.free_cores() == 15.5
+    # over a window: the cores' busy ticks in /proc/stat (user nice system idle iowait irq
+    # softirq steal), less this process's own CPU time and its helpers'
+    stat = tmp_path / "stat"
+
+    def write(ticks):
+        stat.write_text("cpu  0 0 0 0 0 0 0 0\n" + "".join(
+            f"cpu{c} {u} 0 0 {i} 0 0 0 0 0 0\n" for c, (u, i) in enumerate(ticks)))
+
+    monkeypatch.setattr("resection.sequence.load._affinity", lambda: [0, 1])
+    monkeypatch.setattr("resection._threads.available_cores", lambda: 2)
+    write([(100, 900), (50, 950)])
+    assert cpu_ticks([0, 1], str(stat)) == (150, 2000)
+    assert cpu_ticks([0, 2], str(stat)) is None  # a CPU missing: no figure
+    clock = {"cpu": 10.0, "wall": 100.0}  # this process's CPU and wall seconds
+    monkeypatch.setattr("resection.sequence.load.time", SimpleNamespace(
+        process_time=lambda: clock["cpu"], perf_counter=lambda: clock["wall"]))
+    w = LoadWindow.start(str(stat))
+    # an idle machine but for this process (one core for 1 s) and the pool's server
+    write([(200, 900), (150, 950)])
+    clock.update(cpu=11.0, wall=101.0)
+    assert w.free_cores(helpers=1.0) == 2.0
+    # the same ticks without the server: one core of other work
+    assert w.free_cores(helpers=0.0) == pytest.approx(1.0)
+    # this process sharing its core with other work (half of it): one core and a half busy
+    clock.update(cpu=10.5)
+    assert w.free_cores(helpers=1.0) == pytest.approx(1.5)
+    # half the second core idle, the server counted: nothing else ran
+    write([(200, 900), (100, 1000)])
+    clock.update(cpu=11.0)
+    assert w.free_cores(helpers=0.5) == 2.0
+    # a lagging load average (a job just ended) does not count when ticks are at hand
+    monkeypatch.setattr(os, "getloadavg", lambda: (11.0, 5.0, 2.0))
+    assert w.free_cores(helpers=1.0) == 2.0
 
 
 def test_pose_options_reach_every_solve(run60, tmp_path, capsys):

@@ -93,7 +93,7 @@ def test_workers_restart_deferred_chunks_and_agree_with_one_process(sweep, tmp_p
     # workers that cost nothing to start on an idle machine: the three chunks after the
     # first (run here, timed) go to two worker processes
     monkeypatch.setattr(seq_execute, "LOCAL_CLUSTER_START_S", 0.0)
-    monkeypatch.setattr(seq_execute, "free_cores", lambda: 2.0)
+    monkeypatch.setattr(seq_execute, "free_cores", lambda *a: 2.0)
     here = {"frames": [], "repaired": 0}
     process = seq_process.process_frame
 
@@ -139,7 +139,7 @@ def test_workers_restart_deferred_chunks_and_agree_with_one_process(sweep, tmp_p
 def test_interrupt_with_workers_keeps_finished_frames(sweep, tmp_path, monkeypatch):
     model, files, cam = sweep
     monkeypatch.setattr(seq_execute, "LOCAL_CLUSTER_START_S", 0.0)
-    monkeypatch.setattr(seq_execute, "free_cores", lambda: 2.0)
+    monkeypatch.setattr(seq_execute, "free_cores", lambda *a: 2.0)
     on_chunk = seq_execute._on_chunk
 
     def stopped(frames_dir, note, remote):

@@ -9,8 +9,10 @@ import os
 import time
 from pathlib import Path
 
+from resection._threads import available_cores
 from resection.errors import InputError
 from resection.sequence.chain import ChunkChain
+from resection.sequence.load import LoadWindow
 from resection.sequence.outputs import (
     FrameWriter,
     atomic_write_text,
@@ -65,13 +67,16 @@ def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
         note(d)
 
     try:
+        window = LoadWindow.start()  # the machine's other work, over this run's first work
+        server = 0.0
         d0 = read_frame(frame_path(frames_dir, 0)) if 0 in done else None
         if d0 is not None:  # the reference frame, in this process
             first = FrameResult.from_dict(d0)
         else:
             tasks = 1 + (len(frames) - 1 - len(done)) // max(int(chunk_size), 1)
-            if scheduler is None and min(workers, tasks - 1) > 1 and free_cores() >= 2:
+            if scheduler is None and min(workers, tasks - 1) > 1 and available_cores() > 1:
                 start_server()  # readied beside the reference frame and first chunk
+                server = 1.0  # its start takes a core in the window
             first = (process_linked(frames[0], 0, setup, link) if link is not None
                      else process_frame(frames[0], 0, setup, None))
             record(first)
@@ -87,7 +92,8 @@ def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
             per_frame = (time.perf_counter() - t0) / max(_to_compute(tasks[:1]), 1)
             tasks = tasks[1:]
             n_local = min(workers, len(tasks))
-            if not cluster_pays(per_frame * _to_compute(tasks), min(n_local, free_cores())):
+            free = free_cores(window, server)
+            if not cluster_pays(per_frame * _to_compute(tasks), min(n_local, free)):
                 n_local = 1
         else:
             last = (seed0, None)
@@ -143,18 +149,12 @@ def cluster_pays(seconds: float, workers: float, start_s: float | None = None) -
     return workers > 1 and start + seconds / workers < seconds
 
 
-def free_cores() -> float:
-    """Cores free for more worker processes: those this process may use less the 1-minute
-    load average of the machine (other users' processes; this process's own share, 1,
-    counted back), at least 1. On a loaded machine a second worker process does not
-    make the run faster."""
-    from resection._threads import available_cores
-
-    try:
-        load = os.getloadavg()[0]
-    except OSError:  # no load average on this platform
-        load = 0.0
-    return max(1.0, available_cores() - max(load - 1.0, 0.0))
+def free_cores(window: LoadWindow | None = None, helpers: float = 0.0) -> float:
+    """Cores free for more worker processes: those this process may use less those that
+    other work kept busy over ``window`` (:mod:`resection.sequence.load`; without one, the
+    1-minute load average, this process counted back), at least 1. On a loaded machine a
+    second worker process does not make the run faster."""
+    return (window if window is not None else LoadWindow.start()).free_cores(helpers)
 
 
 def _to_compute(tasks) -> int:
