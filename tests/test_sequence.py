@@ -378,8 +378,10 @@ def test_default_is_local_workers_and_client_writes_unshared_frames(run60, tmp_p
     model, files, cam, ref, _ = run60
     seen = {}
 
-    def fake_pool(setup, tasks, before, on_chunk, on_poll, workers, frames_dir):
+    def fake_pool(setup, tasks, before, on_chunk, on_poll, workers, frames_dir, local=None):
         seen.update(workers=workers, frames_dir=frames_dir, polls=on_poll is not None)
+        if local is not None:
+            local()
         for items, s, done in tasks:
             on_chunk(seq_process.run_chunk(setup, items, s, done))
 

@@ -61,6 +61,20 @@ def test_chain_starts_a_deferred_chunk_from_the_one_before():
     assert is_deferred(_deferred([1])) and not is_deferred([_ok(3)])
 
 
+def test_chain_waits_for_the_chunk_run_beside_the_workers():
+    # the first chunk's rest runs in this process while the workers take the others: the
+    # frames before chunk 0 are known only when it is done
+    chain = ChunkChain([0, 0], before=None, known=False)
+    assert chain.came_back(0, _deferred([11, 12, 13])) == []
+    assert chain.waiting == [0]
+    ready = chain.set_before(tuple(FrameResult.from_dict(_ok(f)) for f in (10, 9)))
+    assert [(k, ref.frame, prev.frame) for k, (ref, prev) in ready] == [(0, 10, 9)]
+    # nothing good before it: left to the repair pass
+    chain = ChunkChain([0, 0], before=None, known=False)
+    assert chain.came_back(0, _deferred([11, 12, 13])) == []
+    assert chain.set_before(None) == [] and chain.waiting == []
+
+
 def test_chain_does_not_restart_from_the_same_seed():
     # the first chunk after frame 0, seeded from frame 0 (a Dask scheduler: no chunk here)
     zero = FrameResult.from_dict(_ok(0, -1))
@@ -83,9 +97,13 @@ def sweep(tmp_path_factory):
     return model, files, read_camera(files["camera"])
 
 
+@pytest.mark.parametrize("probe", [10, 3])
 def test_workers_restart_deferred_chunks_and_agree_with_one_process(sweep, tmp_path,
-                                                                     monkeypatch):
+                                                                     monkeypatch, probe):
+    # probe 3: the first chunk's first 3 frames are timed here, its other 5 run here
+    # while the workers take the three chunks after it
     model, files, cam = sweep
+    monkeypatch.setattr(seq_execute, "PROBE_FRAMES", probe)
     kw = dict(diameter=5.6, progress=False, chunk_size=8)
     one = track(files["frames"], cam, files["markers"], out_dir=tmp_path / "one", workers=1,
                 **kw)

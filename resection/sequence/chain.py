@@ -51,16 +51,28 @@ class ChunkChain:
         Frame index each chunk was first seeded from (frame 0, the reference).
     before : (FrameResult, FrameResult or None) or None
         The last two good frames before the first chunk (``None``: none).
+    known : bool
+        Whether ``before`` is known now; if not, :meth:`set_before` gives it later.
     """
 
     seeds: list[int]
     before: tuple | None
+    known: bool = True
     _tails: list = field(init=False)
     _waiting: set = field(init=False, default_factory=set)
     _retried: set = field(init=False, default_factory=set)
 
     def __post_init__(self) -> None:
         self._tails = [_UNKNOWN] * len(self.seeds)
+        if not self.known:
+            self.before = _UNKNOWN
+
+    def set_before(self, before: tuple | None) -> list[tuple[int, tuple]]:
+        """The last two good frames before the first chunk are now known (``known``
+        false: the chunk before it ran beside the others). Returns the chunks to start
+        now, as :meth:`came_back`."""
+        self.before = before
+        return self._release()
 
     def _before(self, k: int):
         return self.before if k == 0 else self._tails[k - 1]

@@ -83,18 +83,24 @@ def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
         seed0 = first if first.ok else None
         tasks = _chunks(frames, done, seed0, chunk_size, frames_dir)
         n_local = min(workers, len(tasks))  # no idle local workers: start-up costs
+        here = None  # the rest of the first chunk, run here beside the workers
         if tasks and scheduler is None and n_local > 1:
             # no worker processes for a run that this process finishes sooner: the first
-            # chunk runs here, timed, and the rest goes to local workers only if that pays
-            # their start-up
+            # frames of the first chunk run here, timed, and the chunks after it go to
+            # local workers only if that pays their start-up; this process then does the
+            # rest of the first chunk beside them
+            head, rest = _split(tasks[0], PROBE_FRAMES)
             t0 = time.perf_counter()
-            last = _execute_local(setup, tasks[:1], record, (seed0, None))
-            per_frame = (time.perf_counter() - t0) / max(_to_compute(tasks[:1]), 1)
-            tasks = tasks[1:]
-            n_local = min(workers, len(tasks))
+            last = _execute_local(setup, [head], record, (seed0, None))
+            per_frame = (time.perf_counter() - t0) / max(_to_compute([head]), 1)
+            later = ([rest] if rest is not None else []) + tasks[1:]
+            n_local = min(workers, len(tasks) - 1)
             free = free_cores(window, server)
-            if not cluster_pays(per_frame * _to_compute(tasks), min(n_local, free)):
-                n_local = 1
+            if n_local > 1 and cluster_pays(per_frame * _to_compute(later),
+                                            min(n_local, free)):
+                here, tasks = rest, tasks[1:]
+            else:
+                n_local, tasks = 1, later
         else:
             last = (seed0, None)
         before = last if last[0] is not None else None
@@ -103,8 +109,10 @@ def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
         elif tasks:
             on_poll = _on_poll(frames_dir, tasks, done, note) if progress else None
             if scheduler is None:
+                local = None if here is None else (
+                    lambda: _tail(_execute_local(setup, [here], record, last)))
                 _execute_pool(setup, tasks, before, _on_chunk(frames_dir, note, False),
-                              on_poll, n_local, str(frames_dir.resolve()))
+                              on_poll, n_local, str(frames_dir.resolve()), local=local)
             else:
                 _execute_dask(setup, tasks, before, _on_chunk(frames_dir, note, True),
                               on_poll, scheduler, n_local, str(frames_dir.resolve()))
@@ -214,14 +222,22 @@ def _on_chunk(frames_dir: Path, note, remote: bool):
     return on_chunk
 
 
-def _run_chain(submit, wait, tasks, before, on_chunk, on_poll, poll_s: float) -> None:
+def _run_chain(submit, wait, tasks, before, on_chunk, on_poll, poll_s: float,
+               local=None) -> None:
     """Run ``tasks`` through ``submit(items, seed, done, previous) -> future``, each
     chunk seeded from its first seed (frame 0), and start a deferred chunk again from the
     chunk before it once that is back (:mod:`resection.sequence.chain`). ``wait(futures,
-    timeout)`` returns the futures finished (possibly none)."""
-    chain = ChunkChain([-1 if seed is None else seed.frame for _, seed, _ in tasks], before)
+    timeout)`` returns the futures finished (possibly none). ``local()``, if given, is
+    this process's share, run once the tasks are submitted: the chunk before the first
+    task, whose last two good frames it returns (they replace ``before``)."""
+    seeds = [-1 if seed is None else seed.frame for _, seed, _ in tasks]
+    chain = ChunkChain(seeds, before, known=local is None)
     running = {submit(items, seed, done, None): k
                for k, (items, seed, done) in enumerate(tasks)}
+    if local is not None:
+        for j, (ref, prev) in chain.set_before(local()):
+            items, _, done = tasks[j]
+            running[submit(items, ref, done, prev)] = j
     while running:
         finished = wait(list(running), poll_s)
         if not finished and on_poll is not None:
@@ -236,10 +252,11 @@ def _run_chain(submit, wait, tasks, before, on_chunk, on_poll, poll_s: float) ->
 
 
 def _execute_pool(setup, tasks, before, on_chunk, on_poll, workers, frames_dir,
-                  poll_s: float = 0.25) -> None:
+                  poll_s: float = 0.25, local=None) -> None:
     """Run the chunks on ``workers`` local processes (:mod:`resection.sequence.pool`).
     The tasks write every finished frame to ``frames_dir`` themselves; ``on_chunk(dicts)``
-    is called when a chunk comes back, ``on_poll()`` (if given) while waiting."""
+    is called when a chunk comes back, ``on_poll()`` (if given) while waiting; ``local``:
+    see :func:`_run_chain`."""
     from concurrent.futures import FIRST_COMPLETED
     from concurrent.futures import wait as wait_futures
 
@@ -249,7 +266,24 @@ def _execute_pool(setup, tasks, before, on_chunk, on_poll, workers, frames_dir,
     with WorkerPool(setup, workers) as pool:
         _run_chain(lambda items, seed, done, prev: pool.submit(items, seed, done,
                                                                frames_dir, prev),
-                   wait, tasks, before, on_chunk, on_poll, poll_s)
+                   wait, tasks, before, on_chunk, on_poll, poll_s, local)
+
+
+#: frames of the first chunk timed in this process before local workers are started
+PROBE_FRAMES = 10
+
+
+def _split(task, n: int):
+    """A chunk's task as its first ``n`` frames and the rest (``None``: nothing left)."""
+    items, seed, done = task
+    if len(items) <= n:
+        return task, None
+    return (items[:n], seed, done), (items[n:], seed, done)
+
+
+def _tail(last):
+    """``_execute_local``'s last two good frames, ``None`` when there is none."""
+    return last if last[0] is not None else None
 
 
 def _execute_local(setup, tasks, on_frame, last=None):

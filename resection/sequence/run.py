@@ -17,6 +17,7 @@ from resection.io.paths import sweep_temporaries
 from resection.sequence.execute import run_frames
 from resection.sequence.inputs import checked, run_settings
 from resection.sequence.outputs import frames_from_files, start_run, write_csvs
+from resection.sequence.pool import start_server
 from resection.sequence.results import TrackResult, assemble
 
 
@@ -119,6 +120,8 @@ def track(
         raised: they are recorded.
     """
     ensure_numba_cache()  # before the kernels are imported: a fresh read-only install
+    if _may_use_workers(frames, scheduler, workers, chunk_size):
+        start_server()  # the workers' server loads the package beside these checks
     frames, setup, link_d, workers, chunk_size = checked(
         frames, camera, markers3d, link=link, diameter=diameter, polarity=polarity,
         workers=workers, chunk_size=chunk_size, min_markers=min_markers,
@@ -151,6 +154,20 @@ def track(
             shutil.rmtree(made, ignore_errors=True)
         raise
     return result
+
+
+def _may_use_workers(frames, scheduler, workers, chunk_size) -> bool:
+    """Whether a run of these arguments may give chunks to local workers (a list of frame
+    files of more than two chunks, more than one core): their server is then started
+    first (:func:`resection.sequence.pool.start_server`), before the inputs are checked.
+    Nothing is lost when the run then finishes in this process."""
+    from resection._threads import available_cores
+
+    try:
+        many = isinstance(frames, list | tuple) and len(frames) > 2 * int(chunk_size) + 1
+    except (TypeError, ValueError):  # bad arguments: refused by the checks
+        return False
+    return (scheduler is None and many and workers != 1 and available_cores() > 1)
 
 
 def _check_out_dir(out: Path, frames: list, markers3d, link) -> None:
