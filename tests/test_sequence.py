@@ -396,6 +396,7 @@ def test_default_is_local_workers_and_client_writes_unshared_frames(run60, tmp_p
     # with workers that start at no cost, the chunks after the first (timed here) go to
     # the cluster: three chunks, the first here, two workers for the two others
     monkeypatch.setattr(seq_execute, "LOCAL_CLUSTER_START_S", 0.0)
+    monkeypatch.setattr(seq_execute, "server_wait", lambda since: 0.0)  # a ready server
     monkeypatch.setattr(seq_execute, "free_cores", lambda *a: 3.0)  # an idle machine
     out = tmp_path / "cli"
     rc = main(["track", *files["frames"][:8], "--camera", files["camera"], "--markers",

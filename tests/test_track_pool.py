@@ -9,6 +9,7 @@ the same result as one process, and leave nothing to the sequential repair pass.
 from __future__ import annotations
 
 import json
+import time
 
 import numpy as np
 import pytest
@@ -18,6 +19,7 @@ from resection.sequence import execute as seq_execute
 from resection.sequence import process as seq_process
 from resection.sequence import track
 from resection.sequence.chain import ChunkChain, is_deferred
+from resection.sequence.pool import SERVER_READY_S, server_wait
 from resection.sequence.process import DEFERRED
 from resection.sequence.results import FrameResult
 from scenes.moving_model import pitch_oscillation, write_sequence
@@ -89,6 +91,33 @@ def test_chain_does_not_restart_from_the_same_seed():
     assert [(k, ref.frame) for k, (ref, _) in ready] == [(2, 6)]
 
 
+def test_server_wait_counts_down_from_its_start():
+    assert server_wait(None) == SERVER_READY_S  # none: spawned workers load it themselves
+    assert server_wait(time.perf_counter()) == pytest.approx(SERVER_READY_S, abs=0.1)
+    assert server_wait(time.perf_counter() - 0.5) == pytest.approx(SERVER_READY_S - 0.5,
+                                                                    abs=0.1)
+    assert server_wait(time.perf_counter() - 60.0) == 0.0
+
+
+def test_a_short_run_does_not_wait_for_the_server(sweep, tmp_path, monkeypatch):
+    # 32 frames on two idle cores: the workers would wait for their server longer than the
+    # frames take here, so the run stays in this process
+    model, files, cam = sweep
+    monkeypatch.setattr(seq_execute, "free_cores", lambda *a: 2.0)
+    here = []
+    process = seq_process.process_frame
+
+    def spy(frame, index, *a, **k):
+        here.append(index)
+        return process(frame, index, *a, **k)
+
+    monkeypatch.setattr(seq_process, "process_frame", spy)
+    monkeypatch.setattr(seq_execute, "process_frame", spy)
+    res = track(files["frames"], cam, files["markers"], out_dir=tmp_path / "o", workers=2,
+                diameter=5.6, progress=False, chunk_size=8)
+    assert res.ok.all() and sorted(here) == list(range(32))
+
+
 @pytest.fixture(scope="module")
 def sweep(tmp_path_factory):
     base = tmp_path_factory.mktemp("sweep")
@@ -111,6 +140,7 @@ def test_workers_restart_deferred_chunks_and_agree_with_one_process(sweep, tmp_p
     # workers that cost nothing to start on an idle machine: the three chunks after the
     # first (run here, timed) go to two worker processes
     monkeypatch.setattr(seq_execute, "LOCAL_CLUSTER_START_S", 0.0)
+    monkeypatch.setattr(seq_execute, "server_wait", lambda since: 0.0)  # a ready server
     monkeypatch.setattr(seq_execute, "free_cores", lambda *a: 2.0)
     here = {"frames": [], "repaired": 0}
     process = seq_process.process_frame
@@ -157,6 +187,7 @@ def test_workers_restart_deferred_chunks_and_agree_with_one_process(sweep, tmp_p
 def test_interrupt_with_workers_keeps_finished_frames(sweep, tmp_path, monkeypatch):
     model, files, cam = sweep
     monkeypatch.setattr(seq_execute, "LOCAL_CLUSTER_START_S", 0.0)
+    monkeypatch.setattr(seq_execute, "server_wait", lambda since: 0.0)  # a ready server
     monkeypatch.setattr(seq_execute, "free_cores", lambda *a: 2.0)
     on_chunk = seq_execute._on_chunk
 

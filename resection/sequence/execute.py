@@ -22,7 +22,7 @@ from resection.sequence.outputs import (
     summary,
     write_frame,
 )
-from resection.sequence.pool import WorkerPool, start_server
+from resection.sequence.pool import WorkerPool, server_wait, start_server
 from resection.sequence.process import (
     DEFERRED,
     Setup,
@@ -33,22 +33,24 @@ from resection.sequence.process import (
 )
 from resection.sequence.results import FrameResult
 
-#: seconds to start the local worker processes (:mod:`resection.sequence.pool`): forked
-#: from a server that has loaded the package and its kernels beside the first chunk, they
-#: start in milliseconds; this allows for a server not ready yet, or a loaded machine. A
-#: run starts them only when the work left after the first chunk, timed in this process,
-#: takes longer than that plus its share.
+#: seconds to start the local worker processes (:mod:`resection.sequence.pool`) from a
+#: server that has loaded the package and its kernels (forked, they start in milliseconds;
+#: this allows for a loaded machine); the time the server still needs is added
+#: (:func:`~resection.sequence.pool.server_wait`). A run starts them only when the work
+#: left after the first frames, timed in this process, takes longer than that plus its
+#: share.
 LOCAL_CLUSTER_START_S = 0.5
 
 
 def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
                chunk_size: int, workers: int, scheduler: str | None, frames_dir: Path,
-               progress: bool) -> int:
+               progress: bool, server_since: float | None = None) -> int:
     """Compute every frame not in ``done`` (index -> ``(ok, matched_from)``, completed in
-    place), each written to ``frames_dir`` as soon as it is finished. Returns the number of
-    frames computed (each counted once). Memory does not grow with the frames: a finished
-    frame is kept as its file and those two numbers; the frames are read one at a time,
-    where they are processed."""
+    place), each written to ``frames_dir`` as soon as it is finished. ``server_since``:
+    when the workers' server was started (:func:`resection.sequence.pool.start_server`),
+    if it was. Returns the number of frames computed (each counted once). Memory does not
+    grow with the frames: a finished frame is kept as its file and those two numbers; the
+    frames are read one at a time, where they are processed."""
     bar = _progress_bar(len(frames), len(done), progress)
     computed: set[int] = set()
 
@@ -68,15 +70,16 @@ def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
 
     try:
         window = LoadWindow.start()  # the machine's other work, over this run's first work
-        server = 0.0
+        server = 0.0 if server_since is None else 1.0
         d0 = read_frame(frame_path(frames_dir, 0)) if 0 in done else None
         if d0 is not None:  # the reference frame, in this process
             first = FrameResult.from_dict(d0)
         else:
-            tasks = 1 + (len(frames) - 1 - len(done)) // max(int(chunk_size), 1)
-            if scheduler is None and min(workers, tasks - 1) > 1 and available_cores() > 1:
-                start_server()  # readied beside the reference frame and first chunk
-                server = 1.0  # its start takes a core in the window
+            n_chunks = 1 + (len(frames) - 1 - len(done)) // max(int(chunk_size), 1)
+            if scheduler is None and min(workers, n_chunks - 1) > 1 and available_cores() > 1:
+                if server_since is None:  # readied beside the reference frame and chunk
+                    server_since = start_server()
+                server = 0.0 if server_since is None else 1.0  # a core in the window
             first = (process_linked(frames[0], 0, setup, link) if link is not None
                      else process_frame(frames[0], 0, setup, None))
             record(first)
@@ -96,8 +99,9 @@ def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
             later = ([rest] if rest is not None else []) + tasks[1:]
             n_local = min(workers, len(tasks) - 1)
             free = free_cores(window, server)
+            start_s = max(LOCAL_CLUSTER_START_S, server_wait(server_since))
             if n_local > 1 and cluster_pays(per_frame * _to_compute(later),
-                                            min(n_local, free)):
+                                            min(n_local, free), start_s):
                 here, tasks = rest, tasks[1:]
             else:
                 n_local, tasks = 1, later

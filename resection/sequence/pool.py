@@ -19,14 +19,18 @@ from __future__ import annotations
 
 import multiprocessing
 import signal
+import time
 from concurrent.futures import Future, ProcessPoolExecutor
 
 from resection.sequence.process import Setup, run_chunk
 
-__all__ = ["start_server", "WorkerPool"]
+__all__ = ["start_server", "server_wait", "WorkerPool"]
 
 #: modules the fork server imports (and whose kernels it loads) before forking workers
 PRELOAD = ["resection.sequence._server"]
+#: seconds the fork server takes to import :data:`PRELOAD` and load its kernels (1.0-1.2 s
+#: measured on the 2-core development machine beside a starting ``track``), with a margin
+SERVER_READY_S = 1.5
 
 #: the worker process's setup, set once by :func:`_start_worker` (each worker has its own)
 _WORKER: dict = {}
@@ -40,14 +44,29 @@ def _context():
     return multiprocessing.get_context("spawn")
 
 
-def start_server() -> None:
+def start_server() -> float | None:
     """Start the fork server now, so that it is ready when workers are wanted (it loads
-    the package while this process carries on). Nothing where there is no fork server."""
-    if "forkserver" in multiprocessing.get_all_start_methods():
-        from multiprocessing import forkserver
+    the package while this process carries on; a second call does nothing). Returns the
+    time it was asked to start (``time.perf_counter``); where there is no fork server,
+    nothing is started and ``None`` returned (spawned workers load the package
+    themselves, as they start)."""
+    if "forkserver" not in multiprocessing.get_all_start_methods():
+        return None
+    from multiprocessing import forkserver
 
-        _context()
-        forkserver.ensure_running()
+    _context()
+    t = time.perf_counter()
+    forkserver.ensure_running()
+    return t
+
+
+def server_wait(since: float | None) -> float:
+    """Seconds until a server asked to start at ``since`` (:func:`start_server`; ``None``:
+    none started, the workers load the package themselves) has loaded the package, at most
+    :data:`SERVER_READY_S`."""
+    if since is None:
+        return SERVER_READY_S
+    return min(max(SERVER_READY_S - (time.perf_counter() - since), 0.0), SERVER_READY_S)
 
 
 def _start_worker(setup: Setup) -> None:

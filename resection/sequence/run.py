@@ -120,8 +120,10 @@ def track(
         raised: they are recorded.
     """
     ensure_numba_cache()  # before the kernels are imported: a fresh read-only install
+    server_since = None
     if _may_use_workers(frames, scheduler, workers, chunk_size):
-        start_server()  # the workers' server loads the package beside these checks
+        # the workers' server loads the package beside these checks
+        server_since = start_server()
     frames, setup, link_d, workers, chunk_size = checked(
         frames, camera, markers3d, link=link, diameter=diameter, polarity=polarity,
         workers=workers, chunk_size=chunk_size, min_markers=min_markers,
@@ -144,7 +146,8 @@ def track(
             done = start_run(out, frames, settings, resume)
             computed = run_frames(frames, setup, link_d, done, chunk_size=chunk_size,
                                   workers=workers, scheduler=scheduler,
-                                  frames_dir=frames_dir, progress=progress)
+                                  frames_dir=frames_dir, progress=progress,
+                                  server_since=server_since)
             result = assemble(frames_from_files(frames_dir, len(frames)), fixed_camera,
                                computed, str(out))
             write_csvs(result, out)
