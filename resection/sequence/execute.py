@@ -12,7 +12,7 @@ from pathlib import Path
 from resection._threads import available_cores
 from resection.errors import InputError
 from resection.sequence.chain import ChunkChain
-from resection.sequence.load import LoadWindow
+from resection.sequence.load import LoadWindow, free_by_load_average
 from resection.sequence.outputs import (
     FrameWriter,
     atomic_write_text,
@@ -22,7 +22,12 @@ from resection.sequence.outputs import (
     summary,
     write_frame,
 )
-from resection.sequence.pool import WorkerPool, server_wait, start_server
+from resection.sequence.pool import (
+    EARLY_SERVER_CORES,
+    WorkerPool,
+    server_wait,
+    start_server,
+)
 from resection.sequence.process import (
     DEFERRED,
     Setup,
@@ -76,7 +81,8 @@ def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
             first = FrameResult.from_dict(d0)
         else:
             n_chunks = 1 + (len(frames) - 1 - len(done)) // max(int(chunk_size), 1)
-            if scheduler is None and min(workers, n_chunks - 1) > 1 and available_cores() > 1:
+            if (scheduler is None and min(workers, n_chunks - 1) > 1
+                    and available_cores() >= EARLY_SERVER_CORES):
                 if server_since is None:  # readied beside the reference frame and chunk
                     server_since = start_server()
                 server = 0.0 if server_since is None else 1.0  # a core in the window
@@ -166,7 +172,7 @@ def free_cores(window: LoadWindow | None = None, helpers: float = 0.0) -> float:
     other work kept busy over ``window`` (:mod:`resection.sequence.load`; without one, the
     1-minute load average, this process counted back), at least 1. On a loaded machine a
     second worker process does not make the run faster."""
-    return (window if window is not None else LoadWindow.start()).free_cores(helpers)
+    return free_by_load_average() if window is None else window.free_cores(helpers)
 
 
 def _to_compute(tasks) -> int:

@@ -17,7 +17,7 @@ import os
 import time
 from dataclasses import dataclass
 
-__all__ = ["LoadWindow", "cpu_ticks"]
+__all__ = ["LoadWindow", "cpu_ticks", "free_by_load_average"]
 
 
 def _affinity() -> list[int]:
@@ -47,6 +47,18 @@ def cpu_ticks(cpus, stat: str = "/proc/stat") -> tuple[int, int] | None:
     except (OSError, ValueError):
         return None
     return None if want or total == 0 else (busy, total)
+
+
+def free_by_load_average() -> float:
+    """Cores this process may use less the 1-minute load average (this process counted
+    back), at least 1: where no window was measured."""
+    from resection._threads import available_cores
+
+    try:
+        load = os.getloadavg()[0]
+    except OSError:  # no load average on this platform
+        load = 0.0
+    return max(1.0, available_cores() - max(load - 1.0, 0.0))
 
 
 @dataclass
@@ -80,11 +92,7 @@ class LoadWindow:
         now = cpu_ticks(self.cpus, self.stat)
         wall = time.perf_counter() - self.wall_s
         if self.ticks is None or now is None or now[1] <= self.ticks[1] or wall <= 0:
-            try:
-                load = os.getloadavg()[0]
-            except OSError:  # no load average on this platform
-                load = 0.0
-            return max(1.0, n - max(load - 1.0, 0.0))
+            return free_by_load_average()
         busy = n * (now[0] - self.ticks[0]) / (now[1] - self.ticks[1])
         own = (time.process_time() - self.cpu_s) / wall + float(helpers)
         return max(1.0, min(float(n), n - max(busy - own, 0.0)))

@@ -24,13 +24,17 @@ from concurrent.futures import Future, ProcessPoolExecutor
 
 from resection.sequence.process import Setup, run_chunk
 
-__all__ = ["start_server", "server_wait", "WorkerPool"]
+__all__ = ["start_server", "server_wait", "WorkerPool", "EARLY_SERVER_CORES"]
 
 #: modules the fork server imports (and whose kernels it loads) before forking workers
 PRELOAD = ["resection.sequence._server"]
 #: seconds the fork server takes to import :data:`PRELOAD` and load its kernels (1.0-1.2 s
 #: measured on the 2-core development machine beside a starting ``track``), with a margin
 SERVER_READY_S = 1.5
+#: cores from which the server is started at the run's start (beside this process and the
+#: plot's process); with fewer it would slow this process's own start, and it is started
+#: only once workers are known to pay
+EARLY_SERVER_CORES = 4
 
 #: the worker process's setup, set once by :func:`_start_worker` (each worker has its own)
 _WORKER: dict = {}

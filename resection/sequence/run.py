@@ -17,7 +17,7 @@ from resection.io.paths import sweep_temporaries
 from resection.sequence.execute import run_frames
 from resection.sequence.inputs import checked, run_settings
 from resection.sequence.outputs import frames_from_files, start_run, write_csvs
-from resection.sequence.pool import start_server
+from resection.sequence.pool import EARLY_SERVER_CORES, start_server
 from resection.sequence.results import TrackResult, assemble
 
 
@@ -161,11 +161,12 @@ def track(
 
 def _may_use_workers(frames, scheduler, workers, chunk_size) -> bool:
     """Whether a run of these arguments may give chunks to local workers (a list of frame
-    files of more than two chunks) and has the cores to start their server now (at least
-    4: this process, the plot's process and the server start at once): the server is then
-    started first (:func:`resection.sequence.pool.start_server`), before the inputs are
-    checked. With fewer cores it starts beside the reference frame (it took a core from
-    this process's start: 2,000 frames on 2 cores 13.3 s against 12.1 s, on 16 cores
+    files of more than two chunks) and has the cores to start their server now
+    (:data:`~resection.sequence.pool.EARLY_SERVER_CORES`: this process, the plot's process
+    and the server start at once): the server is then started first
+    (:func:`resection.sequence.pool.start_server`), before the inputs are checked. With
+    fewer cores it is started once workers are known to pay (started here, it took a core
+    from this process's start: 2,000 frames on 2 cores 13.3 s against 12.1 s; on 16 cores
     5.6 s against 6.1 s, with the first chunk's rest run beside the workers)."""
     from resection._threads import available_cores
 
@@ -173,7 +174,8 @@ def _may_use_workers(frames, scheduler, workers, chunk_size) -> bool:
         many = isinstance(frames, list | tuple) and len(frames) > 2 * int(chunk_size) + 1
     except (TypeError, ValueError):  # bad arguments: refused by the checks
         return False
-    return scheduler is None and many and workers != 1 and available_cores() >= 4
+    return (scheduler is None and many and workers != 1
+            and available_cores() >= EARLY_SERVER_CORES)
 
 
 def _check_out_dir(out: Path, frames: list, markers3d, link) -> None:
