@@ -66,11 +66,20 @@ def rotvecs_to_matrices(rvecs) -> np.ndarray:
         s = np.where(small, 1.0 - a2 / 6.0 + a2 * a2 / 120.0, np.sin(safe) / safe)
         c = np.where(small, 0.5 - a2 / 24.0 + a2 * a2 / 720.0,
                      (1.0 - np.cos(safe)) / (safe * safe))
-    x, y, z = r.T
-    zero = np.zeros_like(x)
-    cross = np.stack([np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1),
-                      np.stack([-y, x, zero], -1)], -2)
-    return np.eye(3) + s[:, None, None] * cross + c[:, None, None] * (cross @ cross)
+    # R = (1 - c a^2) I + s [r]x + c r r^T  (with [r]x^2 = r r^T - a^2 I)
+    R = c[:, None, None] * (r[:, :, None] * r[:, None, :])
+    d = 1.0 - c * a2
+    sr = s[:, None] * r
+    R[:, 0, 0] += d
+    R[:, 1, 1] += d
+    R[:, 2, 2] += d
+    R[:, 0, 1] -= sr[:, 2]
+    R[:, 1, 0] += sr[:, 2]
+    R[:, 0, 2] += sr[:, 1]
+    R[:, 2, 0] -= sr[:, 1]
+    R[:, 1, 2] -= sr[:, 0]
+    R[:, 2, 1] += sr[:, 0]
+    return R
 
 
 def euler_zyx(R) -> np.ndarray:
