@@ -24,6 +24,7 @@ from resection.sequence.outputs import (
 )
 from resection.sequence.pool import (
     EARLY_SERVER_CORES,
+    EARLY_SERVER_FRAMES,
     WorkerPool,
     server_wait,
     start_server,
@@ -80,9 +81,11 @@ def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
         if d0 is not None:  # the reference frame, in this process
             first = FrameResult.from_dict(d0)
         else:
-            n_chunks = 1 + (len(frames) - 1 - len(done)) // max(int(chunk_size), 1)
-            if (scheduler is None and min(workers, n_chunks - 1) > 1
-                    and available_cores() >= EARLY_SERVER_CORES):
+            left = len(frames) - 1 - len(done)
+            n_chunks = 1 + left // max(int(chunk_size), 1)
+            cores = available_cores()
+            if (scheduler is None and min(workers, n_chunks - 1) > 1 and cores > 1
+                    and (cores >= EARLY_SERVER_CORES or left >= EARLY_SERVER_FRAMES)):
                 if server_since is None:  # readied beside the reference frame and chunk
                     server_since = start_server()
                 server = 0.0 if server_since is None else 1.0  # a core in the window

@@ -24,7 +24,8 @@ from concurrent.futures import Future, ProcessPoolExecutor
 
 from resection.sequence.process import Setup, run_chunk
 
-__all__ = ["start_server", "server_wait", "WorkerPool", "EARLY_SERVER_CORES"]
+__all__ = ["start_server", "server_wait", "WorkerPool", "EARLY_SERVER_CORES",
+           "EARLY_SERVER_FRAMES"]
 
 #: modules the fork server imports (and whose kernels it loads) before forking workers
 PRELOAD = ["resection.sequence._server"]
@@ -32,9 +33,12 @@ PRELOAD = ["resection.sequence._server"]
 #: measured on the 2-core development machine beside a starting ``track``), with a margin
 SERVER_READY_S = 1.5
 #: cores from which the server is started at the run's start (beside this process and the
-#: plot's process); with fewer it would slow this process's own start, and it is started
-#: only once workers are known to pay
+#: plot's process) and beside the reference frame; with fewer it slows this process's own
+#: start, and it is started beside the reference frame only for a run of at least
+#: :data:`EARLY_SERVER_FRAMES` frames (2,000 frames on 2 cores: 7.6 s that way, 10.6 s
+#: with the server started once workers were known to pay), else once they are
 EARLY_SERVER_CORES = 4
+EARLY_SERVER_FRAMES = 1000
 
 #: the worker process's setup, set once by :func:`_start_worker` (each worker has its own)
 _WORKER: dict = {}
