@@ -245,10 +245,36 @@ def _run_chain(submit, wait, tasks, before, on_chunk, on_poll, poll_s: float,
     task, whose last two good frames it returns (they replace ``before``)."""
     seeds = [-1 if seed is None else seed.frame for _, seed, _ in tasks]
     chain = ChunkChain(seeds, before, known=local is None)
-    running = {submit(items, seed, done, None): k
-               for k, (items, seed, done) in enumerate(tasks)}
-    if local is not None:
-        for j, (ref, prev) in chain.set_before(local()):
+    running: dict = {}
+
+    def submit_all() -> None:
+        for k, (items, seed, done) in enumerate(tasks):
+            running[submit(items, seed, done, None)] = k
+
+    if local is None:
+        submit_all()
+    else:
+        # submitting starts the workers, which waits for their server to have loaded the
+        # package: on a thread, while this process does its share
+        import threading
+
+        failed: list = []
+
+        def submitter() -> None:
+            try:
+                submit_all()
+            except BaseException as exc:  # noqa: BLE001 - raised in this thread below
+                failed.append(exc)
+
+        thread = threading.Thread(target=submitter, name="track-submit", daemon=True)
+        thread.start()
+        try:
+            tail = local()
+        finally:
+            thread.join()
+        if failed:
+            raise failed[0]
+        for j, (ref, prev) in chain.set_before(tail):
             items, _, done = tasks[j]
             running[submit(items, ref, done, prev)] = j
     while running:
