@@ -213,3 +213,46 @@ def test_interrupt_with_workers_keeps_finished_frames(sweep, tmp_path, monkeypat
     res = track(files["frames"], cam, files["markers"], out_dir=out, **kw)
     assert res.ok.all() and res.n_computed <= 32 - 9
     assert np.abs(res.angles - np.degrees(model.angles)).max() < 0.01
+
+
+def test_spawned_workers_where_there_is_no_fork_server(sweep, tmp_path, monkeypatch):
+    # Windows has no fork server: the workers are spawned and load the package themselves
+    import multiprocessing
+
+    from resection.sequence import pool
+
+    methods = [m for m in multiprocessing.get_all_start_methods() if m != "forkserver"]
+    monkeypatch.setattr(pool.multiprocessing, "get_all_start_methods", lambda: methods)
+    assert pool.start_server() is None and pool._context().get_start_method() == "spawn"
+    model, files, cam = sweep
+    monkeypatch.setattr(seq_execute, "LOCAL_CLUSTER_START_S", 0.0)
+    monkeypatch.setattr(seq_execute, "server_wait", lambda since: 0.0)
+    monkeypatch.setattr(seq_execute, "free_cores", lambda *a: 2.0)
+    here = []
+    process = seq_process.process_frame
+
+    def spy(frame, index, *a, **k):
+        here.append(index)
+        return process(frame, index, *a, **k)
+
+    monkeypatch.setattr(seq_process, "process_frame", spy)
+    monkeypatch.setattr(seq_execute, "process_frame", spy)
+    res = track(files["frames"][:17], cam, files["markers"], out_dir=tmp_path / "o",
+                workers=2, diameter=5.6, progress=False, chunk_size=4)
+    assert here == list(range(5))  # frames 5-16 in the spawned workers
+    assert res.ok.all() and res.n_computed == 17
+    assert np.abs(res.angles - np.degrees(model.angles[:17])).max() < 0.01
+
+
+def test_the_server_starts_first_only_with_cores_to_spare(monkeypatch):
+    from resection.sequence import run
+
+    frames = [f"f{k}.npy" for k in range(200)]
+    monkeypatch.setattr("resection._threads.available_cores", lambda: 16)
+    assert run._may_use_workers(frames, None, None, 50)
+    assert not run._may_use_workers(frames[:101], None, None, 50)  # two chunks, no more
+    assert not run._may_use_workers(frames, "tcp://host:8786", None, 50)  # Dask's own
+    assert not run._may_use_workers(frames, None, 1, 50)  # in this process
+    assert not run._may_use_workers("run.cine", None, None, 50)  # not known yet
+    monkeypatch.setattr("resection._threads.available_cores", lambda: 2)
+    assert not run._may_use_workers(frames, None, None, 50)  # beside the reference frame
