@@ -16,7 +16,7 @@ from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from typing import TypeVar
 
-__all__ = ["available_cores", "split_range", "run_blocks", "numba_threads"]
+__all__ = ["available_cores", "core_ids", "split_range", "run_blocks", "numba_threads"]
 
 T = TypeVar("T")
 
@@ -27,12 +27,19 @@ T = TypeVar("T")
 _PARALLEL = threading.RLock()
 
 
+def core_ids() -> list[int]:
+    """The numbers of the cores this process may run on (its CPU affinity where the OS
+    reports one, else all of them)."""
+    try:
+        ids = sorted(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # pragma: no cover - platforms without affinity
+        ids = []
+    return ids or list(range(max(int(os.cpu_count() or 1), 1)))
+
+
 def available_cores() -> int:
     """Cores this process may run on (its CPU affinity where the OS reports one)."""
-    try:
-        return max(len(os.sched_getaffinity(0)), 1)
-    except (AttributeError, OSError):  # pragma: no cover - platforms without affinity
-        return max(int(os.cpu_count() or 1), 1)
+    return len(core_ids())
 
 
 def _workers(workers: int | None) -> int:

@@ -454,7 +454,7 @@ def test_free_cores_count_the_load(monkeypatch, tmp_path):
         stat.write_text("cpu  0 0 0 0 0 0 0 0\n" + "".join(
             f"cpu{c} {u} 0 0 {i} 0 0 0 0 0 0\n" for c, (u, i) in enumerate(ticks)))
 
-    monkeypatch.setattr("resection.sequence.load._affinity", lambda: [0, 1])
+    monkeypatch.setattr("resection._threads.core_ids", lambda: [0, 1])
     monkeypatch.setattr("resection._threads.available_cores", lambda: 2)
     write([(100, 900), (50, 950)])
     assert cpu_ticks([0, 1], str(stat)) == (150, 2000)

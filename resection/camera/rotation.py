@@ -15,6 +15,19 @@ import numpy as np
 __all__ = ["rotvec_to_matrix", "rotvecs_to_matrices", "matrix_to_rotvec", "euler_zyx"]
 
 
+def _sin_terms(a2):
+    """``sin(a) / a`` and ``(1 - cos(a)) / a^2`` of the squared angles ``a2`` (radians^2),
+    by their Taylor series below 1e-4 rad, so that small angles keep full precision."""
+    a = np.sqrt(a2)
+    small = a < 1e-4
+    safe = np.where(small, 1.0, a)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        s = np.where(small, 1.0 - a2 / 6.0 + a2 * a2 / 120.0, np.sin(safe) / safe)
+        c = np.where(small, 0.5 - a2 / 24.0 + a2 * a2 / 720.0,
+                     (1.0 - np.cos(safe)) / (safe * safe))
+    return s, c
+
+
 def rotvec_to_matrix(rvec) -> np.ndarray:
     """The rotation matrix of a rotation vector.
 
@@ -31,14 +44,7 @@ def rotvec_to_matrix(rvec) -> np.ndarray:
         below 1e-4 rad), so that small angles keep full precision.
     """
     r = np.asarray(rvec, dtype=np.float64).reshape(3)
-    a2 = float(r @ r)
-    a = np.sqrt(a2)
-    if a < 1e-4:
-        s = 1.0 - a2 / 6.0 + a2 * a2 / 120.0  # sin(a) / a
-        c = 0.5 - a2 / 24.0 + a2 * a2 / 720.0  # (1 - cos(a)) / a^2
-    else:
-        s = np.sin(a) / a
-        c = (1.0 - np.cos(a)) / a2
+    s, c = _sin_terms(np.float64(r @ r))
     x, y, z = r
     cross = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
     return np.eye(3) + s * cross + c * (cross @ cross)
@@ -59,13 +65,7 @@ def rotvecs_to_matrices(rvecs) -> np.ndarray:
     """
     r = np.asarray(rvecs, dtype=np.float64).reshape(-1, 3)
     a2 = np.einsum("ij,ij->i", r, r)
-    a = np.sqrt(a2)
-    small = a < 1e-4
-    safe = np.where(small, 1.0, a)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        s = np.where(small, 1.0 - a2 / 6.0 + a2 * a2 / 120.0, np.sin(safe) / safe)
-        c = np.where(small, 0.5 - a2 / 24.0 + a2 * a2 / 720.0,
-                     (1.0 - np.cos(safe)) / (safe * safe))
+    s, c = _sin_terms(a2)
     # R = (1 - c a^2) I + s [r]x + c r r^T  (with [r]x^2 = r r^T - a^2 I)
     R = c[:, None, None] * (r[:, :, None] * r[:, None, :])
     d = 1.0 - c * a2

@@ -77,11 +77,6 @@ class ChunkChain:
     def _before(self, k: int):
         return self.before if k == 0 else self._tails[k - 1]
 
-    def seed_of(self, k: int) -> tuple | None:
-        """The last two good frames before chunk ``k``, when known (else ``None``)."""
-        t = self._before(k)
-        return None if t is _UNKNOWN else t
-
     def came_back(self, k: int, dicts: list[dict]) -> list[tuple[int, tuple]]:
         """Chunk ``k`` came back with the frame dictionaries ``dicts``. Returns the chunks
         to start now, ``[(k, (reference, previous)), ...]``."""

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from resection._threads import available_cores
 from resection.errors import InputError
-from resection.sequence.chain import ChunkChain
+from resection.sequence.chain import ChunkChain, tail_of
 from resection.sequence.load import LoadWindow, free_by_load_average
 from resection.sequence.outputs import (
     FrameWriter,
@@ -76,7 +76,6 @@ def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
 
     try:
         window = LoadWindow.start()  # the machine's other work, over this run's first work
-        server = 0.0 if server_since is None else 1.0
         d0 = read_frame(frame_path(frames_dir, 0)) if 0 in done else None
         if d0 is not None:  # the reference frame, in this process
             first = FrameResult.from_dict(d0)
@@ -88,7 +87,6 @@ def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
                     and (cores >= EARLY_SERVER_CORES or left >= EARLY_SERVER_FRAMES)):
                 if server_since is None:  # readied beside the reference frame and chunk
                     server_since = start_server()
-                server = 0.0 if server_since is None else 1.0  # a core in the window
             first = (process_linked(frames[0], 0, setup, link) if link is not None
                      else process_frame(frames[0], 0, setup, None))
             record(first)
@@ -107,7 +105,8 @@ def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
             per_frame = (time.perf_counter() - t0) / max(_to_compute([head]), 1)
             later = ([rest] if rest is not None else []) + tasks[1:]
             n_local = min(workers, len(tasks) - 1)
-            free = free_cores(window, server)
+            # the server's start takes a core in the window
+            free = free_cores(window, 0.0 if server_since is None else 1.0)
             start_s = max(LOCAL_CLUSTER_START_S, server_wait(server_since))
             if n_local > 1 and cluster_pays(per_frame * _to_compute(later),
                                             min(n_local, free), start_s):
@@ -116,7 +115,7 @@ def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
                 n_local, tasks = 1, later
         else:
             last = (seed0, None)
-        before = last if last[0] is not None else None
+        before = _tail(last)
         if tasks and scheduler is None and n_local == 1:
             _execute_local(setup, tasks, record, last)
         elif tasks:
@@ -335,12 +334,11 @@ def _execute_local(setup, tasks, on_frame, last=None):
     for items, seed, done in tasks:
         ref, prev = last if last[0] is not None else (seed, None)
         dicts = run_chunk(setup, items, ref, done, on_frame, previous=prev)
-        good = [d for d in dicts if d["status"] == "ok"]
-        if good:
-            tail = [FrameResult.from_dict(d) for d in good[-2:]]
-            last = (tail[-1], tail[0] if len(tail) == 2 else ref)
-        else:
+        tail = tail_of(dicts)
+        if tail is None:
             last = (None, None)
+        else:  # one good frame: the frame it was predicted from before it
+            last = (tail[0], ref if tail[1] is None else tail[1])
     return last
 
 

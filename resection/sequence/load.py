@@ -20,13 +20,6 @@ from dataclasses import dataclass
 __all__ = ["LoadWindow", "cpu_ticks", "free_by_load_average"]
 
 
-def _affinity() -> list[int]:
-    try:
-        return sorted(os.sched_getaffinity(0))
-    except (AttributeError, OSError):  # pragma: no cover - platforms without affinity
-        return list(range(int(os.cpu_count() or 1)))
-
-
 def cpu_ticks(cpus, stat: str = "/proc/stat") -> tuple[int, int] | None:
     """``(busy, total)`` clock ticks since boot of the CPUs numbered ``cpus`` (idle and
     I/O wait count as not busy; guest time is inside user time), or ``None`` when
@@ -78,7 +71,9 @@ class LoadWindow:
     def start(cls, stat: str = "/proc/stat") -> LoadWindow:
         """The window from now, on the CPUs this process may run on (``stat``: the
         kernel's CPU statistics file)."""
-        cpus = _affinity()
+        from resection._threads import core_ids
+
+        cpus = core_ids()
         return cls(cpus, cpu_ticks(cpus, stat), time.process_time(), time.perf_counter(),
                    stat)
 
