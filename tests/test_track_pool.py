@@ -25,6 +25,27 @@ from resection.sequence.results import FrameResult
 from scenes.moving_model import pitch_oscillation, write_sequence
 
 
+def frames_here(monkeypatch) -> list[int]:
+    """The frames this process tracks from now on, in order (workers are not seen)."""
+    here: list[int] = []
+    process = seq_process.process_frame
+
+    def spy(frame, index, *a, **k):
+        here.append(index)
+        return process(frame, index, *a, **k)
+
+    monkeypatch.setattr(seq_process, "process_frame", spy)
+    monkeypatch.setattr(seq_execute, "process_frame", spy)
+    return here
+
+
+def workers_start_free(monkeypatch) -> None:
+    """Two idle cores and workers that cost nothing to start (their server ready)."""
+    monkeypatch.setattr(seq_execute, "LOCAL_CLUSTER_START_S", 0.0)
+    monkeypatch.setattr(seq_execute, "server_wait", lambda since: 0.0)
+    monkeypatch.setattr(seq_execute, "free_cores", lambda *a: 2.0)
+
+
 def _ok(frame: int, matched_from: int | None = None) -> dict:
     return FrameResult(frame=frame, file="", status="ok", rvec=np.zeros(3),
                        tvec=np.array([0.0, 0.0, 1.0]), rms=0.1,
@@ -104,15 +125,7 @@ def test_a_short_run_does_not_wait_for_the_server(sweep, tmp_path, monkeypatch):
     # frames take here, so the run stays in this process
     model, files, cam = sweep
     monkeypatch.setattr(seq_execute, "free_cores", lambda *a: 2.0)
-    here = []
-    process = seq_process.process_frame
-
-    def spy(frame, index, *a, **k):
-        here.append(index)
-        return process(frame, index, *a, **k)
-
-    monkeypatch.setattr(seq_process, "process_frame", spy)
-    monkeypatch.setattr(seq_execute, "process_frame", spy)
+    here = frames_here(monkeypatch)
     res = track(files["frames"], cam, files["markers"], out_dir=tmp_path / "o", workers=2,
                 diameter=5.6, progress=False, chunk_size=8)
     assert res.ok.all() and sorted(here) == list(range(32))
@@ -139,16 +152,8 @@ def test_workers_restart_deferred_chunks_and_agree_with_one_process(sweep, tmp_p
     assert one.ok.all()
     # workers that cost nothing to start on an idle machine: the three chunks after the
     # first (run here, timed) go to two worker processes
-    monkeypatch.setattr(seq_execute, "LOCAL_CLUSTER_START_S", 0.0)
-    monkeypatch.setattr(seq_execute, "server_wait", lambda since: 0.0)  # a ready server
-    monkeypatch.setattr(seq_execute, "free_cores", lambda *a: 2.0)
-    here = {"frames": [], "repaired": 0}
-    process = seq_process.process_frame
-
-    def spy(frame, index, *a, **k):
-        here["frames"].append(index)
-        return process(frame, index, *a, **k)
-
+    workers_start_free(monkeypatch)
+    here = {"frames": frames_here(monkeypatch), "repaired": 0}
     repair = seq_execute.repair
 
     def spy_repair(frames, setup, done, record, frames_dir):
@@ -157,8 +162,6 @@ def test_workers_restart_deferred_chunks_and_agree_with_one_process(sweep, tmp_p
             record(res)
         return repair(frames, setup, done, counted, frames_dir)
 
-    monkeypatch.setattr(seq_process, "process_frame", spy)
-    monkeypatch.setattr(seq_execute, "process_frame", spy)
     monkeypatch.setattr(seq_execute, "repair", spy_repair)
     out = tmp_path / "two"
     res = track(files["frames"], cam, files["markers"], out_dir=out, workers=2, **kw)
@@ -186,9 +189,7 @@ def test_workers_restart_deferred_chunks_and_agree_with_one_process(sweep, tmp_p
 
 def test_interrupt_with_workers_keeps_finished_frames(sweep, tmp_path, monkeypatch):
     model, files, cam = sweep
-    monkeypatch.setattr(seq_execute, "LOCAL_CLUSTER_START_S", 0.0)
-    monkeypatch.setattr(seq_execute, "server_wait", lambda since: 0.0)  # a ready server
-    monkeypatch.setattr(seq_execute, "free_cores", lambda *a: 2.0)
+    workers_start_free(monkeypatch)
     on_chunk = seq_execute._on_chunk
 
     def stopped(frames_dir, note, remote):
@@ -225,18 +226,8 @@ def test_spawned_workers_where_there_is_no_fork_server(sweep, tmp_path, monkeypa
     monkeypatch.setattr(pool.multiprocessing, "get_all_start_methods", lambda: methods)
     assert pool.start_server() is None and pool._context().get_start_method() == "spawn"
     model, files, cam = sweep
-    monkeypatch.setattr(seq_execute, "LOCAL_CLUSTER_START_S", 0.0)
-    monkeypatch.setattr(seq_execute, "server_wait", lambda since: 0.0)
-    monkeypatch.setattr(seq_execute, "free_cores", lambda *a: 2.0)
-    here = []
-    process = seq_process.process_frame
-
-    def spy(frame, index, *a, **k):
-        here.append(index)
-        return process(frame, index, *a, **k)
-
-    monkeypatch.setattr(seq_process, "process_frame", spy)
-    monkeypatch.setattr(seq_execute, "process_frame", spy)
+    workers_start_free(monkeypatch)
+    here = frames_here(monkeypatch)
     res = track(files["frames"][:17], cam, files["markers"], out_dir=tmp_path / "o",
                 workers=2, diameter=5.6, progress=False, chunk_size=4)
     assert here == list(range(5))  # frames 5-16 in the spawned workers
