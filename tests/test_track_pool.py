@@ -247,3 +247,41 @@ def test_the_server_starts_first_only_with_cores_to_spare(monkeypatch):
     assert not run._may_use_workers("run.cine", None, None, 50)  # not known yet
     monkeypatch.setattr("resection._threads.available_cores", lambda: 2)
     assert not run._may_use_workers(frames, None, None, 50)  # beside the reference frame
+
+
+def test_deferred_placeholders_are_not_finished_frames(tmp_path):
+    # what Ctrl-C reports as kept: a deferred chunk's placeholders are computed on resume
+    from resection.sequence.outputs import finished_frames, frame_path, write_frame
+
+    for d in [_ok(0, -1), _ok(1), *_failed([2], 1), *_deferred([3, 4])]:
+        write_frame(tmp_path, FrameResult.from_dict(d))
+    frame_path(tmp_path, 5).write_text("{truncated", encoding="utf-8")  # unreadable
+    assert finished_frames(tmp_path) == 3  # two good, one failed for good
+
+
+def test_a_resumed_run_computes_deferred_placeholders_in_their_chunk(sweep, tmp_path):
+    # a run stopped while a deferred chunk waited: its placeholders are not kept
+    from resection.sequence.frames import fingerprint, frame_name
+    from resection.sequence.outputs import _read_manifest, start_run, write_frame
+
+    model, files, cam = sweep
+    frames, out = files["frames"][:16], tmp_path / "o"
+    first = track(frames, cam, files["markers"], out_dir=out, workers=1, diameter=5.6,
+                  progress=False, chunk_size=8)
+    for k in (10, 11, 12):
+        write_frame(out / "frames", FrameResult(
+            frame=k, file=frame_name(frames[k]), status="failed", reason="deferred",
+            matched_from=DEFERRED, source=fingerprint(frames[k])))
+    done = start_run(out, frames, _read_manifest(out / "track.json"), True)
+    # 13-15 were predicted from 12, computed again: they are computed again too
+    assert sorted(done) == list(range(10))
+    assert not any((out / "frames" / f"frame_{k:06d}.json").exists() for k in range(10, 16))
+    res = track(frames, cam, files["markers"], out_dir=out, workers=1, diameter=5.6,
+                progress=False, chunk_size=8)
+    assert res.ok.all() and res.n_computed == 6
+    # the scene's truth; the frames kept are the first run's, and the others agree with it
+    # as a chunk start does in this fast motion (resumed, frame 10 is predicted from frame
+    # 9 with the mean velocity since frame 0, the seed of the resumed chunk, not from 8)
+    assert np.abs(res.angles - np.degrees(model.angles[:16])).max() < 0.01
+    np.testing.assert_array_equal(res.angles[:10], first.angles[:10])
+    np.testing.assert_allclose(res.angles, first.angles, atol=2e-3)

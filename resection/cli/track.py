@@ -122,8 +122,10 @@ def _run(args: argparse.Namespace, plotter) -> int:
             chunk_size=args.chunk_size, pose_kw=pose_kw, mesh=args.mesh,
         )
     except KeyboardInterrupt:
+        from resection.sequence.outputs import finished_frames
+
         frames_dir = os.path.join(args.out, "frames")
-        n = len(glob.glob(os.path.join(glob.escape(frames_dir), "frame_*.json")))
+        n = finished_frames(frames_dir)
         print(f"interrupted: {n}/{len(frames)} frames finished are kept in {frames_dir}; "
               "run the same command again to resume", file=sys.stderr)
         return 130

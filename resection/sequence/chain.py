@@ -17,8 +17,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from resection.sequence.process import DEFERRED
-from resection.sequence.results import FrameResult
+from resection.sequence.results import DEFERRED, FrameResult
 
 __all__ = ["ChunkChain", "is_deferred", "tail_of"]
 

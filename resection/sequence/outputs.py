@@ -15,6 +15,7 @@ from resection.errors import InputError
 from resection.io.marks import PRODUCER_KEY
 from resection.io.outputs import atomic_path
 from resection.sequence.results import (
+    DEFERRED,
     FORMAT_VERSION,
     MARKER_COLUMNS,
     POSE_COLUMNS,
@@ -154,6 +155,17 @@ def frames_from_files(frames_dir: Path, n: int):
         yield FrameResult.from_dict(d)
 
 
+def finished_frames(frames_dir: str | os.PathLike) -> int:
+    """How many frames of a run in ``frames_dir`` are finished: the readable frame files,
+    less the placeholders of a deferred chunk (a chunk that could not start from frame 0
+    and was not computed yet: a resumed run computes them, :func:`start_run`)."""
+    n = 0
+    for path in Path(frames_dir).glob("frame_*.json"):
+        d = read_frame(path)
+        n += d is not None and d.get("matched_from") != DEFERRED
+    return n
+
+
 def read_track(out_dir: str | os.PathLike) -> TrackResult:
     """Read the ``poses.csv`` and ``markers.csv`` written by :func:`track`."""
     out = Path(out_dir)
@@ -236,8 +248,10 @@ def start_run(out: Path, frames: list, settings: dict, resume: bool) -> dict[int
     A frame is kept when its file has not changed (:func:`~.frames.fingerprint`: metadata
     and a digest of a sample of its content) and the frame it was matched or predicted
     from is kept too, unchanged since (its recorded fingerprint): a frame computed from a
-    frame that changed is computed again. A missing or unreadable manifest means the
-    settings of the frames found are unknown: they are all computed again."""
+    frame that changed is computed again. A deferred chunk's placeholder is no result: its
+    frame is computed (in its chunk, in parallel, rather than by the sequential pass). A
+    missing or unreadable manifest means the settings of the frames found are unknown: they
+    are all computed again."""
     from resection.sequence.frames import changed, frame_name
 
     frames_dir = out / "frames"
@@ -269,7 +283,7 @@ def start_run(out: Path, frames: list, settings: dict, resume: bool) -> dict[int
                              f"now {frame_name(f)!r}; use another out_dir or resume=False")
         ref = int(d.get("matched_from", -1))
         stale_ref = ref >= 0 and (ref not in sources or d.get("ref_source") != sources[ref])
-        if stale_ref or changed(f, d.get("source")):  # recompute it
+        if ref == DEFERRED or stale_ref or changed(f, d.get("source")):  # recompute it
             path.unlink()
             continue
         sources[i] = d.get("source")

@@ -16,7 +16,7 @@ from resection.errors import InputError, SolveError
 from resection.sequence.frames import failure_reason, fingerprint, frame_name, load_image
 from resection.sequence.outputs import try_write_frame
 from resection.sequence.predict import track_predicted
-from resection.sequence.results import FrameResult
+from resection.sequence.results import DEFERRED, FrameResult
 
 
 @dataclass(frozen=True)
@@ -212,8 +212,6 @@ def _apply_link(candidates, link: dict, setup: Setup) -> tuple[np.ndarray, np.nd
     return np.array(list(pairs), dtype=str), candidates.uv[idx].reshape(-1, 2)
 
 
-#: ``matched_from`` of a frame left uncomputed by its chunk (see :func:`run_chunk`)
-DEFERRED = -2
 
 
 def run_chunk(setup: Setup, items: list, seed: FrameResult | None,

@@ -9,6 +9,10 @@ import numpy as np
 from resection.camera.model import Camera
 from resection.sequence.motion import relative_motion
 
+#: ``matched_from`` of a frame left uncomputed by its chunk, a placeholder (see
+#: :func:`resection.sequence.process.run_chunk`)
+DEFERRED = -2
+
 POSE_COLUMNS = ("frame", "file", "status", "reason", "roll_deg", "pitch_deg", "yaw_deg",
                 "dx", "dy", "dz", "rms_px", "n_markers", "rvec_x", "rvec_y", "rvec_z",
                 "tvec_x", "tvec_y", "tvec_z")
