@@ -10,7 +10,9 @@ CPU seconds of the whole process; CPU over wall says how many cores it kept busy
 
 **Parts.** The command runs in a fresh process (this script with ``--child``) that times,
 by wrapping the library's functions (no change to the library), the wall and process CPU
-seconds of: the imports (every module the command loads, imported up front), reading the
+seconds of: the imports (every module the command loads before its work, imported up
+front; what it imports on a thread while its rays run, SciPy's sparse solvers and the
+solve, is imported there, inside "ray tracing"), reading the
 grid, the camera and the image, building the ``SurfaceMap``, the camera check, the Embree
 scene and kernels of the view factors, the ray tracing (worker threads), the assembly of
 ``F`` from the traced rows, the solve (``selfillum.correct``, the continuation's CG
@@ -73,7 +75,7 @@ PARTS = [
     ("F assembly", "selfillum.transport.viewfactors", "_assemble", False),
     ("F assembly (threads)", "selfillum.transport.rowtrace", "_sort_rows", True),
     ("F assembly (threads)", "selfillum.transport.rowtrace", "_fill_rows", True),
-    ("solve (CG)", "selfillum.images.image_correction", "correct", False),
+    ("solve (CG)", "selfillum.solve.radiosity", "correct", False),
     ("to_surface", "resection.surface.surface_map", "SurfaceMap.to_surface", False),
     ("to_image", "resection.surface.surface_map", "SurfaceMap.to_image", False),
     ("checks", "selfillum.mesh", "check_mesh", False),
@@ -85,12 +87,16 @@ PARTS = [
 ]
 #: Imported up front (their time is "imports"); trimesh is not: a tree whose command needs it
 #: imports it through these modules or later, inside the part that needs it.
-IMPORTS = ["numpy", "scipy.sparse", "scipy.sparse.linalg", "numba", "embreex",
+IMPORTS = ["numpy", "numba", "embreex",
            "selfillum.images.image_correction", "selfillum.summary", "resection.saturation",
            "resection.io.cameras", "resection.io.meshes", "resection.io.markers",
            "resection.io.marks", "resection.io.outputs", "resection.pose.camera_fit",
            "resection.surface.surface_map", "selfillum.transport.viewfactors",
-           "selfillum.transport.coupling", "selfillum.solve.radiosity", "selfillum.mesh"]
+           "selfillum.transport.coupling", "selfillum.mesh"]
+#: What the command imports later, on a thread while its rays run (a tree that imports
+#: them up front has imported them with ``IMPORTS`` already): a part in one of them is
+#: wrapped once its module is imported, not before (that would import it).
+LATER = {"selfillum.solve.radiosity"}
 
 
 def child(argv: list[str]) -> None:
@@ -127,16 +133,25 @@ def child(argv: list[str]) -> None:
                     stack[-1][1] += dc
         return timed
 
-    for label, mod, attr, _ in PARTS:
-        try:
-            obj = importlib.import_module(mod)
-        except ImportError:  # an older tree may lack a module (then not timed)
-            continue
+    def patch(obj, label, attr):
         *owner, name = attr.split(".")
         for o in owner:
             obj = getattr(obj, o)
         if hasattr(obj, name):  # an older tree may lack a function (then not timed)
             setattr(obj, name, wrap(label, getattr(obj, name)))
+
+    later = {}
+    for label, mod, attr, _ in PARTS:
+        if mod in LATER and mod not in sys.modules:
+            later.setdefault(mod, []).append((label, attr))
+            continue
+        try:
+            obj = importlib.import_module(mod)
+        except ImportError:  # an older tree may lack a module (then not timed)
+            continue
+        patch(obj, label, attr)
+    if later:
+        sys.meta_path.insert(0, _PatchOnImport(later, patch))
     w, c = time.perf_counter(), time.process_time()
     sys.argv = ["selfillum", *argv]
     cli.main()  # as the console script calls it (a process that exits next)
@@ -147,6 +162,35 @@ def child(argv: list[str]) -> None:
     print(json.dumps({"parts": records, "run": [total_w, total_c],
                       "before_imports": t0 - T_START, "trimesh": "trimesh" in sys.modules}),
           flush=True)
+
+
+class _PatchOnImport:
+    """A finder that patches the parts of a module of ``LATER`` once it is imported."""
+
+    def __init__(self, later: dict, patch):
+        self.later, self.patch = later, patch
+
+    def find_spec(self, name, path=None, target=None):
+        if name not in self.later:
+            return None
+        from importlib.machinery import PathFinder
+
+        spec = PathFinder.find_spec(name, path, target)
+        if spec is None:
+            return None
+        loader, parts, patch = spec.loader, self.later.pop(name), self.patch
+
+        class Loader:
+            def create_module(self, spec):
+                return loader.create_module(spec)
+
+            def exec_module(self, module):
+                loader.exec_module(module)
+                for label, attr in parts:
+                    patch(module, label, attr)
+
+        spec.loader = Loader()
+        return spec
 
 
 def _env(root: Path) -> dict:
@@ -451,6 +495,29 @@ def correct_parts(args, argv: list[str], cache: Path, mesh) -> None:
     print(f"load average at end {os.getloadavg()}")
 
 
+#: The floor of any command of the package that runs compiled code: the interpreter, NumPy,
+#: numba and numba's start at its first compiled call (its target context: this imports
+#: numba's NumPy support, and SciPy's linear algebra through it), the call loaded from
+#: numba's cache.
+FLOOR = ("import numpy as np\nfrom resection.surface.visibility import bounds\n"
+         "bounds(np.zeros((3, 3)))\n")
+
+
+def process_floor(root: Path, repeat: int = 5) -> None:
+    """Print the best wall seconds of ``FLOOR`` and of an empty interpreter, each in a fresh
+    process, interleaved (``repeat`` rounds)."""
+    best = {"empty interpreter": float("inf"), "floor": float("inf")}
+    for _ in range(repeat):
+        for name, code in (("empty interpreter", "pass"), ("floor", FLOOR)):
+            t = time.perf_counter()
+            subprocess.run([sys.executable, "-c", code], check=True, env=_env(root),
+                           cwd=root)
+            best[name] = min(best[name], time.perf_counter() - t)
+    print(f"process floor ({root}): {best['floor']:.2f} s (the interpreter, NumPy, numba "
+          f"and its start at the first compiled call; an empty interpreter "
+          f"{best['empty interpreter']:.2f} s), best of {repeat}")
+
+
 def main() -> None:
     if len(sys.argv) > 1 and sys.argv[1] == "--child":
         child(sys.argv[2:])
@@ -487,6 +554,7 @@ def main() -> None:
             "--reflectance", "0.5", "--unpainted", f["unpainted"],
             "--quiet"]
     if not args.skip_correct:
+        process_floor(Path(args.roots.split(",")[-1]))
         correct_parts(args, argv, cache, mesh)
     if args.threads:
         import numpy as np

@@ -12,13 +12,13 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import numpy as np
-import scipy.sparse as sp
 
 from resection._mesh_graph import pair_weights, shared_edges, vertex_classes
 from resection.errors import InputError
 from resection.trisurface import MERGE_DIGITS, is_mesh
 
 if TYPE_CHECKING:
+    import scipy.sparse as sp
     import trimesh
 
 __all__ = ["check_mesh", "face_areas", "face_normals", "face_adjacency_weights"]
@@ -118,6 +118,7 @@ def face_adjacency_weights(mesh: trimesh.Trimesh) -> sp.csr_matrix:
     not changed. The pairs are those of ``trimesh.graph.face_adjacency`` of the merged
     faces (:func:`resection._mesh_graph.shared_edges`), in another row order.
     """
+    import scipy.sparse as sp
     n = len(mesh.faces)
     v = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64)

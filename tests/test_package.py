@@ -61,7 +61,9 @@ def test_resection_command_line_builds_without_the_numerical_stacks():
 
 def test_correct_command_does_not_import_trimesh(tmp_path):
     """``selfillum correct`` on a PLY reads it without trimesh (0.3-0.4 s of imports:
-    scipy.spatial, networkx, ...): at the end of the command trimesh is not loaded."""
+    scipy.spatial, networkx, ...): at the end of the command trimesh is not loaded. And
+    SciPy's sparse matrices and solvers (0.2 s of imports) are not loaded before the rays:
+    a thread imports them while the rays run."""
     import numpy as np
 
     from resection import Camera
@@ -76,8 +78,20 @@ def test_correct_command_does_not_import_trimesh(tmp_path):
     np.save(tmp_path / "img.npy", np.ones((36, 48), np.float32))
     args = ["correct", "--mesh", "corner.ply", "--camera", "cam.json", "--image", "img.npy",
             "--reflectance", "0.5", "--rays", "16", "--out", "out.npy", "--quiet"]
-    code = (f"import os\nos.chdir({str(tmp_path)!r})\nfrom selfillum.cli.main import main\n"
+    spy = ("import sys\nimport selfillum.images.image_correction as ic\n"
+           "rays = ic._view_factors_and_fit\n"
+           "def spied(*a, **kw):\n"
+           "    print('before the rays:', sorted(m for m in sys.modules\n"
+           "          if m.startswith('scipy.sparse') or m == 'selfillum.solve.radiosity'))\n"
+           "    return rays(*a, **kw)\n"
+           "ic._view_factors_and_fit = spied\n")
+    code = (f"import os\nos.chdir({str(tmp_path)!r})\n{spy}from selfillum.cli.main import main\n"
             f"assert main({args!r}) == 0\nassert os.path.exists('out.npy')")
-    loaded = _modules_after(code)
+    out = subprocess.run([sys.executable, "-c", code + "\nimport sys\n"
+                          "print(' '.join(sorted(sys.modules)))"],
+                         check=True, capture_output=True, text=True).stdout
+    loaded = set(out.split())
     assert "selfillum.images.image_correction" in loaded  # the command ran
     assert "trimesh" not in loaded
+    assert "before the rays: []" in out
+    assert {"scipy.sparse.linalg", "selfillum.solve.radiosity"} <= loaded  # then, the solve

@@ -279,3 +279,65 @@ def test_preconditioned_continuation_agrees_with_a_direct_solve(small_corner):
     np.testing.assert_allclose(E_cg, E_direct, rtol=0, atol=1e-6 * np.abs(E_direct).max())
     si = (B - E) / E
     assert si[seen].max() > 0.25  # the tolerance is small against what is corrected
+
+
+_KERNELS_AFTER_LOAD = """
+import numba
+import numpy as np
+from numba.core.registry import CPUDispatcher
+
+from scenes.corner import corner
+from selfillum import view_factors
+from selfillum.solve.radiosity import correct, load_kernels
+
+sc = corner(resolution=4)
+n = len(sc.mesh.faces)
+F = view_factors(sc.mesh, 32, seed=1)  # the traced F, with its own index types
+load_kernels({unseen!r})
+
+
+def compiled():
+    import sys
+    out = {{}}
+    for name, mod in list(sys.modules.items()):
+        if name.startswith(("resection", "selfillum")):
+            for key, obj in list(vars(mod).items()):
+                if isinstance(obj, CPUDispatcher):
+                    out[name + "." + key] = len(obj.signatures)
+    return out
+
+
+before = compiled()
+seen = np.arange(n) < n // 2
+unpainted = np.arange(n) % 7 == 3
+E, info = correct(F, np.ones(n), 0.5, seen, mesh=sc.mesh, unseen={unseen!r},
+                  unpainted=unpainted, return_info=True)
+assert info.method == {method!r}, info.method
+after = compiled()
+grew = {{k: (before.get(k, 0), v) for k, v in after.items() if v != before.get(k, 0)}}
+assert not grew, grew
+loaded = {{k for k, v in before.items() if v}}
+print(sorted(loaded))
+"""
+
+
+@pytest.mark.parametrize("unseen, method", [("continue", "pcg"), ("none", "neumann")])
+def test_load_kernels_leaves_nothing_to_load_for_a_traced_F(unseen, method):
+    """``selfillum correct`` loads the solve's compiled kernels on a thread while its rays
+    run (:func:`load_kernels`, on a 4-face strip): afterwards, correcting a partial view
+    with a traced ``F`` (its own index types) compiles or loads no kernel of the package.
+    In a fresh process, so that no earlier test has loaded them."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = _KERNELS_AFTER_LOAD.format(unseen=unseen, method=method)
+    root = Path(__file__).resolve().parents[1]
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         cwd=root, timeout=600)
+    assert out.returncode == 0, out.stderr[-3000:]
+    loaded = out.stdout
+    for kernel in ("csr._blocks", "csr._identity_minus", "coupling._reach"):
+        assert kernel in loaded  # the strip ran the solve's kernels
+    if unseen == "continue":
+        assert "_mesh_graph._shared_edges" in loaded

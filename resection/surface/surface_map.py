@@ -21,7 +21,6 @@ from typing import TYPE_CHECKING, NamedTuple
 
 import numba
 import numpy as np
-import scipy.sparse as sp
 
 from resection.camera.model import Camera
 from resection.defaults import DEFAULT_MAX_OBLIQUENESS
@@ -32,6 +31,7 @@ from resection.surface.visibility import RayCaster
 from resection.trisurface import is_mesh
 
 if TYPE_CHECKING:
+    import scipy.sparse as sp
     import trimesh
 
 __all__ = ["DEFAULT_MAX_OBLIQUENESS", "SurfaceMap", "SurfaceSample", "oblique_faces",
@@ -184,12 +184,6 @@ class SurfaceMap:
         self._hit = np.flatnonzero(face >= 0)  # flattened pixel indices on the model
         self._hit_face = face[self._hit]
         nf = len(mesh.faces)
-        # face x (model pixel) matrix; the full face x pixel one is :attr:`matrix`
-        # (one entry per column: built as CSC directly, no sorting)
-        self._mhit = sp.csc_matrix(
-            (np.ones(self._hit.size), self._hit_face, np.arange(self._hit.size + 1)),
-            shape=(nf, self._hit.size),
-        )
         self.pixel_counts = np.bincount(self._hit_face, minlength=nf).astype(np.int64)
         self._area, self._centroids = caster.areas, caster.centroids
         self._vcache: dict = {}
@@ -203,6 +197,7 @@ class SurfaceMap:
     @property
     def matrix(self) -> sp.csr_matrix:
         """(F, H*W) sparse: 1 where pixel (flattened ``v * W + u``) sees the face."""
+        import scipy.sparse as sp
         H, W = self.shape
         return sp.csr_matrix(
             (np.ones(self._hit.size), (self._hit_face, self._hit)), shape=(self.n_faces, H * W)
@@ -210,6 +205,7 @@ class SurfaceMap:
 
     def _interpolation_matrix(self) -> sp.csr_matrix:
         """(model pixels, V) sparse: barycentric weights of each pixel's hit face corners."""
+        import scipy.sparse as sp
         if self._interp is None:
             corners = np.asarray(self.mesh.faces, dtype=np.int64)[self._hit_face]
             b = self.barycentric.reshape(-1, 3)[self._hit]
@@ -273,17 +269,19 @@ class SurfaceMap:
         arr, single = self._check_images(image)
         if not np.issubdtype(arr.dtype, np.number) or np.issubdtype(arr.dtype, np.complexfloating):
             raise InputError(f"image: expected real numbers, got dtype {arr.dtype}")
-        T = arr.shape[0]
-        # model pixels of every frame as (pixels, frames) for one sparse product
-        X = np.ascontiguousarray(arr.reshape(T, -1)[:, self._hit].T, dtype=np.float64)
+        T, nf = arr.shape[0], self.n_faces
+        # model pixels of every frame, (frames, pixels); per-face sums by bincount, a
+        # frame at a time
+        X = np.asarray(arr.reshape(T, -1)[:, self._hit], dtype=np.float64)
         finite = np.isfinite(X)
-        if finite.all():
-            sums = (self._mhit @ X).T
-            counts = np.broadcast_to(self.pixel_counts, (T, self.n_faces)).copy()
-        else:
-            X[~finite] = 0.0
-            sums = (self._mhit @ X).T
-            counts = np.rint((self._mhit @ finite.astype(np.float64)).T).astype(np.int64)
+        counts = np.broadcast_to(self.pixel_counts, (T, nf)).copy()
+        if not finite.all():
+            X = np.where(finite, X, 0.0)
+            for t in np.flatnonzero(~finite.all(axis=1)):
+                counts[t] = np.bincount(self._hit_face[finite[t]], minlength=nf)
+        sums = np.empty((T, nf))
+        for t in range(T):
+            sums[t] = np.bincount(self._hit_face, weights=X[t], minlength=nf)
         with np.errstate(invalid="ignore", divide="ignore"):
             values = np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
         unseen = counts == 0

@@ -16,11 +16,11 @@ from typing import TYPE_CHECKING
 
 import numba
 import numpy as np
-import scipy.sparse as sp
 
 from resection.errors import InputError
 
 if TYPE_CHECKING:
+    import scipy.sparse as sp
     import trimesh
 
 __all__ = ["vertex_values"]
@@ -140,6 +140,8 @@ def _vertex_matrix(mesh: trimesh.Trimesh, face_weight: np.ndarray, linear: bool,
     full gradient is used. Vertices whose faces span fewer than 2 directions (a grid
     corner with one or two faces) use the faces around their neighbours too (2-ring).
     """
+    import scipy.sparse as sp  # here: a command imports it while its rays run
+
     faces = np.asarray(mesh.faces, dtype=np.int64)
     verts = np.asarray(mesh.vertices, dtype=np.float64)
     nv, nf = len(verts), len(faces)

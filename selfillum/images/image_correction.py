@@ -29,7 +29,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-import scipy.sparse as sp
 
 from resection.camera.model import Camera
 from resection.errors import InputError
@@ -37,12 +36,15 @@ from resection.io.images import write_image
 from resection.surface.surface_map import DEFAULT_MAX_OBLIQUENESS
 from selfillum.images.output_dtype import output_dtype
 from selfillum.mesh import check_mesh, face_areas
-from selfillum.solve.radiosity import SolveInfo, check_reflectance, correct
+from selfillum.solve.fields import check_reflectance
 from selfillum.solve.unseen import describe_unseen, read_unpainted, read_unseen, unseen_warning
 from selfillum.transport.coupling import coupled_view_factors
 
 if TYPE_CHECKING:
+    import scipy.sparse as sp
     import trimesh
+
+    from selfillum.solve.radiosity import SolveInfo
 
 __all__ = ["ImageCorrection", "correct_image", "read_reflectance", "correct_image_file",
            "UnseenFacesWarning", "DEFAULT_MAX_OBLIQUENESS"]
@@ -250,10 +252,16 @@ def correct_image(
             ": likely causes: " + nothing_seen_causes(camera, mesh.vertices, "the mesh")
         raise InputError(f"image: the camera sees no face of the model in frame {t}{why}")
     if F is None:
-        F = _view_factors_and_fit(mesh, seen, B, mode, smap, rays_per_face=rays_per_face,
-                                  seed=seed, progress=progress, caster=caster)
-    elif not sp.issparse(F) or F.shape != (n, n):
-        raise InputError(f"F: expected a sparse ({n}, {n}) matrix")
+        F = _view_factors_and_fit(mesh, seen, B, mode, smap, unseen,
+                                  rays_per_face=rays_per_face, seed=seed, progress=progress,
+                                  caster=caster)
+    else:
+        import scipy.sparse as sp
+
+        if not sp.issparse(F) or F.shape != (n, n):
+            raise InputError(f"F: expected a sparse ({n}, {n}) matrix")
+    from selfillum.solve.radiosity import correct  # imported while the rays ran
+
     E = np.empty_like(B)
     share = np.full_like(B, np.nan)
     infos = []
@@ -304,19 +312,36 @@ def correct_image(
                            tuple(warns), grazing, ~painted, **counts)
 
 
-def _view_factors_and_fit(mesh, seen, B, mode, smap, **kw) -> sp.csr_matrix:
-    """The coupled rows of ``F``; for one frame, the surface map's vertex fit of the
-    faces the correction will have a value on (:meth:`SurfaceMap.prepare
-    <resection.surface.surface_map.SurfaceMap.prepare>`) is built on a thread meanwhile:
-    it needs the seen faces only, and the main thread just waits for the rays."""
-    if len(seen) != 1:
-        return coupled_view_factors(mesh, seen.any(axis=0), checked=True, **kw)[0]
-    valued = seen[0] if mode == "subtract" else seen[0] & (B[0] != 0)  # where E/B is
+def _view_factors_and_fit(mesh, seen, B, mode, smap, unseen, **kw) -> sp.csr_matrix:
+    """The coupled rows of ``F``, and what comes after them made ready meanwhile.
+
+    The rays run on numba's threads without Python's lock, and the main thread just waits
+    for them. A thread uses that time for work the rays do not need: it imports the solve
+    (SciPy's sparse solvers, which the steps before the rays do not import) and loads its
+    compiled kernels (:func:`selfillum.solve.radiosity.load_kernels`), then, for one frame,
+    builds the surface map's vertex fit of the faces the correction will have a value on
+    (:meth:`SurfaceMap.prepare <resection.surface.surface_map.SurfaceMap.prepare>`: it
+    needs the seen faces only). On 2 cores that thread takes CPU from the rays; with more
+    cores it takes the work off the command's serial path."""
+    kind = unseen if isinstance(unseen, str) else "none"  # the kernels of given values
     with ThreadPoolExecutor(1) as pool:
-        fit = pool.submit(smap.prepare, valued)
-        F, _ = coupled_view_factors(mesh, seen[0], checked=True, **kw)
-    fit.result()  # its error, if any, here
+        ready = pool.submit(_load_solve, kind)
+        fit = None
+        if len(seen) == 1:
+            valued = seen[0] if mode == "subtract" else seen[0] & (B[0] != 0)  # where E/B is
+            fit = pool.submit(smap.prepare, valued)
+        F, _ = coupled_view_factors(mesh, seen.any(axis=0), checked=True, **kw)
+    ready.result()  # their errors, if any, here
+    if fit is not None:
+        fit.result()
     return F
+
+
+def _load_solve(unseen: str) -> None:
+    """Import the solve and load its compiled kernels (see :func:`_view_factors_and_fit`)."""
+    from selfillum.solve.radiosity import load_kernels
+
+    load_kernels(unseen)
 
 
 class UnseenFacesWarning(UserWarning):

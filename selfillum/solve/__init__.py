@@ -6,6 +6,7 @@ the stated assumption for unseen faces, or the glossy (GGX) transport.
 
 - :mod:`~selfillum.solve.radiosity`: :func:`forward`, :func:`correct`;
 - :mod:`~selfillum.solve.unseen`: what unseen faces emit, and how much it matters;
+- :mod:`~selfillum.solve.fields`: per-face inputs (the reflectance), checked;
 - :mod:`~selfillum.solve.brdf`: glossy paint (diffuse + GGX lobe).
 """
 
@@ -21,7 +22,7 @@ _EXPORTS: dict[str, str] = {
     "WARN_AREA": ".unseen",
     "WARN_LEVEL": ".unseen",
     "check_form_factors": ".radiosity",
-    "check_reflectance": ".radiosity",
+    "check_reflectance": ".fields",
     "correct": ".radiosity",
     "describe_unseen": ".unseen",
     "forward": ".radiosity",

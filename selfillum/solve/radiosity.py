@@ -22,10 +22,12 @@ import scipy.sparse.linalg as spla
 from resection.errors import InputError, SolveError
 from resection.trisurface import TriSurface
 from selfillum.solve.csr import column_blocks, identity_minus
+from selfillum.solve.fields import check_reflectance, per_face_field
 from selfillum.transport.coupling import coupled_faces
 
 __all__ = [
-    "forward", "correct", "SolveInfo", "check_reflectance", "check_form_factors", "UNSEEN_CHOICES"
+    "forward", "correct", "SolveInfo", "check_reflectance", "check_form_factors", "UNSEEN_CHOICES",
+    "load_kernels",
 ]
 
 #: Vectors at least this long are where OpenBLAS starts threading its dot products.
@@ -115,33 +117,6 @@ def check_form_factors(F) -> sp.csr_matrix:
         i = int(np.argmax(rows))
         raise InputError(f"F: row {i} sums to {rows[i]:.6g} > 1 (not a form-factor matrix)")
     return F
-
-
-def check_reflectance(reflectance, n: int) -> np.ndarray:
-    """Reflectance as an ``(n,)`` float64 array in ``[0, 1)``: a scalar is broadcast."""
-    rho = per_face_field(reflectance, n, "reflectance")
-    bad = np.flatnonzero((rho < 0) | (rho >= 1))
-    if bad.size:
-        raise InputError(
-            f"reflectance: must lie in [0, 1), got {rho[bad[0]]:.6g} at face {int(bad[0])}"
-        )
-    return rho
-
-
-def per_face_field(values, n: int, name: str) -> np.ndarray:
-    """``values`` as a finite ``(n,)`` float64 array (a scalar is broadcast) or InputError."""
-    try:
-        x = np.asarray(values, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputError(f"{name}: not a numeric array") from None
-    if x.ndim == 0:
-        x = np.full(n, float(x))
-    if x.shape != (n,):
-        raise InputError(f"{name}: expected shape ({n},), got {x.shape}")
-    bad = np.flatnonzero(~np.isfinite(x))
-    if bad.size:
-        raise InputError(f"{name}: NaN or infinite value at face {int(bad[0])}")
-    return x
 
 
 def forward(
@@ -417,6 +392,27 @@ def correct(
     info = SolveInfo(method, int(itn), float(rel), n_seen, n - n_seen,
                      int(hid.size), kind, share)
     return (E, info) if return_info else E
+
+
+def load_kernels(unseen: str = "continue") -> None:
+    """Load the compiled kernels that :func:`correct` runs (from numba's cache, or compile
+    them) by correcting a strip of 4 faces, 2 seen, 1 hidden and painted, 1 hidden and
+    unpainted, with ``unseen`` (``"continue"`` or ``"none"``).
+
+    ``selfillum correct`` calls it on a thread while its rays run, so that the solve after
+    them does not wait for numba to load its kernels (7 kernels, about 30 ms on 2 cores).
+    The strip's ``F`` has the index types of the traced ones (int32 indices and index
+    pointers): the same compiled signatures.
+    """
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [0, 1, 0], [1, 1, 0], [2, 1, 0]],
+                        dtype=np.float64)
+    faces = np.array([[0, 1, 4], [0, 4, 3], [1, 2, 5], [1, 5, 4]])
+    indices = np.array([1, 2, 3, 0, 2, 3, 0, 1, 3, 0, 1, 2], dtype=np.int32)
+    F = sp.csr_matrix((np.full(12, 0.1), indices, np.arange(0, 13, 3, dtype=np.int32)),
+                      shape=(4, 4))
+    correct(F, np.ones(4), 0.5, np.array([True, True, False, False]),
+            mesh=TriSurface(vertices, faces), unseen=unseen,
+            unpainted=np.array([False, False, False, True]))
 
 
 def _mask(values, n: int, name: str, *, default: bool) -> np.ndarray:

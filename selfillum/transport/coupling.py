@@ -31,12 +31,12 @@ from typing import TYPE_CHECKING
 
 import numba
 import numpy as np
-import scipy.sparse as sp
 
 from resection.errors import InputError
 from selfillum.transport.viewfactors import RowTracer
 
 if TYPE_CHECKING:
+    import scipy.sparse as sp
     import trimesh
 
 __all__ = ["coupled_faces", "coupled_view_factors"]
@@ -58,6 +58,7 @@ def coupled_faces(F, seen) -> np.ndarray:
         ``True`` for the seen faces and every hidden face whose radiosity can reach a seen
         face through ``F`` (directly or by bounces over hidden faces).
     """
+    import scipy.sparse as sp
     F = sp.csr_matrix(F)
     n = F.shape[0]
     mask = np.asarray(seen, dtype=bool)

@@ -13,12 +13,16 @@ released throughout.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numba
 import numpy as np
-import scipy.sparse as sp
 
 from resection.surface.embree import first_hit, ray_buffer
 from selfillum.transport.sampling import _U, _centroid, _frame, _rqmc_ray, _shift
+
+if TYPE_CHECKING:
+    import scipy.sparse as sp
 
 __all__ = ["trace_rows", "assemble_rows", "interleaved"]
 
@@ -203,6 +207,7 @@ def assemble_rows(n: int, k: int, counts: np.ndarray, hits: list) -> sp.csr_matr
     hits of every face (``(n,)``), ``hits`` a list of ``(faces, hit faces)`` arrays (the
     hits grouped by face in the order of ``faces``; the faces of different parts
     distinct). Each hit adds ``1 / k``. Sorted and summed per row on numba's threads."""
+    import scipy.sparse as sp
     faces = (np.concatenate([p for p, _ in hits]) if hits else np.zeros(0, np.int64))
     flat = (np.concatenate([h for _, h in hits]) if hits else np.zeros(0, np.int32))
     c = np.ascontiguousarray(counts[faces], dtype=np.int64)

@@ -21,7 +21,6 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-import scipy.sparse as sp
 
 from resection._threads import available_cores, numba_threads
 from resection.errors import InputError
@@ -39,6 +38,7 @@ from selfillum.transport.sampling import (
 )
 
 if TYPE_CHECKING:
+    import scipy.sparse as sp
     import trimesh
 
 __all__ = ["view_factors", "RowTracer", "enforce_reciprocity", "RayScene", "sample_rays",
@@ -479,6 +479,7 @@ def enforce_reciprocity(F, areas, *, tol: float = 1e-10, maxiter: int = 500) -> 
         Reciprocal form factors; the sparsity pattern is the union of those of ``F`` and
         ``F.T``.
     """
+    import scipy.sparse as sp
     F = sp.csr_matrix(F, dtype=np.float64)
     a = np.asarray(areas, dtype=np.float64)
     if F.shape[0] != F.shape[1] or a.shape != (F.shape[0],):
