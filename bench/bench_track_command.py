@@ -32,8 +32,10 @@ loaded from numba's cache, the detection, the linked pose), the frames, the CSVs
 for the plot's process, and what is left of the whole process's wall time (the interpreter's
 start and exit); and the plot's process alone (its imports, its warm-up figure, the
 figure of N2 frames and its PNG). ``--amdahl N`` runs the command on one core
-(``taskset -c 0``) and on the two, alternating: the serial share of the 2-core time is
-``s = 2 T2 / T1 - 1`` (Amdahl: ``T2 = T1 (s + (1 - s) / 2)``).
+(``taskset -c 0``) and on the two, alternating: the serial seconds are ``S = 2 T2 - T1``
+(Amdahl: ``T1 = S + P``, ``T2 = S + P / 2``), their share of the 2-core time
+``S / T2 = 2 - T1 / T2`` (the issue's measure; until 2026-11-27 this printed
+``2 T2 / T1 - 1``, their share of the 1-core time, under that name).
 
 Run: ``flock /tmp/bench.lock .venv/bin/python bench/bench_track_command.py --frames 200 2000
 [--repeat 2] [--opencv-step 20] [--split 2,200] [--amdahl 200]``
@@ -272,9 +274,10 @@ def amdahl(sc: dict, n: int, repeat: int, env: dict) -> None:
             wall, _, _ = timed((["taskset", "-c", "0"] if cores == 1 else []) + cmd, env)
             best[cores] = min(best[cores], wall)
             print(f"  {n} frames on {cores} core(s): {wall:.2f} s")
-    s = 2.0 * best[2] / best[1] - 1.0
+    serial = 2.0 * best[2] - best[1]
     print(f"Amdahl, {n} frames: 1 core {best[1]:.2f} s, 2 cores {best[2]:.2f} s, speed-up "
-          f"{best[1] / best[2]:.2f}, serial share of the 2-core time {100 * s:.0f} % (load "
+          f"{best[1] / best[2]:.2f}, serial {serial:.2f} s: {100 * serial / best[2]:.0f} % of "
+          f"the 2-core time ({100 * serial / best[1]:.0f} % of the 1-core time) (load "
           f"{min(loads):.1f}-{max(loads):.1f})")
 
 
