@@ -400,7 +400,7 @@ def load_kernels(unseen: str = "continue") -> None:
     unpainted, with ``unseen`` (``"continue"`` or ``"none"``).
 
     ``selfillum correct`` calls it on a thread while its rays run, so that the solve after
-    them does not wait for numba to load its kernels (7 kernels, about 30 ms on 2 cores).
+    them does not wait for numba to load its kernels (about 30 ms on 2 cores).
     The strip's ``F`` has the index types of the traced ones (int32 indices and index
     pointers): the same compiled signatures.
     """
