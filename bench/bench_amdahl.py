@@ -30,6 +30,11 @@ cores (less when other processes take the cores).
 With ``--roots`` the command of each source tree (``PYTHONPATH``) runs in turn, interleaved
 round by round, e.g. the previous commit unpacked with ``git archive`` against this one.
 
+**Floor.** Before the parts, the wall seconds of a process that makes one cached compiled
+call of the package and nothing else (``FLOOR``), of the same with a one-line kernel of a
+module of its own, without the package (``BARE_FLOOR``), and of an empty interpreter: no
+command that runs compiled code has a serial share below its floor's share of its time.
+
 **Threads.** ``view_factors`` of the same grid (every row, K = 256, or ``--vf-faces``
 rows) with ``workers`` = each of ``--threads``, interleaved, best of ``--repeat``. The
 efficiency from 2 to ``w`` threads is ``T(2) * 2 / (T(w) * min(w, cores))``; with more
