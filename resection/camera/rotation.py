@@ -41,13 +41,10 @@ def rotvec_to_matrix(rvec) -> np.ndarray:
     (3, 3) float64
         ``R = I + sin(a) [k]x + (1 - cos(a)) [k]x^2`` for the unit axis ``k`` and angle
         ``a``; written with ``sin(a) / a`` and ``(1 - cos(a)) / a^2`` (their Taylor series
-        below 1e-4 rad), so that small angles keep full precision.
+        below 1e-4 rad), so that small angles keep full precision
+        (:func:`rotvecs_to_matrices` of the one row).
     """
-    r = np.asarray(rvec, dtype=np.float64).reshape(3)
-    s, c = _sin_terms(np.float64(r @ r))
-    x, y, z = r
-    cross = np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
-    return np.eye(3) + s * cross + c * (cross @ cross)
+    return rotvecs_to_matrices(np.asarray(rvec, dtype=np.float64).reshape(1, 3))[0]
 
 
 def rotvecs_to_matrices(rvecs) -> np.ndarray:
