@@ -347,8 +347,6 @@ def _execute_dask(setup, tasks, before, on_chunk, on_poll, scheduler, workers, f
     """Run the chunks on the Dask cluster at ``scheduler``. The tasks write every finished
     frame to ``frames_dir`` when they can (a shared filesystem); ``on_chunk(dicts)`` is
     called when a chunk comes back, ``on_poll()`` (if given) while waiting."""
-    import time
-
     from dask.distributed import Client
 
     del workers  # the cluster's own

@@ -205,8 +205,9 @@ class SurfaceMap:
 
     def _interpolation_matrix(self) -> sp.csr_matrix:
         """(model pixels, V) sparse: barycentric weights of each pixel's hit face corners."""
-        import scipy.sparse as sp
         if self._interp is None:
+            import scipy.sparse as sp
+
             corners = np.asarray(self.mesh.faces, dtype=np.int64)[self._hit_face]
             b = self.barycentric.reshape(-1, 3)[self._hit]
             n = self._hit.size
