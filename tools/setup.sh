@@ -11,16 +11,14 @@ PY=${PYTHON:-python3}
 if [ ! -x .venv/bin/python ]; then
     "$PY" -m venv .venv
 fi
-if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1 \
-        && ! ldconfig -p 2>/dev/null | grep -q 'libLLVM-19\|libLLVM.so.19'; then
-    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libllvm19) \
-        >/dev/null 2>&1 || echo "setup: could not install libllvm19; Mitsuba will use scalar_rgb" >&2
-fi
-if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1 \
-        && ! { command -v chromium >/dev/null 2>&1 && command -v chromedriver >/dev/null 2>&1; }; then
-    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
-        chromium chromium-driver) >/dev/null 2>&1 \
-        || echo "setup: could not install chromium and chromium-driver; the browser test will fail" >&2
+if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1; then
+    # shellcheck source=tools/apt_install.sh
+    . tools/apt_install.sh
+    # grep without -q: it reads all of ldconfig's output (no SIGPIPE under pipefail)
+    apt_install_checked "libllvm19; Mitsuba will use scalar_rgb" \
+        "ldconfig -p | grep 'libLLVM-19\\|libLLVM.so.19'" libllvm19 || true
+    apt_install_checked "chromium and chromium-driver; the browser test will fail" \
+        "command -v chromium && command -v chromedriver" chromium chromium-driver || true
 fi
 stamp=.venv/.installed-$(sha1sum pyproject.toml | cut -c1-12)
 if [ ! -f "$stamp" ]; then
