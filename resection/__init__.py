@@ -1,7 +1,7 @@
 """resection: camera model, Point of View, DLT, calibration, markers and image <-> surface
 mapping for wind-tunnel optical measurements (PSP, TSP, IRT).
 
-Conventions are those of DESIGN.md: OpenCV camera frame (x right, y down, z forward),
+Conventions are those of docs/design.md: OpenCV camera frame (x right, y down, z forward),
 ``x_cam = R @ X + t``, pixel centres at integer coordinates with (0, 0) the centre of the
 top-left pixel, images indexed ``img[v, u]``.
 """
@@ -32,6 +32,8 @@ _EXPORTS: dict[str, str] = {
     "DegenerateError": ".errors",
     "InputError": ".errors",
     "SolveError": ".errors",
+    "read_camera": ".io.cameras",
+    "write_camera": ".io.cameras",
     "read_image": ".io.images",
     "write_image": ".io.images",
     "MarkerSet": ".io.markers",
@@ -103,6 +105,8 @@ __all__ = [
     "vertex_values",
     "RayCaster",
     "visible_faces",
+    "read_camera",
+    "write_camera",
     "read_image",
     "write_image",
     "Candidates",

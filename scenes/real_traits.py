@@ -29,7 +29,7 @@ hidden from a camera (behind the block or facing away) are not drawn.
 Size: ``scale=1`` gives 320 x 240 frames (seconds to build, for tests); ``scale=4`` gives
 1280 x 960 for benchmarks (the grid is refined with it).
 
-Conventions: DESIGN.md (pixel centres at integer ``(u, v)``, ``img[v, u]``, metres).
+Conventions: docs/design.md (pixel centres at integer ``(u, v)``, ``img[v, u]``, metres).
 """
 
 from __future__ import annotations

@@ -221,3 +221,20 @@ def test_pose_image_with_enhance_windows_and_links_need_image(scene, capsys):
     rc, _, err = _run(["pose", "--camera", d / "approx.json", "--markers", d / "markers.csv",
                        "--links", d / "links.csv", "--out", d / "x.json"], capsys)
     assert rc == 2 and "--image" in err
+
+
+def test_link_png_without_a_camera_draws_the_candidates(scene, capsys):
+    """``link --png`` with candidates only (no camera, no markers) used to exit 0 and write
+    nothing; the PNG must be written, and be a picture of the image (read back by
+    imageio, an independent PNG reader) at least as large as the frame."""
+    import imageio.v3 as iio
+
+    d = scene["dir"]
+    png = d / "numbered.png"
+    rc, out, err = _run(["link", d / "img.tif", "--candidates", _candidates(d, capsys),
+                         "--png", png], capsys)
+    assert rc == 0, err
+    assert f"drawing written to {png}" in out
+    picture = iio.imread(png)
+    assert picture.ndim == 3 and picture.shape[0] >= 480 and picture.shape[1] >= 640
+    assert picture[..., :3].std() > 1.0  # not a blank page

@@ -23,7 +23,7 @@ fi
 stamp=.venv/.installed-$(sha1sum pyproject.toml | cut -c1-12)
 if [ ! -f "$stamp" ]; then
     .venv/bin/python -m pip install -q --disable-pip-version-check --upgrade pip 2>/dev/null
-    if ! .venv/bin/python -m pip install -q --disable-pip-version-check -e ".[test]" \
+    if ! .venv/bin/python -m pip install -q --disable-pip-version-check -e ".[test,docs]" \
             >.venv/pip.log 2>&1; then
         grep -v "is ignored: it is neither" .venv/pip.log | tail -30 >&2
         exit 1

@@ -1,6 +1,6 @@
 """The camera model: pinhole + Brown-Conrady distortion + out-of-focus, and its pose.
 
-Conventions (see DESIGN.md):
+Conventions (see docs/design.md):
 
 * Camera frame as in OpenCV: x right, y down, z forward; ``x_cam = R @ X + t``.
 * Pixel coordinates ``(u, v)``: u = column to the right, v = row down, the *centre* of the

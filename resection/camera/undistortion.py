@@ -9,7 +9,7 @@ product.
 :meth:`resection.Camera.rays` with no points uses this map, cached on the camera instance
 (and handed on by :meth:`Camera.with_pose`, which keeps the intrinsics).
 
-Conventions (DESIGN.md): camera frame x right, y down, z forward; pixel centres at integer
+Conventions (docs/design.md): camera frame x right, y down, z forward; pixel centres at integer
 ``(u, v)``, pixels flattened row-major (``v * W + u``).
 """
 

@@ -164,6 +164,7 @@ def run_link(args: argparse.Namespace) -> int:
             print(f"link: {args.camera} has no pose: the PNG numbers the likely candidates, "
                   "no projected markers (or link by clicking: resection link --serve)")
             camera = None
+    if args.png:  # with or without a camera: the candidates numbered over the image
         atomic_write(args.png, draw_links, read_image(args.image, mask_saturated=True), cand,
                      camera=camera, markers=markers)
         print(f"drawing written to {args.png}")

@@ -6,7 +6,7 @@ every command that reads a camera reads all three. :func:`write_camera` writes a
 
 Formats
 -------
-``json`` (native, DESIGN.md)
+``json`` (native)
     ``{"width", "height", "K", "dist", "R", "t"}`` plus optional ``"oof"``, ``"name"``;
     parsed and validated by :meth:`resection.Camera.from_dict`.
 ``upsp`` (NASA uPSP camera-to-tunnel file, JSON)
@@ -19,8 +19,8 @@ Formats
     (``image_size=``), or the error names the key. ``sensor_size``: inches. A file without
     ``rmat``/``tvec`` is an internal calibration (intrinsics only): its camera gets the
     identity pose and ``has_pose`` is False.
-``upsp-model`` (NASA uPSP camera-to-model file, ``camNN-to-model.json``, written by
-    ``upsp-external-calibration`` and read by ``psp_process``)
+``upsp-model`` (NASA uPSP camera-to-model file, ``camNN-to-model.json``)
+    Written by ``upsp-external-calibration`` and read by ``psp_process``.
     ``cameraMatrix``: ``K`` with an absolute principal point (pixels); ``distCoeffs``: flat
     ``[k1, k2, p1, p2, k3]``; ``imageSize``: ``[width, height]``; ``rmat``, ``tvec`` as
     above.
@@ -29,8 +29,8 @@ In both uPSP families, keys we do not use (``Updated``, or any other a uPSP tool
 kept in :attr:`CameraFile.extra` and written back by :func:`write_camera`, so a file
 round-trips; a key one letter or so from a known key (``distCoefs``) is refused as a typing
 mistake, naming the key it resembles.
-``opencv`` (FileStorage YAML or XML, as ``cv2.FileStorage`` and OpenCV's calibration sample
-    write them)
+``opencv`` (OpenCV FileStorage, YAML or XML)
+    As ``cv2.FileStorage`` and OpenCV's calibration sample write them.
     ``camera_matrix`` or ``cameraMatrix``; ``distortion_coefficients`` or ``distCoeffs``
     (4, 5 or more coefficients, beyond 5 zero); ``image_width`` and ``image_height`` (or
     ``image_size`` / ``imageSize`` = ``[width, height]``); optional ``rvec`` (Rodrigues) or

@@ -1,6 +1,6 @@
 """Marker and image-point files (CSV) and pose/calibration outputs.
 
-Formats (DESIGN.md):
+Formats (docs/design.md):
 
 * marker file: CSV with a header ``id,x,y,z`` and optionally ``diameter`` (model units)
   and ``nx,ny,nz`` (the outward surface normal at the marker; all three or none); ids are

@@ -1,6 +1,6 @@
 """Writing outputs safely: never over an input, never half a file.
 
-Three rules every command follows (DESIGN.md, "Outputs never overwrite an input"):
+Three rules every command follows (docs/design.md, "Outputs never overwrite an input"):
 
 * an output that is one of the command's inputs (the same file, through any path, link or
   hard link) is refused before anything is computed: :func:`refuse_overwriting_inputs`,

@@ -20,7 +20,7 @@ line (:func:`open_session`). The page sends only links, ``[(marker id, candidate
 Candidate numbers are the row indices (from 0) of the candidate list, as in
 :mod:`resection.markers.link`: detected with the default options and the given diameter, they are
 the numbers ``pose --image --diameter D --links`` and ``track --diameter D --link`` find.
-Conventions: DESIGN.md (pixel centres at integer ``(u, v)``, ``x_cam = R X + t``).
+Conventions: docs/design.md (pixel centres at integer ``(u, v)``, ``x_cam = R X + t``).
 """
 
 from __future__ import annotations

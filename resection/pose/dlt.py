@@ -14,7 +14,7 @@ Markers on a plane (a PIV/DGV calibration card) do not determine ``P``; a homogr
 ``H`` (plane coordinates -> pixels) does, from four or more markers, and :func:`dewarp`
 resamples an image onto the plane's coordinates with it.
 
-Pixel conventions are those of DESIGN.md: the centre of the top-left pixel is ``(0, 0)``,
+Pixel conventions are those of docs/design.md: the centre of the top-left pixel is ``(0, 0)``,
 ``u`` to the right, ``v`` down; images are indexed ``img[v, u]``. The DLT and the
 homography are pinhole models: for a lens with distortion, fit them to undistorted
 pixel coordinates (:meth:`Camera.undistort`).

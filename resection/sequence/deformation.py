@@ -18,7 +18,7 @@ Two set-ups are covered:
   3-D displacements are the differences of the triangulated positions.
 
 Units: pixels for image quantities, model units (those of the cameras' ``t``) for 3-D ones.
-Conventions as in DESIGN.md (OpenCV camera frame, ``x_cam = R @ X + t``).
+Conventions as in docs/design.md (OpenCV camera frame, ``x_cam = R @ X + t``).
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ the surface point it sees (:class:`~resection.surface.SurfaceMap`), project it w
 A (distortion included) and sample A's image there (``scipy.ndimage.map_coordinates``,
 bilinear by default).
 
-Conventions (DESIGN.md): pixel centres at integer ``(u, v)``, ``img[v, u]``.
+Conventions (docs/design.md): pixel centres at integer ``(u, v)``, ``img[v, u]``.
 """
 
 from __future__ import annotations

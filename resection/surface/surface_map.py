@@ -11,7 +11,7 @@ mapping one frame, or every frame of a run at once, onto the surface is one spar
   values -> vertex values -> barycentric interpolation at each pixel's hit point), pixels
   that do not see the model left as a given background.
 
-Conventions (DESIGN.md): pixel centres at integer ``(u, v)``, images indexed ``img[v, u]``,
+Conventions (docs/design.md): pixel centres at integer ``(u, v)``, images indexed ``img[v, u]``,
 model units of the mesh.
 """
 

@@ -6,7 +6,7 @@ A triangle mesh whose faces carry their own emitted exitance ``E`` and diffuse r
 interreflections. The image is radiance: a Lambertian face of radiosity ``B`` (all the
 exitance leaving it) shows ``B / pi``.
 
-How the scene is built (see DESIGN.md, "the Mitsuba trap"):
+How the scene is built (see docs/design.md, "the Mitsuba trap"):
 
 * every face gets its own three vertices and its own texel of two ``bitmap`` textures
   (``raw``, ``nearest`` filtering); all three texture coordinates of a face sit on its

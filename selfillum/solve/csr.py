@@ -41,7 +41,7 @@ def _csr(A) -> sp.csr_matrix:
 
 
 def column_blocks(A, rows, groups, n_groups: int) -> list[sp.csr_matrix]:
-    """The blocks ``A[rows][:, cols_g]``, ``g = 0 .. n_groups - 1``, in one pass.
+    """The blocks ``A[rows][:, cols_g]`` for ``g`` in ``range(n_groups)``, in one pass.
 
     Parameters
     ----------

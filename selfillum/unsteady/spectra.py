@@ -201,7 +201,7 @@ class Spectra:
         self._count = 0
 
     def add(self, a: int, dcp_block, psd=None, share=None) -> None:
-        """Spectra of nodes ``a .. a + n`` from their ``(T, n)`` dCp block (or their
+        """Spectra of nodes ``a:a + n`` from their ``(T, n)`` dCp block (or their
         ``psd`` (n, K), :func:`welch_block` of it, computed elsewhere; ``share``: see
         :func:`welch_block`)."""
         if psd is None:

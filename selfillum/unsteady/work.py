@@ -214,7 +214,7 @@ class Phase1Store:
         return self._f["R"][()], self._f["t"][()]
 
     def write_block(self, a: int, rows: dict, R, t, frames_done: int | None = None) -> None:
-        """Commit frames ``a .. a + n``: their node rows (``rows``:
+        """Commit frames ``a:a + n``: their node rows (``rows``:
         :meth:`BlockBuffer.rows`) and poses (``R`` (C, n, 3, 3), ``t`` (C, n, 3)), then
         ``frames_done`` (default the block's end; blocks finishing out of order: the end
         of the blocks done from frame 0)."""

@@ -1,0 +1,209 @@
+"""
+From a tunnel's files to a pressure time history
+================================================
+
+A high-speed PSP camera films a painted model in the tunnel. What comes out of the tunnel
+is what NASA's uPSP works from: the model's surface grid, its targets (``.tgts``), the
+camera's internal calibration, a video, the tunnel's conditions (``.wtd``), the paint
+calibration, the steady Cp and a ``psp_process`` input deck. This tutorial takes those
+files to dCp at every grid node and every frame, with its spectra, using the two commands
+``resection`` and ``selfillum`` as you would type them. Each step shows the picture it
+makes.
+
+The files here are written by :func:`scenes.unsteady_run.make_unsteady_run`: a painted
+plate with a painted block on it, vibrating in pitch and heave, with a known dCp (a 120 Hz
+tone everywhere, a wave convected along the plate, and the block's own tone that reaches
+the plate only as light reflected by the block). So every number below can be checked
+against the truth.
+"""
+
+# %%
+# The tunnel's files
+# ------------------
+# ``make_unsteady_run`` writes a run as a tunnel would: the grid (Plot3D), the targets
+# (``.tgts``), the camera's video (an NPY stack here; ``.cine`` and ``.mraw`` are read the
+# same way), its calibration, the ``.wtd``, the paint gain file, the steady Cp and a deck.
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import h5py
+import matplotlib.pyplot as plt
+import numpy as np
+
+from resection import read_camera, read_image, read_markers, write_camera, write_image
+from scenes.unsteady_run import make_unsteady_run
+
+BIN = Path(sys.executable).parent  # where resection and selfillum are installed
+work = Path(tempfile.mkdtemp(prefix="wto-tutorial-"))
+run = make_unsteady_run(work / "tunnel", frames=48, faces=1200, width=200, height=150)
+for path in sorted(run.folder.iterdir()):
+    print(f"{path.name:12s} {path.stat().st_size:>9,d} bytes")
+
+
+def sh(*args: str) -> str:
+    """Run a command as typed in a shell, print it and what it printed."""
+    print("$", " ".join(str(a) for a in args))
+    done = subprocess.run([str(BIN / args[0]), *map(str, args[1:])], cwd=work,
+                          capture_output=True, text=True)
+    print((done.stdout + done.stderr).strip())
+    if done.returncode != 0:
+        raise RuntimeError(f"{args[0]} {args[1]} exited {done.returncode}")
+    return done.stdout
+
+
+def show(png: Path, title: str) -> None:
+    """Show a picture a command wrote, at its own size."""
+    image = plt.imread(png)
+    fig = plt.figure(figsize=(image.shape[1] / 100, image.shape[0] / 100), dpi=100)
+    ax = fig.add_axes((0, 0, 1, 1))
+    ax.imshow(image)
+    ax.set_axis_off()
+    fig.text(0.01, 0.99, title, va="top", fontsize=9, backgroundcolor="white")
+
+
+# %%
+# The first frame, and a camera that knows only its lens
+# ------------------------------------------------------
+# A new set-up starts from the camera's internal calibration: intrinsics and distortion,
+# no pose. We write one as uPSP does (``intrinsics_only``) from the scene's camera, and
+# take the first frame out of the video.
+video = np.load(run.video, mmap_mode="r")
+write_image(work / "frame0.tif", np.asarray(video[0], dtype=np.float32))
+write_camera(work / "internal.json", read_camera(run.calibration), format="upsp",
+             intrinsics_only=True)
+plt.figure(figsize=(4, 3))
+plt.imshow(read_image(work / "frame0.tif"), cmap="gray")
+plt.title(f"frame 0 of {len(video)} ({video.shape[2]} x {video.shape[1]} px)")
+
+# %%
+# Without a pose nothing predicts where the targets fall, and ``pose`` says so rather than
+# guessing:
+done = subprocess.run([str(BIN / "resection"), "pose", "--image", "frame0.tif", "--camera",
+                       "internal.json", "--markers", run.targets, "--out", "pose.json"],
+                      cwd=work, capture_output=True, text=True)
+print(done.returncode, done.stderr.strip())
+
+# %%
+# Link the first frame
+# --------------------
+# ``resection detect`` finds the dark disks of the targets (about 6 px across here) to
+# sub-pixel accuracy, and ``resection link`` draws them numbered over the frame.
+sh("resection", "detect", "frame0.tif", "--diameter", "6", "--out", "candidates.csv")
+sh("resection", "link", "frame0.tif", "--candidates", "candidates.csv", "--png",
+   "candidates.png")
+show(work / "candidates.png", "resection link: the candidates, numbered")
+
+# %%
+# In the tunnel you would now click four candidates and their targets in the linking page
+# (``resection link --serve frame0.tif --camera internal.json --markers model.tgts
+# --diameter 6 --save-links links.csv``, see :doc:`/linking`), which writes ``links.csv``,
+# one ``id,candidate`` line a click. Here the clicks are made for you: the four targets
+# nearest the corners of the frame, linked to the candidate where the scene's true camera
+# puts them.
+truth_camera = read_camera(run.calibration)
+targets = read_markers(run.targets)
+cand = np.loadtxt(work / "candidates.csv", delimiter=",", skiprows=1, usecols=(0, 1))
+uv = truth_camera.project(targets.xyz)
+is_target = np.ones(len(uv), bool) if targets.taps is None else ~targets.taps
+corners = [(0, 0), (200, 0), (0, 150), (200, 150)]
+picked = {int(np.argmin(np.where(is_target, np.hypot(*(uv - c).T), np.inf))) for c in corners}
+lines = ["id,candidate"]
+for k in sorted(picked):
+    lines.append(f"{targets.ids[k]},{int(np.argmin(np.hypot(*(cand - uv[k]).T)))}")
+(work / "links.csv").write_text("\n".join(lines) + "\n")
+print((work / "links.csv").read_text())
+
+# %%
+# Solve the pose
+# --------------
+# From the four links, ``pose`` solves the camera's pose, then looks again for every other
+# target that pose puts in view, solves again from all of them, and judges the residuals
+# by the acceptance rule (:doc:`/acceptance`). ``--plot`` draws the paper's Figure 20: the
+# model's outline, detected and reprojected targets, residual arrows magnified.
+sh("resection", "pose", "--image", "frame0.tif", "--camera", "internal.json", "--markers",
+   run.targets, "--links", "links.csv", "--diameter", "6", "--mesh", run.grid, "--out",
+   "pose.json", "--plot", "pose.png")
+show(work / "pose.png", "resection pose --plot: the overlay (Figure 20)")
+
+# %%
+# The solved camera is within a small fraction of a pixel of the scene's true camera:
+solved = read_camera(work / "pose.json")
+print(f"targets apart, solved vs true camera: "
+      f"{np.abs(solved.project(targets.xyz) - uv).max():.3f} px at most")
+
+# %%
+# Map the frame onto the grid
+# ---------------------------
+# ``map`` ties every pixel to the grid faces it sees (Embree visibility, faces seen more
+# obliquely than 70 degrees left out) and writes per-node values, here as VTK for
+# ParaView; ``view`` draws them from the camera.
+sh("resection", "map", "--mesh", run.grid, "--camera", "pose.json", "--image", "frame0.tif",
+   "--out", "frame0.vtk")
+sh("resection", "view", "--mesh", run.grid, "--values", "frame0.vtk", "--field", "frame0",
+   "--camera", "pose.json", "--out", "frame0_view.png")
+show(work / "frame0_view.png", "resection view: frame 0 on the grid")
+
+# %%
+# Run unsteady
+# ------------
+# ``selfillum unsteady`` is uPSP's ``psp_process``: it reads the deck as it is. We point
+# the deck's camera at the solved pose and use the options uPSP decks use (targets patched
+# by polynomials, pixel registration, cameras averaged). Every frame is mapped, the
+# self-illumination of the block on the plate is removed frame by frame, and Phase 2 turns
+# intensities into dCp with the paint calibration and the tunnel's conditions.
+deck = run.deck.read_text()
+deck = deck.replace(str(run.calibration), str(work / "pose.json"))
+deck = deck.replace("target_patcher = none", "target_patcher = polynomial")
+deck = deck.replace("registration = none", "registration = pixel")
+(work / "run.inp").write_text(deck)
+print(deck)
+
+# %%
+sh("selfillum", "unsteady", "run.inp", "--paint-calibration", run.paint, "--steady",
+   run.steady, "--fps", run.fps, "--psd", "300,700", "--out", "out/run.h5")
+show(work / "out" / "run_rms.png", "selfillum unsteady: the dCp RMS on the model")
+
+# %%
+# The spectra
+# -----------
+# The PSD picture shows Welch's spectra at the probe nodes given with ``--psd``, and their
+# mean over the nodes: the 120 Hz tone stands out.
+show(work / "out" / "run_psd.png", "selfillum unsteady: Welch PSD of dCp")
+
+# %%
+# Read the result
+# ---------------
+# ``run.h5`` holds dCp as one frames x nodes dataset in the grid file's node order, with
+# per-node statistics and the spectra; ``run.xdmf`` beside it opens in ParaView
+# (File > Open, ``run.xdmf``, "Xdmf3 Reader S"): dCp on the grid as a time series, one
+# step a frame. The same file in Python:
+with h5py.File(work / "out" / "run.h5") as f:
+    f.visit(lambda name: print(name, getattr(f[name], "shape", "")))
+    dcp = f["dcp"][...]
+    freq = f["psd/frequency"][...]
+    mean_psd = f["psd/mean"][...]
+
+# %%
+# The time history of the node nearest the plate's centre, against the truth the scene
+# used, and where the spectrum peaks:
+grid_nodes = np.flatnonzero(run.plate & np.isfinite(dcp).all(axis=0))
+node = grid_nodes[np.argmin(np.abs(grid_nodes - grid_nodes.mean()))]
+t = np.arange(len(dcp)) / run.fps
+fig, ax = plt.subplots(figsize=(6.5, 3))
+ax.plot(1000 * t, run.truth[:, node], color="0.6", lw=4, label="truth")
+ax.plot(1000 * t, dcp[:, node], "k", lw=1, label="selfillum unsteady")
+ax.set_xlabel("time (ms)")
+ax.set_ylabel("dCp")
+ax.set_title(f"node {node}")
+ax.legend()
+peak = freq[1:][np.argmax(mean_psd[1:])]
+err = dcp[:, node] - run.truth[:, node]
+print(f"spectrum peak {peak:.0f} Hz (tone {run.freqs['tone']:.0f} Hz); "
+      f"dCp RMS error at node {node}: {np.sqrt(np.mean(err**2)):.4f} "
+      f"(signal RMS {np.std(run.truth[:, node]):.4f})")
+
+# %%
+shutil.rmtree(work)
