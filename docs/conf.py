@@ -4,6 +4,7 @@ Build it (warnings are errors, the gallery and the tutorial executed)::
 
     .venv/bin/python -m sphinx -W --keep-going -b html docs docs/_build/html
 
+``WTO_DOCS_RERUN=1`` runs again the examples that did not change since the last build;
 ``WTO_DOCS_SLOW=1`` also executes the gallery's slow scripts (``*_slow.py``); without it
 they are shown with their code, not run. ``tests/test_docs.py`` builds the site this way.
 """
@@ -69,7 +70,8 @@ sphinx_gallery_conf = {
     "matplotlib_animations": False,
     "image_scrapers": ("matplotlib", "figure_scraper"),
     "reset_modules": ("matplotlib",),
-    "run_stale_examples": False,
+    # WTO_DOCS_RERUN=1 (the tests): run every example again, even if unchanged
+    "run_stale_examples": os.environ.get("WTO_DOCS_RERUN", "") == "1",
     "plot_gallery": "True",
     "capture_repr": (),
     "min_reported_time": 1e9,

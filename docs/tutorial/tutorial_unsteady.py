@@ -32,6 +32,7 @@ from pathlib import Path
 import h5py
 import matplotlib.pyplot as plt
 import numpy as np
+from scipy.signal import welch
 
 from resection import read_camera, read_image, read_markers, write_camera, write_image
 from scenes.unsteady_run import make_unsteady_run
@@ -195,8 +196,6 @@ with h5py.File(work / "out" / "run.h5") as f:
 # the scene used; and where the spectra of the plate's and the block's seen nodes peak
 # (Welch's method, as ``selfillum unsteady`` computes them), against the tones the scene
 # put there:
-from scipy.signal import welch
-
 seen = np.isfinite(dcp).all(axis=0)
 plate_nodes = np.flatnonzero(run.plate & seen)
 node = plate_nodes[len(plate_nodes) // 2]

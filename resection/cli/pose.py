@@ -83,7 +83,7 @@ def register(sub) -> None:
     c.add_argument("--markers", help="target marker CSV shared by all views given by --points")
     c.add_argument("--points", nargs="+", default=[], help="linked image points CSV per view")
     c.add_argument("--points-dir", metavar="DIR",
-                   help="directory whose *.csv files (sorted) are the views' image points")
+                   help="directory whose .csv files (sorted) are the views' image points")
     c.add_argument("--views", nargs="+", default=[], metavar="MARKERS.csv:POINTS.csv",
                    help="views as marker/points file pairs (targets may differ)")
     c.add_argument("--size", required=True, metavar="WxH", help="image size in pixels")

@@ -29,6 +29,7 @@ In both uPSP families, keys we do not use (``Updated``, or any other a uPSP tool
 kept in :attr:`CameraFile.extra` and written back by :func:`write_camera`, so a file
 round-trips; a key one letter or so from a known key (``distCoefs``) is refused as a typing
 mistake, naming the key it resembles.
+
 ``opencv`` (OpenCV FileStorage, YAML or XML)
     As ``cv2.FileStorage`` and OpenCV's calibration sample write them.
     ``camera_matrix`` or ``cameraMatrix``; ``distortion_coefficients`` or ``distCoeffs``

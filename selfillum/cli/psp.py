@@ -90,7 +90,7 @@ def register(sub) -> None:
                    "--tap-positions; or a uPSP RUN.wtd (its '# Tap CP' table, p = PS + Cp Q, "
                    "tap n = the .tgts point CPnn) with --tap-positions")
     p.add_argument("--tap-positions", metavar="MODEL.tgts",
-                   help="tap positions for an id,p tap file: a uPSP .tgts file (its *Taps) "
+                   help="tap positions for an id,p tap file: a uPSP .tgts file (its Taps section) "
                    "or a marker file")
     p.add_argument("--p-ref", required=True, type=float, help="pressure of the wind-off run")
     p.add_argument("--reflectance", default="0.6",

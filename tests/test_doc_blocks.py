@@ -1,0 +1,104 @@
+"""Every code block of README.md and docs/*.md runs, with sybil (a maintained tool for it).
+
+Each page is one test: its blocks run in page order in a fresh folder, the Python blocks in
+one namespace (as a reader would paste them into one session), the ``bash`` blocks with
+``bash -eu -o pipefail`` and ``.venv/bin`` first on the PATH. A page may prepare its files
+in an invisible block (``<!-- invisible-code-block: python ... -->``, not shown on the
+site). A block of another language must be ``text`` (a diagram, a file's layout, printed
+output): a block without a language, or one this test cannot run, fails it.
+
+Two commands are run elsewhere, and only checked to be the same here: the README's test
+command is what CI (``.ci/run``) runs, and the site build is what ``tests/test_docs.py``
+runs.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from sybil import Sybil
+from sybil.parsers.markdown import CodeBlockParser, PythonCodeBlockParser
+
+ROOT = Path(__file__).resolve().parents[1]
+PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+LANGUAGES = {"python", "bash", "text"}
+
+# run by CI itself: running it here would run the suite inside the suite
+CI_COMMAND = (ROOT / ".ci" / "run").read_text().strip().splitlines()[-1]
+# run by tests/test_docs.py (the site build, with its gallery)
+SITE_COMMAND = ".venv/bin/python -m sphinx -W -b html docs docs/_build/html"
+
+
+def _run_bash(example) -> None:
+    lines = []
+    for line in example.parsed.splitlines():
+        if line.strip() == CI_COMMAND:
+            continue  # checked in test_commands_run_elsewhere
+        if line.strip() == SITE_COMMAND:
+            continue  # built by tests/test_docs.py
+        lines.append(line)
+    script = "\n".join(lines).strip()
+    if not script:
+        return
+    ns = example.namespace
+    cwd = ROOT if "tools/setup.sh" in script else ns["cwd"]
+    env = dict(os.environ, PATH=f"{ROOT / '.venv' / 'bin'}:{os.environ['PATH']}",
+               PYTHONPATH=str(ROOT), MPLBACKEND="Agg")
+    done = subprocess.run(["bash", "-eu", "-o", "pipefail", "-c", script], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=900)
+    where = f"{example.path}, line {example.line}"
+    assert done.returncode == 0, f"{where}: exit {done.returncode}\n{done.stdout[-3000:]}" \
+        f"\n{done.stderr[-3000:]}"
+
+
+SYBIL = Sybil(parsers=[PythonCodeBlockParser(),
+                       CodeBlockParser(language="bash", evaluator=_run_bash)])
+
+
+def _fence_languages(text: str) -> list[tuple[int, str]]:
+    """``(line, language)`` of every fenced block's opening line."""
+    found, fence = [], None
+    for number, line in enumerate(text.splitlines(), 1):
+        m = re.match(r"^(`{3,}|~{3,})\s*([^`\s]*)", line)
+        if not m:
+            continue
+        if fence is None:
+            fence = m.group(1)
+            found.append((number, m.group(2)))
+        elif m.group(1).startswith(fence) and not m.group(2):
+            fence = None
+    return found
+
+
+@pytest.mark.parametrize("page", PAGES, ids=[str(p.relative_to(ROOT)) for p in PAGES])
+def test_code_blocks_run(page, tmp_path, monkeypatch):
+    (tmp_path / ".venv").symlink_to(ROOT / ".venv")  # the README's .venv/bin/... paths
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.syspath_prepend(str(ROOT))  # scenes/, as in a clone
+    monkeypatch.setenv("MPLBACKEND", "Agg")
+    monkeypatch.setenv("PATH", f"{ROOT / '.venv' / 'bin'}:{os.environ['PATH']}")
+    for number, language in _fence_languages(page.read_text()):
+        if language.startswith("{"):  # a MyST directive (toctree), not code
+            continue
+        assert language in LANGUAGES, (
+            f"{page}, line {number}: a code block in {language or 'no language'}: give it "
+            "python or bash (run here) or text (a diagram or printed output)")
+    document = SYBIL.parse(page)
+    document.namespace["cwd"] = tmp_path
+    for example in document:
+        example.evaluate()
+
+
+def test_commands_run_elsewhere():
+    readme = (ROOT / "README.md").read_text()
+    assert f"\n{CI_COMMAND}\n" in readme, "the README's test command is not .ci/run's"
+    assert f"\n{SITE_COMMAND}\n" in readme, "the README's site build is not documented"
+    docs_test = (ROOT / "tests" / "test_docs.py").read_text()
+    assert "SITE_COMMAND" in docs_test
+    assert re.search(r"-m sphinx -W", SITE_COMMAND)
+    assert sys.executable  # the suite runs in the .venv the README's commands use
