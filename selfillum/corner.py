@@ -15,7 +15,7 @@ The working factors are ray-cast by :func:`selfillum.view_factors` (RQMC rays). 
 (translation along the fold, reciprocity, the mirror ``x <-> z``;
 :func:`scenes.corner.symmetric_factors`): an unbiased estimate with the noise of about
 4 times the rays at 1024 rays a face. A general model has no such symmetry; ``symmetry=False``
-shows what the rays alone leave (measured in ``bench/README.md``).
+shows what the rays alone leave (measured in ``docs/benchmark_history.md``).
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ __all__ = ["CornerNumbers", "CornerResult", "run_corner", "plot_corner", "write_
 
 #: Rays per face of the main job's working view factors: with the RQMC rays averaged over
 #: the corner's symmetries the largest residual after correction is then about 0.2 %
-#: (measured in bench/README.md; without the symmetry 4096 rays are needed for that).
+#: (measured in docs/benchmark_history.md; without the symmetry 4096 rays are needed for that).
 DEFAULT_RAYS = 1024
 
 

@@ -202,7 +202,7 @@ def test_accuracy_on_plain_paint_snr20_eight_seeds():
     # near the glare: median error 0.046 px here, OpenCV 0.072 px. On fresh seeds 300-315
     # 0.0425 px (301 targets), on the bench's 100-111 0.0425 px, on 300-305 0.042 px over
     # 12 noise draws each, where the per-target Cramer-Rao bound puts the median at
-    # 0.037 px (bench/README.md, issue 21). The seeds fix the frames; the margin (8 %) is
+    # 0.037 px (docs/benchmark_history.md, issue 21). The seeds fix the frames; the margin (8 %) is
     # far above float rounding and about one sampling spread of a median of 150 targets
     ours, cv = _accuracy(range(200, 208))
     assert np.median(ours) <= 0.05

@@ -68,7 +68,7 @@ def test_continuation_matches_direct_solve_in_few_iterations(slab_frame):
     """The preconditioned CG gives the direct solve's emission on the seen faces within
     1e-7 (relative), in a few hundred iterations at most. The Laplacian preconditioner
     it replaced took 1,362 iterations on this frame (tol 1e-10) and 8,353 on the
-    unsteady bench's 1.1 M-face grid (bench/README.md)."""
+    unsteady bench's 1.1 M-face grid (docs/benchmark_history.md)."""
     mesh, F, rho, seen, B = slab_frame
     E, info = correct(F, np.where(seen, B, np.nan), rho, seen, mesh=mesh, tol=1e-10,
                       return_info=True)
