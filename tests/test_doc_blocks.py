@@ -17,7 +17,6 @@ from __future__ import annotations
 import os
 import re
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -99,6 +98,4 @@ def test_commands_run_elsewhere():
     assert f"\n{CI_COMMAND}\n" in readme, "the README's test command is not .ci/run's"
     assert f"\n{SITE_COMMAND}\n" in readme, "the README's site build is not documented"
     docs_test = (ROOT / "tests" / "test_docs.py").read_text()
-    assert "SITE_COMMAND" in docs_test
-    assert re.search(r"-m sphinx -W", SITE_COMMAND)
-    assert sys.executable  # the suite runs in the .venv the README's commands use
+    assert f'SITE_COMMAND = "{SITE_COMMAND}"' in docs_test, "test_docs builds another way"
