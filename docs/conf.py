@@ -68,7 +68,8 @@ sphinx_gallery_conf = {
     "remove_config_comments": True,
     "abort_on_example_error": True,
     "matplotlib_animations": False,
-    "image_scrapers": ("matplotlib", "figure_scraper"),
+    # the library's own Figures first, while pyplot's still have their manager (skipped)
+    "image_scrapers": ("figure_scraper", "matplotlib"),
     "reset_modules": ("matplotlib",),
     # WTO_DOCS_RERUN=1 (the tests): run every example again, even if unchanged
     "run_stale_examples": os.environ.get("WTO_DOCS_RERUN", "") == "1",
