@@ -58,11 +58,12 @@ def sh(*args: str) -> str:
 def show(png: Path, title: str) -> None:
     """Show a picture a command wrote, at its own size."""
     image = plt.imread(png)
-    fig = plt.figure(figsize=(image.shape[1] / 100, image.shape[0] / 100), dpi=100)
-    ax = fig.add_axes((0, 0, 1, 1))
+    h, w = image.shape[0] / 100, image.shape[1] / 100
+    fig = plt.figure(figsize=(w, h + 0.3), dpi=100)
+    ax = fig.add_axes((0, 0, 1, h / (h + 0.3)))
     ax.imshow(image)
     ax.set_axis_off()
-    fig.text(0.01, 0.99, title, va="top", fontsize=9, backgroundcolor="white")
+    fig.text(0.01, 1 - 0.15 / (h + 0.3), title, va="center", fontsize=9)
 
 
 # %%
