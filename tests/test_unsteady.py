@@ -437,17 +437,20 @@ def test_bad_steady_blocks(case, capsys):
 
 def test_bad_wtd_without_q(case, capsys):
     lines = (case / "run.wtd").read_text().splitlines()
-    names, vals = lines[0].lstrip("# ").split("\t"), lines[1].split("\t")
+    assert lines[0] == "RUN 1 1"  # NASA's layout, as the scene writes it
+    names, vals = lines[1].lstrip("# ").split("\t"), lines[2].split("\t")
     k = names.index("Q")
     del names[k], vals[k]
-    (case / "run.wtd").write_text("# " + "\t".join(names) + "\n" + "\t".join(vals) + "\n")
+    (case / "run.wtd").write_text("RUN 1 1\n#  " + "\t".join(names) + "\n" + "\t".join(vals)
+                                  + "\n")
     err = _bad(case, capsys)
     assert "run.wtd" in err and "no 'Q' column" in err
 
 
 def test_bad_option_refused_by_name(case, capsys):
     text = (case / "run.inp").read_text()
-    (case / "run.inp").write_text(text.replace("target_patcher = none",
+    assert "target_patcher = polynomial" in text  # uPSP's usual deck, as the scene writes
+    (case / "run.inp").write_text(text.replace("target_patcher = polynomial",
                                                "target_patcher = inpaint"))
     err = _bad(case, capsys, "--registration", "none")
     assert "target_patcher" in err and "inpaint" in err
