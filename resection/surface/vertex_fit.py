@@ -4,7 +4,9 @@
 
 Each vertex gets the area-weighted mean of the valued faces around it, corrected (with
 ``linear``) by an area-weighted least-squares gradient fitted to their centroids, which
-makes the reconstruction exact for fields linear in space (:func:`_vertex_matrix`). The
+makes the reconstruction exact for fields linear in space (:func:`_vertex_matrix`);
+each vertex value is then held within the values of the faces it is built from
+(:func:`_clamp_to_support`), so a jump in the field never overshoots. The
 result is a sparse (vertices x faces) matrix per pattern of valued faces; its per-vertex
 sums run in one compiled pass over the (vertex, face) pairs and over the vertices those
 pairs touch only, so a camera that sees a fraction of a large grid pays for that fraction.
@@ -182,7 +184,9 @@ def vertex_values(
         NaN faces are left out of the vertex values.
     interpolation : {"linear", "mean"}
         ``"mean"``: area-weighted mean of the faces around the vertex; ``"linear"``: that
-        mean corrected by an area-weighted least-squares gradient (exact for linear fields).
+        mean corrected by an area-weighted least-squares gradient (exact for linear fields
+        wherever the vertex lies among its faces' centroids), held within the values of
+        the faces it is built from.
 
     Returns
     -------
@@ -247,10 +251,51 @@ def _apply_vertex(mesh, area, fv, linear, cache, centroids=None):
             M = _vertex_matrix(mesh, area * pattern, linear, centroids)
             if pattern.all() and cache is not None:
                 cache[linear] = M
-        res = M @ np.where(pattern[:, None], flat[:, cols], 0.0)
+        X = np.where(pattern[:, None], flat[:, cols], 0.0)
+        res = M @ X
+        if linear:  # the gradient term may reach past the data: limit it
+            _clamp_to_support(M, pattern, X, res)
         has = np.bincount(faces[pattern].ravel(), minlength=nv) > 0
         res[~has] = np.nan  # vertices with no finite face around them
         out[:, cols] = res
     return out.reshape((nv,) + fv.shape[1:])
 
 
+
+
+def _clamp_to_support(M, pattern, X, res) -> None:
+    """Limit each vertex value ``res[v]`` to the range of the valued face values its row of
+    ``M`` combines (in place).
+
+    The gradient correction of ``linear`` extrapolates from the face centroids to the
+    vertex: across a jump of the field it overshoots (a field of 1..165 gave -17.9 to 174).
+    Clamping each vertex to the smallest and largest value of the faces it is built from
+    (a limiter, as finite-volume schemes limit reconstructed gradients) keeps every
+    interpolated pixel within the values around it; the barycentric interpolation of
+    three vertex values stays within their range. Linear fields stay exact wherever the
+    vertex lies among the centroids of its faces (every interior vertex of a fan); on the
+    edge of a grid the extrapolated value is cut to the values of the faces beside it.
+
+    Parameters
+    ----------
+    M : (V, F) scipy.sparse.csr_matrix
+        Vertex matrix; its stored entries name the faces of each vertex.
+    pattern : (F,) bool
+        The valued faces; the others are not in any range.
+    X : (F, K) float64
+        Face values (0 where not valued).
+    res : (V, K) float64
+        ``M @ X``, clamped in place.
+    """
+    counts = np.diff(M.indptr)
+    rows = np.repeat(np.arange(M.shape[0]), counts)
+    keep = pattern[M.indices] & (M.data != 0)
+    r, c = rows[keep], M.indices[keep]
+    if r.size == 0:
+        return
+    starts = np.flatnonzero(np.r_[True, r[1:] != r[:-1]])  # rows are sorted in CSR order
+    vals = X[c]
+    lo = np.minimum.reduceat(vals, starts, axis=0)
+    hi = np.maximum.reduceat(vals, starts, axis=0)
+    v = r[starts]
+    res[v] = np.clip(res[v], lo, hi)
