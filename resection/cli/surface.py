@@ -66,6 +66,9 @@ def register(sub) -> None:
                    "the video's, else times are frame numbers)")
     h.add_argument("--resume", action="store_true",
                    help="continue the file of an interrupted run")
+    m.add_argument("--keep-border", action="store_true",
+                   help="map the frame's dark border too (default: rows and columns at "
+                   "the edges that hold no light are masked as unknown and named)")
     m.add_argument("--saturation", type=float, default=None, metavar="LEVEL",
                    help="pixels at or above this are saturated: unknown, in no value, and "
                    "the faces they fall on unseen (default: the full scale of the file's "
@@ -159,6 +162,7 @@ def _field(path: str, name: str | None, n_faces: int) -> tuple[str, np.ndarray]:
 
 
 def run_map(args: argparse.Namespace) -> int:
+    from resection.border import border_report, mask_dark_border
     from resection.camera.units import require_seen
     from resection.io.cameras import read_camera_file
     from resection.io.images import read_native
@@ -210,6 +214,11 @@ def run_map(args: argparse.Namespace) -> int:
         first = None
         level = level_of(raw.dtype, args.saturation)
         img, sat = mask_saturated(raw, level)  # unknown: in no value
+        if not args.keep_border:  # the frame's dark border: no light, in no value
+            img, border = mask_dark_border(img)
+            line = border_report(border, path)
+            if line:
+                print(f"map: {line}")
         touched = faces_touched(smap.face_index, smap.mask, sat, len(mesh.faces))
         n_sat, n_faces = n_sat + int(sat.sum()), n_faces + int(touched.sum())
         name = Path(path).stem
@@ -275,7 +284,7 @@ def _run_history(args: argparse.Namespace) -> int:
             from resection.io.images import image_info  # image files: their type's scale
 
             level = image_info(args.image[0])["saturation"]
-        frames = _Saturated(src, level)
+        frames = _Saturated(src, level, keep_border=args.keep_border)
         n = map_to_history(args.out, mesh, cameras, frames, frame_numbers=numbers, times=times,
                            per=args.per, resume=args.resume,
                            max_obliqueness=args.max_obliqueness, sources=sources)
@@ -284,24 +293,35 @@ def _run_history(args: argparse.Namespace) -> int:
     line = report(frames.count, frames.level)
     if line:
         print(f"map: warning: {line} in the frames mapped now", file=sys.stderr)
+    from resection.border import border_report
+
+    line = border_report(frames.border, "frames (the widest)")
+    if line:
+        print(f"map: {line}")
     return 0
 
 
 class _Saturated:
-    """Frames of a source with their saturated pixels NaN (:mod:`resection.saturation`),
-    counted as they are read."""
+    """Frames of a source with their saturated pixels NaN (:mod:`resection.saturation`)
+    and, unless ``keep_border``, their dark border NaN (:mod:`resection.border`), counted
+    as they are read (``border``: the largest border met)."""
 
-    def __init__(self, src, level):
+    def __init__(self, src, level, keep_border: bool = False):
         self.src, self.level, self.count = src, level, 0
+        self.keep_border, self.border = keep_border, (0, 0, 0, 0)
 
     def __len__(self):
         return len(self.src)
 
     def __getitem__(self, i):
+        from resection.border import mask_dark_border
         from resection.saturation import mask_saturated
 
         img, sat = mask_saturated(self.src[i], self.level)
         self.count += int(sat.sum())
+        if not self.keep_border:
+            img, b = mask_dark_border(img)
+            self.border = tuple(max(x, y) for x, y in zip(self.border, b, strict=True))
         return img
 
 
@@ -335,6 +355,7 @@ class _ImageIdentities:
 
 
 def _run_merge(args: argparse.Namespace, names: list) -> int:
+    from resection.border import border_report, mask_dark_border
     from resection.io.cameras import read_camera_file
     from resection.io.images import read_native
     from resection.io.markers import read_markers
@@ -356,6 +377,11 @@ def _run_merge(args: argparse.Namespace, names: list) -> int:
                              "camera")
         level = level_of(raw.dtype, args.saturation)
         img, sat = mask_saturated(raw, level)
+        if not args.keep_border:  # the frame's dark border: no light, in no value
+            img, border = mask_dark_border(img)
+            line = border_report(border, p)
+            if line:
+                print(f"map: {line}")
         images.append(img)
         n_sat += int(sat.sum())
     files = [read_camera_file(p, image_size=img.shape[::-1])
