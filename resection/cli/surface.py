@@ -176,6 +176,10 @@ def run_map(args: argparse.Namespace) -> int:
         return _run_history(args)
     if args.track or args.resume:
         raise InputError("--track and --resume go with a time history (--out P.h5)")
+    if Path(args.out).suffix.lower() == ".xdmf":  # its heavy data file: before any work
+        from resection.io.fields import xdmf_data_path
+
+        xdmf_data_path(args.out)
     names = [Path(p).stem for p in args.image]
     repeated = sorted({n for n in names if names.count(n) > 1})
     if repeated:
