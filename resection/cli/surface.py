@@ -171,6 +171,7 @@ def run_map(args: argparse.Namespace) -> int:
     from resection.pose.camera_fit import check_camera
     from resection.saturation import faces_touched, level_of, mask_saturated, report
     from resection.surface.surface_map import SurfaceMap
+    from resection.surface.visibility import RayCaster
 
     if Path(args.out).suffix.lower() in (".h5", ".hdf5"):
         return _run_history(args)
@@ -198,13 +199,14 @@ def run_map(args: argparse.Namespace) -> int:
     first = native(args.image[0])  # read once: checked, then mapped
     cf = read_camera_file(args.camera[0], image_size=first.shape[::-1])
     camera = cf.camera
-    smap = SurfaceMap(mesh, camera, max_obliqueness=args.max_obliqueness)
+    caster = RayCaster(mesh)  # one Embree scene: the map and the footprint check
+    smap = SurfaceMap(mesh, camera, max_obliqueness=args.max_obliqueness, caster=caster)
     markers = read_markers(args.markers) if args.markers else None
     for k, path in enumerate(args.image):  # units, image, markers: before any work
         raw = first if k == 0 else native(path)  # one more image in memory at a time
         line = check_camera(args.camera[0], cf, path, raw.astype(np.float32), mesh.vertices,
                             args.mesh, markers=markers, surface_map=smap,
-                            polarity=args.polarity)
+                            polarity=args.polarity, caster=caster)
         if line:
             print(line)
     require_seen(smap.seen_faces.sum(), camera, mesh.vertices, "the mesh",
@@ -368,6 +370,7 @@ def _run_merge(args: argparse.Namespace, names: list) -> int:
     from resection.saturation import level_of, mask_saturated, report
     from resection.surface.merge import merge_views
     from resection.surface.surface_map import SurfaceMap
+    from resection.surface.visibility import RayCaster
 
     if len(args.image) != len(args.camera):
         raise InputError(f"--image: {len(args.image)} images for {len(args.camera)} cameras "
@@ -390,12 +393,14 @@ def _run_merge(args: argparse.Namespace, names: list) -> int:
         n_sat += int(sat.sum())
     files = [read_camera_file(p, image_size=img.shape[::-1])
              for p, img in zip(args.camera, images, strict=True)]
-    maps = [SurfaceMap(mesh, cf.camera, max_obliqueness=args.max_obliqueness) for cf in files]
+    caster = RayCaster(mesh)  # one Embree scene for every camera and the checks
+    maps = [SurfaceMap(mesh, cf.camera, max_obliqueness=args.max_obliqueness, caster=caster)
+            for cf in files]
     markers = read_markers(args.markers) if args.markers else None
     for cpath, cf, ipath, img, smap in zip(args.camera, files, args.image, images, maps,
                                            strict=True):
         line = check_camera(cpath, cf, ipath, img, mesh.vertices, args.mesh, markers=markers,
-                            surface_map=smap, polarity=args.polarity)
+                            surface_map=smap, polarity=args.polarity, caster=caster)
         if line:
             print(line)
     mv = merge_views(maps, images, feather_px=args.feather, match_gain=not args.no_gain_match)
