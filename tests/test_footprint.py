@@ -123,3 +123,20 @@ def test_upsps_camera_in_mm_on_the_inch_grid(upsp_samples, tmp_path, capsys):
     assert main(["map", "--mesh", str(grid), "--camera", str(tmp_path / "right.json"),
                  "--image", str(tmp_path / "frame.png"), "--out",
                  str(tmp_path / "o.csv")]) == 0
+
+
+def test_frames_without_a_lit_model_are_not_judged():
+    """A uniform frame, a ramp, a signed field (not light): no lit part to compare the
+    footprint with, nothing checked; a lit model on a dark ground (or the reverse): the
+    part Otsu's threshold gives."""
+    from resection.pose.footprint import lit_mask
+
+    rng = np.random.default_rng(2)
+    assert lit_mask(np.full((60, 80), 7.0) + rng.normal(0, 0.1, (60, 80))) is None
+    assert lit_mask(np.linspace(1.0, 2.0, 4800).reshape(60, 80)) is None
+    assert lit_mask(np.linspace(-0.5, 0.5, 4800).reshape(60, 80)) is None
+    model = np.zeros((60, 80), bool)
+    model[10:40, 20:70] = True
+    frame = np.where(model, 2000.0, 60.0) * rng.gamma(30.0, 1 / 30.0, model.shape)
+    np.testing.assert_array_equal(lit_mask(frame), model)
+    np.testing.assert_array_equal(lit_mask(4000.0 - frame), ~model)

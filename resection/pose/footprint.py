@@ -4,9 +4,10 @@ given.
 A camera file in other units than the grid (the camera in mm, the grid in inches) maps
 without an error: the model lands as a dot of a few thousand pixels, or blown up around
 the camera, and every number written is wrong. The frame itself tells: a painted model is
-the lit part of a PSP/TSP frame (or the dark part, seen against a bright background). So
-the model's footprint (the pixels whose line of sight meets it) is compared with the
-frame's lit part (Otsu's threshold) on a coarse grid of cells (:data:`CELL` pixels a side):
+the lit part of a PSP/TSP frame (or the dark part, seen against a bright background). So,
+when the frame has a lit and a dark part (:func:`lit_mask`), the model's footprint (the
+pixels whose line of sight meets it) is compared with the frame's lit part (Otsu's
+threshold) on a coarse grid of cells (:data:`CELL` pixels a side):
 
 * the overlap (intersection over union) of the footprint with the lit part, or with the
   dark part when that is larger (:func:`footprint_overlap`);
@@ -32,8 +33,8 @@ from resection.camera.model import Camera
 from resection.camera.units import UNIT_FACTORS, _units
 from resection.errors import InputError
 
-__all__ = ["CELL", "GOOD", "POOR", "FootprintFit", "check_footprint", "footprint_overlap",
-           "lit_mask"]
+__all__ = ["CELL", "GOOD", "MAX_DARK_RATIO", "MIN_PART", "POOR", "FootprintFit",
+           "check_footprint", "footprint_fit", "footprint_overlap", "lit_mask"]
 
 #: Side of a cell of the coarse grid the footprints are compared on, pixels.
 CELL = 8
@@ -43,14 +44,24 @@ POOR = 0.25
 GOOD = 0.5
 
 
-def lit_mask(image) -> np.ndarray:
+#: The lit and the dark part must each hold this share of the frame's finite pixels ...
+MIN_PART = 0.05
+#: ... and the dark part's mean be at most this share of the lit part's (light falls on
+#: the painted model, little on the tunnel): else the frame is no lit model on a dark
+#: ground or the reverse (a uniform frame, a ramp, a field that is not light) and
+#: nothing is checked.
+MAX_DARK_RATIO = 0.5
+
+
+def lit_mask(image) -> np.ndarray | None:
     """(H, W) bool: pixels above Otsu's threshold of the frame's finite pixels (256 bins;
-    NaN pixels are not lit)."""
+    NaN pixels are not lit); None when the frame has no lit part to tell from a dark one
+    (:data:`MIN_PART`, :data:`MAX_DARK_RATIO`)."""
     img = np.asarray(image, dtype=np.float64)
     fin = np.isfinite(img)
     x = img[fin]
     if x.size == 0 or not np.ptp(x) > 0:
-        return np.zeros(img.shape, bool)
+        return None
     h, edges = np.histogram(x, 256)
     c = 0.5 * (edges[:-1] + edges[1:])
     w0 = np.cumsum(h, dtype=np.float64)
@@ -59,6 +70,11 @@ def lit_mask(image) -> np.ndarray:
     with np.errstate(invalid="ignore", divide="ignore"):
         between = w0 * w1 * (s0 / w0 - s1 / w1) ** 2
     k = int(np.nanargmax(between))
+    n = w0[-1]
+    m0, m1 = s0[k] / w0[k], s1[k] / w1[k]
+    if min(w0[k], w1[k]) < MIN_PART * n or not m1 > 0 or \
+            not -0.1 * m1 <= m0 <= MAX_DARK_RATIO * m1:
+        return None
     out = np.zeros(img.shape, bool)
     out[fin] = img[fin] > c[k]
     return out
@@ -128,7 +144,10 @@ def footprint_fit(camera: Camera, image, caster, *, bounds=None,
     coarse = _coarse_camera(camera, cell)
     if coarse.width < 4 or coarse.height < 4:
         return FootprintFit(1.0, float("nan"), float("nan"), None, None)
-    lit = _coarse(lit_mask(image), cell)
+    lit = lit_mask(image)
+    if lit is None:  # nothing to compare with: not checked
+        return FootprintFit(1.0, float("nan"), float("nan"), None, None)
+    lit = _coarse(lit, cell)
     _, dirs = coarse.rays()
 
     def footprint(s: float) -> np.ndarray:
