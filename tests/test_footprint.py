@@ -139,4 +139,5 @@ def test_frames_without_a_lit_model_are_not_judged():
     model[10:40, 20:70] = True
     frame = np.where(model, 2000.0, 60.0) * rng.gamma(30.0, 1 / 30.0, model.shape)
     assert np.mean(lit_mask(frame) == model) > 0.995  # speckle: a pixel or two below
-    assert np.mean(lit_mask(4000.0 - frame) == ~model) > 0.995
+    backlit = np.where(model, 200.0, 3000.0) * rng.gamma(30.0, 1 / 30.0, model.shape)
+    assert np.mean(lit_mask(backlit) == ~model) > 0.995
