@@ -9,7 +9,8 @@ the commands say what they masked (:func:`border_report`).
 
 A line (row or column) belongs to the border when it is dark almost all along (its 90th
 percentile within :data:`DARK_SHARE` of the frame's range above its darkest level, the
-0.1th percentile) and every line between it and the edge is too; at most
+0.1th percentile, itself at most :data:`DARK_LEVEL` of the lit level) and every line
+between it and the edge is too; at most
 :data:`MAX_BORDER_SHARE` of the frame's height or width is taken from each side. Dark
 background along an edge is masked too, which costs nothing: no face is seen there.
 """
@@ -20,7 +21,7 @@ import warnings
 
 import numpy as np
 
-__all__ = ["DARK_SHARE", "MAX_BORDER_SHARE", "border_report", "dark_border",
+__all__ = ["DARK_LEVEL", "DARK_SHARE", "MAX_BORDER_SHARE", "border_report", "dark_border",
            "mask_dark_border"]
 
 #: A border line's 90th percentile lies within this share of the frame's range (0.1th to
@@ -28,6 +29,10 @@ __all__ = ["DARK_SHARE", "MAX_BORDER_SHARE", "border_report", "dark_border",
 DARK_SHARE = 0.02
 #: At most this share of the frame's rows (columns) is taken from each side.
 MAX_BORDER_SHARE = 0.05
+#: The frame's darkest level must be at most this share of its lit level (99th
+#: percentile) for a border to be looked for: light frames have one (no light: a few
+#: counts, or the black level); a ramp or a field of other values has none.
+DARK_LEVEL = 0.1
 
 
 def dark_border(image) -> tuple[int, int, int, int]:
@@ -49,8 +54,8 @@ def dark_border(image) -> tuple[int, int, int, int]:
     if fin.size == 0:
         return 0, 0, 0, 0
     low, high = np.percentile(fin, [0.1, 99.0])
-    if not high > low:  # a frame of one level: no border to tell
-        return 0, 0, 0, 0
+    if not (high > 0 and 0 <= low <= DARK_LEVEL * high):
+        return 0, 0, 0, 0  # no dark level to tell (one level, a ramp, signed values)
     limit = low + DARK_SHARE * (high - low)
 
     def side(lines: np.ndarray) -> int:

@@ -56,8 +56,11 @@ def test_dark_border_found_and_only_it():
     scene[:30, :200] = 3.0
     scene[100:140, 100:160] = 2.0
     assert dark_border(scene) == (0, 0, 0, 0)
-    # a frame of one level: none
+    # a frame of one level, a ramp (its first row the darkest), signed values: no dark
+    # level, no border
     assert dark_border(np.full((50, 60), 7.0)) == (0, 0, 0, 0)
+    assert dark_border(np.linspace(1.0, 2.0, 72 * 96).reshape(72, 96)) == (0, 0, 0, 0)
+    assert dark_border(np.linspace(-1.0, 1.0, 72 * 96).reshape(72, 96)) == (0, 0, 0, 0)
 
 
 def test_map_masks_the_dark_border(tmp_path, capsys):
