@@ -148,6 +148,8 @@ def footprint_fit(camera: Camera, image, caster, *, bounds=None,
     if lit is None:  # nothing to compare with: not checked
         return FootprintFit(1.0, float("nan"), float("nan"), None, None)
     lit = _coarse(lit, cell)
+    if lit.shape != (coarse.height, coarse.width):  # another size: told by the mapping
+        return FootprintFit(1.0, float("nan"), float("nan"), None, None)
     _, dirs = coarse.rays()
 
     def footprint(s: float) -> np.ndarray:
@@ -183,8 +185,8 @@ def check_footprint(camera: Camera, image, caster, camera_path, image_path, mesh
     if fit.overlap >= POOR:
         return None
     where = (f"{camera_path} on {image_path}: the model's footprint covers "
-             f"{100 * fit.footprint_share:.1f}% of the frame and overlaps its lit part "
-             f"({100 * fit.lit_share:.0f}% of it) by {100 * fit.overlap:.0f}%")
+             f"{100 * fit.footprint_share:.1f}% of the frame and overlaps the frame's lit "
+             f"part ({100 * fit.lit_share:.0f}% of the frame) by {100 * fit.overlap:.0f}%")
     if fit.scale is not None and fit.scaled_overlap >= GOOD and \
             fit.scaled_overlap >= 2.0 * fit.overlap:
         readings = []
