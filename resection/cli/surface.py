@@ -221,7 +221,7 @@ def run_map(args: argparse.Namespace) -> int:
         level = level_of(raw.dtype, args.saturation)
         img, sat = mask_saturated(raw, level)  # unknown: in no value
         if not args.keep_border:  # the frame's dark border: no light, in no value
-            img, border = mask_dark_border(img)
+            img, border = mask_dark_border(img, inplace=True)
             line = border_report(border, path)
             if line:
                 print(f"map: {line}")
@@ -326,7 +326,7 @@ class _Saturated:
         img, sat = mask_saturated(self.src[i], self.level)
         self.count += int(sat.sum())
         if not self.keep_border:
-            img, b = mask_dark_border(img)
+            img, b = mask_dark_border(img, inplace=True)
             self.border = tuple(max(x, y) for x, y in zip(self.border, b, strict=True))
         return img
 
@@ -385,7 +385,7 @@ def _run_merge(args: argparse.Namespace, names: list) -> int:
         level = level_of(raw.dtype, args.saturation)
         img, sat = mask_saturated(raw, level)
         if not args.keep_border:  # the frame's dark border: no light, in no value
-            img, border = mask_dark_border(img)
+            img, border = mask_dark_border(img, inplace=True)
             line = border_report(border, p)
             if line:
                 print(f"map: {line}")

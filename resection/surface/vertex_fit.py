@@ -287,15 +287,24 @@ def _clamp_to_support(M, pattern, X, res) -> None:
     res : (V, K) float64
         ``M @ X``, clamped in place.
     """
-    counts = np.diff(M.indptr)
-    rows = np.repeat(np.arange(M.shape[0]), counts)
-    keep = pattern[M.indices] & (M.data != 0)
-    r, c = rows[keep], M.indices[keep]
-    if r.size == 0:
-        return
-    starts = np.flatnonzero(np.r_[True, r[1:] != r[:-1]])  # rows are sorted in CSR order
-    vals = X[c]
-    lo = np.minimum.reduceat(vals, starts, axis=0)
-    hi = np.maximum.reduceat(vals, starts, axis=0)
-    v = r[starts]
-    res[v] = np.clip(res[v], lo, hi)
+    _clamp_rows(M.indptr, M.indices, M.data, np.ascontiguousarray(pattern, dtype=np.bool_),
+                np.ascontiguousarray(X), res)
+
+
+@numba.njit(cache=True, nogil=True)
+def _clamp_rows(indptr, indices, data, pattern, X, res):  # pragma: no cover - compiled
+    """One pass over the rows of a CSR matrix: ``res[v, k]`` clipped to the smallest and
+    largest ``X[f, k]`` of the valued faces ``f`` with a non-zero entry in row ``v``."""
+    for v in range(indptr.size - 1):
+        a, b = indptr[v], indptr[v + 1]
+        for k in range(X.shape[1]):
+            lo, hi, seen = np.inf, -np.inf, False
+            for p in range(a, b):
+                f = indices[p]
+                if pattern[f] and data[p] != 0.0:
+                    x = X[f, k]
+                    lo = min(lo, x)
+                    hi = max(hi, x)
+                    seen = True
+            if seen:
+                res[v, k] = min(max(res[v, k], lo), hi)
