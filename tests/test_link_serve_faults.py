@@ -166,3 +166,34 @@ def test_save_and_quit_stops_the_server(scene, tmp_path):
     assert proc.returncode == 0, err
     assert "saved; server stopped" in out
     assert (tmp_path / "l.csv").is_file() and (tmp_path / "c.json").is_file()
+
+
+def test_connections_beyond_the_limit_are_refused_not_queued(scene, tmp_path):
+    """Slow clients cannot hold every thread: beyond MAX_CONNECTIONS open connections a new
+    one is answered 503 at once; once they close, the server answers again."""
+    from resection.markers.link_server import MAX_CONNECTIONS
+
+    _, paths = scene
+    server, errors = _serve(_session(paths, tmp_path), request_timeout=5.0)
+    port, tok = server.server_address[1], server.token
+    held = [socket.create_connection(("127.0.0.1", port)) for _ in range(MAX_CONNECTIONS)]
+    try:
+        time.sleep(0.3)  # every held connection taken by its thread
+        t0 = time.monotonic()
+        assert _raw(port, b"", wait=3.0).startswith(b"HTTP/1.1 503")
+        assert time.monotonic() - t0 < 2.0
+    finally:
+        for c in held:
+            c.close()
+    try:
+        deadline = time.monotonic() + 5.0
+        while True:  # the threads notice the closed connections
+            reply = _post(port, tok, json.dumps({"links": []}).encode())
+            if reply.startswith(b"HTTP/1.1 200") or time.monotonic() > deadline:
+                break
+            time.sleep(0.1)
+        assert reply.startswith(b"HTTP/1.1 200"), reply[:60]
+        assert errors == []
+    finally:
+        server.shutdown()
+        server.server_close()

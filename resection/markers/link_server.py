@@ -14,6 +14,7 @@ standard library's :class:`http.server.ThreadingHTTPServer`:
 * JSON endpoints: ``GET /api/session``, ``/api/candidates``, ``/api/plan``, ``/api/frame``
   (the frame as uint16), ``POST /api/solve`` and ``/api/save`` with ``{"links": [[id,
   candidate], ...]}`` (``"quit": true`` with a save: stop the server once it is written);
+* at most :data:`MAX_CONNECTIONS` connections are served at once (more: 503 and closed);
 * a request is read within :data:`REQUEST_TIMEOUT` seconds (a body shorter than its
   ``Content-Length``, an idle connection: closed, 408 when a reply can still be sent),
   a body is at most 1 MiB of JSON, nested at most a few levels (deeper: 400, never a
@@ -47,6 +48,8 @@ _MAX_BODY = 1 << 20  # bytes of a POST body
 _MAX_DEPTH = 8  # nesting of a POST body: {"links": [[id, candidate], ...]} is 3
 #: Seconds a connection may take to send a request, or stay idle between requests.
 REQUEST_TIMEOUT = 30.0
+#: Connections served at once (a page opens a few): more are answered 503 and closed.
+MAX_CONNECTIONS = 32
 _BAD_BODY = "expected a JSON body {\"links\": [...]}"
 _HOSTS = ("127.0.0.1", "localhost")
 
@@ -231,12 +234,32 @@ class LinkServer(ThreadingHTTPServer):
         self.request_timeout = float(request_timeout)
         self.saved_and_quit = False
         self.lock = threading.Lock()
+        self._slots = threading.BoundedSemaphore(MAX_CONNECTIONS)
         try:
             super().__init__(("127.0.0.1", port), _Handler)
         except OSError as exc:  # port taken, or not ours to take
             raise InputError(f"port {port}: cannot listen on 127.0.0.1 "
                              f"({exc.strerror or exc}); give another --port, or 0 for a free "
                              "one") from None
+
+    def process_request(self, request, client_address):
+        """Serve the connection on a thread of its own, or answer 503 when
+        :data:`MAX_CONNECTIONS` are open already (slow clients cannot take every thread)."""
+        if not self._slots.acquire(blocking=False):
+            try:
+                request.sendall(b"HTTP/1.1 503 Service Unavailable\r\nContent-Length: 0\r\n"
+                                b"Connection: close\r\n\r\n")
+            except OSError:
+                pass
+            self.shutdown_request(request)
+            return
+        super().process_request(request, client_address)
+
+    def process_request_thread(self, request, client_address):
+        try:
+            super().process_request_thread(request, client_address)
+        finally:
+            self._slots.release()
 
     @property
     def url(self) -> str:
