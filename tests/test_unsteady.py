@@ -305,6 +305,16 @@ def test_synthetic_run_recovers_dcp_and_removes_the_blocks_light(run, capsys):
     flat_t = np.fromfile(run.folder / "pressure_transpose", "<f4").reshape(N, T)
     np.testing.assert_array_equal(flat, d)
     np.testing.assert_array_equal(flat_t, d.T)
+    # ... and the rest of the set uPSP's scripts read (tests/test_unsteady_flat.py): the node
+    # count from X's size, as upsp-kulite-comparison takes it
+    from selfillum.unsteady.output import FLAT_FILES
+
+    for name in FLAT_FILES[2:]:
+        assert (run.folder / name).stat().st_size == 4 * N, name
+    np.testing.assert_array_equal(np.fromfile(run.folder / "X", "<f4"),
+                                  pts[:, 0].astype(np.float32))
+    cover = np.fromfile(run.folder / "coverage", "<f4")
+    assert np.all(cover[np.isfinite(d).any(axis=0)] >= 1)  # a node with data is seen
     # the XDMF sidecar: every frame a hyperslab row of /dcp
     root = ET.parse(ours.with_suffix(".xdmf")).getroot()
     frames = root.findall(".//Grid[@CollectionType='Temporal']/Grid")

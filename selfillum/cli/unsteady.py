@@ -168,8 +168,10 @@ def register(sub) -> None:
                    help="a camera's 'resection track' output instead of tracking here; "
                    "repeat per camera")
     p.add_argument("--upsp-flat", action="store_true",
-                   help="also write uPSP's flat 'pressure' and 'pressure_transpose' files "
-                   "next to OUT.h5")
+                   help="also write the flat files of uPSP's psp_process that its scripts "
+                   "read next to OUT.h5: pressure, pressure_transpose, X, Y, Z and per-node "
+                   "avg, rms, gain, steady_state, model_temp, coverage, intensity_avg, "
+                   "intensity_rms, intensity_ratio_0 (docs/unsteady.md)")
     p.add_argument("--psd", metavar="N1,N2,...",
                    help="probe nodes (grid file order, from 0): their Welch PSD of dCp is "
                    "stored (/psd/probe_psd) and plotted (OUT_psd.png)")
