@@ -5,7 +5,7 @@ Unsteady PSP: the dCp RMS and PSD maps
 The maps ``selfillum unsteady`` makes of a run, here of the synthetic run of
 :func:`scenes.unsteady_run.make_unsteady_run` (a plate with a block on it, vibrating; a
 120 Hz tone and a 70 Hz convected wave on the plate, a 200 Hz tone on the block) read
-from its uPSP deck with the options uPSP decks use: the dCp RMS over the run at every grid
+from its uPSP deck (with the options uPSP decks use): the dCp RMS over the run at every grid
 node, and the power spectral density of dCp per node in log-spaced frequency bands.
 """
 
@@ -25,8 +25,6 @@ from selfillum.unsteady.plots import node_to_faces, plot_rms
 tmp = tempfile.TemporaryDirectory()
 work = Path(tmp.name)
 run = make_unsteady_run(work / "run", frames=96, faces=1200)
-deck_text = run.deck.read_text().replace("target_patcher = none", "target_patcher = polynomial")
-run.deck.write_text(deck_text.replace("registration = none", "registration = pixel"))
 config = config_from_deck(read_deck(run.deck), paint_calibration=run.paint, steady=run.steady,
                           fps=run.fps, out=work / "out.h5", plots=False)
 result = run_unsteady(config)

@@ -156,15 +156,13 @@ show(work / "frame0_view.png", "resection view: frame 0 on the grid")
 # %%
 # Run unsteady
 # ------------
-# ``selfillum unsteady`` is uPSP's ``psp_process``: it reads the deck as it is. We point
-# the deck's camera at the solved pose and use the options uPSP decks use (targets patched
-# by polynomials, pixel registration, cameras averaged). Every frame is mapped, the
+# ``selfillum unsteady`` is uPSP's ``psp_process``: it reads the deck as it is, with the
+# options uPSP decks use (targets patched by polynomials, pixel registration, cameras
+# averaged). We point the deck's camera at the solved pose. Every frame is mapped, the
 # self-illumination of the block on the plate is removed frame by frame, and Phase 2 turns
 # intensities into dCp with the paint calibration and the tunnel's conditions.
 deck = run.deck.read_text()
 deck = deck.replace(f"$dir/{run.calibration.name}", str(work / "pose.json"))
-deck = deck.replace("target_patcher = none", "target_patcher = polynomial")
-deck = deck.replace("registration = none", "registration = pixel")
 (work / "run.inp").write_text(deck)
 (work / "out").mkdir()
 print(deck)
