@@ -120,11 +120,12 @@ def write_pages(out: Path) -> list[Path]:
     return written
 
 
-def _builder_inited(app) -> None:
+def _config_inited(app, config) -> None:
+    # at config-inited, before Sphinx lists the source files: the pages written here are
+    # then sources of this build, and autosummary (at builder-inited) writes their stubs
     write_pages(Path(app.srcdir) / "api")
 
 
 def setup(app):
-    # before autosummary (priority 500) writes the stub pages of what these pages list
-    app.connect("builder-inited", _builder_inited, priority=100)
+    app.connect("config-inited", _config_inited)
     return {"parallel_read_safe": True, "parallel_write_safe": True}
