@@ -88,9 +88,16 @@ def make_ir_run(folder: str | os.PathLike, *, frames: int = 60, fps: float = 50.
                 width: int = 320, height: int = 240, nx: int = 61, nphi: int = 48,
                 q_max: float = 3.0e4, tau: float = 0.1, eps_n: float = 0.95,
                 marker_ratio: float = 2.0, noise: float = 2.0, settle_px: float = 8.0,
-                settle_s: float = 0.8, seed: int = 0) -> IRRun:
+                settle_s: float = 0.8, tsp: dict | None = None, seed: int = 0) -> IRRun:
     """Write the run into ``folder`` (created): the Plot3D grid, ``.tgts``, the NPY stack
     (uint16), the camera, ``R.json``, ``S.json``, ``run.wtd``; return its paths and truth.
+
+    ``tsp = {"E_over_R": K}``: a TSP run instead. The paint (a texture of +-10 % on the
+    surface, 20,000 counts at ``T_ref = 295 K``) follows the Arrhenius law
+    ``I = I_ref exp(E_over_R (1 / T - 1 / T_ref))``, the markers are dark dots (15 % of the
+    paint, heating as the model: ``marker_ratio`` 1), ``noise`` counts of read noise; the
+    wind-off image ``wind_off.npy`` is the paint at 295 K in the calibration's pose; the
+    calibration ``tsp.json`` is written instead of ``R.json`` (``radiometry`` names it).
     """
     from resection.io.cameras import write_camera
     from resection.io.meshes import write_plot3d
@@ -187,6 +194,18 @@ def make_ir_run(folder: str | os.PathLike, *, frames: int = 60, fps: float = 50.
 
     n_eps = (2.0 - eps_n + 2.0 * np.sqrt(1.0 - eps_n)) / eps_n
     Uw = U(T_wall)
+    if tsp is not None:
+        marker_ratio = 1.0
+
+    def texture(p):  # the TSP paint's non-uniformity, fixed on the surface
+        return 1.0 + 0.1 * np.sin(40.0 * p[:, 0]) * np.cos(3.0 * np.arctan2(p[:, 2], p[:, 1]))
+
+    def tsp_image(smap, p, hit, Tpix, dist):
+        ratio = np.exp(tsp["E_over_R"] * (1.0 / Tpix - 1.0 / T_i))
+        sig = np.zeros(height * width)
+        sig[hit] = 20000.0 * texture(p) * ratio * np.where(dist <= 0.5 * mdia, 0.15, 1.0)
+        return sig.reshape(height, width) + 100.0 + noise * rng.standard_normal((height,
+                                                                                 width))
     video = np.empty((frames, height, width), np.uint16)
     caster = RayCaster(mesh)
     for k in range(frames):  # frames; the renderer is vectorised over pixels
@@ -198,6 +217,11 @@ def make_ir_run(folder: str | os.PathLike, *, frames: int = 60, fps: float = 50.
         ratio = np.where(dist <= 0.5 * mdia, marker_ratio, 1.0)
         Tt, _ = truth_temperature(q0_at(p), times[k:k + 1], e, tau, T_i)
         Tpix = T_i + (Tt[0] - T_i) * ratio
+        if tsp is not None:
+            img = tsp_image(smap, p, hit, Tpix, dist)
+            img[:3, :3] = 70000.0
+            video[k] = np.clip(np.rint(img), 0, 65535).astype(np.uint16)
+            continue
         C = -cams[k].R.T @ cams[k].t
         v = C[None, :] - p
         cosv = np.einsum("ij,ij->i", slope_normal(p), v) / np.linalg.norm(v, axis=1)
@@ -209,9 +233,20 @@ def make_ir_run(folder: str | os.PathLike, *, frames: int = 60, fps: float = 50.
         video[k] = np.clip(np.rint(img), 0, 65535).astype(np.uint16)
     np.save(out / "ir.npy", video)
     write_camera(out / "cam01.json", cam0)
-    (out / "R.json").write_text(json.dumps({
-        **PLANCK, "emissivity": {"model": "fresnel", "normal": eps_n},
-        "reflected_temperature": T_wall, "range_K": [250.0, 500.0]}, indent=1))
+    if tsp is None:
+        (out / "R.json").write_text(json.dumps({
+            **PLANCK, "emissivity": {"model": "fresnel", "normal": eps_n},
+            "reflected_temperature": T_wall, "range_K": [250.0, 500.0]}, indent=1))
+    else:
+        smap = SurfaceMap(mesh, cam0, max_obliqueness=None, caster=caster)
+        pts = smap.points.reshape(-1, 3)
+        hit = np.flatnonzero(np.isfinite(pts[:, 0]))
+        p = pts[hit]
+        dist = np.linalg.norm(p[:, None, :] - mpts[None, :, :], axis=2).min(axis=1)
+        off = tsp_image(smap, p, hit, np.full(len(p), T_i), dist)
+        np.save(out / "wind_off.npy", np.clip(np.rint(off), 0, 65535).astype(np.uint16))
+        (out / "tsp.json").write_text(json.dumps({"model": "arrhenius", "E_over_R":
+                                                  tsp["E_over_R"], "T_ref": T_i}))
     (out / "S.json").write_text(json.dumps(SUBSTRATE, indent=1))
     (out / "run.wtd").write_text("# MACH\tQ\tPS\tTTF\n2.0\t1200.0\t300.0\t200.0\n")
     # ------------------------------------------------------------------ truth at nodes
@@ -222,5 +257,5 @@ def make_ir_run(folder: str | os.PathLike, *, frames: int = 60, fps: float = 50.
     cos0 = np.einsum("ij,ij->i", slope_normal(pn), v0) / np.linalg.norm(v0, axis=1)
     near = np.linalg.norm(pn[:, None, :] - mpts[None, :, :], axis=2).min(axis=1) < mdia
     return IRRun(out, grid_path, out / "model.tgts", out / "ir.npy", out / "cam01.json",
-                 out / "R.json", out / "S.json", out / "run.wtd", fps, times, qn, Tn,
-                 q0_at(pn), cos0, near, poses, shift)
+                 out / ("R.json" if tsp is None else "tsp.json"), out / "S.json",
+                 out / "run.wtd", fps, times, qn, Tn, q0_at(pn), cos0, near, poses, shift)

@@ -148,3 +148,26 @@ def test_interrupted_run_resumes(tiny, tmp_path, monkeypatch):
     with h5py.File(res.out) as a, h5py.File(fresh.out) as b:
         np.testing.assert_array_equal(a["heat_flux"][()], b["heat_flux"][()])
     assert not (tmp_path / "r.h5.work").exists()
+
+
+@pytest.mark.slow
+def test_tsp_run_heat_flux_within_5_percent(tmp_path):
+    """TSP: dark markers, the Arrhenius paint, the wind-off image in the calibration's
+    pose; the same known heat flux."""
+    run = make_ir_run(tmp_path / "scene", frames=45, width=240, height=180, nx=41, nphi=32,
+                      noise=20.0, tsp={"E_over_R": 2500.0})
+    cfg = ThermalConfig(grid=run.grid, cameras=[CameraInput(1, run.video, run.calibration)],
+                        out=tmp_path / "tsp.h5", substrate=run.substrate,
+                        targets=run.targets, tsp_calibration=run.radiometry,
+                        wind_off=[run.folder / "wind_off.npy"], fps=run.fps, plots=False)
+    res = run_thermal(cfg)
+    assert res.tracked_failed == 0  # dark dots: seen from the first frame
+    with h5py.File(res.out) as f:
+        T, q = f["temperature"][()], f["heat_flux"][()]
+        assert f.attrs["mode"] == "tsp"
+    obl = np.degrees(np.arccos(np.clip(run.cos0, -1, 1)))
+    sel0 = (obl < 60) & ~run.near_marker
+    sel = sel0 & np.isfinite(q[6:]).all(axis=0)
+    assert sel.sum() > 0.8 * sel0.sum()
+    assert np.percentile(np.abs(T - run.T)[:, sel], 95) < 0.5
+    assert np.percentile(np.abs(q - run.q)[6:, sel] / run.q0[sel], 95) < 0.05

@@ -60,7 +60,10 @@ def _cmd_thermal(args) -> int:
         print(f"saturated: {res.saturated_pixels} pixels masked (unseen)")
     if res.out_of_range:
         print(f"calibration range: {res.out_of_range} node samples outside it (NaN)")
-    print(f"run: {res.frames_per_s:.1f} frames/s end to end")
+    tm = res.timings
+    print(f"run: {res.frames_per_s:.1f} frames/s end to end; set-up {tm['setup']:.1f} s "
+          f"(inputs, tracking, view factors), phase 1 {tm['phase1']:.1f} s, phase 2 and "
+          f"outputs {tm['phase2']:.1f} s")
     print("wrote " + ", ".join(str(p) for p in res.files))
     return 0
 
@@ -111,8 +114,10 @@ def register(sub) -> None:
     p.add_argument("--out", required=True, metavar="OUT.h5", help="output HDF5 file")
     p.add_argument("--registration", choices=REGISTRATIONS, default="track",
                    help="track (default), first-frame or none")
-    p.add_argument("--target-patcher", choices=("none", "polynomial"), default="polynomial",
-                   help="markers patched (polynomial, default) or left out (none)")
+    p.add_argument("--target-patcher", choices=("none", "polynomial"), default="none",
+                   help="markers left out of the node values (none, default: plaster is not "
+                   "the model's material; frames mapped by sparse products) or patched by "
+                   "uPSP's polynomial (every frame mapped the full way, slower)")
     p.add_argument("--overlap", choices=OVERLAPS, default="average_view",
                    help="cameras combined per node (default average_view)")
     p.add_argument("--oblique-angle", type=float, default=70.0, metavar="DEG",

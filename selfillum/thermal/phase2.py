@@ -24,7 +24,12 @@ def ir_temperature(rad, raw, values, rho_h, cosines, wall):
     H = wall[None, :] * Uw
     if values is not None and rho_h > 0:
         H = H + (raw - values) / rho_h
-    eps = rad.emissivity(np.arccos(cosines))
+    if rad.emissivity.directional:  # at the seen samples only
+        fin = np.isfinite(raw) & (cosines > 0)
+        eps = np.ones(raw.shape)
+        eps[fin] = rad.emissivity(np.arccos(cosines[fin]))
+    else:
+        eps = rad.emissivity.value
     with np.errstate(divide="ignore", invalid="ignore"):
         U = (raw - (1.0 - eps) * H) / eps
     T = pl.temperature(np.where(cosines > 0, U, np.nan))
@@ -76,26 +81,34 @@ def run_phase2(s1, f, *, mode, rad, cal, off, rho_h, geom, centres, sub, method,
         for a in range(0, N, block):  # blocks of nodes (each a (T, block) array)
             b = min(a + block, N)
             v = decode_columns(vals[:, a:b], vs)
-            if mode == "ir":
-                raw = decode_columns(s1["raw"][:, a:b], rs) if has_raw else v
-                cos = view_cosines(centres, geom.points[a:b], geom.normals[a:b])
-                Tb, nb = ir_temperature(rad, raw, v if has_raw else None, rho_h, cos,
-                                        geom.wall[a:b])
-            else:
-                Tb, nb = tsp_temperature(cal, v, off[a:b])
-            bad += nb
-            Tf, ok = fill_gaps(Tb)
-            qb = np.full(Tb.shape, np.nan)
-            if ok.any():
-                qb[:, ok] = heat_flux(Tf[:, ok], dt, sub, method, h=h)
-            qb[np.isnan(Tb)] = np.nan
+            cols = np.flatnonzero(np.isfinite(v).any(axis=0))  # nodes seen at all
+            Tb = np.full(v.shape, np.nan)
+            qb = np.full(v.shape, np.nan)
+            if cols.size:
+                v = v[:, cols]
+                if mode == "ir":
+                    raw = decode_columns(s1["raw"][:, a:b], rs)[:, cols] if has_raw else v
+                    nodes = a + cols
+                    cos = view_cosines(centres, geom.points[nodes], geom.normals[nodes])
+                    Tc, nb = ir_temperature(rad, raw, v if has_raw else None, rho_h, cos,
+                                            geom.wall[nodes])
+                else:
+                    Tc, nb = tsp_temperature(cal, v, off[a:b][cols])
+                bad += nb
+                Tf, ok = fill_gaps(Tc)
+                qc = np.full(Tc.shape, np.nan)
+                if ok.any():
+                    qc[:, ok] = heat_flux(Tf[:, ok], dt, sub, method, h=h)
+                qc[np.isnan(Tc)] = np.nan
+                Tb[:, cols], qb[:, cols] = Tc, qc
             seen[a:b] = np.isfinite(qb).any(axis=0)
-            dT[:, a:b] = Tb.astype(np.float32)
-            dq[:, a:b] = qb.astype(np.float32)
-            if flow is not None:
-                hb = flow.coefficient(qb, Tb)
-                dh[:, a:b] = hb.astype(np.float32)
-                dst[:, a:b] = (hb / flow.rho_u_cp).astype(np.float32)
+            if cols.size:  # chunks of nodes never seen stay unwritten (the fill is NaN)
+                dT[:, a:b] = Tb.astype(np.float32)
+                dq[:, a:b] = qb.astype(np.float32)
+                if flow is not None:
+                    hb = flow.coefficient(qb, Tb)
+                    dh[:, a:b] = hb.astype(np.float32)
+                    dst[:, a:b] = (hb / flow.rho_u_cp).astype(np.float32)
             sel = (probes >= a) & (probes < b)
             pT[:, sel] = Tb[:, probes[sel] - a]
             pq[:, sel] = qb[:, probes[sel] - a]
