@@ -30,8 +30,9 @@ class ThermalConfig:
     model's; and Phase 1 then maps frames by sparse products), ``polynomial`` patches them
     (uPSP's patch; every frame the full way). ``marker_polarity``: the markers on the
     images (IR: plaster holes heat faster, ``bright``). ``probes``: node numbers whose T
-    and q histories are drawn; ``picture_times``: times (s) of the pictures of q on the model. ``si``: reflected
-    light of the model's own parts (view factors of ``rays`` a face) removed.
+    and q histories are drawn; ``picture_times``: times (s) of the pictures of q on the
+    model. ``si``: reflected light of the model's own parts (view factors of ``rays`` a
+    face) removed.
     """
 
     grid: Path
