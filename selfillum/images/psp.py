@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import csv
 import os
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -120,12 +121,26 @@ def read_taps(path: str | os.PathLike, positions=None) -> Taps:
 def _wtd_taps(path: str, positions) -> Taps:
     """Taps of a ``.wtd``'s ``# Tap CP`` table, named and placed through ``positions``."""
     from resection.io.markers import MarkerSet, read_markers
-    from resection.io.wtd import read_wtd, tap_candidates, tap_name
+    from resection.io.wtd import NO_DATA_CP, read_wtd, tap_candidates, tap_name
 
     wtd = read_wtd(path)
     if not wtd.taps:
+        if wtd.no_data_taps:
+            raise InputError(f"{path}: all {len(wtd.no_data_taps)} taps hold the no-data Cp "
+                             f"{NO_DATA_CP} (no tap was read for this point)")
         raise InputError(f"{path}: no '# Tap CP' table (no taps)")
+    if wtd.wind_off:
+        raise InputError(f"{path}: PS = Q = 0, a wind-off point ({wtd.label}); the taps' "
+                         "Cp needs the wind-on point's PS and Q")
     q, ps = wtd.value("Q"), wtd.value("PS")
+    if not q > 0:
+        raise InputError(f"{path}: Q = {q:g}; the taps' Cp needs a dynamic pressure > 0")
+    if wtd.no_data_taps:
+        warnings.warn(f"{path}: {len(wtd.no_data_taps)} tap(s) hold the no-data Cp "
+                      f"{NO_DATA_CP} and are left out (taps "
+                      f"{', '.join(str(n) for n in wtd.no_data_taps[:10])}"
+                      f"{', ...' if len(wtd.no_data_taps) > 10 else ''})",
+                      UserWarning, stacklevel=2)
     if positions is None:
         raise InputError(f"{path}: a .wtd numbers its taps; give their positions "
                          "(--tap-positions MODEL.tgts)")
