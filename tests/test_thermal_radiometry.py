@@ -128,3 +128,37 @@ def test_bad_radiometry_one_line(tmp_path, change, words):
         read_radiometry(p)
     msg = str(ei.value)
     assert str(p) in msg and words in msg and "\n" not in msg
+
+
+def test_table_calibration_against_the_planck_form(tmp_path):
+    """A table of a black body's counts every 5 K (as a calibration bench gives it),
+    against the closed form it was sampled from (itself checked against flirpy above)."""
+    T = np.arange(250.0, 500.1, 5.0)
+    p = _write(tmp_path, {"table": {"temperature_K": list(T),
+                                    "counts": [float(c) for c in PL_FORM.signal(T)]},
+                          "O": PL_FORM.O, "emissivity": 0.9, "reflected_temperature": 295.0})
+    rad = read_radiometry(p)
+    Tq = np.linspace(251.0, 499.0, 997)
+    np.testing.assert_allclose(rad.planck.temperature(PL_FORM.radiance(Tq)), Tq, atol=2e-3)
+    np.testing.assert_allclose(rad.planck.radiance(Tq), PL_FORM.radiance(Tq), rtol=2e-4)
+    assert np.isnan(rad.planck.temperature(PL_FORM.radiance(520.0)))  # no extrapolation
+    ref = Radiometry(PL_FORM, Emissivity("constant", 0.9), 295.0)
+    counts = PL_FORM.signal(np.array([300.0, 350.0, 420.0]))
+    np.testing.assert_allclose(rad.temperature(counts), ref.temperature(counts), atol=2e-3)
+
+
+PL_FORM = Planck(620420.0, 1374.5, 1.35, 6646.0)
+
+
+@pytest.mark.parametrize("table, words", [
+    ({"temperature_K": [300, 290], "counts": [1e4, 2e4]}, "must both increase"),
+    ({"temperature_K": [300, 310], "counts": [1e4]}, "as many temperature_K as counts"),
+    ({"temperature_K": [-1, 310], "counts": [1e4, 2e4]}, "-1.0 K is below 0 K"),
+    ({"temperature_K": [300, 310], "counts": [1000, 2e4]}, "at or below O"),
+])
+def test_bad_table_one_line(tmp_path, table, words):
+    p = _write(tmp_path, {"table": table, "O": 6646.0, "emissivity": 0.9,
+                          "reflected_temperature": 295.0})
+    with pytest.raises(InputError) as ei:
+        read_radiometry(p)
+    assert str(p) in str(ei.value) and words in str(ei.value)

@@ -6,6 +6,7 @@ any heavy step; an interrupted run resumed."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -14,6 +15,7 @@ import h5py
 import numpy as np
 import pytest
 
+from resection.errors import InputError
 from scenes.ir_run import make_ir_run
 from selfillum.cli.main import main
 from selfillum.thermal import CameraInput, ThermalConfig, run_thermal
@@ -172,3 +174,36 @@ def test_tsp_run_heat_flux_within_5_percent(tmp_path):
     # the ratio carries the tracked poses' error (0.4 px) times the paint's texture: 0.5 K
     assert np.percentile(np.abs(T - run.T)[:, sel], 95) < 1.0
     assert np.percentile(np.abs(q - run.q)[6:, sel] / run.q0[sel], 95) < 0.05
+
+
+def test_table_radiometry_and_layered_substrate(tiny, tmp_path):
+    """The same run with the camera's calibration as a table (every 5 K) and with a layer
+    on the substrate: the table gives the Planck form's temperatures; a layered substrate
+    takes the impulse response and refuses Cook-Felderman by name."""
+    from scenes.ir_run import PLANCK
+    from selfillum.thermal.radiometry import Planck
+
+    pl = Planck(PLANCK["R"], PLANCK["B"], PLANCK["F"], PLANCK["O"])
+    d = json.loads(Path(tiny.radiometry).read_text())
+    Tt = np.arange(250.0, 500.1, 5.0)
+    table = {"table": {"temperature_K": list(Tt), "counts": list(pl.signal(Tt))},
+             "O": PLANCK["O"], "emissivity": d["emissivity"],
+             "reflected_temperature": d["reflected_temperature"]}
+    rj = tmp_path / "table.json"
+    rj.write_text(json.dumps(table))
+    a = run_thermal(_config(tiny, tmp_path / "planck.h5"))
+    b = run_thermal(dataclasses.replace(_config(tiny, tmp_path / "table.h5"), radiometry=rj))
+    with h5py.File(a.out) as fa, h5py.File(b.out) as fb:
+        Ta, Tb = fa["temperature"][()], fb["temperature"][()]
+    fin = np.isfinite(Ta)
+    assert fin.any() and np.array_equal(fin, np.isfinite(Tb))
+    assert np.max(np.abs(Ta[fin] - Tb[fin])) < 5e-3
+    sj = tmp_path / "layers.json"
+    sj.write_text(json.dumps({"layers": [{"rho": 1200, "c": 1500, "k": 0.2,
+                                          "thickness": 30e-6}],
+                              "substrate": json.loads(Path(tiny.substrate).read_text())}))
+    c = run_thermal(dataclasses.replace(_config(tiny, tmp_path / "layer.h5"), substrate=sj))
+    assert c.method == "impulse"
+    with pytest.raises(InputError, match="Cook-Felderman needs one semi-infinite"):
+        run_thermal(dataclasses.replace(_config(tiny, tmp_path / "cf.h5"), substrate=sj,
+                                        method="cook-felderman"))

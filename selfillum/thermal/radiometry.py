@@ -34,7 +34,8 @@ import numpy as np
 
 from resection.errors import InputError
 
-__all__ = ["Planck", "Emissivity", "Radiometry", "read_radiometry", "fresnel_emissivity"]
+__all__ = ["Planck", "TableCalibration", "Emissivity", "Radiometry", "read_radiometry",
+           "fresnel_emissivity"]
 
 
 @dataclass(frozen=True)
@@ -96,6 +97,73 @@ class Planck:
         if self.t_range is None:
             return None
         return float(self.signal(self.t_range[0])), float(self.signal(self.t_range[1]))
+
+    def to_dict(self) -> dict:
+        return {"form": "planck", "R": self.R, "B": self.B, "F": self.F, "O": self.O,
+                "range_K": self.t_range}
+
+
+@dataclass(frozen=True)
+class TableCalibration:
+    """A camera's counts of a black body at tabulated temperatures (``temperature_K``
+    increasing, ``counts`` increasing), with ``O`` the counts of no radiance. Between the
+    rows, ``ln(S - O)`` is linear in ``1 / T`` (exact for Wien's law, the Planck form's
+    ``F = 0``); no extrapolation: outside the table there is no temperature (NaN) and
+    counts outside it are refused before a run (``t_range`` is the table's span)."""
+
+    temperature_K: tuple
+    counts: tuple
+    O: float = 0.0  # noqa: E741
+    source: str = "radiometry"
+
+    def __post_init__(self):
+        T = np.asarray(self.temperature_K, float)
+        S = np.asarray(self.counts, float)
+        if T.ndim != 1 or T.size < 2 or T.shape != S.shape:
+            raise InputError(f"{self.source}: table needs as many temperature_K as counts, "
+                             "2 or more")
+        if not (np.all(np.isfinite(T)) and np.all(np.isfinite(S))):
+            raise InputError(f"{self.source}: table holds a value that is not a number")
+        if T[0] <= 0:
+            raise InputError(f"{self.source}: table temperature {T[0]} K is below 0 K")
+        if np.any(np.diff(T) <= 0) or np.any(np.diff(S) <= 0):
+            raise InputError(f"{self.source}: table temperatures and counts must both "
+                             "increase")
+        if S[0] <= self.O:
+            raise InputError(f"{self.source}: table counts {S[0]} at or below O = "
+                             f"{self.O} (the counts of no radiance)")
+
+    @property
+    def t_range(self) -> tuple[float, float]:
+        return float(self.temperature_K[0]), float(self.temperature_K[-1])
+
+    def _xy(self):
+        T = np.asarray(self.temperature_K, float)
+        return -1.0 / T, np.log(np.asarray(self.counts, float) - self.O)
+
+    def radiance(self, T) -> np.ndarray:
+        """``U(T) = S(T) - O`` (counts), NaN outside the table."""
+        x, y = self._xy()
+        xt = -1.0 / np.asarray(T, float)
+        return np.exp(np.interp(xt, x, y, left=np.nan, right=np.nan))
+
+    def signal(self, T) -> np.ndarray:
+        return self.radiance(T) + self.O
+
+    def temperature(self, U) -> np.ndarray:
+        """Temperature (K) of the black-body signal ``U = S - O``; NaN outside the table."""
+        x, y = self._xy()
+        U = np.asarray(U, dtype=np.float64)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lu = np.where(U > 0, np.log(np.where(U > 0, U, 1.0)), np.nan)
+        return -1.0 / np.interp(lu, y, x, left=np.nan, right=np.nan)
+
+    def signal_range(self) -> tuple[float, float]:
+        return float(self.counts[0]), float(self.counts[-1])
+
+    def to_dict(self) -> dict:
+        return {"form": "table", "temperature_K": list(self.temperature_K),
+                "counts": list(self.counts), "O": self.O}
 
 
 def fresnel_emissivity(theta, n: float) -> np.ndarray:
@@ -199,7 +267,7 @@ class Radiometry:
     :class:`Emissivity` and the walls' (reflected) temperature ``reflected_temperature``
     (K)."""
 
-    planck: Planck
+    planck: Planck | TableCalibration
     emissivity: Emissivity = field(default_factory=Emissivity)
     reflected_temperature: float = 293.15
     source: str = "radiometry"
@@ -224,7 +292,9 @@ _EXIF = ("PlanckR1", "PlanckR2", "PlanckB", "PlanckF", "PlanckO")
 
 def read_radiometry(path) -> Radiometry:
     """A radiometry file (JSON): FLIR's ``R``, ``B``, ``F``, ``O`` (or a FLIR file's
-    ``PlanckR1``, ``PlanckR2``, ``PlanckB``, ``PlanckF``, ``PlanckO``), ``emissivity`` (a
+    ``PlanckR1``, ``PlanckR2``, ``PlanckB``, ``PlanckF``, ``PlanckO``; or ``"table":
+    {"temperature_K": [...], "counts": [...]}`` with ``O``: :class:`TableCalibration`),
+    ``emissivity`` (a
     number in (0, 1], or ``{"model": "fresnel", "normal": 0.95}``, ``{"model": "fresnel",
     "n": 1.5}``, ``{"model": "table", "angles_deg": [...], "values": [...]}``),
     ``reflected_temperature`` (K), optionally ``range_K``: ``[Tmin, Tmax]``.
@@ -262,7 +332,19 @@ def read_radiometry(path) -> Radiometry:
         rng = (float(r[0]), float(r[1]))
         if rng[0] <= 0:
             raise InputError(f"{where}: range_K {rng[0]} K is below 0 K")
-    if all(k in d for k in _EXIF) and not any(k in d for k in _REQUIRED):
+    if "table" in d:
+        t = d["table"]
+        if not isinstance(t, dict) or "temperature_K" not in t or "counts" not in t:
+            raise InputError(f"{where}: table needs temperature_K and counts")
+        try:
+            tt = tuple(float(v) for v in t["temperature_K"])
+            cc = tuple(float(v) for v in t["counts"])
+        except (TypeError, ValueError):
+            raise InputError(f"{where}: table values must be numbers") from None
+        if "O" not in d:
+            raise InputError(f"{where}: a table needs O, the counts of no radiance")
+        planck = TableCalibration(tt, cc, num("O"), source=where)
+    elif all(k in d for k in _EXIF) and not any(k in d for k in _REQUIRED):
         planck = Planck(num("PlanckR1") / num("PlanckR2"), num("PlanckB"), num("PlanckF"),
                         -num("PlanckO"), t_range=rng, source=where)
     else:
@@ -280,7 +362,7 @@ def read_radiometry(path) -> Radiometry:
     if tr <= 0:
         raise InputError(f"{where}: reflected_temperature {tr} K is below 0 K")
     unknown = set(d) - set(_REQUIRED) - set(_EXIF) - {"emissivity", "reflected_temperature",
-                                                     "range_K"}
+                                                     "range_K", "table"}
     if unknown:
         raise InputError(f"{where}: unknown key {sorted(unknown)[0]!r}")
     return Radiometry(planck, eps, tr, source=where)

@@ -215,8 +215,7 @@ def run_thermal(cfg: ThermalConfig) -> ThermalResult:
                                                   "layers": [vars(x) for x in sub.layers]})
                 if rad is not None:
                     f.attrs["radiometry"] = json_attr({
-                        "R": rad.planck.R, "B": rad.planck.B, "F": rad.planck.F,
-                        "O": rad.planck.O, "emissivity": vars(rad.emissivity),
+                        **rad.planck.to_dict(), "emissivity": vars(rad.emissivity),
                         "hemispherical_emissivity": 1.0 - rho_h,
                         "reflected_temperature": rad.reflected_temperature})
                 if cal is not None:
