@@ -22,10 +22,10 @@ from selfillum.thermal import CameraInput, ThermalConfig, run_thermal
 
 
 def _config(run, out, **kw) -> ThermalConfig:
-    return ThermalConfig(grid=run.grid, cameras=[CameraInput(1, run.video, run.calibration)],
+    return ThermalConfig(**{"grid": run.grid, **kw},
+                         cameras=[CameraInput(1, run.video, run.calibration)],
                          out=out, substrate=run.substrate, targets=run.targets,
-                         radiometry=run.radiometry, sds=run.wtd, fps=run.fps,
-                         plots=False, **kw)
+                         radiometry=run.radiometry, sds=run.wtd, fps=run.fps, plots=False)
 
 
 @pytest.fixture(scope="module")
@@ -207,3 +207,19 @@ def test_table_radiometry_and_layered_substrate(tiny, tmp_path):
     with pytest.raises(InputError, match="Cook-Felderman needs one semi-infinite"):
         run_thermal(dataclasses.replace(_config(tiny, tmp_path / "cf.h5"), substrate=sj,
                                         method="cook-felderman"))
+
+
+def test_grid_turned_inside_out_is_named_not_an_empty_result(tiny, tmp_path):
+    """A grid whose faces point into the model (written with its j index reversed): the
+    package's maps take a face's normal side as its painted side, so nothing is seen; the
+    run says so in one line and leaves no file, instead of an empty result."""
+    from resection.io.meshes import write_plot3d
+    from resection.io.plot3d import read_plot3d
+
+    (xyz, _), = read_plot3d(str(tiny.grid))
+    flipped = tmp_path / "flipped.grid"
+    write_plot3d(flipped, [xyz[:, ::-1]])
+    out = tmp_path / "b.h5"
+    with pytest.raises(InputError, match="no node has a temperature"):
+        run_thermal(_config(tiny, out, si=False, grid=flipped))
+    assert not out.exists() and not (tmp_path / "b.h5.work").exists()

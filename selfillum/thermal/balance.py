@@ -42,8 +42,8 @@ class NodeGeometry:
 
     @classmethod
     def from_grid(cls, grid, F=None) -> NodeGeometry:
-        """Normals: the area-weighted mean of the faces' normals around each node (flipped
-        where the grid's faces point inwards is the user's grid: the faces' own order);
+        """Normals: the area-weighted mean of the faces' normals around each node (in the
+        grid's own orientation: the view angle takes its absolute cosine);
         ``wall`` from the faces' row sums of ``F``, area-weighted to the nodes."""
         import scipy.sparse as sp
 
@@ -71,11 +71,12 @@ def camera_centres(R, t) -> np.ndarray:
 
 def view_cosines(centres, points, normals) -> np.ndarray:
     """``(T, n)`` cosine of each node's view angle in each frame, the largest over the
-    cameras (``centres`` (C, T, 3); ``points``, ``normals`` (n, 3)); 0 for a node facing
-    away from every camera."""
+    cameras (``centres`` (C, T, 3); ``points``, ``normals`` (n, 3)). Its absolute value,
+    as :func:`resection.surface.surface_map.oblique_faces` takes it: a grid's faces may
+    point in or out, and whether a node is seen at all is the ray cast's answer (Phase 1)."""
     best = None
     for C in centres:  # a few cameras
         d = C[:, None, :] - points[None, :, :]
-        c = np.einsum("tnk,nk->tn", d, normals) / np.linalg.norm(d, axis=2)
+        c = np.abs(np.einsum("tnk,nk->tn", d, normals)) / np.linalg.norm(d, axis=2)
         best = c if best is None else np.maximum(best, c)
     return np.clip(best, 0.0, 1.0)

@@ -203,6 +203,10 @@ def run_thermal(cfg: ThermalConfig) -> ThermalResult:
                                 sub=sub, method=method, dt=1.0 / fps, flow=flow, block=nb,
                                 probes=cfg.probes, progress=prog.nodes)
                 prog.close()
+                if not p2["seen"].any():  # never an empty result
+                    raise InputError(f"{cfg.grid}: no node has a temperature in any frame "
+                                     "(do the grid's faces point out of the model, and the "
+                                     "cameras at it?)")
                 sat = int(sum(fr.saturated for fr in frames_in))
                 g = f.create_group("probes")
                 g.create_dataset("nodes", data=np.asarray(cfg.probes, np.int64))
