@@ -45,7 +45,8 @@ def _cmd_thermal(args) -> int:
         fps=args.fps, number_frames=args.number_frames, registration=args.registration,
         target_patcher=args.target_patcher, overlap=args.overlap,
         oblique_angle=args.oblique_angle, marker_polarity=args.polarity,
-        track_dirs=args.track, si=not args.no_si, rays=args.rays, seed=args.seed,
+        track_dirs=args.track, si=not args.no_si, si_refresh=args.si_refresh,
+        rays=args.rays, seed=args.seed,
         probes=_numbers(args.probe, int, "--probe"),
         picture_times=_numbers(args.picture_times, float, "--picture-times"),
         memory_mb=args.memory, resume=args.resume, progress=not args.quiet,
@@ -129,6 +130,9 @@ def register(sub) -> None:
                    help="a camera's 'resection track' output instead of tracking here")
     p.add_argument("--no-si", action="store_true",
                    help="do not remove the model's own reflected radiation")
+    p.add_argument("--si-refresh", type=float, default=0.01, metavar="FRACTION",
+                   help="solve the faces no camera sees again when the seen signal has "
+                   "drifted by this much (default 0.01)")
     p.add_argument("--rays", type=int, default=256, help="rays per face, view factors")
     p.add_argument("--seed", type=int, default=0, help="view-factor seed")
     p.add_argument("--probe", metavar="N1,N2,...",

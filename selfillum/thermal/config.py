@@ -32,7 +32,8 @@ class ThermalConfig:
     images (IR: plaster holes heat faster, ``bright``). ``probes``: node numbers whose T
     and q histories are drawn; ``picture_times``: times (s) of the pictures of q on the
     model. ``si``: reflected light of the model's own parts (view factors of ``rays`` a
-    face) removed.
+    face) removed, the faces no camera sees solved again when the seen signal drifts by
+    ``si_refresh`` (:mod:`selfillum.thermal.reflections`).
     """
 
     grid: Path
@@ -57,6 +58,7 @@ class ThermalConfig:
     marker_polarity: str | None = None
     track_dirs: list | None = None
     si: bool = True
+    si_refresh: float = 0.01
     rays: int = 256
     seed: int = 0
     probes: list = field(default_factory=list)
@@ -88,6 +90,8 @@ class ThermalConfig:
             raise InputError(f"marker polarity {self.marker_polarity!r}: dark or bright")
         if self.recovery_factor is not None and not 0 < self.recovery_factor <= 1:
             raise InputError(f"--recovery-factor {self.recovery_factor} must be in (0, 1]")
+        if not self.si_refresh > 0:
+            raise InputError(f"--si-refresh {self.si_refresh} must be positive")
         if self.rays < 1:
             raise InputError(f"--rays {self.rays} must be >= 1")
 

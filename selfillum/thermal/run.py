@@ -76,6 +76,7 @@ def run_thermal(cfg: ThermalConfig) -> ThermalResult:
     from selfillum.thermal.inputs import SignalFrames, check_range, track_poses
     from selfillum.thermal.output import FORMAT, VERSION, write_xdmf
     from selfillum.thermal.phase2 import run_phase2
+    from selfillum.thermal.reflections import HeatingSelfIllumination
     from selfillum.unsteady.blocks import local_phase1
     from selfillum.unsteady.budget import Progress, plan_blocks
     from selfillum.unsteady.config import check_options
@@ -142,7 +143,7 @@ def run_thermal(cfg: ThermalConfig) -> ThermalResult:
     plan = plan_blocks(T, N, (tc, nc), cfg.memory_mb)
     inputs = work_inputs(p1, T, N, fps)
     inputs.update(thermal_mode=cfg.mode, signal_offset=offset, polarity=cfg.polarity,
-                  reflectance_h=rho_h)
+                  reflectance_h=rho_h, si_refresh=cfg.si_refresh)
     t0 = time.perf_counter()
     store = Phase1Store(out, inputs, (T, N), (tc, nc), len(cfg.cameras), resume=cfg.resume,
                         with_raw=si_on)
@@ -167,12 +168,12 @@ def run_thermal(cfg: ThermalConfig) -> ThermalResult:
             F = store.form_factors(lambda: view_factors(
                 mesh, rays_per_face=cfg.rays, seed=cfg.seed, progress=cfg.progress,
                 caster=caster))
-            si = SelfIllumination(mesh, F, rho)
+            si = HeatingSelfIllumination(mesh, F, rho, refresh=cfg.si_refresh)
         off_nodes = None
         if offs is not None:  # the wind-off images onto the nodes, SI removed as wind-on
             from selfillum.unsteady.phase1 import map_run
 
-            si_off = SelfIllumination(mesh, F, rho) if si_on else None
+            si_off = SelfIllumination(mesh, F, rho) if si_on else None  # one image
             fn = next(map_run(grid, [CameraRun(c.number, cam, [o]) for c, cam, o in
                                      zip(cfg.cameras, cams, offs, strict=True)], [0],
                               spots=spots, registration="none", patcher=cfg.target_patcher,
@@ -230,6 +231,8 @@ def run_thermal(cfg: ThermalConfig) -> ThermalResult:
                     "registration": cfg.registration, "target_patcher": cfg.target_patcher,
                     "overlap": cfg.overlap, "oblique_angle": cfg.oblique_angle,
                     "si": si_on, "rays": cfg.rays, "seed": cfg.seed,
+                    "si_refresh": cfg.si_refresh,
+                    "si_solves": si.solves if si is not None else 0,
                     "polarity": cfg.polarity, "chunks": [tc, nc]})
                 f.attrs["provenance"] = json_attr(provenance({
                     "grid": cfg.grid, "targets": cfg.targets, "substrate": cfg.substrate,

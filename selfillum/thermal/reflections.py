@@ -1,0 +1,57 @@
+"""The model's own radiation removed frame by frame while the model heats:
+:class:`HeatingSelfIllumination`.
+
+The unsteady run removes ``rho F B`` per frame and gives the faces no camera sees (hidden,
+or beyond the obliqueness cut-off) the radiosity of one full solve of the first frame
+(:class:`selfillum.unsteady.phase1.SelfIllumination`): right for a paint whose light
+fluctuates about a steady level, wrong for a model that heats. Its hidden faces warm as
+the seen ones do and light their neighbours more and more (the sides of a block standing
+on a plate, seen edge-on). Here that solve is made again whenever the seen faces' signal
+has drifted by more than ``refresh`` (relative, the median over the seen faces) since the
+last one, the hidden faces' emission continued smoothly from the seen ones
+(:func:`selfillum.solve.radiosity.correct`). Frames between two solves cost one sparse
+product, as before.
+
+A run resumed after an interruption solves again at its first frame, so its frames after
+that may differ from an uninterrupted run's by what the drift allows (``refresh`` of the
+hidden faces' light).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from selfillum.unsteady.phase1 import SelfIllumination
+
+__all__ = ["HeatingSelfIllumination", "DEFAULT_REFRESH"]
+
+#: Relative drift of the seen faces' signal that triggers a new solve.
+DEFAULT_REFRESH = 0.01
+
+
+class HeatingSelfIllumination(SelfIllumination):
+    """:class:`~selfillum.unsteady.phase1.SelfIllumination` with the hidden faces' solve
+    made again when the seen signal drifts by more than ``refresh``; ``solves`` counts the
+    solves."""
+
+    def __init__(self, mesh, F, reflectance, unpainted=None, refresh: float = DEFAULT_REFRESH):
+        super().__init__(mesh, F, reflectance, unpainted)
+        self.refresh = float(refresh)
+        self.solves = 0
+        self._ref = None
+
+    def __call__(self, B, seen) -> np.ndarray:
+        B = np.asarray(B, dtype=np.float64)
+        if self._ref is not None:
+            both = seen & self._ref[1] & (self._ref[0] > 0)
+            if both.any():
+                drift = float(np.median(np.abs(B[both] / self._ref[0][both] - 1.0)))
+                if drift > self.refresh:
+                    self.hidden = None
+            else:
+                self.hidden = None
+        if self.hidden is None:
+            self.reference(B, seen)
+            self.solves += 1
+            self._ref = (B.copy(), np.asarray(seen, bool).copy())
+        return super().__call__(B, seen)
