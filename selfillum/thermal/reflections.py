@@ -8,9 +8,9 @@ fluctuates about a steady level, wrong for a model that heats. Its hidden faces 
 the seen ones do and light their neighbours more and more (the sides of a block standing
 on a plate, seen edge-on). Here that solve is made again whenever the seen faces' signal
 has drifted by more than ``refresh`` (relative, the median over the seen faces) since the
-last one, the hidden faces' emission continued smoothly from the seen ones
-(:func:`selfillum.solve.radiosity.correct`). Frames between two solves cost one sparse
-product, as before.
+last one (and the hidden faces send light to the seen ones at all), the hidden faces'
+emission continued smoothly from the seen ones (:func:`selfillum.solve.radiosity.correct`).
+Frames between two solves cost one sparse product, as before.
 
 A run resumed after an interruption solves again at its first frame, so its frames after
 that may differ from an uninterrupted run's by what the drift allows (``refresh`` of the
@@ -46,7 +46,7 @@ class HeatingSelfIllumination(SelfIllumination):
             both = seen & self._ref[1] & (self._ref[0] > 0)
             if both.any():
                 drift = float(np.median(np.abs(B[both] / self._ref[0][both] - 1.0)))
-                if drift > self.refresh:
+                if drift > self.refresh and self._coupled(seen):
                     self.hidden = None
             else:
                 self.hidden = None
@@ -55,3 +55,10 @@ class HeatingSelfIllumination(SelfIllumination):
             self.solves += 1
             self._ref = (B.copy(), np.asarray(seen, bool).copy())
         return super().__call__(B, seen)
+
+    def _coupled(self, seen) -> bool:
+        """Do the faces no camera sees send light to the seen ones (else a new solve
+        changes nothing: a convex model)?"""
+        seen = np.asarray(seen, bool)
+        sub = self.F[np.flatnonzero(seen)][:, np.flatnonzero(~seen)]
+        return sub.nnz > 0
