@@ -68,6 +68,8 @@ class IRRun:
     near_marker: np.ndarray
     poses: np.ndarray
     shift_px: np.ndarray
+    video2: Path | None = None
+    calibration2: Path | None = None
 
 
 def _radius(x, xc, xe, R0, Re):
@@ -88,7 +90,8 @@ def make_ir_run(folder: str | os.PathLike, *, frames: int = 60, fps: float = 50.
                 width: int = 320, height: int = 240, nx: int = 61, nphi: int = 48,
                 q_max: float = 3.0e4, tau: float = 0.1, eps_n: float = 0.95,
                 marker_ratio: float = 2.0, noise: float = 2.0, settle_px: float = 8.0,
-                settle_s: float = 0.8, tsp: dict | None = None, seed: int = 0) -> IRRun:
+                settle_s: float = 0.8, tsp: dict | None = None, second_camera: bool = False,
+                seed: int = 0) -> IRRun:
     """Write the run into ``folder`` (created): the Plot3D grid, ``.tgts``, the NPY stack
     (uint16), the camera, ``R.json``, ``S.json``, ``run.wtd``; return its paths and truth.
 
@@ -144,7 +147,7 @@ def make_ir_run(folder: str | os.PathLike, *, frames: int = 60, fps: float = 50.
     heave = 0.2 * z0 / f * ramp * np.sin(2 * np.pi * 9.0 * after + 1.0)
     Rc, tc = cam0.R, cam0.t
     poses = np.empty((frames, 4, 3))
-    cams = []
+    cams, motion = [], []
     for k in range(frames):  # a pose a frame
         cy, sy = np.cos(yaw[k]), np.sin(yaw[k])
         cp, sp_ = np.cos(pitch[k]), np.sin(pitch[k])
@@ -154,6 +157,7 @@ def make_ir_run(folder: str | os.PathLike, *, frames: int = 60, fps: float = 50.
         cam = cam0.with_pose(R=Rc @ M, t=Rc @ d + tc)
         poses[k, :3], poses[k, 3] = cam.R, cam.t
         cams.append(cam)
+        motion.append((M, d))
     shift = np.array([np.linalg.norm(c.project(np.zeros((1, 3)))[0]
                                      - cam0.project(np.zeros((1, 3)))[0]) for c in cams])
     # ------------------------------------------------------------------ markers
@@ -206,33 +210,40 @@ def make_ir_run(folder: str | os.PathLike, *, frames: int = 60, fps: float = 50.
         sig[hit] = 20000.0 * texture(p) * ratio * np.where(dist <= 0.5 * mdia, 0.15, 1.0)
         return sig.reshape(height, width) + 100.0 + noise * rng.standard_normal((height,
                                                                                  width))
-    video = np.empty((frames, height, width), np.uint16)
     caster = RayCaster(mesh)
-    for k in range(frames):  # frames; the renderer is vectorised over pixels
-        smap = SurfaceMap(mesh, cams[k], max_obliqueness=None, caster=caster)
-        pts = smap.points.reshape(-1, 3)
-        hit = np.flatnonzero(np.isfinite(pts[:, 0]))
-        p = pts[hit]
-        dist = np.linalg.norm(p[:, None, :] - mpts[None, :, :], axis=2).min(axis=1)
-        ratio = np.where(dist <= 0.5 * mdia, marker_ratio, 1.0)
-        Tt, _ = truth_temperature(q0_at(p), times[k:k + 1], e, tau, T_i)
-        Tpix = T_i + (Tt[0] - T_i) * ratio
-        if tsp is not None:
-            img = tsp_image(smap, p, hit, Tpix, dist)
-            img[:3, :3] = 70000.0
+    bases = [cam0]
+    if second_camera:  # from the +x side, higher
+        bases.append(Camera.look_at([0.16, 0.14, 0.38], [0.02, 0.0, 0.0], [0.0, 1.0, 0.0],
+                                    K=K, width=width, height=height))
+    for ci, base in enumerate(bases):  # a camera or two
+        if ci:
+            cams = [base.with_pose(R=base.R @ M, t=base.R @ d + base.t) for M, d in motion]
+        video = np.empty((frames, height, width), np.uint16)
+        for k in range(frames):  # frames; the renderer is vectorised over pixels
+            smap = SurfaceMap(mesh, cams[k], max_obliqueness=None, caster=caster)
+            pts = smap.points.reshape(-1, 3)
+            hit = np.flatnonzero(np.isfinite(pts[:, 0]))
+            p = pts[hit]
+            dist = np.linalg.norm(p[:, None, :] - mpts[None, :, :], axis=2).min(axis=1)
+            ratio = np.where(dist <= 0.5 * mdia, marker_ratio, 1.0)
+            Tt, _ = truth_temperature(q0_at(p), times[k:k + 1], e, tau, T_i)
+            Tpix = T_i + (Tt[0] - T_i) * ratio
+            if tsp is not None:
+                img = tsp_image(smap, p, hit, Tpix, dist)
+                img[:3, :3] = 70000.0
+                video[k] = np.clip(np.rint(img), 0, 65535).astype(np.uint16)
+                continue
+            C = -cams[k].R.T @ cams[k].t
+            v = C[None, :] - p
+            cosv = np.einsum("ij,ij->i", slope_normal(p), v) / np.linalg.norm(v, axis=1)
+            eps = fresnel_emissivity(np.arccos(np.clip(cosv, 0.0, 1.0)), n_eps)
+            sig = np.full(height * width, Uw)
+            sig[hit] = eps * U(Tpix) + (1.0 - eps) * Uw
+            img = sig.reshape(height, width) + Oo + noise * rng.standard_normal((height, width))
+            img[:3, :3] = 70000.0  # a hot reflection at the corner: saturated
             video[k] = np.clip(np.rint(img), 0, 65535).astype(np.uint16)
-            continue
-        C = -cams[k].R.T @ cams[k].t
-        v = C[None, :] - p
-        cosv = np.einsum("ij,ij->i", slope_normal(p), v) / np.linalg.norm(v, axis=1)
-        eps = fresnel_emissivity(np.arccos(np.clip(cosv, 0.0, 1.0)), n_eps)
-        sig = np.full(height * width, Uw)
-        sig[hit] = eps * U(Tpix) + (1.0 - eps) * Uw
-        img = sig.reshape(height, width) + Oo + noise * rng.standard_normal((height, width))
-        img[:3, :3] = 70000.0  # a hot reflection at the corner: saturated
-        video[k] = np.clip(np.rint(img), 0, 65535).astype(np.uint16)
-    np.save(out / "ir.npy", video)
-    write_camera(out / "cam01.json", cam0)
+        np.save(out / ("ir.npy" if ci == 0 else f"ir{ci + 1}.npy"), video)
+        write_camera(out / f"cam{ci + 1:02d}.json", base)
     if tsp is None:
         (out / "R.json").write_text(json.dumps({
             **PLANCK, "emissivity": {"model": "fresnel", "normal": eps_n},
@@ -258,4 +269,6 @@ def make_ir_run(folder: str | os.PathLike, *, frames: int = 60, fps: float = 50.
     near = np.linalg.norm(pn[:, None, :] - mpts[None, :, :], axis=2).min(axis=1) < mdia
     return IRRun(out, grid_path, out / "model.tgts", out / "ir.npy", out / "cam01.json",
                  out / ("R.json" if tsp is None else "tsp.json"), out / "S.json",
-                 out / "run.wtd", fps, times, qn, Tn, q0_at(pn), cos0, near, poses, shift)
+                 out / "run.wtd", fps, times, qn, Tn, q0_at(pn), cos0, near, poses, shift,
+                 out / "ir2.npy" if second_camera else None,
+                 out / "cam02.json" if second_camera else None)
