@@ -1,16 +1,18 @@
 """The model's own radiation removed frame by frame while the model heats:
 :class:`HeatingSelfIllumination`.
 
-The unsteady run removes ``rho F B`` per frame and gives the faces no camera sees (hidden,
-or beyond the obliqueness cut-off) the radiosity of one full solve of the first frame
-(:class:`selfillum.unsteady.phase1.SelfIllumination`): right for a paint whose light
-fluctuates about a steady level, wrong for a model that heats. Its hidden faces warm as
-the seen ones do and light their neighbours more and more (the sides of a block standing
-on a plate, seen edge-on). Here that solve is made again whenever the seen faces' signal
-has drifted by more than ``refresh`` (relative, the median over the seen faces) since the
-last one (and the hidden faces send light to the seen ones at all), the hidden faces'
-emission continued smoothly from the seen ones (:func:`selfillum.solve.radiosity.correct`).
-Frames between two solves cost one sparse product, as before.
+The unsteady run removes ``rho F B`` per frame. Faces no camera sees (hidden, or beyond the
+obliqueness cut-off) get the radiosity of one full solve of the first frame, their
+emission then scaled in each frame as that of the nearest seen face of the same part
+(:class:`selfillum.unsteady.phase1.SelfIllumination`, :mod:`selfillum.unsteady.hidden`).
+That suits a paint whose light fluctuates about a steady level. A heating model's hidden
+faces warm by amounts one seen face's ratio does not tell (the sides of a block seen
+edge-on, whose top heats faster than its foot). Here the full solve is made again whenever
+the seen faces' signal has drifted by more than ``refresh`` (relative, the median over the
+seen faces) since the last one, and the hidden faces send light to the seen ones at all.
+The hidden faces' emission is then continued smoothly from the seen ones
+(:func:`selfillum.solve.radiosity.correct`). Frames between two solves cost what the
+unsteady run's do.
 
 A run resumed after an interruption solves again at its first frame, so its frames after
 that may differ from an uninterrupted run's by what the drift allows (``refresh`` of the
