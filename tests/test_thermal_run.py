@@ -278,3 +278,16 @@ def test_two_cameras(tmp_path):
     assert sel.sum() > 250
     assert np.percentile(np.abs(q - run.q)[6:, sel] / run.q0[sel], 95) < 0.05
     assert seen[1] > seen[0]
+
+
+def test_polynomial_patch_on_a_moving_model(tiny, tmp_path):
+    """uPSP's polynomial patch with each frame's tracked pose (the fast way's patch
+    operator, whose ring reaches pixels off the model near its edges): the same
+    temperatures as the markers left out, away from the markers."""
+    a = run_thermal(_config(tiny, tmp_path / "none.h5"))
+    b = run_thermal(_config(tiny, tmp_path / "poly.h5", target_patcher="polynomial"))
+    with h5py.File(a.out) as fa, h5py.File(b.out) as fb:
+        Ta, Tb = fa["temperature"][()], fb["temperature"][()]
+    sel = ~tiny.near_marker & np.isfinite(Ta).all(axis=0) & np.isfinite(Tb).all(axis=0)
+    assert sel.sum() > 100
+    assert np.percentile(np.abs(Ta[:, sel] - Tb[:, sel]), 95) < 0.1

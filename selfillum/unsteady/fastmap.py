@@ -117,8 +117,9 @@ class FrameOperator:
                 self.A.append(sp.csr_matrix(A[:, used]))
                 if sample_points:
                     X = maps[c].points.reshape(-1, 3)[used]
-                    uv0 = maps[c].camera.project(X)
                     off = ~np.isfinite(X[:, 0])  # background pixels: sampled in place
+                    uv0 = np.empty((len(X), 2))
+                    uv0[~off] = maps[c].camera.project(X[~off])
                     if off.any():
                         W_ = maps[c].shape[1]
                         uv0[off] = np.column_stack([used[off] % W_, used[off] // W_])
