@@ -115,10 +115,9 @@ def register(sub) -> None:
     p.add_argument("--out", required=True, metavar="OUT.h5", help="output HDF5 file")
     p.add_argument("--registration", choices=REGISTRATIONS, default="track",
                    help="track (default), first-frame or none")
-    p.add_argument("--target-patcher", choices=("none", "polynomial"), default="none",
-                   help="markers left out of the node values (none, default: plaster is not "
-                   "the model's material; frames mapped by sparse products) or patched by "
-                   "uPSP's polynomial (every frame mapped the full way, slower)")
+    p.add_argument("--target-patcher", choices=("none", "polynomial"), default="polynomial",
+                   help="markers patched by uPSP's polynomial from a ring of the model "
+                   "around them (default) or left out of the node values (none)")
     p.add_argument("--overlap", choices=OVERLAPS, default="average_view",
                    help="cameras combined per node (default average_view)")
     p.add_argument("--oblique-angle", type=float, default=70.0, metavar="DEG",

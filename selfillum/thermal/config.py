@@ -25,10 +25,9 @@ class ThermalConfig:
     (:func:`selfillum.thermal.heatflux.read_substrate`); ``method`` of the heat flux
     (default: Cook-Felderman on a semi-infinite body, else the impulse response).
     ``sds``: the ``.wtd`` for the Stanton number and heat-transfer coefficient, with
-    ``recovery_factor``. ``target_patcher``: ``none`` (default) leaves the markers out of
-    the node values (they are another material, plaster, whose temperature is not the
-    model's; and Phase 1 then maps frames by sparse products), ``polynomial`` patches them
-    (uPSP's patch; every frame the full way). ``marker_polarity``: the markers on the
+    ``recovery_factor``. ``target_patcher``: ``polynomial`` (default, uPSP's
+    patch: the markers filled from a ring of the model around them) or ``none`` (left out:
+    nodes wholly under a marker unseen). ``marker_polarity``: the markers on the
     images (IR: plaster holes heat faster, ``bright``). ``probes``: node numbers whose T
     and q histories are drawn; ``picture_times``: times (s) of the pictures of q on the
     model. ``si``: reflected light of the model's own parts (view factors of ``rays`` a
@@ -52,7 +51,7 @@ class ThermalConfig:
     fps: float | None = None
     number_frames: int = -1
     registration: str = "track"
-    target_patcher: str = "none"
+    target_patcher: str = "polynomial"
     overlap: str = "average_view"
     oblique_angle: float = 70.0
     marker_polarity: str | None = None
