@@ -80,7 +80,8 @@ def plot_heat_flux(grid, q, time_s: float, path):
 
 
 def plot_probes(times, temperature, heat_flux, nodes, points, path):
-    """T (K) and q (W/m^2) histories at the probe nodes, two panels."""
+    """T (K) and q (W/m^2) histories at the probe nodes, two panels (a probe no camera
+    sees is named in the legend as unseen)."""
     from matplotlib.figure import Figure
 
     from resection.surface.plots import finish_figure
@@ -90,8 +91,12 @@ def plot_probes(times, temperature, heat_flux, nodes, points, path):
     for j, n in enumerate(nodes):  # a few probes
         x, y, z = points[int(n)]
         lab = f"node {int(n)} ({x:.3g}, {y:.3g}, {z:.3g})"
-        a1.plot(times, temperature[:, j], lw=1.0, label=lab)
-        a2.plot(times, heat_flux[:, j], lw=1.0, label=lab)
+        col = f"C{j % 10}"  # one colour a probe in both panels
+        if not np.isfinite(temperature[:, j]).any():
+            a1.plot([], [], color=col, label=lab + ": unseen")
+            continue
+        a1.plot(times, temperature[:, j], lw=1.0, color=col, label=lab)
+        a2.plot(times, heat_flux[:, j], lw=1.0, color=col, label=lab)
     a1.set_ylabel("T (K)")
     a2.set_ylabel("q (W/m^2)")
     a2.set_xlabel("time (s)")
