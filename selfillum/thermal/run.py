@@ -112,7 +112,7 @@ def run_thermal(cfg: ThermalConfig) -> ThermalResult:
     if cfg.mode == "tsp":
         from resection.io.images import read_image
 
-        offs = [read_image(p) for p in cfg.wind_off]
+        offs = [read_image(p, mask_saturated=True) for p in cfg.wind_off]  # saturated: NaN
         for p, o, s in zip(cfg.wind_off, offs, srcs, strict=True):
             if o.shape != tuple(s.shape):
                 raise InputError(f"{p}: wind-off image {o.shape[1]}x{o.shape[0]}, its "
