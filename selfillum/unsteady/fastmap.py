@@ -64,10 +64,15 @@ class FrameOperator:
         pixels times their polynomial terms. A ring pixel that sees no surface (a spot on
         the silhouette) is sampled where it is: the background does not move with the
         model.
+    halo_px : int
+        A moving model whose frames are filtered (a Gaussian on the image): the pixels
+        within ``halo_px`` of those that count are sampled too (``support``), so that the
+        frame carried back onto the reference's pixels can be patched and filtered there
+        (:meth:`faces_moved` with ``prepare``).
     """
 
     def __init__(self, maps, finite, merge_kw: dict, gains, unpainted=None, *,
-                 sample_points: bool = False, pre=None):
+                 sample_points: bool = False, pre=None, halo_px: int = 0):
         from resection.surface.merge import angle_weights, pixel_weights
 
         nf = maps[0].n_faces
@@ -93,6 +98,7 @@ class FrameOperator:
         seen = total > 0
         best = np.argmax(wts, axis=0)
         self.A, self.cols, self.X, self.uv0 = [], [], [], []
+        self.support = []  # per camera (pixels, X, uv0) sampled for a filtered frame
         self.patch = []  # per camera None, or (A2, C over used, C over pixels, Aw)
         with np.errstate(invalid="ignore", divide="ignore"):
             for c in range(C):
@@ -117,14 +123,11 @@ class FrameOperator:
                 self.A.append(sp.csr_matrix(A[:, used]))
                 if sample_points:
                     X = maps[c].points.reshape(-1, 3)[used]
-                    off = ~np.isfinite(X[:, 0])  # background pixels: sampled in place
-                    uv0 = np.empty((len(X), 2))
-                    uv0[~off] = maps[c].camera.project(X[~off])
-                    if off.any():
-                        W_ = maps[c].shape[1]
-                        uv0[off] = np.column_stack([used[off] % W_, used[off] // W_])
+                    uv0 = _reference_pixels(maps[c], used, X)
                     self.X.append(X)
                     self.uv0.append(uv0.astype(np.float32))
+                    if halo_px > 0:
+                        self.support.append(_support(maps[c], used, int(halo_px)))
         # a sample of each camera's surface points, to find the reference nearest a pose
         self.probe = []
         for X in self.X:
@@ -230,14 +233,22 @@ class FrameOperator:
             d = max(d, float(np.max(np.abs(uv - uv0[pr]))))
         return d
 
-    def faces_moved(self, images, cameras, refresh_px: float) -> np.ndarray | None:
+    def faces_moved(self, images, cameras, refresh_px: float,
+                    prepare=None) -> np.ndarray | None:
         """Face values of a frame of pose ``cameras`` (one a camera): the images sampled
         (bilinear) where the reference's surface points project (the camera's own
         projection with its distortion, :meth:`resection.Camera.project`); None when a
         point moved more than twice ``refresh_px`` (the reference was chosen on a sample
         of its points, :meth:`displacement`: the caller casts anew). Points that fall off
         the sensor are left out, the face's other pixels of that camera taking their
-        weight; a face that keeps none of them is NaN (not seen in this frame)."""
+        weight; a face that keeps none of them is NaN (not seen in this frame).
+
+        ``prepare(c, image)``, when given, is applied to camera ``c``'s frame carried back
+        onto the reference's pixels (the ``support``, NaN elsewhere) before its pixels are
+        read: the dark spots patched or masked and the filter, in the reference's
+        pixels."""
+        if prepare is not None:
+            return self._faces_prepared(images, cameras, refresh_px, prepare)
         B = np.zeros(self.A[0].shape[0])
         for c, (X, uv0, img, cam) in enumerate(zip(self.X, self.uv0, images,
                                                       cameras, strict=True)):
@@ -254,6 +265,32 @@ class FrameOperator:
             if (status == 1).any():
                 return None
             B += self._camera_faces(c, x, (status != 0) | ~np.isfinite(x))
+        return B
+
+    def _faces_prepared(self, images, cameras, refresh_px, prepare):
+        B = np.zeros(self.A[0].shape[0])
+        for c, (sup, img, cam) in enumerate(zip(self.support, images, cameras,
+                                                strict=True)):
+            pix, X, uv0 = sup
+            arr = np.asarray(img)
+            if arr.dtype.kind not in "fiu":
+                arr = arr.astype(np.float64)
+            xs = np.empty(len(X))
+            status = _project_sample(X, np.asarray(cam.R, np.float64),
+                                     np.asarray(cam.t, np.float64).ravel(),
+                                     np.asarray(cam.K, np.float64),
+                                     np.asarray(cam.dist, np.float64).ravel(),
+                                     float(cam.max_radius), uv0, arr,
+                                     2.0 * float(refresh_px), xs)
+            if (status == 1).any():
+                return None
+            H, W = arr.shape
+            ref = np.full(H * W, np.nan)
+            ok = status == 0
+            ref[pix[ok]] = xs[ok]
+            ref = np.asarray(prepare(c, ref.reshape(H, W)), dtype=np.float64)
+            x = ref.ravel()[self.cols[c]]
+            B += self._camera_faces(c, x, ~np.isfinite(x))
         return B
 
     def _camera_faces(self, c, x, bad) -> np.ndarray:
@@ -283,6 +320,32 @@ class FrameOperator:
         with np.errstate(invalid="ignore", divide="ignore"):
             part = np.where(kept > 0, num * (share / kept), np.nan)
         return np.where(share > 0, part, 0.0)
+
+
+def _support(smap, used, halo: int) -> tuple:
+    """The pixels within ``halo`` of ``used`` (flat indices), their surface points (NaN on
+    the background) and their reference pixels ``uv0``."""
+    from scipy import ndimage
+
+    H, W = smap.shape
+    m = np.zeros(H * W, bool)
+    m[used] = True
+    m = ndimage.binary_dilation(m.reshape(H, W), np.ones((3, 3), bool), iterations=halo)
+    pix = np.flatnonzero(m)
+    X = smap.points.reshape(-1, 3)[pix]
+    return pix, X, _reference_pixels(smap, pix, X).astype(np.float32)
+
+
+def _reference_pixels(smap, pix, X) -> np.ndarray:
+    """(n, 2): where the surface points ``X`` of the pixels ``pix`` project in the
+    reference; a pixel on the background (``X`` NaN) is its own position (sampled in place:
+    the background does not move with the model)."""
+    W = smap.shape[1]
+    uv0 = np.column_stack([pix % W, pix // W]).astype(np.float64)
+    on = np.isfinite(X[:, 0])
+    if on.any():
+        uv0[on] = smap.camera.project(X[on])
+    return uv0
 
 
 def _split_patch(A, pat):

@@ -264,7 +264,12 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
     gains = None if gains is None else np.asarray(gains, dtype=np.float64)
     off = None if unpainted is None else np.asarray(unpainted, bool)
     moving = registration == "track"
-    use_fast = fast and not (moving and filter != "none")
+    use_fast = fast
+    # a moving model's filtered frames: sampled over the pixels that count and a halo of
+    # the filter's radius (and the patch's ring), then patched and filtered in the
+    # reference's pixels
+    halo = 0 if not (moving and filter != "none") else \
+        (filter_size - 1) // 2 + (4 if patcher == "polynomial" else 0)
     # uPSP's polynomial patch is linear in the ring's pixels: without a filter it joins
     # the operator (A_c P_c); with one it is applied to the image before the filter
     pres = [None] * len(cameras)  # per camera (P, unfit) of the reference's spots
@@ -288,7 +293,8 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
         op = next((o for o in ops if o.frame == j), None)
         if op is None:
             op = _cast_reference(j, cameras, mesh, caster, max_obliqueness, spots,
-                                 spot_margin_px, merge_kw, ops[0].gains, off, patcher)
+                                 spot_margin_px, merge_kw, ops[0].gains, off, patcher,
+                                 halo)
             _keep(ops, op)
             _shed_mesh_cache(mesh)
             release_freed_memory()
@@ -308,7 +314,7 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
         if ops:
             fv = _fast_frame(ops, cameras, k, regs, spots, spot_px, filter, filter_size,
                              moving, refresh_px, op=planned(k) if moving else None,
-                             pres=pres)
+                             pres=pres, halo=halo)
             if fv is not None:
                 B, cams, op_seen, _ = fv
                 seen = op_seen & np.isfinite(B)
@@ -356,7 +362,8 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
             from selfillum.unsteady.fastmap import FrameOperator
 
             op = FrameOperator(maps, finite, merge_kw, ops[0].gains, off, sample_points=True,
-                               pre=pres if compose else None)
+                               pre=pres if compose else None, halo_px=halo)
+            op.spots = list(pres) if patcher == "polynomial" else list(spot_px)
             op.frame = op.last_used = k
             _keep(ops, op)
             B = op.faces(imgs)
@@ -377,7 +384,8 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
             from selfillum.unsteady.fastmap import FrameOperator
 
             op = FrameOperator(maps, finite, merge_kw, known, off, sample_points=moving,
-                               pre=pres if compose else None)
+                               pre=pres if compose else None, halo_px=halo)
+            op.spots = list(pres) if patcher == "polynomial" else list(spot_px)
             B = op.faces(imgs)
             if B is not None:
                 ops.append(op)
@@ -394,7 +402,8 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
 
                 ops.append(FrameOperator(maps, finite, merge_kw, mv.gains, off,
                                          sample_points=moving,
-                                         pre=pres if compose else None))
+                                         pre=pres if compose else None, halo_px=halo))
+                ops[0].spots = list(pres) if patcher == "polynomial" else list(spot_px)
                 ops[0].frame = ops[0].last_used = k
                 ops[0].workers = workers
                 maps0 = [None] * len(cameras)
@@ -438,7 +447,7 @@ def _keep(ops, op) -> None:
 
 
 def _cast_reference(j, cameras, mesh, caster, max_obliqueness, spots, spot_margin_px,
-                    merge_kw, gains, unpainted, patcher="none"):
+                    merge_kw, gains, unpainted, patcher="none", halo=0):
     """The operator of a moving model's reference at frame ``j``'s poses: a
     :class:`resection.SurfaceMap` a camera (a ray cast), its dark spots left out or
     patched (the patch joins the operator); no image is needed (a video's pixels are
@@ -446,21 +455,25 @@ def _cast_reference(j, cameras, mesh, caster, max_obliqueness, spots, spot_margi
     from resection.surface.surface_map import SurfaceMap
     from selfillum.unsteady.fastmap import FrameOperator
 
-    maps, finite, pre = [], [], []
+    maps, finite, pre, prep = [], [], [], []
     for c in cameras:  # a few cameras
         smap = SurfaceMap(mesh, c.poses[j], max_obliqueness=max_obliqueness, caster=caster)
-        fin, P = np.ones(smap.shape, bool), None
+        fin, P, spot = np.ones(smap.shape, bool), None, None
         if spots is not None and len(spots):
             cen, rad = project_spots(spots, smap, margin_px=spot_margin_px)
+            spot = (cen, rad)
             if patcher == "polynomial":
-                P = patch_operator(smap.shape, cen, rad)
+                P = spot = patch_operator(smap.shape, cen, rad)
                 fin = ~P.unfit.reshape(smap.shape)
             else:
                 fin = np.isfinite(mask_spots(np.zeros(smap.shape, np.float32), cen, rad))
         maps.append(smap)
         finite.append(fin)
         pre.append(P)
-    op = FrameOperator(maps, finite, merge_kw, gains, unpainted, sample_points=True, pre=pre)
+        prep.append(spot)
+    op = FrameOperator(maps, finite, merge_kw, gains, unpainted, sample_points=True,
+                       pre=None if halo else pre, halo_px=halo)
+    op.spots = prep
     op.frame = op.last_used = j
     return op
 
@@ -498,19 +511,29 @@ def _fixed_images(cameras, k, regs, spot_px, filter, filter_size, pres=None,
 
 
 def _fast_frame(ops, cameras, k, regs, spots, spot_px, filter, filter_size, moving,
-                refresh_px, op=None, pres=None):
+                refresh_px, op=None, pres=None, halo=0):
     """Face values of frame ``k`` by the operator (None: take the full way); a moving
     model uses ``op`` when given (its planned reference), else the nearest reference."""
     if moving:  # sampled as it is (a video's counts)
         imgs = [_frame(c.frames, k) for c in cameras]
         cams = [c.poses[k] for c in cameras]
-        if op is not None:  # its planned reference
-            B = op.faces_moved(imgs, cams, refresh_px)
-            return None if B is None else (B, cams, op.seen, op)
-        # the reference nearest this pose (on a sample of its points)
-        d = [o.displacement(cams) for o in ops]
-        j = int(np.argmin(d))
-        B = ops[j].faces_moved(imgs, cams, refresh_px) if d[j] <= refresh_px else None
+        if op is None:  # the reference nearest this pose (on a sample of its points)
+            d = [o.displacement(cams) for o in ops]
+            j = int(np.argmin(d))
+            if d[j] > refresh_px:
+                return None
+            op = ops[j]
+        prep = None
+        if halo:  # filtered: the spots and the filter in the reference's pixels
+
+            def prep(c, img, spots_=op.spots):
+                s = spots_[c]
+                if s is not None:
+                    img = s.apply(img) if hasattr(s, "apply") else mask_spots(img, *s)
+                return _gaussian(img, filter_size)
+
+        B = op.faces_moved(imgs, cams, refresh_px, prepare=prep)
+        return None if B is None else (B, cams, op.seen, op)
     else:
         imgs = _fixed_images(cameras, k, regs, spot_px, filter, filter_size, pres,
                              ops[0].cols)
