@@ -291,3 +291,13 @@ def test_polynomial_patch_on_a_moving_model(tiny, tmp_path):
     sel = ~tiny.near_marker & np.isfinite(Ta).all(axis=0) & np.isfinite(Tb).all(axis=0)
     assert sel.sum() > 100
     assert np.percentile(np.abs(Ta[:, sel] - Tb[:, sel]), 95) < 0.1
+
+
+def test_a_small_memory_budget_gives_the_same_result(tiny, tmp_path):
+    """Blocks of a few frames (Phase 1) and of a few nodes (Phase 2) under a tiny budget:
+    the same file's values as one block."""
+    a = run_thermal(_config(tiny, tmp_path / "big.h5", memory_mb=None))
+    b = run_thermal(_config(tiny, tmp_path / "small.h5", memory_mb=0.01))  # 4 frames, 3 nodes
+    with h5py.File(a.out) as fa, h5py.File(b.out) as fb:
+        for name in ("temperature", "heat_flux"):
+            np.testing.assert_array_equal(fa[name][()], fb[name][()])

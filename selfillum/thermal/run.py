@@ -75,10 +75,10 @@ def run_thermal(cfg: ThermalConfig) -> ThermalResult:
     from selfillum.thermal.balance import NodeGeometry, camera_centres
     from selfillum.thermal.inputs import SignalFrames, check_range, track_poses
     from selfillum.thermal.output import FORMAT, VERSION, write_xdmf
-    from selfillum.thermal.phase2 import run_phase2
+    from selfillum.thermal.phase2 import BYTES_PER_CELL, run_phase2
     from selfillum.thermal.reflections import HeatingSelfIllumination
     from selfillum.unsteady.blocks import local_phase1
-    from selfillum.unsteady.budget import Progress, plan_blocks
+    from selfillum.unsteady.budget import PHASE2_BYTES_PER_CELL, Progress, plan_blocks
     from selfillum.unsteady.config import check_options
     from selfillum.unsteady.inputs import open_videos, work_inputs
     from selfillum.unsteady.output import chunk_shape, json_attr, provenance
@@ -190,7 +190,10 @@ def run_thermal(cfg: ThermalConfig) -> ThermalResult:
         store.close()
         t2 = time.perf_counter()
         geom = NodeGeometry.from_grid(grid, F)
-        nb = max(nc, plan.nodes_per_block // nc * nc)
+        # Phase 2's blocks within the budget at this phase's cost a cell (the unsteady
+        # plan counts its own, smaller one)
+        nb = plan.nodes_per_block * PHASE2_BYTES_PER_CELL // BYTES_PER_CELL
+        nb = max(1, nb // nc * nc if nb >= nc else nb)
         with h5py.File(store.path, "r") as s1, contextlib.ExitStack() as stack:
             R, t = s1["R"][()], s1["t"][()]
             tmp = [stack.enter_context(atomic_path(p)) for p in files]
