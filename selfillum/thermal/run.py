@@ -99,7 +99,6 @@ def run_thermal(cfg: ThermalConfig) -> ThermalResult:
         rho = read_reflectance(cfg.reflectance, nf)
         rho_h = float(np.mean(rho))
     si_on = cfg.si and bool(np.any(rho > 0))
-    p1.si = si_on
     srcs, T, fps = open_videos(p1)
     if T < 2:
         raise InputError(f"{cfg.cameras[0].video}: {T} frame; the heat flux needs 2 or more")
@@ -141,10 +140,19 @@ def run_thermal(cfg: ThermalConfig) -> ThermalResult:
             check_range(s, c.video, mask, lo, hi, sorted({0, T - 1}))
     tc, nc = chunk_shape(T, N)
     plan = plan_blocks(T, N, (tc, nc), cfg.memory_mb)
+    t0 = time.perf_counter()
+    F = None
+    si_note = "" if si_on else ("--no-si" if not cfg.si else "reflectance 0")
+    if si_on:  # the view factors first: a model none of whose faces sees another (a
+        # convex body) has no light of its own to remove, and Phase 1 then stores one
+        # signal, not two
+        F = _form_factors(out, cfg, mesh, caster)
+        if F.nnz == 0:
+            si_on, F, si_note = False, None, "no face sees another"
+    p1.si = si_on
     inputs = work_inputs(p1, T, N, fps)
     inputs.update(thermal_mode=cfg.mode, signal_offset=offset, polarity=cfg.polarity,
                   reflectance_h=rho_h, si_refresh=cfg.si_refresh)
-    t0 = time.perf_counter()
     store = Phase1Store(out, inputs, (T, N), (tc, nc), len(cfg.cameras), resume=cfg.resume,
                         with_raw=si_on)
     done = store.frames_done
@@ -161,13 +169,9 @@ def run_thermal(cfg: ThermalConfig) -> ThermalResult:
                 poses, nf_ = track_poses(cfg, c, cam, T, store.folder, resume=store.resumed)
                 failed += nf_
             runs.append(CameraRun(c.number, cam, fr, poses))
-        F = si = None
+        si = None
         if si_on:
-            from selfillum.transport.viewfactors import view_factors
-
-            F = store.form_factors(lambda: view_factors(
-                mesh, rays_per_face=cfg.rays, seed=cfg.seed, progress=cfg.progress,
-                caster=caster))
+            store.form_factors(lambda: F)  # kept for a resume
             si = HeatingSelfIllumination(mesh, F, rho, refresh=cfg.si_refresh)
         off_nodes = None
         if offs is not None:  # the wind-off images onto the nodes, SI removed as wind-on
@@ -233,7 +237,8 @@ def run_thermal(cfg: ThermalConfig) -> ThermalResult:
                 f.attrs["options"] = json_attr({
                     "registration": cfg.registration, "target_patcher": cfg.target_patcher,
                     "overlap": cfg.overlap, "oblique_angle": cfg.oblique_angle,
-                    "si": si_on, "rays": cfg.rays, "seed": cfg.seed,
+                    "si": si_on, "si_off_because": si_note, "rays": cfg.rays,
+                    "seed": cfg.seed,
                     "si_refresh": cfg.si_refresh,
                     "si_solves": si.solves if si is not None else 0,
                     "polarity": cfg.polarity, "chunks": [tc, nc]})
@@ -273,6 +278,21 @@ def run_thermal(cfg: ThermalConfig) -> ThermalResult:
                          p2["out_of_range"], tuple(files), T / el if el > 0 else float("nan"),
                          method, {"setup": t1 - t0, "phase1": t2 - t1,
                                   "phase2": time.perf_counter() - t2})
+
+
+def _form_factors(out, cfg, mesh, caster):
+    """The view factors: those an interrupted run of ``out`` kept (``--resume``), else
+    computed (Embree, ``cfg.rays`` a face)."""
+    import scipy.sparse as sp
+
+    from selfillum.transport.viewfactors import view_factors
+    from selfillum.unsteady.work import work_folder
+
+    kept = work_folder(out) / "F.npz"
+    if cfg.resume and kept.exists():
+        return sp.csr_matrix(sp.load_npz(kept))
+    return sp.csr_matrix(view_factors(mesh, rays_per_face=cfg.rays, seed=cfg.seed,
+                                      progress=cfg.progress, caster=caster))
 
 
 def _write_head(f, grid, times, runs, cfg, R, t) -> None:
