@@ -2,7 +2,8 @@
 
 Each page is one test: its blocks run in page order in a fresh folder, the Python blocks in
 one namespace (as a reader would paste them into one session), the ``bash`` blocks with
-``bash -eu -o pipefail`` and ``.venv/bin`` first on the PATH. A page may prepare its files
+``bash -eu -o pipefail`` and ``.venv/bin`` first on the PATH; a ``json`` block (a file's
+content) must parse. A page may prepare its files
 in an invisible block (``<!-- invisible-code-block: python ... -->``, not shown on the
 site). A block of another language must be ``text`` (a diagram, a file's layout, printed
 output): a block without a language, or one this test cannot run, fails it.
@@ -14,6 +15,7 @@ runs.
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import subprocess
@@ -25,7 +27,7 @@ from sybil.parsers.markdown import CodeBlockParser, PythonCodeBlockParser
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
-LANGUAGES = {"python", "bash", "text"}
+LANGUAGES = {"python", "bash", "json", "text"}
 
 # run by CI itself: running it here would run the suite inside the suite
 CI_COMMAND = (ROOT / ".ci" / "run").read_text().strip().splitlines()[-1]
@@ -55,8 +57,20 @@ def _run_bash(example) -> None:
         f"\n{done.stderr[-3000:]}"
 
 
+def _parse_json(example) -> None:
+    """A file's content in JSON: one value, or several shown as alternatives."""
+    text, decoder, at = example.parsed, json.JSONDecoder(), 0
+    while text[at:].strip():
+        at += len(text[at:]) - len(text[at:].lstrip())
+        try:
+            _, at = decoder.raw_decode(text, at)
+        except json.JSONDecodeError as e:
+            raise AssertionError(f"{example.path}, line {example.line}: not JSON: {e}") from e
+
+
 SYBIL = Sybil(parsers=[PythonCodeBlockParser(),
-                       CodeBlockParser(language="bash", evaluator=_run_bash)])
+                       CodeBlockParser(language="bash", evaluator=_run_bash),
+                       CodeBlockParser(language="json", evaluator=_parse_json)])
 
 
 def _fence_languages(text: str) -> list[tuple[int, str]]:
@@ -86,7 +100,7 @@ def test_code_blocks_run(page, tmp_path, monkeypatch):
             continue
         assert language in LANGUAGES, (
             f"{page}, line {number}: a code block in {language or 'no language'}: give it "
-            "python or bash (run here) or text (a diagram or printed output)")
+            "python or bash (run here), json (parsed) or text (a diagram or printed output)")
     document = SYBIL.parse(page)
     document.namespace["cwd"] = tmp_path
     for example in document:
