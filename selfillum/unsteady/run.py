@@ -34,7 +34,12 @@ from selfillum.unsteady.config import (
     check_options,
     config_from_deck,
 )
-from selfillum.unsteady.inputs import open_videos, track_poses, work_inputs
+from selfillum.unsteady.inputs import (
+    open_videos,
+    read_form_factors,
+    track_poses,
+    work_inputs,
+)
 from selfillum.unsteady.insitu import insitu_fit, insitu_gain, insitu_inputs
 from selfillum.unsteady.output import chunk_shape, json_attr, write_flat, write_xdmf
 from selfillum.unsteady.phase1 import CameraRun, SelfIllumination
@@ -90,6 +95,8 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     if cfg.unpainted is not None:
         unpainted, _ = read_unpainted(cfg.unpainted, mesh)
     rho = read_reflectance(cfg.reflectance, len(mesh.faces)) if cfg.si else None
+    F_given = read_form_factors(cfg.form_factors, len(mesh.faces)) \
+        if cfg.si and cfg.form_factors is not None else None
     cams = [read_camera(c.calibration) for c in cfg.cameras]
     srcs, T, fps = open_videos(cfg)
     for k, (c, cam, s) in enumerate(zip(cfg.cameras, cams, srcs, strict=True)):
@@ -140,7 +147,7 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
         if cfg.si:
             from selfillum.transport.viewfactors import view_factors
 
-            F = store.form_factors(lambda: view_factors(
+            F = store.form_factors(lambda: F_given if F_given is not None else view_factors(
                 mesh, rays_per_face=cfg.rays, seed=cfg.seed, progress=cfg.progress,
                 caster=caster))
             si = SelfIllumination(mesh, F, rho, unpainted)
