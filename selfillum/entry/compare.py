@@ -9,8 +9,10 @@ segments.
 * **Kulite**: ``dCp = (p - mean(p)) 144 / q`` (``p`` psi, ``q`` psf), low-passed (8th-order
   Butterworth, forwards and backwards, at 0.45 of the frame rate) when it is sampled
   faster than the frames, then linearly interpolated at the frames' times (both clocks
-  start at the first frame, plus the table's ``t0``);
-* **statistics** (``scipy.signal``, same ``nperseg``, Hann windows, half overlap): the two
+  start at the first frame, plus the table's ``t0``), and the 6th-order polynomial in time
+  that Phase 2 removes from the PSP removed from it too (the same footing below a few Hz);
+* **statistics** (``scipy.signal``, the same segments of ``nperseg`` frames, default a
+  quarter of the run up to 256, Hann windows, half overlap): the two
   PSDs, their coherence, the RMS ratio ``rms(PSP) / rms(Kulite)`` (about the means), and
   the widest band of contiguous frequencies (DC left out) where the PSDs agree within 1 dB.
 """
@@ -92,6 +94,13 @@ def _resample(x, rate, t0, times):
     return np.interp(times, tk, y)
 
 
+def _detrend(y, order: int = 6):
+    """``y`` less its least-squares polynomial of ``order`` in time (Phase 2's fit)."""
+    x = np.linspace(-1.0, 1.0, len(y))
+    c = np.polynomial.legendre.legfit(x, y, min(order, len(y) - 1))
+    return y - np.polynomial.legendre.legval(x, c)
+
+
 def compare_kulites(h5_path, kulites, positions: dict, radii: dict, q: float,
                     nperseg: int | None = None) -> list:
     """Each Kulite of ``kulites`` (:class:`~selfillum.entry.kulites.KuliteSeries`) that has
@@ -110,7 +119,7 @@ def compare_kulites(h5_path, kulites, positions: dict, radii: dict, q: float,
         edge = float(np.median(e))
         fps = 1.0 / float(np.median(np.diff(times)))
         T = len(times)
-        nps = int(min(T, nperseg or 256))
+        nps = int(min(T, nperseg or max(8, min(256, T // 4))))
         for k, name in enumerate(kulites.names):
             if name not in positions:
                 continue
@@ -123,7 +132,7 @@ def compare_kulites(h5_path, kulites, positions: dict, radii: dict, q: float,
                 continue
             psp = cols[:, good].mean(axis=1).astype(float)
             kul = (kulites.data[k] - kulites.data[k].mean()) * 144.0 / q
-            kul = _resample(kul, kulites.rate, kulites.t0, times)
+            kul = _detrend(_resample(kul, kulites.rate, kulites.t0, times))
             psp = psp - psp.mean()
             kul = kul - kul.mean()
             fr, p1 = signal.welch(psp, fs=fps, nperseg=nps)

@@ -26,8 +26,9 @@ from resection.errors import InputError
 __all__ = ["DatapointTask", "run_datapoint", "empty_row", "PRODUCTS"]
 
 #: the files and folders of a datapoint's folder this module writes (and may remove).
-PRODUCTS = ("unsteady.h5", "unsteady.xdmf", "unsteady_rms.png", "unsteady_psd.png",
-            "unsteady.h5.work", "kulites", "row.json", "done.json", "started.json")
+PRODUCTS = ("calibration.json", "unsteady.h5", "unsteady.xdmf", "unsteady_rms.png",
+            "unsteady_psd.png", "unsteady.h5.work", "kulites", "row.json", "done.json",
+            "started.json")
 
 
 @dataclass(frozen=True)
@@ -89,6 +90,8 @@ def _calibrate(task, videos, cals, markers, mesh, att, folder, reuse):
     from selfillum.unsteady.config import CameraInput
 
     inputs, results = [], []
+    stats = folder / "calibration.json"
+    kept = json.loads(stats.read_text()) if reuse and stats.is_file() else {}
     for n, video in videos.items():
         js = folder / f"cam{n:02d}-to-model.json"
         try:
@@ -101,9 +104,12 @@ def _calibrate(task, videos, cals, markers, mesh, att, folder, reuse):
             H, W = src.shape
             ct = read_camera_tunnel(cals[n], W, H)
             pred = camera_to_model(ct, att, task.tunnel)
-            if reuse and js.is_file():
-                results.append(CameraCalibration(n, read_camera(js), pred, reason=None,
-                                                 files=(js,)))
+            if reuse and js.is_file() and str(n) in kept:
+                k = kept[str(n)]
+                files = tuple(folder / f for f in k["files"])
+                results.append(CameraCalibration(n, read_camera(js), pred, k["used"],
+                                                 k["expected"], k["rms"], k["grade"],
+                                                 k["shift"], None, files))
             else:
                 try:
                     img = src[0]
@@ -114,6 +120,11 @@ def _calibrate(task, videos, cals, markers, mesh, att, folder, reuse):
         finally:
             src.close()
         inputs.append(CameraInput(n, Path(video), js))
+    stats.write_text(json.dumps({str(r.number): {
+        "used": r.used, "expected": r.expected, "rms": r.rms, "grade": r.grade,
+        "shift": r.shift, "reason": r.reason,
+        "files": [str(Path(p).relative_to(folder)) for p in r.files]} for r in results},
+        indent=1))
     return inputs, results
 
 
@@ -199,10 +210,9 @@ def _process(task, folder: Path, row: dict) -> None:
     markers = read_markers(dp.targets)
     inputs, results = _calibrate(task, videos, cals, markers, grid.mesh, att, folder, reuse)
     row["cameras"] = " ".join(
-        f"cam{r.number:02d}:{r.used}/{r.expected} targets,rms {r.rms:.2f} px,"
-        f"moved {r.shift:.1f} px" if r.camera is not None and r.reason is None and
-        math.isfinite(r.rms) else f"cam{r.number:02d}:" +
-        ("reused" if r.reason is None else "failed") for r in results)
+        f"cam{r.number:02d}: {r.used}/{r.expected} targets, RMS {r.rms:.2f} px, "
+        f"{r.shift:.1f} px from the tunnel's prediction" if r.camera is not None
+        else f"cam{r.number:02d}: failed" for r in results)
     row["files"]["pose"] = [str(p.relative_to(folder)) for r in results for p in r.files
                             if p.suffix == ".png"]
     row["files"]["calibration"] = [str(p.relative_to(folder)) for r in results
