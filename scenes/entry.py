@@ -49,8 +49,8 @@ class SyntheticEntry:
     """``folder``, ``index`` (uPSP JSON), ``yaml`` (project schema), ``processing``,
     ``ids`` (every datapoint), ``alphas`` ({id: the .wtd's ALPHA}), ``wind_off`` and
     ``corrupt`` (ids or None), ``cameras`` ({id: the true camera-to-model camera of the
-    first frame}), ``truth`` ({id: UnsteadyRun}), ``kulites`` ({name: (x, y, z)}),
-    ``camera_tunnel`` (the tunnel camera), ``fps``, ``kulite_rate``."""
+    first frame, its vibration included}), ``truth`` ({id: UnsteadyRun}), ``kulites``
+    ({name: (x, y, z)}), ``camera_tunnel`` (the tunnel camera), ``fps``, ``kulite_rate``."""
 
     folder: Path
     index: Path
@@ -177,7 +177,7 @@ def make_entry(folder: str | os.PathLike, *, alphas=(-5.0, 5.0, 15.0), wind_off:
         ids.append(dp)
         al[dp] = a
         truth[dp] = run
-        trues[dp] = cam
+        trues[dp] = cam.with_pose(R=run.poses[0, 0, :3], t=run.poses[0, 0, 3])  # frame 0
     off = bad = None
     if wind_off:  # the first alpha's frames, the tunnel at rest
         s = len(ids) + 1

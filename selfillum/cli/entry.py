@@ -14,8 +14,8 @@ from resection.errors import InputError
 def _cmd_entry(args) -> int:
     from selfillum.entry.run import EntryConfig, run_entry
 
-    if args.workers is not None and args.workers < 1:
-        raise InputError(f"--workers {args.workers}: must be >= 1")
+    if args.workers is not None and args.workers < 0:
+        raise InputError(f"--workers {args.workers}: must be >= 0")
     given = [x for x in (args.scheduler, args.jobqueue) if x]
     if len(given) > 1 or (given and args.workers is not None):
         raise InputError("give one of --workers, --scheduler, --jobqueue")
@@ -28,7 +28,8 @@ def _cmd_entry(args) -> int:
         index=Path(args.index), out=Path(args.out),
         processing=Path(args.processing) if args.processing else None,
         test_config=Path(args.test_config) if args.test_config else None,
-        only=args.only, resume=args.resume, workers=args.workers or 1,
+        only=args.only, resume=args.resume,
+        workers=1 if args.workers is None else args.workers,
         scheduler=args.scheduler, jobqueue=Path(args.jobqueue) if args.jobqueue else None,
         rays=args.rays, seed=args.seed, unsteady=unsteady,
         calibration={"marker_accuracy": args.marker_accuracy, "max_rms": args.max_rms,
@@ -74,7 +75,8 @@ def register(sub) -> None:
                    help="skip datapoints finished with the same inputs and options, carry "
                    "on half-done ones")
     p.add_argument("--workers", type=int, metavar="N",
-                   help="Dask local cluster of N worker processes (default 1)")
+                   help="Dask local cluster of N worker processes (default 1; 0: the "
+                   "datapoints one after the other in this process, no Dask)")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="a running Dask scheduler (tcp://host:8786); its workers must see "
                    "the files at the same paths")

@@ -4,8 +4,10 @@ dark spot, the Kulite resampled to the frames' times, then both spectra on the s
 segments.
 
 * **ring**: nodes at ``1.5 r`` to ``1.5 r + 2 h`` from the Kulite (``r`` its spot's
-  radius, ``h`` the grid's median edge), with a dCp (the spot's own nodes are patched or
-  left out by the run);
+  radius, ``h`` the grid's median edge) on the Kulite's own surface (their normal within
+  30 deg of the ``.tgts`` normal, and within a quarter of the ring's radius of its tangent
+  plane: not a neighbouring part), with a dCp (the spot's own nodes are patched or left
+  out by the run);
 * **Kulite**: ``dCp = (p - mean(p)) 144 / q`` (``p`` psi, ``q`` psf), low-passed (8th-order
   Butterworth, forwards and backwards, at 0.45 of the frame rate) when it is sampled
   faster than the frames, then linearly interpolated at the frames' times (both clocks
@@ -25,8 +27,8 @@ import numpy as np
 
 from resection.errors import InputError
 
-__all__ = ["KuliteComparison", "compare_kulites", "ring_nodes", "agreement_band",
-           "write_comparison"]
+__all__ = ["KuliteComparison", "compare_kulites", "ring_nodes", "node_normals",
+           "agreement_band", "write_comparison"]
 
 
 @dataclass(frozen=True)
@@ -57,11 +59,34 @@ class KuliteComparison:
         return float(np.median(self.coherence[m]))
 
 
-def ring_nodes(points, edge: float, centre, radius: float) -> np.ndarray:
-    """Grid nodes on the ring ``[1.5 r, 1.5 r + 2 edge]`` around ``centre``."""
-    d = np.linalg.norm(np.asarray(points) - np.asarray(centre)[None, :], axis=1)
+def node_normals(points, triangles) -> np.ndarray:
+    """Unit normals of the grid's nodes: the area-weighted normals of their triangles."""
+    p = np.asarray(points, float)
+    t = np.asarray(triangles)
+    fn = np.cross(p[t[:, 1]] - p[t[:, 0]], p[t[:, 2]] - p[t[:, 0]])  # 2 x area x normal
+    n = np.zeros_like(p)
+    for k in range(3):  # the three corners
+        np.add.at(n, t[:, k], fn)
+    ln = np.linalg.norm(n, axis=1)
+    return n / np.where(ln > 0, ln, 1.0)[:, None]
+
+
+def ring_nodes(points, edge: float, centre, radius: float, normal=None,
+               normals=None) -> np.ndarray:
+    """Grid nodes on the ring ``[1.5 r, 1.5 r + 2 edge]`` around ``centre``; with the
+    Kulite's ``normal`` and the nodes' ``normals``, only those on its surface (module
+    notes)."""
+    rel = np.asarray(points) - np.asarray(centre)[None, :]
+    d = np.linalg.norm(rel, axis=1)
     lo = 1.5 * radius
-    return np.flatnonzero((d >= lo) & (d <= lo + 2.0 * edge))
+    hi = lo + 2.0 * edge
+    ok = (d >= lo) & (d <= hi)
+    if normal is not None:
+        n = np.asarray(normal, float) / np.linalg.norm(normal)
+        ok &= np.abs(rel @ n) <= 0.25 * hi
+        if normals is not None:
+            ok &= np.asarray(normals) @ n >= np.cos(np.radians(30.0))
+    return np.flatnonzero(ok)
 
 
 def agreement_band(f, a, b, db: float = 1.0) -> tuple:
@@ -94,19 +119,23 @@ def _resample(x, rate, t0, times):
     return np.interp(times, tk, y)
 
 
-def _detrend(y, order: int = 6):
-    """``y`` less its least-squares polynomial of ``order`` in time (Phase 2's fit)."""
+def _detrend(y, order: int | None = None):
+    """``y`` less its least-squares polynomial of ``order`` in time (default Phase 2's
+    :data:`selfillum.unsteady.phase2.DETREND_ORDER`)."""
+    from selfillum.unsteady.phase2 import DETREND_ORDER
+
+    order = DETREND_ORDER if order is None else order
     x = np.linspace(-1.0, 1.0, len(y))
     c = np.polynomial.legendre.legfit(x, y, min(order, len(y) - 1))
     return y - np.polynomial.legendre.legval(x, c)
 
 
 def compare_kulites(h5_path, kulites, positions: dict, radii: dict, q: float,
-                    nperseg: int | None = None) -> list:
+                    nperseg: int | None = None, normals: dict | None = None) -> list:
     """Each Kulite of ``kulites`` (:class:`~selfillum.entry.kulites.KuliteSeries`) that has
-    a position (``positions``/``radii``: name -> model point, spot radius) against the
-    unsteady run's ``/dcp`` in ``h5_path``. A Kulite without a position, or whose ring
-    has no dCp, is left out (the caller names them)."""
+    a position (``positions``/``radii``/``normals``: name -> model point, spot radius,
+    surface normal) against the unsteady run's ``/dcp`` in ``h5_path``. A Kulite without
+    a position, or whose ring has no dCp, is left out (the caller names them)."""
     import h5py
     from scipy import signal
 
@@ -117,13 +146,15 @@ def compare_kulites(h5_path, kulites, positions: dict, radii: dict, q: float,
         times = f["frames/time"][()]
         e = np.linalg.norm(pts[tri] - pts[np.roll(tri, 1, axis=1)], axis=2)
         edge = float(np.median(e))
+        nn = node_normals(pts, tri) if normals else None
         fps = 1.0 / float(np.median(np.diff(times)))
         T = len(times)
         nps = int(min(T, nperseg or max(8, min(256, T // 4))))
         for k, name in enumerate(kulites.names):
             if name not in positions:
                 continue
-            idx = ring_nodes(pts, edge, positions[name], radii[name])
+            idx = ring_nodes(pts, edge, positions[name], radii[name],
+                             (normals or {}).get(name), nn)
             if idx.size == 0:
                 continue
             cols = f["dcp"][:, np.sort(idx)]  # a few columns of the run

@@ -138,7 +138,8 @@ def _kulites(task, wtd, cond_q, h5, folder, row):
     v = read_tgts(task.dp.targets).virtuals
     pos = {k: x for k, x in zip(v.ids, v.xyz, strict=True)}
     rad = {k: 0.5 * float(d) for k, d in zip(v.ids, v.diameter, strict=True)}
-    comps = compare_kulites(h5, ks, pos, rad, cond_q)
+    nor = {k: x for k, x in zip(v.ids, v.normals, strict=True)}
+    comps = compare_kulites(h5, ks, pos, rad, cond_q, normals=nor)
     kf = folder / "kulites"
     kf.mkdir(exist_ok=True)
     files = write_comparison(kf, comps)

@@ -44,7 +44,8 @@ class EntryConfig:
     """``index``: the datapoint index; ``out``: the products folder; ``processing``: uPSP's
     processing parameters file; ``test_config``: the tunnel's configuration for a uPSP
     index without ``external-calibration`` parameters; ``only``: datapoint ids;
-    ``resume``; ``workers`` (local Dask processes), ``scheduler`` (address),
+    ``resume``; ``workers`` (local Dask processes; 0: in this process, no Dask),
+    ``scheduler`` (address),
     ``jobqueue`` (batch cluster file); ``rays``, ``seed``: view factors;
     ``unsteady``: further :class:`~selfillum.unsteady.UnsteadyConfig` keywords (e.g.
     ``memory_mb``, ``fps``, ``si``); ``calibration``: ``marker_accuracy``, ``max_rms``,
@@ -220,12 +221,40 @@ def _say(cfg, text):
         print(text, file=sys.stderr, flush=True)
 
 
-def run_entry(cfg: EntryConfig) -> EntryResult:
-    """Process the entry (module notes)."""
+def _on_dask(cfg, todo, need, rows) -> None:
+    """The view factors, then the datapoints, as Dask tasks."""
     from dask.distributed import as_completed
 
     from selfillum.entry.datapoint import empty_row, run_datapoint
     from selfillum.entry.jobqueue import open_client
+
+    client, closers = open_client(workers=cfg.workers, scheduler=cfg.scheduler,
+                                  jobqueue=cfg.jobqueue)
+    try:
+        futs = [client.submit(_form_factors, p, g, cfg.rays, cfg.seed, pure=False)
+                for p, g in need.items()]
+        for f in futs:
+            f.result()
+        futs = client.map(run_datapoint, todo, pure=False)
+        owner = {f.key: t for f, t in zip(futs, todo, strict=True)}
+        for n, f in enumerate(as_completed(futs), start=1):
+            t = owner[f.key]
+            try:
+                r = f.result()
+            except Exception as e:  # noqa: BLE001 -- a worker lost: that datapoint fails
+                r = empty_row(t.dp.id)
+                r["status"] = f"failed: datapoint {t.dp.id}: {type(e).__name__}: {e}"
+            rows[t.dp.id] = r
+            _say(cfg, f"entry: [{n}/{len(todo)}] {t.dp.id}: {r['status']} "
+                 f"({r['seconds']} s)")
+    finally:
+        for c in closers:
+            c.close()
+
+
+def run_entry(cfg: EntryConfig) -> EntryResult:
+    """Process the entry (module notes)."""
+    from selfillum.entry.datapoint import run_datapoint
     from selfillum.entry.summary import write_summary
 
     t0 = time.perf_counter()
@@ -244,35 +273,20 @@ def run_entry(cfg: EntryConfig) -> EntryResult:
         else:
             todo.append(t)
     if todo:
-        client, closers = open_client(workers=cfg.workers, scheduler=cfg.scheduler,
-                                      jobqueue=cfg.jobqueue)
-        try:
-            need = {p: g for p, g in ff_jobs.items() if any(t.form_factors == p for t in todo)}
-            if need:
-                (out / "_entry").mkdir(exist_ok=True)
-                _say(cfg, f"entry: view factors of {len(need)} grid(s), {cfg.rays} rays a "
-                     "face, once for the entry")
-                futs = [client.submit(_form_factors, p, g, cfg.rays, cfg.seed, pure=False)
-                        for p, g in need.items()]
-                for f in futs:
-                    f.result()
-            futs = client.map(run_datapoint, todo, pure=False)
-            owner = {f.key: t for f, t in zip(futs, todo, strict=True)}
-            n = 0
-            for f in as_completed(futs):
-                t = owner[f.key]
-                n += 1
-                try:
-                    r = f.result()
-                except Exception as e:  # noqa: BLE001 -- a worker lost: that datapoint fails
-                    r = empty_row(t.dp.id)
-                    r["status"] = f"failed: datapoint {t.dp.id}: {type(e).__name__}: {e}"
-                rows[t.dp.id] = r
+        need = {p: g for p, g in ff_jobs.items() if any(t.form_factors == p for t in todo)}
+        if need:
+            (out / "_entry").mkdir(exist_ok=True)
+            _say(cfg, f"entry: view factors of {len(need)} grid(s), {cfg.rays} rays a face, "
+                 "once for the entry")
+        if cfg.workers == 0 and not (cfg.scheduler or cfg.jobqueue):  # in this process
+            for p, g in need.items():
+                _form_factors(p, g, cfg.rays, cfg.seed)
+            for n, t in enumerate(todo, start=1):
+                rows[t.dp.id] = r = run_datapoint(t)
                 _say(cfg, f"entry: [{n}/{len(todo)}] {t.dp.id}: {r['status']} "
                      f"({r['seconds']} s)")
-        finally:
-            for c in closers:
-                c.close()
+        else:
+            _on_dask(cfg, todo, need, rows)
     ordered = [rows[t.dp.id] for t in tasks]
     el = time.perf_counter() - t0
     csv_path, html = write_summary(out, ordered, idx, el)
