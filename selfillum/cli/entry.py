@@ -99,4 +99,8 @@ def register(sub) -> None:
                    help="how far a target may lie from its prediction from the tunnel, px "
                    "(default 25)")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
-    p.set_defaults(func=_cmd_entry)
+    from resection.cli.paths import FolderOutput
+    from selfillum.entry.run import MANIFEST, OUT_NAMES
+
+    p.set_defaults(func=_cmd_entry, out_folder=FolderOutput(OUT_NAMES, MANIFEST,
+                                                            "selfillum entry"))

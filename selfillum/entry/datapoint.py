@@ -1,6 +1,8 @@
-"""One datapoint of the entry, from its files to its products (a Dask task):
-:func:`run_datapoint` never raises; it returns the datapoint's summary row, its status
-``ok``, ``wind-off`` or ``failed: <reason>``.
+"""One datapoint of the entry, from its files to its products, in two Dask tasks:
+:func:`calibrate_datapoint` (its inputs, its cameras' first frames) and, when that says
+``calibrated``, :func:`run_datapoint` (the unsteady run, the Kulites). Neither raises;
+each returns the datapoint's summary row, its final status ``ok``, ``wind-off`` or
+``failed: <reason>``.
 
 Products in ``DIR/<datapoint>/`` (fixed names): ``camNN-to-model.json`` and
 ``camNN-pose.png`` (:mod:`selfillum.entry.calibrate`), ``unsteady.h5`` (with
@@ -23,7 +25,8 @@ from pathlib import Path
 
 from resection.errors import InputError
 
-__all__ = ["DatapointTask", "run_datapoint", "empty_row", "PRODUCTS"]
+__all__ = ["DatapointTask", "calibrate_datapoint", "run_datapoint", "empty_row",
+           "PRODUCTS"]
 
 #: the files and folders of a datapoint's folder this module writes (and may remove).
 PRODUCTS = ("calibration.json", "unsteady.h5", "unsteady.xdmf", "unsteady_rms.png",
@@ -157,13 +160,10 @@ def _kulites(task, wtd, cond_q, h5, folder, row):
     return comps
 
 
-def run_datapoint(task: DatapointTask) -> dict:
-    """Calibrate, run and compare one datapoint (module notes); the summary row."""
+def _guarded(task, folder, row, step) -> dict:
     t0 = time.perf_counter()
-    row = empty_row(task.dp.id)
-    folder = Path(task.folder)
     try:
-        _process(task, folder, row)
+        step(task, folder, row)
     except InputError as e:
         msg = str(e).splitlines()[0]
         row["status"] = "failed: " + (msg if msg.startswith("datapoint") else
@@ -171,25 +171,37 @@ def run_datapoint(task: DatapointTask) -> dict:
     except Exception as e:  # noqa: BLE001 -- one datapoint's failure never stops the rest
         row["status"] = f"failed: datapoint {task.dp.id}: {type(e).__name__}: " \
             f"{str(e).splitlines()[0] if str(e) else ''}"
-    row["seconds"] = round(time.perf_counter() - t0, 2)
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        (folder / "row.json").write_text(json.dumps(row, indent=1, default=float))
-        if not row["status"].startswith("failed"):
-            (folder / "done.json").write_text(json.dumps({"key": task.key}))
-    except OSError as e:
-        row["status"] = f"failed: datapoint {task.dp.id}: {folder}: {e}"
+    row["seconds"] = round(row["seconds"] + time.perf_counter() - t0, 2) \
+        if row["seconds"] == row["seconds"] else round(time.perf_counter() - t0, 2)
+    if row["status"] != "calibrated":
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            (folder / "row.json").write_text(json.dumps(row, indent=1, default=float))
+            if not row["status"].startswith("failed"):
+                (folder / "done.json").write_text(json.dumps({"key": task.key}))
+        except OSError as e:
+            row["status"] = f"failed: datapoint {task.dp.id}: {folder}: {e}"
     return row
 
 
-def _process(task, folder: Path, row: dict) -> None:
+def calibrate_datapoint(task: DatapointTask) -> dict:
+    """Stage 1: the datapoint's inputs and its cameras' first frames; the row's status is
+    ``calibrated`` (stage 2 to come), ``wind-off`` or ``failed: ...``. Never raises."""
+    return _guarded(task, Path(task.folder), empty_row(task.dp.id), _calibrate_stage)
+
+
+def run_datapoint(task: DatapointTask, row: dict) -> dict:
+    """Stage 2, after :func:`calibrate_datapoint` said ``calibrated``: the unsteady run and
+    the Kulites; the final row. Never raises."""
+    return _guarded(task, Path(task.folder), dict(row), _run_stage)
+
+
+def _calibrate_stage(task, folder: Path, row: dict) -> None:
     from resection.io.markers import read_markers
     from resection.io.wtd import read_wtd
     from selfillum.entry.index import find_camera_tunnel, find_videos
     from selfillum.entry.tunnel import attitude_from_wtd
-    from selfillum.unsteady.config import UnsteadyConfig
     from selfillum.unsteady.grid import load_run_grid
-    from selfillum.unsteady.run import run_unsteady
 
     dp = task.dp
     folder.mkdir(parents=True, exist_ok=True)
@@ -218,6 +230,8 @@ def _process(task, folder: Path, row: dict) -> None:
                             if p.suffix == ".png"]
     row["files"]["calibration"] = [str(p.relative_to(folder)) for r in results
                                    for p in r.files if p.suffix == ".json"]
+    row["_videos"] = {str(c.number): str(c.video) for c in inputs}
+    row["_reuse"] = reuse
     bad = [r for r in results if r.camera is None]
     if bad:
         row["status"] = "failed: " + "; ".join(
@@ -228,6 +242,19 @@ def _process(task, folder: Path, row: dict) -> None:
         return
     if dp.steady is None:
         raise InputError(f"datapoint {dp.id}: no steady Cp file")
+    row["status"] = "calibrated"
+
+
+def _run_stage(task, folder: Path, row: dict) -> None:
+    from resection.io.wtd import read_wtd
+    from selfillum.unsteady.config import CameraInput, UnsteadyConfig
+    from selfillum.unsteady.run import run_unsteady
+
+    dp = task.dp
+    vids = row.pop("_videos")
+    reuse = row.pop("_reuse")
+    inputs = [CameraInput(int(n), Path(v), folder / f"cam{int(n):02d}-to-model.json")
+              for n, v in vids.items()]
     out = folder / "unsteady.h5"
     work = folder / "unsteady.h5.work"
     cfg = UnsteadyConfig(grid=dp.grid, sds=dp.wtd, cameras=inputs, out=out,
@@ -241,7 +268,7 @@ def _process(task, folder: Path, row: dict) -> None:
     row["files"]["unsteady"] = [str(Path(p).relative_to(folder)) for p in res.files]
     if dp.kulites is not None:
         try:
-            _kulites(task, wtd, q, out, folder, row)
+            _kulites(task, read_wtd(dp.wtd), row["q"], out, folder, row)
         except InputError as e:
             row["kulites"] = f"failed: {str(e).splitlines()[0]}"
     row["status"] = "ok"

@@ -66,7 +66,7 @@ def make_jobqueue_cluster(conf: dict, *, scheduler_options: dict | None = None):
     kw = {k: conf[k] for k in JOBQUEUE_KEYS if k in conf}
     kw.setdefault("processes", 1)
     try:
-        return cls(**kw, scheduler_options=scheduler_options or {"dashboard_address": None})
+        return cls(**kw, scheduler_options=scheduler_options or {"dashboard_address": ":0"})
     except (TypeError, ValueError) as e:
         raise InputError(f"{conf['source']}: {e}") from None
 
@@ -89,6 +89,6 @@ def open_client(*, workers: int = 1, scheduler: str | None = None, jobqueue=None
         c = Client(cluster)
         return c, [c, cluster]
     cluster = LocalCluster(n_workers=max(1, int(workers)), threads_per_worker=1,
-                           processes=True, dashboard_address=None)
+                           processes=True, dashboard_address=":0")
     c = Client(cluster)
     return c, [c, cluster]

@@ -5,12 +5,17 @@
    and their overlays, each datapoint's ``.wtd`` (its attitude, and Q), grid, targets,
    steady Cp, paint calibration and the tunnel's configuration. Videos are a datapoint's
    own: a missing or corrupt one fails that datapoint only.
-2. What depends only on the model is computed once for the entry: the view factors of each
-   grid (``DIR/_entry/F-<key>.npz``, a Dask task), given to every datapoint's run.
-3. Each datapoint is a Dask task (:func:`selfillum.entry.datapoint.run_datapoint`): a local
-   cluster by default, a running scheduler, or a PBS/Slurm batch cluster
-   (:mod:`selfillum.entry.jobqueue`). Each writes only its own folder ``DIR/<id>/``.
-4. ``DIR/summary.csv`` and ``DIR/index.html`` (:mod:`selfillum.entry.summary`).
+2. Each datapoint's calibration is a Dask task
+   (:func:`selfillum.entry.datapoint.calibrate_datapoint`): a local cluster by default, a
+   running scheduler, or a PBS/Slurm batch cluster (:mod:`selfillum.entry.jobqueue`).
+   Each writes only its own folder ``DIR/<id>/``.
+3. What depends only on the model is computed once for the entry, when a calibrated
+   datapoint needs it: the view factors of each grid (``DIR/_entry/F-<key>.npz``, a Dask
+   task), given to every datapoint's run.
+4. Each calibrated wind-on datapoint's unsteady run and Kulites, a Dask task
+   (:func:`selfillum.entry.datapoint.run_datapoint`).
+5. ``DIR/summary.csv`` and ``DIR/index.html`` (:mod:`selfillum.entry.summary`);
+   ``DIR/entry.json`` marks the folder as this command's.
 
 With ``resume``, a datapoint whose ``done.json`` holds the identity of its current inputs
 and options is skipped; one under way carries on (its calibrations kept, its unsteady run
@@ -30,7 +35,12 @@ from pathlib import Path
 
 from resection.errors import InputError
 
-__all__ = ["EntryConfig", "EntryResult", "run_entry", "prepare_entry", "DEFAULT_OPTIONS"]
+__all__ = ["EntryConfig", "EntryResult", "run_entry", "prepare_entry", "DEFAULT_OPTIONS",
+           "MANIFEST", "OUT_NAMES"]
+
+#: the file marking ``DIR`` as this command's output, and what it writes there itself.
+MANIFEST = "entry.json"
+OUT_NAMES = ("summary.csv", "index.html", MANIFEST, "_entry")
 
 #: the deck options of an entry unless the index or the processing file say otherwise:
 #: what uPSP users set (target_patcher polynomial, registration pixel, overlap
@@ -221,46 +231,87 @@ def _say(cfg, text):
         print(text, file=sys.stderr, flush=True)
 
 
-def _on_dask(cfg, todo, need, rows) -> None:
-    """The view factors, then the datapoints, as Dask tasks."""
+def _stages(cfg, todo, ff_jobs, rows, out, submit, gather) -> None:
+    """Stage 1 (calibrations) for every datapoint, then the view factors the calibrated
+    ones need, then stage 2 (their unsteady runs); ``submit(fn, *args)`` -> handle,
+    ``gather(handles)`` yields ``(position in handles, result or exception)`` as they
+    finish."""
+    from selfillum.entry.datapoint import calibrate_datapoint, empty_row, run_datapoint
+
+    def collect(handles, owner, stage):
+        done = {}
+        for n, (i, r) in enumerate(gather(handles), start=1):
+            t = owner[i]
+            if isinstance(r, BaseException):  # a worker lost: that datapoint fails
+                r = dict(empty_row(t.dp.id), status=f"failed: datapoint {t.dp.id}: "
+                         f"{type(r).__name__}: {r}")
+            done[t.dp.id] = r
+            if r["status"] != "calibrated":
+                rows[t.dp.id] = r
+            _say(cfg, f"entry: {stage} [{n}/{len(handles)}] {t.dp.id}: {r['status']} "
+                 f"({r['seconds']} s)")
+        return done
+
+    hs = [submit(calibrate_datapoint, t) for t in todo]
+    first = collect(hs, todo, "calibration")
+    go = [t for t in todo if first[t.dp.id]["status"] == "calibrated"]
+    need = {t.form_factors: ff_jobs[t.form_factors] for t in go if t.form_factors}
+    if need:
+        (out / "_entry").mkdir(exist_ok=True)
+        _say(cfg, f"entry: view factors of {len(need)} grid(s), {cfg.rays} rays a face, "
+             "once for the entry")
+        for _, r in gather([submit(_form_factors, p, g, cfg.rays, cfg.seed)
+                            for p, g in need.items()]):
+            if isinstance(r, BaseException):
+                raise r
+    hs = [submit(run_datapoint, t, first[t.dp.id]) for t in go]
+    collect(hs, go, "run")
+
+
+def _local():
+    def submit(fn, *a):
+        try:
+            return (fn(*a),)
+        except Exception as e:  # noqa: BLE001 -- handed to the caller as on Dask
+            return (e,)
+
+    def gather(handles):
+        for i, h in enumerate(handles):
+            yield i, h[0]
+
+    return submit, gather
+
+
+def _dask(client):
     from dask.distributed import as_completed
 
-    from selfillum.entry.datapoint import empty_row, run_datapoint
-    from selfillum.entry.jobqueue import open_client
+    def submit(fn, *a):
+        return client.submit(fn, *a, pure=False)
 
-    client, closers = open_client(workers=cfg.workers, scheduler=cfg.scheduler,
-                                  jobqueue=cfg.jobqueue)
-    try:
-        futs = [client.submit(_form_factors, p, g, cfg.rays, cfg.seed, pure=False)
-                for p, g in need.items()]
-        for f in futs:
-            f.result()
-        futs = client.map(run_datapoint, todo, pure=False)
-        owner = {f.key: t for f, t in zip(futs, todo, strict=True)}
-        for n, f in enumerate(as_completed(futs), start=1):
-            t = owner[f.key]
+    def gather(futs):
+        where = {f.key: i for i, f in enumerate(futs)}
+        for f in as_completed(futs):
             try:
-                r = f.result()
-            except Exception as e:  # noqa: BLE001 -- a worker lost: that datapoint fails
-                r = empty_row(t.dp.id)
-                r["status"] = f"failed: datapoint {t.dp.id}: {type(e).__name__}: {e}"
-            rows[t.dp.id] = r
-            _say(cfg, f"entry: [{n}/{len(todo)}] {t.dp.id}: {r['status']} "
-                 f"({r['seconds']} s)")
-    finally:
-        for c in closers:
-            c.close()
+                yield where[f.key], f.result()
+            except Exception as e:  # noqa: BLE001 -- a worker lost
+                yield where[f.key], e
+
+    return submit, gather
 
 
 def run_entry(cfg: EntryConfig) -> EntryResult:
     """Process the entry (module notes)."""
-    from selfillum.entry.datapoint import run_datapoint
+    from resection.io.marks import PRODUCER_KEY
     from selfillum.entry.summary import write_summary
 
     t0 = time.perf_counter()
     idx, tasks, ff_jobs = prepare_entry(cfg)
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
+    (out / MANIFEST).write_text(json.dumps({PRODUCER_KEY: "selfillum entry",
+                                            "index": str(Path(cfg.index).resolve()),
+                                            "datapoints": [t.dp.id for t in tasks]},
+                                           indent=1))
     rows, skipped, todo = {}, [], []
     for t in tasks:
         done = t.folder / "done.json"
@@ -273,20 +324,18 @@ def run_entry(cfg: EntryConfig) -> EntryResult:
         else:
             todo.append(t)
     if todo:
-        need = {p: g for p, g in ff_jobs.items() if any(t.form_factors == p for t in todo)}
-        if need:
-            (out / "_entry").mkdir(exist_ok=True)
-            _say(cfg, f"entry: view factors of {len(need)} grid(s), {cfg.rays} rays a face, "
-                 "once for the entry")
         if cfg.workers == 0 and not (cfg.scheduler or cfg.jobqueue):  # in this process
-            for p, g in need.items():
-                _form_factors(p, g, cfg.rays, cfg.seed)
-            for n, t in enumerate(todo, start=1):
-                rows[t.dp.id] = r = run_datapoint(t)
-                _say(cfg, f"entry: [{n}/{len(todo)}] {t.dp.id}: {r['status']} "
-                     f"({r['seconds']} s)")
+            _stages(cfg, todo, ff_jobs, rows, out, *_local())
         else:
-            _on_dask(cfg, todo, need, rows)
+            from selfillum.entry.jobqueue import open_client
+
+            client, closers = open_client(workers=cfg.workers, scheduler=cfg.scheduler,
+                                          jobqueue=cfg.jobqueue)
+            try:
+                _stages(cfg, todo, ff_jobs, rows, out, *_dask(client))
+            finally:
+                for c in closers:
+                    c.close()
     ordered = [rows[t.dp.id] for t in tasks]
     el = time.perf_counter() - t0
     csv_path, html = write_summary(out, ordered, idx, el)
