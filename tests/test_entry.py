@@ -181,7 +181,10 @@ def test_summary_page_in_chromium(entry, done, tmp_path):
 
 def test_resume(entry, done, tmp_path):
     """--resume skips what is done with the same inputs, does again what changed or
-    failed, and touches no other datapoint's products."""
+    failed, and touches no other datapoint's products; here on a running Dask scheduler
+    (--scheduler ADDRESS)."""
+    from dask.distributed import LocalCluster
+
     out, _ = done
     copy = tmp_path / "out"
     shutil.copytree(out, copy)
@@ -191,9 +194,11 @@ def test_resume(entry, done, tmp_path):
     w = entry.folder / "wtd" / f"{on[-1]}.wtd"
     text = w.read_text()
     w.write_text(text.replace("\t600.000000\t", "\t601.000000\t"))
+    cluster = LocalCluster(n_workers=1, threads_per_worker=1, dashboard_address=":0")
     try:
         argv = ["entry", str(entry.index), "--processing", str(entry.processing), "--out",
-                str(copy), "--rays", "16", "--quiet", "--resume"]
+                str(copy), "--rays", "16", "--quiet", "--resume", "--scheduler",
+                cluster.scheduler_address]
         assert main(argv) == 1
         rows = _rows(copy)
         assert float(rows[on[-1]]["q"]) == 601.0 and rows[on[-1]]["status"] == "ok"
@@ -202,6 +207,7 @@ def test_resume(entry, done, tmp_path):
         assert after == before  # untouched
     finally:
         w.write_text(text)
+        cluster.close()
     # without --resume, existing products are refused before any work
     rc = main(["entry", str(entry.index), "--processing", str(entry.processing), "--out",
                str(copy), "--quiet"])
