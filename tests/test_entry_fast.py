@@ -30,10 +30,11 @@ def test_first_frame_calibrated_from_the_tunnel(tmp_path):
     M0, d0 = model_to_tunnel(Attitude(0.0, 0.0, 0.0, STRUTZ), cfg)
     ct = base.with_pose(R=base.R @ M0.T, t=base.t - base.R @ M0.T @ d0)
     true = camera_to_model(ct, Attitude(15.4, 0.0, 0.0, STRUTZ + 0.003), cfg)
-    run = make_unsteady_run(tmp_path / "run", faces=300, frames=1, cameras0=[true],
+    run = make_unsteady_run(tmp_path / "run", faces=300, frames=2, cameras0=[true],
                             targets=plate_targets([true], BOX, 15.0), vibration_deg=0.0)
     truth = true.with_pose(R=run.poses[0, 0, :3], t=run.poses[0, 0, 3])
     img = np.load(run.video)[0]
+    assert np.isfinite(img).all()
     from selfillum.unsteady.grid import load_run_grid
 
     mesh = load_run_grid(run.grid).mesh

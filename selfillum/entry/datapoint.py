@@ -26,7 +26,7 @@ from pathlib import Path
 from resection.errors import InputError
 
 __all__ = ["DatapointTask", "calibrate_datapoint", "run_datapoint", "empty_row",
-           "PRODUCTS"]
+           "run_seq", "PRODUCTS"]
 
 #: the files and folders of a datapoint's folder this module writes (and may remove).
 PRODUCTS = ("calibration.json", "unsteady.h5", "unsteady.xdmf", "unsteady_rms.png",
@@ -75,7 +75,9 @@ def _clear(folder: Path) -> None:
         p.unlink()
 
 
-def _run_seq(wtd, dp_id: str) -> tuple[int, int]:
+def run_seq(wtd, dp_id: str) -> tuple[int, int]:
+    """The run and point of a datapoint: the ``.wtd``'s ``RUN n m`` line, else uPSP's id
+    ``RRRRSS``."""
     if wtd.run is not None and wtd.sequence is not None:
         return int(wtd.run), int(wtd.sequence)
     if len(dp_id) >= 6 and dp_id[:6].isdigit():  # uPSP's datapoint ids: RRRRSS
@@ -136,7 +138,7 @@ def _kulites(task, wtd, cond_q, h5, folder, row):
     from selfillum.entry.compare import compare_kulites, write_comparison
     from selfillum.entry.kulites import read_kulites
 
-    run, seq = _run_seq(wtd, task.dp.id)
+    run, seq = run_seq(wtd, task.dp.id)
     ks = read_kulites(task.dp.kulites, run, seq)
     v = read_tgts(task.dp.targets).virtuals
     pos = {k: x for k, x in zip(v.ids, v.xyz, strict=True)}

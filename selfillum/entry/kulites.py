@@ -40,7 +40,8 @@ import numpy as np
 
 from resection.errors import InputError
 
-__all__ = ["KuliteSeries", "read_kulites", "read_upsp_kulites", "read_kulite_table"]
+__all__ = ["KuliteSeries", "read_kulites", "read_upsp_kulites", "read_kulite_table",
+           "upsp_info_files"]
 
 _PATTERNS = (r"T(?P<run>\d+)p(?P<seq>\d+)t\d+$", r"r(?P<run>\d{4})s(?P<seq>\d{3})t\d+_S\dC\d$")
 
@@ -162,22 +163,24 @@ def _read_data(info: Path, prefer: str):
     return names, data, rate
 
 
+def upsp_info_files(folder, run: int, seq: int) -> list:
+    """The ``.info`` files of run ``run`` point ``seq`` in ``folder``, found as uPSP finds
+    them (the first file's name decides which of the two patterns the folder uses)."""
+    infos = sorted(Path(folder).glob("*.info"))
+    for pat in _PATTERNS:
+        if infos and re.search(pat, infos[0].stem):
+            return [p for p in infos if (m := re.search(pat, p.stem))
+                    and (int(m["run"]), int(m["seq"])) == (run, seq)]
+    return []
+
+
 def read_upsp_kulites(folder, run: int, seq: int, prefer: str = "fast") -> KuliteSeries:
     """uPSP's ``.info`` + ``.fast``/``.slow`` files of run ``run`` point ``seq`` in
     ``folder`` (module notes)."""
     d = Path(folder)
-    infos = sorted(d.glob("*.info"))
-    if not infos:
+    if not any(d.glob("*.info")):
         raise InputError(f"{d}: no Kulite .info file")
-    picked = []
-    for pat in _PATTERNS:
-        m0 = re.search(pat, infos[0].stem)
-        if m0:
-            for p in infos:
-                m = re.search(pat, p.stem)
-                if m and (int(m["run"]), int(m["seq"])) == (run, seq):
-                    picked.append(p)
-            break
+    picked = upsp_info_files(d, run, seq)
     if not picked:
         raise InputError(f"{d}: no Kulite .info file of run {run} point {seq} "
                          "(T<run>p<seq>t<n>.info or r<run>s<seq>t<n>_S<k>C<l>.info)")

@@ -108,6 +108,35 @@ def _key(obj) -> str:
     return hashlib.sha256(json.dumps(obj, sort_keys=True, default=str).encode()).hexdigest()
 
 
+def _own_files(d, wtd) -> list:
+    """The datapoint's own videos, calibrations and Kulite files (not the whole shared
+    folders: another datapoint's new video leaves this one's identity as it was)."""
+    from selfillum.entry.datapoint import run_seq
+    from selfillum.entry.index import find_camera_tunnel, find_videos
+    from selfillum.entry.kulites import upsp_info_files
+
+    try:
+        vids = find_videos(d)
+        files = list(vids.values()) + [p.with_suffix(".cih") for p in vids.values()
+                                       if p.suffix.lower() == ".mraw"]
+        files += list(find_camera_tunnel(d, list(vids)).values())
+    except InputError as e:  # the datapoint will fail with it; its identity says so
+        return [str(e)]
+    if d.kulites is not None:
+        k = Path(d.kulites)
+        if k.is_dir():
+            try:
+                infos = upsp_info_files(k, *run_seq(wtd, d.id))
+            except InputError as e:
+                return [str(e)]
+            files += infos + [q for p in infos for q in (p.with_suffix(".fast"),
+                                                         p.with_suffix(".slow"),
+                                                         p.with_suffix(".zPXImat"))]
+        else:
+            files.append(k)
+    return [_stat(p) for p in files if Path(p).exists()]
+
+
 def _check_file(dp_id, p, what):
     if p is not None and not Path(p).is_file():
         raise InputError(f"datapoint {dp_id}: {what} {p}: file not found")
@@ -194,10 +223,8 @@ def prepare_entry(cfg: EntryConfig):
             ff = out / "_entry" / f"F-{fk}.npz"
             ff_jobs[ff] = d.grid
         key = _key({"files": [_stat(x) for x in (d.wtd, d.grid, d.targets, d.steady,
-                                                 d.paint_calibration, d.kulites,
-                                                 d.video_dir, d.calibration_dir)],
-                    "videos": {k: _stat(v) for k, v in (d.videos or {}).items()},
-                    "cals": {k: _stat(v) for k, v in (d.camera_tunnel or {}).items()},
+                                                 d.paint_calibration)],
+                    "own": _own_files(d, wtd),
                     "tunnel": [tunnel.cor_to_model.tolist(), tunnel.oblique_angle],
                     "unsteady": uns, "calibration": cfg.calibration})
         tasks.append(DatapointTask(d, out / d.id, tunnel, uns, key, cfg.resume, ff,
