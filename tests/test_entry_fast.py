@@ -1,7 +1,7 @@
 """The entry's fast checks: one camera's first frame calibrated from the tunnel (against
 the scene's true camera), datapoints that fail alone on a Dask local cluster (uPSP's real
-files, a folder without videos, a corrupt video), and bad input refused with one line and
-exit 2 before any work."""
+.tgts, calibration and .wtd; a folder without videos, a corrupt video), and bad input
+refused with one line and exit 2 before any work."""
 
 from __future__ import annotations
 
@@ -62,20 +62,27 @@ def test_first_frame_calibrated_from_the_tunnel(tmp_path):
 
 
 def _fake_entry(root, samples):
-    """uPSP's real grid, .tgts, calibration and .wtd, with datapoints whose videos fail."""
-    for n in ("fml_tc3_volume.grid", "fml_tc3_volume.tgts", "wtd_test.wtd",
-              "test_config.json"):
+    """uPSP's real .tgts, calibration, .wtd and test_config on a small grid, with
+    datapoints whose videos fail."""
+    from scenes.slab_block import slab_block, write_slab_block
+
+    for n in ("fml_tc3_volume.tgts", "wtd_test.wtd", "test_config.json"):
         shutil.copy(samples / n, root / n)
+    write_slab_block(slab_block(300, half=(0.35, 0.25), box=BOX), root / "model.grid")
     (root / "cal").mkdir()
     shutil.copy(samples / "camera-tunnel-calibration" / "camera01_35_6.json",
                 root / "cal" / "camera01.json")
-    (root / "steady.f").write_bytes(b"")  # only its existence is checked before the work
+    from scenes.unsteady_run import write_node_function
+    from selfillum.unsteady.grid import load_run_grid
+
+    grid = load_run_grid(root / "model.grid")
+    write_node_function(root / "steady.f", grid, -0.2 + 0.01 * grid.points[:, 0])
     (root / "paint.txt").write_text("a = 1\nb = 0\nc = 0\nd = 0\ne = 0\nf = 0\n")
     (root / "videos").mkdir()
     (root / "videos" / "30160201.mraw").write_bytes(b"\0" * 100)
     (root / "videos" / "30160201.cih").write_text("not a header\n")
     dp = {"camera_tunnel_calibration_dir": "cal", "camera_video_dir": "videos",
-          "grid_file": "fml_tc3_volume.grid", "kulites_files_path": "",
+          "grid_file": "model.grid", "kulites_files_path": "",
           "paint_calibration_file": "paint.txt", "steady_psp_file": "steady.f",
           "targets_file": "fml_tc3_volume.tgts", "wtd_file": "wtd_test.wtd"}
     (root / "index.json").write_text(json.dumps({"__meta__": {"test_name": "t"},
@@ -125,6 +132,16 @@ def test_bad_input_exit_2(upsp_samples, tmp_path, capsys):
                str(tmp_path / "o")])
     assert rc == 2 and "psp_process parameter 'cutoff_x_max' is not supported" in \
         capsys.readouterr().err
+    from resection.io.plot3d import write_plot3d_function
+
+    write_plot3d_function(tmp_path / "small.f", [np.zeros((3, 4, 1))])
+    d = json.loads(idx.read_text())
+    d["301601"] = dict(d["301601"], steady_psp_file="small.f")
+    bad.write_text(json.dumps(d))
+    rc = main(["entry", str(bad), *tc, "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "datapoint 301601: " in err[0] and \
+        "small.f" in err[0]
     (tmp_path / "o" / "301601").mkdir(parents=True)
     (tmp_path / "o" / "301601" / "row.json").write_text("{}")
     rc = main(["entry", str(idx), *tc, "--out", str(tmp_path / "o")])

@@ -2,9 +2,9 @@
 
 1. Everything is read and checked before any heavy step (one line naming the datapoint,
    the file and the problem; :class:`InputError`): the index, the processing parameters
-   and their overlays, each datapoint's ``.wtd`` (its attitude, and Q), grid, targets,
-   steady Cp, paint calibration and the tunnel's configuration. Videos are a datapoint's
-   own: a missing or corrupt one fails that datapoint only.
+   and their overlays, each datapoint's ``.wtd`` (its attitude), grid, targets, steady Cp
+   (each distinct file once), paint calibration and the tunnel's configuration. Videos
+   are a datapoint's own: a missing or corrupt one fails that datapoint only.
 2. Each datapoint's calibration is a Dask task
    (:func:`selfillum.entry.datapoint.calibrate_datapoint`): a local cluster by default, a
    running scheduler, or a PBS/Slurm batch cluster (:mod:`selfillum.entry.jobqueue`).
@@ -153,6 +153,7 @@ def prepare_entry(cfg: EntryConfig):
     from selfillum.entry.processing import psp_options, read_processing, resolve_overlays
     from selfillum.entry.tunnel import attitude_from_wtd, read_test_config, tunnel_config
     from selfillum.unsteady.config import CameraInput, UnsteadyConfig, check_options
+    from selfillum.unsteady.grid import load_run_grid, read_steady_cp
 
     idx = read_index(cfg.index)
     dps = list(idx.datapoints)
@@ -196,6 +197,11 @@ def prepare_entry(cfg: EntryConfig):
                 checked[d.paint_calibration] = read_paint_calibration(d.paint_calibration)
             if d.targets not in checked:
                 checked[d.targets] = read_markers(d.targets)
+            if d.grid not in checked:
+                checked[d.grid] = load_run_grid(d.grid)
+            if d.steady is not None and (d.grid, d.steady) not in checked:
+                checked[(d.grid, d.steady)] = read_steady_cp(d.steady, checked[d.grid]) \
+                    is not None
         except InputError as e:
             raise InputError(f"{w}: {str(e).splitlines()[0]}") from None
         p = params.get(d.id, {})
