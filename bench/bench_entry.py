@@ -4,9 +4,11 @@ ID`` each: its own process, its own Dask cluster, its own view factors), on the 
 entry of :mod:`scenes.entry` (uPSP's index and processing file, 12-bit ``.mraw``, the
 plate-and-block model at ``--faces``, ``--frames`` frames of ``--width`` x ``--height``).
 
-Each command runs in a fresh process; the wall times are compared in the same run, as the
-ratio ``entry / sum(alone)`` (the issue's target: at most 1.2), for the Dask local cluster
-(``--workers``) and in-process (``--workers 0``).
+Each command runs in a fresh process, after an untimed warm-up (numba's cached kernels,
+the page cache); the wall times are compared in the same run, as the ratio
+``entry / sum(alone)`` (the issue's target: at most 1.2), for the Dask local cluster
+(``--workers``) and in-process (``--workers 0``). The machine's load (``uptime``) is
+printed: on a shared machine, run it more than once.
 
     python bench/bench_entry.py --datapoints 4 --frames 64 [--faces 2500] [--rays 64]
 """
@@ -14,6 +16,7 @@ ratio ``entry / sum(alone)`` (the issue's target: at most 1.2), for the Dask loc
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
 import subprocess
 import sys
@@ -59,6 +62,9 @@ def main() -> None:
                 "--quiet"]
         for workers in (a.workers, 0):
             w = ["--workers", str(workers)]
+            # untimed: compiled kernels cached, files in the page cache, for either order
+            timed(["entry", *base, *w, "--only", e.ids[0], "--out", str(tmp / "warm")])
+            shutil.rmtree(tmp / "warm")
             whole = timed(["entry", *base, *w, "--out", str(tmp / "all")])
             shutil.rmtree(tmp / "all")
             alone = []
@@ -66,7 +72,8 @@ def main() -> None:
                 alone.append(timed(["entry", *base, *w, "--only", dp, "--out",
                                     str(tmp / dp)]))
                 shutil.rmtree(tmp / dp)
-            print(f"workers {workers}: entry {whole:.1f} s, datapoints alone "
+            print(f"load {os.getloadavg()[0]:.1f}; workers {workers}: entry {whole:.1f} s, "
+                  "datapoints alone "
                   f"{' + '.join(f'{x:.1f}' for x in alone)} = {sum(alone):.1f} s; "
                   f"ratio {whole / sum(alone):.2f}")
 

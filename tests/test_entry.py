@@ -180,16 +180,23 @@ def test_summary_page_in_chromium(entry, done, tmp_path):
 
 
 def test_resume(entry, done, tmp_path):
-    """--resume skips what is done with the same inputs, does again what changed or
-    failed, and touches no other datapoint's products; here on a running Dask scheduler
-    (--scheduler ADDRESS)."""
+    """--resume skips what is done with the same inputs, carries a half-done datapoint on
+    (its calibration kept), does again what changed or failed, and touches no other
+    datapoint's products; here on a running Dask scheduler (--scheduler ADDRESS)."""
     from dask.distributed import LocalCluster
 
     out, _ = done
     copy = tmp_path / "out"
     shutil.copytree(out, copy)
     on = [d for d in entry.ids if d not in (entry.wind_off, entry.corrupt)]
-    before = {p: p.stat().st_mtime_ns for p in (copy / on[0]).rglob("*") if p.is_file()}
+    off = copy / entry.wind_off
+    before = {p: p.stat().st_mtime_ns for p in off.rglob("*") if p.is_file()}
+    # the first wind-on datapoint was cut short after its calibration
+    half = copy / on[0]
+    for n in ("done.json", "row.json", "unsteady.h5", "unsteady.xdmf", "unsteady_rms.png"):
+        (half / n).unlink()
+    shutil.rmtree(half / "kulites")
+    cal_time = (half / "cam01-to-model.json").stat().st_mtime_ns
     # the last wind-on datapoint's .wtd changes: it is stale
     w = entry.folder / "wtd" / f"{on[-1]}.wtd"
     text = w.read_text()
@@ -202,9 +209,12 @@ def test_resume(entry, done, tmp_path):
         assert main(argv) == 1
         rows = _rows(copy)
         assert float(rows[on[-1]]["q"]) == 601.0 and rows[on[-1]]["status"] == "ok"
+        assert rows[on[0]]["status"] == "ok" and (half / "unsteady.h5").is_file()
+        assert (half / "cam01-to-model.json").stat().st_mtime_ns == cal_time  # kept
+        assert "targets, RMS" in rows[on[0]]["cameras"]
         assert rows[entry.corrupt]["status"].startswith("failed")
-        after = {p: p.stat().st_mtime_ns for p in (copy / on[0]).rglob("*") if p.is_file()}
-        assert after == before  # untouched
+        after = {p: p.stat().st_mtime_ns for p in off.rglob("*") if p.is_file()}
+        assert after == before  # the wind-off point: done before, untouched
     finally:
         w.write_text(text)
         cluster.close()
