@@ -22,8 +22,12 @@ of the nearest seen face of the same part**::
   fuselage. Convex edges (a block's own edges, a wing's trailing edge) and smooth ones are
   crossed. A hidden side of a block so takes its time history from the block's seen
   faces, not from the plate beside it;
+* the sources are the faces seen in this frame *and* in frame 0 (whose ``B0`` was
+  measured, not itself continued);
 * the radiosity ratio of the seen face stands for its emission ratio (they differ by the
-  change of its reflected light: a second-order term);
+  change of its reflected light: a second-order term); a ratio outside ``[1/2, 2]`` (a
+  face's brightness halved or doubled from frame 0: an edge pixel or a glint, not the
+  paint's emission) is clipped to it;
 * the hidden face's radiosity is ``B_h(t) = B0_h + E0_h (r_s(t) - 1)``: its own reflected
   light held at frame 0 (second order again);
 * a hidden face that no seen face reaches without crossing a concave crease keeps ``B0``
@@ -96,16 +100,23 @@ class HiddenContinuation:
         none).
     needed : (F,) bool
         Faces whose radiosity the self-illumination reads (the columns of ``F``).
+    seen0 : (F,) bool, optional
+        The faces seen in frame 0 (default: every face with ``B0 > 0``).
     cache : int
         Assignments kept (one a set of seen faces).
     """
 
-    def __init__(self, graph, B0, E0, needed, cache: int = 8):
+    #: The range a seen face's ratio to frame 0 is clipped to.
+    RATIO_RANGE = (0.5, 2.0)
+
+    def __init__(self, graph, B0, E0, needed, seen0=None, cache: int = 8):
         self.graph = graph
         self.B0 = np.asarray(B0, dtype=np.float64)
         E0 = np.asarray(E0, dtype=np.float64)
         self.E0 = np.where(np.isfinite(E0), E0, 0.0)
         self.needed = np.asarray(needed, bool)
+        ok = np.isfinite(self.B0) & (self.B0 > 0)
+        self.source_ok = ok if seen0 is None else ok & np.asarray(seen0, bool)
         self._cache: OrderedDict = OrderedDict()
         self._size = int(cache)
 
@@ -121,7 +132,7 @@ class HiddenContinuation:
         from scipy.sparse.csgraph import dijkstra
 
         hid = np.flatnonzero(self.needed & ~seen)
-        src_faces = np.flatnonzero(seen & (self.B0 > 0) & np.isfinite(self.B0))
+        src_faces = np.flatnonzero(seen & self.source_ok)
         if hid.size == 0 or src_faces.size == 0:
             out = (np.zeros(0, np.int64), np.zeros(0, np.int64))
         else:
@@ -142,6 +153,8 @@ class HiddenContinuation:
         x = np.where(seen, B, self.B0)
         hid, src = self.assignment(seen)
         if hid.size:
-            r = np.asarray(B, dtype=np.float64)[src] / self.B0[src]
+            with np.errstate(invalid="ignore", divide="ignore"):
+                r = np.asarray(B, dtype=np.float64)[src] / self.B0[src]
+            r = np.clip(np.where(np.isfinite(r), r, 1.0), *self.RATIO_RANGE)
             x[hid] = self.B0[hid] + self.E0[hid] * (r - 1.0)
         return x
