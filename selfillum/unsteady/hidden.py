@@ -120,12 +120,25 @@ class HiddenContinuation:
         self._cache: OrderedDict = OrderedDict()
         self._size = int(cache)
 
-    def assignment(self, seen) -> tuple[np.ndarray, np.ndarray]:
-        """``(hidden, source)``: the needed hidden faces that a seen face reaches within
-        their part, and that seen face (nearest along the surface)."""
+    def assignment(self, seen) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(hidden, source, base)``: the needed hidden faces that a seen face reaches
+        within their part, that seen face (nearest along the surface), and the set of seen
+        faces the search was made for.
+
+        A set of seen faces within ``1 %`` of the faces of one already searched (a frame
+        that lost a few faces at the image's edge) reuses that search: the faces it lost
+        keep their frame-0 radiosity, and a hidden face whose source it lost keeps its own.
+        """
         seen = np.asarray(seen, bool)
         key = np.packbits(seen).tobytes()
         hit = self._cache.get(key)
+        if hit is None:
+            tol = max(1, len(seen) // 100)
+            for k, v in self._cache.items():
+                if np.count_nonzero(v[2] != seen) <= tol:
+                    hit = v
+                    key = k
+                    break
         if hit is not None:
             self._cache.move_to_end(key)
             return hit
@@ -134,13 +147,13 @@ class HiddenContinuation:
         hid = np.flatnonzero(self.needed & ~seen)
         src_faces = np.flatnonzero(seen & self.source_ok)
         if hid.size == 0 or src_faces.size == 0:
-            out = (np.zeros(0, np.int64), np.zeros(0, np.int64))
+            out = (np.zeros(0, np.int64), np.zeros(0, np.int64), seen)
         else:
             _, _, sources = dijkstra(self.graph, directed=False, indices=src_faces,
                                      min_only=True, return_predecessors=True)
             s = sources[hid]
             ok = s >= 0
-            out = (hid[ok], s[ok].astype(np.int64))
+            out = (hid[ok], s[ok].astype(np.int64), seen)
         self._cache[key] = out
         if len(self._cache) > self._size:
             self._cache.popitem(last=False)
@@ -151,10 +164,11 @@ class HiddenContinuation:
         continued estimate on the hidden faces a seen face reaches, ``B0`` elsewhere."""
         seen = np.asarray(seen, bool)
         x = np.where(seen, B, self.B0)
-        hid, src = self.assignment(seen)
+        hid, src, _ = self.assignment(seen)
         if hid.size:
             with np.errstate(invalid="ignore", divide="ignore"):
                 r = np.asarray(B, dtype=np.float64)[src] / self.B0[src]
-            r = np.clip(np.where(np.isfinite(r), r, 1.0), *self.RATIO_RANGE)
-            x[hid] = self.B0[hid] + self.E0[hid] * (r - 1.0)
+            r = np.clip(np.where(np.isfinite(r) & seen[src], r, 1.0), *self.RATIO_RANGE)
+            est = self.B0[hid] + self.E0[hid] * (r - 1.0)
+            x[hid] = np.where(seen[hid], x[hid], est)
         return x
