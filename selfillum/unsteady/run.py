@@ -132,6 +132,7 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
                       nperseg=cfg.psd_nperseg) if (cfg.psd_probes or cfg.psd_bands) \
         else None
     t_start = time.perf_counter()
+    counts: dict = {}  # frames mapped each way in this process (map_run)
     store = Phase1Store(out, work_inputs(cfg, T, N, fps), (T, N), (tc, nc), len(cfg.cameras),
                         resume=cfg.resume, with_raw=cfg.si)
     done = store.frames_done
@@ -183,7 +184,7 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
                                      store, R, t, done, fb, T, prog)
         else:
             gains0 = local_phase1(cfg, grid, runs, todo, spots, si, unpainted, store, R, t,
-                                   done, fb, T, N, prog, caster=caster)
+                                   done, fb, T, N, prog, caster=caster, counts=counts)
             caster = None
         store.close()
         t_p2 = time.perf_counter()
@@ -239,7 +240,8 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     t_end = time.perf_counter()
     el = t_end - t_start
     timings = {"setup": t_p1 - t_start, "phase1": t_p2 - t_p1, "phase2": t_end - t_p2,
-               "first_frame": (prog.t_first or t_p2) - t_p1}
+               "first_frame": (prog.t_first or t_p2) - t_p1, **{
+                   f"frames_{k}": v for k, v in counts.items()}}
     return UnsteadyResult(out, T, N, (tc, nc), stats["seen"], stats["si_median"],
                           stats["si_p95"], failed, tuple(files), peak_rss_mb(),
                           T / el if el > 0 else float("nan"),
