@@ -2,11 +2,12 @@
 
 Each page is one test: its blocks run in page order in a fresh folder, the Python blocks in
 one namespace (as a reader would paste them into one session), the ``bash`` blocks with
-``bash -eu -o pipefail`` and ``.venv/bin`` first on the PATH; a ``json`` block (a file's
-content) must parse. A page may prepare its files
-in an invisible block (``<!-- invisible-code-block: python ... -->``, not shown on the
-site). A block of another language must be ``text`` (a diagram, a file's layout, printed
-output): a block without a language, or one this test cannot run, fails it.
+``bash -eu -o pipefail`` and ``.venv/bin`` first on the PATH; a ``json`` or ``yaml`` block
+(a file's content) must parse. A page may prepare its files in an invisible block
+(``<!-- invisible-code-block: python ... -->``, not shown on the site). Any other block
+must be ``text``: a diagram, a file's layout, printed output or a command's synopsis
+(placeholders in capitals; the command-line reference has them all). A block without a
+language, or in one this test cannot run, fails it.
 
 Two commands are run elsewhere, and only checked to be the same here: the README's test
 command is what CI (``.ci/run``) runs, and the site build is what ``tests/test_docs.py``
@@ -22,12 +23,13 @@ import subprocess
 from pathlib import Path
 
 import pytest
+import yaml
 from sybil import Sybil
 from sybil.parsers.markdown import CodeBlockParser, PythonCodeBlockParser
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
-LANGUAGES = {"python", "bash", "json", "text"}
+LANGUAGES = {"python", "bash", "json", "yaml", "text"}
 
 # run by CI itself: running it here would run the suite inside the suite
 CI_COMMAND = (ROOT / ".ci" / "run").read_text().strip().splitlines()[-1]
@@ -68,9 +70,18 @@ def _parse_json(example) -> None:
             raise AssertionError(f"{example.path}, line {example.line}: not JSON: {e}") from e
 
 
+def _parse_yaml(example) -> None:
+    """A file's content in YAML."""
+    try:
+        yaml.safe_load(example.parsed)
+    except yaml.YAMLError as e:
+        raise AssertionError(f"{example.path}, line {example.line}: not YAML: {e}") from e
+
+
 SYBIL = Sybil(parsers=[PythonCodeBlockParser(),
                        CodeBlockParser(language="bash", evaluator=_run_bash),
-                       CodeBlockParser(language="json", evaluator=_parse_json)])
+                       CodeBlockParser(language="json", evaluator=_parse_json),
+                       CodeBlockParser(language="yaml", evaluator=_parse_yaml)])
 
 
 def _fence_languages(text: str) -> list[tuple[int, str]]:
@@ -100,7 +111,8 @@ def test_code_blocks_run(page, tmp_path, monkeypatch):
             continue
         assert language in LANGUAGES, (
             f"{page}, line {number}: a code block in {language or 'no language'}: give it "
-            "python or bash (run here), json (parsed) or text (a diagram or printed output)")
+            "python or bash (run here), json or yaml (parsed) or text (a diagram, printed "
+            "output, a synopsis)")
     document = SYBIL.parse(page)
     document.namespace["cwd"] = tmp_path
     for example in document:
