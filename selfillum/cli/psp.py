@@ -14,6 +14,7 @@ import numpy as np
 from resection.cli.paths import FolderOutput
 from resection.cli.util import add_mesh_format
 from resection.errors import InputError
+from selfillum.cli.uncertainty import add_uncertainty_options
 
 
 def _cmd_psp(args) -> int:
@@ -26,6 +27,10 @@ def _cmd_psp(args) -> int:
     from selfillum.images.psp import psp_images, read_taps
     from selfillum.transport.viewfactors import view_factors
 
+    if args.uncertainty is not None:
+        from selfillum.cli.uncertainty import psp_with_uncertainty
+
+        return psp_with_uncertainty(args)
     cams, offs, ons = args.camera, args.wind_off, args.wind_on or []
     if len(offs) != len(cams):
         raise InputError(f"give one wind-off image per camera ({len(cams)} cameras, "
@@ -102,6 +107,11 @@ def register(sub) -> None:
                    help="do not remove the self-illumination (for comparison)")
     p.add_argument("--out", required=True, help="output folder (created if needed)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_uncertainty_options(p)
+    p.add_argument("--markers", metavar="FILE",
+                   help="marker positions (a .tgts or marker file) for the poses' covariance "
+                   "(--uncertainty, with --u marker=..px)")
     p.set_defaults(func=_cmd_psp, out_folder=FolderOutput(
-        ("pressure_*.tif", "pressure_faces.csv", "stern_volmer.json"), "stern_volmer.json",
+        ("pressure_*.tif", "pressure_faces.csv", "stern_volmer.json", "pressure_nodes.csv",
+         "uncertainty.json", "p_u.png", "cp_u.png", "budget.png"), "stern_volmer.json",
         "selfillum psp"))
