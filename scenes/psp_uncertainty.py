@@ -15,7 +15,8 @@ A draw (:meth:`PSPUncertaintyCase.draw`) gives the chain's inputs as a measureme
   covariance of a resection from the markers with ``marker_px`` per coordinate;
 * the form factors: ``rays`` rays a face, a new seed;
 * the reflectance: ``rho + u_rho z``;
-* the wind-on image: each face's pixels times ``1 + s dT_i``, ``dT_i ~ N(0, u_T)``;
+* the wind-on emission: times ``1 + s dT_i``, ``dT_i ~ N(0, u_T)`` per face, its
+  radiosity solved again;
 * the taps' pressures: ``+ u_tap z``.
 
 A draw with no source on gives every input at its true value: the chain run on it is the
@@ -50,6 +51,8 @@ class PSPUncertaintyCase:
     tap_points: np.ndarray
     markers: np.ndarray
     level: float
+    F: object = None
+    e_on: np.ndarray | None = None
     sources: dict = field(default_factory=dict)
     _cache: dict = field(default_factory=dict)
 
@@ -85,11 +88,19 @@ class PSPUncertaintyCase:
             rho = self.reflectance + s["reflectance"] * rng.standard_normal()
         if "temperature" in on:  # each face's paint a little warmer or cooler wind-on
             from resection.surface.surface_map import SurfaceMap
+            from selfillum.solve.radiosity import forward
 
             fac = 1.0 + s["paint_temperature"] * s["temperature"] * \
                 rng.standard_normal(len(self.mesh.faces))
-            face = SurfaceMap(self.mesh, self.camera).face_index
-            onim = onim * np.where(face >= 0, fac[np.maximum(face, 0)], np.nan)
+            b_on = forward(self.F, self.e_on * fac, self.reflectance)
+            # the change per face, uniform on each face (an image interpolated over the
+            # vertices would average neighbouring faces' independent changes)
+            onim = self.images()[1] + SurfaceMap(self.mesh, self.camera).to_image(
+                (b_on - self.b_on) * self.level, interpolation="nearest")
+            if "noise" in on:
+                g, r = s["camera_gain"], s["read_noise"]
+                onim = onim + np.sqrt(np.maximum(onim, 0) / g + (r / g) ** 2) \
+                    * rng.standard_normal(onim.shape)
         taps = self.p_true_taps.copy()
         if "calibration" in on:
             taps = taps + s["taps"] * rng.standard_normal(taps.shape)
@@ -126,7 +137,8 @@ def psp_uncertainty_case(*, resolution: int = 10, exact_rays: int = 8192,
     b_off = forward(F, e_off, sc.reflectance)
     b_on = forward(F, e_on, sc.reflectance)
     f = 260.0 * width / 320.0
-    cam = Camera.look_at([1.4, 0.5, 1.2], [0.3, 0.5, 0.3], [0, 1, 0],
+    # a little roll and offset: no edge of the grid along a pixel column (a real camera)
+    cam = Camera.look_at([1.4, 0.47, 1.2], [0.3, 0.52, 0.3], [0.07, 1, 0.02],
                          K=[[f, 0, (width - 1) / 2], [0, f, (height - 1) / 2], [0, 0, 1]],
                          width=width, height=height)
     rng = np.random.default_rng(7)
@@ -142,4 +154,4 @@ def psp_uncertainty_case(*, resolution: int = 10, exact_rays: int = 8192,
     stated.update(sources)
     return PSPUncertaintyCase(mesh, cam, sc.reflectance, p_true, b_off, b_on,
                               [f"T{i}" for i in range(pick.size)], c[pick],
-                              np.vstack([floor, wall]), level, stated)
+                              np.vstack([floor, wall]), level, F, e_on, stated)

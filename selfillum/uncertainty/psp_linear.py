@@ -17,12 +17,18 @@ from selfillum.uncertainty import calibration as cal
 from selfillum.uncertainty.budget import Budget, combine
 from selfillum.uncertainty.faces import MergeWeights
 from selfillum.uncertainty.illumination import (
+    ROWS_CHECKED,
     rays_variance,
     reflectance_vector,
+    rqmc_ratio,
     unseen_vector,
 )
 from selfillum.uncertainty.psp_chain import PSPInputs, run_chain
-from selfillum.uncertainty.registration import pose_covariance, ratio_sensitivity
+from selfillum.uncertainty.registration import (
+    pose_covariance,
+    ratio_sensitivity,
+    switching_variance,
+)
 from selfillum.uncertainty.temperature import ratio_variance
 from selfillum.uncertainty.tunnel import pressure_u
 
@@ -47,6 +53,7 @@ class Sources:
         self.temperature: tuple | None = None  # (sensitivity, u_T)
         self.unseen_range: float = 0.0
         self.u_tap: float = 0.0
+        self.kappa: float | None = None  # quasi-random rays' variance / independent rays'
 
 
 def model_sources(inp: PSPInputs, state, stated, noise_models) -> Sources:
@@ -82,6 +89,8 @@ def model_sources(inp: PSPInputs, state, stated, noise_models) -> Sources:
         S.covariances = [pose_covariance(m.camera, inp.markers, stated.marker)
                          for m in inp.maps]
         S.shared["registration"] = ratio_sensitivity(W, inp.off, inp.on, S.covariances)
+        S.independent["registration_pixels"] = switching_variance(W, inp.off, inp.on,
+                                                                  S.covariances)
         S.status["registration"] = "stated (marker accuracy, pose least squares)"
     else:
         S.status["registration"] = ("missing: give --markers and --u marker=..px for the "
@@ -89,9 +98,14 @@ def model_sources(inp: PSPInputs, state, stated, noise_models) -> Sources:
     # ---- self-illumination
     if inp.correct_si:
         b_off, b_on = _full_radiosity(inp, state)
-        S.independent["si_rays"] = rays_variance(inp.F, b_off, b_on, state.e_off, state.e_on,
-                                                 inp.reflectance, inp.rays)
-        S.status["si_rays"] = f"estimated: {inp.rays} rays a face (independent-ray bound)"
+        bound = rays_variance(inp.F, b_off, b_on, state.e_off, state.e_on, inp.reflectance,
+                              inp.rays)
+        kappa = _rqmc_kappa(inp, state, b_off, b_on, bound)
+        S.independent["si_rays"] = kappa * bound
+        S.kappa = kappa
+        S.status["si_rays"] = (f"estimated: {inp.rays} rays a face; the quasi-random rays' "
+                               f"variance {kappa:.3g} x the independent-ray formula "
+                               f"({ROWS_CHECKED} rows cast again)")
         if stated.reflectance is not None:
             S.shared["reflectance"] = reflectance_vector(inp.F, b_off, b_on, state.e_off,
                                                          state.e_on, stated.reflectance)[None]
@@ -116,6 +130,22 @@ def model_sources(inp: PSPInputs, state, stated, noise_models) -> Sources:
                                    "temperature=..K")
     S.u_tap = float(stated.taps or 0.0)
     return S
+
+
+def _rqmc_kappa(inp, state, b_off, b_on, bound) -> float:
+    """:func:`selfillum.uncertainty.illumination.rqmc_ratio` on ``ROWS_CHECKED`` seen
+    faces with reflected light (chosen with the run's seed)."""
+    from selfillum.transport.viewfactors import view_factors
+
+    cand = np.flatnonzero(state.seen & np.isfinite(bound) & (bound > 0))
+    if not cand.size:
+        return 1.0
+    rng = np.random.default_rng(inp.seed)
+    rows = np.sort(rng.choice(cand, min(ROWS_CHECKED, cand.size), replace=False))
+    again = view_factors(inp.mesh, rays_per_face=inp.rays, seed=inp.seed + 7919, rows=rows,
+                         caster=inp.caster)
+    return rqmc_ratio(inp.F, again, rows, b_off, b_on, state.e_off, state.e_on,
+                      inp.reflectance, bound)
 
 
 def _full_radiosity(inp, state):
@@ -165,8 +195,12 @@ def linear_budget(inp: PSPInputs, state, S: Sources, stated) -> dict:
     else:
         C = cal.residual_covariance(M, resid)
         status = "estimated: the fit's residuals at the taps"
+    for d in (parts, full):  # the pixels changing face are part of the registration
+        if "registration_pixels" in d:
+            d["registration"] = np.hypot(d.pop("registration_pixels"),
+                                         d.get("registration", 0.0))
     parts["calibration"] = cal.pressure_u(C, law, p)
-    full["calibration_taps_only"] = cal.pressure_u(
+    full["calibration"] = cal.pressure_u(
         cal.fit_covariance(G, np.zeros(len(tf)), law, S.u_tap), law, p)
     info["stern_volmer_covariance"] = C.tolist()
     status_all = dict(S.status, calibration=status)

@@ -114,3 +114,109 @@ def ratio_sensitivity(weights, off_images, on_images, covariances) -> np.ndarray
         per_cam[c] = planes
         rows.append(weights.mean(per_cam, relative=True))
     return np.concatenate(rows) if C else np.zeros((0, weights.camera.shape[1]))
+
+
+def _edge_neighbours(mesh) -> np.ndarray:
+    """(F, 3) the face across each local edge (v0v1, v1v2, v2v0), -1 on a border; vertices
+    at the same place count as one (grids repeat their seams' points)."""
+    V = np.asarray(mesh.vertices, np.float64)
+    tol = 1e-9 * max(float(np.ptp(V, axis=0).max()), 1e-300)
+    _, vid = np.unique(np.round(V / tol), axis=0, return_inverse=True)
+    f = vid.ravel()[np.asarray(mesh.faces, dtype=np.int64)]
+    nf = len(f)
+    e = np.stack([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]], axis=1).reshape(-1, 2)
+    e.sort(axis=1)
+    _, inv = np.unique(e, axis=0, return_inverse=True)
+    inv = inv.ravel()
+    owner = np.repeat(np.arange(nf), 3)
+    order = np.argsort(inv, kind="stable")
+    s_inv, s_own = inv[order], owner[order]
+    out = np.full(3 * nf, -1, np.int64)
+    pair = np.flatnonzero(s_inv[1:] == s_inv[:-1])  # consecutive slots of one edge
+    out[order[pair]] = s_own[pair + 1]
+    out[order[pair + 1]] = s_own[pair]
+    return out.reshape(nf, 3)
+
+
+#: Quasi-random pose draws of :func:`switching_variance` (a scrambled Sobol sequence).
+SWITCH_DRAWS = 256
+
+
+def switching_variance(weights, off_images, on_images, covariances,
+                       draws: int = SWITCH_DRAWS) -> np.ndarray:
+    """(F,) variance of the faces' ``dR / R`` from pixels that change face.
+
+    A face's value is the mean of the pixels whose centre falls in its projected triangle.
+    A pose error ``theta`` moves the triangle's edges: pixel ``k``, at distance ``d_k``
+    inside the edge nearest to it (outward normal ``n_k``), goes to the face across that
+    edge when ``-n_k . J_k theta > d_k`` (``J_k`` its pixel Jacobian), and the face's
+    ``ln R`` changes by ``-(w_k / W_i) (r_k - r_i)`` (``r = ln(I_off / I_on)``, ``w`` the
+    merge's pixel weights) while the face across gains ``+(w_k / W_j) (r_k - r_j)``. The
+    pixels of one face switch together (a shift moves all its edges alike; an edge along a
+    pixel row or column moves a whole line of pixels at once), so the variance is taken
+    over ``draws`` quasi-random poses ``theta ~ N(0, Sigma)`` (scrambled Sobol points
+    through the normal quantile), the pixels within 5 ``sigma`` of an edge only. For a
+    small pose error this term is the larger one: it grows with ``sqrt(sigma)`` (whole
+    pixels, with a small probability) where the gradient term grows with ``sigma``.
+    Taken as independent between faces; edges on the model's outline (no face across)
+    are left out.
+    """
+    from scipy.stats import norm, qmc
+
+    nf = weights.camera.shape[1]
+    out = np.zeros(nf)
+    for c, (m, off, on, S) in enumerate(zip(weights.maps, off_images, on_images, covariances,
+                                            strict=True)):
+        fidx = m.face_index.ravel()
+        hit = np.flatnonzero(fidx >= 0)
+        f = fidx[hit]
+        H, W = m.shape
+        pu, pv = (hit % W).astype(np.float64), (hit // W).astype(np.float64)
+        uvv = m.camera.project(np.asarray(m.mesh.vertices, np.float64))
+        tri = uvv[np.asarray(m.mesh.faces)[f]]  # (P, 3, 2)
+        a, b = tri, np.roll(tri, -1, axis=1)  # edges v0v1, v1v2, v2v0
+        ev = b - a
+        ln = np.hypot(ev[..., 0], ev[..., 1])
+        third = np.roll(tri, -2, axis=1)  # the vertex opposite each edge
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cr = ev[..., 0] * (pv[:, None] - a[..., 1]) - ev[..., 1] * (pu[:, None] - a[..., 0])
+            side = np.sign(ev[..., 0] * (third[..., 1] - a[..., 1])
+                           - ev[..., 1] * (third[..., 0] - a[..., 0]))
+            d = np.abs(cr) / ln
+        d = np.where(np.isfinite(d), d, np.inf)
+        k = np.argmin(d, axis=1)
+        rows = np.arange(len(k))
+        dk = d[rows, k]
+        # outward normal of the nearest edge: away from the opposite vertex
+        nvec = -side[rows, k][:, None] * np.stack([-ev[rows, k, 1], ev[rows, k, 0]], 1) \
+            / ln[rows, k][:, None]
+        J = pixel_jacobian(m).reshape(6, H * W, 2)[:, hit]  # (6, P, 2)
+        Jn = np.einsum("kpd,pd->pk", np.nan_to_num(J), nvec)  # (P, 6)
+        sig = np.sqrt(np.maximum(np.einsum("pk,kl,pl->p", Jn, S, Jn), 0.0))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            r = np.log(np.asarray(off, np.float64).ravel()[hit]
+                       / np.asarray(on, np.float64).ravel()[hit])
+        nb = _edge_neighbours(m.mesh)[f, k]
+        pw = weights.pixel[c].ravel()[hit]
+        Wsum = np.bincount(f, weights=pw, minlength=nf)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rf = np.bincount(f, weights=pw * np.nan_to_num(r), minlength=nf) / Wsum
+        sel = np.flatnonzero((nb >= 0) & np.isfinite(r) & (pw > 0) & (sig > 0)
+                             & (dk < 5.0 * sig))
+        if not sel.size:
+            continue
+        z = norm.ppf(qmc.Sobol(6, scramble=True, seed=c).random(draws).clip(1e-12, 1 - 1e-12))
+        theta = z @ np.linalg.cholesky(S + 1e-30 * np.eye(6)).T  # (M, 6)
+        # the triangle moves by J theta: the pixel's place in it by -J theta
+        leave = (-(Jn[sel] @ theta.T)) > dk[sel, None]  # (Psel, M)
+        faces = np.concatenate([f[sel], nb[sel]])
+        uniq, loc = np.unique(faces, return_inverse=True)
+        E = np.zeros((len(uniq), draws))
+        for part, face in ((0, f[sel]), (1, nb[sel])):  # losing, gaining face
+            with np.errstate(invalid="ignore", divide="ignore"):
+                lump = pw[sel] / Wsum[face] * (r[sel] - rf[face]) * weights.share[c][face]
+            lump = np.nan_to_num(lump) * (-1.0 if part == 0 else 1.0)
+            rows_ = loc[part * len(sel):(part + 1) * len(sel)]
+            np.add.at(E, rows_, leave * lump[:, None])
+        out[uniq] += E.var(axis=1) + E.mean(axis=1) ** 2
+    return out
