@@ -14,7 +14,7 @@ import numpy as np
 from resection.cli.paths import FolderOutput
 from resection.cli.util import add_mesh_format
 from resection.errors import InputError
-from selfillum.cli.uncertainty import add_uncertainty_options
+from selfillum.cli.uncertainty import add_uncertainty_options, uncertainty_settings
 
 
 def _cmd_psp(args) -> int:
@@ -27,10 +27,11 @@ def _cmd_psp(args) -> int:
     from selfillum.images.psp import psp_images, read_taps
     from selfillum.transport.viewfactors import view_factors
 
+    stated = uncertainty_settings(args)  # --u checked, also without --uncertainty
     if args.uncertainty is not None:
         from selfillum.cli.uncertainty import psp_with_uncertainty
 
-        return psp_with_uncertainty(args)
+        return psp_with_uncertainty(args, stated)
     cams, offs, ons = args.camera, args.wind_off, args.wind_on or []
     if len(offs) != len(cams):
         raise InputError(f"give one wind-off image per camera ({len(cams)} cameras, "

@@ -40,7 +40,7 @@ def uncertainty_settings(args):
     return stated
 
 
-def psp_with_uncertainty(args) -> int:
+def psp_with_uncertainty(args, stated) -> int:
     from resection.io.cameras import read_camera
     from resection.io.images import write_image
     from resection.io.markers import read_markers
@@ -56,7 +56,6 @@ def psp_with_uncertainty(args) -> int:
     from selfillum.uncertainty.psp_io import read_condition, write_uncertainty
     from selfillum.uncertainty.psp_run import noise_models, psp_uncertainty
 
-    stated = uncertainty_settings(args)
     cams = args.camera
     if not args.wind_on:
         raise InputError(f"give one wind-on image per camera ({len(cams)} cameras, 0 "

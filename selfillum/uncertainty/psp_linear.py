@@ -80,7 +80,9 @@ def model_sources(inp: PSPInputs, state, stated, noise_models) -> Sources:
         with np.errstate(invalid="ignore", divide="ignore"):
             S.independent["noise"] = v_off / state.e_off**2 + v_on / state.e_on**2
         S.noise = noise_models
-        S.status["noise"] = noise_models[0][0].source
+        S.status["noise"] = "; ".join(
+            f"{nm[0].source}: camera {c + 1} gain {nm[0].gain:.4g} e-/count, read noise "
+            f"{nm[0].read_noise:.3g} e-" for c, nm in enumerate(noise_models))
     else:
         S.status["noise"] = ("missing: no camera gain and read noise stated and one frame "
                              "per condition (give --u camera_gain= read_noise=, or stacks)")

@@ -25,7 +25,8 @@ import numpy as np
 
 from resection.errors import InputError
 
-__all__ = ["perturbed", "pose_covariance", "pixel_jacobian", "ratio_sensitivity"]
+__all__ = ["perturbed", "pose_covariance", "pixel_jacobian", "ratio_sensitivity",
+           "switching_variance", "normal_points"]
 
 _STEP = (1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6)
 
@@ -138,8 +139,29 @@ def _edge_neighbours(mesh) -> np.ndarray:
     return out.reshape(nf, 3)
 
 
-#: Quasi-random pose draws of :func:`switching_variance` (a scrambled Sobol sequence).
+#: Quasi-random pose draws of :func:`switching_variance`.
 SWITCH_DRAWS = 256
+_PRIMES = (2, 3, 5, 7, 11, 13, 17, 19)
+
+
+def normal_points(n: int, dim: int, seed: int = 0) -> np.ndarray:
+    """(n, dim) quasi-random standard normal points: a Halton sequence with a random
+    shift modulo 1 (seeded), through the normal quantile."""
+    from scipy.special import ndtri
+
+    if dim > len(_PRIMES):
+        raise ValueError(f"normal_points: at most {len(_PRIMES)} dimensions")
+    i = np.arange(1, n + 1)
+    u = np.empty((n, dim))
+    for d, b in enumerate(_PRIMES[:dim]):
+        x, f, k = np.zeros(n), 1.0 / b, i.copy()
+        while k.any():
+            x += f * (k % b)
+            k //= b
+            f /= b
+        u[:, d] = x
+    u = (u + np.random.default_rng(seed).random(dim)) % 1.0
+    return ndtri(np.clip(u, 1e-12, 1 - 1e-12))
 
 
 def switching_variance(weights, off_images, on_images, covariances,
@@ -154,15 +176,13 @@ def switching_variance(weights, off_images, on_images, covariances,
     merge's pixel weights) while the face across gains ``+(w_k / W_j) (r_k - r_j)``. The
     pixels of one face switch together (a shift moves all its edges alike; an edge along a
     pixel row or column moves a whole line of pixels at once), so the variance is taken
-    over ``draws`` quasi-random poses ``theta ~ N(0, Sigma)`` (scrambled Sobol points
-    through the normal quantile), the pixels within 5 ``sigma`` of an edge only. For a
+    over ``draws`` quasi-random poses ``theta ~ N(0, Sigma)`` (:func:`normal_points`),
+    the pixels within 5 ``sigma`` of an edge only. For a
     small pose error this term is the larger one: it grows with ``sqrt(sigma)`` (whole
     pixels, with a small probability) where the gradient term grows with ``sigma``.
     Taken as independent between faces; edges on the model's outline (no face across)
     are left out.
     """
-    from scipy.stats import norm, qmc
-
     nf = weights.camera.shape[1]
     out = np.zeros(nf)
     for c, (m, off, on, S) in enumerate(zip(weights.maps, off_images, on_images, covariances,
@@ -205,7 +225,7 @@ def switching_variance(weights, off_images, on_images, covariances,
                              & (dk < 5.0 * sig))
         if not sel.size:
             continue
-        z = norm.ppf(qmc.Sobol(6, scramble=True, seed=c).random(draws).clip(1e-12, 1 - 1e-12))
+        z = normal_points(draws, 6, seed=c)
         theta = z @ np.linalg.cholesky(S + 1e-30 * np.eye(6)).T  # (M, 6)
         # the triangle moves by J theta: the pixel's place in it by -J theta
         leave = (-(Jn[sel] @ theta.T)) > dk[sel, None]  # (Psel, M)
