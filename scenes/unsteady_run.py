@@ -110,13 +110,17 @@ def write_node_function(path, grid, values) -> None:
 def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: int = 100,
                       fps: float = 1000.0, width: int = 200, height: int = 150,
                       noise: float = 0.003, vibration_deg: float = 0.5, texture: float = 0.08,
-                      cameras: int = 1, stern_volmer=None, seed: int = 0) -> UnsteadyRun:
+                      cameras: int = 1, stern_volmer=None, seed: int = 0,
+                      amplitude: float = 1.0) -> UnsteadyRun:
     """Write a run into ``folder`` (created) and return its paths and truth; ``cameras``
     1 or 2 (the second from the opposite side, seeing the block's other sides).
 
     ``stern_volmer = (A, B, p_ref)`` (p_ref in psf): the paint follows
     ``I_ref / I = A + B p / p_ref`` instead of the paint calibration, and a wind-off image
-    per camera at ``p_ref`` is written (``wind_off_camNN.npy``) for the in-situ fit."""
+    per camera at ``p_ref`` is written (``wind_off_camNN.npy``) for the in-situ fit.
+    ``vibration_deg`` also scales the heave (3 mm at 0.5 degree; 0: a model that does not
+    move). ``amplitude`` scales the three dCp amplitudes (small signals: Phase 2's linear model of
+    the paint, exact to first order in dCp, then errs by much less than the noise)."""
     from resection.io.cameras import write_camera
     from resection.surface.surface_map import SurfaceMap
     from scenes.slab_block import paint, slab_block, write_slab_block
@@ -139,7 +143,8 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
     on_block = part >= 6
     # ------------------------------------------------------------------ the truth
     freqs = {"tone": 120.0, "wave": 70.0, "block": 200.0, "vibration": 30.0}
-    amps = {"tone": 0.03, "wave": 0.02, "block": 0.1, "lam": 0.3}
+    amps = {"tone": 0.03 * amplitude, "wave": 0.02 * amplitude, "block": 0.1 * amplitude,
+            "lam": 0.3}
     t = np.arange(frames) / fps
 
     def dcp(points, is_block):
@@ -218,7 +223,7 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
     srad = 0.5 * np.concatenate([tdia, np.full(len(taps), 0.004), [0.006, 0.006]])
     # ------------------------------------------------------------------ frames
     theta = np.radians(vibration_deg) * np.sin(2 * np.pi * freqs["vibration"] * t)
-    heave = 0.003 * np.sin(2 * np.pi * freqs["vibration"] * t + 0.7)
+    heave = 0.003 * vibration_deg / 0.5 * np.sin(2 * np.pi * freqs["vibration"] * t + 0.7)
     poses = np.empty((cameras, frames, 4, 3))
     for c, camc in enumerate(cams0):  # cameras
         video = np.empty((frames, height, width), np.float32)

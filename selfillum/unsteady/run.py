@@ -36,7 +36,13 @@ from selfillum.unsteady.config import (
 )
 from selfillum.unsteady.inputs import open_videos, track_poses, work_inputs
 from selfillum.unsteady.insitu import insitu_fit, insitu_gain, insitu_inputs
-from selfillum.unsteady.output import chunk_shape, json_attr, write_flat, write_xdmf
+from selfillum.unsteady.output import (
+    chunk_shape,
+    json_attr,
+    node_fields,
+    write_flat,
+    write_xdmf,
+)
 from selfillum.unsteady.phase1 import CameraRun, SelfIllumination
 from selfillum.unsteady.phase2 import node_gain
 from selfillum.unsteady.plots import write_pictures
@@ -75,10 +81,11 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     cp = read_steady_cp(cfg.steady, grid)
     wtd = read_wtd(cfg.sds)
     cond = Conditions.from_wtd(wtd, tinf=cfg.tinf)
-    law = gain = taps = tapn = offs = None
+    law = gain = taps = tapn = offs = coeffs = None
     if cfg.paint_calibration is not None:
         cal = read_paint_calibration(cfg.paint_calibration)
         gain = node_gain(cal, cond.surface_temperature, cp, cond)
+        coeffs = (cal.a, cal.b, cal.c, cal.d, cal.e, cal.f)
     else:
         taps, tapn, offs = insitu_inputs(cfg, grid)
     spots = None
@@ -186,11 +193,18 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
                                           progress=prog.nodes, client=client,
                                           work=store.path)
                     prog.close()
+                    if cfg.uncertainty is not None:  # docs/uncertainty.md
+                        from selfillum.unsteady.uncertainty_out import write_uncertainty
+
+                        stats["uncertainty"] = write_uncertainty(
+                            f, cfg, grid, runs, s1, stats, spectra, fps, frames, gain, cond,
+                            cp, coeffs)
                     if law is not None:
                         f.attrs["stern_volmer"] = json_attr(
                             {"A": law.A, "B": law.B, "p_ref": law.p_ref,
                              "taps": list(taps.ids), "tap_nodes": tapn.tolist()})
-                    write_xdmf(tmp[1], out.name, T, N, len(grid.triangles), times)
+                    write_xdmf(tmp[1], out.name, T, N, len(grid.triangles), times,
+                               extra=node_fields(f))
                     if flat:
                         write_flat(f, tmp[2], tmp[3], node_block=plan.nodes_per_block)
                     if pngs:
@@ -216,5 +230,6 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     return UnsteadyResult(out, T, N, (tc, nc), stats["seen"], stats["si_median"],
                           stats["si_p95"], failed, tuple(files), peak_rss_mb(),
                           T / el if el > 0 else float("nan"),
-                          (plan.frames_per_block, plan.nodes_per_block), timings)
+                          (plan.frames_per_block, plan.nodes_per_block), timings,
+                          stats.get("uncertainty", {}))
 
