@@ -19,13 +19,14 @@ from selfillum.cli.uncertainty import add_uncertainty_options, uncertainty_setti
 
 def _cmd_psp(args) -> int:
     from resection.io.cameras import read_camera
-    from resection.io.images import read_image, write_image
+    from resection.io.images import write_image
     from resection.io.meshes import load_mesh
     from resection.io.outputs import atomic_write, output_folder
     from resection.surface.surface_map import SurfaceMap
     from selfillum.cli.render import per_face_arg
     from selfillum.images.psp import psp_images, read_taps
     from selfillum.transport.viewfactors import view_factors
+    from selfillum.uncertainty.psp_io import read_condition
 
     stated = uncertainty_settings(args)  # --u checked, also without --uncertainty
     if args.uncertainty is not None:
@@ -33,17 +34,18 @@ def _cmd_psp(args) -> int:
 
         return psp_with_uncertainty(args, stated)
     cams, offs, ons = args.camera, args.wind_off, args.wind_on or []
-    if len(offs) != len(cams):
+    # one image (or stack, or k files) per camera: several frames are averaged
+    if not offs or len(offs) % len(cams):
         raise InputError(f"give one wind-off image per camera ({len(cams)} cameras, "
                          f"{len(offs)} wind-off images)")
-    if len(ons) != len(cams):
+    if not ons or len(ons) % len(cams):
         raise InputError(f"give one wind-on image per camera ({len(cams)} cameras, "
                          f"{len(ons)} wind-on images)")
     mesh = load_mesh(args.mesh, format=args.mesh_format)
     taps = read_taps(args.taps, positions=args.tap_positions)
     maps = [SurfaceMap(mesh, read_camera(c)) for c in cams]
-    off_imgs = [read_image(p) for p in offs]
-    on_imgs = [read_image(p) for p in ons]
+    off_imgs = read_condition(offs, len(cams), "--wind-off")[0]
+    on_imgs = read_condition(ons, len(cams), "--wind-on")[0]
     F = rho = None
     if not args.no_correction:
         rho = per_face_arg(args.reflectance, "--reflectance")
@@ -90,8 +92,11 @@ def register(sub) -> None:
     p.add_argument("--camera", required=True, action="append",
                    help="camera JSON file; repeat for several cameras")
     p.add_argument("--wind-off", required=True, action="append",
-                   help="wind-off image (uniform p_ref), one per camera, in camera order")
-    p.add_argument("--wind-on", action="append", help="wind-on image, one per camera")
+                   help="wind-off image (uniform p_ref), one per camera, in camera order; a "
+                   "multi-page TIFF or NPY stack, or k files per camera (camera by camera), "
+                   "is averaged")
+    p.add_argument("--wind-on", action="append",
+                   help="wind-on image, one per camera (stacks as --wind-off)")
     p.add_argument("--taps", required=True, help="pressure taps CSV: id,x,y,z,p, or id,p with "
                    "--tap-positions; or a uPSP RUN.wtd (its '# Tap CP' table, p = PS + Cp Q, "
                    "tap n = the .tgts point CPnn) with --tap-positions")
