@@ -114,6 +114,8 @@ def register(sub) -> None:
     p.add_argument("--out", required=True, help="output folder (created if needed)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_uncertainty_options(p)
+    p.add_argument("--no-plots", action="store_true",
+                   help="with --uncertainty: no picture of the uncertainty nor budget chart")
     p.add_argument("--markers", metavar="FILE",
                    help="marker positions (a .tgts or marker file) for the poses' covariance "
                    "(--uncertainty, with --u marker=..px)")

@@ -12,7 +12,7 @@ import numpy as np
 from resection.errors import InputError
 from selfillum.uncertainty.noise import frame_mean
 
-__all__ = ["read_condition", "node_values", "write_uncertainty"]
+__all__ = ["read_condition", "node_values", "node_operator", "write_uncertainty"]
 
 
 def read_condition(paths, n_cameras: int, option: str) -> tuple[list, list, list]:
@@ -43,32 +43,36 @@ def read_condition(paths, n_cameras: int, option: str) -> tuple[list, list, list
     return means, counts, variances
 
 
-def node_values(mesh, face_values) -> np.ndarray:
-    """Area-weighted mean of the finite face values around each vertex (NaN if none)."""
-    f = np.asarray(mesh.faces)
-    a = np.asarray(mesh.area_faces, np.float64)
+def node_values(mesh, face_values, operator=None) -> np.ndarray:
+    """Area-weighted mean of the finite face values around each vertex (NaN if none);
+    ``operator``: :func:`node_operator` of the mesh, when the caller has it."""
+    A = node_operator(mesh) if operator is None else operator
     v = np.asarray(face_values, np.float64)
     ok = np.isfinite(v)
-    w = np.where(ok, a, 0.0)
-    x = np.where(ok, v, 0.0)
-    n = len(mesh.vertices)
-    s = np.zeros(n)
-    t = np.zeros(n)
-    for k in range(3):
-        np.add.at(s, f[:, k], w * x)
-        np.add.at(t, f[:, k], w)
+    s = A @ np.where(ok, v, 0.0)
+    t = A @ ok.astype(np.float64)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.where(t > 0, s / t, np.nan)
 
 
-def write_uncertainty(out: Path, mesh, cameras, state, budgets, stated, atomic_write) -> list:
+def node_operator(mesh):
+    """(V, F) sparse: each face's area at its three vertices."""
+    import scipy.sparse as sp
+
+    f = np.asarray(mesh.faces)
+    a = np.asarray(mesh.area_faces, np.float64)
+    nf = len(f)
+    return sp.csr_matrix((np.repeat(a, 3), (f.ravel(), np.repeat(np.arange(nf), 3))),
+                         shape=(len(mesh.vertices), nf))
+
+
+def write_uncertainty(out: Path, mesh, cameras, state, budgets, stated, atomic_write,
+                      plots: bool = True) -> list:
     """Write ``pressure_faces.csv`` (replacing the plain one), ``pressure_nodes.csv``,
     ``uncertainty.json``, ``<q>_u.png`` and ``budget.png``; returns the names written.
 
     The node value of an uncertainty is the area-weighted mean of its faces' (their
     errors taken as fully correlated: an upper bound for the independent parts)."""
-    from resection.surface.plots import plot_surface
-
     res = state.result
     q = "cp" if "cp" in budgets else "p"
     cols = {"face": np.arange(len(res.pressure)), "pressure": res.pressure,
@@ -86,7 +90,8 @@ def write_uncertainty(out: Path, mesh, cameras, state, budgets, stated, atomic_w
     atomic_write(out / "pressure_faces.csv", np.savetxt, table, fmt=fmt, delimiter=",",
                  header=",".join(names), comments="")
     ncols = {"node": np.arange(len(mesh.vertices))}
-    ncols.update({k: node_values(mesh, v) for k, v in cols.items() if k not in ("face",)})
+    A = node_operator(mesh)
+    ncols.update({k: node_values(mesh, v, A) for k, v in cols.items() if k != "face"})
     nn = list(ncols)
     atomic_write(out / "pressure_nodes.csv", np.savetxt,
                  np.column_stack([ncols[k] for k in nn]), fmt=["%d"] + ["%.9g"] * (len(nn) - 1),
@@ -98,13 +103,17 @@ def write_uncertainty(out: Path, mesh, cameras, state, budgets, stated, atomic_w
            **{k: b.summary(area, painted) for k, b in budgets.items()}}
     atomic_write(out / "uncertainty.json", Path.write_text,
                  json.dumps(doc, indent=2, default=float) + "\n")
+    written = ["pressure_faces.csv", "pressure_nodes.csv", "uncertainty.json"]
+    if not plots:
+        return written
     b = budgets[q]
+    from resection.surface.plots import plot_surface
+
     atomic_write(out / f"{q}_u.png", lambda p: plot_surface(
         mesh, b.combined, cameras[0], label=f"{q}_u (k = 1)",
         title=f"standard uncertainty of {q} ({b.method})", path=p))
     atomic_write(out / "budget.png", lambda p: _budget_png(b, p, area, painted))
-    return ["pressure_faces.csv", "pressure_nodes.csv", "uncertainty.json", f"{q}_u.png",
-            "budget.png"]
+    return written + [f"{q}_u.png", "budget.png"]
 
 
 def _budget_png(b, path, area, painted):

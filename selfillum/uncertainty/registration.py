@@ -28,7 +28,6 @@ from resection.errors import InputError
 __all__ = ["perturbed", "pose_covariance", "pixel_jacobian", "ratio_sensitivity",
            "switching_variance", "normal_points"]
 
-_STEP = (1e-6, 1e-6, 1e-6, 1e-6, 1e-6, 1e-6)
 
 
 def perturbed(camera, theta):
@@ -40,14 +39,29 @@ def perturbed(camera, theta):
 
 
 def _jacobian(camera, points) -> np.ndarray:
-    """(P, 2, 6) derivatives of the projections of ``points`` w.r.t. ``theta``."""
+    """(P, 2, 6) derivatives of the projections of ``points`` w.r.t. ``theta``.
+
+    ``x = R X + t`` moves by ``w x (R X) + dt``: the projection's derivative in the camera
+    frame (three central differences of the camera at the origin, distortion included)
+    chained with ``[-[R X]x | I]``."""
     P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    RX = P @ camera.R.T
+    x = RX + camera.t
+    cam0 = camera.with_pose(R=np.eye(3), t=np.zeros(3))
+    h = 1e-6 * np.maximum(np.abs(x[:, 2]), 1e-9)[:, None]
+    D = np.empty((len(P), 2, 3))
+    for k in range(3):  # d uv / d x_cam
+        e = np.zeros(3)
+        e[k] = 1.0
+        D[:, :, k] = (cam0.project(x + h * e) - cam0.project(x - h * e)) / (2 * h)
     J = np.empty((len(P), 2, 6))
-    for k in range(6):  # six central differences, each a batch projection
-        e = np.zeros(6)
-        e[k] = _STEP[k] * max(1.0, float(np.abs(camera.t).max()) if k >= 3 else 1.0)
-        J[:, :, k] = (perturbed(camera, e).project(P)
-                      - perturbed(camera, -e).project(P)) / (2 * e[k])
+    # d x / d w_k = e_k x RX: columns (0, -z, y), (z, 0, -x), (-y, x, 0), RX = (x, y, z)
+    a, b, c = RX[:, 0], RX[:, 1], RX[:, 2]
+    z0 = np.zeros_like(a)
+    dxdw = np.stack([np.stack([z0, -c, b], 1), np.stack([c, z0, -a], 1),
+                     np.stack([-b, a, z0], 1)], 2)  # (P, 3, 3): column k = d x / d w_k
+    J[:, :, :3] = np.einsum("pij,pjk->pik", D, dxdw)
+    J[:, :, 3:] = D
     return J
 
 
@@ -79,13 +93,23 @@ def pose_covariance(camera, markers, sigma_px: float, name: str = "markers") -> 
 
 def pixel_jacobian(smap) -> np.ndarray:
     """(6, H, W, 2) pixel displacement of each pixel's surface point per unit ``theta``
-    (NaN off the model)."""
+    (NaN off the model): the Jacobian at the centroid of the pixel's face (it varies over
+    a face by the face's share of the image); kept on the map (both registration terms
+    use it)."""
+    cached = getattr(smap, "_uncertainty_jacobian", None)
+    if cached is not None:
+        return cached
     H, W = smap.shape
-    pts = smap.points.reshape(-1, 3)
-    hit = np.all(np.isfinite(pts), axis=1)
+    f = smap.face_index.ravel()
+    hit = f >= 0
+    used = np.unique(f[hit])
+    Jf = np.full((smap.n_faces, 2, 6), np.nan)
+    Jf[used] = _jacobian(smap.camera, np.asarray(smap.mesh.triangles_center)[used])
     J = np.full((H * W, 2, 6), np.nan)
-    J[hit] = _jacobian(smap.camera, pts[hit])
-    return np.moveaxis(J, 2, 0).reshape(6, H, W, 2)
+    J[hit] = Jf[f[hit]]
+    out = np.moveaxis(J, 2, 0).reshape(6, H, W, 2)
+    smap._uncertainty_jacobian = out
+    return out
 
 
 def ratio_sensitivity(weights, off_images, on_images, covariances) -> np.ndarray:
