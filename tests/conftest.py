@@ -1,5 +1,8 @@
 """Fixtures shared by several test files."""
 
+import shutil
+from pathlib import Path
+
 import pytest
 
 
@@ -19,3 +22,15 @@ def embree_scenes(monkeypatch) -> list:
 
     monkeypatch.setattr(Scene, "__init__", counted)
     return built
+
+
+UPSP_SAMPLES = Path(__file__).parent / "data" / "upsp"
+
+
+@pytest.fixture
+def upsp_samples(tmp_path) -> Path:
+    """A writable copy of NASA uPSP's test data as shipped (``tests/data/upsp``: the
+    ``.wtd``, the grid, the ``.tgts``, the calibrations; NOSA 1.3, see its README)."""
+    dst = tmp_path / "upsp-samples"
+    shutil.copytree(UPSP_SAMPLES, dst)
+    return dst

@@ -57,7 +57,7 @@ def small_run(tmp_path_factory):
     from scenes.unsteady_run import make_unsteady_run
 
     return make_unsteady_run(tmp_path_factory.mktemp("unc_small"), faces=800, frames=64,
-                             width=120, height=90, noise=0.01, vibration_deg=0.0,
+                             width=120, height=90, noise=0.01, vibration_deg=0.0, heave_m=0.0,
                              amplitude=0.1)
 
 
@@ -100,7 +100,7 @@ def noisy_run(tmp_path_factory):
     from scenes.unsteady_run import make_unsteady_run
 
     return make_unsteady_run(tmp_path_factory.mktemp("unc_run"), frames=200, noise=0.01,
-                             vibration_deg=0.0, amplitude=0.1)
+                             vibration_deg=0.0, heave_m=0.0, amplitude=0.1)
 
 
 @pytest.mark.slow

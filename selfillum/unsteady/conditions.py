@@ -105,6 +105,9 @@ class Conditions:
         """From a :class:`resection.io.wtd.WindTunnelData` (``MACH``, ``Q``, ``PS`` and the
         stagnation temperature, see :data:`T0_COLUMNS`); ``tinf`` (deg F) overrides the
         isentropic estimate."""
+        if wtd.wind_off:
+            raise InputError(f"{wtd.path}: PS = Q = 0, a wind-off point ({wtd.label}); "
+                             "dCp needs the wind-on point's dynamic pressure")
         mach = wtd.value("MACH")
         q = wtd.value("Q")
         ps = wtd.value("PS")
