@@ -146,8 +146,8 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
     ``stern_volmer = (A, B, p_ref)`` (p_ref in psf): the paint follows
     ``I_ref / I = A + B p / p_ref`` instead of the paint calibration, and a wind-off image
     per camera at ``p_ref`` is written (``wind_off_camNN.npy``) for the in-situ fit.
-    ``amplitude`` scales the three dCp amplitudes (small signals: Phase 2's linear model of
-    the paint, exact to first order in dCp, then errs by much less than the noise)."""
+    ``amplitude`` scales the three dCp amplitudes (small signals: the errors that grow with
+    the signal then stay below the noise)."""
     from resection.io.cameras import write_camera
     from resection.surface.surface_map import SurfaceMap
     from scenes.slab_block import paint, slab_block, write_slab_block
