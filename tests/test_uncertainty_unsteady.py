@@ -139,3 +139,28 @@ def test_unsteady_coverage_and_monte_carlo(noisy_run, capsys):
     ok = np.isfinite(u) & np.isfinite(u_mc) & (u > 0)
     assert np.median(u_mc[ok] / u[ok]) == pytest.approx(1.0, abs=0.1)
     assert np.median(ug_mc[ok] / ug[ok]) == pytest.approx(1.0, abs=0.1)
+
+
+def test_unsteady_camera_noise_model_matches_the_run(small_run, capsys):
+    """With the camera's gain stated, dcp_u comes from the pixel noise model (frame 0's
+    intensity and pixels per node) instead of the run's PSD floor: two independent
+    estimates of the same noise. The scene's noise is 1 % of the signal, i.e. the shot
+    noise of a gain 1 / (1e-4 I) at the frames' median level I: the medians agree within
+    15 % (their per-node ratio spreads with the intensity's and the pixel count's
+    variation)."""
+    run = small_run
+    f0 = np.asarray(np.load(run.video, mmap_mode="r")[0], float)
+    level = float(np.median(f0[f0 > 40]))  # the model, not the background (30)
+    a, b = run.folder / "floor.h5", run.folder / "camera.h5"
+    assert _cli(run, a, "--uncertainty") == 0, capsys.readouterr().err
+    assert _cli(run, b, "--uncertainty", "--u", f"camera_gain={1e4 / level!r}e/count") == 0, \
+        capsys.readouterr().err
+    assert "stated: gain" in capsys.readouterr().out
+    with h5py.File(a) as f:
+        ua = f["dcp_u"][()]
+    with h5py.File(b) as f:
+        ub = f["dcp_u"][()]
+        assert json.loads(f.attrs["uncertainty"])["sources"]["noise"].startswith("stated")
+    ok = np.isfinite(ua) & np.isfinite(ub) & (ua > 0)
+    assert ok.sum() > 100
+    assert np.median(ub[ok] / ua[ok]) == pytest.approx(1.0, abs=0.15)
