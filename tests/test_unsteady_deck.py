@@ -198,7 +198,7 @@ def test_hidden_faces_continue_within_their_part():
     B0 = np.full(n, 100.0)
     E0 = np.full(n, 90.0)
     hc = HiddenContinuation(g, B0, E0, needed=np.ones(n, bool))
-    hid, src = hc.assignment(seen)
+    hid, src, _ = hc.assignment(seen)
     assert set(np.flatnonzero(side_px)) <= set(hid)
     assert on_block[src[np.isin(hid, np.flatnonzero(side_px))]].all()
     # the block's seen faces at 110 % of frame 0, the plate at 100 %: the side follows
@@ -206,3 +206,37 @@ def test_hidden_faces_continue_within_their_part():
     x = hc.radiosity(B, seen)
     np.testing.assert_allclose(x[side_px], 100.0 + 90.0 * 0.1)
     np.testing.assert_allclose(x[seen], B[seen])
+    # a frame that lost a few faces (under 1 %) reuses the search: the lost faces hold
+    # frame 0's radiosity, the faces they sourced their own
+    lost = np.flatnonzero(top)[:2]
+    seen2 = seen.copy()
+    seen2[lost] = False
+    assert hc.assignment(seen2)[2] is hc.assignment(seen)[2]
+    x2 = hc.radiosity(B, seen2)
+    np.testing.assert_allclose(x2[lost], 100.0)
+    from_lost = hid[np.isin(src, lost)]
+    np.testing.assert_allclose(x2[from_lost], 100.0)
+
+
+@pytest.mark.parametrize("extra", [(), ("--registration", "track"),
+                                   ("--registration", "track", "--filter", "gaussian",
+                                    "--filter-size", "5")],
+                         ids=["deck-pixel-poly", "track-poly", "track-poly-gauss"])
+def test_whole_command_with_the_deck_maps_frames_by_sparse_products(tmp_path, capsys,
+                                                                    extra):
+    """The whole command on a run whose deck is uPSP's (``target_patcher = polynomial``,
+    ``registration = pixel``, ``overlap = average_view``), its ``.wtd`` in NASA's layout:
+    one frame is mapped the full way (frame 0), every other by the sparse products (before
+    issue 33, every frame of this deck was a ray cast)."""
+    from scenes.unsteady_run import make_unsteady_run
+    from selfillum.cli import main
+
+    run = make_unsteady_run(tmp_path / "run", frames=16, faces=1500, width=160, height=120)
+    assert "target_patcher = polynomial" in run.deck.read_text()
+    assert run.wtd.read_text().startswith("RUN ")
+    rc = main(["unsteady", str(run.deck), "--paint-calibration", str(run.paint), "--steady",
+               str(run.steady), "--fps", str(run.fps), "--out", str(tmp_path / "o.h5"),
+               "--quiet", "--no-plots", *extra])
+    out = capsys.readouterr()
+    assert rc == 0, out.err
+    assert "phase 1: 15 frames by sparse products, 1 mapped the full way" in out.out

@@ -97,6 +97,9 @@ def _cmd_unsteady(args) -> int:
                                   if u.get("dcp_u_gain_median") is not None else ""))
         for k, v in u["sources"].items():
             print(f"  {k:12s} {v}")
+    if "frames_fast" in tm:
+        print(f"phase 1: {tm['frames_fast']} frames by sparse products, {tm['frames_full']} "
+              f"mapped the full way, {tm['frames_references']} references cast from a pose")
     print("wrote " + ", ".join(str(p) for p in res.files))
     return 0
 
