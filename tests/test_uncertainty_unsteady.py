@@ -164,3 +164,32 @@ def test_unsteady_camera_noise_model_matches_the_run(small_run, capsys):
     ok = np.isfinite(ua) & np.isfinite(ub) & (ua > 0)
     assert ok.sum() > 100
     assert np.median(ub[ok] / ua[ok]) == pytest.approx(1.0, abs=0.15)
+
+
+def test_unsteady_insitu_gain_uncertainty(tmp_path, capsys):
+    """Without a gain file (the in-situ Stern-Volmer fit on the taps), dcp_u_gain comes from
+    the fit's covariance at the taps (its residuals): > 0, stated as estimated, and the
+    Monte Carlo drawing A and B from that covariance (400 draws) gives the same relative
+    gain uncertainty within 10 % (the linearised G = (A p_ref / B + Pss) / 144)."""
+    from scenes.unsteady_run import make_unsteady_run
+    from selfillum.cli import main
+
+    run = make_unsteady_run(tmp_path, faces=800, frames=64, width=120, height=90,
+                            noise=0.01, stern_volmer=(0.2, 0.8, 1500.0))
+    args = ["unsteady", str(run.deck), "--taps", str(run.wtd), "--wind-off",
+            str(run.folder / "wind_off_cam01.npy"), "--p-ref", "1500", "--steady",
+            str(run.steady), "--fps", str(run.fps), "--quiet", "--u", "q=2psf"]
+    assert main(args + ["--out", str(tmp_path / "lin.h5"), "--uncertainty"]) == 0, \
+        capsys.readouterr().err
+    assert main(args + ["--out", str(tmp_path / "mc.h5"), "--uncertainty", "mc",
+                        "--samples", "400"]) == 0, capsys.readouterr().err
+    with h5py.File(tmp_path / "lin.h5") as f:
+        ug = f["dcp_u_gain"][()]
+        info = json.loads(f.attrs["uncertainty"])
+    with h5py.File(tmp_path / "mc.h5") as f:
+        ug_mc = f["dcp_u_gain"][()]
+    assert info["sources"]["gain"].startswith("estimated: the in-situ fit")
+    assert info["sources"]["temperature"].startswith("zero")
+    ok = np.isfinite(ug) & np.isfinite(ug_mc)
+    assert ok.sum() > 100 and np.all(ug[ok] > 0)
+    assert np.median(ug_mc[ok] / ug[ok]) == pytest.approx(1.0, abs=0.1)

@@ -16,7 +16,8 @@
 * **systematic, the gain** (``/dcp_u_gain``, relative, the same in every frame): uPSP's gain
   coefficients' stated uncertainties, the surface temperature's (``T0``, ``Tinf``, the
   model) through ``dGain / dT``, ``q`` and ``p_inf`` through ``Pss`` and ``144 / q``
-  (:func:`gain_relative_u`).
+  (:func:`gain_relative_u`); without a gain file, the in-situ Stern-Volmer fit's
+  covariance from its residuals at the taps (:func:`insitu_relative_u`).
 
 The RMS of dCp over the frames holds the noise's variance: ``/stats/dcp_rms_signal`` is
 ``sqrt(max(rms^2 - sigma^2, 0))``, with its standard uncertainty
@@ -34,7 +35,7 @@ from selfillum.uncertainty.temperature import surface_u
 from selfillum.uncertainty.tunnel import gain_factor_relative_u
 
 __all__ = ["noise_from_floor", "noise_from_camera", "gain_relative_u", "signal_rms",
-           "floor_dof"]
+           "floor_dof", "insitu_covariance", "insitu_relative_u"]
 
 
 def noise_from_floor(band_psd, fps: float) -> tuple[np.ndarray, np.ndarray]:
@@ -72,17 +73,16 @@ def gain_relative_u(coeffs, stated, T: float, cp, q: float,
 
     Parameters
     ----------
-    coeffs : (6,) ``a .. f`` of uPSP's gain, or None (in-situ fit: no coefficients).
+    coeffs : (6,) ``a .. f`` of uPSP's gain, or ``("insitu", law, tap_ratio, tap_pressure)``
+        for the in-situ Stern-Volmer fit (:func:`insitu_relative_u`).
     T : float
         Surface temperature, deg F.
     """
     cp = np.asarray(cp, np.float64)
+    if coeffs is not None and len(coeffs) == 4 and coeffs[0] == "insitu":
+        return insitu_relative_u(coeffs[1], coeffs[2], coeffs[3], stated, cp, q, p_inf)
     status = {}
     parts = []
-    if coeffs is None:
-        status["gain"] = ("missing: the in-situ fit's covariance is not propagated to "
-                          "the unsteady gain")
-        return None, status
     pss = cp * q + p_inf
     a, b, c, d, e, f_ = (float(v) for v in coeffs)
     G = a + b * T + c * T**2 + (d + e * T + f_ * T**2) * pss
@@ -106,6 +106,37 @@ def gain_relative_u(coeffs, stated, T: float, cp, q: float,
         status["tunnel"] = "missing: give --u q=..psf p_inf=..psf"
     if not parts:
         return None, status
+    return np.sqrt(sum(p * p for p in parts)), status
+
+
+def insitu_covariance(law, tap_ratio, tap_pressure) -> np.ndarray:
+    """(2, 2) covariance of the in-situ fit's ``(A, B)`` from its residuals at the taps
+    (``s^2 (M^T M)^-1``, the taps the fit used)."""
+    r = np.asarray(tap_ratio, np.float64)
+    p = np.asarray(tap_pressure, np.float64)
+    ok = np.isfinite(r) & np.isfinite(p)
+    M, _ = cal.design(p[ok], law.p_ref)
+    return cal.residual_covariance(M, r[ok] - law.ratio(p[ok]))
+
+
+def insitu_relative_u(law, tap_ratio, tap_pressure, stated, cp, q: float, p_inf: float):
+    """The in-situ gain ``G = (A p_ref / B + Pss) / 144``: its relative uncertainty from the
+    fit's covariance (``dG = p_ref / 144 (dA / B - A dB / B^2)``), and from ``q`` and
+    ``p_inf`` through ``Pss`` and ``144 / q``. A temperature common to the wind-off images and
+    the run scales the ratios alike and is absorbed by the fit."""
+    C = insitu_covariance(law, tap_ratio, tap_pressure)
+    pss = cp * q + p_inf
+    G = (law.A * law.p_ref / law.B + pss) / 144.0
+    g = np.array([1.0 / law.B, -law.A / law.B**2]) * law.p_ref / 144.0
+    parts = [np.sqrt(max(float(g @ C @ g), 0.0)) / G]
+    status = {"gain": "estimated: the in-situ fit's residuals at the taps",
+              "temperature": "zero: a common temperature is absorbed by the fit on the taps"}
+    if stated.q is not None or stated.p_inf is not None:
+        parts.append(gain_factor_relative_u(G, np.full_like(G, 1.0 / 144.0), cp, q,
+                                            stated.q, stated.p_inf))
+        status["tunnel"] = "stated"
+    else:
+        status["tunnel"] = "missing: give --u q=..psf p_inf=..psf"
     return np.sqrt(sum(p * p for p in parts)), status
 
 

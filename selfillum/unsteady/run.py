@@ -189,8 +189,10 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
         with h5py.File(store.path, "r", rdcc_nbytes=col + 2**20, rdcc_nslots=100_003,
                        rdcc_w0=1.0) as s1:
             if gain is None:  # the in-situ fit on the taps
+                fit = {}
                 law = insitu_fit(cfg, grid, runs, s1, taps, tapn, offs, spots, unpainted,
-                                  F, rho, gains0)
+                                  F, rho, gains0, out=fit)
+                coeffs = ("insitu", law, fit["ratio"], taps.pressure)
                 gain = insitu_gain(law, cp, cond)
             # -------------------------------------------------------- Phase 2 + output
             files = [out, xdmf, *flat, *pngs]

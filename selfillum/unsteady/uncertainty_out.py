@@ -13,7 +13,8 @@ Written into the output file::
 ``--uncertainty mc --samples S`` re-runs Phase 2 (the ratio, the detrend, the gain) ``S``
 times on the node intensities with the noise drawn (each node's intensity times ``1 + e``,
 ``e ~ N(0, (sigma / (G 144 / q))^2)``), and draws the gain's inputs (``a .. f``, ``T0``,
-``Tinf``, the model temperature, ``q``, ``p_inf``) from their stated normal distributions;
+``Tinf``, the model temperature, ``q``, ``p_inf``; or the in-situ fit's ``A, B`` from their
+covariance) from their normal distributions;
 Phase 1 (the maps, the self-illumination) is not re-run.
 """
 
@@ -159,6 +160,19 @@ def _monte_carlo(cfg, s1, frames, gain, cond, cp, coeffs, sigma, T_f):
     from selfillum.uncertainty.stated import Stated
 
     st = cfg.stated if cfg.stated is not None else Stated()
+    if coeffs is not None and len(coeffs) == 4 and coeffs[0] == "insitu":
+        from selfillum.uncertainty.unsteady import insitu_covariance
+
+        _, law, ratio, p_taps = coeffs
+        C = insitu_covariance(law, ratio, p_taps)
+        g0 = (law.A * law.p_ref / law.B + cp * cond.q + cond.p_inf) / cond.q
+        ratios = []
+        for _ in range(S):
+            A, B = rng.multivariate_normal([law.A, law.B], C)
+            q = cond.q + (st.q or 0.0) * rng.standard_normal()
+            pinf = cond.p_inf + (st.p_inf or 0.0) * rng.standard_normal()
+            ratios.append((A * law.p_ref / B + cp * q + pinf) / q / g0 - 1.0)
+        return out, np.std(np.asarray(ratios), axis=0, ddof=1)
     uc = st.gain_coefficients()
     if coeffs is not None and (uc is not None or st.t0 is not None or st.tinf is not None
                                or st.temperature is not None or st.q is not None
