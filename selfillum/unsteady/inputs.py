@@ -14,7 +14,7 @@ from resection.errors import InputError
 from selfillum.unsteady.config import UnsteadyConfig
 from selfillum.unsteady.output import provenance
 
-__all__ = ["open_videos", "track_poses", "work_inputs"]
+__all__ = ["open_videos", "track_poses", "work_inputs", "read_form_factors"]
 
 
 def open_videos(cfg: UnsteadyConfig):
@@ -95,9 +95,32 @@ def work_inputs(cfg: UnsteadyConfig, T: int, N: int, fps: float) -> dict:
                 "reflectance": cfg.reflectance if os.path.isfile(str(cfg.reflectance))
                 else None,
                 "unpainted": cfg.unpainted if os.path.isfile(str(cfg.unpainted)) else None,
-                "track": cfg.track_dirs}),
+                "track": cfg.track_dirs, "form_factors": cfg.form_factors}),
             "registration": cfg.registration, "target_patcher": cfg.target_patcher,
             "overlap": cfg.overlap, "filter": cfg.filter, "filter_size": cfg.filter_size,
             "oblique_angle": cfg.oblique_angle, "frames": T, "nodes": N, "fps": fps,
             "si": cfg.si, "reflectance": str(cfg.reflectance),
             "unpainted": str(cfg.unpainted), "rays": cfg.rays, "seed": cfg.seed}
+
+
+def read_form_factors(path, n_faces: int):
+    """View factors computed before (SciPy sparse ``.npz``, ``n_faces`` square, rows
+    summing to at most 1), checked."""
+    import scipy.sparse as sp
+
+    p = os.fspath(path)
+    try:
+        F = sp.csr_matrix(sp.load_npz(p))
+    except FileNotFoundError:
+        raise InputError(f"{p}: view factors file not found") from None
+    except (OSError, ValueError) as e:
+        raise InputError(f"{p}: not a SciPy sparse .npz ({e})") from None
+    if F.shape != (n_faces, n_faces):
+        raise InputError(f"{p}: view factors {F.shape[0]}x{F.shape[1]}, the grid has "
+                         f"{n_faces} faces")
+    rows = np.asarray(F.sum(axis=1)).ravel()
+    if not (np.all(np.isfinite(F.data)) and F.data.min(initial=0) >= 0
+            and rows.max(initial=0) <= 1.0 + 1e-6):
+        raise InputError(f"{p}: view factors must be finite, >= 0, each row summing to "
+                         "at most 1")
+    return F

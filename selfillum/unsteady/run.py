@@ -34,7 +34,12 @@ from selfillum.unsteady.config import (
     check_options,
     config_from_deck,
 )
-from selfillum.unsteady.inputs import open_videos, track_poses, work_inputs
+from selfillum.unsteady.inputs import (
+    open_videos,
+    read_form_factors,
+    track_poses,
+    work_inputs,
+)
 from selfillum.unsteady.insitu import insitu_fit, insitu_gain, insitu_inputs
 from selfillum.unsteady.output import (
     FLAT_FILES,
@@ -100,6 +105,8 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     if cfg.unpainted is not None:
         unpainted, _ = read_unpainted(cfg.unpainted, mesh)
     rho = read_reflectance(cfg.reflectance, len(mesh.faces)) if cfg.si else None
+    F_given = read_form_factors(cfg.form_factors, len(mesh.faces)) \
+        if cfg.si and cfg.form_factors is not None else None
     cams = [read_camera(c.calibration) for c in cfg.cameras]
     srcs, T, fps = open_videos(cfg)
     for k, (c, cam, s) in enumerate(zip(cfg.cameras, cams, srcs, strict=True)):
@@ -156,9 +163,10 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
             if not cand.any():
                 raise InputError(f"{cfg.cameras[0].calibration}: no face of the grid faces a "
                                  "camera within its image (the wrong camera, or units?)")
-            F = store.form_factors(lambda: coupled_view_factors(
-                mesh, cand, rays_per_face=cfg.rays, seed=cfg.seed, progress=cfg.progress,
-                caster=caster)[0])
+            F = store.form_factors(lambda: F_given if F_given is not None else
+                                   coupled_view_factors(mesh, cand, rays_per_face=cfg.rays,
+                                                        seed=cfg.seed, progress=cfg.progress,
+                                                        caster=caster)[0])
             si = SelfIllumination(mesh, F, rho, unpainted)
         if not local:
             caster = None  # the workers build their own
