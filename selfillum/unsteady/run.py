@@ -46,6 +46,7 @@ from selfillum.unsteady.output import (
     camera_coverage,
     chunk_shape,
     json_attr,
+    node_fields,
     write_flat,
     write_node_files,
     write_xdmf,
@@ -88,10 +89,11 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     cp = read_steady_cp(cfg.steady, grid)
     wtd = read_wtd(cfg.sds)
     cond = Conditions.from_wtd(wtd, tinf=cfg.tinf)
-    law = gain = taps = tapn = offs = None
+    law = gain = taps = tapn = offs = coeffs = None
     if cfg.paint_calibration is not None:
         cal = read_paint_calibration(cfg.paint_calibration)
         gain = node_gain(cal, cond.surface_temperature, cp, cond)
+        coeffs = (cal.a, cal.b, cal.c, cal.d, cal.e, cal.f)
     else:
         taps, tapn, offs = insitu_inputs(cfg, grid)
     spots = None
@@ -195,8 +197,10 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
         with h5py.File(store.path, "r", rdcc_nbytes=col + 2**20, rdcc_nslots=100_003,
                        rdcc_w0=1.0) as s1:
             if gain is None:  # the in-situ fit on the taps
+                fit = {}
                 law = insitu_fit(cfg, grid, runs, s1, taps, tapn, offs, spots, unpainted,
-                                  F, rho, gains0)
+                                  F, rho, gains0, out=fit)
+                coeffs = ("insitu", law, fit["ratio"], taps.pressure)
                 gain = insitu_gain(law, cp, cond)
             # -------------------------------------------------------- Phase 2 + output
             files = [out, xdmf, *flat, *pngs]
@@ -208,11 +212,18 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
                                           progress=prog.nodes, client=client,
                                           work=store.path)
                     prog.close()
+                    if cfg.uncertainty is not None:  # docs/uncertainty.md
+                        from selfillum.unsteady.uncertainty_out import write_uncertainty
+
+                        stats["uncertainty"] = write_uncertainty(
+                            f, cfg, grid, runs, s1, stats, spectra, fps, frames, gain, cond,
+                            cp, coeffs)
                     if law is not None:
                         f.attrs["stern_volmer"] = json_attr(
                             {"A": law.A, "B": law.B, "p_ref": law.p_ref,
                              "taps": list(taps.ids), "tap_nodes": tapn.tolist()})
-                    write_xdmf(tmp[1], out.name, T, N, len(grid.triangles), times)
+                    write_xdmf(tmp[1], out.name, T, N, len(grid.triangles), times,
+                               extra=node_fields(f))
                     if flat:
                         write_flat(f, tmp[2], tmp[3], node_block=plan.nodes_per_block)
                         cover = camera_coverage(grid, [r.camera for r in runs],
@@ -245,5 +256,6 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     return UnsteadyResult(out, T, N, (tc, nc), stats["seen"], stats["si_median"],
                           stats["si_p95"], failed, tuple(files), peak_rss_mb(),
                           T / el if el > 0 else float("nan"),
-                          (plan.frames_per_block, plan.nodes_per_block), timings)
+                          (plan.frames_per_block, plan.nodes_per_block), timings,
+                          stats.get("uncertainty", {}))
 
