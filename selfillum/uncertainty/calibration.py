@@ -99,7 +99,7 @@ def pressure_u(C, law, pressure) -> np.ndarray:
 
 
 def gain_coefficients_u(u_coeffs, T, pss) -> np.ndarray:
-    """Standard uncertainty of ``Gain`` from independent ``u_a .. u_f``; ``T`` deg F,
+    """Standard uncertainty of ``Gain`` from independent ``u_a`` to ``u_f``; ``T`` deg F,
     ``pss`` psf (arrays broadcast)."""
     ua, ub, uc, ud, ue, uf = (float(v) for v in u_coeffs)
     T = np.asarray(T, np.float64)

@@ -26,7 +26,7 @@ key                    unit                      what it is
 ``t0``, ``tinf``       ``K`` or ``F``            standard uncertainty of T0 and Tinf
 ``q``, ``p_inf``       ``psf``                   standard uncertainty of the dynamic and the
                                                  free-stream static pressure
-``gain_a`` .. ``gain_f``  (none)                 standard uncertainty of uPSP's gain
+``gain_a``-``gain_f``  (none)                    standard uncertainty of uPSP's gain
                                                  coefficients ``a`` .. ``f`` (their units)
 =====================  ========================  =============================================
 
