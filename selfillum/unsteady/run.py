@@ -34,7 +34,7 @@ from selfillum.unsteady.config import (
     check_options,
     config_from_deck,
 )
-from selfillum.unsteady.inputs import open_videos, track_poses, work_inputs
+from selfillum.unsteady.inputs import check_cameras, open_videos, track_poses, work_inputs
 from selfillum.unsteady.insitu import insitu_fit, insitu_gain, insitu_inputs
 from selfillum.unsteady.output import chunk_shape, json_attr, write_flat, write_xdmf
 from selfillum.unsteady.phase1 import CameraRun, SelfIllumination
@@ -52,7 +52,7 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     """Run Phase 1 and Phase 2 and write the output (see the module notes)."""
     import h5py
 
-    from resection.io.cameras import read_camera
+    from resection.io.cameras import read_camera_file
     from resection.io.markers import read_markers
     from resection.io.outputs import atomic_path
     from resection.io.upsp_inputs import read_paint_calibration
@@ -79,6 +79,11 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     if cfg.paint_calibration is not None:
         cal = read_paint_calibration(cfg.paint_calibration)
         gain = node_gain(cal, cond.surface_temperature, cp, cond)
+        bad = ~np.isfinite(gain)
+        if bad.any():
+            raise InputError(f"{cfg.paint_calibration}: the gain is not finite at "
+                             f"{int(bad.sum())} of {bad.size} nodes (coefficients too large "
+                             "for the run's temperature and pressures)")
     else:
         taps, tapn, offs = insitu_inputs(cfg, grid)
     spots = None
@@ -90,8 +95,15 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     if cfg.unpainted is not None:
         unpainted, _ = read_unpainted(cfg.unpainted, mesh)
     rho = read_reflectance(cfg.reflectance, len(mesh.faces)) if cfg.si else None
-    cams = [read_camera(c.calibration) for c in cfg.cameras]
     srcs, T, fps = open_videos(cfg)
+    try:
+        camfiles = [read_camera_file(c.calibration, image_size=s.shape[::-1])
+                    for c, s in zip(cfg.cameras, srcs, strict=True)]
+    except BaseException:
+        for s in srcs:
+            s.close()
+        raise
+    cams = [cf.camera for cf in camfiles]
     for k, (c, cam, s) in enumerate(zip(cfg.cameras, cams, srcs, strict=True)):
         if (cam.height, cam.width) != tuple(s.shape):
             raise InputError(f"{c.calibration}: a {cam.width}x{cam.height} camera, its video "
@@ -111,12 +123,18 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
             raise InputError(f"{p}: exists; remove it or choose another --out")
     N = grid.n_nodes
     tc, nc = chunk_shape(T, N)
-    plan = plan_blocks(T, N, (tc, nc), cfg.memory_mb)
     frames = np.arange(T)
     times = frames / fps
     spectra = Spectra(N, fps, T, probes=cfg.psd_probes, n_bands=cfg.psd_bands,
                       nperseg=cfg.psd_nperseg) if (cfg.psd_probes or cfg.psd_bands) \
         else None
+    plan = plan_blocks(T, N, (tc, nc), cfg.memory_mb,
+                       node_bytes=spectra.bytes_per_node if spectra is not None else 0)
+    local = not (cfg.workers or cfg.scheduler)
+    # one Embree scene of the grid for the camera checks, the view factors and this
+    # process's maps
+    caster = RayCaster(mesh) if cfg.si or local else None
+    check_cameras(cfg, camfiles, srcs, mesh, caster=caster)  # map's checks, frame 0
     t_start = time.perf_counter()
     store = Phase1Store(out, work_inputs(cfg, T, N, fps), (T, N), (tc, nc), len(cfg.cameras),
                         resume=cfg.resume, with_raw=cfg.si)
@@ -134,15 +152,12 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
                 failed += nf
             runs.append(CameraRun(c.number, cam, s, poses))
         si = F = None
-        local = not (cfg.workers or cfg.scheduler)
-        # one Embree scene of the grid for the view factors and this process's maps
-        caster = RayCaster(mesh) if cfg.si or local else None
         if cfg.si:
             from selfillum.transport.viewfactors import view_factors
 
             F = store.form_factors(lambda: view_factors(
                 mesh, rays_per_face=cfg.rays, seed=cfg.seed, progress=cfg.progress,
-                caster=caster))
+                caster=caster), n_faces=len(mesh.faces))
             si = SelfIllumination(mesh, F, rho, unpainted)
         if not local:
             caster = None  # the workers build their own
@@ -186,6 +201,10 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
                                           progress=prog.nodes, client=client,
                                           work=store.path)
                     prog.close()
+                    if not stats["seen"] > 0:  # nothing to write: refused, not exit 0
+                        raise InputError(f"{out}: no node has a dCp: no node was seen in "
+                                         "enough frames (check the videos, the cameras' "
+                                         "calibrations and the grid)")
                     if law is not None:
                         f.attrs["stern_volmer"] = json_attr(
                             {"A": law.A, "B": law.B, "p_ref": law.p_ref,
@@ -216,5 +235,6 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     return UnsteadyResult(out, T, N, (tc, nc), stats["seen"], stats["si_median"],
                           stats["si_p95"], failed, tuple(files), peak_rss_mb(),
                           T / el if el > 0 else float("nan"),
-                          (plan.frames_per_block, plan.nodes_per_block), timings)
+                          (plan.frames_per_block, plan.nodes_per_block), timings,
+                          si=bool(cfg.si))
 
