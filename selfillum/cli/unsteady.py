@@ -181,9 +181,9 @@ def register(sub) -> None:
     p.add_argument("--psd", metavar="N1,N2,...",
                    help="probe nodes (grid file order, from 0): their Welch PSD of dCp is "
                    "stored (/psd/probe_psd) and plotted (OUT_psd.png)")
-    p.add_argument("--psd-bands", type=int, default=8, metavar="K",
+    p.add_argument("--psd-bands", type=int, default=None, metavar="K",
                    help="per node, the PSD averaged over K log-spaced bands (/psd/band_psd; "
-                   "0: none; default 8)")
+                   "0: none; default 8, or the spectrum's frequencies above 0 when fewer)")
     p.add_argument("--psd-nperseg", type=int, metavar="FRAMES",
                    help="frames per Welch segment (default min(frames, 256))")
     p.add_argument("--memory", type=float, default=DEFAULT_MEMORY_MB, metavar="MB",

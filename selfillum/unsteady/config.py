@@ -40,7 +40,8 @@ class UnsteadyConfig:
     ``taps`` (a ``.wtd`` or a tap file, placed by ``tap_positions`` or the targets file)
     with one ``wind_off`` image per camera at pressure ``p_ref`` (psf)
     (:mod:`selfillum.unsteady.insitu`).
-    ``psd_probes`` (node numbers), ``psd_bands``, ``psd_nperseg``: Welch spectra
+    ``psd_probes`` (node numbers), ``psd_bands`` (None: 8 or fewer,
+    :func:`selfillum.unsteady.spectra.default_bands`), ``psd_nperseg``: Welch spectra
     (:mod:`selfillum.unsteady.spectra`). ``memory_mb``: the budget of the blocks
     (:func:`selfillum.unsteady.budget.plan_blocks`). ``plots``: write the dCp RMS on the
     model and the probes' PSD as PNG next to the output. ``fast``: Phase 1 by sparse
@@ -78,7 +79,7 @@ class UnsteadyConfig:
     p_ref: float | None = None
     progress: bool = False
     psd_probes: list = field(default_factory=list)
-    psd_bands: int = 8
+    psd_bands: int | None = None
     psd_nperseg: int | None = None
     memory_mb: float | None = DEFAULT_MEMORY_MB
     plots: bool = True

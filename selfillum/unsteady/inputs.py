@@ -14,7 +14,7 @@ from selfillum.unsteady.config import UnsteadyConfig
 from selfillum.unsteady.output import provenance
 
 __all__ = ["open_videos", "track_poses", "work_inputs", "min_frames", "content_key",
-           "file_digest"]
+           "file_digest", "check_cameras", "check_spot_sizes"]
 
 
 def open_videos(cfg: UnsteadyConfig):
@@ -206,3 +206,18 @@ def check_cameras(cfg: UnsteadyConfig, camera_files, srcs, mesh, *, caster=None)
         smap = SurfaceMap(mesh, cf.camera, max_obliqueness=None, caster=caster)
         fit = marker_fit(cf.camera, img, markers, surface_map=smap)
         require_fit(fit, c.calibration, f"{c.video} (frame 0, camera {c.number})")
+
+
+def check_spot_sizes(spots, mesh, source) -> None:
+    """Every target's, tap's and transducer's diameter positive and smaller than the
+    model (its bounding box's largest side): a diameter of 1e30, or one in other units
+    than the grid, would mask the whole frame (or nothing) and size the tracking's
+    windows absurdly."""
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    size = float(np.max(v.max(axis=0) - v.min(axis=0)))
+    d = np.asarray(spots.diameter, dtype=np.float64)
+    bad = np.flatnonzero(~((d > 0) & (d < size)))
+    if bad.size:
+        k = int(bad[0])
+        raise InputError(f"{source}: {spots.ids[k]}'s diameter {d[k]:g} is not between 0 and "
+                         f"the model's size {size:.4g} ({bad.size} such; the grid's units?)")

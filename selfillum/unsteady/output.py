@@ -31,6 +31,7 @@ row = node), little-endian, no header.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 from pathlib import Path
@@ -38,7 +39,7 @@ from xml.sax.saxutils import escape
 
 import numpy as np
 
-__all__ = ["FORMAT", "VERSION", "chunk_shape", "write_xdmf", "write_flat"]
+__all__ = ["FORMAT", "VERSION", "chunk_shape", "write_xdmf", "write_flat", "writing"]
 
 FORMAT = "selfillum-unsteady"
 VERSION = 1
@@ -54,6 +55,21 @@ def chunk_shape(n_frames: int, n_nodes: int, chunk_bytes: int = CHUNK_BYTES,
     tc = int(np.clip(round(np.sqrt(cells * T / N)), 1, T))
     nc = int(np.clip(cells // tc, 1, N))
     return tc, nc
+
+
+@contextlib.contextmanager
+def writing(path, temporaries: dict | None = None):
+    """An :class:`OSError` raised inside (a full disk, a quota) named after the output
+    ``path`` it was writing when it names no file or one of its ``temporaries`` (temporary
+    name -> output), so that the user reads which output could not be written."""
+    try:
+        yield
+    except OSError as exc:
+        names = {str(k): v for k, v in (temporaries or {}).items()}
+        if exc.filename is None or str(exc.filename) in names:
+            target = names.get(str(exc.filename), path)
+            raise OSError(exc.errno, exc.strerror or str(exc), str(target)) from None
+        raise
 
 
 def json_attr(obj) -> str:

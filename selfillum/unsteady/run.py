@@ -14,6 +14,7 @@ the run.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import time
 from pathlib import Path
 
@@ -34,14 +35,20 @@ from selfillum.unsteady.config import (
     check_options,
     config_from_deck,
 )
-from selfillum.unsteady.inputs import check_cameras, open_videos, track_poses, work_inputs
+from selfillum.unsteady.inputs import (
+    check_cameras,
+    check_spot_sizes,
+    open_videos,
+    track_poses,
+    work_inputs,
+)
 from selfillum.unsteady.insitu import insitu_fit, insitu_gain, insitu_inputs
-from selfillum.unsteady.output import chunk_shape, json_attr, write_flat, write_xdmf
+from selfillum.unsteady.output import chunk_shape, json_attr, write_flat, write_xdmf, writing
 from selfillum.unsteady.phase1 import CameraRun, SelfIllumination
 from selfillum.unsteady.phase2 import node_gain
 from selfillum.unsteady.plots import write_pictures
 from selfillum.unsteady.results import write_results
-from selfillum.unsteady.spectra import Spectra
+from selfillum.unsteady.spectra import Spectra, default_bands
 from selfillum.unsteady.work import Phase1Store
 
 __all__ = ["CameraInput", "UnsteadyConfig", "UnsteadyResult", "run_unsteady",
@@ -53,6 +60,7 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     import h5py
 
     from resection.io.cameras import read_camera_file
+    from resection.io.guarded import guarded_h5
     from resection.io.markers import read_markers
     from resection.io.outputs import atomic_path
     from resection.io.upsp_inputs import read_paint_calibration
@@ -91,6 +99,8 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
         spots = DarkSpots.from_markers(read_markers(cfg.targets, include_taps=True),
                                        str(cfg.targets))
     mesh = grid.mesh
+    if spots is not None:
+        check_spot_sizes(spots, mesh, cfg.targets)
     unpainted = None
     if cfg.unpainted is not None:
         unpainted, _ = read_unpainted(cfg.unpainted, mesh)
@@ -125,6 +135,8 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     tc, nc = chunk_shape(T, N)
     frames = np.arange(T)
     times = frames / fps
+    if cfg.psd_bands is None:  # the default, now that the run's length is known
+        cfg = dataclasses.replace(cfg, psd_bands=default_bands(T, cfg.psd_nperseg))
     spectra = Spectra(N, fps, T, probes=cfg.psd_probes, n_bands=cfg.psd_bands,
                       nperseg=cfg.psd_nperseg) if (cfg.psd_probes or cfg.psd_bands) \
         else None
@@ -195,10 +207,17 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
             files = [out, xdmf, *flat, *pngs]
             with contextlib.ExitStack() as stack:
                 tmp = [stack.enter_context(atomic_path(p)) for p in files]
-                with h5py.File(tmp[0], "w") as f:
+                # a full disk: one OSError naming the file, never HDF5's crash
+                named = dict(zip(tmp, files, strict=True))
+                with writing(out, named), guarded_h5(tmp[0]) as (f, check):
+
+                    def nodes(done, check=check):
+                        check()  # a failed write stops the run within a block
+                        prog.nodes(done)
+
                     stats = write_results(f, cfg, grid, cond, cp, gain, s1, times, frames,
                                           runs, R, t, tc, nc, plan=plan, spectra=spectra,
-                                          progress=prog.nodes, client=client,
+                                          progress=nodes, client=client,
                                           work=store.path)
                     prog.close()
                     if not stats["seen"] > 0:  # nothing to write: refused, not exit 0
@@ -209,11 +228,14 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
                         f.attrs["stern_volmer"] = json_attr(
                             {"A": law.A, "B": law.B, "p_ref": law.p_ref,
                              "taps": list(taps.ids), "tap_nodes": tapn.tolist()})
-                    write_xdmf(tmp[1], out.name, T, N, len(grid.triangles), times)
+                    with writing(xdmf, named):
+                        write_xdmf(tmp[1], out.name, T, N, len(grid.triangles), times)
                     if flat:
-                        write_flat(f, tmp[2], tmp[3], node_block=plan.nodes_per_block)
+                        with writing(flat[0], named):
+                            write_flat(f, tmp[2], tmp[3], node_block=plan.nodes_per_block)
                     if pngs:
-                        write_pictures(grid, stats["rms"], spectra, tmp[-len(pngs):])
+                        with writing(pngs[0], named):
+                            write_pictures(grid, stats["rms"], spectra, tmp[-len(pngs):])
         finished = True
     except InputError:
         finished = True  # bad input: nothing to resume, nothing left

@@ -24,7 +24,18 @@ import numpy as np
 
 from resection.errors import InputError
 
-__all__ = ["welch_block", "band_edges", "band_average", "Spectra"]
+__all__ = ["welch_block", "band_edges", "band_average", "Spectra", "default_bands",
+           "DEFAULT_BANDS"]
+
+#: Bands of the per-node band PSD by default.
+DEFAULT_BANDS = 8
+
+
+def default_bands(n_frames: int, nperseg: int | None = None) -> int:
+    """:data:`DEFAULT_BANDS`, or the spectrum's frequencies above 0 when it has fewer
+    (segments of ``min(nperseg or 256, n_frames)`` frames)."""
+    nper = int(min(nperseg or 256, n_frames))
+    return max(0, min(DEFAULT_BANDS, nper // 2))
 
 
 def welch_block(dcp, fs: float, nperseg: int, workers: int | None = None, share=None
