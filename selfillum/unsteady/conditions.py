@@ -63,6 +63,11 @@ def steady_pressure(cp, q, p_inf):
     return np.asarray(cp, dtype=np.float64) * q + p_inf
 
 
+def _check_mach(mach: float, source) -> None:
+    if not 0.0 <= mach <= MAX_MACH:  # NaN fails too
+        raise InputError(f"{source}: MACH = {mach:g} is out of range (0 to {MAX_MACH:g})")
+
+
 @dataclass(frozen=True)
 class Conditions:
     """The tunnel's conditions for a run.
@@ -99,9 +104,7 @@ class Conditions:
                 raise InputError(f"{self.source}: {k} is not finite ({v})")
         if not self.q > 0:
             raise InputError(f"{self.source}: Q must be > 0, got {self.q}")
-        if not 0.0 <= self.mach <= MAX_MACH:
-            raise InputError(f"{self.source}: MACH = {self.mach:g} is out of range (0 to "
-                             f"{MAX_MACH:g})")
+        _check_mach(self.mach, self.source)
         if not self.p_inf > 0:
             raise InputError(f"{self.source}: PS = {self.p_inf:g}: the free-stream static "
                              "pressure must be > 0 psf")
@@ -128,6 +131,7 @@ class Conditions:
             raise InputError(f"{wtd.path}: PS = Q = 0, a wind-off point ({wtd.label}); "
                              "dCp needs the wind-on point's dynamic pressure")
         mach = wtd.value("MACH")
+        _check_mach(mach, wtd.path)  # before Tinf is computed from it
         q = wtd.value("Q")
         ps = wtd.value("PS")
         t0 = wtd.value(*T0_COLUMNS)
