@@ -54,6 +54,10 @@ class UnsteadyRun:
     near : (N,) bool
         Plate-top nodes within ``near_distance`` of the block's footprint, on the sides
         the camera sees.
+    around : (N,) bool
+        Plate-top nodes within 0.025 (about an inch) of the block's footprint, on every
+        side: also beside the block's sides that camera 1 does not see (or sees beyond the
+        70-degree obliqueness cut-off), which light them with the block's tone.
     freqs : dict
         ``tone``, ``wave``, ``block``, ``vibration`` (Hz); ``amps``: the dCp amplitudes.
     poses : (C, T, 4, 3)
@@ -77,6 +81,7 @@ class UnsteadyRun:
     freqs: dict
     amps: dict
     poses: np.ndarray
+    around: np.ndarray | None = None
 
 
 def _camera(width, height, second: bool = False) -> Camera:
@@ -86,6 +91,14 @@ def _camera(width, height, second: bool = False) -> Camera:
     eye, target = ([0.24, 0.22, 0.33], [-0.03, -0.02, 0.0]) if second else \
         ([-0.22, -0.24, 0.33], [0.03, 0.02, 0.0])
     return Camera.look_at(eye, target, [0.0, 0.0, 1.0], K=K, width=width, height=height)
+
+
+def _in_spots(points, spots, radii) -> np.ndarray:
+    """(n,) bool: points within ``radii`` of a spot centre (a loop over the few spots)."""
+    dark = np.zeros(len(points), bool)
+    for c, r in zip(spots, radii, strict=True):  # the spots, a few dozen
+        dark |= np.einsum("ij,ij->i", points - c, points - c) <= r * r
+    return dark
 
 
 def _pitch(theta, heave):
@@ -110,9 +123,24 @@ def write_node_function(path, grid, values) -> None:
 def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: int = 100,
                       fps: float = 1000.0, width: int = 200, height: int = 150,
                       noise: float = 0.003, vibration_deg: float = 0.5, texture: float = 0.08,
-                      cameras: int = 1, stern_volmer=None, seed: int = 0) -> UnsteadyRun:
+                      cameras: int = 1, stern_volmer=None, seed: int = 0,
+                      options: dict | None = None, freqs: dict | None = None,
+                      heave_m: float = 0.003, drift_deg: float = 0.0, bits: int | None = None,
+                      video_format: str = "npy", truth_rays: int = 4096) -> UnsteadyRun:
     """Write a run into ``folder`` (created) and return its paths and truth; ``cameras``
     1 or 2 (the second from the opposite side, seeing the block's other sides).
+
+    The deck's ``@options`` are uPSP's usual ones (``target_patcher = polynomial``,
+    ``registration = pixel``, ``overlap = average_view``, ``oblique_angle = 70``,
+    ``number_frames = -1``) updated by ``options``; the ``.wtd`` is laid out as NASA's
+    data system writes it (a ``RUN`` line first).
+
+    ``freqs`` overrides the frequencies (Hz) of ``tone``, ``wave``, ``block`` and
+    ``vibration``; ``heave_m`` is the heave's amplitude, ``drift_deg`` a pitch drift over the
+    run on top of the vibration. ``bits`` quantises the frames to unsigned integers of that
+    depth (else float32), ``video_format`` is ``"npy"`` or ``"mraw"`` (a Photron ``.mraw``
+    + ``.cih``, 16-bit words, needs ``bits``). ``truth_rays``: rays a face of the truth's
+    view factors (a Neumann series replaces the sparse LU above 50,000 faces).
 
     ``stern_volmer = (A, B, p_ref)`` (p_ref in psf): the paint follows
     ``I_ref / I = A + B p / p_ref`` instead of the paint calibration, and a wind-off image
@@ -127,6 +155,9 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
 
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)
+    deck_options = {"target_patcher": "polynomial", "registration": "pixel",
+                    "overlap": "average_view", "filter": "none", "filter_size": 3,
+                    "oblique_angle": 70, "number_frames": -1, **(options or {})}
     rng = np.random.default_rng(seed)
     box = (0.04, 0.03, 0.04)
     sc = slab_block(faces, half=(0.35, 0.25), box=box, rho_paint=0.6, rho_box=0.6)
@@ -138,7 +169,7 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
     part = np.asarray(mesh.face_attributes["block"]) - 1  # blocks count from 1 in the file
     on_block = part >= 6
     # ------------------------------------------------------------------ the truth
-    freqs = {"tone": 120.0, "wave": 70.0, "block": 200.0, "vibration": 30.0}
+    freqs = {"tone": 120.0, "wave": 70.0, "block": 200.0, "vibration": 30.0, **(freqs or {})}
     amps = {"tone": 0.03, "wave": 0.02, "block": 0.1, "lam": 0.3}
     t = np.arange(frames) / fps
 
@@ -178,14 +209,28 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
         p_abs = cp_steady(centres)[None, :] * cond.q + cond.p_inf + 144.0 * p_face
         E = E0[None, :] * drift[:, None] / (A_sv + B_sv * p_abs / p_ref)
     rho = check_reflectance(np.full(nf, 0.6), nf)
-    F = view_factors(mesh, rays_per_face=4096, seed=12345, progress=False)
+    F = view_factors(mesh, rays_per_face=truth_rays, seed=12345, progress=False)
     import scipy.sparse as sp
     import scipy.sparse.linalg as spla
 
-    lu = spla.splu(sp.csc_matrix(sp.identity(nf) - sp.diags(rho) @ F))
-    B = lu.solve(np.ascontiguousarray(E.T)).T  # (T, F)
+    if nf <= 50_000:
+        lu = spla.splu(sp.csc_matrix(sp.identity(nf) - sp.diags(rho) @ F))
+        solve = lu.solve
+    else:  # B = sum_k (rho F)^k E, to 1e-9 of E
+        RF = sp.csr_matrix(sp.diags(rho) @ F, dtype=np.float64)
+
+        def solve(rhs):
+            term = np.array(rhs, dtype=np.float64)
+            acc = term.copy()
+            for _ in range(200):
+                term = RF @ term
+                acc += term
+                if np.abs(term).max() <= 1e-9 * np.abs(acc).max():
+                    break
+            return acc
+    B = solve(np.ascontiguousarray(E.T)).T  # (T, F)
     B_off = None if stern_volmer is None else \
-        lu.solve(E0 / (stern_volmer[0] + stern_volmer[1]))  # wind-off: p = p_ref
+        solve(E0 / (stern_volmer[0] + stern_volmer[1]))  # wind-off: p = p_ref
     # ------------------------------------------------------------------ targets and spots
     cams0 = [_camera(width, height, second=c == 1) for c in range(cameras)]
     gx, gy = np.meshgrid(np.arange(-0.24, 0.34, 0.09), np.arange(-0.2, 0.25, 0.09))
@@ -217,27 +262,36 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
     spots = np.vstack([tpts, taps, kul])
     srad = 0.5 * np.concatenate([tdia, np.full(len(taps), 0.004), [0.006, 0.006]])
     # ------------------------------------------------------------------ frames
-    theta = np.radians(vibration_deg) * np.sin(2 * np.pi * freqs["vibration"] * t)
-    heave = 0.003 * np.sin(2 * np.pi * freqs["vibration"] * t + 0.7)
+    theta = (np.radians(vibration_deg) * np.sin(2 * np.pi * freqs["vibration"] * t)
+             + np.radians(drift_deg) * t / max(t[-1], 1e-300))
+    heave = heave_m * np.sin(2 * np.pi * freqs["vibration"] * t + 0.7)
+    if video_format not in ("npy", "mraw") or (video_format == "mraw" and bits is None):
+        raise ValueError("video_format 'npy', or 'mraw' with bits")
+    from resection.surface.visibility import RayCaster
+
+    caster = RayCaster(mesh)
     poses = np.empty((cameras, frames, 4, 3))
     for c, camc in enumerate(cams0):  # cameras
-        video = np.empty((frames, height, width), np.float32)
+        video = np.empty((frames, height, width), np.float32 if bits is None else np.uint16)
         for k in range(frames):  # frames (the renderer is vectorised over pixels)
             M, d = _pitch(theta[k], heave[k])
             cam = camc.with_pose(R=camc.R @ M, t=camc.R @ d + camc.t)
             poses[c, k, :3], poses[c, k, 3] = cam.R, cam.t
-            smap = SurfaceMap(mesh, cam, max_obliqueness=None)
+            smap = SurfaceMap(mesh, cam, max_obliqueness=None, caster=caster)
             img = smap.to_image(B[k], background=30.0)
             pts = smap.points.reshape(-1, 3)
-            hit = np.isfinite(pts[:, 0])
-            dist = np.linalg.norm(pts[hit][:, None, :] - spots[None, :, :], axis=2)
-            dark = (dist <= srad[None, :]).any(axis=1)
+            hit = np.flatnonzero(np.isfinite(pts[:, 0]))
             flat = img.reshape(-1)
-            idx = np.flatnonzero(hit)[dark]
-            flat[idx] = 0.12 * flat[idx]
-            img = flat.reshape(height, width)
-            video[k] = img * (1.0 + noise * rng.standard_normal(img.shape))
-        np.save(out / f"cam{c + 1:02d}.npy", video)
+            flat[hit[_in_spots(pts[hit], spots, srad)]] *= 0.12
+            img = flat.reshape(height, width) * (1.0 + noise * rng.standard_normal(img.shape))
+            video[k] = img if bits is None else np.clip(np.rint(img), 0, (1 << bits) - 1)
+        if video_format == "mraw":
+            import pyMRAW
+
+            pyMRAW.save_mraw(video, str(out / f"cam{c + 1:02d}.cih"), bit_depth=16,
+                             info_dict={"Record Rate(fps)": float(fps)})
+        else:
+            np.save(out / f"cam{c + 1:02d}.npy", video)
         if B_off is not None:  # the wind-off image, frame 0's pose, no vibration
             smap = SurfaceMap(mesh, camc, max_obliqueness=None)
             img = smap.to_image(B_off, background=30.0).reshape(-1)
@@ -251,9 +305,10 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
                     (img * (1.0 + noise * rng.standard_normal(img.shape))).astype(np.float32))
         write_camera(out / f"cam{c + 1:02d}.json", camc)
     # ------------------------------------------------------------------ other inputs
+    ext = "mraw" if video_format == "mraw" else "npy"
     write_node_function(out / "steady.f", grid, cp_steady(grid.points))
     names = list(CONDITIONS)
-    (out / "run.wtd").write_text("# " + "\t".join(names) + "\n"
+    (out / "run.wtd").write_text("RUN 1 1\n#  " + "\t".join(names) + "\n"
                                  + "\t".join(repr(CONDITIONS[n]) for n in names) + "\n"
                                  + "# Tap CP\n" + "".join(
                                      f"{k + 1}\t{c:.9g}\n"
@@ -264,12 +319,10 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
         f"@vars\n    dir = {out}\n"
         "@all\n    sds = $dir/run.wtd\n    grid = $dir/model.grid\n"
         "    targets = $dir/model.tgts\n"
-        + "".join(f"@camera\n    number = {c}\n    filename = $dir/cam{c:02d}.npy\n"
+        + "".join(f"@camera\n    number = {c}\n    filename = $dir/cam{c:02d}.{ext}\n"
                   f"    calibration = $dir/cam{c:02d}.json\n" for c in range(1, cameras + 1))
-        + "@options\n    target_patcher = none\n    registration = none\n"
-        "    overlap = average_view\n    filter = none\n    filter_size = 3\n"
-        "    oblique_angle = 70\n    number_frames = -1\n"
-        "@output\n    dir = $dir\n")
+        + "@options\n" + "".join(f"    {k} = {v}\n" for k, v in deck_options.items())
+        + "@output\n    dir = $dir\n")
     # ------------------------------------------------------------------ truth per node
     nblock_of_node = np.concatenate([np.full(int(np.prod(d)), b) for b, d in enumerate(grid.dims)])
     vb = np.zeros(len(mesh.vertices), bool)
@@ -284,7 +337,8 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
     x, y = grid.points[:, 0], grid.points[:, 1]
     gap = np.maximum(np.abs(x) - box[0], np.abs(y) - box[1])
     near = plate & (gap < 0.06) & ((x < -box[0]) | (y < -box[1]))
+    around = plate & (gap < 0.025)
     return UnsteadyRun(out, out / "run.inp", grid_path, out / "run.wtd", out / "paint.txt",
-                       out / "steady.f", out / "model.tgts", out / "cam01.npy",
+                       out / "steady.f", out / "model.tgts", out / f"cam01.{ext}",
                        out / "cam01.json", fps, truth, plate, is_block, near, freqs, amps,
-                       poses)
+                       poses, around)

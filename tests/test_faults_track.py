@@ -184,3 +184,23 @@ def test_lock_without_flock_uses_the_holder_pid(tmp_path, monkeypatch):
         {"pid": dead.pid, "host": socket.gethostname(), "started": "x", "command": "old"}))
     with lock.lock_folder(tmp_path, command="third") as me:
         assert lock.read_lock(tmp_path)["pid"] == os.getpid() == me["pid"]
+
+
+def test_track_interrupted_counts_the_frames_of_a_stack(two_sequences, tmp_path, monkeypatch,
+                                                        capsys):
+    """Issue 34 item 19: a 300-frame stack in one file, interrupted under --workers, said
+    '66/1 frames finished' (the count of files). It counts the stack's frames."""
+    from resection.cli.main import main
+    from resection.sequence import run
+
+    _, fa, _, _ = two_sequences
+    stack = np.stack([np.load(f) for f in fa["frames"]]).astype(np.float32)
+    np.save(tmp_path / "run.npy", stack)
+
+    def interrupted(*a, **kw):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(run, "run_frames", interrupted)
+    assert main(_track_args(fa, tmp_path / "out", [tmp_path / "run.npy"])) == 130
+    err = capsys.readouterr().err
+    assert f"interrupted: 0/{len(stack)} frames finished" in err, err

@@ -237,3 +237,54 @@ def test_upsp_image_size_optional(tmp_path, fmt, make, key, capsys):
     assert read_camera(out) == cf.camera
     assert resection_main(["convert-camera", str(p), "--out", str(tmp_path / "x.json")]) == 2
     assert key in capsys.readouterr().err
+
+
+def _opencv_reach(dist, Kmat) -> float:
+    """The largest distorted normalised radius OpenCV's projection reaches along the image's
+    diagonal before it folds back (points out to 20 normalised units)."""
+    r = np.linspace(0.0, 20.0, 200_001)
+    d = np.array([W, H], float) / np.hypot(W, H)
+    pts = np.column_stack([r * d[0], r * d[1], np.ones_like(r)])
+    with np.errstate(all="ignore"):
+        uv, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), np.eye(3), np.asarray(dist))
+        rd = np.hypot(*uv.reshape(-1, 2).T)
+    ok = np.isfinite(rd)
+    grow = np.flatnonzero(ok[1:] & (np.diff(np.where(ok, rd, 0.0)) <= 0))
+    end = grow[0] + 1 if grow.size else len(rd)
+    return float(rd[:end].max())
+
+
+@pytest.mark.parametrize("dist, refused", [
+    ([1e300, 0, 0, 0, 0], True),  # issue 34: accepted
+    ([0, 0, 0, 0, -1e300], True),
+    ([0, 0, 1e300, 0, 0], True),
+    ([-0.5, 0, 0, 0, 0], True),  # folds back just inside the corners
+    ([-0.09098491035825468, 0, 0, 0, 0], False),  # uPSP's camera 1
+    ([-0.12, 0.03, 0.001, -0.0005, 0.0], False),
+])
+def test_convert_camera_refuses_a_distortion_that_is_no_lens(tmp_path, capsys, dist, refused):
+    """Issue 34 item 19: distortion coefficients of 1e300 were converted. A lens whose
+    polynomial folds back inside the image is refused, one line, exit 2; the fold is
+    OpenCV's projection's, and real lenses pass."""
+    from resection.camera.model import Camera
+
+    Kmat = np.array([[0.55 * np.hypot(W, H), 0, (W - 1) / 2],
+                     [0, 0.55 * np.hypot(W, H), (H - 1) / 2], [0, 0, 1.0]])
+    cam = Camera(width=W, height=H, K=Kmat, dist=np.asarray(dist, float), R=np.eye(3),
+                 t=np.array([0.0, 0.0, 5.0]))
+    src = tmp_path / "cam.json"
+    write_camera(src, cam)
+    corner = np.hypot(W / 2, H / 2) / Kmat[0, 0]
+    if dist[2] == 0:  # radial only: OpenCV's projection says it: the corner is not reached
+        # before the fold, or a tenth of its radius is projected beyond it
+        tenth, _ = cv2.projectPoints(np.array([[corner / 10, 0.0, 1.0]]), np.zeros(3),
+                                     np.zeros(3), np.eye(3), np.asarray(dist, float))
+        beyond = not np.abs(tenth[0, 0, 0]) <= corner
+        assert (_opencv_reach(dist, Kmat) < corner or beyond) == refused
+    rc = resection_main(["convert-camera", str(src), "--out", str(tmp_path / "o.json")])
+    err = capsys.readouterr().err
+    if refused:
+        assert rc == 2 and len(err.splitlines()) == 1 and "not a lens" in err
+        assert str(src) in err and not (tmp_path / "o.json").exists()
+    else:
+        assert rc == 0, err

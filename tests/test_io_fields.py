@@ -52,21 +52,63 @@ def test_node_fields_round_trip(tmp_path, ext):
     np.testing.assert_array_equal(got["height"], z)
 
 
-def test_xdmf_read_by_an_xml_parser(tmp_path):
-    """The XDMF file holds its data inline: an XML parser finds the triangles and the
-    per-face values (Center="Cell") without meshio."""
+def test_xdmf_light_data_in_xml_heavy_data_in_hdf5(tmp_path):
+    """Issue 34 item 8: the XDMF file held every value inline (100 MB for two cameras on a
+    real grid). The XML holds the structure; an XML parser finds the HDF5 paths of the
+    triangles and the per-face values (Center="Cell"), read here with h5py, and VTK's own
+    XDMF reader (ParaView's) reads the fields."""
+    import h5py
+    import vtk
+    from vtk.util.numpy_support import vtk_to_numpy
+
     m, f = _mesh_and_fields()
     p = tmp_path / "surf.xdmf"
-    write_fields(p, m, {"Cp": f["Cp"]}, include_attributes=False)
+    write_fields(p, m, {"Cp": f["Cp"], "count": f["count"]}, include_attributes=False)
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["surf.data.h5", "surf.xdmf"]
     root = ET.parse(p).getroot()
     topo = root.find(".//Topology")
     assert topo.get("TopologyType") == "Triangle"
-    conn = np.array(topo.find("DataItem").text.split(), dtype=np.int64).reshape(-1, 3)
-    np.testing.assert_array_equal(conn, m.faces)
+
+    def heavy(item):
+        assert item.get("Format") == "HDF"
+        name, key = item.text.strip().split(":", 1)
+        with h5py.File(tmp_path / name) as h:
+            return h[key][()]
+
+    np.testing.assert_array_equal(heavy(topo.find("DataItem")), m.faces)
     att = [a for a in root.iter("Attribute") if a.get("Name") == "Cp"][0]
     assert att.get("Center") == "Cell"
-    vals = np.array(att.find("DataItem").text.split(), dtype=np.float64)
-    np.testing.assert_array_equal(vals, f["Cp"])
+    np.testing.assert_array_equal(heavy(att.find("DataItem")), f["Cp"])
+    reader = vtk.vtkXdmfReader()
+    reader.SetFileName(str(p))
+    reader.Update()
+    grid = reader.GetOutputDataObject(0)
+    assert grid.GetNumberOfCells() == len(m.faces)
+    np.testing.assert_array_equal(vtk_to_numpy(grid.GetCellData().GetArray("Cp")), f["Cp"])
+    np.testing.assert_array_equal(vtk_to_numpy(grid.GetCellData().GetArray("count")),
+                                  f["count"])
+
+
+def test_xdmf_of_the_real_grid_is_small_and_its_hdf5_is_never_the_users(upsp_samples,
+                                                                        tmp_path):
+    from resection.io.meshes import load_mesh
+
+    mesh = load_mesh(upsp_samples / "fml_tc3_volume.grid")
+    nf = len(mesh.faces)
+    rng = np.random.default_rng(0)
+    fields = {f"cam{k}": rng.normal(size=nf) for k in range(4)}
+    p = tmp_path / "two.xdmf"
+    write_fields(p, mesh, fields)
+    assert p.stat().st_size < 10_000  # the structure only: 609,120 faces x 6 fields in HDF5
+    got = read_fields(p, nf)
+    np.testing.assert_array_equal(got["cam3"], fields["cam3"])
+    write_fields(p, mesh, fields)  # its own data file is replaced
+    other = tmp_path / "user.xdmf"
+    (tmp_path / "user.data.h5").write_bytes(b"the user's")
+    with pytest.raises(InputError, match=r"user\.data\.h5: exists and is not the data of "
+                                         r"user\.xdmf"):
+        write_fields(other, mesh, fields)
+    assert (tmp_path / "user.data.h5").read_bytes() == b"the user's"
 
 
 def test_ply_read_by_trimesh(tmp_path):
@@ -243,3 +285,20 @@ def test_nam_sidecar_never_replaces_a_file_it_did_not_make(plate, capsys):
                  "--image", str(d / "xcoord.npy"), "--out", str(d / "Q.f")]) == 2
     assert "Q.nam" in capsys.readouterr().err
     assert (d / "Q.nam").read_text() == "mine\n" and not (d / "Q.f").exists()
+
+
+def test_map_refuses_a_users_file_by_the_xdmf_data_name_before_mapping(plate, capsys,
+                                                                       monkeypatch):
+    from resection.surface import surface_map
+
+    d, _ = plate
+    (d / "mine.data.h5").write_bytes(b"kept")
+
+    def no_map(*a, **kw):
+        raise AssertionError("mapped before the outputs were checked")
+
+    monkeypatch.setattr(surface_map.SurfaceMap, "__init__", no_map)
+    assert main(["map", "--mesh", str(d / "panel.grid"), "--camera", str(d / "off.json"),
+                 "--image", str(d / "xcoord.npy"), "--out", str(d / "mine.xdmf")]) == 2
+    assert "mine.data.h5: exists and is not the data of mine.xdmf" in capsys.readouterr().err
+    assert (d / "mine.data.h5").read_bytes() == b"kept"

@@ -3,6 +3,7 @@ paint gain file, read as uPSP's file-format document lays them out (its own exam
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
@@ -150,3 +151,53 @@ def test_paint_calibration(tmp_path):
     p.write_text("a = 1.1\ng = 2\n")
     with pytest.raises(InputError, match=r"paint\.txt:2: unknown coefficient 'g'"):
         read_paint_calibration(p)
+
+
+def test_deck_var_expansion_is_capped(tmp_path):
+    """Issue 34 item 19: vars repeating vars (each 10 times, 7 levels) expanded to 100 MB
+    and a 'one-line' error of that size. The expansion stops at MAX_EXPANDED characters,
+    naming the line."""
+    from resection.io.upsp_inputs import MAX_EXPANDED
+
+    p = _deck_files(tmp_path)
+    chain = "    v0 = abcdefghij\n" + "".join(
+        f"    v{k} = {('$v' + str(k - 1)) * 10}\n" for k in range(1, 8))
+    p.write_text(p.read_text().replace("@all\n", chain + "@all\n").replace(
+        "sds = $inp/123456.wtd", "sds = $inp/$v7.wtd"))
+    with pytest.raises(InputError) as exc:
+        read_deck(p)
+    msg = str(exc.value)
+    assert re.match(rf"{re.escape(str(p))}:\d+: @all sds: \$vars expand to more than "
+                    rf"{MAX_EXPANDED} characters", msg) and len(msg) < 400, msg[:300]
+
+
+def test_deck_key_given_twice_warns_naming_the_one_used(tmp_path):
+    """Issue 34 item 19: an @options key given twice was taken silently (the last, as
+    uPSP's reader does). It is warned, naming both lines and the one used."""
+    p = _deck_files(tmp_path)
+    text = p.read_text().replace("    filter_size = 3\n",
+                                 "    filter_size = 3\n    filter_size = 5\n")
+    p.write_text(text)
+    lines = text.splitlines()
+    first = lines.index("    filter_size = 3") + 1
+    with pytest.warns(UserWarning) as rec:
+        d = read_deck(p)
+    msgs = [str(w.message) for w in rec]
+    assert msgs == [f"{p}:{first + 1}: @options filter_size given twice (also line {first}); "
+                    f"the value of line {first + 1} is used"]
+    assert d.options["filter_size"] == "5"
+
+
+def test_an_error_line_is_capped_on_the_command_line(tmp_path, capsys):
+    """A message quoting 10 MB of input prints at most MAX_MESSAGE characters, one line,
+    saying how many were left out."""
+    from resection.cli.main import main
+    from resection.cli.util import MAX_MESSAGE
+
+    cam = tmp_path / "cam.json"
+    cam.write_text('{"' + "k" * 10_000_000 + '": 1}')
+    assert main(["convert-camera", str(cam), "--out", str(tmp_path / "o.json")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1
+    assert len(err) < MAX_MESSAGE + 100 and "characters left out" in err
+    assert str(cam) in err

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import struct
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -305,3 +306,29 @@ def test_mraw_later_frame_contradicting_header(tmp_path):
     with pytest.warns(UserWarning, match=r"run\.mraw#3 holds counts up to 9000"):
         img = src[3]
     assert img[5, 5] == 9000 and src.bits == 16
+
+
+def test_unsteady_blames_a_cih_rate_of_nan_on_the_video_not_fps(tmp_path):
+    """Issue 34 item 19: a .cih whose 'Record Rate(fps)' is nan was refused as '--fps must
+    be positive, got nan' although --fps was not given. The video is named; --fps, when
+    given, is used instead of the header."""
+    import types
+
+    import pyMRAW
+
+    from selfillum.unsteady.inputs import open_videos
+
+    frames = _frames(bits=16).astype(np.uint16)
+    _, cih = pyMRAW.save_mraw(frames, str(tmp_path / "cam01.cih"), bit_depth=16,
+                              info_dict={"Record Rate(fps)": "nan"})
+    warnings.simplefilter("ignore", UserWarning)
+    cam = types.SimpleNamespace(video=Path(cih), number=1)
+    cfg = types.SimpleNamespace(cameras=[cam], number_frames=-1, fps=None,
+                                source=str(tmp_path / "deck"))
+    with pytest.raises(InputError) as exc:
+        open_videos(cfg)
+    msg = str(exc.value)
+    assert msg.startswith(f"{cih}: its header's frame rate nan") and "give --fps" in msg
+    cfg.fps = 500.0
+    srcs, T, fps = open_videos(cfg)
+    assert (T, fps) == (N, 500.0)

@@ -205,3 +205,110 @@ def test_link_page_in_chromium(scene, tmp_path):
     with open(out_linked, newline="") as fh:
         lk = {r["id"]: (float(r["u"]), float(r["v"])) for r in csv.DictReader(fh) if r["id"]}
     assert set(lk) == set(LINKED)
+
+
+def _labels_cut(driver) -> list:
+    """Labels of the frame that reach past the frame's area (under the side bar or off its
+    left edge) while part of them is in it."""
+    return driver.execute_script("""
+        const v = document.getElementById('view').getBoundingClientRect();
+        const cut = [];
+        for (const t of document.querySelectorAll('#frame text.label')) {
+          const r = t.getBoundingClientRect();
+          if (r.width === 0 || r.right < v.left || r.left > v.right || r.bottom < v.top
+              || r.top > v.bottom) continue;  // wholly outside: its point is not in view
+          if (r.right > v.right + 0.5 || r.left < v.left - 0.5) cut.push(t.textContent);
+        }
+        return cut;""")
+
+
+@pytest.mark.parametrize("size", [(1600, 1000), (1366, 768)])
+def test_link_page_plan_labels_status_and_save_and_quit(scene, tmp_path, size):
+    """Issue 34 item 10: a plan turned before the pose stayed turned under 'as the camera
+    sees them'; labels at the right edge were cut off by the side bar; the status line
+    scrolled out of view with the target list; the server ran on after Save."""
+    from selenium.common.exceptions import StaleElementReferenceException
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import WebDriverWait
+
+    s, paths, _ = scene
+    session = open_session(paths["image0"], paths["markers"], paths["intrinsics"],
+                           diameter=5.0, save_links=tmp_path / "links.csv",
+                           save_camera=tmp_path / "camera.json")
+    truth = _truth_candidates(session, s)
+    server = serve_links(session)
+    driver = _browser()
+    wait = WebDriverWait(driver, 20, ignored_exceptions=(StaleElementReferenceException,))
+    try:
+        driver.set_window_size(*size)
+        driver.get(server.url)
+        wait.until(lambda d: d.find_element(By.TAG_NAME, "body").get_attribute("data-ready"))
+        src = driver.find_element(By.ID, "plan-source")
+        for _ in range(2):  # the plan turned by 180 degrees before the pose
+            driver.find_element(By.ID, "rotate").click()
+        assert "turned by 180 deg" in src.text
+
+        def settled(d):
+            return d.find_element(By.TAG_NAME, "body").get_attribute("data-pending") == "0"
+
+        def click(css):
+            for attempt in range(5):  # found, then redrawn before the pointer got there
+                try:
+                    ActionChains(driver).move_to_element(
+                        driver.find_element(By.CSS_SELECTOR, css)).click().perform()
+                    return
+                except StaleElementReferenceException:
+                    if attempt == 4:
+                        raise
+
+        for k in LINKED:
+            click(f'circle.cand[data-index="{truth[k]}"]')
+            click(f'#targets li[data-id="{k}"]')
+            wait.until(settled)
+        status = driver.find_element(By.ID, "status")
+        wait.until(lambda _d: "accepted" in status.get_attribute("class"))
+        # the plan as the camera sees it, not turned: its dots in the order of the
+        # targets' true image positions
+        assert src.text == "as the camera sees them"
+        dots = {e.get_attribute("data-id"): (float(e.get_attribute("cx")),
+                                             float(e.get_attribute("cy")))
+                for e in driver.find_elements(By.CSS_SELECTOR, "#plan circle.plan-dot")}
+        ids = [k for k in truth if k in dots]
+        uv = np.array([s.uv[0][s.marker_ids.index(k)] for k in ids])
+        xy = np.array([dots[k] for k in ids])
+        assert np.corrcoef(xy[:, 0], uv[:, 0])[0, 1] > 0.95
+        assert np.corrcoef(xy[:, 1], uv[:, 1])[0, 1] > 0.95
+        # a linked candidate dragged to the right edge of the frame's area: its label
+        # turns to its left, inside; so do the others
+        view = driver.find_element(By.ID, "view").rect
+        k = max(LINKED, key=lambda j: s.uv[0][s.marker_ids.index(j)][0])
+        circ = driver.find_element(By.CSS_SELECTOR, f'circle.cand[data-index="{truth[k]}"]')
+        cx = circ.rect["x"] + circ.rect["width"] / 2
+        dx = int(view["x"] + view["width"] - 12 - cx)
+        frame = driver.find_element(By.ID, "frame")
+        ActionChains(driver).move_to_element(frame).click_and_hold().move_by_offset(dx, 0) \
+            .release().perform()
+        wait.until(lambda d: abs(d.find_element(
+            By.CSS_SELECTOR, f'circle.cand[data-index="{truth[k]}"]').rect["x"] - cx - dx)
+            < 20)
+        assert _labels_cut(driver) == []
+        # the status line stays in view when the list is scrolled to its last target
+        click("#targets li:last-child")
+        aside = driver.execute_script("return document.querySelector('aside').scrollTop")
+        assert aside > 0  # the list did scroll
+        top = driver.execute_script(
+            "return document.getElementById('status').getBoundingClientRect().top")
+        assert 0 <= top < 40
+        # Save and quit: the files are written and the server stops
+        driver.execute_script("document.querySelector('aside').scrollTop = 0")
+        wait.until(lambda d: d.find_element(By.ID, "save-quit").is_enabled())
+        driver.find_element(By.ID, "save-quit").click()
+        wait.until(lambda d: "the server has stopped" in d.find_element(By.ID, "saved").text)
+        assert driver.find_element(By.ID, "save").get_attribute("disabled")
+        WebDriverWait(driver, 10).until(lambda _d: server.saved_and_quit)
+    finally:
+        driver.quit()
+        server.shutdown()
+        server.server_close()
+    assert (tmp_path / "links.csv").is_file() and (tmp_path / "camera.json").is_file()

@@ -4,6 +4,8 @@ corrected. References: the pressure field and Stern-Volmer law the images were m
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -205,3 +207,53 @@ def test_psp_bad_input(psp_case):
         psp_pressure(sc.mesh, off[:-1], on, taps, P_REF, correct_si=False)
     with pytest.raises(InputError, match="Taps"):
         psp_pressure(sc.mesh, off, on, [[0, 0, 0]], P_REF, correct_si=False)
+
+
+@pytest.mark.parametrize("kind, value, match", [
+    ("csv", "1e300", r"tap K40: pressure 1e\+300 is 6\.25e\+297 times the taps' median 160"),
+    ("csv", "nan", r"tap K40: pressure nan is not a finite absolute pressure > 0"),
+    ("csv", "-5", r"tap K40: pressure -5 is not a finite absolute pressure > 0"),
+    ("wtd", "1e300", r"tap 2: Cp 1e\+300 is above 3, no steady Cp"),
+    ("wtd", "-1e300", r"tap 2: Cp -1e\+300 gives PS \+ Cp Q = -4e\+301, not an absolute"),
+    ("wtd", "-30", r"tap 2: Cp -30 gives PS \+ Cp Q = -1100, not an absolute"),
+    ("wtd", "nan", r"Cp of tap 2 is not finite"),
+])
+def test_psp_names_an_impossible_tap_not_the_fit(tmp_path, capsys, kind, value, match):
+    """Issue 34 item 19: a NaN or 1e300 tap was blamed on the fit ('fit_stern_volmer: ...'
+    after the view factors). The tap is named, one line, exit 2, before any heavy step."""
+    from resection.io.images import write_image
+    from scenes.corner import corner
+    from selfillum.cli.main import main
+
+    mesh = corner(resolution=4).mesh
+    mesh.export(tmp_path / "corner.ply")
+    c = np.asarray(mesh.triangles_center)
+    cam = Camera.look_at([1.4, 0.5, 1.2], [0.3, 0.5, 0.3], [0, 1, 0],
+                         K=[[260, 0, 159.5], [0, 260, 119.5], [0, 0, 1]], width=320, height=240)
+    write_camera(tmp_path / "cam.json", cam)
+    for name in ("off", "on"):
+        write_image(tmp_path / f"{name}.tif", np.full((240, 320), 1000.0, np.float32))
+    extra = []
+    if kind == "csv":
+        taps = tmp_path / "taps.csv"
+        taps.write_text("id,x,y,z,p\n" + "".join(
+            f"K{i},{c[i, 0]},{c[i, 1]},{c[i, 2]},{value if i == 40 else 100 + i}\n"
+            for i in (3, 40, 60)))
+    else:
+        taps = tmp_path / "run.wtd"
+        taps.write_text("RUN 1 2\n# MACH\tPS\tQ\n0.5\t100.0\t40.0\n# Tap CP\n1\t-0.1\n"
+                        f"2\t{value}\n3\t0.2\n")
+        tgts = tmp_path / "m.tgts"
+        tgts.write_text("*Taps\n" + "".join(
+            f"{k + 1} {float(c[i, 0])!r} {float(c[i, 1])!r} {float(c[i, 2])!r} 0 0 1 0.005 1 1 1 "
+            f"CP{k + 1:02d}\n"
+            for k, i in enumerate((3, 40, 60))))
+        extra = ["--tap-positions", str(tgts)]
+    rc = main(["psp", "--mesh", str(tmp_path / "corner.ply"), "--camera",
+               str(tmp_path / "cam.json"), "--wind-off", str(tmp_path / "off.tif"),
+               "--wind-on", str(tmp_path / "on.tif"), "--taps", str(taps), *extra,
+               "--p-ref", "100", "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert rc == 2 and len(err.strip().splitlines()) == 1, err
+    assert re.search(match, err) and str(taps) in err and "fit" not in err, err
+    assert not (tmp_path / "out").exists()

@@ -305,6 +305,16 @@ def test_synthetic_run_recovers_dcp_and_removes_the_blocks_light(run, capsys):
     flat_t = np.fromfile(run.folder / "pressure_transpose", "<f4").reshape(N, T)
     np.testing.assert_array_equal(flat, d)
     np.testing.assert_array_equal(flat_t, d.T)
+    # ... and the rest of the set uPSP's scripts read (tests/test_unsteady_flat.py): the node
+    # count from X's size, as upsp-kulite-comparison takes it
+    from selfillum.unsteady.output import FLAT_FILES
+
+    for name in FLAT_FILES[2:]:
+        assert (run.folder / name).stat().st_size == 4 * N, name
+    np.testing.assert_array_equal(np.fromfile(run.folder / "X", "<f4"),
+                                  pts[:, 0].astype(np.float32))
+    cover = np.fromfile(run.folder / "coverage", "<f4")
+    assert np.all(cover[np.isfinite(d).any(axis=0)] >= 1)  # a node with data is seen
     # the XDMF sidecar: every frame a hyperslab row of /dcp
     root = ET.parse(ours.with_suffix(".xdmf")).getroot()
     frames = root.findall(".//Grid[@CollectionType='Temporal']/Grid")
@@ -437,17 +447,20 @@ def test_bad_steady_blocks(case, capsys):
 
 def test_bad_wtd_without_q(case, capsys):
     lines = (case / "run.wtd").read_text().splitlines()
-    names, vals = lines[0].lstrip("# ").split("\t"), lines[1].split("\t")
+    assert lines[0] == "RUN 1 1"  # NASA's layout, as the scene writes it
+    names, vals = lines[1].lstrip("# ").split("\t"), lines[2].split("\t")
     k = names.index("Q")
     del names[k], vals[k]
-    (case / "run.wtd").write_text("# " + "\t".join(names) + "\n" + "\t".join(vals) + "\n")
+    (case / "run.wtd").write_text("RUN 1 1\n#  " + "\t".join(names) + "\n" + "\t".join(vals)
+                                  + "\n")
     err = _bad(case, capsys)
     assert "run.wtd" in err and "no 'Q' column" in err
 
 
 def test_bad_option_refused_by_name(case, capsys):
     text = (case / "run.inp").read_text()
-    (case / "run.inp").write_text(text.replace("target_patcher = none",
+    assert "target_patcher = polynomial" in text  # uPSP's usual deck, as the scene writes
+    (case / "run.inp").write_text(text.replace("target_patcher = polynomial",
                                                "target_patcher = inpaint"))
     err = _bad(case, capsys, "--registration", "none")
     assert "target_patcher" in err and "inpaint" in err

@@ -11,7 +11,8 @@ import math
 
 import numpy as np
 
-__all__ = ["distort_normalized", "undistort_normalized", "max_monotonic_radius"]
+__all__ = ["distort_normalized", "undistort_normalized", "max_monotonic_radius",
+           "lens_problem"]
 
 def distort_normalized(xy: np.ndarray, dist: np.ndarray) -> np.ndarray:
     """Apply Brown-Conrady distortion to normalised coordinates.
@@ -109,3 +110,68 @@ def undistort_normalized(
     bad = ~(res < 1e-9) | (r > max_monotonic_radius(dist))
     xy[bad] = np.nan
     return xy
+
+
+def lens_problem(dist, K, width: int, height: int) -> str | None:
+    """What makes ``dist`` no lens for an image of ``width`` x ``height`` through ``K``, or
+    None.
+
+    A lens maps every pixel of its image to one line of sight, and a real one bends the
+    lines of sight of the image's corners by less than a factor of ten:
+
+    * the radial polynomial ``g(r) = r (1 + k1 r^2 + k2 r^4 + k3 r^6)`` must not fold back
+      (:func:`max_monotonic_radius`) before it reaches the image's farthest corner, at
+      distorted normalised radius ``R``;
+    * the corner's line of sight ``r`` (``g(r) = R``) must lie within ``R / 10`` and
+      ``10 R``: ``g(R / 10) <= R <= g(min(10 R, fold))``;
+    * the tangential terms must not move the corner by more than half its radius (real
+      lenses: a few thousandths).
+
+    Coefficients such as 1e300 (a wrong unit, an order other than OpenCV's) fail one.
+
+    Parameters
+    ----------
+    dist : (5,) array_like
+        ``[k1, k2, p1, p2, k3]``.
+    K : (3, 3) array_like
+        Intrinsics (pixels).
+    width, height : int
+        Image size (pixels).
+
+    Returns
+    -------
+    str or None
+        A sentence naming the problem (no file name), or None for a plausible lens.
+    """
+    d = np.asarray(dist, dtype=np.float64).ravel()
+    K = np.asarray(K, dtype=np.float64)
+    u = np.array([-0.5, width - 0.5, width - 0.5, -0.5])
+    v = np.array([-0.5, -0.5, height - 0.5, height - 0.5])
+    y = (v - K[1, 2]) / K[1, 1]
+    x = (u - K[0, 2] - K[0, 1] * y) / K[0, 0]
+    reach = float(np.hypot(x, y).max())  # the farthest corner, distorted normalised radius
+    k1, k2, p1, p2, k3 = d
+    rmax = max_monotonic_radius(d)
+    unit = " not a lens (coefficients in another unit or order?)"
+
+    def g(r):
+        s = r * r
+        return r * (1.0 + s * (k1 + s * (k2 + s * k3)))
+
+    with np.errstate(over="ignore", invalid="ignore"):
+        top = g(min(10.0 * reach, rmax))  # the largest radius it reaches, up to 10 R
+        if not (np.isfinite(top) and top >= reach):
+            where = (f"folds back at normalised radius {rmax:.3g}" if rmax < 10.0 * reach
+                     else f"reaches radius {top:.3g} at 10 times the corner's")
+            return (f"distortion {d.tolist()} {where}, inside the {width}x{height} image "
+                    f"(its corners at {reach:.3g}):{unit}")
+        low = g(min(reach / 10.0, rmax))
+        if not (np.isfinite(low) and low <= reach):
+            return (f"distortion {d.tolist()} bends a tenth of the corner's line of sight "
+                    f"({reach / 10:.3g}) out to {low:.3g}, beyond the {width}x{height} "
+                    f"image's corners ({reach:.3g}):{unit}")
+        shift = 3.0 * (abs(p1) + abs(p2)) * reach * reach  # tangential, at the corner
+        if not (np.isfinite(shift) and shift <= 0.5 * reach):
+            return (f"distortion {d.tolist()}: the tangential terms p1, p2 move the image's "
+                    f"corners by {shift / max(reach, 1e-300):.3g} of their radius:{unit}")
+    return None

@@ -42,6 +42,12 @@ def _convert(args) -> int:
         img = read_image(args.image)
         size = (img.shape[1], img.shape[0])
     cf = read_camera_file(args.camera, image_size=size)
+    from resection.camera.distortion import lens_problem
+
+    cam = cf.camera
+    problem = lens_problem(cam.dist, cam.K, cam.width, cam.height)
+    if problem:
+        raise InputError(f"{args.camera}: {problem}")
     write_camera(args.out, cf.camera, format=args.format, sensor_size=cf.sensor_size,
                  channels=cf.channels, intrinsics_only=args.intrinsics_only or not cf.has_pose,
                  extra=cf.extra, solved_on=cf.solved_on)

@@ -19,9 +19,9 @@ def build_parser() -> argparse.ArgumentParser:
         description="Camera resection for wind-tunnel optical measurements.",
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    from resection.cli import io, markers, pose, surface, track
+    from resection.cli import compare, io, markers, pose, surface, track
 
-    for module in (pose, track, surface, markers, io):
+    for module in (pose, compare, track, surface, markers, io):
         module.register(sub)
     return parser
 

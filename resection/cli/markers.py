@@ -210,8 +210,9 @@ def run_link_serve(args: argparse.Namespace) -> int:
              if math.isfinite(d) else "") + f", {len(session.markers.ids)} targets; camera "
           + ("with an approximate pose" if session.has_pose else "without a pose"))
     print(f"open {server.url}", flush=True)
-    print("(Ctrl+C stops the server)", flush=True)
-    server.run(open_browser=args.open)
+    print("(Save and quit on the page, or Ctrl+C, stops the server)", flush=True)
+    if server.run(open_browser=args.open):
+        print("link: saved; server stopped")
     return 0
 
 

@@ -66,6 +66,9 @@ def register(sub) -> None:
                    "the video's, else times are frame numbers)")
     h.add_argument("--resume", action="store_true",
                    help="continue the file of an interrupted run")
+    m.add_argument("--keep-border", action="store_true",
+                   help="map the frame's dark border too (default: rows and columns at "
+                   "the edges that hold no light are masked as unknown and named)")
     m.add_argument("--saturation", type=float, default=None, metavar="LEVEL",
                    help="pixels at or above this are saturated: unknown, in no value, and "
                    "the faces they fall on unseen (default: the full scale of the file's "
@@ -159,6 +162,7 @@ def _field(path: str, name: str | None, n_faces: int) -> tuple[str, np.ndarray]:
 
 
 def run_map(args: argparse.Namespace) -> int:
+    from resection.border import border_report, mask_dark_border
     from resection.camera.units import require_seen
     from resection.io.cameras import read_camera_file
     from resection.io.images import read_native
@@ -167,11 +171,16 @@ def run_map(args: argparse.Namespace) -> int:
     from resection.pose.camera_fit import check_camera
     from resection.saturation import faces_touched, level_of, mask_saturated, report
     from resection.surface.surface_map import SurfaceMap
+    from resection.surface.visibility import RayCaster
 
     if Path(args.out).suffix.lower() in (".h5", ".hdf5"):
         return _run_history(args)
     if args.track or args.resume:
         raise InputError("--track and --resume go with a time history (--out P.h5)")
+    if Path(args.out).suffix.lower() == ".xdmf":  # its heavy data file: before any work
+        from resection.io.fields import xdmf_data_path
+
+        xdmf_data_path(args.out)
     names = [Path(p).stem for p in args.image]
     repeated = sorted({n for n in names if names.count(n) > 1})
     if repeated:
@@ -190,13 +199,14 @@ def run_map(args: argparse.Namespace) -> int:
     first = native(args.image[0])  # read once: checked, then mapped
     cf = read_camera_file(args.camera[0], image_size=first.shape[::-1])
     camera = cf.camera
-    smap = SurfaceMap(mesh, camera, max_obliqueness=args.max_obliqueness)
+    caster = RayCaster(mesh)  # one Embree scene: the map and the footprint check
+    smap = SurfaceMap(mesh, camera, max_obliqueness=args.max_obliqueness, caster=caster)
     markers = read_markers(args.markers) if args.markers else None
     for k, path in enumerate(args.image):  # units, image, markers: before any work
         raw = first if k == 0 else native(path)  # one more image in memory at a time
         line = check_camera(args.camera[0], cf, path, raw.astype(np.float32), mesh.vertices,
                             args.mesh, markers=markers, surface_map=smap,
-                            polarity=args.polarity)
+                            polarity=args.polarity, caster=caster)
         if line:
             print(line)
     require_seen(smap.seen_faces.sum(), camera, mesh.vertices, "the mesh",
@@ -210,6 +220,11 @@ def run_map(args: argparse.Namespace) -> int:
         first = None
         level = level_of(raw.dtype, args.saturation)
         img, sat = mask_saturated(raw, level)  # unknown: in no value
+        if not args.keep_border:  # the frame's dark border: no light, in no value
+            img, border = mask_dark_border(img, inplace=True)
+            line = border_report(border, path)
+            if line:
+                print(f"map: {line}")
         touched = faces_touched(smap.face_index, smap.mask, sat, len(mesh.faces))
         n_sat, n_faces = n_sat + int(sat.sum()), n_faces + int(touched.sum())
         name = Path(path).stem
@@ -275,7 +290,7 @@ def _run_history(args: argparse.Namespace) -> int:
             from resection.io.images import image_info  # image files: their type's scale
 
             level = image_info(args.image[0])["saturation"]
-        frames = _Saturated(src, level)
+        frames = _Saturated(src, level, keep_border=args.keep_border)
         n = map_to_history(args.out, mesh, cameras, frames, frame_numbers=numbers, times=times,
                            per=args.per, resume=args.resume,
                            max_obliqueness=args.max_obliqueness, sources=sources)
@@ -284,24 +299,35 @@ def _run_history(args: argparse.Namespace) -> int:
     line = report(frames.count, frames.level)
     if line:
         print(f"map: warning: {line} in the frames mapped now", file=sys.stderr)
+    from resection.border import border_report
+
+    line = border_report(frames.border, "frames (the widest)")
+    if line:
+        print(f"map: {line}")
     return 0
 
 
 class _Saturated:
-    """Frames of a source with their saturated pixels NaN (:mod:`resection.saturation`),
-    counted as they are read."""
+    """Frames of a source with their saturated pixels NaN (:mod:`resection.saturation`)
+    and, unless ``keep_border``, their dark border NaN (:mod:`resection.border`), counted
+    as they are read (``border``: the largest border met)."""
 
-    def __init__(self, src, level):
+    def __init__(self, src, level, keep_border: bool = False):
         self.src, self.level, self.count = src, level, 0
+        self.keep_border, self.border = keep_border, (0, 0, 0, 0)
 
     def __len__(self):
         return len(self.src)
 
     def __getitem__(self, i):
+        from resection.border import mask_dark_border
         from resection.saturation import mask_saturated
 
         img, sat = mask_saturated(self.src[i], self.level)
         self.count += int(sat.sum())
+        if not self.keep_border:
+            img, b = mask_dark_border(img, inplace=True)
+            self.border = tuple(max(x, y) for x, y in zip(self.border, b, strict=True))
         return img
 
 
@@ -335,6 +361,7 @@ class _ImageIdentities:
 
 
 def _run_merge(args: argparse.Namespace, names: list) -> int:
+    from resection.border import border_report, mask_dark_border
     from resection.io.cameras import read_camera_file
     from resection.io.images import read_native
     from resection.io.markers import read_markers
@@ -343,6 +370,7 @@ def _run_merge(args: argparse.Namespace, names: list) -> int:
     from resection.saturation import level_of, mask_saturated, report
     from resection.surface.merge import merge_views
     from resection.surface.surface_map import SurfaceMap
+    from resection.surface.visibility import RayCaster
 
     if len(args.image) != len(args.camera):
         raise InputError(f"--image: {len(args.image)} images for {len(args.camera)} cameras "
@@ -356,16 +384,23 @@ def _run_merge(args: argparse.Namespace, names: list) -> int:
                              "camera")
         level = level_of(raw.dtype, args.saturation)
         img, sat = mask_saturated(raw, level)
+        if not args.keep_border:  # the frame's dark border: no light, in no value
+            img, border = mask_dark_border(img, inplace=True)
+            line = border_report(border, p)
+            if line:
+                print(f"map: {line}")
         images.append(img)
         n_sat += int(sat.sum())
     files = [read_camera_file(p, image_size=img.shape[::-1])
              for p, img in zip(args.camera, images, strict=True)]
-    maps = [SurfaceMap(mesh, cf.camera, max_obliqueness=args.max_obliqueness) for cf in files]
+    caster = RayCaster(mesh)  # one Embree scene for every camera and the checks
+    maps = [SurfaceMap(mesh, cf.camera, max_obliqueness=args.max_obliqueness, caster=caster)
+            for cf in files]
     markers = read_markers(args.markers) if args.markers else None
     for cpath, cf, ipath, img, smap in zip(args.camera, files, args.image, images, maps,
                                            strict=True):
         line = check_camera(cpath, cf, ipath, img, mesh.vertices, args.mesh, markers=markers,
-                            surface_map=smap, polarity=args.polarity)
+                            surface_map=smap, polarity=args.polarity, caster=caster)
         if line:
             print(line)
     mv = merge_views(maps, images, feather_px=args.feather, match_gain=not args.no_gain_match)

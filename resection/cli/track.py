@@ -121,12 +121,14 @@ def _run(args: argparse.Namespace, plotter) -> int:
             resume=not args.no_resume, progress=not args.no_progress,
             chunk_size=args.chunk_size, pose_kw=pose_kw, mesh=args.mesh,
         )
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         from resection.sequence.outputs import finished_frames
 
         frames_dir = os.path.join(args.out, "frames")
         n = finished_frames(frames_dir)
-        print(f"interrupted: {n}/{len(frames)} frames finished are kept in {frames_dir}; "
+        total = getattr(exc, "n_frames", None)  # set once the frames are counted
+        of = f"{n}/{total} frames" if total is not None else f"{n} frames"
+        print(f"interrupted: {of} finished are kept in {frames_dir}; "
               "run the same command again to resume", file=sys.stderr)
         return 130
     plotter.plot(result, os.path.join(args.out, "pose_vs_time.png"), fps=args.fps)

@@ -40,6 +40,22 @@ class OneLineParser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
+#: Longest error line printed: a value quoted from an input (a 10 MB ``$var`` expansion,
+#: a line of a binary file) is cut in its middle.
+MAX_MESSAGE = 600
+
+
+def one_line(message: str, limit: int = MAX_MESSAGE) -> str:
+    """The first line of ``message``, cut in the middle to at most ``limit`` characters
+    (saying how many were left out)."""
+    first = message.splitlines()[0] if message else ""
+    if len(first) <= limit:
+        return first
+    cut = f" ... ({len(first) - limit} characters left out) ... "
+    keep = max(limit - len(cut), 0)
+    return first[:keep - keep // 3] + cut + first[len(first) - keep // 3:]
+
+
 def run(parser: argparse.ArgumentParser, argv: list[str] | None) -> int:
     """Parse ``argv`` and call the chosen sub-command's ``func(args)``; return the exit
     status."""
@@ -62,7 +78,7 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None) -> int:
             return 130
         return status
     except USER_ERRORS as exc:
-        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        msg = one_line(str(exc)) if str(exc) else type(exc).__name__
         print(f"{prog}: error: {msg}", file=sys.stderr)
         return 2
     except BrokenPipeError:
@@ -71,13 +87,13 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None) -> int:
         os.dup2(devnull, sys.stdout.fileno())
         return 1
     except OSError as exc:  # full disk, read-only file system, link loop, ...
-        print(f"{prog}: error: {os_error_text(exc)}", file=sys.stderr)
+        print(f"{prog}: error: {one_line(os_error_text(exc))}", file=sys.stderr)
         return 2
     except RecursionError:
         print(f"{prog}: error: an input is nested too deeply to read", file=sys.stderr)
         return 2
     except MemoryError as exc:
-        why = str(exc).splitlines()[0] if str(exc) else "an allocation failed"
+        why = one_line(str(exc), 200) if str(exc) else "an allocation failed"
         print(f"{prog}: error: not enough memory ({why})", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

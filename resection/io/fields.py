@@ -3,12 +3,20 @@ command (``map`` writes, ``view --values`` and ``backproject`` read).
 
 Formats, chosen by the extension:
 
-``.vtk`` (VTK legacy), ``.vtu`` (VTK XML), ``.xdmf`` (XDMF, data inline in the XML)
+``.vtk`` (VTK legacy), ``.vtu`` (VTK XML)
     through the ``meshio`` library: the mesh's triangles with ``cell_data`` (per-face) and
-    ``point_data`` (per-node) arrays; ParaView opens all three. The legacy ``.vtk`` is
+    ``point_data`` (per-node) arrays; ParaView opens both. The legacy ``.vtk`` is
     written in the 4.2 layout with the classic type names that VTK's own reader knows
     (``unsigned_char`` for booleans, ``int`` for integers that fit 32 bits, ``float``,
     ``double``): meshio's 5.1 names (``vtktypeint32``) make VTK drop every field.
+``.xdmf``
+    XDMF 3: the light data (the grid's structure, the fields' names and shapes) in the XML,
+    the heavy data (points, triangles, every field) in an HDF5 file beside it,
+    ``<stem>.data.h5`` (:func:`xdmf_data_path`), as the unsteady run's and the time
+    histories' are: two cameras on a real grid were 100 MB of inline XML. The HDF5 file
+    carries the mark of the XDMF file's side file (:mod:`resection.io.marks`); one of that
+    name without it is the user's and is never replaced. ParaView's and meshio's XDMF
+    readers read it.
 ``.ply``
     through the ``plyfile`` library (meshio's PLY writer drops per-face data): binary
     little-endian, vertices as doubles, one face property per face field and one vertex
@@ -45,10 +53,10 @@ import numpy as np
 from resection.errors import InputError
 from resection.io._write import atomic_text, atomic_write
 
-__all__ = ["write_fields", "read_fields", "nam_path", "FIELD_SUFFIXES"]
+__all__ = ["write_fields", "read_fields", "nam_path", "xdmf_data_path", "FIELD_SUFFIXES"]
 
 FIELD_SUFFIXES = (".vtk", ".vtu", ".xdmf", ".ply", ".csv", ".npy", ".f")
-_MESHIO = {".vtk": "vtk", ".vtu": "vtu", ".xdmf": "xdmf"}
+_MESHIO = {".vtk": "vtk", ".vtu": "vtu"}
 
 
 def _columns(fields: dict | None, n: int, what: str,
@@ -128,6 +136,8 @@ def write_fields(
                          "rename them")
     if suffix in _MESHIO:
         atomic_write(path, _write_meshio, mesh, fcols, ncols, _MESHIO[suffix])
+    elif suffix == ".xdmf":
+        _write_xdmf_hdf5(path, mesh, fcols, ncols)
     elif suffix == ".ply":
         atomic_write(path, _write_ply, mesh, fcols, ncols)
     elif suffix == ".csv":
@@ -155,6 +165,65 @@ def _write_meshio(tmp, mesh, fcols, ncols, fmt):
         m.point_data = {k: _vtk_legacy_array(v) for k, v in m.point_data.items()}
         fmt, kw = "vtk42", {"binary": True}
     meshio.write(os.fspath(tmp), m, file_format=fmt, **kw)
+
+
+def xdmf_data_path(path: str | os.PathLike) -> Path:
+    """The HDF5 file of an ``.xdmf`` field file's heavy data, ``<stem>.data.h5`` beside it,
+    checked: an existing file of that name without the mark of this XDMF file's side file
+    is refused (InputError), as is a name equal to the XDMF file's."""
+    from resection.io.outputs import side_path
+
+    return side_path(path, "data", ".h5")
+
+
+def _xdmf_item(h5name: str, key: str, a: np.ndarray) -> str:
+    """An XDMF ``DataItem`` pointing at dataset ``key`` of ``h5name``."""
+    from xml.sax.saxutils import escape
+
+    kind = {"f": "Float", "i": "Int", "u": "UInt", "b": "UChar"}[a.dtype.kind]
+    dims = " ".join(str(d) for d in a.shape)
+    return (f'<DataItem Dimensions="{dims}" NumberType="{kind}" '
+            f'Precision="{a.dtype.itemsize}" Format="HDF">{escape(h5name)}:/{key}</DataItem>')
+
+
+def _write_xdmf_hdf5(path: str, mesh, fcols, ncols) -> None:
+    """The ``.xdmf`` layout of the module docstring: the HDF5 file first, then the XML,
+    each through a temporary name; the XML names the HDF5 file by its final name."""
+    import contextlib
+    import json
+    from xml.sax.saxutils import quoteattr
+
+    import h5py
+
+    from resection.io.marks import mark
+    from resection.io.outputs import atomic_path
+
+    h5 = xdmf_data_path(path)
+    pts = np.asarray(mesh.vertices, dtype=np.float64)
+    tri = np.asarray(mesh.faces, dtype=np.int64)
+    lines = ['<?xml version="1.0"?>', '<Xdmf Version="3.0">', "<Domain>",
+             '<Grid Name="surface" GridType="Uniform">',
+             f'<Topology TopologyType="Triangle" NumberOfElements="{len(tri)}">',
+             _xdmf_item(h5.name, "triangles", tri), "</Topology>",
+             '<Geometry GeometryType="XYZ">', _xdmf_item(h5.name, "points", pts),
+             "</Geometry>"]
+    with contextlib.ExitStack() as stack:
+        tmp_h5 = stack.enter_context(atomic_path(h5))
+        with h5py.File(tmp_h5, "w") as f:
+            # the mark first, a fixed-length string: in the file's first bytes, where
+            # resection.io.marks.is_marked looks for it
+            f.attrs["mark"] = np.bytes_(json.dumps(mark(path, "resection map")))
+            f.create_dataset("points", data=pts)
+            f.create_dataset("triangles", data=tri)
+            for where, cols in (("Cell", fcols), ("Node", ncols)):
+                for k, a in cols:
+                    key = f"{where.lower()}/{k}"
+                    f.create_dataset(key, data=a)
+                    lines += [f"<Attribute Name={quoteattr(k)} AttributeType=\"Scalar\" "
+                              f'Center="{where}">', _xdmf_item(h5.name, key, a),
+                              "</Attribute>"]
+        lines += ["</Grid>", "</Domain>", "</Xdmf>", ""]
+        atomic_text(path, "\n".join(x for x in lines if x))
 
 
 def _vtk_legacy_array(a: np.ndarray) -> np.ndarray:
@@ -291,8 +360,8 @@ def read_fields(path: str | os.PathLike, n_faces: int | None = None, *,
     if location not in ("face", "node"):
         raise InputError(f"location must be 'face' or 'node', got {location!r}")
     suffix = path.suffix.lower()
-    if suffix in _MESHIO:
-        fields = _read_meshio(path, _MESHIO[suffix], location)
+    if suffix in _MESHIO or suffix == ".xdmf":
+        fields = _read_meshio(path, _MESHIO.get(suffix, "xdmf"), location)
     elif suffix == ".ply":
         fields = _read_ply(path, location)
     elif suffix == ".csv":

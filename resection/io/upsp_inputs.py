@@ -49,6 +49,7 @@ from __future__ import annotations
 
 import os
 import re
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -61,8 +62,6 @@ __all__ = ["Deck", "DeckCamera", "read_deck", "PaintCalibration", "read_paint_ca
 
 #: The largest ``@camera number`` (uPSP numbers its cameras from 1).
 MAX_CAMERA_NUMBER = 65535
-#: The longest value a ``$var`` expansion may make, characters.
-MAX_VALUE_CHARS = 4096
 #: The ``@options`` keys a deck may give (uPSP's list).
 DECK_OPTIONS = ("target_patcher", "registration", "pixel_interpolation", "overlap", "filter",
                 "filter_size", "oblique_angle", "number_frames")
@@ -114,18 +113,23 @@ class Deck:
     output_dir: Path | None = None
 
 
+#: Longest value a ``$var`` expansion may give (the longest path Linux opens): a var
+#: repeated in a var repeated in ... grows tenfold a level, to megabytes.
+MAX_EXPANDED = 4096
+
+
 def _substitute(value: str, vars_: dict, where: str) -> str:
     def repl(m):
         name = m.group(1) or m.group(2)
         if name not in vars_:
-            raise InputError(f"{where}: ${name} is not defined in @vars")
+            raise InputError(f"{where}: ${name[:40]} is not defined in @vars")
         return vars_[name]
 
     for _ in range(10):  # vars may refer to vars
         new = re.sub(r"\$\{(\w+)\}|\$(\w+)", repl, value)
-        if len(new) > MAX_VALUE_CHARS:
-            raise InputError(f"{where}: its $vars expand to over {MAX_VALUE_CHARS} "
-                             "characters (a var that refers to itself?)")
+        if len(new) > MAX_EXPANDED:
+            raise InputError(f"{where}: $vars expand to more than {MAX_EXPANDED} characters "
+                             "(a var repeated in a var?)")
         if new == value:
             return new
         value = new
@@ -179,8 +183,13 @@ def read_deck(path: str | os.PathLike, *, check_files: bool = True) -> Deck:
             raise InputError(f"{p}:{lineno}: unknown key {key!r} in @{section} (expected "
                              f"{', '.join(allowed)})")
         target = cams[-1] if section == "camera" else raw[section]
+        slot = (section, len(cams) if section == "camera" else 0, key)
+        if key in target:  # as uPSP's reader, the last one counts: say so
+            warnings.warn(f"{p}:{lineno}: @{section} {key} given twice (also line "
+                          f"{where_of[slot]}); the value of line {lineno} is used",
+                          UserWarning, stacklevel=2)
         target[key] = value
-        where_of[(section, len(cams) if section == "camera" else 0, key)] = lineno
+        where_of[slot] = lineno
     vars_ = raw["vars"]
     base = p.parent
 

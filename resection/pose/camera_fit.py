@@ -214,18 +214,24 @@ def require_fit(fit: MarkerFit, camera_path, image_path, *, min_expected: int = 
 
 
 def check_camera(camera_path, camera_file, image_path, image, mesh_vertices, mesh_path, *,
-                 markers=None, surface_map=None, polarity: str = "dark") -> str | None:
+                 markers=None, surface_map=None, polarity: str = "dark",
+                 caster=None) -> str | None:
     """Every check of this module for one (camera, image) pair of a command.
 
     Warns (:class:`UserWarning`) when the camera was solved on another image; raises
     :class:`~resection.errors.InputError` on a units mismatch and, with ``markers``, when
-    the camera does not fit the image. Returns the marker check's line for the report
-    (None without ``markers``).
+    the camera does not fit the image. Without ``markers``, given the model's ``caster``,
+    the model's footprint is compared with the frame
+    (:func:`resection.pose.footprint.check_footprint`: a unit mismatch is refused, a poor
+    match warned). Returns the marker check's line for the report (None without
+    ``markers``).
 
     Parameters
     ----------
     camera_file : resection.io.cameras.CameraFile
         The camera as read (its ``solved_on`` record, if any).
+    caster : resection.surface.visibility.RayCaster, optional
+        The model's Embree scene, for the footprint check.
     """
     import warnings
 
@@ -234,6 +240,15 @@ def check_camera(camera_path, camera_file, image_path, image, mesh_vertices, mes
         warnings.warn(msg, UserWarning, stacklevel=2)
     require_same_units(camera_file.solved_on, mesh_vertices, camera_path, mesh_path)
     if markers is None:
+        if caster is not None:
+            from resection.pose.footprint import check_footprint
+
+            X = np.asarray(mesh_vertices, dtype=np.float64)
+            line = check_footprint(camera_file.camera, image, caster, camera_path,
+                                   image_path, mesh_path,
+                                   bounds=(X.min(axis=0), X.max(axis=0)))
+            if line:
+                warnings.warn(line, UserWarning, stacklevel=2)
         return None
     fit = marker_fit(camera_file.camera, image, markers, surface_map=surface_map,
                      polarity=polarity)

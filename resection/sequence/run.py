@@ -151,7 +151,9 @@ def track(
             result = assemble(frames_from_files(frames_dir, len(frames)), fixed_camera,
                                computed, str(out))
             write_csvs(result, out)
-    except BaseException:
+    except BaseException as exc:
+        if isinstance(exc, KeyboardInterrupt):  # the run's frame count, for the message
+            exc.n_frames = len(frames)  # (a stack's frames, not its files)
         # a folder made by this run goes again when it holds no finished frame to resume
         if made is not None and not any(frames_dir.glob("frame_*.json")):
             shutil.rmtree(made, ignore_errors=True)

@@ -382,8 +382,10 @@ class SurfaceMap:
             ``"nearest"``: each pixel gets its face's value. Otherwise face values are
             turned into vertex values (``"mean"``: area-weighted mean of the faces around a
             vertex; ``"linear"``: that mean plus an area-weighted least-squares gradient
-            correction, exact for fields linear in space) and interpolated barycentrically
-            at the pixel's hit point. Only valued faces enter a vertex value, and the
+            correction, exact for fields linear in space, each vertex held within the
+            values of the faces it is built from so that no pixel leaves the range of
+            the values around it) and interpolated barycentrically at the pixel's hit
+            point. Only valued faces enter a vertex value, and the
             barycentric weights are renormalised over the corners that have a value (NaN
             where none): a missing value is never mixed in.
 

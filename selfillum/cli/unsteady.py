@@ -166,8 +166,9 @@ def register(sub) -> None:
     p.add_argument("--unpainted", metavar="FILE|BLOCKS",
                    help="faces that emit nothing and never make a node value: a per-face 0/1 "
                    "file or Plot3D block numbers counted from 1")
-    p.add_argument("--rays", type=int, default=1024, help="rays per face for the view "
-                   "factors (default 1024)")
+    p.add_argument("--rays", type=int, default=64, help="rays per face for the view "
+                   "factors (default 64: on the hidden-face scene of bench/"
+                   "bench_unsteady_accuracy.py, dCp next to the block as with 1024)")
     p.add_argument("--seed", type=int, default=0, help="view-factor seed")
     p.add_argument("--fps", type=float, help="frame rate, when the video does not say it")
     p.add_argument("--tinf", type=float, metavar="DEG_F",
@@ -176,8 +177,10 @@ def register(sub) -> None:
                    help="a camera's 'resection track' output instead of tracking here; "
                    "repeat per camera")
     p.add_argument("--upsp-flat", action="store_true",
-                   help="also write uPSP's flat 'pressure' and 'pressure_transpose' files "
-                   "next to OUT.h5")
+                   help="also write the flat files of uPSP's psp_process that its scripts "
+                   "read next to OUT.h5: pressure, pressure_transpose, X, Y, Z and per-node "
+                   "avg, rms, gain, steady_state, model_temp, coverage, intensity_avg, "
+                   "intensity_rms, intensity_ratio_0 (docs/unsteady.md)")
     p.add_argument("--psd", metavar="N1,N2,...",
                    help="probe nodes (grid file order, from 0): their Welch PSD of dCp is "
                    "stored (/psd/probe_psd) and plotted (OUT_psd.png)")

@@ -114,9 +114,38 @@ def read_taps(path: str | os.PathLike, positions=None) -> Taps:
         raise InputError(f"{path}: not a number ({exc})") from None
     if need == ("id", "p"):  # outside the try: a bad positions file names itself
         pts = _tap_positions(path, ids, positions)
-    if not (np.all(np.isfinite(pts)) and np.all(np.isfinite(p))):
-        raise InputError(f"{path}: NaN or infinite coordinates or pressures")
+    bad = np.flatnonzero(~np.isfinite(pts).all(axis=1))
+    if bad.size:
+        raise InputError(f"{path}: tap {ids[bad[0]]}: NaN or infinite coordinates")
+    _check_pressures(path, ids, p)
     return Taps(ids, pts, p)
+
+
+#: Largest steady Cp a tap may hold: uPSP's psp_process takes a steady Cp above 3 for no
+#: data (NaN); a stagnation point reaches 1 at low speed, 1.84 at most (gamma 1.4).
+MAX_TAP_CP = 3.0
+#: A tap pressure this many times the median of the taps' is no reading (a unit slip, a
+#: sentinel): the largest real ratio, a stagnation point against a suction peak at
+#: Mach 3, is about 12.
+MAX_TAP_SPREAD = 1000.0
+
+
+def _check_pressures(path: str, ids: list, p: np.ndarray) -> None:
+    """Each tap pressure a finite absolute pressure > 0 and within
+    :data:`MAX_TAP_SPREAD` of the taps' median, else InputError naming the tap (before
+    the fit, which would otherwise take the blame)."""
+    bad = np.flatnonzero(~(np.isfinite(p) & (p > 0)))
+    if bad.size:
+        raise InputError(f"{path}: tap {ids[bad[0]]}: pressure {p[bad[0]]:g} is not a finite "
+                         "absolute pressure > 0" + (f" ({bad.size} such taps)"
+                                                    if bad.size > 1 else ""))
+    med = float(np.median(p))
+    far = np.flatnonzero((p > MAX_TAP_SPREAD * med) | (p < med / MAX_TAP_SPREAD))
+    if far.size:
+        k = far[np.argmax(np.abs(np.log(p[far] / med)))]
+        raise InputError(f"{path}: tap {ids[k]}: pressure {p[k]:.4g} is {p[k] / med:.3g} "
+                         f"times the taps' median {med:.4g}: not a reading (a unit or a "
+                         "no-data value?)")
 
 
 def _wtd_taps(path: str, positions) -> Taps:
@@ -157,8 +186,21 @@ def _wtd_taps(path: str, positions) -> Taps:
                          f"position in {src} (looked for "
                          f"{' / '.join(tap_candidates(missing[0]))})")
     cp = np.array(list(wtd.taps.values()), dtype=np.float64)
+    high = np.flatnonzero(cp > MAX_TAP_CP)
+    if high.size:
+        n = list(wtd.taps)[high[0]]
+        raise InputError(f"{path}: tap {n}: Cp {cp[high[0]]:g} is above {MAX_TAP_CP:g}, no "
+                         "steady Cp (uPSP takes it for no data); fix or remove the row")
+    with np.errstate(over="ignore"):
+        p = ps + cp * q
+    low = np.flatnonzero(~(p > 0))
+    if low.size:
+        n = list(wtd.taps)[low[0]]
+        raise InputError(f"{path}: tap {n}: Cp {cp[low[0]]:g} gives PS + Cp Q = "
+                         f"{p[low[0]]:g}, not an absolute pressure > 0")
+    _check_pressures(path, ids, p)
     pos = {k: i for i, k in enumerate(ms.ids)}
-    return Taps(ids, ms.xyz[[pos[k] for k in ids]], ps + cp * q)
+    return Taps(ids, ms.xyz[[pos[k] for k in ids]], p)
 
 
 def _tap_positions(path: str, ids: list, positions) -> np.ndarray:

@@ -67,7 +67,7 @@ class UnsteadyConfig:
     si: bool = True
     reflectance: object = 0.6
     unpainted: object = None
-    rays: int = 1024
+    rays: int = 64
     seed: int = 0
     fps: float | None = None
     tinf: float | None = None

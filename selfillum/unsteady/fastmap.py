@@ -56,10 +56,23 @@ class FrameOperator:
     unpainted : (F,) bool, optional
     sample_points : bool
         Keep each used pixel's surface point (a moving model).
+    pre : sequence of PatchOperator or None, optional
+        Per camera uPSP's polynomial patch of the dark spots
+        (:func:`selfillum.unsteady.spots.patch_operator`), applied before the merge. It is
+        linear and low-rank: ``B_c = A_c x + A2_c (C_c x)``, ``C_c`` the spots'
+        coefficients from their rings' pixels, ``A2_c`` the merge's weights of the patched
+        pixels times their polynomial terms. A ring pixel that sees no surface (a spot on
+        the silhouette) is sampled where it is: the background does not move with the
+        model.
+    halo_px : int
+        A moving model whose frames are filtered (a Gaussian on the image): the pixels
+        within ``halo_px`` of those that count are sampled too (``support``), so that the
+        frame carried back onto the reference's pixels can be patched and filtered there
+        (:meth:`faces_moved` with ``prepare``).
     """
 
     def __init__(self, maps, finite, merge_kw: dict, gains, unpainted=None, *,
-                 sample_points: bool = False):
+                 sample_points: bool = False, pre=None, halo_px: int = 0):
         from resection.surface.merge import angle_weights, pixel_weights
 
         nf = maps[0].n_faces
@@ -85,23 +98,42 @@ class FrameOperator:
         seen = total > 0
         best = np.argmax(wts, axis=0)
         self.A, self.cols, self.X, self.uv0 = [], [], [], []
+        self.support = []  # per camera (pixels, X, uv0) sampled for a filtered frame
+        self.patch = []  # per camera None, or (A2, C over used, C over pixels, Aw)
         with np.errstate(invalid="ignore", divide="ignore"):
             for c in range(C):
                 if method == "best":
                     coef = np.where(seen & (best == c), 1.0 / (g[c] * wsum[c]), 0.0)
                 else:
                     coef = np.where(wts[c] > 0, wts[c] / (g[c] * wsum[c] * total), 0.0)
-                A = (sp.diags(coef) @ S[c]).tocsc()
-                used = np.flatnonzero(np.diff(A.indptr) > 0)  # pixels that count
+                A = sp.csc_matrix(sp.diags(coef) @ S[c])
+                pat = None if pre is None else pre[c]
+                if pat is not None and pat.inside.size:
+                    A, A2, Aw = _split_patch(A, pat)
+                    Cp = sp.csc_matrix(pat.C)
+                    used = np.flatnonzero((np.diff(A.indptr) > 0)
+                                          | (np.diff(Cp.indptr) > 0))
+                    self.patch.append((A2, sp.csr_matrix(Cp[:, used]),
+                                       sp.csr_matrix(pat.C), Aw))
+                else:
+                    A.eliminate_zeros()
+                    used = np.flatnonzero(np.diff(A.indptr) > 0)  # pixels that count
+                    self.patch.append(None)
                 self.cols.append(used)
                 self.A.append(sp.csr_matrix(A[:, used]))
                 if sample_points:
                     X = maps[c].points.reshape(-1, 3)[used]
+                    uv0 = _reference_pixels(maps[c], used, X)
                     self.X.append(X)
-                    self.uv0.append(maps[c].camera.project(X).astype(np.float32))
-        # a sample of each camera's points, to find the reference nearest a pose
-        self.probe = [np.linspace(0, max(len(X) - 1, 0), min(len(X), 256)).astype(np.int64)
-                      for X in self.X]
+                    self.uv0.append(uv0.astype(np.float32))
+                    if halo_px > 0:
+                        self.support.append(_support(maps[c], used, int(halo_px)))
+        # a sample of each camera's surface points, to find the reference nearest a pose
+        self.probe = []
+        for X in self.X:
+            on = np.flatnonzero(np.isfinite(X[:, 0]))
+            self.probe.append(on[np.linspace(0, max(on.size - 1, 0),
+                                             min(on.size, 256)).astype(np.int64)])
         self.seen = seen if unpainted is None else seen & ~np.asarray(unpainted, bool)
         self._nodes = None
         self.frame = None  # the reference's frame number, and the last frame that used it
@@ -133,14 +165,17 @@ class FrameOperator:
         counts is not finite (the caller maps that frame the full way)."""
         if self._direct is None:
             Wn = self.node_matrix(W, grid)  # over the seen faces
-            ops = []
-            for A, used in zip(self.A, self.cols, strict=True):
+            ops, self._direct_patch = [], []
+            for A, used, pt in zip(self.A, self.cols, self.patch, strict=True):
                 M = sp.csr_matrix(Wn @ A[self.seen_faces])
                 M.sort_indices()
                 # int32 pixel numbers and float32 weights (summed in float64): half the
                 # bytes a frame reads
                 ops.append((M.indptr.astype(np.int64), used[M.indices].astype(np.int32),
                             M.data.astype(np.float32)))
+                self._direct_patch.append(None if pt is None else
+                                          (sp.csr_matrix(Wn @ pt[0][self.seen_faces]),
+                                           pt[2]))
             self._direct = ops
         from resection._threads import run_blocks, split_range
 
@@ -157,24 +192,32 @@ class FrameOperator:
                             split_range(N, self.workers, min_size=65536), self.workers)
             if not all(ok):
                 return None
+            if self._direct_patch[c] is not None:  # the patched spots: M2 (C img)
+                M2, Cpix = self._direct_patch[c]
+                coef = Cpix @ args[3]
+                if not np.isfinite(coef).all():
+                    return None
+                out += (M2 @ coef).astype(np.float32)
         out[self.node_unseen] = np.nan
         return out
 
-    def faces(self, images) -> np.ndarray | None:
-        """Face values of a frame whose pose is the reference's; None when a pixel that
-        counts is not finite in it (the caller maps that frame the full way)."""
+    def faces(self, images) -> np.ndarray:
+        """Face values of a frame whose pose is the reference's. A pixel that counts and
+        is not finite in it (warped in from beyond the frame's edge) is left out, as
+        :meth:`faces_moved` leaves out a point off the sensor."""
         B = np.zeros(self.A[0].shape[0])
-        for A, used, img in zip(self.A, self.cols, images, strict=True):
+        for c, (used, img) in enumerate(zip(self.cols, images, strict=True)):
             x = np.asarray(img, dtype=np.float64).ravel()[used]
-            if not np.isfinite(x).all():
-                return None
-            B += A @ x
+            B += self._camera_faces(c, x, ~np.isfinite(x))
         return B
 
     def _share(self, c) -> np.ndarray:
         """Row sums of camera ``c``'s operator (its share of each face), kept."""
         if c not in self._shares:
-            self._shares[c] = np.asarray(self.A[c].sum(axis=1)).ravel()
+            sh = np.asarray(self.A[c].sum(axis=1)).ravel()
+            if self.patch[c] is not None:  # the patched pixels' weights
+                sh = sh + np.asarray(self.patch[c][3].sum(axis=1)).ravel()
+            self._shares[c] = sh
         return self._shares[c]
 
     def displacement(self, cameras) -> float:
@@ -190,16 +233,24 @@ class FrameOperator:
             d = max(d, float(np.max(np.abs(uv - uv0[pr]))))
         return d
 
-    def faces_moved(self, images, cameras, refresh_px: float) -> np.ndarray | None:
+    def faces_moved(self, images, cameras, refresh_px: float,
+                    prepare=None) -> np.ndarray | None:
         """Face values of a frame of pose ``cameras`` (one a camera): the images sampled
         (bilinear) where the reference's surface points project (the camera's own
         projection with its distortion, :meth:`resection.Camera.project`); None when a
         point moved more than twice ``refresh_px`` (the reference was chosen on a sample
         of its points, :meth:`displacement`: the caller casts anew). Points that fall off
         the sensor are left out, the face's other pixels of that camera taking their
-        weight; a face that keeps none of them is NaN (not seen in this frame)."""
+        weight; a face that keeps none of them is NaN (not seen in this frame).
+
+        ``prepare(c, image)``, when given, is applied to camera ``c``'s frame carried back
+        onto the reference's pixels (the ``support``, NaN elsewhere) before its pixels are
+        read: the dark spots patched or masked and the filter, in the reference's
+        pixels."""
+        if prepare is not None:
+            return self._faces_prepared(images, cameras, refresh_px, prepare)
         B = np.zeros(self.A[0].shape[0])
-        for c, (A, X, uv0, img, cam) in enumerate(zip(self.A, self.X, self.uv0, images,
+        for c, (X, uv0, img, cam) in enumerate(zip(self.X, self.uv0, images,
                                                       cameras, strict=True)):
             arr = np.asarray(img)
             if arr.dtype.kind not in "fiu":
@@ -213,20 +264,107 @@ class FrameOperator:
                                      2.0 * float(refresh_px), x)
             if (status == 1).any():
                 return None
-            bad = (status != 0) | ~np.isfinite(x)
-            if not bad.any():
-                B += A @ x
-                continue
-            # points off the sensor: the face's other pixels of this camera, reweighted
-            # to the same share; a face left without any pixel of a camera that had a
-            # share is not seen in this frame (NaN)
-            share = self._share(c)
-            kept = A @ (~bad).astype(np.float64)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                part = np.where(kept > 0, (A @ np.where(bad, 0.0, x)) * (share / kept),
-                                np.nan)
-            B += np.where(share > 0, part, 0.0)
+            B += self._camera_faces(c, x, (status != 0) | ~np.isfinite(x))
         return B
+
+    def _faces_prepared(self, images, cameras, refresh_px, prepare):
+        B = np.zeros(self.A[0].shape[0])
+        for c, (sup, img, cam) in enumerate(zip(self.support, images, cameras,
+                                                strict=True)):
+            pix, X, uv0 = sup
+            arr = np.asarray(img)
+            if arr.dtype.kind not in "fiu":
+                arr = arr.astype(np.float64)
+            xs = np.empty(len(X))
+            status = _project_sample(X, np.asarray(cam.R, np.float64),
+                                     np.asarray(cam.t, np.float64).ravel(),
+                                     np.asarray(cam.K, np.float64),
+                                     np.asarray(cam.dist, np.float64).ravel(),
+                                     float(cam.max_radius), uv0, arr,
+                                     2.0 * float(refresh_px), xs)
+            if (status == 1).any():
+                return None
+            H, W = arr.shape
+            ref = np.full(H * W, np.nan)
+            ok = status == 0
+            ref[pix[ok]] = xs[ok]
+            ref = np.asarray(prepare(c, ref.reshape(H, W)), dtype=np.float64)
+            x = ref.ravel()[self.cols[c]]
+            B += self._camera_faces(c, x, ~np.isfinite(x))
+        return B
+
+    def _camera_faces(self, c, x, bad) -> np.ndarray:
+        """Camera ``c``'s part of the face values from its pixels' values ``x`` (over
+        ``cols[c]``). Pixels ``bad`` (off the sensor, NaN after a warp) are left out, the
+        face's other pixels of this camera taking their weight; a face left without any
+        pixel of a camera that had a share is NaN (not seen in this frame). A patched spot
+        whose ring lost a pixel is left out as a whole."""
+        A, pt = self.A[c], self.patch[c]
+        if not bad.any():
+            out = A @ x
+            if pt is not None:
+                out += pt[0] @ (pt[1] @ x)
+            return out
+        share = self._share(c)
+        xs = np.where(bad, 0.0, x)
+        kept = A @ (~bad).astype(np.float64)
+        num = A @ xs
+        if pt is not None:
+            A2, Cu, _, Aw = pt
+            nP = Cu.shape[0] // Aw.shape[1]
+            lost = (abs(Cu) @ bad.astype(np.float64)).reshape(-1, nP).max(axis=1) > 0
+            coef = (Cu @ xs).reshape(-1, nP)
+            coef[lost] = 0.0
+            num += A2 @ coef.ravel()
+            kept += Aw @ (~lost).astype(np.float64)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            part = np.where(kept > 0, num * (share / kept), np.nan)
+        return np.where(share > 0, part, 0.0)
+
+
+def _support(smap, used, halo: int) -> tuple:
+    """The pixels within ``halo`` of ``used`` (flat indices), their surface points (NaN on
+    the background) and their reference pixels ``uv0``."""
+    from scipy import ndimage
+
+    H, W = smap.shape
+    m = np.zeros(H * W, bool)
+    m[used] = True
+    m = ndimage.binary_dilation(m.reshape(H, W), np.ones((3, 3), bool), iterations=halo)
+    pix = np.flatnonzero(m)
+    X = smap.points.reshape(-1, 3)[pix]
+    return pix, X, _reference_pixels(smap, pix, X).astype(np.float32)
+
+
+def _reference_pixels(smap, pix, X) -> np.ndarray:
+    """(n, 2): where the surface points ``X`` of the pixels ``pix`` project in the
+    reference; a pixel on the background (``X`` NaN) is its own position (sampled in place:
+    the background does not move with the model)."""
+    W = smap.shape[1]
+    uv0 = np.column_stack([pix % W, pix // W]).astype(np.float64)
+    on = np.isfinite(X[:, 0])
+    if on.any():
+        uv0[on] = smap.camera.project(X[on])
+    return uv0
+
+
+def _split_patch(A, pat):
+    """Split the merge's operator ``A`` (F, H W) of a camera whose spots are patched by
+    ``pat`` (:class:`selfillum.unsteady.spots.PatchOperator`): ``A`` off the patched
+    pixels, ``A2`` (F, m P) their weights times their polynomial terms, ``Aw`` (F, m) their
+    weights summed by spot."""
+    A = sp.csc_matrix(A)
+    Ain = A[:, pat.inside]
+    A2 = sp.csr_matrix(Ain @ pat.expand()[pat.inside])
+    m = pat.C.shape[0] // pat.n_terms
+    member = sp.csr_matrix((np.ones(pat.inside.size), (np.arange(pat.inside.size),
+                                                        pat.spot)), shape=(pat.inside.size, m))
+    Aw = sp.csr_matrix(Ain @ member)
+    keep = np.ones(A.shape[1])
+    keep[pat.inside] = 0.0
+    A = sp.csc_matrix(A @ sp.diags(keep))
+    A.eliminate_zeros()
+    return A, A2, Aw
 
 
 def _frame_poses(poses, frames):
@@ -347,12 +485,18 @@ def _kernel():
     def project_sample(X, R, t, K, dist, max_radius, uv0, img, refresh, out):
         """Project every point (as Camera.project), flag a move over ``refresh`` pixels
         (status 1), a point off the sensor or not projectable (status 2), else sample the
-        image bilinearly there (pixel centres at integers, edges clamped)."""
+        image bilinearly there (pixel centres at integers, edges clamped). A point of NaN
+        (a background pixel) reads the image at its own pixel ``uv0``."""
         n = X.shape[0]
         H, W = img.shape
         k1, k2, p1, p2, k3 = dist[0], dist[1], dist[2], dist[3], dist[4]
         status = np.zeros(n, np.uint8)
         for i in numba.prange(n):
+            if X[i, 0] != X[i, 0]:  # a pixel on the background: sampled where it is
+                u = min(max(np.float64(uv0[i, 0]), 0.0), W - 1.0)
+                v = min(max(np.float64(uv0[i, 1]), 0.0), H - 1.0)
+                out[i] = img[int(v + 0.5), int(u + 0.5)]
+                continue
             xc = R[0, 0] * X[i, 0] + R[0, 1] * X[i, 1] + R[0, 2] * X[i, 2] + t[0]
             yc = R[1, 0] * X[i, 0] + R[1, 1] * X[i, 1] + R[1, 2] * X[i, 2] + t[1]
             zc = R[2, 0] * X[i, 0] + R[2, 1] * X[i, 1] + R[2, 2] * X[i, 2] + t[2]

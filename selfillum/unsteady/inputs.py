@@ -4,6 +4,7 @@ numbers depend on (:func:`work_inputs`, the key of a resumed run)."""
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 
@@ -54,7 +55,12 @@ def _check_videos(cfg: UnsteadyConfig, srcs):
             c, k = short[0]
             raise InputError(f"{where}: number_frames = {T} but {c.video} has {k} frames")
     rates = [s.frame_rate for s in srcs]
-    known = {float(r) for r in rates if r}
+    if cfg.fps is None:  # the videos' own rates: a bad one is the video's, not --fps's
+        for c, r in zip(cfg.cameras, rates, strict=True):
+            if r is not None and not (math.isfinite(r) and r > 0):
+                raise InputError(f"{c.video}: its header's frame rate {r} is not a positive "
+                                 "finite number; give --fps")
+    known = {float(r) for r in rates if r and math.isfinite(r) and r > 0}
     if len(known) > 1:
         rl = ", ".join(f"{c.video.name}: {r} fps" for c, r in
                        zip(cfg.cameras, rates, strict=True))

@@ -24,9 +24,24 @@ of every node and reading one node's whole history cost about the same number of
 (``N tc ~ T nc``). Phase 1 writes blocks of ``tc`` frames (whole chunk rows), Phase 2 reads
 blocks of ``nc`` nodes (whole chunk columns).
 
-Flat files (``--upsp-flat``, uPSP's ``psp_process`` outputs): ``pressure`` (``T`` rows of
-``N`` float32, row = frame) and ``pressure_transpose`` (``N`` rows of ``T`` float32,
-row = node), little-endian, no header.
+Flat files (``--upsp-flat``): the files of uPSP's ``psp_process`` that its scripts read,
+beside ``OUT.h5``, little-endian float32, no header, nodes in the grid file's order
+(:data:`FLAT_FILES`):
+
+* ``pressure`` (``T`` rows of ``N``, row = frame) and ``pressure_transpose`` (``N`` rows of
+  ``T``, row = node): dCp;
+* ``X``, ``Y``, ``Z`` (``N``): the grid's nodes; uPSP's ``upsp-kulite-comparison``
+  (``_read_pressure_transpose``) takes the node count from the size of ``X`` and the
+  frame count from ``pressure_transpose``'s;
+* per node (``N``): ``avg`` and ``rms`` of dCp over the frames (rms about zero), ``gain``
+  (Phase 2's), ``steady_state`` (steady Cp; above 3 NaN, as ``psp_process`` writes it),
+  ``model_temp`` (the model's temperature, deg F), ``coverage`` (how many cameras see the
+  node in the first frame), ``intensity_avg`` and ``intensity_rms`` (the intensity Phase 1
+  mapped, mean and rms over the frames) and ``intensity_ratio_0`` (``intensity_avg`` over
+  the first frame's intensity, less 1).
+
+``psp_process``'s ``intensity`` and ``intensity_transpose`` (every frame's raw intensity,
+as large as ``pressure``) are not written: no uPSP script reads them.
 """
 
 from __future__ import annotations
@@ -34,16 +49,24 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import warnings
 from pathlib import Path
 from xml.sax.saxutils import escape
 
 import numpy as np
 
-__all__ = ["FORMAT", "VERSION", "chunk_shape", "write_xdmf", "write_flat", "writing"]
+__all__ = ["FORMAT", "VERSION", "FLAT_FILES", "chunk_shape", "write_xdmf", "write_flat",
+           "write_node_files", "camera_coverage", "writing"]
 
 FORMAT = "selfillum-unsteady"
 VERSION = 1
 CHUNK_BYTES = 256 * 1024
+#: The flat files of ``--upsp-flat``: the two time histories, then one value per node.
+FLAT_FILES = ("pressure", "pressure_transpose", "X", "Y", "Z", "avg", "rms", "gain",
+              "steady_state", "model_temp", "coverage", "intensity_avg", "intensity_rms",
+              "intensity_ratio_0")
+#: uPSP writes a steady Cp above this as NaN (``psp_process``: no steady data there).
+STEADY_CP_MAX = 3.0
 
 
 def chunk_shape(n_frames: int, n_nodes: int, chunk_bytes: int = CHUNK_BYTES,
@@ -131,6 +154,72 @@ def write_flat(h5file, pressure_path, transpose_path, node_block: int | None = N
     with open(transpose_path, "wb") as fh:
         for a in range(0, N, nc):  # blocks of nodes
             fh.write(np.ascontiguousarray(ds[:, a:a + nc].T, dtype="<f4").tobytes())
+
+
+def _f4(a) -> bytes:
+    return np.ascontiguousarray(a, dtype="<f4").tobytes()
+
+
+def write_node_files(h5file, paths: dict, *, work=None, coverage=None,
+                     node_block: int | None = None) -> None:
+    """The per-node flat files of :data:`FLAT_FILES` (all but the two time histories) from
+    the run's output file ``h5file`` (open) into ``paths`` (name -> path).
+
+    Parameters
+    ----------
+    work : h5py.File, optional
+        Phase 1's work file: its ``values`` (uint16 codes, ``values_scale`` per frame)
+        give ``intensity_avg``, ``intensity_rms`` and ``intensity_ratio_0``, read in
+        blocks of ``node_block`` nodes (default a chunk column). Without it those three
+        files are NaN.
+    coverage : (N,) array_like, optional
+        Cameras seeing each node (:func:`camera_coverage`); NaN without it.
+    """
+    pts = h5file["grid/points"][()]
+    N = len(pts)
+    cond = json.loads(h5file.attrs["conditions"])
+    steady = np.asarray(h5file["steady/cp"][()], dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        steady = np.where(steady > STEADY_CP_MAX, np.nan, steady)
+    values = {
+        "X": pts[:, 0], "Y": pts[:, 1], "Z": pts[:, 2],
+        "avg": h5file["stats/dcp_mean"][()], "rms": h5file["stats/dcp_rms"][()],
+        "gain": h5file["steady/gain"][()], "steady_state": steady,
+        "model_temp": np.full(N, float(cond.get("surface_temperature", np.nan))),
+        "coverage": np.full(N, np.nan) if coverage is None else np.asarray(coverage),
+    }
+    i_avg, i_rms, i_ratio = (np.full(N, np.nan) for _ in range(3))
+    if work is not None:
+        from selfillum.unsteady.work import decode_columns
+
+        ds, scale = work["values"], work["values_scale"][()]
+        nc = int(node_block or ds.chunks[1])
+        for a in range(0, N, nc):  # blocks of nodes: one chunk column at a time
+            x = decode_columns(ds[:, a:a + nc], scale)
+            with np.errstate(invalid="ignore", divide="ignore"), \
+                    warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # a node never seen
+                i_avg[a:a + nc] = np.nanmean(x, axis=0)
+                i_rms[a:a + nc] = np.sqrt(np.nanmean(x * x, axis=0))
+                i_ratio[a:a + nc] = i_avg[a:a + nc] / x[0] - 1.0
+    values.update(intensity_avg=i_avg, intensity_rms=i_rms, intensity_ratio_0=i_ratio)
+    for name, path in paths.items():
+        with open(path, "wb") as fh:
+            fh.write(_f4(values[name]))
+
+
+def camera_coverage(grid, cameras, max_obliqueness: float) -> np.ndarray:
+    """(N,) float32: how many of ``cameras`` (each in its first frame's pose) see each grid
+    node, as ``psp_process``'s ``coverage`` (its projection of an image of ones, summed
+    over the cameras): a node is seen by a camera when a pixel lands on a face around it,
+    faces more oblique than ``max_obliqueness`` degrees left out."""
+    from resection.surface.surface_map import SurfaceMap
+
+    count = np.zeros(len(grid.mesh.vertices), np.float32)
+    for cam in cameras:
+        sm = SurfaceMap(grid.mesh, cam, max_obliqueness=max_obliqueness)
+        count += ~sm.to_nodes(np.ones(sm.shape, np.float32)).unseen
+    return grid.to_nodes(count)
 
 
 def provenance(paths: dict) -> dict:

@@ -36,7 +36,7 @@ from scipy import ndimage
 from resection.errors import InputError
 from resection.memory import release_freed_memory
 from selfillum.unsteady.options import FILTERS, OVERLAPS, REGISTRATIONS
-from selfillum.unsteady.spots import DarkSpots, mask_spots, patch_spots, project_spots
+from selfillum.unsteady.spots import DarkSpots, mask_spots, patch_operator, project_spots
 
 __all__ = ["CameraRun", "SelfIllumination", "FrameNodes", "map_run", "REGISTRATIONS",
            "OVERLAPS", "FILTERS"]
@@ -82,15 +82,21 @@ class FrameNodes:
 class SelfIllumination:
     """``E = B - rho F B`` per frame on the faces.
 
-    Faces seen in no camera in a frame get the radiosity of the frame-0 solve
-    (:func:`selfillum.solve.radiosity.correct` with ``unseen`` continued smoothly, then
-    :func:`selfillum.solve.radiosity.forward`), so that each frame costs one sparse product.
-    ``unpainted`` faces emit nothing.
+    Frame 0 is solved in full (:func:`selfillum.solve.radiosity.correct` with ``unseen``
+    continued smoothly, then :func:`selfillum.solve.radiosity.forward`): every face's
+    radiosity and emission. In each later frame the faces no camera sees take what the
+    frame tells about them (``hidden="continue"``, :mod:`selfillum.unsteady.hidden`: their
+    emission varies as that of the nearest seen face of the same part), or hold frame 0's
+    radiosity (``hidden="frame0"``, the method before). A frame costs one sparse product
+    and a gather. ``unpainted`` faces emit nothing.
     """
 
-    def __init__(self, mesh, F, reflectance, unpainted=None):
+    def __init__(self, mesh, F, reflectance, unpainted=None, *, hidden: str = "continue",
+                 crease_deg: float = 30.0):
         from selfillum.solve.radiosity import check_form_factors, check_reflectance
 
+        if hidden not in ("continue", "frame0"):
+            raise InputError(f"hidden must be 'continue' or 'frame0', got {hidden!r}")
         self.mesh = mesh
         self.F = check_form_factors(F)
         n = len(mesh.faces)
@@ -98,12 +104,16 @@ class SelfIllumination:
             raise InputError(f"form factors: {self.F.shape} for {n} faces")
         self.rho = check_reflectance(reflectance, n)
         self.unpainted = None if unpainted is None else np.asarray(unpainted, bool)
+        self.hidden_mode = hidden
+        self.crease_deg = float(crease_deg)
         self.hidden = None
+        self.continuation = None
         self._rows = None
 
     def reference(self, B0, seen0) -> None:
-        """Solve frame 0 (seen and hidden faces) for the hidden faces' radiosity."""
+        """Solve frame 0 (seen and hidden faces) for every face's radiosity and emission."""
         from selfillum.solve.radiosity import correct, forward
+        from selfillum.unsteady.hidden import HiddenContinuation, part_graph
 
         if seen0.all():
             self.hidden = np.asarray(B0, float)
@@ -117,6 +127,12 @@ class SelfIllumination:
         if self.unpainted is not None:
             E0[self.unpainted] = 0.0
         self.hidden = forward(self.F, E0, self.rho)
+        if self.hidden_mode == "continue":
+            needed = np.zeros(len(E0), bool)
+            needed[np.unique(self.F.indices)] = True
+            keep = None if self.unpainted is None else ~self.unpainted
+            self.continuation = HiddenContinuation(
+                part_graph(self.mesh, self.crease_deg, keep), self.hidden, E0, needed)
 
     def __call__(self, B, seen) -> np.ndarray:
         if self.hidden is None:
@@ -131,7 +147,10 @@ class SelfIllumination:
                           self.rho[rows])
         rows, cols, Frc, rho_r = self._rows
         E = np.where(seen, B, np.nan)
-        x = np.where(seen[cols], B[cols], self.hidden[cols]).astype(np.float32)
+        if self.continuation is not None:
+            x = self.continuation.radiosity(B, seen)[cols].astype(np.float32)
+        else:
+            x = np.where(seen[cols], B[cols], self.hidden[cols]).astype(np.float32)
         E[rows] -= rho_r * (Frc @ x)
         return E
 
@@ -192,9 +211,9 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
         (:class:`~selfillum.unsteady.fastmap.FrameOperator`): the same answer to rounding
         for a fixed map (``none``, ``first-frame``); for ``track``, each frame sampled
         where the reference's surface points project with its own pose, the reference
-        cast anew when a point moves more than ``refresh_px`` pixels. Not with
-        ``patcher="polynomial"`` (and not with a filter for ``track``): those frames take
-        the full way.
+        cast anew when a point moves more than ``refresh_px`` pixels. The polynomial
+        patch joins the operator (it is linear in its ring's pixels). Not with a filter
+        for ``track``: those frames take the full way.
     refresh_px : float
         Pixels (``track`` with ``fast``).
     workers : int, optional
@@ -245,7 +264,16 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
     gains = None if gains is None else np.asarray(gains, dtype=np.float64)
     off = None if unpainted is None else np.asarray(unpainted, bool)
     moving = registration == "track"
-    use_fast = fast and patcher == "none" and not (moving and filter != "none")
+    use_fast = fast
+    # a moving model's filtered frames: sampled over the pixels that count and a halo of
+    # the filter's radius (and the patch's ring), then patched and filtered in the
+    # reference's pixels
+    halo = 0 if not (moving and filter != "none") else \
+        (filter_size - 1) // 2 + (4 if patcher == "polynomial" else 0)
+    # uPSP's polynomial patch is linear in the ring's pixels: without a filter it joins
+    # the operator (A_c P_c); with one it is applied to the image before the filter
+    pres = [None] * len(cameras)  # per camera (P, unfit) of the reference's spots
+    compose = patcher == "polynomial" and filter == "none"
     ops: list = []  # references: frame 0's; for a moving model also later casts
     spot_px = [None] * len(cameras)
     frame_numbers = [int(k) for k in frame_numbers]
@@ -265,7 +293,8 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
         op = next((o for o in ops if o.frame == j), None)
         if op is None:
             op = _cast_reference(j, cameras, mesh, caster, max_obliqueness, spots,
-                                 spot_margin_px, merge_kw, ops[0].gains, off)
+                                 spot_margin_px, merge_kw, ops[0].gains, off, patcher,
+                                 halo)
             _keep(ops, op)
             _shed_mesh_cache(mesh)
             release_freed_memory()
@@ -274,14 +303,18 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
 
     for k in frame_numbers:  # frames, one at a time
         if ops and si is None and not moving:  # a fixed map, no SI: pixels to nodes
-            imgs = _fixed_images(cameras, k, regs, spot_px, filter, filter_size)
+            imgs = _fixed_images(cameras, k, regs, spot_px, filter, filter_size, pres,
+                                 ops[0].cols)
             v = ops[0].nodes(imgs, W, grid)
             if v is not None:
                 yield FrameNodes(k, v, v, [c.camera for c in cameras], ops[0].gains)
                 continue
-        elif ops:
+            # else: a pixel that counts is not finite (warped in from beyond the edge):
+            # the faces' way, which leaves it out
+        if ops:
             fv = _fast_frame(ops, cameras, k, regs, spots, spot_px, filter, filter_size,
-                             moving, refresh_px, op=planned(k) if moving else None)
+                             moving, refresh_px, op=planned(k) if moving else None,
+                             pres=pres, halo=halo)
             if fv is not None:
                 B, cams, op_seen, _ = fv
                 seen = op_seen & np.isfinite(B)
@@ -313,8 +346,11 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
             if spots is not None and len(spots):
                 cen, rad = project_spots(spots, smap, margin_px=spot_margin_px)
                 spot_px[ci] = (cen, rad)
-                img = patch_spots(img, cen, rad) if patcher == "polynomial" \
-                    else mask_spots(img, cen, rad)
+                if patcher == "polynomial":
+                    pres[ci] = patch_operator(img.shape, cen, rad, finite=np.isfinite(img))
+                    img = pres[ci].apply(img)
+                else:
+                    img = mask_spots(img, cen, rad)
             finite.append(np.isfinite(img))
             if filter == "gaussian":
                 img = _gaussian(img, filter_size)
@@ -325,7 +361,9 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
             # merge (the gains are frame 0's; the same sums as merge_views with them)
             from selfillum.unsteady.fastmap import FrameOperator
 
-            op = FrameOperator(maps, finite, merge_kw, ops[0].gains, off, sample_points=True)
+            op = FrameOperator(maps, finite, merge_kw, ops[0].gains, off, sample_points=True,
+                               pre=pres if compose else None, halo_px=halo)
+            op.spots = list(pres) if patcher == "polynomial" else list(spot_px)
             op.frame = op.last_used = k
             _keep(ops, op)
             B = op.faces(imgs)
@@ -345,7 +383,9 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
             # matched on this frame): the operator gives this frame's merge too
             from selfillum.unsteady.fastmap import FrameOperator
 
-            op = FrameOperator(maps, finite, merge_kw, known, off, sample_points=moving)
+            op = FrameOperator(maps, finite, merge_kw, known, off, sample_points=moving,
+                               pre=pres if compose else None, halo_px=halo)
+            op.spots = list(pres) if patcher == "polynomial" else list(spot_px)
             B = op.faces(imgs)
             if B is not None:
                 ops.append(op)
@@ -361,7 +401,9 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
                 from selfillum.unsteady.fastmap import FrameOperator
 
                 ops.append(FrameOperator(maps, finite, merge_kw, mv.gains, off,
-                                         sample_points=moving))
+                                         sample_points=moving,
+                                         pre=pres if compose else None, halo_px=halo))
+                ops[0].spots = list(pres) if patcher == "polynomial" else list(spot_px)
                 ops[0].frame = ops[0].last_used = k
                 ops[0].workers = workers
                 maps0 = [None] * len(cameras)
@@ -405,23 +447,33 @@ def _keep(ops, op) -> None:
 
 
 def _cast_reference(j, cameras, mesh, caster, max_obliqueness, spots, spot_margin_px,
-                    merge_kw, gains, unpainted):
+                    merge_kw, gains, unpainted, patcher="none", halo=0):
     """The operator of a moving model's reference at frame ``j``'s poses: a
-    :class:`resection.SurfaceMap` a camera (a ray cast), its dark spots left out; no image
-    is needed (a video's pixels are finite)."""
+    :class:`resection.SurfaceMap` a camera (a ray cast), its dark spots left out or
+    patched (the patch joins the operator); no image is needed (a video's pixels are
+    finite)."""
     from resection.surface.surface_map import SurfaceMap
     from selfillum.unsteady.fastmap import FrameOperator
 
-    maps, finite = [], []
+    maps, finite, pre, prep = [], [], [], []
     for c in cameras:  # a few cameras
         smap = SurfaceMap(mesh, c.poses[j], max_obliqueness=max_obliqueness, caster=caster)
-        fin = np.ones(smap.shape, bool)
+        fin, P, spot = np.ones(smap.shape, bool), None, None
         if spots is not None and len(spots):
             cen, rad = project_spots(spots, smap, margin_px=spot_margin_px)
-            fin = np.isfinite(mask_spots(np.zeros(smap.shape, np.float32), cen, rad))
+            spot = (cen, rad)
+            if patcher == "polynomial":
+                P = spot = patch_operator(smap.shape, cen, rad)
+                fin = ~P.unfit.reshape(smap.shape)
+            else:
+                fin = np.isfinite(mask_spots(np.zeros(smap.shape, np.float32), cen, rad))
         maps.append(smap)
         finite.append(fin)
-    op = FrameOperator(maps, finite, merge_kw, gains, unpainted, sample_points=True)
+        pre.append(P)
+        prep.append(spot)
+    op = FrameOperator(maps, finite, merge_kw, gains, unpainted, sample_points=True,
+                       pre=None if halo else pre, halo_px=halo)
+    op.spots = prep
     op.frame = op.last_used = j
     return op
 
@@ -434,18 +486,24 @@ def _frame(frames, k: int) -> np.ndarray:
     return np.asarray(frames[k])
 
 
-def _fixed_images(cameras, k, regs, spot_px, filter, filter_size) -> list:
+def _fixed_images(cameras, k, regs, spot_px, filter, filter_size, pres=None,
+                  read=None) -> list:
     """Frame ``k`` of every camera for frame 0's map: as stored, or warped onto frame 0
-    (``first-frame``) and filtered, in float64."""
+    (``first-frame``) and filtered (its spots patched by ``pres`` or masked first), in
+    float64. Without a filter, a warp samples only the pixels ``read[c]`` (the operator's),
+    when given."""
     imgs = []
     for ci, c in enumerate(cameras):  # a few cameras
         img = _frame(c.frames, k)
         if regs[ci] is not None or filter == "gaussian":
             img = img.astype(np.float64)
             if regs[ci] is not None:  # first-frame: warped onto frame 0
-                img = regs[ci].warp(img, regs[ci].fit(img))
+                only = read[ci] if read is not None and filter != "gaussian" else None
+                img = regs[ci].warp(img, regs[ci].fit(img), only)
             if filter == "gaussian":
-                if spot_px[ci] is not None:
+                if pres is not None and pres[ci] is not None:
+                    img = pres[ci].apply(img)
+                elif spot_px[ci] is not None:
                     img = mask_spots(img, *spot_px[ci])
                 img = _gaussian(img, filter_size)
         imgs.append(img)
@@ -453,21 +511,32 @@ def _fixed_images(cameras, k, regs, spot_px, filter, filter_size) -> list:
 
 
 def _fast_frame(ops, cameras, k, regs, spots, spot_px, filter, filter_size, moving,
-                refresh_px, op=None):
+                refresh_px, op=None, pres=None, halo=0):
     """Face values of frame ``k`` by the operator (None: take the full way); a moving
     model uses ``op`` when given (its planned reference), else the nearest reference."""
     if moving:  # sampled as it is (a video's counts)
         imgs = [_frame(c.frames, k) for c in cameras]
         cams = [c.poses[k] for c in cameras]
-        if op is not None:  # its planned reference
-            B = op.faces_moved(imgs, cams, refresh_px)
-            return None if B is None else (B, cams, op.seen, op)
-        # the reference nearest this pose (on a sample of its points)
-        d = [o.displacement(cams) for o in ops]
-        j = int(np.argmin(d))
-        B = ops[j].faces_moved(imgs, cams, refresh_px) if d[j] <= refresh_px else None
+        if op is None:  # the reference nearest this pose (on a sample of its points)
+            d = [o.displacement(cams) for o in ops]
+            j = int(np.argmin(d))
+            if d[j] > refresh_px:
+                return None
+            op = ops[j]
+        prep = None
+        if halo:  # filtered: the spots and the filter in the reference's pixels
+
+            def prep(c, img, spots_=op.spots):
+                s = spots_[c]
+                if s is not None:
+                    img = s.apply(img) if hasattr(s, "apply") else mask_spots(img, *s)
+                return _gaussian(img, filter_size)
+
+        B = op.faces_moved(imgs, cams, refresh_px, prepare=prep)
+        return None if B is None else (B, cams, op.seen, op)
     else:
-        imgs = _fixed_images(cameras, k, regs, spot_px, filter, filter_size)
+        imgs = _fixed_images(cameras, k, regs, spot_px, filter, filter_size, pres,
+                             ops[0].cols)
         cams = [c.camera for c in cameras]
         j, B = 0, ops[0].faces(imgs)
     return None if B is None else (B, cams, ops[j].seen, ops[j])

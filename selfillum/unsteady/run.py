@@ -43,7 +43,16 @@ from selfillum.unsteady.inputs import (
     work_inputs,
 )
 from selfillum.unsteady.insitu import insitu_fit, insitu_gain, insitu_inputs
-from selfillum.unsteady.output import chunk_shape, json_attr, write_flat, write_xdmf, writing
+from selfillum.unsteady.output import (
+    FLAT_FILES,
+    camera_coverage,
+    chunk_shape,
+    json_attr,
+    write_flat,
+    write_node_files,
+    write_xdmf,
+    writing,
+)
 from selfillum.unsteady.phase1 import CameraRun, SelfIllumination
 from selfillum.unsteady.phase2 import node_gain
 from selfillum.unsteady.plots import write_pictures
@@ -122,8 +131,7 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
             raise InputError(f"{cfg.wind_off[k]}: wind-off image {offs[k].shape[1]}x"
                              f"{offs[k].shape[0]}, camera {c.number}'s video "
                              f"{s.shape[1]}x{s.shape[0]}")
-    flat = [out.parent / "pressure", out.parent / "pressure_transpose"] if cfg.upsp_flat \
-        else []
+    flat = [out.parent / name for name in FLAT_FILES] if cfg.upsp_flat else []
     xdmf = out.with_suffix(".xdmf")
     pngs = [out.with_name(out.stem + "_rms.png")] if cfg.plots else []
     if cfg.plots and cfg.psd_probes:
@@ -233,6 +241,12 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
                     if flat:
                         with writing(flat[0], named):
                             write_flat(f, tmp[2], tmp[3], node_block=plan.nodes_per_block)
+                            cover = camera_coverage(grid, [r.camera for r in runs],
+                                                    cfg.oblique_angle)
+                            write_node_files(f, dict(zip(FLAT_FILES[2:],
+                                                         tmp[4:len(flat) + 2], strict=True)),
+                                             work=s1, coverage=cover,
+                                             node_block=plan.nodes_per_block)
                     if pngs:
                         with writing(pngs[0], named):
                             write_pictures(grid, stats["rms"], spectra, tmp[-len(pngs):])

@@ -26,7 +26,8 @@ import numpy as np
 from resection.errors import InputError
 from selfillum.unsteady.options import PATCHERS  # re-exported
 
-__all__ = ["DarkSpots", "project_spots", "mask_spots", "patch_spots", "PATCHERS"]
+__all__ = ["DarkSpots", "project_spots", "mask_spots", "patch_spots", "patch_operator",
+           "PatchOperator", "PATCHERS"]
 
 
 @dataclass(frozen=True)
@@ -106,31 +107,144 @@ def mask_spots(image, centres, radii) -> np.ndarray:
     return img
 
 
-def patch_spots(image, centres, radii, *, ring_px: float = 3.0, order: int = 3) -> np.ndarray:
-    """A float copy of ``image`` with each spot's pixels replaced by a 2-D polynomial of
-    ``order`` fitted to the finite pixels of a ring ``ring_px`` wide around it (spots whose
-    ring holds too few pixels are masked, NaN, instead)."""
-    img = np.array(image, dtype=np.float64)
-    centres, radii = np.asarray(centres, float), np.asarray(radii, float)
+@dataclass(frozen=True)
+class PatchOperator:
+    """uPSP's polynomial patch of an image's dark spots as linear maps (see
+    :func:`patch_operator`).
+
+    Attributes
+    ----------
+    shape : (H, W)
+    inside : (n,) int
+        The patched pixels (flat indices), each once.
+    spot : (n,) int
+        The spot whose fit each patched pixel takes.
+    basis : (n, P) float
+        The polynomial's terms at each patched pixel.
+    C : scipy.sparse.csr_matrix
+        (m P, H W): each spot's polynomial coefficients from its ring's pixels (rows of a
+        spot that could not be fitted are empty).
+    unfit : (H W,) bool
+        Pixels of spots whose ring holds too few usable pixels (NaN once patched).
+    """
+
+    shape: tuple
+    inside: np.ndarray
+    spot: np.ndarray
+    basis: np.ndarray
+    C: object
+    unfit: np.ndarray
+
+    @property
+    def n_terms(self) -> int:
+        return self.basis.shape[1]
+
+    def expand(self):
+        """(H W, m P) sparse: a patched pixel's value from the spots' coefficients."""
+        import scipy.sparse as sp
+
+        P = self.n_terms
+        n = self.inside.size
+        return sp.csr_matrix((self.basis.ravel(), (np.repeat(self.inside, P),
+                                                    (self.spot[:, None] * P
+                                                     + np.arange(P)[None, :]).ravel())),
+                             shape=(self.shape[0] * self.shape[1], self.C.shape[0])) \
+            if n else sp.csr_matrix((self.shape[0] * self.shape[1], self.C.shape[0]))
+
+    def apply(self, image) -> np.ndarray:
+        """The image (float64) with its spots patched; NaN where a spot could not be fitted
+        and where a pixel that is not patched is not finite."""
+        x = np.asarray(image, dtype=np.float64)
+        fin = np.isfinite(x)
+        out = np.where(fin, x, 0.0).ravel()
+        coef = (self.C @ out).reshape(-1, self.n_terms)
+        vals = np.einsum("ip,ip->i", self.basis, coef[self.spot])
+        keep = ~fin.ravel()
+        keep[self.inside] = False
+        out[self.inside] = vals
+        out[keep | self.unfit] = np.nan
+        return out.reshape(x.shape)
+
+
+def patch_operator(shape, centres, radii, *, ring_px: float = 3.0, order: int = 3,
+                   finite=None) -> PatchOperator:
+    """uPSP's polynomial patch as linear maps on the image's pixels.
+
+    Each spot's pixels become a 2-D polynomial of ``order`` fitted (least squares) to the
+    pixels of a ring ``ring_px`` wide around it. The fit's coefficients are linear in the
+    ring's pixels (``coef = C image``), and a patched pixel is its terms times its spot's
+    coefficients: the patched image is ``image`` off the spots and ``basis coef[spot]`` on
+    them. A pixel inside several spots takes the last one's fit (as a fancy assignment
+    does). Kept low-rank, it costs the ring's pixels times the terms, not the spot's pixels
+    times its ring's.
+
+    Parameters
+    ----------
+    shape : (H, W)
+    centres : (m, 2) array_like
+        Pixels.
+    radii : (m,) array_like
+        Pixels.
+    ring_px : float
+    order : int
+    finite : (H, W) bool, optional
+        Pixels usable in a ring (default all).
+
+    Returns
+    -------
+    PatchOperator
+    """
+    import scipy.sparse as sp
+
+    H, W = shape
+    n = H * W
+    centres, radii = np.asarray(centres, float).reshape(-1, 2), np.asarray(radii, float)
+    powers = [(i, j) for i in range(order + 1) for j in range(order + 1 - i)]
+    nP = len(powers)
     if len(radii) == 0:
-        return img
-    u, v, d, inb, R = _windows(img.shape, centres, radii, ring_px)
+        return PatchOperator((H, W), np.zeros(0, np.int64), np.zeros(0, np.int64),
+                             np.zeros((0, nP)), sp.csr_matrix((0, n)), np.zeros(n, bool))
+    u, v, d, inb, R = _windows(shape, centres, radii, ring_px)
     inside = inb & (d <= radii[:, None])
-    vals = img[v, u]
-    ring = inb & (d > radii[:, None]) & (d <= radii[:, None] + ring_px) & np.isfinite(vals)
+    ring = inb & (d > radii[:, None]) & (d <= radii[:, None] + ring_px)
+    if finite is not None:
+        ring &= np.asarray(finite, bool)[v, u]
     s = max(R, 1)
     x = (u - centres[:, 0:1]) / s
     y = (v - centres[:, 1:2]) / s
-    powers = [(i, j) for i in range(order + 1) for j in range(order + 1 - i)]
     A = np.stack([x**i * y**j for i, j in powers], axis=-1)  # (m, K, P)
     w = ring.astype(np.float64)
-    M = np.einsum("mkp,mk,mkq->mpq", A, w, A) + 1e-9 * np.eye(len(powers))[None]
-    b = np.einsum("mkp,mk->mp", A, w * np.where(ring, vals, 0.0))
-    good = ring.sum(axis=1) >= 2 * len(powers)
-    coef = np.zeros((len(radii), len(powers)))
+    M = np.einsum("mkp,mk,mkq->mpq", A, w, A) + 1e-9 * np.eye(nP)[None]
+    good = ring.sum(axis=1) >= 2 * nP
+    pix = v * W + u  # (m, K)
+    # coefficients from the ring: Minv A^T w, only on ring pixels (m, P, K)
+    mi, ki = np.nonzero(ring & good[:, None])
+    Minv = np.zeros_like(M)
     if good.any():
-        coef[good] = np.linalg.solve(M[good], b[good][..., None])[..., 0]
-    fit = np.einsum("mkp,mp->mk", A, coef)
-    fit[~good] = np.nan
-    img[v[inside], u[inside]] = fit[inside]
-    return img
+        Minv[good] = np.linalg.inv(M[good])
+    cw = np.einsum("npq,nq->np", Minv[mi], A[mi, ki]) * w[mi, ki][:, None]  # (r, P)
+    C = sp.csr_matrix((cw.ravel(), ((mi[:, None] * nP + np.arange(nP)[None, :]).ravel(),
+                                    np.repeat(pix[mi, ki], nP))), shape=(len(radii) * nP, n))
+    # the patched pixels: the last spot's fit wins where spots overlap
+    mi, ki = np.nonzero(inside)
+    row_pix = pix[mi, ki]
+    order_ = np.arange(len(row_pix))
+    last = np.full(n, -1, np.int64)
+    last[row_pix] = order_
+    keep = last[row_pix] == order_
+    mi, ki, row_pix = mi[keep], ki[keep], row_pix[keep]
+    unfit = np.zeros(n, bool)
+    unfit[row_pix[~good[mi]]] = True
+    ok = good[mi]
+    return PatchOperator((H, W), row_pix[ok], mi[ok], A[mi[ok], ki[ok]], C, unfit)
+
+
+def patch_spots(image, centres, radii, *, ring_px: float = 3.0, order: int = 3) -> np.ndarray:
+    """A float copy of ``image`` with each spot's pixels replaced by a 2-D polynomial of
+    ``order`` fitted to the finite pixels of a ring ``ring_px`` wide around it (spots whose
+    ring holds too few pixels are masked, NaN, instead): :func:`patch_operator` applied."""
+    img = np.array(image, dtype=np.float64)
+    if len(np.asarray(radii)) == 0:
+        return img
+    return patch_operator(img.shape, centres, radii, ring_px=ring_px, order=order,
+                          finite=np.isfinite(img)).apply(img)

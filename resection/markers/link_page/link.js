@@ -9,7 +9,7 @@
   const st = {
     info: null, cands: null, plan: null, links: [], history: [], selCand: -1,
     selTarget: null, result: null, vb: null, planRot: 0, planMirror: false,
-    raw: null, cdf: null, seq: 0,
+    raw: null, cdf: null, seq: 0, stopped: false,
   };
 
   async function api(path, body) {
@@ -195,8 +195,12 @@
       const res = await api("api/solve", { links: st.links });
       if (seq !== st.seq) return; // a newer set of links is on its way
       st.result = res;
-      // the plan follows the last accepted pose (not back to the normals' view on a refusal)
-      if (res.plan && (res.status === "accepted" || st.plan.source !== "camera")) st.plan = res.plan;
+      // the plan follows the last accepted pose (not back to the normals' view on a refusal);
+      // a turn or mirror chosen for the normals' view does not carry over to the camera's
+      if (res.plan && (res.status === "accepted" || st.plan.source !== "camera")) {
+        if (res.plan.source !== st.plan.source) { st.planRot = 0; st.planMirror = false; }
+        st.plan = res.plan;
+      }
     } catch (err) {
       if (seq !== st.seq) return;
       st.result = { status: "refused", message: String(err.message), links: [], offers: [],
@@ -205,11 +209,17 @@
     document.body.dataset.pending = "0";
     draw();
   }
-  async function save() {
+  async function save(quit) {
     const out = $("saved");
     try {
-      const res = await api("api/save", { links: st.links });
+      const res = await api("api/save", quit ? { links: st.links, quit: true }
+        : { links: st.links });
       out.className = ""; out.textContent = res.message;
+      if (res.quit) {
+        st.stopped = true;
+        out.textContent += "; the server has stopped: this page can be closed";
+        draw();
+      }
     } catch (err) { out.className = "error"; out.textContent = String(err.message); }
   }
 
@@ -218,6 +228,25 @@
     const m = new Map();
     for (const l of (st.result && st.result.links) || []) m.set(l.id, l);
     return m;
+  }
+  function visibleBox() { // the part of the image the frame's area shows, image units
+    const r = svg.getBoundingClientRect(), m = svg.getScreenCTM().inverse();
+    const p = svg.createSVGPoint();
+    p.x = r.left; p.y = r.top; const a = p.matrixTransform(m);
+    p.x = r.right; p.y = r.bottom; const b = p.matrixTransform(m);
+    return { x0: a.x, y0: a.y, x1: b.x, y1: b.y };
+  }
+  // a label beside a point: to its right, or to its left where it would leave the frame's
+  // area (the side bar would cover it)
+  function label(x, y, text, cls, parent, upp, fs, side) {
+    const w = 0.62 * fs * String(text).length, gap = 6 * upp, box = visibleBox();
+    // a point outside the area keeps its label outside too (not half of it at the edge)
+    const left = x > box.x1 ? false : x < box.x0 ? true
+      : side === "left" ? x - gap - w >= box.x0 : x + gap + w > box.x1;
+    const inside = x >= box.x0 && x <= box.x1 && y >= box.y0 && y <= box.y1;
+    const ty = inside ? Math.min(Math.max(y, box.y0 + fs), box.y1 - 2 * upp) : y;
+    return el("text", { x: left ? x - gap : x + gap, y: ty, "font-size": fs,
+      "text-anchor": left ? "end" : "start", "stroke-width": 3 * upp, class: cls }, parent, text);
   }
   function drawOverlay() {
     if (!st.cands || !st.vb) return;
@@ -238,9 +267,8 @@
     for (const [id, j] of st.links) {
       const li = info.get(id);
       const txt = li && li.residual !== null ? `${id} ${li.residual.toFixed(2)}px` : id;
-      el("text", { x: u[j] + 6 * upp, y: v[j] - 6 * upp, "font-size": fs, "stroke-width": 3 * upp,
-        class: "label link-label" + (li && li.rejected ? " rejected" : "") }, lg,
-      (li && li.rejected ? "rejected " : "") + txt);
+      label(u[j], v[j] - 6 * upp, (li && li.rejected ? "rejected " : "") + txt,
+        "label link-label" + (li && li.rejected ? " rejected" : ""), lg, upp, fs, "right");
     }
     const pg = $("preds"); pg.replaceChildren();
     const og = $("offers"); og.replaceChildren();
@@ -250,8 +278,7 @@
       const grp = el("g", { class: "pred", "data-id": p.id }, pg);
       el("path", { d: `M${p.u - s},${p.v}H${p.u + s}M${p.u},${p.v - s}V${p.v + s}`,
         "stroke-width": lw, "vector-effect": "non-scaling-stroke", class: "pred" }, grp);
-      el("text", { x: p.u - 5 * upp, y: p.v + 14 * upp, "font-size": fs, "text-anchor": "end",
-        "stroke-width": 3 * upp, class: "label pred-label" }, grp, p.id);
+      label(p.u, p.v + 14 * upp, p.id, "label pred-label", grp, upp, fs, "left");
     }
     const pred = new Map(st.result.predicted.map((p) => [p.id, p]));
     for (const o of st.result.offers) {
@@ -285,10 +312,15 @@
       if (id === st.selTarget) cls += " selected";
       const c = el("circle", { cx: x, cy: y, r: 5, class: cls, "data-id": id }, g);
       c.addEventListener("click", () => clickTarget(id));
-      el("text", { x: x + 6, y: y - 4, class: "plan-label" }, g, id);
+      const right = x + 6 + 5.5 * String(id).length > 298; // 9 px text: about 5.5 px a letter
+      el("text", { x: right ? x - 6 : x + 6, y: y - 4, class: "plan-label",
+        "text-anchor": right ? "end" : "start" }, g, id);
     });
+    const turned = (st.planRot ? `, turned by ${90 * st.planRot} deg` : "")
+      + (st.planMirror ? ", mirrored" : "");
     $("plan-source").textContent = st.plan.source === "camera"
-      ? "as the camera sees them" : `no pose yet: seen along the targets' ${st.plan.source}`
+      ? `as the camera sees them${turned}`
+      : `no pose yet: seen along the targets' ${st.plan.source}${turned}`
         + " (turn or mirror it to match the frame)";
   }
   function drawList() {
@@ -326,7 +358,9 @@
       : `${st.links.length} link(s): link ${Math.max(need, 0)} more for a pose`;
     if (st.selCand >= 0) status.textContent += `\ncandidate #${st.selCand} selected: click its target`;
     else if (st.selTarget !== null) status.textContent += `\ntarget ${st.selTarget} selected: click its candidate`;
-    $("save").disabled = !(r && r.status === "accepted" && st.info.outputs.length);
+    const can = !st.stopped && r && r.status === "accepted" && st.info.outputs.length > 0;
+    $("save").disabled = !can;
+    $("save-quit").disabled = !can;
     $("save").title = st.info.outputs.length ? `writes ${st.info.outputs.join(", ")}` : "no output named";
     drawOverlay(); drawPlan(); drawList();
   }
@@ -346,7 +380,8 @@
     $("hi").addEventListener("input", stretch);
     $("undo").addEventListener("click", undo);
     $("fit").addEventListener("click", fit);
-    $("save").addEventListener("click", save);
+    $("save").addEventListener("click", () => save(false));
+    $("save-quit").addEventListener("click", () => save(true));
     $("rotate").addEventListener("click", () => { st.planRot = (st.planRot + 1) % 4; draw(); });
     $("mirror").addEventListener("click", () => { st.planMirror = !st.planMirror; draw(); });
     window.addEventListener("resize", drawOverlay);
