@@ -314,7 +314,7 @@ def _mraw(p: Path, mask_saturated: bool) -> FrameSource:
         images = pyMRAW.load_images(str(mraw), h, w, n, bit=bits, roll_axis=False)
     except (ValueError, OSError) as exc:
         raise InputError(f"{mraw}: cannot read frames ({exc})") from None
-    rate = frame_rate_of(info.get("Record Rate(fps)"), f"{cih}: 'Record Rate(fps)'")
+    rate = frame_rate_of(info.get("Record Rate(fps)"))
     declared = eff if 0 < eff <= bits else bits
 
     def check(i, img):
@@ -417,31 +417,24 @@ def _cine(p: Path, mask_saturated: bool) -> FrameSource:
             img = np.asarray(unpack_10bit_data(data))[: w * h].reshape(h, w)
         return img[::-1] if flip else img
 
-    rate = frame_rate_of(setup.frame_rate_hz, f"{p}: the header's frame rate")
+    rate = frame_rate_of(setup.frame_rate_hz)
     return FrameSource(p, n, (h, w), read, lambda i: f"{p}#{i}", bits=bits,
                        frame_rate=rate, mask_saturated=mask_saturated,
                        closer=fh.close)
 
 
-def frame_rate_of(value, where: str) -> float | None:
-    """A header's frame rate as frames/s: None when it is absent or 0 (not recorded);
-    :class:`InputError` naming ``where`` for one that is not a number or lies outside
-    :data:`resection.defaults.FRAME_RATE_RANGE` (NaN, infinite, 1e-320, negative)."""
-    from resection.defaults import FRAME_RATE_RANGE
-
+def frame_rate_of(value) -> float | None:
+    """A header's frame rate as a number of frames/s, as the header says it: None when it
+    is absent or 0 (not recorded), NaN when it is not a number. Whether it can be used is
+    the caller's to judge (:data:`resection.defaults.FRAME_RATE_RANGE`): a command given
+    the rate by the user does not need the header's."""
     if value is None or (isinstance(value, str) and not value.strip()):
         return None
     try:
         r = float(value)
     except (TypeError, ValueError, OverflowError):
-        raise InputError(f"{where} {value!r} is not a number") from None
-    if r == 0:
-        return None
-    lo, hi = FRAME_RATE_RANGE
-    if not lo <= r <= hi:
-        raise InputError(f"{where} {value} is not a frame rate (expected {lo:.3g} to "
-                         f"{hi:g} frames/s)")
-    return r
+        return float("nan")
+    return None if r == 0 else r
 
 
 def _unpack_p12l(data: bytes, h: int, w: int) -> np.ndarray:

@@ -4,12 +4,12 @@ numbers depend on (:func:`work_inputs`, the key of a resumed run)."""
 
 from __future__ import annotations
 
-import math
 import os
 from pathlib import Path
 
 import numpy as np
 
+from resection.defaults import FRAME_RATE_RANGE
 from resection.errors import InputError
 from selfillum.unsteady.config import UnsteadyConfig
 from selfillum.unsteady.output import provenance
@@ -55,12 +55,13 @@ def _check_videos(cfg: UnsteadyConfig, srcs):
             c, k = short[0]
             raise InputError(f"{where}: number_frames = {T} but {c.video} has {k} frames")
     rates = [s.frame_rate for s in srcs]
+    lo, hi = FRAME_RATE_RANGE
     if cfg.fps is None:  # the videos' own rates: a bad one is the video's, not --fps's
         for c, r in zip(cfg.cameras, rates, strict=True):
-            if r is not None and not (math.isfinite(r) and r > 0):
-                raise InputError(f"{c.video}: its header's frame rate {r} is not a positive "
-                                 "finite number; give --fps")
-    known = {float(r) for r in rates if r and math.isfinite(r) and r > 0}
+            if r is not None and not lo <= r <= hi:  # NaN, inf, 1e-320, negative
+                raise InputError(f"{c.video}: its header's frame rate {r} is not a frame "
+                                 f"rate ({lo:.3g} to {hi:g} frames/s); give --fps")
+    known = {float(r) for r in rates if r is not None and lo <= r <= hi}
     if len(known) > 1:
         rl = ", ".join(f"{c.video.name}: {r} fps" for c, r in
                        zip(cfg.cameras, rates, strict=True))
