@@ -84,12 +84,15 @@ class UnsteadyRun:
     around: np.ndarray | None = None
 
 
-def _camera(width, height, second: bool = False) -> Camera:
-    """Camera 1 from the (-x, -y) side, camera 2 from the (+x, +y) side."""
+def _camera(width, height, second: bool = False, index: int | None = None) -> Camera:
+    """Camera 1 from the (-x, -y) side, camera 2 from the (+x, +y) side, cameras 3 and 4
+    from (-x, +y) and (+x, -y) (``index`` 0-3; ``second`` is index 1)."""
     f = 1.0 * width
     K = [[f, 0.0, (width - 1) / 2], [0.0, f, (height - 1) / 2], [0.0, 0.0, 1.0]]
-    eye, target = ([0.24, 0.22, 0.33], [-0.03, -0.02, 0.0]) if second else \
-        ([-0.22, -0.24, 0.33], [0.03, 0.02, 0.0])
+    i = (1 if second else 0) if index is None else int(index)
+    sx, sy = [(-1, -1), (1, 1), (-1, 1), (1, -1)][i]
+    eye = [0.22 * sx if i != 1 else 0.24, 0.24 * sy if i != 1 else 0.22, 0.33]
+    target = [-0.03 * sx, -0.02 * sy, 0.0] if i != 1 else [-0.03, -0.02, 0.0]
     return Camera.look_at(eye, target, [0.0, 0.0, 1.0], K=K, width=width, height=height)
 
 
@@ -128,7 +131,8 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
                       heave_m: float = 0.003, drift_deg: float = 0.0, bits: int | None = None,
                       video_format: str = "npy", truth_rays: int = 4096) -> UnsteadyRun:
     """Write a run into ``folder`` (created) and return its paths and truth; ``cameras``
-    1 or 2 (the second from the opposite side, seeing the block's other sides).
+    1 to 4 (the second from the opposite side, seeing the block's other sides; the third
+    and fourth from the other two diagonals).
 
     The deck's ``@options`` are uPSP's usual ones (``target_patcher = polynomial``,
     ``registration = pixel``, ``overlap = average_view``, ``oblique_angle = 70``,
@@ -232,7 +236,7 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
     B_off = None if stern_volmer is None else \
         solve(E0 / (stern_volmer[0] + stern_volmer[1]))  # wind-off: p = p_ref
     # ------------------------------------------------------------------ targets and spots
-    cams0 = [_camera(width, height, second=c == 1) for c in range(cameras)]
+    cams0 = [_camera(width, height, index=c) for c in range(cameras)]
     gx, gy = np.meshgrid(np.arange(-0.24, 0.34, 0.09), np.arange(-0.2, 0.25, 0.09))
     cand = np.column_stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)])
     ok = np.zeros(len(cand), bool)

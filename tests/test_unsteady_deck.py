@@ -198,7 +198,7 @@ def test_hidden_faces_continue_within_their_part():
     B0 = np.full(n, 100.0)
     E0 = np.full(n, 90.0)
     hc = HiddenContinuation(g, B0, E0, needed=np.ones(n, bool))
-    hid, src = hc.assignment(seen)
+    hid, src, _ = hc.assignment(seen)
     assert set(np.flatnonzero(side_px)) <= set(hid)
     assert on_block[src[np.isin(hid, np.flatnonzero(side_px))]].all()
     # the block's seen faces at 110 % of frame 0, the plate at 100 %: the side follows
@@ -206,3 +206,13 @@ def test_hidden_faces_continue_within_their_part():
     x = hc.radiosity(B, seen)
     np.testing.assert_allclose(x[side_px], 100.0 + 90.0 * 0.1)
     np.testing.assert_allclose(x[seen], B[seen])
+    # a frame that lost a few faces (under 1 %) reuses the search: the lost faces hold
+    # frame 0's radiosity, the faces they sourced their own
+    lost = np.flatnonzero(top)[:2]
+    seen2 = seen.copy()
+    seen2[lost] = False
+    assert hc.assignment(seen2)[2] is hc.assignment(seen)[2]
+    x2 = hc.radiosity(B, seen2)
+    np.testing.assert_allclose(x2[lost], 100.0)
+    from_lost = hid[np.isin(src, lost)]
+    np.testing.assert_allclose(x2[from_lost], 100.0)

@@ -24,12 +24,14 @@ _TIMES = {"setup": 0.0, "phase1": 0.0, "phase2": 0.0, "first_frame": 0.0}
 
 def _no_view_factors(monkeypatch):
     """Make the first heavy step (the view factors) fail the test if it is reached."""
+    import selfillum.transport.coupling as coupling
     import selfillum.transport.viewfactors as vf
 
     def boom(*a, **k):
         raise AssertionError("the view factors were computed before the input check")
 
     monkeypatch.setattr(vf, "view_factors", boom)
+    monkeypatch.setattr(coupling, "coupled_view_factors", boom)
 
 
 # ------------------------------------------------------------------- item 2: one frame

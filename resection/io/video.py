@@ -29,6 +29,17 @@ Readers
   packed frames (P10, P12L) are stored top-down and are never flipped (uPSP: "Do not flip
   any version, checked against Buffet data and TC3 data"; pims reads them so too). No
   black/white level is applied.
+* Telops ``.hcc`` (IR cameras): the ``fasthcc`` package's ``HCCReader`` (header per
+  frame, 16-bit pixels memory-mapped); the rate is the header's ``AcquisitionFrameRate``.
+  Counts are the file's raw 16-bit values (a calibrated file's ``DataOffset`` and
+  ``DataExp`` are not applied).
+* FLIR ``.seq`` (FFF frames one after another, as FLIR's cameras and ResearchIR record
+  them): the ``flirpy`` package's FFF parser on a memory map of the file (its frame
+  positions, then one frame's records when the frame is asked for); the rate is the first
+  frame's ``FrameRate`` tag. FLIR's compressed ``.csq`` (JPEG-LS frames) is not read:
+  flirpy has no decoder for it.
+* A TIFF stack's rate comes from its ImageJ metadata (``finterval``, seconds between
+  frames) when it has it.
 
 Counts stay counts (a 12-bit pixel of 4095 reads 4095.0); with ``mask_saturated`` the
 pixels at the sensor's full scale (``2**bits - 1``) read as NaN, as
@@ -50,7 +61,7 @@ from resection.io.images import read_image
 
 __all__ = ["FrameSource", "open_frames", "iter_frames", "frame_rate_of", "VIDEO_SUFFIXES"]
 
-VIDEO_SUFFIXES = (".cine", ".mraw", ".cih", ".cihx")
+VIDEO_SUFFIXES = (".cine", ".mraw", ".cih", ".cihx", ".hcc", ".seq")
 
 
 class FrameSource:
@@ -202,6 +213,13 @@ def open_frames(
         return _tiff_stack(p, mask_saturated)
     if suf == ".npy":
         return _npy_stack(p, mask_saturated)
+    if suf == ".hcc":
+        return _hcc(p, mask_saturated)
+    if suf == ".seq":
+        return _flir_seq(p, mask_saturated)
+    if suf == ".csq":
+        raise InputError(f"{p}: FLIR .csq (compressed frames) is not supported; export the "
+                         "run as .seq, TIFF or NPY")
     return _image_files(paths, mask_saturated)
 
 
@@ -238,8 +256,78 @@ def _tiff_stack(p: Path, mask_saturated: bool) -> FrameSource:
             raise InputError(f"{p}#{i}: cannot read page ({exc})") from None
 
     bits = np.iinfo(dtype).bits if dtype.kind in "ui" else None
+    fi = (tf.imagej_metadata or {}).get("finterval")
+    try:
+        rate = 1.0 / float(fi) if fi is not None and float(fi) > 0 else None
+    except (TypeError, ValueError):
+        rate = None
     return FrameSource(p, shape[0], shape[1:], read, lambda i: f"{p}#{i}", bits=bits,
-                       mask_saturated=mask_saturated, closer=tf.close)
+                       frame_rate=rate, mask_saturated=mask_saturated, closer=tf.close)
+
+
+def _flir_seq(p: Path, mask_saturated: bool) -> FrameSource:
+    """A FLIR ``.seq`` through ``flirpy``'s FFF parser, on a memory map of the file."""
+    import mmap
+
+    try:
+        from flirpy.io.fff import Fff
+        from flirpy.io.seq import Seq
+    except ImportError:
+        raise InputError(f"{p}: reading FLIR .seq needs the flirpy package "
+                         "(pip install flirpy)") from None
+    fh = open(p, "rb")  # noqa: SIM115 - closed by the source's closer
+    try:
+        mm = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
+        pos = Seq._get_frame_positions(mm)  # flirpy's walk of the FFF headers
+        if not pos:
+            raise ValueError("no FFF frame")
+        first = Fff(bytes(mm[pos[0][0]:pos[0][0] + pos[0][1]]))
+        shape = (int(first.height), int(first.width))
+        rate = float(first.meta.get("FrameRate") or 0) or None
+    except (OSError, ValueError, struct.error, AttributeError) as exc:
+        fh.close()
+        raise InputError(f"{p}: cannot read FLIR SEQ ({str(exc).splitlines()[0]})") from None
+
+    def read(i):
+        a, n = pos[int(i)]
+        img = Fff(bytes(mm[a:a + n])).get_image()
+        if img.shape != shape:
+            raise InputError(f"{p}#{i}: a {img.shape[1]}x{img.shape[0]} frame in a "
+                             f"{shape[1]}x{shape[0]} sequence")
+        return img
+
+    def close():
+        mm.close()
+        fh.close()
+
+    return FrameSource(p, len(pos), shape, read, lambda i: f"{p}#{i}", bits=16,
+                       frame_rate=rate, mask_saturated=mask_saturated, closer=close)
+
+
+def _hcc(p: Path, mask_saturated: bool) -> FrameSource:
+    """A Telops ``.hcc`` through ``fasthcc``'s memory-mapped reader."""
+    import warnings
+
+    try:
+        from fasthcc import HCCReader
+    except ImportError:
+        raise InputError(f"{p}: reading Telops .hcc needs the fasthcc package "
+                         "(pip install fasthcc)") from None
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # trailing bytes: a truncated file
+            r = HCCReader(p)
+    except (OSError, ValueError, KeyError, UserWarning) as exc:
+        raise InputError(f"{p}: cannot read Telops HCC ({str(exc).splitlines()[0]})") \
+            from None
+
+    def read(i):
+        return r.read_frames(int(i), int(i) + 1)[0]
+
+    rate = float(r.frame_rate) if r.frame_rate and r.frame_rate > 0 else None
+    return FrameSource(p, r.n_frames, (r.height, r.width), read, lambda i: f"{p}#{i}",
+                       bits=16, frame_rate=rate, mask_saturated=mask_saturated,
+                       closer=r.close)
 
 
 def _npy_stack(p: Path, mask_saturated: bool) -> FrameSource:

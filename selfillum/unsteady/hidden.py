@@ -22,8 +22,12 @@ of the nearest seen face of the same part**::
   fuselage. Convex edges (a block's own edges, a wing's trailing edge) and smooth ones are
   crossed. A hidden side of a block so takes its time history from the block's seen
   faces, not from the plate beside it;
+* the sources are the faces seen in this frame *and* in frame 0 (whose ``B0`` was
+  measured, not itself continued);
 * the radiosity ratio of the seen face stands for its emission ratio (they differ by the
-  change of its reflected light: a second-order term);
+  change of its reflected light: a second-order term); a ratio outside ``[1/2, 2]`` (a
+  face's brightness halved or doubled from frame 0: an edge pixel or a glint, not the
+  paint's emission) is clipped to it;
 * the hidden face's radiosity is ``B_h(t) = B0_h + E0_h (r_s(t) - 1)``: its own reflected
   light held at frame 0 (second order again);
 * a hidden face that no seen face reaches without crossing a concave crease keeps ``B0``
@@ -96,40 +100,60 @@ class HiddenContinuation:
         none).
     needed : (F,) bool
         Faces whose radiosity the self-illumination reads (the columns of ``F``).
+    seen0 : (F,) bool, optional
+        The faces seen in frame 0 (default: every face with ``B0 > 0``).
     cache : int
         Assignments kept (one a set of seen faces).
     """
 
-    def __init__(self, graph, B0, E0, needed, cache: int = 8):
+    #: The range a seen face's ratio to frame 0 is clipped to.
+    RATIO_RANGE = (0.5, 2.0)
+
+    def __init__(self, graph, B0, E0, needed, seen0=None, cache: int = 8):
         self.graph = graph
         self.B0 = np.asarray(B0, dtype=np.float64)
         E0 = np.asarray(E0, dtype=np.float64)
         self.E0 = np.where(np.isfinite(E0), E0, 0.0)
         self.needed = np.asarray(needed, bool)
+        ok = np.isfinite(self.B0) & (self.B0 > 0)
+        self.source_ok = ok if seen0 is None else ok & np.asarray(seen0, bool)
         self._cache: OrderedDict = OrderedDict()
         self._size = int(cache)
 
-    def assignment(self, seen) -> tuple[np.ndarray, np.ndarray]:
-        """``(hidden, source)``: the needed hidden faces that a seen face reaches within
-        their part, and that seen face (nearest along the surface)."""
+    def assignment(self, seen) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(hidden, source, base)``: the needed hidden faces that a seen face reaches
+        within their part, that seen face (nearest along the surface), and the set of seen
+        faces the search was made for.
+
+        A set of seen faces within ``1 %`` of the faces of one already searched (a frame
+        that lost a few faces at the image's edge) reuses that search: the faces it lost
+        keep their frame-0 radiosity, and a hidden face whose source it lost keeps its own.
+        """
         seen = np.asarray(seen, bool)
         key = np.packbits(seen).tobytes()
         hit = self._cache.get(key)
+        if hit is None:
+            tol = max(1, len(seen) // 100)
+            for k, v in self._cache.items():
+                if np.count_nonzero(v[2] != seen) <= tol:
+                    hit = v
+                    key = k
+                    break
         if hit is not None:
             self._cache.move_to_end(key)
             return hit
         from scipy.sparse.csgraph import dijkstra
 
         hid = np.flatnonzero(self.needed & ~seen)
-        src_faces = np.flatnonzero(seen & (self.B0 > 0) & np.isfinite(self.B0))
+        src_faces = np.flatnonzero(seen & self.source_ok)
         if hid.size == 0 or src_faces.size == 0:
-            out = (np.zeros(0, np.int64), np.zeros(0, np.int64))
+            out = (np.zeros(0, np.int64), np.zeros(0, np.int64), seen)
         else:
             _, _, sources = dijkstra(self.graph, directed=False, indices=src_faces,
                                      min_only=True, return_predecessors=True)
             s = sources[hid]
             ok = s >= 0
-            out = (hid[ok], s[ok].astype(np.int64))
+            out = (hid[ok], s[ok].astype(np.int64), seen)
         self._cache[key] = out
         if len(self._cache) > self._size:
             self._cache.popitem(last=False)
@@ -140,8 +164,11 @@ class HiddenContinuation:
         continued estimate on the hidden faces a seen face reaches, ``B0`` elsewhere."""
         seen = np.asarray(seen, bool)
         x = np.where(seen, B, self.B0)
-        hid, src = self.assignment(seen)
+        hid, src, _ = self.assignment(seen)
         if hid.size:
-            r = np.asarray(B, dtype=np.float64)[src] / self.B0[src]
-            x[hid] = self.B0[hid] + self.E0[hid] * (r - 1.0)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                r = np.asarray(B, dtype=np.float64)[src] / self.B0[src]
+            r = np.clip(np.where(np.isfinite(r) & seen[src], r, 1.0), *self.RATIO_RANGE)
+            est = self.B0[hid] + self.E0[hid] * (r - 1.0)
+            x[hid] = np.where(seen[hid], x[hid], est)
         return x

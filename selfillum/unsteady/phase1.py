@@ -132,7 +132,8 @@ class SelfIllumination:
             needed[np.unique(self.F.indices)] = True
             keep = None if self.unpainted is None else ~self.unpainted
             self.continuation = HiddenContinuation(
-                part_graph(self.mesh, self.crease_deg, keep), self.hidden, E0, needed)
+                part_graph(self.mesh, self.crease_deg, keep), self.hidden, E0, needed,
+                seen0=seen0)
 
     def __call__(self, B, seen) -> np.ndarray:
         if self.hidden is None:

@@ -19,7 +19,6 @@ from __future__ import annotations
 import functools
 
 import numpy as np
-from scipy import ndimage
 
 __all__ = ["AffineRegistration"]
 
@@ -69,22 +68,23 @@ class AffineRegistration:
         self._M = np.eye(3)  # current warp in normalised coordinates
         self.shape = ref.shape
 
-    def _pixels(self, M):
-        xw = M[0, 0] * self._x + M[0, 1] * self._y + M[0, 2]
-        yw = M[1, 0] * self._x + M[1, 1] * self._y + M[1, 2]
-        return xw * self._s + self._c[0], yw * self._s + self._c[1]
-
     def fit(self, frame) -> np.ndarray:
         """The warp ``A`` (2 x 3, pixels) of ``frame`` onto the reference (see the module
         notes); starts from the previous call's warp."""
-        img = np.asarray(frame, dtype=np.float64)
-        filled = np.where(np.isfinite(img), img, 0.0)
+        img = np.asarray(frame)
+        if img.dtype.kind == "f" and not np.isfinite(img).all():
+            img = np.where(np.isfinite(img), img, 0.0)
+        elif img.dtype.kind not in "fiu":
+            img = img.astype(np.float64)
+        img = np.ascontiguousarray(img)
         M = self._M.copy()
+        g = np.empty(6)
         for _ in range(self.iterations):  # Gauss-Newton steps (a few), not pixels
-            uw, vw = self._pixels(M)
-            warped = ndimage.map_coordinates(filled, [vw, uw], order=1, mode="nearest")
-            err = warped - self._ref
-            dp = np.linalg.solve(self._H, self._sd.T @ err)
+            # sd^T (frame warped - reference): one compiled pass over the fit's pixels
+            A = M[:2] * 1.0
+            _residual_kernel()(img, A, self._x, self._y, float(self._s), self._c,
+                               self._ref, self._sd, g)
+            dp = np.linalg.solve(self._H, g)
             D = np.array([[1 + dp[0], dp[1], dp[2]], [dp[3], 1 + dp[4], dp[5]], [0, 0, 1]])
             M = M @ np.linalg.inv(D)
             step = self._s * (np.abs(dp[[0, 1, 3, 4]]).sum() + np.abs(dp[[2, 5]]).sum())
@@ -110,6 +110,38 @@ class AffineRegistration:
         _affine_kernel()(np.ascontiguousarray(img), np.asarray(A, np.float64), idx, vals)
         out[idx] = vals
         return out.reshape(H, W)
+
+
+@functools.cache
+def _residual_kernel():
+    import numba
+
+    @numba.njit(cache=True, nogil=True)
+    def residual(img, A, x, y, s, c, ref, sd, out):  # pragma: no cover - compiled
+        """``out = sd^T (img(warp(x, y)) - ref)``: the frame sampled bilinearly (edges
+        clamped, as ``map_coordinates(mode="nearest")``) where the warp ``A`` (normalised
+        coordinates, scale ``s`` about ``c``) sends each of the fit's pixels."""
+        H, W = img.shape
+        for j in range(6):
+            out[j] = 0.0
+        for i in range(x.size):
+            uw = (A[0, 0] * x[i] + A[0, 1] * y[i] + A[0, 2]) * s + c[0]
+            vw = (A[1, 0] * x[i] + A[1, 1] * y[i] + A[1, 2]) * s + c[1]
+            uw = min(max(uw, 0.0), W - 1.0)
+            vw = min(max(vw, 0.0), H - 1.0)
+            u0 = min(int(uw), W - 2) if W > 1 else 0
+            v0 = min(int(vw), H - 2) if H > 1 else 0
+            fu = uw - u0
+            fv = vw - v0
+            u1 = min(u0 + 1, W - 1)
+            v1 = min(v0 + 1, H - 1)
+            val = ((1.0 - fv) * ((1.0 - fu) * img[v0, u0] + fu * img[v0, u1])
+                   + fv * ((1.0 - fu) * img[v1, u0] + fu * img[v1, u1]))
+            e = val - ref[i]
+            for j in range(6):
+                out[j] += sd[i, j] * e
+
+    return residual
 
 
 @functools.cache

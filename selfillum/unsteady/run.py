@@ -173,11 +173,17 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
             runs.append(CameraRun(c.number, cam, s, poses))
         si = F = None
         if cfg.si:
-            from selfillum.transport.viewfactors import view_factors
+            from selfillum.transport.coupling import coupled_view_factors
+            from selfillum.unsteady.candidates import faces_in_view
 
-            F = store.form_factors(lambda: view_factors(
-                mesh, rays_per_face=cfg.rays, seed=cfg.seed, progress=cfg.progress,
-                caster=caster), n_faces=len(mesh.faces))
+            # rows cast from the faces frame 0's cameras may see, and those they light
+            cand = faces_in_view(mesh, cams)
+            if not cand.any():
+                raise InputError(f"{cfg.cameras[0].calibration}: no face of the grid faces a "
+                                 "camera within its image (the wrong camera, or units?)")
+            F = store.form_factors(lambda: coupled_view_factors(
+                mesh, cand, rays_per_face=cfg.rays, seed=cfg.seed, progress=cfg.progress,
+                caster=caster)[0], n_faces=len(mesh.faces))
             si = SelfIllumination(mesh, F, rho, unpainted)
         if not local:
             caster = None  # the workers build their own

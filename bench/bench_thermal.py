@@ -1,0 +1,109 @@
+"""Speed of ``selfillum thermal`` end to end, as a user runs it (issue 37 item 6: 50
+frames/s on 2 cores for 640 x 512 16-bit IR frames onto a 100k-node grid, moving model).
+
+Generates the synthetic IR run of :mod:`scenes.ir_run` (the launcher top as a Plot3D grid
+of about ``--nodes`` nodes, ``--frames`` frames of ``--width`` x ``--height`` uint16 at 50
+frames/s: markers that appear, 8 px settling then vibration, Fresnel emissivity), then runs
+the command in a fresh process (its own tracking of the markers, the view factors of
+``--rays`` rays a face, Cook-Felderman) and, in the same session, the bare reading of every
+frame of the video through ``resection.io.video.open_frames`` (the I/O floor the run cannot
+beat) for the ratio. Prints frames/s over the whole process and over the run (inputs read
+before excluded), each phase's time, and ``uptime``'s load before and after.
+
+    python bench/bench_thermal.py --nodes 100000 --frames 200 [--threads 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from scenes.ir_run import make_ir_run  # noqa: E402
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--nodes", type=int, default=100_000)
+    ap.add_argument("--frames", type=int, default=200)
+    ap.add_argument("--width", type=int, default=640)
+    ap.add_argument("--height", type=int, default=512)
+    ap.add_argument("--rays", type=int, default=16)
+    ap.add_argument("--threads", type=int, default=2, help="cores the run may use")
+    ap.add_argument("--folder", help="keep the inputs here (default: a temporary folder)")
+    ap.add_argument("--extra", default="", help="more flags for the run")
+    ap.add_argument("--reuse", action="store_true",
+                    help="use the inputs already in --folder (an earlier run's)")
+    args = ap.parse_args()
+    folder = Path(args.folder) if args.folder else Path(tempfile.mkdtemp(prefix="bench_t_"))
+    nphi = int(round(np.sqrt(args.nodes / 1.6)))
+    nx = int(round(args.nodes / (nphi + 1)))
+    t0 = time.perf_counter()
+    if args.reuse and (folder / "ir.npy").is_file():
+        from types import SimpleNamespace
+
+        run = SimpleNamespace(grid=folder / "model.grid", targets=folder / "model.tgts",
+                              video=folder / "ir.npy", calibration=folder / "cam01.json",
+                              radiometry=folder / "R.json", substrate=folder / "S.json",
+                              wtd=folder / "run.wtd", fps=50.0)
+        print(f"inputs: reused from {folder}")
+    else:
+        run = make_ir_run(folder, frames=args.frames, width=args.width, height=args.height,
+                          nx=nx, nphi=nphi)
+        print(f"inputs: {len(run.q0)} nodes, {args.frames} frames of {args.width}x"
+              f"{args.height} uint16 ({time.perf_counter() - t0:.0f} s to make)")
+    env = dict(os.environ, PYTHONPATH=str(ROOT), OMP_NUM_THREADS=str(args.threads),
+               NUMBA_NUM_THREADS=str(args.threads), OPENBLAS_NUM_THREADS=str(args.threads))
+    print("load:", subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip())
+    # the bare read of every frame (same process kind, same cores)
+    code = ("import sys, time; from resection.io.video import open_frames; "
+            "s = open_frames(sys.argv[1]); t = time.perf_counter(); "
+            "[s.native(k).sum() for k in range(len(s))]; "
+            "print('READ', time.perf_counter() - t)")
+    res = subprocess.run([sys.executable, "-c", code, str(run.video)], capture_output=True,
+                         text=True, env=env, cwd=str(ROOT), check=True)
+    t_read = float(re.search(r"READ ([\d.]+)", res.stdout).group(1))
+    out = folder / "thermal.h5"
+    cmd = [sys.executable, "-m", "selfillum.cli", "thermal", "--grid", str(run.grid),
+           "--targets", str(run.targets), "--video", str(run.video), "--calibration",
+           str(run.calibration), "--radiometry", str(run.radiometry), "--substrate",
+           str(run.substrate), "--sds", str(run.wtd), "--fps", str(run.fps), "--out",
+           str(out), "--rays", str(args.rays), "--no-plots", "--quiet",
+           *args.extra.split()]
+    if args.threads:
+        cmd = ["taskset", "-c", ",".join(str(c) for c in range(args.threads))] + cmd
+    t0 = time.perf_counter()
+    res = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=str(ROOT))
+    wall = time.perf_counter() - t0
+    if res.returncode != 0:
+        raise SystemExit(res.stderr.strip()[-2000:])
+    txt = res.stdout
+    print(txt.strip())
+    m = re.search(r"run: ([\d.]+) frames/s end to end; set-up ([\d.]+) s .*phase 1 "
+                  r"([\d.]+) s, phase 2 and outputs ([\d.]+) s", txt)
+    fps_run, setup, p1, p2 = (float(v) for v in m.groups())
+    print("load:", subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip())
+    T = args.frames
+    print(f"frames/s: {T / wall:.1f} over the whole process, {fps_run:.1f} over the run; "
+          f"phase 1 {T / p1:.1f} frames/s; set-up {setup:.1f} s, phase 1 {p1:.1f} s, "
+          f"phase 2 {p2:.1f} s")
+    print(f"bare read of every frame: {t_read:.2f} s ({T / t_read:.0f} frames/s); the run "
+          f"costs {wall / t_read:.1f} x the read (process), {(setup + p1 + p2) / t_read:.1f} "
+          "x (run)")
+    for p in folder.glob("thermal*"):
+        if p.is_file():
+            p.unlink()
+
+
+if __name__ == "__main__":
+    main()

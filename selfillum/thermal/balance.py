@@ -1,0 +1,82 @@
+"""The radiometric balance at the grid's nodes: what the camera sees of a node is its own
+emission plus the reflection of what lights it, the tunnel's walls and the model's other
+parts.
+
+For a grey opaque surface (Kirchhoff: directional reflectance ``1 - eps(theta)``), in the
+camera's signal units ``U = S - O`` (:mod:`selfillum.thermal.radiometry`)::
+
+    M = eps(theta) U(T) + (1 - eps(theta)) H,    H = F J + f_wall U(T_wall)
+
+``F`` the view factors between the model's faces, ``f_wall = 1 - sum_j F_ij`` the part of
+the hemisphere that sees the walls, ``J`` the radiosity leaving the other faces. The camera
+measures ``J`` where it sees them (taken as diffuse: the radiance leaving a face toward
+another face is the one the camera sees; the faces it does not see take the radiosity of
+a full solve of the first frame, :class:`selfillum.unsteady.phase1.SelfIllumination`).
+Phase 1 stores the node values with and without ``rho F M`` removed (``rho = 1 - eps_h``,
+the hemispherical reflectance), so ``F M = (raw - values) / rho`` per node and the balance
+is solved per node without a system.
+
+The view angle of a node in a frame is that of its (area-weighted) normal to the camera's
+centre in that frame's pose; with several cameras, the camera that sees it most squarely
+(exact for one camera and for ``overlap = best_view``; an approximation for
+``average_view``, whose node value mixes the cameras' views).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["NodeGeometry", "camera_centres", "view_cosines"]
+
+
+@dataclass(frozen=True)
+class NodeGeometry:
+    """Grid nodes' ``points`` (N, 3), unit ``normals`` (N, 3) and ``wall`` (N,): the share
+    of the hemisphere that sees the tunnel (1 where no view factors are used)."""
+
+    points: np.ndarray
+    normals: np.ndarray
+    wall: np.ndarray
+
+    @classmethod
+    def from_grid(cls, grid, F=None) -> NodeGeometry:
+        """Normals: the area-weighted mean of the faces' normals around each node (in the
+        grid's own orientation: the view angle takes its absolute cosine);
+        ``wall`` from the faces' row sums of ``F``, area-weighted to the nodes."""
+        import scipy.sparse as sp
+
+        mesh = grid.mesh
+        faces = np.asarray(mesh.faces, dtype=np.int64)
+        area = np.asarray(mesh.area_faces, dtype=np.float64)
+        nf, nv = len(faces), len(mesh.vertices)
+        W = sp.csr_matrix((np.repeat(area, 3), (faces.ravel(), np.repeat(np.arange(nf), 3))),
+                          shape=(nv, nf))
+        n = W @ np.asarray(mesh.face_normals, dtype=np.float64)
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+        if F is None:
+            wall = np.ones(nv)
+        else:
+            rs = np.asarray(F.sum(axis=1)).ravel()
+            wall = np.clip(1.0 - (W @ rs) / np.maximum(W @ np.ones(nf), 1e-300), 0.0, 1.0)
+        return cls(np.asarray(grid.points, float), grid.to_nodes(n.T).T, grid.to_nodes(wall))
+
+
+def camera_centres(R, t) -> np.ndarray:
+    """``(C, T, 3)`` camera centres ``-R^T t`` from poses ``R`` (C, T, 3, 3), ``t`` (C, T, 3)
+    (``x_cam = R X + t``, model units)."""
+    return -np.einsum("ctji,ctj->cti", np.asarray(R, float), np.asarray(t, float))
+
+
+def view_cosines(centres, points, normals) -> np.ndarray:
+    """``(T, n)`` cosine of each node's view angle in each frame, the largest over the
+    cameras (``centres`` (C, T, 3); ``points``, ``normals`` (n, 3)). Its absolute value,
+    as :func:`resection.surface.surface_map.oblique_faces` takes it: a grid's faces may
+    point in or out, and whether a node is seen at all is the ray cast's answer (Phase 1)."""
+    best = None
+    for C in centres:  # a few cameras
+        d = C[:, None, :] - points[None, :, :]
+        c = np.abs(np.einsum("tnk,nk->tn", d, normals)) / np.linalg.norm(d, axis=2)
+        best = c if best is None else np.maximum(best, c)
+    return np.clip(best, 0.0, 1.0)

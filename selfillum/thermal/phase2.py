@@ -1,0 +1,123 @@
+"""Phase 2 of the thermal run, block by block of nodes: the nodes' signals (Phase 1's work
+file) to surface temperature (:func:`ir_temperature`, :func:`tsp_temperature`), then the
+heat flux along each node's history (:mod:`selfillum.thermal.heatflux`), the heat-transfer
+coefficient and Stanton number (:mod:`selfillum.thermal.stanton`): :func:`run_phase2`."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from selfillum.thermal.balance import view_cosines
+from selfillum.thermal.heatflux import fill_gaps, heat_flux
+from selfillum.unsteady.work import decode_columns
+
+__all__ = ["ir_temperature", "tsp_temperature", "run_phase2", "BYTES_PER_CELL"]
+
+#: Bytes a (frame, node) cell of a block costs at Phase 2's peak: 139 measured with
+#: tracemalloc for the view angles, the balance, the gaps and the heat flux (200 frames,
+#: 5,000 nodes, float64), plus the block's decoded signals, its outputs and their float32
+#: copies.
+BYTES_PER_CELL = 200
+
+
+def ir_temperature(rad, raw, values, rho_h, cosines, wall):
+    """Temperature (K) of a block from the measured signal ``raw`` (T, n) (``U = S - O``)
+    and ``values`` (``raw - rho_h F raw``, or None without view factors): the balance of
+    :mod:`selfillum.thermal.balance`. Returns ``(T, out_of_range)`` (samples outside the
+    calibration's range, NaN)."""
+    pl = rad.planck
+    Uw = float(pl.radiance(rad.reflected_temperature))
+    H = wall[None, :] * Uw
+    if values is not None and rho_h > 0:
+        H = H + (raw - values) / rho_h
+    if rad.emissivity.directional:  # at the seen samples only
+        fin = np.isfinite(raw) & (cosines > 0)
+        eps = np.ones(raw.shape)
+        eps[fin] = rad.emissivity(np.arccos(cosines[fin]))
+    else:
+        eps = rad.emissivity.value
+    with np.errstate(divide="ignore", invalid="ignore"):
+        U = (raw - (1.0 - eps) * H) / eps
+    T = pl.temperature(np.where(cosines > 0, U, np.nan))
+    bad = 0
+    if pl.t_range is not None:
+        lo, hi = pl.signal_range()
+        S = raw + pl.O
+        out = np.isfinite(raw) & ((S < lo) | (S > hi))
+        bad = int(np.count_nonzero(out))
+        T[out] = np.nan
+    return T, bad
+
+
+def tsp_temperature(cal, values, off):
+    """Temperature (K) of a block from the wind-on intensity ``values`` (T, n) and the
+    wind-off one ``off`` (n,), both with the self-illumination removed. Returns
+    ``(T, out_of_range)``."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = values / off[None, :]
+    T = cal.temperature(r)
+    bad = int(np.count_nonzero(np.isfinite(r) & np.isnan(T)))
+    return T, bad
+
+
+def run_phase2(s1, f, *, mode, rad, cal, off, rho_h, geom, centres, sub, method, dt,
+               flow, block, probes, progress=None) -> dict:
+    """Every block of nodes: read the work file ``s1``, write ``/temperature``,
+    ``/heat_flux`` (and ``/heat_transfer_coefficient``, ``/stanton`` with ``flow``) into
+    ``f``. Returns ``seen`` (nodes with a heat flux), ``out_of_range``, the probes'
+    histories."""
+    from threadpoolctl import threadpool_limits
+
+    from selfillum.thermal.heatflux import impulse_response
+
+    vals = s1["values"]
+    T, N = vals.shape
+    has_raw = "raw" in s1
+    vs, rs = s1["values_scale"][()], (s1["raw_scale"][()] if has_raw else None)
+    h = impulse_response(sub, T, dt) if method == "impulse" else None
+    dT, dq = f["temperature"], f["heat_flux"]
+    dh = f["heat_transfer_coefficient"] if flow is not None else None
+    dst = f["stanton"] if flow is not None else None
+    probes = np.asarray(probes, dtype=np.int64)
+    pT = np.full((T, probes.size), np.nan)
+    pq = np.full((T, probes.size), np.nan)
+    seen = np.zeros(N, bool)
+    bad = 0
+    with threadpool_limits(1, "blas"):
+        for a in range(0, N, block):  # blocks of nodes (each a (T, block) array)
+            b = min(a + block, N)
+            v = decode_columns(vals[:, a:b], vs)
+            cols = np.flatnonzero(np.isfinite(v).any(axis=0))  # nodes seen at all
+            Tb = np.full(v.shape, np.nan)
+            qb = np.full(v.shape, np.nan)
+            if cols.size:
+                v = v[:, cols]
+                if mode == "ir":
+                    raw = decode_columns(s1["raw"][:, a:b], rs)[:, cols] if has_raw else v
+                    nodes = a + cols
+                    cos = view_cosines(centres, geom.points[nodes], geom.normals[nodes])
+                    Tc, nb = ir_temperature(rad, raw, v if has_raw else None, rho_h, cos,
+                                            geom.wall[nodes])
+                else:
+                    Tc, nb = tsp_temperature(cal, v, off[a:b][cols])
+                bad += nb
+                Tf, ok = fill_gaps(Tc)
+                qc = np.full(Tc.shape, np.nan)
+                if ok.any():
+                    qc[:, ok] = heat_flux(Tf[:, ok], dt, sub, method, h=h)
+                qc[np.isnan(Tc)] = np.nan
+                Tb[:, cols], qb[:, cols] = Tc, qc
+            seen[a:b] = np.isfinite(qb).any(axis=0)
+            if cols.size:  # chunks of nodes never seen stay unwritten (the fill is NaN)
+                dT[:, a:b] = Tb.astype(np.float32)
+                dq[:, a:b] = qb.astype(np.float32)
+                if flow is not None:
+                    hb = flow.coefficient(qb, Tb)
+                    dh[:, a:b] = hb.astype(np.float32)
+                    dst[:, a:b] = (hb / flow.rho_u_cp).astype(np.float32)
+            sel = (probes >= a) & (probes < b)
+            pT[:, sel] = Tb[:, probes[sel] - a]
+            pq[:, sel] = qb[:, probes[sel] - a]
+            if progress is not None:
+                progress(b)
+    return {"seen": seen, "out_of_range": bad, "probe_T": pT, "probe_q": pq}

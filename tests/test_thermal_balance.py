@@ -1,0 +1,73 @@
+"""The radiometric balance (selfillum.thermal.balance, selfillum.thermal.phase2): a model
+whose parts see each other, its radiosity solved densely by NumPy (the exchange with the
+walls and between the parts to all orders), the camera's signal made from it, and the
+temperatures found back from the signal with and without the view factors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from selfillum.thermal.phase2 import ir_temperature
+from selfillum.thermal.radiometry import Emissivity, Planck, Radiometry
+
+PL = Planck(620420.0, 1374.5, 1.35, 6646.0)
+
+
+def _scene(eps: Emissivity, theta):
+    """Four parts: view factors (rows sum under 1, the rest sees the walls)."""
+    F = np.array([[0.0, 0.30, 0.10, 0.05],
+                  [0.25, 0.0, 0.20, 0.0],
+                  [0.10, 0.15, 0.0, 0.30],
+                  [0.05, 0.0, 0.35, 0.0]])
+    T = np.array([310.0, 350.0, 400.0, 330.0])
+    Tw = 295.0
+    U, Uw = PL.radiance(T), PL.radiance(Tw)
+    wall = 1.0 - F.sum(axis=1)
+    eh = eps.hemispherical()
+    # J = eh U + (1 - eh) (F J + wall Uw), solved densely
+    J = np.linalg.solve(np.eye(4) - (1 - eh) * F, eh * U + (1 - eh) * wall * Uw)
+    H = F @ J + wall * Uw
+    ed = eps(theta)
+    M = ed * U + (1 - ed) * H  # what the camera sees
+    return F, T, Tw, M, wall, eh
+
+
+def test_constant_emissivity_exact():
+    eps = Emissivity("constant", 0.7)
+    theta = np.radians([10.0, 30.0, 50.0, 65.0])
+    F, T, Tw, M, wall, eh = _scene(eps, theta)
+    rad = Radiometry(PL, eps, Tw)
+    rho = 1 - eh
+    values = M - rho * (F @ M)  # Phase 1's node values with rho F M removed
+    got, bad = ir_temperature(rad, M[None], values[None], rho, np.cos(theta)[None], wall)
+    np.testing.assert_allclose(got[0], T, atol=1e-9)
+    assert bad == 0
+    # without the parts' light: every part hotter than it is
+    naive, _ = ir_temperature(rad, M[None], None, rho, np.cos(theta)[None],
+                              np.ones(4))
+    assert np.all(naive[0] > T + 1.0)
+
+
+def test_directional_emissivity_small_error():
+    eps = Emissivity("fresnel", 0.9, n=1.9)
+    theta = np.radians([10.0, 30.0, 50.0, 65.0])
+    F, T, Tw, M, wall, eh = _scene(eps, theta)
+    rad = Radiometry(PL, eps, Tw)
+    values = M - (1 - eh) * (F @ M)
+    got, _ = ir_temperature(rad, M[None], values[None], 1 - eh, np.cos(theta)[None], wall)
+    # the parts' radiance toward each other taken as the camera sees it: a small error
+    assert np.max(np.abs(got[0] - T)) < 0.5
+    # the grazing fall of the emissivity ignored (its normal value taken): far worse
+    flat = Radiometry(PL, Emissivity("constant", float(eps(0.0))), Tw)
+    got0, _ = ir_temperature(flat, M[None], values[None], 1 - eh, np.cos(theta)[None],
+                             wall)
+    assert np.max(np.abs(got0[0] - T)) > 3 * np.max(np.abs(got[0] - T))
+
+
+def test_out_of_range_counted():
+    eps = Emissivity("constant", 1.0)
+    rad = Radiometry(Planck(PL.R, PL.B, PL.F, PL.O, t_range=(280.0, 360.0)), eps, 295.0)
+    U = PL.radiance(np.array([[300.0, 390.0]]))
+    got, bad = ir_temperature(rad, U, None, 0.0, np.ones((1, 2)), np.ones(2))
+    assert bad == 1 and np.isnan(got[0, 1]) and got[0, 0] == pytest.approx(300.0)
