@@ -27,6 +27,8 @@ def psp_files(tmp_path):
 
 
 def _psp(d, taps_text, p_ref, capsys, monkeypatch):
+    import selfillum.corner  # noqa: F401 - binds view_factors when imported: first
+    import selfillum.images.image_correction  # noqa: F401
     import selfillum.transport.viewfactors as vf
     from selfillum.cli import main
 
