@@ -110,6 +110,23 @@ def _pitch(theta, heave):
     return M, np.array([0.0, 0.0, heave])
 
 
+#: the block's half sizes in x and y and its height (m)
+BOX = (0.04, 0.03, 0.04)
+
+
+def plate_targets(cams, box=BOX, margin: float = 12.0) -> np.ndarray:
+    """The points of a 9 cm lattice on the plate in view of one of ``cams`` (``margin``
+    px inside the image) and 5 cm clear of the block."""
+    gx, gy = np.meshgrid(np.arange(-0.24, 0.34, 0.09), np.arange(-0.2, 0.25, 0.09))
+    cand = np.column_stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)])
+    ok = np.zeros(len(cand), bool)
+    for c in cams:  # in view of a camera
+        uv, v = c.project(cand, return_valid=True)
+        ok |= v & c.in_image(np.where(v[:, None], uv, 0.0), margin=margin)
+    ok &= np.maximum(np.abs(cand[:, 0]) - box[0], np.abs(cand[:, 1]) - box[1]) > 0.05
+    return cand[ok]
+
+
 def write_node_function(path, grid, values) -> None:
     """Write one value a node of ``grid`` (its file order) as a Plot3D function file,
     one block a grid block (``i`` fastest)."""
@@ -129,7 +146,8 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
                       cameras: int = 1, stern_volmer=None, seed: int = 0,
                       options: dict | None = None, freqs: dict | None = None,
                       heave_m: float = 0.003, drift_deg: float = 0.0, bits: int | None = None,
-                      video_format: str = "npy", truth_rays: int = 4096) -> UnsteadyRun:
+                      video_format: str = "npy", truth_rays: int = 4096,
+                      cameras0=None, targets=None) -> UnsteadyRun:
     """Write a run into ``folder`` (created) and return its paths and truth; ``cameras``
     1 to 4 (the second from the opposite side, seeing the block's other sides; the third
     and fourth from the other two diagonals).
@@ -145,6 +163,10 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
     depth (else float32), ``video_format`` is ``"npy"`` or ``"mraw"`` (a Photron ``.mraw``
     + ``.cih``, 16-bit words, needs ``bits``). ``truth_rays``: rays a face of the truth's
     view factors (a Neumann series replaces the sparse LU above 50,000 faces).
+
+    ``cameras0``: the cameras' poses on the model in the first frame (default: the scene's
+    own, one or two); ``targets``: (M, 3) painted targets on the plate (default: the
+    points of a 9 cm lattice in view of a camera and clear of the block).
 
     ``stern_volmer = (A, B, p_ref)`` (p_ref in psf): the paint follows
     ``I_ref / I = A + B p / p_ref`` instead of the paint calibration, and a wind-off image
@@ -163,7 +185,7 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
                     "overlap": "average_view", "filter": "none", "filter_size": 3,
                     "oblique_angle": 70, "number_frames": -1, **(options or {})}
     rng = np.random.default_rng(seed)
-    box = (0.04, 0.03, 0.04)
+    box = BOX
     sc = slab_block(faces, half=(0.35, 0.25), box=box, rho_paint=0.6, rho_box=0.6)
     grid_path = out / "model.grid"
     write_slab_block(sc, grid_path)
@@ -236,15 +258,13 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
     B_off = None if stern_volmer is None else \
         solve(E0 / (stern_volmer[0] + stern_volmer[1]))  # wind-off: p = p_ref
     # ------------------------------------------------------------------ targets and spots
-    cams0 = [_camera(width, height, index=c) for c in range(cameras)]
-    gx, gy = np.meshgrid(np.arange(-0.24, 0.34, 0.09), np.arange(-0.2, 0.25, 0.09))
-    cand = np.column_stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)])
-    ok = np.zeros(len(cand), bool)
-    for c in cams0:  # in view of a camera
-        uv, v = c.project(cand, return_valid=True)
-        ok |= v & c.in_image(uv, margin=12.0)
-    ok &= np.maximum(np.abs(cand[:, 0]) - box[0], np.abs(cand[:, 1]) - box[1]) > 0.05
-    tpts = np.vstack([cand[ok], [[-0.02, -0.015, box[2]], [0.02, 0.015, box[2]]]])
+    cams0 = list(cameras0) if cameras0 is not None else \
+        [_camera(width, height, index=c) for c in range(cameras)]
+    cameras = len(cams0)
+    if targets is None:
+        targets = plate_targets(cams0, box)
+    tpts = np.vstack([np.asarray(targets, float).reshape(-1, 3),
+                      [[-0.02, -0.015, box[2]], [0.02, 0.015, box[2]]]])
     tdia = np.full(len(tpts), 0.014)
     kul = np.array([[-0.08, -0.05, 0.0], [-0.05, -0.075, 0.0]])
     taps = np.array([[-0.195, -0.065, 0.0], [-0.105, 0.115, 0.0], [0.165, 0.115, 0.0],

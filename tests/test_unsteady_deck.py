@@ -216,3 +216,27 @@ def test_hidden_faces_continue_within_their_part():
     np.testing.assert_allclose(x2[lost], 100.0)
     from_lost = hid[np.isin(src, lost)]
     np.testing.assert_allclose(x2[from_lost], 100.0)
+
+
+@pytest.mark.parametrize("extra", [(), ("--registration", "track"),
+                                   ("--registration", "track", "--filter", "gaussian",
+                                    "--filter-size", "5")],
+                         ids=["deck-pixel-poly", "track-poly", "track-poly-gauss"])
+def test_whole_command_with_the_deck_maps_frames_by_sparse_products(tmp_path, capsys,
+                                                                    extra):
+    """The whole command on a run whose deck is uPSP's (``target_patcher = polynomial``,
+    ``registration = pixel``, ``overlap = average_view``), its ``.wtd`` in NASA's layout:
+    one frame is mapped the full way (frame 0), every other by the sparse products (before
+    issue 33, every frame of this deck was a ray cast)."""
+    from scenes.unsteady_run import make_unsteady_run
+    from selfillum.cli import main
+
+    run = make_unsteady_run(tmp_path / "run", frames=16, faces=1500, width=160, height=120)
+    assert "target_patcher = polynomial" in run.deck.read_text()
+    assert run.wtd.read_text().startswith("RUN ")
+    rc = main(["unsteady", str(run.deck), "--paint-calibration", str(run.paint), "--steady",
+               str(run.steady), "--fps", str(run.fps), "--out", str(tmp_path / "o.h5"),
+               "--quiet", "--no-plots", *extra])
+    out = capsys.readouterr()
+    assert rc == 0, out.err
+    assert "phase 1: 15 frames by sparse products, 1 mapped the full way" in out.out

@@ -281,12 +281,13 @@ def build_parser() -> argparse.ArgumentParser:
                    "65535; none for float images)")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_cmd_correct)
-    from selfillum.cli import psp, render, thermal, unsteady
+    from selfillum.cli import entry, psp, render, thermal, unsteady
 
     render.register(sub)
     psp.register(sub)
     unsteady.register(sub)
     thermal.register(sub)
+    entry.register(sub)
     return parser
 
 

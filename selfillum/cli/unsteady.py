@@ -97,6 +97,9 @@ def _cmd_unsteady(args) -> int:
     tm = res.timings
     print(f"time: set-up {tm['setup']:.1f} s, phase 1 {tm['phase1']:.1f} s (first frame "
           f"{tm['first_frame']:.1f} s), phase 2 and outputs {tm['phase2']:.1f} s")
+    if "frames_fast" in tm:
+        print(f"phase 1: {tm['frames_fast']} frames by sparse products, {tm['frames_full']} "
+              f"mapped the full way, {tm['frames_references']} references cast from a pose")
     print("wrote " + ", ".join(str(p) for p in res.files))
     return 0
 

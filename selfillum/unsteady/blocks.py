@@ -11,9 +11,10 @@ __all__ = ["local_phase1", "cluster_phase1"]
 
 
 def local_phase1(cfg, grid, runs, todo, spots, si, unpainted, store, R, t, done, fb, T, N,
-                  prog, caster=None):
+                  prog, caster=None, counts=None):
     """Phase 1 in this process, committing blocks of ``fb`` frames; returns frame 0's
-    gains. ``caster``: the grid's Embree scene when built already (the view factors')."""
+    gains. ``caster``: the grid's Embree scene when built already (the view factors');
+    ``counts``: the frames mapped each way (:func:`~selfillum.unsteady.phase1.map_run`)."""
     buf = BlockBuffer(fb, N, with_raw=si is not None)
     a = done
     gains0 = None
@@ -21,7 +22,7 @@ def local_phase1(cfg, grid, runs, todo, spots, si, unpainted, store, R, t, done,
                       patcher=cfg.target_patcher, overlap=cfg.overlap, filter=cfg.filter,
                       filter_size=cfg.filter_size, max_obliqueness=cfg.oblique_angle, si=si,
                       unpainted=unpainted, fast=cfg.fast, plan_frames=range(T),
-                      caster=caster):
+                      caster=caster, counts=counts):
         k = fn.index  # (a moving model's references planned over the whole run, also on
         # a resume: as on Dask)
         gains0 = fn.gains if gains0 is None else gains0

@@ -47,7 +47,9 @@ class UnsteadyConfig:
     model and the probes' PSD as PNG next to the output. ``fast``: Phase 1 by sparse
     products after the first frame (:mod:`selfillum.unsteady.fastmap`); False maps every
     frame the full way (a ray cast a frame). ``workers`` / ``scheduler``: Phase 1 and
-    Phase 2 on Dask (:mod:`selfillum.unsteady.cluster`).
+    Phase 2 on Dask (:mod:`selfillum.unsteady.cluster`). ``form_factors``: the view
+    factors of this grid already computed (a SciPy sparse ``.npz``, faces x faces, e.g.
+    once for a whole entry), read instead of computed.
     """
 
     grid: Path
@@ -87,6 +89,7 @@ class UnsteadyConfig:
     fast: bool = True
     workers: int | None = None
     scheduler: str | None = None
+    form_factors: Path | None = None
     general: dict = field(default_factory=dict)
     source: str = "flags"
 

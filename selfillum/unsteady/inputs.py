@@ -15,7 +15,7 @@ from selfillum.unsteady.config import UnsteadyConfig
 from selfillum.unsteady.output import provenance
 
 __all__ = ["open_videos", "track_poses", "work_inputs", "min_frames", "content_key",
-           "file_digest", "check_cameras", "check_spot_sizes"]
+           "file_digest", "check_cameras", "check_spot_sizes", "read_form_factors"]
 
 
 def open_videos(cfg: UnsteadyConfig):
@@ -173,7 +173,7 @@ def work_inputs(cfg: UnsteadyConfig, T: int, N: int, fps: float) -> dict:
                 "reflectance": cfg.reflectance if os.path.isfile(str(cfg.reflectance))
                 else None,
                 "unpainted": cfg.unpainted if os.path.isfile(str(cfg.unpainted)) else None,
-                "track": cfg.track_dirs}),
+                "track": cfg.track_dirs, "form_factors": cfg.form_factors}),
             "registration": cfg.registration, "target_patcher": cfg.target_patcher,
             "overlap": cfg.overlap, "filter": cfg.filter, "filter_size": cfg.filter_size,
             "oblique_angle": cfg.oblique_angle, "frames": T, "nodes": N, "fps": fps,
@@ -228,3 +228,26 @@ def check_spot_sizes(spots, mesh, source) -> None:
         k = int(bad[0])
         raise InputError(f"{source}: {spots.ids[k]}'s diameter {d[k]:g} is not between 0 and "
                          f"the model's size {size:.4g} ({bad.size} such; the grid's units?)")
+
+
+def read_form_factors(path, n_faces: int):
+    """View factors computed before (SciPy sparse ``.npz``, ``n_faces`` square, rows
+    summing to at most 1), checked."""
+    import scipy.sparse as sp
+
+    p = os.fspath(path)
+    try:
+        F = sp.csr_matrix(sp.load_npz(p))
+    except FileNotFoundError:
+        raise InputError(f"{p}: view factors file not found") from None
+    except (OSError, ValueError) as e:
+        raise InputError(f"{p}: not a SciPy sparse .npz ({e})") from None
+    if F.shape != (n_faces, n_faces):
+        raise InputError(f"{p}: view factors {F.shape[0]}x{F.shape[1]}, the grid has "
+                         f"{n_faces} faces")
+    rows = np.asarray(F.sum(axis=1)).ravel()
+    if not (np.all(np.isfinite(F.data)) and F.data.min(initial=0) >= 0
+            and rows.max(initial=0) <= 1.0 + 1e-6):
+        raise InputError(f"{p}: view factors must be finite, >= 0, each row summing to "
+                         "at most 1")
+    return F

@@ -183,7 +183,8 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
             si: SelfIllumination | None = None, unpainted=None,
             spot_margin_px: float = 1.0, gains=None, fast: bool = True,
             refresh_px: float = 3.0, workers: int | None = None,
-            plan_frames=None, caster=None) -> Iterator[FrameNodes]:
+            plan_frames=None, caster=None, counts: dict | None = None
+            ) -> Iterator[FrameNodes]:
     """Map the frames ``frame_numbers`` of every camera onto the grid's nodes.
 
     Parameters
@@ -228,6 +229,10 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
     caster : resection.surface.visibility.RayCaster, optional
         The grid mesh's Embree scene when built already (the view factors'), cast in
         instead of building another.
+    counts : dict, optional
+        Counted into (created keys): ``"fast"`` frames mapped by the sparse products,
+        ``"full"`` frames mapped the full way (a ray cast and merge), ``"references"``
+        references cast from a pose alone.
 
     Yields
     ------
@@ -297,17 +302,22 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
                                  spot_margin_px, merge_kw, ops[0].gains, off, patcher,
                                  halo)
             _keep(ops, op)
+            counts["references"] += 1
             _shed_mesh_cache(mesh)
             release_freed_memory()
         op.last_used = k
         return op
 
+    counts = {} if counts is None else counts
+    for key in ("fast", "full", "references"):
+        counts.setdefault(key, 0)
     for k in frame_numbers:  # frames, one at a time
         if ops and si is None and not moving:  # a fixed map, no SI: pixels to nodes
             imgs = _fixed_images(cameras, k, regs, spot_px, filter, filter_size, pres,
                                  ops[0].cols)
             v = ops[0].nodes(imgs, W, grid)
             if v is not None:
+                counts["fast"] += 1
                 yield FrameNodes(k, v, v, [c.camera for c in cameras], ops[0].gains)
                 continue
             # else: a pixel that counts is not finite (warped in from beyond the edge):
@@ -322,9 +332,11 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
                 raw_f = np.where(seen, B, np.nan)
                 E = si(B, seen) if si is not None else raw_f
                 vals = _fast_nodes(fv[3], W, grid, E, B, seen)
+                counts["fast"] += 1
                 yield FrameNodes(k, vals[0], vals[1], cams, ops[0].gains)
                 continue
             # else: no reference near this pose: cast anew from this frame (the full way)
+        counts["full"] += 1
         maps, imgs, cams, finite = [], [], [], []
         for ci, c in enumerate(cameras):  # a few cameras
             img = np.asarray(c.frames[k], dtype=np.float64)

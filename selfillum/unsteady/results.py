@@ -101,6 +101,7 @@ def write_results(f, cfg, grid, cond, cp, gain, s1, times, frames, runs, R, t, t
         "taps": cfg.taps, "tap_positions": cfg.tap_positions, "wind_off": cfg.wind_off,
         "videos": [c.video for c in cfg.cameras],
         "calibrations": [c.calibration for c in cfg.cameras],
+        "form_factors": cfg.form_factors,
         "deck": cfg.source if os.path.isfile(cfg.source) else None}))
     f.attrs["memory"] = json_attr({
         "budget_mb": cfg.memory_mb,

@@ -39,6 +39,7 @@ from selfillum.unsteady.inputs import (
     check_cameras,
     check_spot_sizes,
     open_videos,
+    read_form_factors,
     track_poses,
     work_inputs,
 )
@@ -114,6 +115,8 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     if cfg.unpainted is not None:
         unpainted, _ = read_unpainted(cfg.unpainted, mesh)
     rho = read_reflectance(cfg.reflectance, len(mesh.faces)) if cfg.si else None
+    F_given = read_form_factors(cfg.form_factors, len(mesh.faces)) \
+        if cfg.si and cfg.form_factors is not None else None
     srcs, T, fps = open_videos(cfg)
     try:
         camfiles = [read_camera_file(c.calibration, image_size=s.shape[::-1])
@@ -156,6 +159,7 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     caster = RayCaster(mesh) if cfg.si or local else None
     check_cameras(cfg, camfiles, srcs, mesh, caster=caster)  # map's checks, frame 0
     t_start = time.perf_counter()
+    counts: dict = {}  # frames mapped each way in this process (map_run)
     store = Phase1Store(out, work_inputs(cfg, T, N, fps), (T, N), (tc, nc), len(cfg.cameras),
                         resume=cfg.resume, with_raw=cfg.si)
     done = store.frames_done
@@ -181,9 +185,11 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
             if not cand.any():
                 raise InputError(f"{cfg.cameras[0].calibration}: no face of the grid faces a "
                                  "camera within its image (the wrong camera, or units?)")
-            F = store.form_factors(lambda: coupled_view_factors(
-                mesh, cand, rays_per_face=cfg.rays, seed=cfg.seed, progress=cfg.progress,
-                caster=caster)[0], n_faces=len(mesh.faces))
+            F = store.form_factors(lambda: F_given if F_given is not None else
+                                   coupled_view_factors(mesh, cand, rays_per_face=cfg.rays,
+                                                        seed=cfg.seed, progress=cfg.progress,
+                                                        caster=caster)[0],
+                                   n_faces=len(mesh.faces))
             si = SelfIllumination(mesh, F, rho, unpainted)
         if not local:
             caster = None  # the workers build their own
@@ -203,7 +209,7 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
                                      store, R, t, done, fb, T, prog)
         else:
             gains0 = local_phase1(cfg, grid, runs, todo, spots, si, unpainted, store, R, t,
-                                   done, fb, T, N, prog, caster=caster)
+                                   done, fb, T, N, prog, caster=caster, counts=counts)
             caster = None
         store.close()
         t_p2 = time.perf_counter()
@@ -273,7 +279,8 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     t_end = time.perf_counter()
     el = t_end - t_start
     timings = {"setup": t_p1 - t_start, "phase1": t_p2 - t_p1, "phase2": t_end - t_p2,
-               "first_frame": (prog.t_first or t_p2) - t_p1}
+               "first_frame": (prog.t_first or t_p2) - t_p1, **{
+                   f"frames_{k}": v for k, v in counts.items()}}
     return UnsteadyResult(out, T, N, (tc, nc), stats["seen"], stats["si_median"],
                           stats["si_p95"], failed, tuple(files), peak_rss_mb(),
                           T / el if el > 0 else float("nan"),

@@ -38,6 +38,15 @@ def default_bands(n_frames: int, nperseg: int | None = None) -> int:
     return max(0, min(DEFAULT_BANDS, nper // 2))
 
 
+def _hann(n: int) -> np.ndarray:
+    """The periodic Hann window of ``n`` samples (SciPy's ``get_window("hann", n)``,
+    without importing :mod:`scipy.signal`: a second of a short run's start-up)."""
+    n = int(n)
+    if n <= 1:
+        return np.ones(max(n, 0))
+    return 0.5 - 0.5 * np.cos(2.0 * np.pi * np.arange(n) / n)
+
+
 def welch_block(dcp, fs: float, nperseg: int, workers: int | None = None, share=None
                 ) -> tuple[np.ndarray, np.ndarray]:
     """Welch PSD of every column of a ``(T, n)`` block.
@@ -69,8 +78,6 @@ def welch_block(dcp, fs: float, nperseg: int, workers: int | None = None, share=
     psd : (n, K) float64
         ``dCp^2 / Hz``; NaN for a node never seen.
     """
-    from scipy.signal import get_window
-
     from resection._threads import run_blocks, split_range
 
     d = np.asarray(dcp)
@@ -85,7 +92,7 @@ def welch_block(dcp, fs: float, nperseg: int, workers: int | None = None, share=
     if share is None:
         share = np.isfinite(d).mean(axis=0)
     share = np.asarray(share, dtype=np.float64)
-    win64 = get_window("hann", nper)
+    win64 = _hann(nper)
     win = win64.astype(d.dtype)[:, None]
     acc = np.full((nper // 2 + 1, n), np.nan)
     # columns seen in every frame as they are (runs of them, small gaps of unseen
