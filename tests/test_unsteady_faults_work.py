@@ -269,7 +269,8 @@ def test_ctrl_c_in_the_first_seconds_ends_in_130(case, delay):
     and no output (the interpreter's own start-up, its first tenth of a second, is before
     any program code)."""
     exe = Path(sys.executable).with_name("selfillum")
-    p = subprocess.Popen([str(exe), *args(case, "--registration", "none")],
+    # 262,144 rays a face: the view factors alone outlast the 2 s many times
+    p = subprocess.Popen([str(exe), *args(case, "--registration", "none", "--rays", "262144")],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     time.sleep(delay)
     p.send_signal(signal.SIGINT)

@@ -12,7 +12,8 @@ with the import's failure, and the command would run on to the end and exit 0.
   is over, where nothing swallows it.
 
 The common runner (:func:`resection.cli.util.run`) also checks :func:`interrupted` after a
-command returned: an interrupt swallowed elsewhere still ends in status 130.
+command returned: an interrupt swallowed elsewhere still ends in status 130. Once the
+status is decided, :func:`done` ignores Ctrl-C while the interpreter ends.
 Standard library only: it is imported before anything else of the command.
 """
 
@@ -22,7 +23,7 @@ import importlib.abc
 import signal
 import sys
 
-__all__ = ["install", "interrupted", "DEFERRED"]
+__all__ = ["install", "interrupted", "done", "DEFERRED"]
 
 #: Top-level packages whose imports catch ``BaseException``: Ctrl-C is held during them.
 DEFERRED = frozenset({"trimesh"})
@@ -107,6 +108,14 @@ def install() -> None:
     signal.signal(signal.SIGINT, state.handler)
     sys.meta_path.insert(0, _HoldingFinder(state))
     _STATE = state
+
+
+def done() -> None:
+    """The command's status is decided (its outputs complete or removed): a Ctrl-C from
+    now on, while the interpreter ends, changes nothing and is ignored (else it would
+    interrupt the exit with a traceback)."""
+    if _STATE is not None:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def interrupted() -> bool:

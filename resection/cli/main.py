@@ -37,7 +37,7 @@ def main(argv: list[str] | None = None) -> int:
     process at once instead (:func:`end_process`), and Ctrl-C is caught from the start
     (:func:`resection.cli.interrupts.install`)."""
     if argv is None:
-        from resection.cli.interrupts import install
+        from resection.cli.interrupts import done, install
 
         install()
     try:
@@ -45,6 +45,8 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:  # while the parser is built (its imports) or parses
         print("resection: interrupted", file=sys.stderr)
         rc = 130
+    if argv is None:
+        done()  # the status is decided: a Ctrl-C while the interpreter ends is ignored
     if argv is None and sys.argv[1:2] and sys.argv[1] in FAST_EXIT:
         end_process(rc)
     return rc

@@ -301,7 +301,7 @@ def main(argv: list[str] | None = None) -> int:
     start (:func:`resection.cli.interrupts.install`). Called with ``argv`` (in a process
     that goes on) nothing is frozen."""
     if argv is None:
-        from resection.cli.interrupts import install
+        from resection.cli.interrupts import done, install
 
         install()
     try:
@@ -310,6 +310,7 @@ def main(argv: list[str] | None = None) -> int:
         print("selfillum: interrupted", file=sys.stderr)
         status = 130
     if argv is None:
+        done()  # the status is decided: a Ctrl-C while the interpreter ends is ignored
         gc.freeze()
     return status
 

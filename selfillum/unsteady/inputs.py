@@ -18,22 +18,24 @@ __all__ = ["open_videos", "track_poses", "work_inputs", "min_frames", "content_k
            "file_digest", "check_cameras", "check_spot_sizes", "read_form_factors"]
 
 
-def open_videos(cfg: UnsteadyConfig):
-    """The videos opened, checked for length and rate: ``(sources, T, fps)``."""
+def open_videos(cfg: UnsteadyConfig, need: int | None = None):
+    """The videos opened, checked for length and rate, their first frame for light, and
+    for ``need`` frames at least (the unsteady run: :func:`min_frames`):
+    ``(sources, T, fps)``."""
     from resection.io.video import open_frames
 
     srcs = []
     try:
         for c in cfg.cameras:
             srcs.append(open_frames(c.video))
-        return _check_videos(cfg, srcs)
+        return _check_videos(cfg, srcs, need)
     except BaseException:
         for s in srcs:
             s.close()
         raise
 
 
-def _check_videos(cfg: UnsteadyConfig, srcs):
+def _check_videos(cfg: UnsteadyConfig, srcs, need: int | None):
     from selfillum.unsteady.phase2 import DETREND_ORDER
 
     n = [len(s) for s in srcs]
@@ -71,13 +73,12 @@ def _check_videos(cfg: UnsteadyConfig, srcs):
         raise InputError(f"{cfg.cameras[0].video}: no frame rate in the video; give --fps")
     if not fps > 0:
         raise InputError(f"--fps must be positive, got {fps}")
-    need = min_frames(DETREND_ORDER)
-    if T < need:
+    if need is not None and T < need:
         what = f"{where}: number_frames = {T}" if cfg.number_frames != -1 else \
             f"{cfg.cameras[0].video}: {T} frame{'s' if T != 1 else ''}"
-        raise InputError(f"{what}; the unsteady run needs at least {need} frames (Phase 2 "
-                         f"removes a polynomial of order {DETREND_ORDER} in time from every "
-                         "node's intensity)")
+        why = (f" (Phase 2 removes a polynomial of order {DETREND_ORDER} in time from every "
+               "node's intensity)") if need == min_frames(DETREND_ORDER) else ""
+        raise InputError(f"{what}; the run needs at least {need} frames{why}")
     for c, s in zip(cfg.cameras, srcs, strict=True):
         h, w = s.shape
         if cfg.filter == "gaussian" and cfg.filter_size > min(h, w):

@@ -38,6 +38,7 @@ from selfillum.unsteady.config import (
 from selfillum.unsteady.inputs import (
     check_cameras,
     check_spot_sizes,
+    min_frames,
     open_videos,
     read_form_factors,
     track_poses,
@@ -55,7 +56,7 @@ from selfillum.unsteady.output import (
     writing,
 )
 from selfillum.unsteady.phase1 import CameraRun, SelfIllumination
-from selfillum.unsteady.phase2 import node_gain
+from selfillum.unsteady.phase2 import DETREND_ORDER, node_gain
 from selfillum.unsteady.plots import write_pictures
 from selfillum.unsteady.results import write_results
 from selfillum.unsteady.spectra import Spectra, default_bands
@@ -117,7 +118,7 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     rho = read_reflectance(cfg.reflectance, len(mesh.faces)) if cfg.si else None
     F_given = read_form_factors(cfg.form_factors, len(mesh.faces)) \
         if cfg.si and cfg.form_factors is not None else None
-    srcs, T, fps = open_videos(cfg)
+    srcs, T, fps = open_videos(cfg, need=min_frames(DETREND_ORDER))
     try:
         camfiles = [read_camera_file(c.calibration, image_size=s.shape[::-1])
                     for c, s in zip(cfg.cameras, srcs, strict=True)]
