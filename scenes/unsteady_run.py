@@ -147,7 +147,7 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
                       options: dict | None = None, freqs: dict | None = None,
                       heave_m: float = 0.003, drift_deg: float = 0.0, bits: int | None = None,
                       video_format: str = "npy", truth_rays: int = 4096,
-                      cameras0=None, targets=None) -> UnsteadyRun:
+                      cameras0=None, targets=None, amplitude: float = 1.0) -> UnsteadyRun:
     """Write a run into ``folder`` (created) and return its paths and truth; ``cameras``
     1 to 4 (the second from the opposite side, seeing the block's other sides; the third
     and fourth from the other two diagonals).
@@ -170,7 +170,9 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
 
     ``stern_volmer = (A, B, p_ref)`` (p_ref in psf): the paint follows
     ``I_ref / I = A + B p / p_ref`` instead of the paint calibration, and a wind-off image
-    per camera at ``p_ref`` is written (``wind_off_camNN.npy``) for the in-situ fit."""
+    per camera at ``p_ref`` is written (``wind_off_camNN.npy``) for the in-situ fit.
+    ``amplitude`` scales the three dCp amplitudes (small signals: the errors that grow with
+    the signal then stay below the noise)."""
     from resection.io.cameras import write_camera
     from resection.surface.surface_map import SurfaceMap
     from scenes.slab_block import paint, slab_block, write_slab_block
@@ -196,7 +198,8 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
     on_block = part >= 6
     # ------------------------------------------------------------------ the truth
     freqs = {"tone": 120.0, "wave": 70.0, "block": 200.0, "vibration": 30.0, **(freqs or {})}
-    amps = {"tone": 0.03, "wave": 0.02, "block": 0.1, "lam": 0.3}
+    amps = {"tone": 0.03 * amplitude, "wave": 0.02 * amplitude, "block": 0.1 * amplitude,
+            "lam": 0.3}
     t = np.arange(frames) / fps
 
     def dcp(points, is_block):

@@ -12,6 +12,8 @@ radiosity ``B`` (what a camera sees) to the emission ``E`` (what the paint emits
 * :func:`merge_views`: several cameras merged before the inverse;
 * :func:`psp_images`: the PSP workflow (wind-off / wind-on, Stern-Volmer fitted to taps);
 * :func:`run_unsteady`: the unsteady PSP run (uPSP's ``psp_process``, SI removed per frame);
+* :func:`psp_uncertainty`: the PSP pressures' uncertainty source by source (linear and GUM
+  S1 Monte Carlo, :mod:`selfillum.uncertainty`);
 * :mod:`selfillum.corner`: the corner case end to end.
 """
 
@@ -24,6 +26,7 @@ from resection._lazy import attach
 _EXPORTS: dict[str, str] = {
     "ImageCorrection": ".images.image_correction",
     "correct_image": ".images.image_correction",
+    "psp_uncertainty": ".uncertainty.psp_run",
     "GlossyPaint": ".solve.brdf",
     "GlossyTransport": ".solve.brdf",
     "glossy_correct": ".solve.brdf",
@@ -73,6 +76,7 @@ __all__: list[str] = [
     "psp_pressure",
     "psp_images",
     "PSPResult",
+    "psp_uncertainty",
     "UnsteadyConfig",
     "run_unsteady",
 ]

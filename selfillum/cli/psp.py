@@ -14,31 +14,39 @@ import numpy as np
 from resection.cli.paths import FolderOutput
 from resection.cli.util import add_mesh_format
 from resection.errors import InputError
+from selfillum.cli.uncertainty import add_uncertainty_options, uncertainty_settings
 
 
 def _cmd_psp(args) -> int:
     from resection.io.cameras import read_camera
-    from resection.io.images import read_image, write_image
+    from resection.io.images import write_image
     from resection.io.meshes import load_mesh
     from resection.io.outputs import atomic_write, output_folder
     from resection.surface.surface_map import SurfaceMap
     from selfillum.cli.render import per_face_arg
     from selfillum.images.psp import check_fit_inputs, psp_images, read_taps
     from selfillum.transport.viewfactors import view_factors
+    from selfillum.uncertainty.psp_io import read_condition
 
+    stated = uncertainty_settings(args)  # --u checked, also without --uncertainty
+    if args.uncertainty is not None:
+        from selfillum.cli.uncertainty import psp_with_uncertainty
+
+        return psp_with_uncertainty(args, stated)
     cams, offs, ons = args.camera, args.wind_off, args.wind_on or []
-    if len(offs) != len(cams):
+    # one image (or stack, or k files) per camera: several frames are averaged
+    if not offs or len(offs) % len(cams):
         raise InputError(f"give one wind-off image per camera ({len(cams)} cameras, "
                          f"{len(offs)} wind-off images)")
-    if len(ons) != len(cams):
+    if not ons or len(ons) % len(cams):
         raise InputError(f"give one wind-on image per camera ({len(cams)} cameras, "
                          f"{len(ons)} wind-on images)")
     mesh = load_mesh(args.mesh, format=args.mesh_format)
     taps = read_taps(args.taps, positions=args.tap_positions)
     check_fit_inputs(taps, args.p_ref, args.taps)  # before the maps and the view factors
     maps = [SurfaceMap(mesh, read_camera(c)) for c in cams]
-    off_imgs = [read_image(p) for p in offs]
-    on_imgs = [read_image(p) for p in ons]
+    off_imgs = read_condition(offs, len(cams), "--wind-off")[0]
+    on_imgs = read_condition(ons, len(cams), "--wind-on")[0]
     F = rho = None
     if not args.no_correction:
         rho = per_face_arg(args.reflectance, "--reflectance")
@@ -85,8 +93,11 @@ def register(sub) -> None:
     p.add_argument("--camera", required=True, action="append",
                    help="camera JSON file; repeat for several cameras")
     p.add_argument("--wind-off", required=True, action="append",
-                   help="wind-off image (uniform p_ref), one per camera, in camera order")
-    p.add_argument("--wind-on", action="append", help="wind-on image, one per camera")
+                   help="wind-off image (uniform p_ref), one per camera, in camera order; a "
+                   "multi-page TIFF or NPY stack, or k files per camera (camera by camera), "
+                   "is averaged")
+    p.add_argument("--wind-on", action="append",
+                   help="wind-on image, one per camera (stacks as --wind-off)")
     p.add_argument("--taps", required=True, help="pressure taps CSV: id,x,y,z,p, or id,p with "
                    "--tap-positions; or a uPSP RUN.wtd (its '# Tap CP' table, p = PS + Cp Q, "
                    "tap n = the .tgts point CPnn) with --tap-positions")
@@ -103,6 +114,13 @@ def register(sub) -> None:
                    help="do not remove the self-illumination (for comparison)")
     p.add_argument("--out", required=True, help="output folder (created if needed)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_uncertainty_options(p)
+    p.add_argument("--no-plots", action="store_true",
+                   help="with --uncertainty: no picture of the uncertainty nor budget chart")
+    p.add_argument("--markers", metavar="FILE",
+                   help="marker positions (a .tgts or marker file) for the poses' covariance "
+                   "(--uncertainty, with --u marker=..px)")
     p.set_defaults(func=_cmd_psp, out_folder=FolderOutput(
-        ("pressure_*.tif", "pressure_faces.csv", "stern_volmer.json"), "stern_volmer.json",
+        ("pressure_*.tif", "pressure_faces.csv", "stern_volmer.json", "pressure_nodes.csv",
+         "uncertainty.json", "p_u.png", "cp_u.png", "budget.png"), "stern_volmer.json",
         "selfillum psp"))

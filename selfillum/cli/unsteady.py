@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from resection.errors import InputError
+from selfillum.cli.uncertainty import add_uncertainty_options, uncertainty_settings
 from selfillum.unsteady.budget import DEFAULT_MEMORY_MB
 
 
@@ -43,7 +44,8 @@ def _cmd_unsteady(args) -> int:
               "psd_nperseg": args.psd_nperseg, "memory_mb": args.memory,
               "plots": not args.no_plots, "resume": args.resume,
               "fast": not args.full_maps, "workers": args.workers,
-              "scheduler": args.scheduler}
+              "scheduler": args.scheduler, "uncertainty": args.uncertainty,
+              "samples": args.samples, "stated": uncertainty_settings(args)}
     if args.deck:
         if args.grid or args.sds or args.video or args.calibration:
             raise InputError("give either DECK.inp or --grid/--sds/--video/--calibration, "
@@ -97,6 +99,13 @@ def _cmd_unsteady(args) -> int:
     tm = res.timings
     print(f"time: set-up {tm['setup']:.1f} s, phase 1 {tm['phase1']:.1f} s (first frame "
           f"{tm['first_frame']:.1f} s), phase 2 and outputs {tm['phase2']:.1f} s")
+    if res.uncertainty:
+        u = res.uncertainty
+        print(f"uncertainty ({u['method']}): dCp of a frame {u['dcp_u_median']:.4g} (median, "
+              "k = 1, random)" + (f"; gain {100 * u['dcp_u_gain_median']:.3g} % (systematic)"
+                                  if u.get("dcp_u_gain_median") is not None else ""))
+        for k, v in u["sources"].items():
+            print(f"  {k:12s} {v}")
     if "frames_fast" in tm:
         print(f"phase 1: {tm['frames_fast']} frames by sparse products, {tm['frames_full']} "
               f"mapped the full way, {tm['frames_references']} references cast from a pose")
@@ -212,4 +221,5 @@ def register(sub) -> None:
                    help="Dask: the scheduler of a running cluster (tcp://host:8786); its "
                    "workers must see the run's files at the same paths")
     p.add_argument("--quiet", action="store_true", help="no progress")
+    add_uncertainty_options(p)
     p.set_defaults(func=_cmd_unsteady)

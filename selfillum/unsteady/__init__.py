@@ -20,6 +20,7 @@ Modules, by concept:
 - :mod:`~selfillum.unsteady.insitu`: the gain from the taps without a paint calibration;
 - :mod:`~selfillum.unsteady.output`: the HDF5 layout, XDMF, uPSP's flat files;
 - :mod:`~selfillum.unsteady.results`: the output file's content, Phase 2 written into it;
+- :mod:`~selfillum.unsteady.uncertainty_out`: ``--uncertainty``'s per-node fields;
 - :mod:`~selfillum.unsteady.run`: :func:`run_unsteady`, the whole job.
 """
 

@@ -92,6 +92,9 @@ class UnsteadyConfig:
     form_factors: Path | None = None
     general: dict = field(default_factory=dict)
     source: str = "flags"
+    uncertainty: str | None = None  # None, "linear" or "mc" (docs/uncertainty.md)
+    samples: int = 200
+    stated: object = None  # selfillum.uncertainty.stated.Stated
 
 
 @dataclass(frozen=True)
@@ -120,6 +123,7 @@ class UnsteadyResult:
     frames_per_s: float = float("nan")
     blocks: tuple = ()
     timings: dict = field(default_factory=dict)
+    uncertainty: dict = field(default_factory=dict)
     si: bool = True
 
 

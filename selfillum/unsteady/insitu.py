@@ -85,8 +85,10 @@ def insitu_inputs(cfg, grid):
     return taps, nodes, offs
 
 
-def insitu_fit(cfg, grid, runs, work, taps, nodes, offs, spots, unpainted, F, rho, gains):
-    """Stern-Volmer ``A, B`` from the wind-off / time-mean intensity ratio at the taps."""
+def insitu_fit(cfg, grid, runs, work, taps, nodes, offs, spots, unpainted, F, rho, gains,
+               out: dict | None = None):
+    """Stern-Volmer ``A, B`` from the wind-off / time-mean intensity ratio at the taps
+    (``out``, when given, receives that ratio as ``"ratio"``: the fit's uncertainty)."""
     from selfillum.images.psp import fit_stern_volmer
 
     order, inverse = np.unique(nodes, return_inverse=True)  # h5py reads sorted columns
@@ -102,6 +104,8 @@ def insitu_fit(cfg, grid, runs, work, taps, nodes, offs, spots, unpainted, F, rh
                       unpainted=unpainted, gains=gains if cfg.overlap == "merge" else None))
     with np.errstate(invalid="ignore", divide="ignore"):
         ratio = fn.values[nodes] / on
+    if out is not None:
+        out["ratio"] = ratio
     try:
         return fit_stern_volmer(ratio, taps.pressure, cfg.p_ref)
     except InputError as e:

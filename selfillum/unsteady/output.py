@@ -99,10 +99,19 @@ def json_attr(obj) -> str:
     return json.dumps(obj, indent=1, sort_keys=True, default=str)
 
 
+def node_fields(h5file) -> list:
+    """``(name, dataset)`` of the per-node fields beyond the statistics that the file holds
+    (the uncertainty's, ``--uncertainty``)."""
+    names = ("dcp_u", "dcp_u_gain", "stats/dcp_rms_signal", "stats/dcp_rms_signal_u",
+             "psd/noise_floor")
+    return [(n.split("/")[-1], "/" + n) for n in names if n in h5file]
+
+
 def write_xdmf(path: Path, h5_name: str, n_frames: int, n_nodes: int, n_tris: int,
-               times) -> None:
+               times, extra=()) -> None:
     """The XDMF sidecar: the grid, and one temporal grid per frame whose ``dCp`` is row
-    ``k`` of ``/dcp`` (a hyperslab), plus the per-node statistics."""
+    ``k`` of ``/dcp`` (a hyperslab), plus the per-node statistics and the ``extra``
+    ``(name, dataset)`` node fields."""
     h5 = escape(h5_name)
     lines = [
         '<?xml version="1.0"?>',
@@ -118,10 +127,11 @@ def write_xdmf(path: Path, h5_name: str, n_frames: int, n_nodes: int, n_tris: in
         f'Format="HDF">{h5}:/grid/points</DataItem>',
         "</Geometry>",
     ]
-    for name in ("dcp_mean", "dcp_rms"):
+    fields = [(n, f"/stats/{n}") for n in ("dcp_mean", "dcp_rms")] + list(extra)
+    for name, ds in fields:
         lines += [f'<Attribute Name="{name}" AttributeType="Scalar" Center="Node">',
                   f'<DataItem Dimensions="{n_nodes}" NumberType="Float" Precision="4" '
-                  f'Format="HDF">{h5}:/stats/{name}</DataItem>', "</Attribute>"]
+                  f'Format="HDF">{h5}:{escape(ds)}</DataItem>', "</Attribute>"]
     lines += ["</Grid>", '<Grid Name="dcp" GridType="Collection" CollectionType="Temporal">']
     include = ('<xi:include xpointer="xpointer(//Grid[@Name=&quot;grid&quot;]/*'
                '[self::Topology or self::Geometry])"/>')

@@ -50,6 +50,7 @@ from selfillum.unsteady.output import (
     camera_coverage,
     chunk_shape,
     json_attr,
+    node_fields,
     write_flat,
     write_node_files,
     write_xdmf,
@@ -94,7 +95,7 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     cp = read_steady_cp(cfg.steady, grid)
     wtd = read_wtd(cfg.sds)
     cond = Conditions.from_wtd(wtd, tinf=cfg.tinf)
-    law = gain = taps = tapn = offs = None
+    law = gain = taps = tapn = offs = coeffs = None
     if cfg.paint_calibration is not None:
         cal = read_paint_calibration(cfg.paint_calibration)
         gain = node_gain(cal, cond.surface_temperature, cp, cond)
@@ -103,6 +104,7 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
             raise InputError(f"{cfg.paint_calibration}: the gain is not finite at "
                              f"{int(bad.sum())} of {bad.size} nodes (coefficients too large "
                              "for the run's temperature and pressures)")
+        coeffs = (cal.a, cal.b, cal.c, cal.d, cal.e, cal.f)
     else:
         taps, tapn, offs = insitu_inputs(cfg, grid)
     spots = None
@@ -221,8 +223,10 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
         with h5py.File(store.path, "r", rdcc_nbytes=col + 2**20, rdcc_nslots=100_003,
                        rdcc_w0=1.0) as s1:
             if gain is None:  # the in-situ fit on the taps
+                fit = {}
                 law = insitu_fit(cfg, grid, runs, s1, taps, tapn, offs, spots, unpainted,
-                                  F, rho, gains0)
+                                  F, rho, gains0, out=fit)
+                coeffs = ("insitu", law, fit["ratio"], taps.pressure)
                 gain = insitu_gain(law, cp, cond)
             # -------------------------------------------------------- Phase 2 + output
             files = [out, xdmf, *flat, *pngs]
@@ -245,12 +249,19 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
                         raise InputError(f"{out}: no node has a dCp: no node was seen in "
                                          "enough frames (check the videos, the cameras' "
                                          "calibrations and the grid)")
+                    if cfg.uncertainty is not None:  # docs/uncertainty.md
+                        from selfillum.unsteady.uncertainty_out import write_uncertainty
+
+                        stats["uncertainty"] = write_uncertainty(
+                            f, cfg, grid, runs, s1, stats, spectra, fps, frames, gain, cond,
+                            cp, coeffs)
                     if law is not None:
                         f.attrs["stern_volmer"] = json_attr(
                             {"A": law.A, "B": law.B, "p_ref": law.p_ref,
                              "taps": list(taps.ids), "tap_nodes": tapn.tolist()})
                     with writing(xdmf, named):
-                        write_xdmf(tmp[1], out.name, T, N, len(grid.triangles), times)
+                        write_xdmf(tmp[1], out.name, T, N, len(grid.triangles), times,
+                                   extra=node_fields(f))
                     if flat:
                         with writing(flat[0], named):
                             write_flat(f, tmp[2], tmp[3], node_block=plan.nodes_per_block)
@@ -286,5 +297,5 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
                           stats["si_p95"], failed, tuple(files), peak_rss_mb(),
                           T / el if el > 0 else float("nan"),
                           (plan.frames_per_block, plan.nodes_per_block), timings,
-                          si=bool(cfg.si))
+                          stats.get("uncertainty", {}), si=bool(cfg.si))
 

@@ -1,0 +1,195 @@
+"""``selfillum unsteady --uncertainty``: the per-node uncertainty fields written next to
+dCp (:func:`write_uncertainty`; the models: :mod:`selfillum.uncertainty.unsteady`).
+
+Written into the output file::
+
+    /dcp_u                      (N,) standard uncertainty of one frame's dCp (random part)
+    /dcp_u_gain                 (N,) relative standard uncertainty of the gain (systematic)
+    /stats/dcp_rms_signal       (N,) RMS of dCp with the noise's variance removed
+    /stats/dcp_rms_signal_u     (N,) its standard uncertainty (random part)
+    /psd/noise_floor            (N,) the PSD's level in the highest band (dCp^2/Hz)
+    attribute "uncertainty"     JSON: method, each source's status, medians
+
+``--uncertainty mc --samples S`` re-runs Phase 2 (the ratio, the detrend, the gain) ``S``
+times on the node intensities with the noise drawn (each node's intensity times ``1 + e``,
+``e ~ N(0, (sigma / (G 144 / q))^2)``), and draws the gain's inputs (``a .. f``, ``T0``,
+``Tinf``, the model temperature, ``q``, ``p_inf``; or the in-situ fit's ``A, B`` from their
+covariance) from their normal distributions;
+Phase 1 (the maps, the self-illumination) is not re-run.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from selfillum.unsteady.output import json_attr
+from selfillum.unsteady.phase2 import legendre_basis, phase2_block
+
+__all__ = ["write_uncertainty"]
+
+
+def _effective_pixels(grid, runs, n_nodes: int) -> np.ndarray:
+    """Per node, the effective number of pixels of frame 0 (every camera's pixels on the
+    faces around it, area-weighted as the node value): ``(sum a)^2 / sum (a^2 / n_f)``."""
+    from resection.surface.surface_map import SurfaceMap
+
+    mesh = grid.mesh
+    counts = np.zeros(len(mesh.faces))
+    for r in runs:
+        counts += SurfaceMap(mesh, r.camera).pixel_counts
+    a = np.asarray(mesh.area_faces, np.float64)
+    tri = np.asarray(grid.triangles)
+    ok = counts > 0
+    s1 = np.zeros(n_nodes)
+    s2 = np.zeros(n_nodes)
+    for k in range(3):
+        np.add.at(s1, tri[ok, k], a[ok])
+        np.add.at(s2, tri[ok, k], a[ok] ** 2 / counts[ok])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(s2 > 0, s1 * s1 / s2, np.nan)
+
+
+def write_uncertainty(f, cfg, grid, runs, s1, stats, spectra, fps: float, frames, gain,
+                      cond, cp, coeffs) -> dict:
+    """Write the uncertainty fields into the open output file ``f`` (see the module notes);
+    returns the JSON summary."""
+    from selfillum.uncertainty.stated import Stated
+    from selfillum.uncertainty.unsteady import (
+        floor_dof,
+        gain_relative_u,
+        noise_from_camera,
+        noise_from_floor,
+        signal_rms,
+    )
+
+    stated = cfg.stated if cfg.stated is not None else Stated()
+    T, N = s1["values"].shape
+    gf = np.asarray(gain, np.float64) * 144.0 / cond.q
+    rms = np.asarray(stats["rms"], np.float64)
+    status = {}
+    floor = None
+    dof = float(T)
+    if spectra is not None and spectra.n_bands:
+        sig_floor, floor = noise_from_floor(f["psd/band_psd"][()], fps)
+        dof = floor_dof(spectra.freq, spectra.edges, T, spectra.nperseg)
+        f.require_group("psd").create_dataset("noise_floor", data=floor.astype(np.float32))
+    if stated.camera_gain is not None:
+        scale0 = float(s1["values_scale"][0])
+        I0 = s1["values"][0].astype(np.float64) / scale0
+        npx = _effective_pixels(grid, runs, N)
+        sigma = noise_from_camera(np.where(I0 > 0, I0, np.nan), npx, stated.camera_gain,
+                                  float(stated.read_noise or 0.0), gf)
+        status["noise"] = (f"stated: gain {stated.camera_gain:g} e-/count, read noise "
+                           f"{stated.read_noise or 0:g} e-, frame 0's pixels per node")
+    elif floor is not None:
+        sigma = sig_floor
+        status["noise"] = ("estimated: the run's dCp PSD in its highest band "
+                           f"({spectra.edges[-2]:.4g}-{spectra.edges[-1]:.4g} Hz), white")
+    else:
+        sigma = rms.copy()
+        status["noise"] = ("estimated: upper bound, the whole RMS of dCp (no --psd-bands to "
+                           "measure the noise floor)")
+    T_f = cond.surface_temperature
+    urel, gstatus = gain_relative_u(coeffs, stated, T_f, cp, cond.q, cond.p_inf)
+    status.update(gstatus)
+    method = cfg.uncertainty
+    info = {"method": method}
+    if method == "mc":
+        sigma_mc, urel_mc = _monte_carlo(cfg, s1, frames, gain, cond, cp, coeffs, sigma,
+                                         T_f)
+        info.update(samples=int(cfg.samples),
+                    linear_median={"dcp_u": _med(sigma), "dcp_u_gain": _med(urel)})
+        sigma = sigma_mc
+        urel = urel_mc if urel_mc is not None else urel
+    f.create_dataset("dcp_u", data=sigma.astype(np.float32))
+    if urel is not None:
+        f.create_dataset("dcp_u_gain", data=np.broadcast_to(urel, (N,)).astype(np.float32))
+    rs, u_rs = signal_rms(rms, sigma, T, dof)
+    st = f.require_group("stats")
+    st.create_dataset("dcp_rms_signal", data=rs.astype(np.float32))
+    st.create_dataset("dcp_rms_signal_u", data=u_rs.astype(np.float32))
+    info.update(sources=status, dcp_u_median=_med(sigma),
+                dcp_u_gain_median=_med(urel) if urel is not None else None,
+                missing=[k for k, v in status.items() if v.startswith("missing")])
+    f.attrs["uncertainty"] = json_attr(info)
+    return info
+
+
+def _med(x):
+    if x is None:
+        return None
+    v = np.asarray(x, np.float64)
+    v = v[np.isfinite(v)]
+    return float(np.median(v)) if v.size else None
+
+
+def _monte_carlo(cfg, s1, frames, gain, cond, cp, coeffs, sigma, T_f):
+    """GUM S1 over Phase 2: per node the RMS over the frames and draws of the drawn dCp
+    minus the nominal one (noise drawn), and the relative spread of the gain factor
+    (the gain's inputs drawn)."""
+    from resection.io.upsp_inputs import PaintCalibration
+    from selfillum.uncertainty.temperature import RECOVERY
+
+    rng = np.random.default_rng(cfg.seed)
+    S = int(cfg.samples)
+    vals, scale = s1["values"], s1["values_scale"][()]
+    T, N = vals.shape
+    basis = legendre_basis(frames) if T > 6 else None
+    gf = np.asarray(gain, np.float64) * 144.0 / cond.q
+    rel = np.asarray(sigma, np.float64) / gf  # the intensity's relative noise
+    out = np.full(N, np.nan)
+    nb = max(1, min(N, 2**22 // max(T, 1)))
+    for a in range(0, N, nb):
+        b = min(a + nb, N)
+        I = vals[:, a:b].astype(np.float64) / scale[:, None]
+        I = np.where(I > 0, I, np.nan)
+        d0 = phase2_block(I, frames, gain[a:b], cond.q, basis=basis)[0].astype(np.float64)
+        acc = np.zeros(b - a)
+        cnt = np.zeros(b - a)
+        r = np.nan_to_num(rel[a:b])
+        for _ in range(S):
+            Is = I * (1.0 + r * rng.standard_normal(I.shape))
+            ds = phase2_block(Is, frames, gain[a:b], cond.q, basis=basis)[0]
+            e = ds - d0
+            fin = np.isfinite(e)
+            acc += np.where(fin, e * e, 0.0).sum(axis=0)
+            cnt += fin.sum(axis=0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out[a:b] = np.sqrt(acc / cnt)
+    urel = None
+    from selfillum.uncertainty.stated import Stated
+
+    st = cfg.stated if cfg.stated is not None else Stated()
+    if coeffs is not None and len(coeffs) == 4 and coeffs[0] == "insitu":
+        from selfillum.uncertainty.unsteady import insitu_covariance
+
+        _, law, ratio, p_taps = coeffs
+        C = insitu_covariance(law, ratio, p_taps)
+        g0 = (law.A * law.p_ref / law.B + cp * cond.q + cond.p_inf) / cond.q
+        ratios = []
+        for _ in range(S):
+            A, B = rng.multivariate_normal([law.A, law.B], C)
+            q = cond.q + (st.q or 0.0) * rng.standard_normal()
+            pinf = cond.p_inf + (st.p_inf or 0.0) * rng.standard_normal()
+            ratios.append((A * law.p_ref / B + cp * q + pinf) / q / g0 - 1.0)
+        return out, np.std(np.asarray(ratios), axis=0, ddof=1)
+    uc = st.gain_coefficients()
+    if coeffs is not None and (uc is not None or st.t0 is not None or st.tinf is not None
+                               or st.temperature is not None or st.q is not None
+                               or st.p_inf is not None):
+        c0 = np.asarray(coeffs, np.float64)
+        uc = np.zeros(6) if uc is None else np.asarray(uc)
+        ratios = []
+        g0 = PaintCalibration(*c0).gain(T_f, cp * cond.q + cond.p_inf) / cond.q
+        for _ in range(S):
+            c = c0 + uc * rng.standard_normal(6)
+            dt0 = (st.t0 or 0.0) * rng.standard_normal()
+            dti = dt0 if st.tinf is None else st.tinf * rng.standard_normal()
+            dT = (RECOVERY * dt0 + (1 - RECOVERY) * dti
+                  + (st.temperature or 0.0) * rng.standard_normal()) * 1.8  # K -> deg F
+            q = cond.q + (st.q or 0.0) * rng.standard_normal()
+            pinf = cond.p_inf + (st.p_inf or 0.0) * rng.standard_normal()
+            g = PaintCalibration(*c).gain(T_f + dT, cp * q + pinf) / q
+            ratios.append(g / g0 - 1.0)
+        urel = np.std(np.asarray(ratios), axis=0, ddof=1)
+    return out, urel
