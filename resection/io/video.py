@@ -59,7 +59,7 @@ import numpy as np
 from resection.errors import InputError
 from resection.io.images import read_image
 
-__all__ = ["FrameSource", "open_frames", "iter_frames", "VIDEO_SUFFIXES"]
+__all__ = ["FrameSource", "open_frames", "iter_frames", "frame_rate_of", "VIDEO_SUFFIXES"]
 
 VIDEO_SUFFIXES = (".cine", ".mraw", ".cih", ".cihx", ".hcc", ".seq")
 
@@ -339,6 +339,8 @@ def _npy_stack(p: Path, mask_saturated: bool) -> FrameSource:
     if arr.ndim != 3:
         raise InputError(f"{p}: expected a 2-D frame or a 3-D (n, H, W) stack, got "
                          f"shape {arr.shape}")
+    if arr.shape[0] == 0:
+        raise InputError(f"{p}: a stack of 0 frames (shape {arr.shape})")
     bits = np.iinfo(arr.dtype).bits if arr.dtype.kind in "ui" else None
     read = lambda i: np.array(arr[i])  # noqa: E731
     if isinstance(arr, np.memmap) and arr.flags.c_contiguous:
@@ -400,7 +402,7 @@ def _mraw(p: Path, mask_saturated: bool) -> FrameSource:
         images = pyMRAW.load_images(str(mraw), h, w, n, bit=bits, roll_axis=False)
     except (ValueError, OSError) as exc:
         raise InputError(f"{mraw}: cannot read frames ({exc})") from None
-    rate = info.get("Record Rate(fps)")
+    rate = frame_rate_of(info.get("Record Rate(fps)"))
     declared = eff if 0 < eff <= bits else bits
 
     def check(i, img):
@@ -432,8 +434,7 @@ def _mraw(p: Path, mask_saturated: bool) -> FrameSource:
         return img
 
     src = FrameSource(mraw, n, (h, w), read, lambda i: f"{mraw}#{i}", bits=declared,
-                      frame_rate=float(rate) if rate else None, mask_saturated=mask_saturated,
-                      closer=closer)
+                      frame_rate=rate, mask_saturated=mask_saturated, closer=closer)
     if n:
         check(0, images[0])  # the first frame says at once whether the header holds
     return src
@@ -533,10 +534,24 @@ def _cine(p: Path, mask_saturated: bool) -> FrameSource:
             img = np.asarray(unpack_10bit_data(data))[: w * h].reshape(h, w)
         return img[::-1] if flip else img
 
-    rate = float(setup.frame_rate_hz)
+    rate = frame_rate_of(setup.frame_rate_hz)
     return FrameSource(p, n, (h, w), read, lambda i: f"{p}#{i}", bits=bits,
-                       frame_rate=rate if rate > 0 else None, mask_saturated=mask_saturated,
+                       frame_rate=rate, mask_saturated=mask_saturated,
                        closer=fh.close)
+
+
+def frame_rate_of(value) -> float | None:
+    """A header's frame rate as a number of frames/s, as the header says it: None when it
+    is absent or 0 (not recorded), NaN when it is not a number. Whether it can be used is
+    the caller's to judge (:data:`resection.defaults.FRAME_RATE_RANGE`): a command given
+    the rate by the user does not need the header's."""
+    if value is None or (isinstance(value, str) and not value.strip()):
+        return None
+    try:
+        r = float(value)
+    except (TypeError, ValueError, OverflowError):
+        return float("nan")
+    return None if r == 0 else r
 
 
 def _unpack_p12l(data: bytes, h: int, w: int) -> np.ndarray:
