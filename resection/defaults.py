@@ -9,7 +9,7 @@ module of its concept (:mod:`resection.surface.surface_map`, :mod:`resection.pos
 from __future__ import annotations
 
 __all__ = ["DEFAULT_MAX_OBLIQUENESS", "DEFAULT_MARKER_ACCURACY", "DEFAULT_MAX_RMS",
-           "MESH_FORMATS"]
+           "MESH_FORMATS", "FRAME_RATE_RANGE"]
 
 #: Default obliqueness cut-off (degrees between the line of sight and the face normal), as
 #: NASA's uPSP software uses: paint seen more obliquely is not measured reliably.
@@ -28,3 +28,7 @@ MESH_FORMATS = ("plot3d", "cart3d", "stl", "obj", "ply", "off", "glb", "gltf")
 #: (``track.json``), which marks the folder as a track output
 TRACK_FILES = ("poses.csv", "markers.csv", "track.json", "pose_vs_time.png", "frames")
 TRACK_PRODUCER = "resection track"
+
+#: Frame rates a video header or ``--fps`` may give, frames/s: from one frame an hour to a
+#: billion a second (the frames' times ``k / fps`` stay finite and distinct).
+FRAME_RATE_RANGE = (1.0 / 3600.0, 1e9)

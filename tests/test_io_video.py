@@ -318,17 +318,17 @@ def test_unsteady_blames_a_cih_rate_of_nan_on_the_video_not_fps(tmp_path):
 
     from selfillum.unsteady.inputs import open_videos
 
-    frames = _frames(bits=16).astype(np.uint16)
+    frames = np.concatenate([_frames(bits=16)] * 2).astype(np.uint16)  # the run needs 8
     _, cih = pyMRAW.save_mraw(frames, str(tmp_path / "cam01.cih"), bit_depth=16,
                               info_dict={"Record Rate(fps)": "nan"})
     warnings.simplefilter("ignore", UserWarning)
     cam = types.SimpleNamespace(video=Path(cih), number=1)
     cfg = types.SimpleNamespace(cameras=[cam], number_frames=-1, fps=None,
-                                source=str(tmp_path / "deck"))
+                                source=str(tmp_path / "deck"), filter="none", filter_size=3)
     with pytest.raises(InputError) as exc:
         open_videos(cfg)
     msg = str(exc.value)
     assert msg.startswith(f"{cih}: its header's frame rate nan") and "give --fps" in msg
     cfg.fps = 500.0
     srcs, T, fps = open_videos(cfg)
-    assert (T, fps) == (N, 500.0)
+    assert (T, fps) == (2 * N, 500.0)

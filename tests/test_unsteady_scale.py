@@ -387,13 +387,14 @@ def test_resume_skips_finished_blocks_and_refuses_stale_work(run, capsys, monkey
     assert _cli(run, out2, *common, "--resume", "--oblique-angle", "60") == 2
     err = capsys.readouterr().err
     assert "other inputs (oblique_angle)" in err and work_folder(out2).exists()
-    # ... and an input file rewritten since (its mtime and size)
-    import os
-
-    st = os.stat(run.targets)
-    os.utime(run.targets, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
-    assert _cli(run, out2, *common, "--resume") == 2
-    assert "other inputs (files)" in capsys.readouterr().err
+    # ... and an input file rewritten since (its content: the key holds a digest of it)
+    text = run.targets.read_text()
+    try:
+        run.targets.write_text(text + "# edited\n")
+        assert _cli(run, out2, *common, "--resume") == 2
+        assert "other inputs (files)" in capsys.readouterr().err
+    finally:
+        run.targets.write_text(text)
 
 
 # ---------------------------------------------------------------------------- fast path

@@ -5,6 +5,12 @@ exit status 2 (:func:`~resection.cli.util.run`). :func:`main` is the console scr
 
 from __future__ import annotations
 
-from resection.cli.main import main
+try:
+    from resection.cli.main import main
+except KeyboardInterrupt:  # Ctrl-C while the command line loads: a stop, not a traceback
+    import sys
+
+    print("resection: interrupted", file=sys.stderr)
+    raise SystemExit(130) from None
 
 __all__ = ["main"]

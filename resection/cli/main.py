@@ -34,8 +34,19 @@ FAST_EXIT = ("track",)
 def main(argv: list[str] | None = None) -> int:
     """Run the command of ``argv`` (default: the program's arguments) and return its exit
     status. Run as the program (``argv`` None), a command of :data:`FAST_EXIT` ends the
-    process at once instead (:func:`end_process`)."""
-    rc = run(build_parser(), argv)
+    process at once instead (:func:`end_process`), and Ctrl-C is caught from the start
+    (:func:`resection.cli.interrupts.install`)."""
+    if argv is None:
+        from resection.cli.interrupts import done, install
+
+        install()
+    try:
+        rc = run(build_parser(), argv)
+    except KeyboardInterrupt:  # while the parser is built (its imports) or parses
+        print("resection: interrupted", file=sys.stderr)
+        rc = 130
+    if argv is None:
+        done()  # the status is decided: a Ctrl-C while the interpreter ends is ignored
     if argv is None and sys.argv[1:2] and sys.argv[1] in FAST_EXIT:
         end_process(rc)
     return rc

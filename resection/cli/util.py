@@ -60,16 +60,23 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None) -> int:
     """Parse ``argv`` and call the chosen sub-command's ``func(args)``; return the exit
     status."""
     from resection._numba_cache import ensure_numba_cache
+    from resection.cli.interrupts import interrupted
     from resection.cli.paths import check_command_paths
     from resection.io.paths import os_error_text
 
     args = parser.parse_args(argv)
     prog = f"{parser.prog} {args.command}"
+    stopped = (f"{prog}: interrupted; files being written were removed, complete ones "
+               "kept")
     try:
         check_command_paths(args)  # inputs readable, every output writable, before any work
         check_command_outputs(args)  # no output may be one of the inputs
         ensure_numba_cache()  # before any kernel is imported: a read-only install
-        return int(args.func(args) or 0)
+        status = int(args.func(args) or 0)
+        if interrupted():  # a Ctrl-C that a library swallowed: still a stop
+            print(stopped, file=sys.stderr)
+            return 130
+        return status
     except USER_ERRORS as exc:
         msg = one_line(str(exc)) if str(exc) else type(exc).__name__
         print(f"{prog}: error: {msg}", file=sys.stderr)
@@ -90,8 +97,7 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None) -> int:
         print(f"{prog}: error: not enough memory ({why})", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"{prog}: interrupted; files being written were removed, complete ones kept",
-              file=sys.stderr)
+        print(stopped, file=sys.stderr)
         return 130
 
 

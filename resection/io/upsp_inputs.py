@@ -54,11 +54,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from resection.errors import InputError
+from resection.io.paths import check_input_path
 from resection.io.text import read_text_lines
 
 __all__ = ["Deck", "DeckCamera", "read_deck", "PaintCalibration", "read_paint_calibration",
            "DECK_OPTIONS"]
 
+#: The largest ``@camera number`` (uPSP numbers its cameras from 1).
+MAX_CAMERA_NUMBER = 65535
 #: The ``@options`` keys a deck may give (uPSP's list).
 DECK_OPTIONS = ("target_patcher", "registration", "pixel_interpolation", "overlap", "filter",
                 "filter_size", "oblique_angle", "number_frames")
@@ -195,8 +198,10 @@ def read_deck(path: str | os.PathLike, *, check_files: bool = True) -> Deck:
         v = _substitute(value, vars_, where)
         q = Path(v).expanduser()
         q = q if q.is_absolute() else base / q
-        if check_files and not q.exists():
-            raise InputError(f"{where}: file not found: {q}")
+        if check_files:
+            check_input_path(q, where)  # a FIFO or a device would hang the reader
+            if not q.exists():
+                raise InputError(f"{where}: file not found: {q}")
         return q
 
     al = raw["all"]
@@ -221,6 +226,9 @@ def read_deck(path: str | os.PathLike, *, check_files: bool = True) -> Deck:
         except ValueError:
             raise InputError(f"{p}:{line}: @camera number {c['number']!r} is not an "
                              "integer") from None
+        if not 0 <= num <= MAX_CAMERA_NUMBER:
+            raise InputError(f"{p}:{line}: @camera number {c['number']} out of range (0 to "
+                             f"{MAX_CAMERA_NUMBER})")
         if num in numbers:
             raise InputError(f"{p}:{line}: camera number {num} given twice (also line "
                              f"{numbers[num]})")

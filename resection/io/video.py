@@ -59,7 +59,7 @@ import numpy as np
 from resection.errors import InputError
 from resection.io.images import read_image
 
-__all__ = ["FrameSource", "open_frames", "iter_frames", "VIDEO_SUFFIXES"]
+__all__ = ["FrameSource", "open_frames", "iter_frames", "frame_rate_of", "VIDEO_SUFFIXES"]
 
 VIDEO_SUFFIXES = (".cine", ".mraw", ".cih", ".cihx", ".hcc", ".seq")
 
@@ -339,6 +339,8 @@ def _npy_stack(p: Path, mask_saturated: bool) -> FrameSource:
     if arr.ndim != 3:
         raise InputError(f"{p}: expected a 2-D frame or a 3-D (n, H, W) stack, got "
                          f"shape {arr.shape}")
+    if arr.shape[0] == 0:
+        raise InputError(f"{p}: a stack of 0 frames (shape {arr.shape})")
     bits = np.iinfo(arr.dtype).bits if arr.dtype.kind in "ui" else None
     read = lambda i: np.array(arr[i])  # noqa: E731
     if isinstance(arr, np.memmap) and arr.flags.c_contiguous:
@@ -400,7 +402,7 @@ def _mraw(p: Path, mask_saturated: bool) -> FrameSource:
         images = pyMRAW.load_images(str(mraw), h, w, n, bit=bits, roll_axis=False)
     except (ValueError, OSError) as exc:
         raise InputError(f"{mraw}: cannot read frames ({exc})") from None
-    rate = info.get("Record Rate(fps)")
+    rate = frame_rate_of(info.get("Record Rate(fps)"))
     declared = eff if 0 < eff <= bits else bits
 
     def check(i, img):
@@ -414,6 +416,17 @@ def _mraw(p: Path, mask_saturated: bool) -> FrameSource:
                     f"{(1 << bits) - 1}", UserWarning, stacklevel=3)
                 src.bits = bits
 
+    closer = None
+    if isinstance(images, np.memmap) and images.flags.c_contiguous:
+        # 8- and 16-bit words: frames read from the file, not through the map (a mapped
+        # video's pages stay in the process's resident memory as it is read: a 500 MB
+        # video, 500 MB more RSS), as the NPY stack's
+        fh = open(mraw, "rb")  # noqa: SIM115 - closed by the source's closer
+        dtype, offset, size = images.dtype, int(images.offset), h * w
+        del images
+        images = _PreadFrames(fh, dtype, offset, (h, w), size)
+        closer = fh.close
+
     def read(i):
         img = images[i]
         if mask_saturated:  # where the full scale matters: every frame is checked
@@ -421,10 +434,28 @@ def _mraw(p: Path, mask_saturated: bool) -> FrameSource:
         return img
 
     src = FrameSource(mraw, n, (h, w), read, lambda i: f"{mraw}#{i}", bits=declared,
-                      frame_rate=float(rate) if rate else None, mask_saturated=mask_saturated)
+                      frame_rate=rate, mask_saturated=mask_saturated, closer=closer)
     if n:
         check(0, images[0])  # the first frame says at once whether the header holds
     return src
+
+
+class _PreadFrames:
+    """Frames of a raw stack read by ``os.pread`` (no shared file position: threads may
+    read frames), each a fresh array."""
+
+    def __init__(self, fh, dtype, offset: int, shape: tuple, size: int):
+        self.fh, self.dtype, self.offset, self.shape, self.size = fh, dtype, offset, shape, \
+            size
+
+    def __getitem__(self, i):
+        out = np.empty(self.shape, dtype=self.dtype)
+        nb = out.nbytes
+        got = os.preadv(self.fh.fileno(), [memoryview(out).cast("B")],
+                        self.offset + int(i) * nb)
+        if got != nb:
+            raise InputError(f"{self.fh.name}: frame {int(i)} is truncated")
+        return out
 
 
 def _cine(p: Path, mask_saturated: bool) -> FrameSource:
@@ -503,10 +534,24 @@ def _cine(p: Path, mask_saturated: bool) -> FrameSource:
             img = np.asarray(unpack_10bit_data(data))[: w * h].reshape(h, w)
         return img[::-1] if flip else img
 
-    rate = float(setup.frame_rate_hz)
+    rate = frame_rate_of(setup.frame_rate_hz)
     return FrameSource(p, n, (h, w), read, lambda i: f"{p}#{i}", bits=bits,
-                       frame_rate=rate if rate > 0 else None, mask_saturated=mask_saturated,
+                       frame_rate=rate, mask_saturated=mask_saturated,
                        closer=fh.close)
+
+
+def frame_rate_of(value) -> float | None:
+    """A header's frame rate as a number of frames/s, as the header says it: None when it
+    is absent or 0 (not recorded), NaN when it is not a number. Whether it can be used is
+    the caller's to judge (:data:`resection.defaults.FRAME_RATE_RANGE`): a command given
+    the rate by the user does not need the header's."""
+    if value is None or (isinstance(value, str) and not value.strip()):
+        return None
+    try:
+        r = float(value)
+    except (TypeError, ValueError, OverflowError):
+        return float("nan")
+    return None if r == 0 else r
 
 
 def _unpack_p12l(data: bytes, h: int, w: int) -> np.ndarray:

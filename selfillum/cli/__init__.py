@@ -2,6 +2,12 @@
 
 from __future__ import annotations
 
-from selfillum.cli.main import main
+try:
+    from selfillum.cli.main import main
+except KeyboardInterrupt:  # Ctrl-C while the command line loads: a stop, not a traceback
+    import sys
+
+    print("selfillum: interrupted", file=sys.stderr)
+    raise SystemExit(130) from None
 
 __all__ = ["main"]

@@ -297,10 +297,20 @@ def main(argv: list[str] | None = None) -> int:
     Called without ``argv`` (the console script, ``python -m selfillum.cli``) the process
     ends right after: the objects left are frozen out of the collector
     (:func:`gc.freeze`), so that the interpreter's exit does not walk them all again
-    (0.2-0.3 s after ``correct`` on a 600,000-face grid). Called with ``argv`` (in a
-    process that goes on) nothing is frozen."""
-    status = run(build_parser(), argv)
+    (0.2-0.3 s after ``correct`` on a 600,000-face grid), and Ctrl-C is caught from the
+    start (:func:`resection.cli.interrupts.install`). Called with ``argv`` (in a process
+    that goes on) nothing is frozen."""
     if argv is None:
+        from resection.cli.interrupts import done, install
+
+        install()
+    try:
+        status = run(build_parser(), argv)
+    except KeyboardInterrupt:  # while the parser is built (its imports) or parses
+        print("selfillum: interrupted", file=sys.stderr)
+        status = 130
+    if argv is None:
+        done()  # the status is decided: a Ctrl-C while the interpreter ends is ignored
         gc.freeze()
     return status
 

@@ -24,7 +24,7 @@ def _cmd_psp(args) -> int:
     from resection.io.outputs import atomic_write, output_folder
     from resection.surface.surface_map import SurfaceMap
     from selfillum.cli.render import per_face_arg
-    from selfillum.images.psp import psp_images, read_taps
+    from selfillum.images.psp import check_fit_inputs, psp_images, read_taps
     from selfillum.transport.viewfactors import view_factors
     from selfillum.uncertainty.psp_io import read_condition
 
@@ -43,6 +43,7 @@ def _cmd_psp(args) -> int:
                          f"{len(ons)} wind-on images)")
     mesh = load_mesh(args.mesh, format=args.mesh_format)
     taps = read_taps(args.taps, positions=args.tap_positions)
+    check_fit_inputs(taps, args.p_ref, args.taps)  # before the maps and the view factors
     maps = [SurfaceMap(mesh, read_camera(c)) for c in cams]
     off_imgs = read_condition(offs, len(cams), "--wind-off")[0]
     on_imgs = read_condition(ons, len(cams), "--wind-on")[0]

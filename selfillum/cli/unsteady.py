@@ -5,6 +5,7 @@ Only parses arguments and calls :func:`selfillum.unsteady.run_unsteady`.
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 from resection.errors import InputError
@@ -25,6 +26,7 @@ def _node_list(text: str | None) -> list:
 def _cmd_unsteady(args) -> int:
     from resection.io.upsp_inputs import read_deck
     from selfillum.unsteady import CameraInput, UnsteadyConfig, config_from_deck, run_unsteady
+    from selfillum.unsteady.config import cap_workers
 
     flags = {"registration": args.registration, "target_patcher": args.target_patcher,
              "overlap": args.overlap, "filter": args.filter, "filter_size": args.filter_size,
@@ -73,17 +75,24 @@ def _cmd_unsteady(args) -> int:
     if cfg.track_dirs is not None and len(cfg.track_dirs) != len(cfg.cameras):
         raise InputError(f"--track: {len(cfg.track_dirs)} folders for {len(cfg.cameras)} "
                          "cameras (one per camera, in camera order)")
+    cfg.workers, note = cap_workers(cfg.workers) if cfg.workers and cfg.workers > 0 \
+        else (cfg.workers, None)
+    if note:
+        print(f"unsteady: {note}", file=sys.stderr)
     res = run_unsteady(cfg)
     print(f"unsteady: {res.n_frames} frames x {res.n_nodes} nodes, {100 * res.seen:.1f} % of "
           f"the nodes seen; chunks {res.chunks[0]} frames x {res.chunks[1]} nodes")
     if res.tracked_failed:
         print(f"tracking: {res.tracked_failed} frames without a pose took the nearest "
               "tracked frame's")
-    if res.si_change_median == res.si_change_median:
+    if not res.si:
+        print("self-illumination: not removed (--no-si)")
+    elif res.si_change_median == res.si_change_median:
         print(f"self-illumination: dCp changed by {res.si_change_median:.4g} (median over the "
               f"nodes of its RMS over time), {res.si_change_p95:.4g} (95th percentile)")
     else:
-        print("self-illumination: not removed (--no-si)")
+        print("self-illumination: removed; its change of dCp could not be measured (no node "
+              "has a dCp with and without it)")
     print(f"run: {res.frames_per_s:.1f} frames/s end to end; peak memory "
           f"{res.peak_rss_mb:.0f} MB; blocks of {res.blocks[0]} frames (Phase 1) and "
           f"{res.blocks[1]} nodes (Phase 2)")
@@ -187,9 +196,9 @@ def register(sub) -> None:
     p.add_argument("--psd", metavar="N1,N2,...",
                    help="probe nodes (grid file order, from 0): their Welch PSD of dCp is "
                    "stored (/psd/probe_psd) and plotted (OUT_psd.png)")
-    p.add_argument("--psd-bands", type=int, default=8, metavar="K",
+    p.add_argument("--psd-bands", type=int, default=None, metavar="K",
                    help="per node, the PSD averaged over K log-spaced bands (/psd/band_psd; "
-                   "0: none; default 8)")
+                   "0: none; default 8, or the spectrum's frequencies above 0 when fewer)")
     p.add_argument("--psd-nperseg", type=int, metavar="FRAMES",
                    help="frames per Welch segment (default min(frames, 256))")
     p.add_argument("--memory", type=float, default=DEFAULT_MEMORY_MB, metavar="MB",

@@ -34,7 +34,8 @@ from resection.errors import InputError
 from selfillum.mesh import check_mesh
 from selfillum.solve.radiosity import check_reflectance, correct
 
-__all__ = ["SternVolmer", "Taps", "fit_stern_volmer", "read_taps", "tap_faces", "PSPResult",
+__all__ = ["SternVolmer", "Taps", "fit_stern_volmer", "check_fit_inputs", "read_taps",
+           "tap_faces", "PSPResult",
            "psp_pressure", "psp_images"]
 
 
@@ -243,6 +244,28 @@ def tap_faces(mesh: trimesh.Trimesh, points, max_distance: float | None = None) 
 
 
 _ROUNDING_TOL = 1e-9  # a slope below this share of the ratios is rounding, not signal
+def check_fit_inputs(taps: Taps, p_ref: float, source: str = "taps") -> None:
+    """What the Stern-Volmer fit needs, checked before any heavy step: ``p_ref`` a finite
+    pressure > 0 and the taps at 2 pressures at least (else ``B`` is undetermined; each
+    tap's pressure is checked by :func:`read_taps`). ``source`` names the tap file in the
+    messages.
+
+    Raises
+    ------
+    InputError
+    """
+    try:
+        pr = float(p_ref)
+    except (TypeError, ValueError):
+        raise InputError(f"p_ref {p_ref!r}: not a number") from None
+    if not (np.isfinite(pr) and pr > 0):
+        raise InputError(f"p_ref {p_ref:g}: the wind-off pressure must be a finite number > 0")
+    p = np.asarray(taps.pressure, dtype=np.float64)
+    if p.size < 2:
+        raise InputError(f"{source}: {p.size} tap; the Stern-Volmer fit needs 2 at least")
+    if np.ptp(p / pr) <= 1e-9 * max(1.0, float(np.abs(p / pr).max())):
+        raise InputError(f"{source}: all {p.size} taps at the same pressure ({p[0]:g}): the "
+                         "Stern-Volmer slope B is undetermined")
 
 
 def fit_stern_volmer(ratio, pressure, p_ref: float) -> SternVolmer:
@@ -258,15 +281,16 @@ def fit_stern_volmer(ratio, pressure, p_ref: float) -> SternVolmer:
     r = np.asarray(ratio, dtype=np.float64).ravel()
     p = np.asarray(pressure, dtype=np.float64).ravel()
     if r.shape != p.shape:
-        raise InputError(f"fit_stern_volmer: {r.size} ratios for {p.size} pressures")
+        raise InputError(f"Stern-Volmer fit: {r.size} ratios for {p.size} pressures")
     if not (np.isfinite(p_ref) and p_ref > 0):
-        raise InputError(f"fit_stern_volmer: p_ref must be > 0, got {p_ref}")
+        raise InputError(f"p_ref {p_ref:g}: the wind-off pressure must be a finite number > 0")
     ok = np.isfinite(r) & np.isfinite(p)
     if ok.sum() < 2:
-        raise InputError(f"fit_stern_volmer: need at least 2 taps with a ratio, got {ok.sum()}")
+        raise InputError(f"Stern-Volmer fit: need at least 2 taps with a ratio (seen in "
+                         f"both images), got {ok.sum()}")
     x = p[ok] / p_ref
     if np.ptp(x) <= 1e-9 * max(1.0, np.abs(x).max()):
-        raise InputError("fit_stern_volmer: all taps at the same pressure, B is undetermined")
+        raise InputError("Stern-Volmer fit: all taps at the same pressure, B is undetermined")
     M = np.column_stack([np.ones_like(x), x])
     (A, B), *_ = np.linalg.lstsq(M, r[ok], rcond=None)
     # B must stand out of the scatter of the taps (3 standard errors, >= 3 taps) and of
@@ -280,11 +304,11 @@ def fit_stern_volmer(ratio, pressure, p_ref: float) -> SternVolmer:
         se = float(np.sqrt(s2 / np.sum((x - x.mean()) ** 2)))
     noise = max(3.0 * se, _ROUNDING_TOL * max(1.0, float(np.abs(r[ok]).max())))
     if B < -noise:
-        raise InputError(f"fit_stern_volmer: fitted B = {B:.3g} < 0 (standard error "
+        raise InputError(f"Stern-Volmer fit: fitted B = {B:.3g} < 0 (standard error "
                          f"{se:.2g}): the ratio must grow with p (images swapped?)")
     if B <= noise:
         raise InputError(
-            f"fit_stern_volmer: fitted B = {B:.3g} (standard error {se:.2g}) is not "
+            f"Stern-Volmer fit: fitted B = {B:.3g} (standard error {se:.2g}) is not "
             "significantly > 0: the intensity ratio at the taps does not follow their "
             "pressures (wrong images, taps or p_ref?)"
         )
@@ -371,7 +395,8 @@ def psp_pressure(
     if mask.shape != (n,):
         raise InputError(f"psp_pressure: seen must have shape ({n},)")
     if not mask.any():
-        raise InputError("psp_pressure: no face is seen in both images")
+        raise InputError("no face of the model is seen in both the wind-off and the wind-on "
+                         "images")
     if correct_si:
         if F is None or reflectance is None:
             raise InputError("psp_pressure: correct_si needs the form factors F and the "

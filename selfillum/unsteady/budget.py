@@ -64,25 +64,27 @@ def _fit(count: int, chunk: int, total: int) -> int:
 
 
 def plan_blocks(n_frames: int, n_nodes: int, chunks: tuple[int, int],
-                memory_mb: float | None = None) -> BlockPlan:
+                memory_mb: float | None = None, node_bytes: int = 0) -> BlockPlan:
     """Blocks for a ``(T, N)`` run chunked ``(tc, nc)`` within ``memory_mb`` (MiB).
 
     Without a budget: one chunk row of frames, one chunk column of nodes (a Phase 2 block
     of ``T nc`` cells: it grows with the length of the run). With one: the most whole
     chunk rows / columns that fit, or fewer frames / nodes than a chunk (at least one).
+    ``node_bytes``: what a node of a Phase 2 block costs beyond its frames (its spectra,
+    :attr:`selfillum.unsteady.spectra.Spectra.bytes_per_node`), counted in the budget.
     """
     T, N = int(n_frames), int(n_nodes)
     tc, nc = chunks
     if memory_mb is None:
         return BlockPlan(tc, nc, None)
-    if not memory_mb > 0:
-        raise InputError(f"--memory must be positive (MB), got {memory_mb}")
+    if not 0 < memory_mb < float("inf"):
+        raise InputError(f"--memory must be a positive number of MiB, got {memory_mb}")
     b = int(memory_mb * 2**20)
+    per_node = T * PHASE2_BYTES_PER_CELL + int(node_bytes)
     fpb = _fit(b // (N * PHASE1_BYTES_PER_CELL), tc, T)
-    npb = _fit(b // (T * PHASE2_BYTES_PER_CELL), nc, N)
+    npb = _fit(b // per_node, nc, N)
     if npb < nc:  # HDF5 then caches a chunk column of codes (each chunk read once)
-        npb = _fit(max(b - chunk_column_bytes(T, (tc, nc)), 0)
-                   // (T * PHASE2_BYTES_PER_CELL), nc, N)
+        npb = _fit(max(b - chunk_column_bytes(T, (tc, nc)), 0) // per_node, nc, N)
     return BlockPlan(fpb, npb, b)
 
 

@@ -27,8 +27,9 @@ import numpy as np
 
 from resection.errors import InputError
 
-__all__ = ["Conditions", "RECOVERY_FACTOR", "GAMMA", "RANKINE", "freestream_temperature",
-           "recovery_temperature", "steady_pressure", "T0_COLUMNS"]
+__all__ = ["Conditions", "RECOVERY_FACTOR", "GAMMA", "RANKINE", "MAX_MACH",
+           "MAX_TEMPERATURE_F", "freestream_temperature", "recovery_temperature",
+           "steady_pressure", "T0_COLUMNS"]
 
 #: Turbulent boundary-layer recovery factor (Schlichting), as uPSP.
 RECOVERY_FACTOR = 0.896
@@ -36,6 +37,10 @@ RECOVERY_FACTOR = 0.896
 GAMMA = 1.4
 #: deg F to Rankine.
 RANKINE = 459.67
+#: The largest Mach number accepted (hypersonic tunnels reach about 25).
+MAX_MACH = 50.0
+#: The largest temperature accepted, deg F.
+MAX_TEMPERATURE_F = 10000.0
 #: Column names of the stagnation temperature (deg F) in a ``.wtd``, in order of preference.
 T0_COLUMNS = ("TTF", "T0", "TT", "TTOT")
 
@@ -56,6 +61,11 @@ def recovery_temperature(t0_f, tinf_f, r: float = RECOVERY_FACTOR):
 def steady_pressure(cp, q, p_inf):
     """Steady pressure ``Cp q + p_inf`` (the units of ``q`` and ``p_inf``, psf in uPSP)."""
     return np.asarray(cp, dtype=np.float64) * q + p_inf
+
+
+def _check_mach(mach: float, source) -> None:
+    if not 0.0 <= mach <= MAX_MACH:  # NaN fails too
+        raise InputError(f"{source}: MACH = {mach:g} is out of range (0 to {MAX_MACH:g})")
 
 
 @dataclass(frozen=True)
@@ -94,6 +104,18 @@ class Conditions:
                 raise InputError(f"{self.source}: {k} is not finite ({v})")
         if not self.q > 0:
             raise InputError(f"{self.source}: Q must be > 0, got {self.q}")
+        _check_mach(self.mach, self.source)
+        if not self.p_inf > 0:
+            raise InputError(f"{self.source}: PS = {self.p_inf:g}: the free-stream static "
+                             "pressure must be > 0 psf")
+        for k, name in (("t0", "the stagnation temperature (TTF)"),
+                        ("tinf", "the free-stream static temperature (Tinf, "
+                         + self.tinf_source + ")")):
+            v = getattr(self, k)
+            if not -RANKINE < v <= MAX_TEMPERATURE_F:
+                raise InputError(f"{self.source}: {name} = {v:g} deg F is "
+                                 + ("at or below absolute zero (-459.67 deg F)" if v <= -RANKINE
+                                    else f"above {MAX_TEMPERATURE_F:g} deg F"))
 
     @property
     def surface_temperature(self) -> float:
@@ -109,6 +131,7 @@ class Conditions:
             raise InputError(f"{wtd.path}: PS = Q = 0, a wind-off point ({wtd.label}); "
                              "dCp needs the wind-on point's dynamic pressure")
         mach = wtd.value("MACH")
+        _check_mach(mach, wtd.path)  # before Tinf is computed from it
         q = wtd.value("Q")
         ps = wtd.value("PS")
         t0 = wtd.value(*T0_COLUMNS)

@@ -4,15 +4,18 @@ and :class:`UnsteadyResult`."""
 
 from __future__ import annotations
 
+import numbers
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from resection.defaults import FRAME_RATE_RANGE
 from resection.errors import InputError
 from selfillum.unsteady.budget import DEFAULT_MEMORY_MB
 from selfillum.unsteady.options import FILTERS, OVERLAPS, REGISTRATIONS
 
 __all__ = ["CameraInput", "UnsteadyConfig", "UnsteadyResult", "config_from_deck",
-           "check_options"]
+           "check_options", "check_numbers", "cap_workers", "check_scheduler_address"]
 
 
 @dataclass(frozen=True)
@@ -37,7 +40,8 @@ class UnsteadyConfig:
     ``taps`` (a ``.wtd`` or a tap file, placed by ``tap_positions`` or the targets file)
     with one ``wind_off`` image per camera at pressure ``p_ref`` (psf)
     (:mod:`selfillum.unsteady.insitu`).
-    ``psd_probes`` (node numbers), ``psd_bands``, ``psd_nperseg``: Welch spectra
+    ``psd_probes`` (node numbers), ``psd_bands`` (None: 8 or fewer,
+    :func:`selfillum.unsteady.spectra.default_bands`), ``psd_nperseg``: Welch spectra
     (:mod:`selfillum.unsteady.spectra`). ``memory_mb``: the budget of the blocks
     (:func:`selfillum.unsteady.budget.plan_blocks`). ``plots``: write the dCp RMS on the
     model and the probes' PSD as PNG next to the output. ``fast``: Phase 1 by sparse
@@ -77,7 +81,7 @@ class UnsteadyConfig:
     p_ref: float | None = None
     progress: bool = False
     psd_probes: list = field(default_factory=list)
-    psd_bands: int = 8
+    psd_bands: int | None = None
     psd_nperseg: int | None = None
     memory_mb: float | None = DEFAULT_MEMORY_MB
     plots: bool = True
@@ -103,7 +107,8 @@ class UnsteadyResult:
     memory, MiB), ``frames_per_s`` (frames over the whole run's time), ``blocks``
     (frames per Phase 1 block, nodes per Phase 2 block), ``timings`` (seconds: ``setup``
     = inputs, tracking, form factors; ``phase1``, of which ``first_frame`` (its maps and
-    the self-illumination's frame-0 solve); ``phase2`` = Phase 2 and the outputs)."""
+    the self-illumination's frame-0 solve); ``phase2`` = Phase 2 and the outputs), ``si``
+    (whether the run removed the self-illumination)."""
 
     out: Path
     n_frames: int
@@ -119,6 +124,7 @@ class UnsteadyResult:
     blocks: tuple = ()
     timings: dict = field(default_factory=dict)
     uncertainty: dict = field(default_factory=dict)
+    si: bool = True
 
 
 _DECK_REGISTRATION = {"pixel": "first-frame", "none": "none", "track": "track",
@@ -182,6 +188,9 @@ def check_options(cfg: UnsteadyConfig) -> None:
         raise InputError(f"{where}: filter {cfg.filter!r} unknown (none, gaussian)")
     if cfg.filter == "gaussian" and (cfg.filter_size < 3 or cfg.filter_size % 2 == 0):
         raise InputError(f"{where}: filter_size {cfg.filter_size} must be odd and >= 3")
+    if cfg.filter == "gaussian" and cfg.filter_size > MAX_FILTER_SIZE:
+        raise InputError(f"{where}: filter_size {cfg.filter_size} is too large (at most "
+                         f"{MAX_FILTER_SIZE} pixels, and within the frame)")
     if not 0 < cfg.oblique_angle <= 90:
         raise InputError(f"{where}: oblique_angle {cfg.oblique_angle} must be in (0, 90]")
     if cfg.number_frames == 0 or cfg.number_frames < -1:
@@ -190,4 +199,95 @@ def check_options(cfg: UnsteadyConfig) -> None:
         raise InputError(f"{where}: no camera")
     if cfg.out.suffix.lower() not in (".h5", ".hdf5"):
         raise InputError(f"{cfg.out}: the output is an HDF5 file (.h5)")
+    check_numbers(cfg)
+
+
+#: The largest Gaussian filter, pixels a side (uPSP's decks use 3 to 7).
+MAX_FILTER_SIZE = 101
+#: The largest memory budget accepted, MiB (1 PiB).
+MAX_MEMORY_MB = 2.0**30
+
+
+def _finite(value, name: str, lo: float, hi: float, unit: str = "") -> float:
+    """``value`` as a float within ``[lo, hi]``, or InputError naming the option."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError, OverflowError):
+        raise InputError(f"{name} {value!r}: not a number") from None
+    if not lo <= v <= hi:  # NaN fails too
+        raise InputError(f"{name} {value}: out of range (expected {lo:g} to {hi:g}"
+                         f"{' ' + unit if unit else ''})")
+    return v
+
+
+def check_numbers(cfg: UnsteadyConfig) -> None:
+    """The numeric options finite and within their ranges (:class:`InputError` naming the
+    option): ``--fps``, ``--tinf`` (above absolute zero), ``--memory``, ``--seed`` (a
+    64-bit unsigned integer), ``--rays``, ``--workers``, ``--psd-bands``,
+    ``--psd-nperseg``, ``--p-ref``, and the camera numbers."""
+    if cfg.fps is not None:
+        _finite(cfg.fps, "--fps", *FRAME_RATE_RANGE, "frames/s")
+    if cfg.tinf is not None:
+        from selfillum.unsteady.conditions import MAX_TEMPERATURE_F, RANKINE
+
+        t = _finite(cfg.tinf, "--tinf", -RANKINE, MAX_TEMPERATURE_F, "deg F")
+        if t == -RANKINE:
+            raise InputError(f"--tinf {cfg.tinf}: at absolute zero ({-RANKINE} deg F)")
+    if cfg.memory_mb is not None:
+        if not _finite(cfg.memory_mb, "--memory", 0.0, MAX_MEMORY_MB, "MiB") > 0:
+            raise InputError(f"--memory {cfg.memory_mb}: must be > 0 MiB")
+    for name, v, lo, hi in (("--seed", cfg.seed, 0, 2**64 - 1), ("--rays", cfg.rays, 1, 2**20),
+                            ("--psd-bands", cfg.psd_bands, 0, 2**20),
+                            ("--psd-nperseg", cfg.psd_nperseg, 8, 2**31)):
+        if v is None:
+            continue
+        if isinstance(v, bool) or not isinstance(v, numbers.Integral):
+            raise InputError(f"{name} {v!r}: not an integer")
+        if not lo <= int(v) <= hi:
+            raise InputError(f"{name} {v}: out of range (expected {lo} to {hi})")
+    if cfg.workers is not None and (isinstance(cfg.workers, bool) or cfg.workers < 1):
+        raise InputError(f"--workers {cfg.workers}: expected at least 1 process")
+    if cfg.scheduler is not None:
+        check_scheduler_address(cfg.scheduler)
+    if cfg.p_ref is not None:
+        p = _finite(cfg.p_ref, "--p-ref", 0.0, 1e9, "psf")
+        if p <= 0:
+            raise InputError(f"--p-ref {cfg.p_ref}: the wind-off pressure must be > 0 psf")
+    for c in cfg.cameras:
+        if not 0 <= int(c.number) <= MAX_CAMERA_NUMBER:
+            raise InputError(f"{cfg.source}: camera number {c.number} out of range (0 to "
+                             f"{MAX_CAMERA_NUMBER})")
+
+
+#: The largest camera number (uPSP numbers its cameras from 1; a 16-bit range).
+MAX_CAMERA_NUMBER = 65535
+
+
+def cap_workers(workers: int | None) -> tuple[int | None, str | None]:
+    """``--workers`` capped at the cores this process may use: ``(workers, note)``, the
+    note (None when nothing changed) saying so."""
+    import os
+
+    if workers is None:
+        return None, None
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # pragma: no cover - not Linux
+        cores = os.cpu_count() or 1
+    if workers <= cores:
+        return workers, None
+    return cores, (f"--workers {workers}: capped at the {cores} core"
+                   f"{'s' if cores != 1 else ''} this machine gives the run")
+
+
+def check_scheduler_address(address: str) -> None:
+    """A Dask scheduler address ``[protocol://]host:port`` (``tcp``, ``tls``, ``ucx``,
+    ``ws``, ``wss``, ``inproc``), checked before anything connects to it."""
+    m = re.fullmatch(r"(?:(tcp|tls|ucx|ws|wss)://)?(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+)"
+                     r":(\d{1,5})", address.strip()) if address else None
+    if address and address.startswith("inproc://"):
+        return
+    if m is None or not 0 < int(m.group(3)) < 65536:
+        raise InputError(f"--scheduler {address!r}: not a scheduler address (expected "
+                         "tcp://host:port)")
 

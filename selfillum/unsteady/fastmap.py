@@ -37,7 +37,17 @@ import functools
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["FrameOperator", "plan_references"]
+__all__ = ["FrameOperator", "PixelValues", "plan_references"]
+
+
+class PixelValues:
+    """A frame given as the values of the operator's pixels only (``cols`` of a camera, in
+    their order): a warped frame sampled where it is read, not as a whole image."""
+
+    __slots__ = ("values",)
+
+    def __init__(self, values):
+        self.values = np.asarray(values, dtype=np.float64)
 
 
 class FrameOperator:
@@ -163,6 +173,8 @@ class FrameOperator:
         read as stored) to the nodes, ``Wn A_c`` (built once; the same sums as
         :meth:`faces` then :meth:`node_matrix`, in another order). None when a pixel that
         counts is not finite (the caller maps that frame the full way)."""
+        if any(isinstance(img, PixelValues) for img in images):
+            return None  # a warped frame's pixels: the faces' way
         if self._direct is None:
             Wn = self.node_matrix(W, grid)  # over the seen faces
             ops, self._direct_patch = [], []
@@ -207,7 +219,8 @@ class FrameOperator:
         :meth:`faces_moved` leaves out a point off the sensor."""
         B = np.zeros(self.A[0].shape[0])
         for c, (used, img) in enumerate(zip(self.cols, images, strict=True)):
-            x = np.asarray(img, dtype=np.float64).ravel()[used]
+            x = img.values if isinstance(img, PixelValues) else \
+                np.asarray(img, dtype=np.float64).ravel()[used]
             B += self._camera_faces(c, x, ~np.isfinite(x))
         return B
 
@@ -293,6 +306,15 @@ class FrameOperator:
             B += self._camera_faces(c, x, ~np.isfinite(x))
         return B
 
+    def _columns(self, c, patch: bool = False):
+        """Camera ``c``'s operator (or its patch's coefficients) by columns, kept: the
+        columns of a few pixels read cheaply."""
+        key = ("C" if patch else "A", c)
+        if key not in self._shares:
+            M = self.patch[c][1] if patch else self.A[c]
+            self._shares[key] = sp.csc_matrix(M)
+        return self._shares[key]
+
     def _camera_faces(self, c, x, bad) -> np.ndarray:
         """Camera ``c``'s part of the face values from its pixels' values ``x`` (over
         ``cols[c]``). Pixels ``bad`` (off the sensor, NaN after a warp) are left out, the
@@ -307,16 +329,20 @@ class FrameOperator:
             return out
         share = self._share(c)
         xs = np.where(bad, 0.0, x)
-        kept = A @ (~bad).astype(np.float64)
+        bi = np.flatnonzero(bad)  # few: the weight they leave, by their columns only
+        kept = share - np.asarray(self._columns(c)[:, bi].sum(axis=1)).ravel()
         num = A @ xs
         if pt is not None:
             A2, Cu, _, Aw = pt
             nP = Cu.shape[0] // Aw.shape[1]
-            lost = (abs(Cu) @ bad.astype(np.float64)).reshape(-1, nP).max(axis=1) > 0
+            rows = np.unique(self._columns(c, patch=True)[:, bi].indices)
+            lost = np.zeros(Aw.shape[1], bool)
+            lost[rows // nP] = True
             coef = (Cu @ xs).reshape(-1, nP)
             coef[lost] = 0.0
             num += A2 @ coef.ravel()
-            kept += Aw @ (~lost).astype(np.float64)
+            if lost.any():
+                kept -= np.asarray(Aw[:, np.flatnonzero(lost)].sum(axis=1)).ravel()
         with np.errstate(invalid="ignore", divide="ignore"):
             part = np.where(kept > 0, num * (share / kept), np.nan)
         return np.where(share > 0, part, 0.0)

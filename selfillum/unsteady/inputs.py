@@ -4,26 +4,45 @@ numbers depend on (:func:`work_inputs`, the key of a resumed run)."""
 
 from __future__ import annotations
 
-import math
 import os
 from pathlib import Path
 
 import numpy as np
 
+from resection.defaults import FRAME_RATE_RANGE
 from resection.errors import InputError
 from selfillum.unsteady.config import UnsteadyConfig
 from selfillum.unsteady.output import provenance
 
-__all__ = ["open_videos", "track_poses", "work_inputs", "read_form_factors"]
+__all__ = ["open_videos", "track_poses", "work_inputs", "min_frames", "content_key",
+           "file_digest", "check_cameras", "check_spot_sizes", "read_form_factors"]
 
 
-def open_videos(cfg: UnsteadyConfig):
-    """The videos opened, checked for length and rate: ``(sources, T, fps)``."""
+def open_videos(cfg: UnsteadyConfig, need: int | None = None):
+    """The videos opened, checked for length and rate, their first frame for light, and
+    for ``need`` frames at least (the unsteady run: :func:`min_frames`):
+    ``(sources, T, fps)``."""
     from resection.io.video import open_frames
 
-    srcs = [open_frames(c.video) for c in cfg.cameras]
+    srcs = []
+    try:
+        for c in cfg.cameras:
+            srcs.append(open_frames(c.video))
+        return _check_videos(cfg, srcs, need)
+    except BaseException:
+        for s in srcs:
+            s.close()
+        raise
+
+
+def _check_videos(cfg: UnsteadyConfig, srcs, need: int | None):
+    from selfillum.unsteady.phase2 import DETREND_ORDER
+
     n = [len(s) for s in srcs]
     where = cfg.source
+    for c, k in zip(cfg.cameras, n, strict=True):
+        if k == 0:
+            raise InputError(f"{c.video}: no frames")
     if cfg.number_frames == -1:
         if len(set(n)) > 1:
             lens = ", ".join(f"{c.video.name}: {k}" for c, k in
@@ -38,12 +57,13 @@ def open_videos(cfg: UnsteadyConfig):
             c, k = short[0]
             raise InputError(f"{where}: number_frames = {T} but {c.video} has {k} frames")
     rates = [s.frame_rate for s in srcs]
+    lo, hi = FRAME_RATE_RANGE
     if cfg.fps is None:  # the videos' own rates: a bad one is the video's, not --fps's
         for c, r in zip(cfg.cameras, rates, strict=True):
-            if r is not None and not (math.isfinite(r) and r > 0):
-                raise InputError(f"{c.video}: its header's frame rate {r} is not a positive "
-                                 "finite number; give --fps")
-    known = {float(r) for r in rates if r and math.isfinite(r) and r > 0}
+            if r is not None and not lo <= r <= hi:  # NaN, inf, 1e-320, negative
+                raise InputError(f"{c.video}: its header's frame rate {r} is not a frame "
+                                 f"rate ({lo:.3g} to {hi:g} frames/s); give --fps")
+    known = {float(r) for r in rates if r is not None and lo <= r <= hi}
     if len(known) > 1:
         rl = ", ".join(f"{c.video.name}: {r} fps" for c, r in
                        zip(cfg.cameras, rates, strict=True))
@@ -53,7 +73,30 @@ def open_videos(cfg: UnsteadyConfig):
         raise InputError(f"{cfg.cameras[0].video}: no frame rate in the video; give --fps")
     if not fps > 0:
         raise InputError(f"--fps must be positive, got {fps}")
+    if need is not None and T < need:
+        what = f"{where}: number_frames = {T}" if cfg.number_frames != -1 else \
+            f"{cfg.cameras[0].video}: {T} frame{'s' if T != 1 else ''}"
+        why = (f" (Phase 2 removes a polynomial of order {DETREND_ORDER} in time from every "
+               "node's intensity)") if need == min_frames(DETREND_ORDER) else ""
+        raise InputError(f"{what}; the run needs at least {need} frames{why}")
+    for c, s in zip(cfg.cameras, srcs, strict=True):
+        h, w = s.shape
+        if cfg.filter == "gaussian" and cfg.filter_size > min(h, w):
+            raise InputError(f"{where}: filter_size {cfg.filter_size} is larger than "
+                             f"{c.video}'s {w}x{h} frames")
+        first = np.asarray(s[0], dtype=np.float64)
+        fin = first[np.isfinite(first)]
+        if fin.size == 0 or not fin.max() > max(fin.min(), 0.0):
+            lvl = f"every pixel {fin.max():g}" if fin.size else "no finite pixel"
+            raise InputError(f"{c.video}: frame 0 is blank ({lvl}): no light to measure "
+                             "(lens cap, a dark or a wrong file?)")
     return srcs, T, float(fps)
+
+
+def min_frames(order: int) -> int:
+    """Frames a run needs: the detrend's polynomial of ``order`` in time (``order + 1``
+    coefficients) leaves a residual (dCp) only with at least ``order + 2`` frames."""
+    return int(order) + 2
 
 
 def track_poses(cfg, cam_in, camera, src, T, tmp: Path, *, resume: bool = False):
@@ -86,9 +129,45 @@ def track_poses(cfg, cam_in, camera, src, T, tmp: Path, *, resume: bool = False)
     return poses, failed
 
 
+def file_digest(path: str | os.PathLike, block: int = 1 << 23) -> str:
+    """XXH3-128 digest (hex) of the whole content of ``path`` (a folder: of its files'
+    names and digests, in name order), read in blocks of ``block`` bytes."""
+    import xxhash
+
+    p = Path(path)
+    h = xxhash.xxh3_128()
+    if p.is_dir():
+        for q in sorted(x for x in p.rglob("*") if x.is_file()):
+            h.update(f"{q.relative_to(p).as_posix()}\0{file_digest(q, block)}\0".encode())
+        return h.hexdigest()
+    buf = bytearray(block)
+    view = memoryview(buf)
+    with open(p, "rb") as fh:
+        while n := fh.readinto(buf):
+            h.update(view[:n])
+    return h.hexdigest()
+
+
+def content_key(paths: dict) -> dict:
+    """Each input file (``{key: path or list of paths}``, None left out) with its size and
+    :func:`file_digest`: the files' part of a resumed run's key (a file rewritten with the
+    same size and its times restored still differs; touching a file does not)."""
+    out = {}
+    for key, p in paths.items():
+        if p is None:
+            continue
+        for q in (p if isinstance(p, (list, tuple)) else [p]):
+            out.setdefault(key, []).append({"path": str(Path(q).resolve()),
+                                            "size": os.stat(q).st_size,
+                                            "xxh3_128": file_digest(q)})
+    return out
+
+
 def work_inputs(cfg: UnsteadyConfig, T: int, N: int, fps: float) -> dict:
-    """What Phase 1's numbers depend on: a resumed run with anything else is refused."""
-    return {"files": provenance({
+    """What Phase 1's numbers depend on: a resumed run with anything else is refused.
+    The files by their content (:func:`content_key`), the settings by value (the fast
+    maps or the full ones, ``--full-maps``, included)."""
+    return {"software": provenance({})["version"], "files": content_key({
                 "grid": cfg.grid, "targets": cfg.targets,
                 "videos": [c.video for c in cfg.cameras],
                 "calibrations": [c.calibration for c in cfg.cameras],
@@ -100,7 +179,56 @@ def work_inputs(cfg: UnsteadyConfig, T: int, N: int, fps: float) -> dict:
             "overlap": cfg.overlap, "filter": cfg.filter, "filter_size": cfg.filter_size,
             "oblique_angle": cfg.oblique_angle, "frames": T, "nodes": N, "fps": fps,
             "si": cfg.si, "reflectance": str(cfg.reflectance),
-            "unpainted": str(cfg.unpainted), "rays": cfg.rays, "seed": cfg.seed}
+            "unpainted": str(cfg.unpainted), "rays": cfg.rays, "seed": cfg.seed,
+            "fast_maps": bool(cfg.fast)}
+
+
+def check_cameras(cfg: UnsteadyConfig, camera_files, srcs, mesh, *, caster=None) -> None:
+    """The camera checks of ``map`` for each camera on its video's first frame, before
+    any heavy step: the calibration's record in the grid's units
+    (:func:`resection.pose.camera_fit.require_same_units`), no two cameras with the same
+    calibration, and, with the targets file, each target the camera should see landing on
+    a dark spot of the frame (:func:`resection.pose.camera_fit.marker_fit`): calibrations
+    swapped between cameras, or one camera's given to both, are refused by name."""
+    from resection.io.markers import read_markers
+    from resection.pose.camera_fit import marker_fit, require_fit, require_same_units
+    from resection.surface.surface_map import SurfaceMap
+
+    cams = [cf.camera for cf in camera_files]
+    for i in range(len(cams)):
+        for j in range(i):
+            a, b = cams[i], cams[j]
+            if np.allclose(a.K, b.K) and np.allclose(a.R, b.R) and \
+                    np.allclose(a.t, b.t) and np.allclose(a.dist, b.dist):
+                ci, cj = cfg.cameras[i], cfg.cameras[j]
+                raise InputError(f"{ci.calibration}: camera {ci.number} has the same "
+                                 f"calibration as camera {cj.number} ({cj.calibration}): "
+                                 "each camera needs its own")
+    for c, cf in zip(cfg.cameras, camera_files, strict=True):
+        require_same_units(cf.solved_on, mesh.vertices, c.calibration, cfg.grid)
+    if cfg.targets is None:
+        return
+    markers = read_markers(cfg.targets)
+    for c, cf, s in zip(cfg.cameras, camera_files, srcs, strict=True):
+        img = np.asarray(s[0], dtype=np.float32)
+        smap = SurfaceMap(mesh, cf.camera, max_obliqueness=None, caster=caster)
+        fit = marker_fit(cf.camera, img, markers, surface_map=smap)
+        require_fit(fit, c.calibration, f"{c.video} (frame 0, camera {c.number})")
+
+
+def check_spot_sizes(spots, mesh, source) -> None:
+    """Every target's, tap's and transducer's diameter positive and smaller than the
+    model (its bounding box's largest side): a diameter of 1e30, or one in other units
+    than the grid, would mask the whole frame (or nothing) and size the tracking's
+    windows absurdly."""
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    size = float(np.max(v.max(axis=0) - v.min(axis=0)))
+    d = np.asarray(spots.diameter, dtype=np.float64)
+    bad = np.flatnonzero(~((d > 0) & (d < size)))
+    if bad.size:
+        k = int(bad[0])
+        raise InputError(f"{source}: {spots.ids[k]}'s diameter {d[k]:g} is not between 0 and "
+                         f"the model's size {size:.4g} ({bad.size} such; the grid's units?)")
 
 
 def read_form_factors(path, n_faces: int):

@@ -46,6 +46,7 @@ as large as ``pressure``) are not written: no uPSP script reads them.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import warnings
@@ -55,7 +56,7 @@ from xml.sax.saxutils import escape
 import numpy as np
 
 __all__ = ["FORMAT", "VERSION", "FLAT_FILES", "chunk_shape", "write_xdmf", "write_flat",
-           "write_node_files", "camera_coverage"]
+           "write_node_files", "camera_coverage", "writing"]
 
 FORMAT = "selfillum-unsteady"
 VERSION = 1
@@ -77,6 +78,21 @@ def chunk_shape(n_frames: int, n_nodes: int, chunk_bytes: int = CHUNK_BYTES,
     tc = int(np.clip(round(np.sqrt(cells * T / N)), 1, T))
     nc = int(np.clip(cells // tc, 1, N))
     return tc, nc
+
+
+@contextlib.contextmanager
+def writing(path, temporaries: dict | None = None):
+    """An :class:`OSError` raised inside (a full disk, a quota) named after the output
+    ``path`` it was writing when it names no file or one of its ``temporaries`` (temporary
+    name -> output), so that the user reads which output could not be written."""
+    try:
+        yield
+    except OSError as exc:
+        names = {str(k): v for k, v in (temporaries or {}).items()}
+        if exc.filename is None or str(exc.filename) in names:
+            target = names.get(str(exc.filename), path)
+            raise OSError(exc.errno, exc.strerror or str(exc), str(target)) from None
+        raise
 
 
 def json_attr(obj) -> str:

@@ -511,8 +511,13 @@ def _fixed_images(cameras, k, regs, spot_px, filter, filter_size, pres=None,
         if regs[ci] is not None or filter == "gaussian":
             img = img.astype(np.float64)
             if regs[ci] is not None:  # first-frame: warped onto frame 0
-                only = read[ci] if read is not None and filter != "gaussian" else None
-                img = regs[ci].warp(img, regs[ci].fit(img), only)
+                if read is not None and filter != "gaussian":  # only what is read
+                    from selfillum.unsteady.fastmap import PixelValues
+
+                    imgs.append(PixelValues(regs[ci].sample(img, regs[ci].fit(img),
+                                                            read[ci])))
+                    continue
+                img = regs[ci].warp(img, regs[ci].fit(img))
             if filter == "gaussian":
                 if pres is not None and pres[ci] is not None:
                     img = pres[ci].apply(img)

@@ -103,13 +103,28 @@ class AffineRegistration:
         if img.dtype.kind not in "fiu":
             img = img.astype(np.float64)
         H, W = self.shape
-        out = np.full(H * W, np.nan)
-        idx = np.arange(H * W, dtype=np.int64) if pixels is None else \
-            np.asarray(pixels, dtype=np.int64)
+        if pixels is not None:
+            out = np.full(H * W, np.nan)
+            out[np.asarray(pixels, dtype=np.int64)] = self.sample(img, A, pixels)
+            return out.reshape(H, W)
+        return self.sample(img, A, np.arange(H * W, dtype=np.int64)).reshape(H, W)
+
+    def sample(self, frame, A, pixels) -> np.ndarray:
+        """The values of :meth:`warp` at the reference's ``pixels`` (flat indices) only,
+        (n,) float64; the compiled kernel on the available cores (blocks of pixels)."""
+        from resection._threads import run_blocks, split_range
+
+        img = np.asarray(frame)
+        if img.dtype.kind not in "fiu":
+            img = img.astype(np.float64)
+        img = np.ascontiguousarray(img)
+        idx = np.asarray(pixels, dtype=np.int64)
+        A = np.asarray(A, np.float64)
         vals = np.empty(idx.size)
-        _affine_kernel()(np.ascontiguousarray(img), np.asarray(A, np.float64), idx, vals)
-        out[idx] = vals
-        return out.reshape(H, W)
+        kern = _affine_kernel()
+        run_blocks(lambda b: kern(img, A, idx[b[0]:b[1]], vals[b[0]:b[1]]),
+                   split_range(idx.size, None, min_size=65536))
+        return vals
 
 
 @functools.cache

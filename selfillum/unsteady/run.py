@@ -14,6 +14,7 @@ the run.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import time
 from pathlib import Path
 
@@ -35,6 +36,9 @@ from selfillum.unsteady.config import (
     config_from_deck,
 )
 from selfillum.unsteady.inputs import (
+    check_cameras,
+    check_spot_sizes,
+    min_frames,
     open_videos,
     read_form_factors,
     track_poses,
@@ -50,12 +54,13 @@ from selfillum.unsteady.output import (
     write_flat,
     write_node_files,
     write_xdmf,
+    writing,
 )
 from selfillum.unsteady.phase1 import CameraRun, SelfIllumination
-from selfillum.unsteady.phase2 import node_gain
+from selfillum.unsteady.phase2 import DETREND_ORDER, node_gain
 from selfillum.unsteady.plots import write_pictures
 from selfillum.unsteady.results import write_results
-from selfillum.unsteady.spectra import Spectra
+from selfillum.unsteady.spectra import Spectra, default_bands
 from selfillum.unsteady.work import Phase1Store
 
 __all__ = ["CameraInput", "UnsteadyConfig", "UnsteadyResult", "run_unsteady",
@@ -66,7 +71,8 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     """Run Phase 1 and Phase 2 and write the output (see the module notes)."""
     import h5py
 
-    from resection.io.cameras import read_camera
+    from resection.io.cameras import read_camera_file
+    from resection.io.guarded import guarded_h5
     from resection.io.markers import read_markers
     from resection.io.outputs import atomic_path
     from resection.io.upsp_inputs import read_paint_calibration
@@ -93,6 +99,11 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     if cfg.paint_calibration is not None:
         cal = read_paint_calibration(cfg.paint_calibration)
         gain = node_gain(cal, cond.surface_temperature, cp, cond)
+        bad = ~np.isfinite(gain)
+        if bad.any():
+            raise InputError(f"{cfg.paint_calibration}: the gain is not finite at "
+                             f"{int(bad.sum())} of {bad.size} nodes (coefficients too large "
+                             "for the run's temperature and pressures)")
         coeffs = (cal.a, cal.b, cal.c, cal.d, cal.e, cal.f)
     else:
         taps, tapn, offs = insitu_inputs(cfg, grid)
@@ -101,14 +112,23 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
         spots = DarkSpots.from_markers(read_markers(cfg.targets, include_taps=True),
                                        str(cfg.targets))
     mesh = grid.mesh
+    if spots is not None:
+        check_spot_sizes(spots, mesh, cfg.targets)
     unpainted = None
     if cfg.unpainted is not None:
         unpainted, _ = read_unpainted(cfg.unpainted, mesh)
     rho = read_reflectance(cfg.reflectance, len(mesh.faces)) if cfg.si else None
     F_given = read_form_factors(cfg.form_factors, len(mesh.faces)) \
         if cfg.si and cfg.form_factors is not None else None
-    cams = [read_camera(c.calibration) for c in cfg.cameras]
-    srcs, T, fps = open_videos(cfg)
+    srcs, T, fps = open_videos(cfg, need=min_frames(DETREND_ORDER))
+    try:
+        camfiles = [read_camera_file(c.calibration, image_size=s.shape[::-1])
+                    for c, s in zip(cfg.cameras, srcs, strict=True)]
+    except BaseException:
+        for s in srcs:
+            s.close()
+        raise
+    cams = [cf.camera for cf in camfiles]
     for k, (c, cam, s) in enumerate(zip(cfg.cameras, cams, srcs, strict=True)):
         if (cam.height, cam.width) != tuple(s.shape):
             raise InputError(f"{c.calibration}: a {cam.width}x{cam.height} camera, its video "
@@ -127,12 +147,20 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
             raise InputError(f"{p}: exists; remove it or choose another --out")
     N = grid.n_nodes
     tc, nc = chunk_shape(T, N)
-    plan = plan_blocks(T, N, (tc, nc), cfg.memory_mb)
     frames = np.arange(T)
     times = frames / fps
+    if cfg.psd_bands is None:  # the default, now that the run's length is known
+        cfg = dataclasses.replace(cfg, psd_bands=default_bands(T, cfg.psd_nperseg))
     spectra = Spectra(N, fps, T, probes=cfg.psd_probes, n_bands=cfg.psd_bands,
                       nperseg=cfg.psd_nperseg) if (cfg.psd_probes or cfg.psd_bands) \
         else None
+    plan = plan_blocks(T, N, (tc, nc), cfg.memory_mb,
+                       node_bytes=spectra.bytes_per_node if spectra is not None else 0)
+    local = not (cfg.workers or cfg.scheduler)
+    # one Embree scene of the grid for the camera checks, the view factors and this
+    # process's maps
+    caster = RayCaster(mesh) if cfg.si or local else None
+    check_cameras(cfg, camfiles, srcs, mesh, caster=caster)  # map's checks, frame 0
     t_start = time.perf_counter()
     counts: dict = {}  # frames mapped each way in this process (map_run)
     store = Phase1Store(out, work_inputs(cfg, T, N, fps), (T, N), (tc, nc), len(cfg.cameras),
@@ -151,9 +179,6 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
                 failed += nf
             runs.append(CameraRun(c.number, cam, s, poses))
         si = F = None
-        local = not (cfg.workers or cfg.scheduler)
-        # one Embree scene of the grid for the view factors and this process's maps
-        caster = RayCaster(mesh) if cfg.si or local else None
         if cfg.si:
             from selfillum.transport.coupling import coupled_view_factors
             from selfillum.unsteady.candidates import faces_in_view
@@ -166,7 +191,8 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
             F = store.form_factors(lambda: F_given if F_given is not None else
                                    coupled_view_factors(mesh, cand, rays_per_face=cfg.rays,
                                                         seed=cfg.seed, progress=cfg.progress,
-                                                        caster=caster)[0])
+                                                        caster=caster)[0],
+                                   n_faces=len(mesh.faces))
             si = SelfIllumination(mesh, F, rho, unpainted)
         if not local:
             caster = None  # the workers build their own
@@ -206,12 +232,23 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
             files = [out, xdmf, *flat, *pngs]
             with contextlib.ExitStack() as stack:
                 tmp = [stack.enter_context(atomic_path(p)) for p in files]
-                with h5py.File(tmp[0], "w") as f:
+                # a full disk: one OSError naming the file, never HDF5's crash
+                named = dict(zip(tmp, files, strict=True))
+                with writing(out, named), guarded_h5(tmp[0]) as (f, check):
+
+                    def nodes(done, check=check):
+                        check()  # a failed write stops the run within a block
+                        prog.nodes(done)
+
                     stats = write_results(f, cfg, grid, cond, cp, gain, s1, times, frames,
                                           runs, R, t, tc, nc, plan=plan, spectra=spectra,
-                                          progress=prog.nodes, client=client,
+                                          progress=nodes, client=client,
                                           work=store.path)
                     prog.close()
+                    if not stats["seen"] > 0:  # nothing to write: refused, not exit 0
+                        raise InputError(f"{out}: no node has a dCp: no node was seen in "
+                                         "enough frames (check the videos, the cameras' "
+                                         "calibrations and the grid)")
                     if cfg.uncertainty is not None:  # docs/uncertainty.md
                         from selfillum.unsteady.uncertainty_out import write_uncertainty
 
@@ -222,18 +259,21 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
                         f.attrs["stern_volmer"] = json_attr(
                             {"A": law.A, "B": law.B, "p_ref": law.p_ref,
                              "taps": list(taps.ids), "tap_nodes": tapn.tolist()})
-                    write_xdmf(tmp[1], out.name, T, N, len(grid.triangles), times,
-                               extra=node_fields(f))
+                    with writing(xdmf, named):
+                        write_xdmf(tmp[1], out.name, T, N, len(grid.triangles), times,
+                                   extra=node_fields(f))
                     if flat:
-                        write_flat(f, tmp[2], tmp[3], node_block=plan.nodes_per_block)
-                        cover = camera_coverage(grid, [r.camera for r in runs],
-                                                cfg.oblique_angle)
-                        write_node_files(f, dict(zip(FLAT_FILES[2:], tmp[4:len(flat) + 2],
-                                                     strict=True)),
-                                         work=s1, coverage=cover,
-                                         node_block=plan.nodes_per_block)
+                        with writing(flat[0], named):
+                            write_flat(f, tmp[2], tmp[3], node_block=plan.nodes_per_block)
+                            cover = camera_coverage(grid, [r.camera for r in runs],
+                                                    cfg.oblique_angle)
+                            write_node_files(f, dict(zip(FLAT_FILES[2:],
+                                                         tmp[4:len(flat) + 2], strict=True)),
+                                             work=s1, coverage=cover,
+                                             node_block=plan.nodes_per_block)
                     if pngs:
-                        write_pictures(grid, stats["rms"], spectra, tmp[-len(pngs):])
+                        with writing(pngs[0], named):
+                            write_pictures(grid, stats["rms"], spectra, tmp[-len(pngs):])
         finished = True
     except InputError:
         finished = True  # bad input: nothing to resume, nothing left
@@ -257,5 +297,5 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
                           stats["si_p95"], failed, tuple(files), peak_rss_mb(),
                           T / el if el > 0 else float("nan"),
                           (plan.frames_per_block, plan.nodes_per_block), timings,
-                          stats.get("uncertainty", {}))
+                          stats.get("uncertainty", {}), si=bool(cfg.si))
 

@@ -24,7 +24,18 @@ import numpy as np
 
 from resection.errors import InputError
 
-__all__ = ["welch_block", "band_edges", "band_average", "Spectra"]
+__all__ = ["welch_block", "band_edges", "band_average", "Spectra", "default_bands",
+           "DEFAULT_BANDS"]
+
+#: Bands of the per-node band PSD by default.
+DEFAULT_BANDS = 8
+
+
+def default_bands(n_frames: int, nperseg: int | None = None) -> int:
+    """:data:`DEFAULT_BANDS`, or the spectrum's frequencies above 0 when it has fewer
+    (segments of ``min(nperseg or 256, n_frames)`` frames)."""
+    nper = int(min(nperseg or 256, n_frames))
+    return max(0, min(DEFAULT_BANDS, nper // 2))
 
 
 def _hann(n: int) -> np.ndarray:
@@ -147,21 +158,34 @@ def band_edges(freq, n_bands: int) -> np.ndarray:
 
 def band_average(freq, psd, edges) -> np.ndarray:
     """Mean PSD of every row of ``psd`` (n, K) over each band ``[edges[i], edges[i+1])``
-    (the last band closed); a band holding no bin takes the bin nearest its centre."""
+    (the last band closed); a band holding no bin takes the bin nearest its centre.
+
+    The bins of a band are contiguous (``freq`` ascending): each band is one sum over a
+    slice (:func:`numpy.add.reduceat`), so memory is the ``(n, bands)`` answer, never a
+    ``(K, bands)`` matrix."""
     f = np.asarray(freq, dtype=np.float64)
     e = np.asarray(edges, dtype=np.float64)
-    b = np.searchsorted(e, f, side="right") - 1
-    b[f == e[-1]] = len(e) - 2
+    p = np.asarray(psd, dtype=np.float64)
     nb = len(e) - 1
+    b = np.searchsorted(e, f, side="right") - 1
+    b[f == e[-1]] = nb - 1
     inb = (b >= 0) & (b < nb)
-    M = np.zeros((f.size, nb))
-    M[np.flatnonzero(inb), b[inb]] = 1.0
-    empty = M.sum(axis=0) == 0
-    if empty.any():
+    count = np.bincount(b[inb], minlength=nb)
+    out = np.empty((p.shape[0], nb))
+    full = np.flatnonzero(count > 0)
+    if full.size:
+        idx = np.flatnonzero(inb)  # the bins inside the bands: contiguous, band by band
+        lo = idx[0]
+        starts = np.searchsorted(b[idx], full)  # first bin of each non-empty band
+        sums = np.add.reduceat(p[:, lo:idx[-1] + 1], starts, axis=1)
+        out[:, full] = sums / count[full]
+    empty = np.flatnonzero(count == 0)
+    if empty.size:
         centre = np.sqrt(e[:-1] * e[1:])[empty]
-        M[np.abs(f[:, None] - centre[None, :]).argmin(axis=0), np.flatnonzero(empty)] = 1.0
-    M /= M.sum(axis=0, keepdims=True)
-    return np.asarray(psd, dtype=np.float64) @ M
+        hi = np.clip(np.searchsorted(f, centre), 1, f.size - 1)
+        near = np.where(np.abs(f[hi - 1] - centre) <= np.abs(f[hi] - centre), hi - 1, hi)
+        out[:, empty] = p[:, near]
+    return out
 
 
 class Spectra:
@@ -200,12 +224,23 @@ class Spectra:
         K = self.freq.size
         self.probe_psd = np.full((self.probes.size, K), np.nan)
         self.n_bands = int(n_bands)
+        if self.n_bands > K - 1:
+            raise InputError(f"--psd-bands {self.n_bands}: more bands than the spectrum's "
+                             f"{K - 1} frequencies above 0 (Welch segments of "
+                             f"{self.nperseg} frames); at most {K - 1}")
         self.edges = band_edges(self.freq, self.n_bands) if self.n_bands else None
         if self.n_bands:
             self.band = band_out if band_out is not None else np.full(
                 (self.N, self.n_bands), np.nan, np.float32)
         self._sum = np.zeros(K)
         self._count = 0
+
+    @property
+    def bytes_per_node(self) -> int:
+        """Bytes a node of a Phase 2 block costs here beyond its dCp: its Welch sums and
+        PSD (float64, ``K`` frequencies, three arrays at the peak) and its band averages
+        (float64 and their float32 copy)."""
+        return 24 * self.freq.size + 12 * self.n_bands
 
     def add(self, a: int, dcp_block, psd=None, share=None) -> None:
         """Spectra of nodes ``a:a + n`` from their ``(T, n)`` dCp block (or their
