@@ -265,17 +265,8 @@ class FrameOperator:
         B = np.zeros(self.A[0].shape[0])
         for c, (X, uv0, img, cam) in enumerate(zip(self.X, self.uv0, images,
                                                       cameras, strict=True)):
-            arr = np.asarray(img)
-            if arr.dtype.kind not in "fiu":
-                arr = arr.astype(np.float64)
-            x = np.empty(len(X))
-            status = _project_sample(X, np.asarray(cam.R, np.float64),
-                                     np.asarray(cam.t, np.float64).ravel(),
-                                     np.asarray(cam.K, np.float64),
-                                     np.asarray(cam.dist, np.float64).ravel(),
-                                     float(cam.max_radius), uv0, arr,
-                                     2.0 * float(refresh_px), x)
-            if (status == 1).any():
+            x, status = _sample_moved(X, uv0, img, cam, refresh_px)
+            if status is None:
                 return None
             B += self._camera_faces(c, x, (status != 0) | ~np.isfinite(x))
         return B
@@ -285,19 +276,10 @@ class FrameOperator:
         for c, (sup, img, cam) in enumerate(zip(self.support, images, cameras,
                                                 strict=True)):
             pix, X, uv0 = sup
-            arr = np.asarray(img)
-            if arr.dtype.kind not in "fiu":
-                arr = arr.astype(np.float64)
-            xs = np.empty(len(X))
-            status = _project_sample(X, np.asarray(cam.R, np.float64),
-                                     np.asarray(cam.t, np.float64).ravel(),
-                                     np.asarray(cam.K, np.float64),
-                                     np.asarray(cam.dist, np.float64).ravel(),
-                                     float(cam.max_radius), uv0, arr,
-                                     2.0 * float(refresh_px), xs)
-            if (status == 1).any():
+            xs, status = _sample_moved(X, uv0, img, cam, refresh_px)
+            if status is None:
                 return None
-            H, W = arr.shape
+            H, W = np.shape(img)
             ref = np.full(H * W, np.nan)
             ok = status == 0
             ref[pix[ok]] = xs[ok]
@@ -346,6 +328,22 @@ class FrameOperator:
         with np.errstate(invalid="ignore", divide="ignore"):
             part = np.where(kept > 0, num * (share / kept), np.nan)
         return np.where(share > 0, part, 0.0)
+
+
+def _sample_moved(X, uv0, img, cam, refresh_px):
+    """``(x, status)``: the frame ``img`` sampled where the points ``X`` project with the
+    pose ``cam`` (:func:`_kernel`'s statuses: 0 sampled, 2 off the sensor); ``status`` None
+    when a point moved more than twice ``refresh_px`` from ``uv0`` (cast anew)."""
+    arr = np.asarray(img)
+    if arr.dtype.kind not in "fiu":
+        arr = arr.astype(np.float64)
+    x = np.empty(len(X))
+    status = _project_sample(X, np.asarray(cam.R, np.float64),
+                             np.asarray(cam.t, np.float64).ravel(),
+                             np.asarray(cam.K, np.float64),
+                             np.asarray(cam.dist, np.float64).ravel(),
+                             float(cam.max_radius), uv0, arr, 2.0 * float(refresh_px), x)
+    return x, (None if (status == 1).any() else status)
 
 
 def _support(smap, used, halo: int) -> tuple:

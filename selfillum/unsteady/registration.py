@@ -99,15 +99,12 @@ class AffineRegistration:
         NaN where that falls outside the frame or on a NaN pixel); with ``pixels`` (flat
         indices) only those are sampled, the others are NaN. A compiled loop over the
         pixels (:func:`_affine_kernel`), reading the frame as stored."""
-        img = np.asarray(frame)
-        if img.dtype.kind not in "fiu":
-            img = img.astype(np.float64)
         H, W = self.shape
         if pixels is not None:
             out = np.full(H * W, np.nan)
-            out[np.asarray(pixels, dtype=np.int64)] = self.sample(img, A, pixels)
+            out[np.asarray(pixels, dtype=np.int64)] = self.sample(frame, A, pixels)
             return out.reshape(H, W)
-        return self.sample(img, A, np.arange(H * W, dtype=np.int64)).reshape(H, W)
+        return self.sample(frame, A, np.arange(H * W, dtype=np.int64)).reshape(H, W)
 
     def sample(self, frame, A, pixels) -> np.ndarray:
         """The values of :meth:`warp` at the reference's ``pixels`` (flat indices) only,
