@@ -16,14 +16,15 @@ the ``with`` block ends. The caller removes the partial file (write to a tempora
 from __future__ import annotations
 
 import contextlib
-import io
 import os
 from collections.abc import Iterator
+
+from resection.io.shadow import ShadowedFile
 
 __all__ = ["GuardedFile", "guarded_h5"]
 
 
-class GuardedFile(io.RawIOBase):
+class GuardedFile(ShadowedFile):
     """A binary read/write file object over a new file ``path`` whose write errors are
     recorded in :attr:`failed` (see the module docstring)."""
 
@@ -42,46 +43,6 @@ class GuardedFile(io.RawIOBase):
             raise OSError(e.errno, e.strerror or str(e), self.path) from None
 
     # ------------------------------------------------------------------ file object
-    def readable(self):
-        return True
-
-    def writable(self):
-        return True
-
-    def seekable(self):
-        return True
-
-    def seek(self, pos, whence=0):
-        if whence == 2:
-            pos += self._size()
-        elif whence == 1:
-            pos += self._pos
-        self._pos = pos
-        return pos
-
-    def tell(self):
-        return self._pos
-
-    def _size(self) -> int:
-        size = os.fstat(self._f.fileno()).st_size
-        for off, data in self._shadow:
-            size = max(size, off + len(data))
-        return size
-
-    def readinto(self, b):
-        n = len(b)
-        self._f.seek(self._pos)
-        got = self._f.readinto(b) or 0
-        if self._shadow:
-            end = self._pos + n
-            for off, data in self._shadow:
-                a, z = max(self._pos, off), min(end, off + len(data))
-                if a < z:
-                    b[a - self._pos: z - self._pos] = data[a - off: z - off]
-                    got = max(got, z - self._pos)
-        self._pos += got
-        return got
-
     def write(self, b):
         view = memoryview(b).cast("B")
         n = view.nbytes

@@ -33,6 +33,8 @@ import struct
 import zlib
 from pathlib import Path
 
+from resection.io.shadow import ShadowedFile
+
 __all__ = ["JournaledFile", "committed_view", "discard", "journal_path", "recover"]
 
 _MAGIC = b"RSJ1"
@@ -180,7 +182,7 @@ def _lock(fh) -> None:
         pass  # a file system without flock
 
 
-class JournaledFile(io.RawIOBase):
+class JournaledFile(ShadowedFile):
     """Binary read/write file object over ``path`` (which must exist) with an undo journal
     (see the module docstring). One writer at a time: an advisory lock on the file (held
     until :meth:`close`, released by the system when the process ends however it ends);
@@ -236,46 +238,6 @@ class JournaledFile(io.RawIOBase):
             raise
 
     # ------------------------------------------------------------------ file object
-    def readable(self):
-        return True
-
-    def writable(self):
-        return True
-
-    def seekable(self):
-        return True
-
-    def seek(self, pos, whence=0):
-        if whence == 2:
-            pos += self._size()
-        elif whence == 1:
-            pos += self._pos
-        self._pos = pos
-        return pos
-
-    def tell(self):
-        return self._pos
-
-    def _size(self) -> int:
-        size = os.fstat(self._f.fileno()).st_size
-        for off, data in self._shadow:
-            size = max(size, off + len(data))
-        return size
-
-    def readinto(self, b):
-        n = len(b)
-        self._f.seek(self._pos)
-        got = self._f.readinto(b)
-        if self._shadow:
-            end = self._pos + n
-            for off, data in self._shadow:
-                a, z = max(self._pos, off), min(end, off + len(data))
-                if a < z:
-                    b[a - self._pos: z - self._pos] = data[a - off: z - off]
-                    got = max(got, z - self._pos)
-        self._pos += got
-        return got
-
     def write(self, b):
         data = bytes(b)
         if self.failed is None:
