@@ -91,7 +91,7 @@ def psp_with_uncertainty(args, stated) -> int:
         for k, m in enumerate(maps):
             atomic_write(out / f"pressure_{k}.tif", write_image,
                          m.to_image(res.pressure).astype(np.float32))
-        written = write_uncertainty(out, mesh, [m.camera for m in maps], state, budgets,
+        written = write_uncertainty(out, mesh, maps, state, budgets,
                                     stated, atomic_write, plots=not args.no_plots)
         atomic_write(out / "stern_volmer.json", Path.write_text,
                      json.dumps(info, indent=2) + "\n")

@@ -25,8 +25,8 @@ import numpy as np
 
 from resection.errors import InputError
 
-__all__ = ["perturbed", "pose_covariance", "pixel_jacobian", "ratio_sensitivity",
-           "switching_variance", "normal_points"]
+__all__ = ["perturbed", "pose_covariance", "face_jacobian", "pixel_jacobian",
+           "ratio_sensitivity", "switching_variance", "normal_points"]
 
 
 
@@ -91,25 +91,30 @@ def pose_covariance(camera, markers, sigma_px: float, name: str = "markers") -> 
     return float(sigma_px) ** 2 * np.linalg.inv(N)
 
 
-def pixel_jacobian(smap) -> np.ndarray:
-    """(6, H, W, 2) pixel displacement of each pixel's surface point per unit ``theta``
-    (NaN off the model): the Jacobian at the centroid of the pixel's face (it varies over
-    a face by the face's share of the image); kept on the map (both registration terms
-    use it)."""
-    cached = getattr(smap, "_uncertainty_jacobian", None)
+def face_jacobian(smap) -> np.ndarray:
+    """(F, 2, 6) pixel displacement of each face's centroid per unit ``theta`` (NaN for the
+    faces no pixel sees); kept on the map."""
+    cached = getattr(smap, "_uncertainty_face_jacobian", None)
     if cached is not None:
         return cached
+    f = smap.face_index.ravel()
+    used = np.unique(f[f >= 0])
+    Jf = np.full((smap.n_faces, 2, 6), np.nan)
+    Jf[used] = _jacobian(smap.camera, np.asarray(smap.mesh.triangles_center)[used])
+    smap._uncertainty_face_jacobian = Jf
+    return Jf
+
+
+def pixel_jacobian(smap) -> np.ndarray:
+    """(6, H, W, 2) pixel displacement of each pixel's surface point per unit ``theta``
+    (NaN off the model): the Jacobian at the centroid of the pixel's face
+    (:func:`face_jacobian`; it varies over a face by the face's share of the image)."""
     H, W = smap.shape
     f = smap.face_index.ravel()
     hit = f >= 0
-    used = np.unique(f[hit])
-    Jf = np.full((smap.n_faces, 2, 6), np.nan)
-    Jf[used] = _jacobian(smap.camera, np.asarray(smap.mesh.triangles_center)[used])
     J = np.full((H * W, 2, 6), np.nan)
-    J[hit] = Jf[f[hit]]
-    out = np.moveaxis(J, 2, 0).reshape(6, H, W, 2)
-    smap._uncertainty_jacobian = out
-    return out
+    J[hit] = face_jacobian(smap)[f[hit]]
+    return np.moveaxis(J, 2, 0).reshape(6, H, W, 2)
 
 
 def ratio_sensitivity(weights, off_images, on_images, covariances) -> np.ndarray:
@@ -207,6 +212,8 @@ def switching_variance(weights, off_images, on_images, covariances,
     Taken as independent between faces; edges on the model's outline (no face across)
     are left out.
     """
+    import scipy.sparse as sp
+
     nf = weights.camera.shape[1]
     out = np.zeros(nf)
     for c, (m, off, on, S) in enumerate(zip(weights.maps, off_images, on_images, covariances,
@@ -234,9 +241,9 @@ def switching_variance(weights, off_images, on_images, covariances,
         # outward normal of the nearest edge: away from the opposite vertex
         nvec = -side[rows, k][:, None] * np.stack([-ev[rows, k, 1], ev[rows, k, 0]], 1) \
             / ln[rows, k][:, None]
-        J = pixel_jacobian(m).reshape(6, H * W, 2)[:, hit]  # (6, P, 2)
-        Jn = np.einsum("kpd,pd->pk", np.nan_to_num(J), nvec)  # (P, 6)
-        sig = np.sqrt(np.maximum(np.einsum("pk,kl,pl->p", Jn, S, Jn), 0.0))
+        Jf = np.nan_to_num(face_jacobian(m))  # (F, 2, 6)
+        Jn = Jf[f, 0] * nvec[:, :1] + Jf[f, 1] * nvec[:, 1:]  # (P, 6)
+        sig = np.sqrt(np.maximum(np.sum((Jn @ S) * Jn, axis=1), 0.0))
         with np.errstate(invalid="ignore", divide="ignore"):
             r = np.log(np.asarray(off, np.float64).ravel()[hit]
                        / np.asarray(on, np.float64).ravel()[hit])
@@ -255,12 +262,15 @@ def switching_variance(weights, off_images, on_images, covariances,
         leave = (-(Jn[sel] @ theta.T)) > dk[sel, None]  # (Psel, M)
         faces = np.concatenate([f[sel], nb[sel]])
         uniq, loc = np.unique(faces, return_inverse=True)
-        E = np.zeros((len(uniq), draws))
+        lumps = []
         for part, face in ((0, f[sel]), (1, nb[sel])):  # losing, gaining face
             with np.errstate(invalid="ignore", divide="ignore"):
                 lump = pw[sel] / Wsum[face] * (r[sel] - rf[face]) * weights.share[c][face]
-            lump = np.nan_to_num(lump) * (-1.0 if part == 0 else 1.0)
-            rows_ = loc[part * len(sel):(part + 1) * len(sel)]
-            np.add.at(E, rows_, leave * lump[:, None])
-        out[uniq] += E.var(axis=1) + E.mean(axis=1) ** 2
+            lumps.append(np.nan_to_num(lump) * (-1.0 if part == 0 else 1.0))
+        # E (faces, draws) = sum over the pixels of each face's lump where the pixel left
+        A = sp.csr_matrix((np.concatenate(lumps), (loc.ravel(), np.tile(np.arange(len(sel)),
+                                                                         2))),
+                          shape=(len(uniq), len(sel)))
+        E = A @ leave.astype(np.float64)
+        out[uniq] += np.mean(E * E, axis=1)  # the variance about 0 (no error: 0)
     return out
