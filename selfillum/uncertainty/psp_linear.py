@@ -24,7 +24,7 @@ from selfillum.uncertainty.illumination import (
     rqmc_ratio,
     unseen_vector,
 )
-from selfillum.uncertainty.psp_chain import PSPInputs, run_chain  # noqa: F401
+from selfillum.uncertainty.psp_chain import PSPInputs
 from selfillum.uncertainty.registration import (
     pose_covariance,
     ratio_sensitivity,
