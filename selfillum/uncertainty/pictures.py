@@ -72,7 +72,7 @@ def map_picture(smap, face_values, path, title: str, label: str) -> None:
         draw.line((x0 + bar_w, y, x0 + bar_w + 3, y), fill=INK)
         draw.text((x0 + bar_w + 6, y - 5), f"{frac * vmax:.3g}", fill=INK, font=font)
     draw.text((x0, top + H - 2), label, fill=INK, font=font)
-    canvas.save(path, format="PNG")
+    canvas.save(path, format="PNG", compress_level=1)  # zlib level 1: fast
 
 
 def budget_chart(budget, path, area=None, mask=None) -> None:
@@ -110,4 +110,4 @@ def budget_chart(budget, path, area=None, mask=None) -> None:
     draw.line((left, top - 2, left, y), fill=INK)
     draw.text((left, y + 2), "0 %", fill=INK, font=font)
     draw.text((left + bar_max - 18, y + 2), "100 %", fill=INK, font=font)
-    canvas.save(path, format="PNG")
+    canvas.save(path, format="PNG", compress_level=1)  # zlib level 1: fast

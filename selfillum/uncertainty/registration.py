@@ -152,17 +152,17 @@ def _edge_neighbours(mesh) -> np.ndarray:
     V = np.asarray(mesh.vertices, np.float64)
     tol = 1e-9 * max(float(np.ptp(V, axis=0).max()), 1e-300)
     _, vid = np.unique(np.round(V / tol), axis=0, return_inverse=True)
-    f = vid.ravel()[np.asarray(mesh.faces, dtype=np.int64)]
+    vid = vid.ravel().astype(np.int64)
+    f = vid[np.asarray(mesh.faces, dtype=np.int64)]
     nf = len(f)
     e = np.stack([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]], axis=1).reshape(-1, 2)
     e.sort(axis=1)
-    _, inv = np.unique(e, axis=0, return_inverse=True)
-    inv = inv.ravel()
+    key = e[:, 0] * (int(vid.max()) + 1) + e[:, 1]  # one integer an edge
     owner = np.repeat(np.arange(nf), 3)
-    order = np.argsort(inv, kind="stable")
-    s_inv, s_own = inv[order], owner[order]
+    order = np.argsort(key, kind="stable")
+    s_key, s_own = key[order], owner[order]
     out = np.full(3 * nf, -1, np.int64)
-    pair = np.flatnonzero(s_inv[1:] == s_inv[:-1])  # consecutive slots of one edge
+    pair = np.flatnonzero(s_key[1:] == s_key[:-1])  # consecutive slots of one edge
     out[order[pair]] = s_own[pair + 1]
     out[order[pair + 1]] = s_own[pair]
     return out.reshape(nf, 3)
@@ -259,7 +259,9 @@ def switching_variance(weights, off_images, on_images, covariances,
         z = normal_points(draws, 6, seed=c)
         theta = z @ np.linalg.cholesky(S + 1e-30 * np.eye(6)).T  # (M, 6)
         # the triangle moves by J theta: the pixel's place in it by -J theta
-        leave = (-(Jn[sel] @ theta.T)) > dk[sel, None]  # (Psel, M)
+        # (single precision: the displacements are a few pixels, compared with d)
+        leave = (Jn[sel].astype(np.float32) @ (-theta.T).astype(np.float32)
+                 > dk[sel, None].astype(np.float32))  # (Psel, M)
         faces = np.concatenate([f[sel], nb[sel]])
         uniq, loc = np.unique(faces, return_inverse=True)
         lumps = []
@@ -270,7 +272,7 @@ def switching_variance(weights, off_images, on_images, covariances,
         # E (faces, draws) = sum over the pixels of each face's lump where the pixel left
         A = sp.csr_matrix((np.concatenate(lumps), (loc.ravel(), np.tile(np.arange(len(sel)),
                                                                          2))),
-                          shape=(len(uniq), len(sel)))
-        E = A @ leave.astype(np.float64)
+                          shape=(len(uniq), len(sel)), dtype=np.float32)
+        E = (A @ leave.astype(np.float32)).astype(np.float64)
         out[uniq] += np.mean(E * E, axis=1)  # the variance about 0 (no error: 0)
     return out
