@@ -102,8 +102,8 @@ def json_attr(obj) -> str:
 def node_fields(h5file) -> list:
     """``(name, dataset)`` of the per-node fields beyond the statistics that the file holds
     (the uncertainty's, ``--uncertainty``)."""
-    names = ("dcp_u", "dcp_u_gain", "stats/dcp_rms_signal", "stats/dcp_rms_signal_u",
-             "psd/noise_floor")
+    names = ("dcp_u", "dcp_u_noise", "dcp_u_mapping", "dcp_u_gain", "stats/dcp_rms_signal",
+             "stats/dcp_rms_signal_u", "psd/noise_floor")
     return [(n.split("/")[-1], "/" + n) for n in names if n in h5file]
 
 

@@ -63,6 +63,7 @@ from selfillum.unsteady.phase2 import DETREND_ORDER, node_gain
 from selfillum.unsteady.plots import write_pictures
 from selfillum.unsteady.results import write_results
 from selfillum.unsteady.spectra import Spectra, default_bands
+from selfillum.unsteady.uncertainty_out import wind_off_noise
 from selfillum.unsteady.work import Phase1Store
 
 __all__ = ["CameraInput", "UnsteadyConfig", "UnsteadyResult", "run_unsteady",
@@ -98,6 +99,7 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     wtd = read_wtd(cfg.sds)
     cond = Conditions.from_wtd(wtd, tinf=cfg.tinf)
     law = gain = taps = tapn = offs = coeffs = None
+    off_noise = wind_off_noise(cfg)  # --uncertainty: the camera noise of wind-off frames
     if cfg.paint_calibration is not None:
         cal = read_paint_calibration(cfg.paint_calibration)
         gain = node_gain(cal, cond.surface_temperature, cp, cond)
@@ -259,7 +261,7 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
 
                         stats["uncertainty"] = write_uncertainty(
                             f, cfg, grid, runs, s1, stats, spectra, fps, frames, gain, cond,
-                            cp, coeffs)
+                            cp, coeffs, off_noise)
                     if surfaces:
                         fields = {k: f[d][()] for k, d in surface_fields(f)}
                         for p in surfaces:
