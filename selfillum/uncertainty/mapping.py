@@ -5,7 +5,8 @@ Model. A node's value is a weighted mean of pixels: each face's pixels averaged,
 around the node averaged with their areas (:mod:`selfillum.unsteady.phase1`). The pixels'
 surface points ``X_p`` with those weights ``w_p`` have, about the node ``x``, a first
 moment ``delta = sum w_p (X_p - x)`` and a second moment ``Q = sum w_p (X_p - x)(X_p -
-x)^T`` (plus each pixel's own footprint, ``a / 12`` per axis for a pixel of area ``a``):
+x)^T`` (plus each pixel's own footprint: ``side^2 / 12`` per axis, stretched along the view
+by its obliqueness):
 :func:`support_moments`, from frame 0's maps. A field ``s`` smooth over the support then
 reads ``s(x) + delta . grad s + Q : H / 2`` (``H`` its Hessian): a shift of the node by
 ``delta`` (pixels that fall unevenly on the faces around it, an oblique view) and a
@@ -70,16 +71,11 @@ def support_moments(mesh, maps, images=None) -> tuple[np.ndarray, np.ndarray]:
         sw += np.bincount(f, w, nf)
         for k in range(3):
             s1[:, k] += np.bincount(f, w * X[:, k], nf)
-        XX = X[:, iu[0]] * X[:, iu[1]]
+        XX = X[:, iu[0]] * X[:, iu[1]] + _footprint(m, X, f)
         for k in range(6):
             s2[:, k] += np.bincount(f, w * XX[:, k], nf)
     a = np.asarray(mesh.area_faces, np.float64)
     seen = (n > 0) & (sw > 0)
-    # each pixel's footprint: a square of area a_f / n_f in the face's plane
-    nrm = np.asarray(mesh.face_normals, np.float64)
-    foot = np.where(seen, a / np.maximum(n, 1) / 12.0, 0.0)
-    P = np.eye(3)[None] - nrm[:, :, None] * nrm[:, None, :]
-    s2 = s2 + (foot * sw)[:, None] * P[:, iu[0], iu[1]]
     # a face's pixels enter the node's value as their mean (weight a_f / n_f each)
     cf = np.where(seen, a / np.maximum(n, 1), 0.0)
     fv = np.asarray(mesh.faces)
@@ -98,6 +94,29 @@ def support_moments(mesh, maps, images=None) -> tuple[np.ndarray, np.ndarray]:
     Q = Q - V[:, :, None] * mu1[:, None, :] - mu1[:, :, None] * V[:, None, :] \
         + V[:, :, None] * V[:, None, :]
     return delta, Q
+
+
+def _footprint(smap, X, faces) -> np.ndarray:
+    """(P, 6) second moment (upper triangle of the 3 x 3) of each pixel's own footprint
+    on its face: a square pixel of side ``d / f`` at distance ``d`` (focal length ``f``
+    pixels), stretched by ``1 / cos`` of the view's angle along the ray's direction in the
+    face's plane; ``side^2 / 12`` per axis."""
+    cam = smap.camera
+    fpx = float(np.sqrt(abs(np.linalg.det(np.asarray(cam.K, np.float64)[:2, :2]))))
+    r = X - cam.center[None, :]
+    d = np.linalg.norm(r, axis=1)
+    r = r / d[:, None]
+    nrm = np.asarray(smap.mesh.face_normals, np.float64)[faces]
+    c = np.abs(np.sum(r * nrm, axis=1))
+    e = r - np.sum(r * nrm, axis=1)[:, None] * nrm  # the ray in the plane
+    en = np.linalg.norm(e, axis=1)
+    e = np.where(en[:, None] > 1e-12, e / np.maximum(en, 1e-300)[:, None], 0.0)
+    side2 = (d / fpx) ** 2 / 12.0
+    P = np.eye(3)[None] - nrm[:, :, None] * nrm[:, None, :]  # the face's plane
+    stretch = 1.0 / np.maximum(c, 0.05) ** 2 - 1.0  # along e: side / cos
+    M = side2[:, None, None] * (P + stretch[:, None, None] * e[:, :, None] * e[:, None, :])
+    iu = np.triu_indices(3)
+    return M[:, iu[0], iu[1]]
 
 
 def _tangent_frames(mesh) -> tuple[np.ndarray, np.ndarray]:
