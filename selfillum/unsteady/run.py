@@ -261,7 +261,8 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
 
                         stats["uncertainty"] = write_uncertainty(
                             f, cfg, grid, runs, s1, stats, spectra, fps, frames, gain, cond,
-                            cp, coeffs, off_noise)
+                            cp, coeffs, off_noise, chain={"spots": spots, "F": F, "rho": rho,
+                                                          "unpainted": unpainted})
                     if surfaces:
                         fields = {k: f[d][()] for k, d in surface_fields(f)}
                         for p in surfaces:
