@@ -136,13 +136,21 @@ def ratio_sensitivity(weights, off_images, on_images, covariances) -> np.ndarray
         with np.errstate(invalid="ignore", divide="ignore"):
             lr = np.log(np.asarray(off, np.float64) / np.asarray(on, np.float64))
         gy, gx = np.gradient(lr)  # d/dv, d/du, pixels
-        Jp = pixel_jacobian(m)  # (6, H, W, 2)
-        s = Jp[..., 0] * gx[None] + Jp[..., 1] * gy[None]  # (6, H, W): d ln R / d theta
+        fidx = m.face_index.ravel()
+        hit = np.flatnonzero(fidx >= 0)
+        f = fidx[hit]
+        Jf = face_jacobian(m)[f]  # (P, 2, 6): the pixel's face's Jacobian
+        s = Jf[:, 0] * gx.ravel()[hit, None] + Jf[:, 1] * gy.ravel()[hit, None]  # d ln R / d th
         L = np.linalg.cholesky(S + 1e-30 * np.eye(6))
-        planes = np.einsum("khw,kj->jhw", np.nan_to_num(s), L)  # one std of each component
-        per_cam = [np.zeros((6,) + mm.shape) for mm in weights.maps]
-        per_cam[c] = planes
-        rows.append(weights.mean(per_cam, relative=True))
+        x = np.nan_to_num(s) @ L  # (P, 6): one standard deviation of each component
+        # the merge's mean of the camera's pixels on each face, its share of the face
+        pw = weights.pixel[c].ravel()[hit]
+        nf = m.n_faces
+        den = np.bincount(f, weights=pw, minlength=nf)
+        num = np.stack([np.bincount(f, weights=pw * x[:, j], minlength=nf) for j in range(6)])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            v = np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0)
+        rows.append(v * weights.share[c])
     return np.concatenate(rows) if C else np.zeros((0, weights.camera.shape[1]))
 
 
