@@ -171,3 +171,12 @@ def test_unsteady_surface_files(tmp_path, capsys):
                                        equal_nan=True)
     with h5py.File(out) as f:
         np.testing.assert_allclose(m.points, f["grid/points"][()])
+    # bad --surface paths: one line, exit 2, before any work, nothing written
+    base = ["unsteady", str(run.deck), "--paint-calibration", str(run.paint), "--steady",
+            str(run.steady), "--fps", str(run.fps), "--quiet", "--no-plots"]
+    for bad, msg in ((vtu, "exists"), (tmp_path / "b.npy", "unknown format"),
+                     (run.steady, "is an input")):
+        rc = main(base + ["--out", str(tmp_path / "v.h5"), "--surface", str(bad)])
+        err = capsys.readouterr().err
+        assert rc == 2 and msg in err and len(err.strip().splitlines()) == 1, err
+        assert not (tmp_path / "v.h5").exists()
