@@ -71,7 +71,8 @@ def model_sources(inp: PSPInputs, state, stated, noise_models) -> Sources:
     R = state.result.ratio
     W = MergeWeights.from_merge(inp.maps, [np.where(np.isfinite(n), o, np.nan)
                                            for o, n in zip(inp.off, inp.on, strict=True)],
-                                state.merged_off)
+                                state.merged_off,
+                                pixel_weights_=state.extra.get("pixel_weights"))
     # ---- noise
     if noise_models is not None:
         v_off = W.variance([nm[0].variance(o, k) for nm, o, k in
