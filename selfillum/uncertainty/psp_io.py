@@ -12,7 +12,8 @@ import numpy as np
 from resection.errors import InputError
 from selfillum.uncertainty.noise import frame_mean
 
-__all__ = ["read_condition", "node_values", "node_operator", "write_uncertainty"]
+__all__ = ["read_condition", "node_values", "node_operator", "write_uncertainty", "write_table",
+           "face_columns", "node_columns"]
 
 
 def read_condition(paths, n_cameras: int, option: str) -> tuple[list, list, list]:
@@ -66,12 +67,12 @@ def node_operator(mesh):
                          shape=(len(mesh.vertices), nf))
 
 
-def write_table(path, columns: dict, int_first: bool = True) -> None:
+def write_table(path, columns: dict) -> None:
     """A CSV of ``columns`` (name -> (n,) values): a header line, then one row per item,
     the first column as integers, the others with 9 significant digits (``nan`` where
     NaN)."""
     names = list(columns)
-    fmt = ",".join((["%d"] if int_first else ["%.9g"]) + ["%.9g"] * (len(names) - 1))
+    fmt = ",".join(["%d"] + ["%.9g"] * (len(names) - 1))
     rows = np.column_stack([np.asarray(columns[k], np.float64) for k in names]).tolist()
     Path(path).write_text(",".join(names) + "\n"
                           + "".join([fmt % tuple(r) + "\n" for r in rows]))
