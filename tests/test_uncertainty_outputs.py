@@ -99,6 +99,24 @@ def test_psp_surface_bad_paths(corner_case, tmp_path, capsys):
         assert not (tmp_path / "o").exists()
 
 
+def test_psp_surface_file_without_uncertainty(corner_case, tmp_path, capsys):
+    """Plain ``psp --surface a.vtu``: pressure and ratio per face (cells) equal to
+    pressure_faces.csv, and their node values (points) finite where a face has one."""
+    import meshio
+
+    from scenes.psp_uncertainty import write_psp_files
+    from selfillum.cli.main import main
+
+    args = write_psp_files(corner_case, tmp_path, 1)
+    rc = main(args + ["--out", str(tmp_path / "o"), "--surface", str(tmp_path / "a.vtu")])
+    assert rc == 0, capsys.readouterr().err
+    faces = np.genfromtxt(tmp_path / "o" / "pressure_faces.csv", delimiter=",", names=True)
+    m = meshio.read(tmp_path / "a.vtu")
+    for n in ("pressure", "ratio"):
+        np.testing.assert_allclose(m.cell_data[n][0], faces[n], rtol=1e-7, equal_nan=True)
+        assert np.isfinite(m.point_data[n]).mean() > 0.9
+
+
 def test_function_file_of_mesh_fields(tmp_path):
     """A Plot3D grid of two blocks: node fields to a ``.f`` land on the grid's own nodes
     (a linear function of the position comes back at every node, seam copies included),
