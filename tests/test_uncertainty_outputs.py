@@ -7,41 +7,9 @@ each block's variables, ``i`` fastest) and compared with the command's CSV / HDF
 
 from __future__ import annotations
 
-import xml.etree.ElementTree as ET
-
-import h5py
 import numpy as np
 import pytest
-
-
-def read_function_file(path) -> list:
-    """A multi-block Plot3D function file by hand: (ni, nj, nk, nvar) per block."""
-    raw = open(path, "rb").read()  # noqa: SIM115
-    recs, pos = [], 0
-    while pos < len(raw):
-        n = int(np.frombuffer(raw, "<i4", 1, pos)[0])
-        recs.append(raw[pos + 4:pos + 4 + n])
-        assert np.frombuffer(raw, "<i4", 1, pos + 4 + n)[0] == n
-        pos += n + 8
-    nb = int(np.frombuffer(recs[0], "<i4")[0])
-    dims = np.frombuffer(recs[1], "<i4").reshape(nb, 4)
-    out = []
-    for r, (ni, nj, nk, nv) in zip(recs[2:], dims, strict=True):
-        v = np.frombuffer(r, "<f8").reshape(nv, nk, nj, ni)
-        out.append(np.transpose(v, (3, 2, 1, 0)))
-    return out
-
-
-def read_xdmf_attribute(path, name: str, center: str) -> np.ndarray:
-    """The named attribute of an XDMF file: its DataItem's ``file:/dataset`` read with
-    h5py (the file beside the XDMF)."""
-    root = ET.parse(path).getroot()
-    for att in root.iter("Attribute"):
-        if att.get("Name") == name and att.get("Center") == center:
-            fname, ds = att.find("DataItem").text.strip().split(":")
-            with h5py.File(path.parent / fname) as f:
-                return f[ds][()]
-    raise KeyError(name)
+from field_readers import read_function_file, read_xdmf_attribute
 
 
 @pytest.fixture(scope="module")
@@ -149,52 +117,3 @@ def test_function_file_of_mesh_fields(tmp_path):
     write_mesh_fields(tmp_path / "u.vtu", mesh, faces, nodes)
     m = meshio.read(tmp_path / "u.vtu")
     np.testing.assert_allclose(m.cell_data["cp_u"][0], faces["cp_u"], rtol=1e-12)
-
-
-def test_unsteady_surface_files(tmp_path, capsys):
-    """``unsteady --uncertainty --surface a.f --surface a.vtu``: the per-node fields (steady
-    cp, dcp_rms, dcp_u, dcp_u_gain, the RMS without the noise, the noise floor) in the
-    Plot3D function file (grid file order: blocks one after the other, ``i`` fastest),
-    the VTU's points and the run's own XDMF, equal to the HDF5's datasets."""
-    import meshio
-
-    from scenes.unsteady_run import make_unsteady_run
-    from selfillum.cli import main
-
-    run = make_unsteady_run(tmp_path, faces=800, frames=40, width=120, height=90,
-                            noise=0.01, vibration_deg=0.0, heave_m=0.0, amplitude=0.1)
-    out, f_file, vtu = tmp_path / "u.h5", tmp_path / "a.f", tmp_path / "a.vtu"
-    rc = main(["unsteady", str(run.deck), "--paint-calibration", str(run.paint), "--steady",
-               str(run.steady), "--fps", str(run.fps), "--out", str(out), "--quiet",
-               "--no-plots", "--uncertainty", "--u", "gain_a=0.01", "--surface", str(f_file),
-               "--surface", str(vtu)])
-    assert rc == 0, capsys.readouterr().err
-    want = {"cp": "steady/cp", "dcp_rms": "stats/dcp_rms", "dcp_u": "dcp_u",
-            "dcp_u_gain": "dcp_u_gain", "dcp_rms_signal": "stats/dcp_rms_signal",
-            "dcp_rms_signal_u": "stats/dcp_rms_signal_u", "noise_floor": "psd/noise_floor"}
-    with h5py.File(out) as f:
-        ref = {k: f[d][()].astype(np.float64) for k, d in want.items()}
-    names = (tmp_path / "a.nam").read_text().split()
-    assert set(want) <= set(names)
-    blocks = read_function_file(f_file)
-    flat = np.concatenate([b.reshape(-1, b.shape[3], order="F") for b in blocks])
-    m = meshio.read(vtu)
-    for k, v in ref.items():
-        assert np.isfinite(v).sum() > 100, k
-        np.testing.assert_allclose(flat[:, names.index(k)], v, rtol=1e-6, equal_nan=True)
-        np.testing.assert_allclose(m.point_data[k], v, rtol=1e-6, equal_nan=True)
-        if k != "cp":
-            np.testing.assert_allclose(read_xdmf_attribute(out.with_suffix(".xdmf"), k,
-                                                           "Node"), v, rtol=1e-6,
-                                       equal_nan=True)
-    with h5py.File(out) as f:
-        np.testing.assert_allclose(m.points, f["grid/points"][()])
-    # bad --surface paths: one line, exit 2, before any work, nothing written
-    base = ["unsteady", str(run.deck), "--paint-calibration", str(run.paint), "--steady",
-            str(run.steady), "--fps", str(run.fps), "--quiet", "--no-plots"]
-    for bad, msg in ((vtu, "exists"), (tmp_path / "b.npy", "unknown format"),
-                     (run.steady, "is an input")):
-        rc = main(base + ["--out", str(tmp_path / "v.h5"), "--surface", str(bad)])
-        err = capsys.readouterr().err
-        assert rc == 2 and msg in err and len(err.strip().splitlines()) == 1, err
-        assert not (tmp_path / "v.h5").exists()

@@ -12,6 +12,7 @@ import json
 import h5py
 import numpy as np
 import pytest
+from field_readers import read_function_file, read_xdmf_attribute
 
 from selfillum.uncertainty.stated import Stated
 from selfillum.uncertainty.unsteady import gain_relative_u
@@ -301,3 +302,50 @@ def test_unsteady_monte_carlo_through_phase1(small_run, capsys):
     ok = np.isfinite(ul) & np.isfinite(um) & (ul > 0)
     assert ok.sum() > 100
     assert np.median(um[ok] / ul[ok]) == pytest.approx(1.0, abs=0.15)
+
+
+def test_unsteady_surface_files(small_run, tmp_path, capsys):
+    """``unsteady --uncertainty --surface a.f --surface a.vtu``: the per-node fields (steady
+    cp, dcp_rms, dcp_u, dcp_u_gain, the RMS without the noise, the noise floor) in the
+    Plot3D function file (grid file order: blocks one after the other, ``i`` fastest),
+    the VTU's points and the run's own XDMF, equal to the HDF5's datasets."""
+    import meshio
+
+    from selfillum.cli import main
+
+    run = small_run
+    out, f_file, vtu = tmp_path / "u.h5", tmp_path / "a.f", tmp_path / "a.vtu"
+    rc = main(["unsteady", str(run.deck), "--paint-calibration", str(run.paint), "--steady",
+               str(run.steady), "--fps", str(run.fps), "--out", str(out), "--quiet",
+               "--no-plots", "--uncertainty", "--u", "gain_a=0.01", "--surface", str(f_file),
+               "--surface", str(vtu)])
+    assert rc == 0, capsys.readouterr().err
+    want = {"cp": "steady/cp", "dcp_rms": "stats/dcp_rms", "dcp_u": "dcp_u",
+            "dcp_u_gain": "dcp_u_gain", "dcp_rms_signal": "stats/dcp_rms_signal",
+            "dcp_rms_signal_u": "stats/dcp_rms_signal_u", "noise_floor": "psd/noise_floor"}
+    with h5py.File(out) as f:
+        ref = {k: f[d][()].astype(np.float64) for k, d in want.items()}
+    names = (tmp_path / "a.nam").read_text().split()
+    assert set(want) <= set(names)
+    blocks = read_function_file(f_file)
+    flat = np.concatenate([b.reshape(-1, b.shape[3], order="F") for b in blocks])
+    m = meshio.read(vtu)
+    for k, v in ref.items():
+        assert np.isfinite(v).sum() > 100, k
+        np.testing.assert_allclose(flat[:, names.index(k)], v, rtol=1e-6, equal_nan=True)
+        np.testing.assert_allclose(m.point_data[k], v, rtol=1e-6, equal_nan=True)
+        if k != "cp":
+            np.testing.assert_allclose(read_xdmf_attribute(out.with_suffix(".xdmf"), k,
+                                                           "Node"), v, rtol=1e-6,
+                                       equal_nan=True)
+    with h5py.File(out) as f:
+        np.testing.assert_allclose(m.points, f["grid/points"][()])
+    # bad --surface paths: one line, exit 2, before any work, nothing written
+    base = ["unsteady", str(run.deck), "--paint-calibration", str(run.paint), "--steady",
+            str(run.steady), "--fps", str(run.fps), "--quiet", "--no-plots"]
+    for bad, msg in ((vtu, "exists"), (tmp_path / "b.npy", "unknown format"),
+                     (run.steady, "is an input")):
+        rc = main(base + ["--out", str(tmp_path / "v.h5"), "--surface", str(bad)])
+        err = capsys.readouterr().err
+        assert rc == 2 and msg in err and len(err.strip().splitlines()) == 1, err
+        assert not (tmp_path / "v.h5").exists()
