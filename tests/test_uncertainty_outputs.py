@@ -1,9 +1,9 @@
-"""``--surface FILE`` on ``selfillum psp`` (with and without ``--uncertainty``) and
-``selfillum unsteady``: the uncertainty fields in VTU, XDMF and Plot3D function files,
-read back by independent readers (meshio for VTU; the XDMF's XML parsed with the standard
-library and its HDF5 data read with h5py; Plot3D function files read with plain NumPy
-following the format: Fortran records of ``nblocks``, ``ni nj nk nvar`` per block, then
-each block's variables, ``i`` fastest) and compared with the command's CSV / HDF5."""
+"""``--surface FILE`` on ``selfillum psp`` (with and without ``--uncertainty``): the
+uncertainty fields in VTU, XDMF and Plot3D function files, read back by independent
+readers (meshio for VTU; ``tests/field_readers.py``: the XDMF's XML parsed with the
+standard library and its HDF5 data read with h5py, Plot3D function files read with plain
+NumPy following the format) and compared with the command's CSV files. ``selfillum
+unsteady --surface``: ``tests/test_uncertainty_unsteady.py``."""
 
 from __future__ import annotations
 
