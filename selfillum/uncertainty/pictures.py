@@ -57,7 +57,7 @@ def map_picture(smap, face_values, path, title: str, label: str) -> None:
     rgb[ok] = cubehelix(img[ok] / vmax)
     H, W = img.shape
     top, bar_w, right = 24, 16, 110
-    canvas = Image.new("RGB", (W + right, H + top + 8), BACKGROUND)
+    canvas = Image.new("RGB", (W + right, H + top + 18), BACKGROUND)
     canvas.paste(Image.fromarray(rgb), (0, top))
     draw = ImageDraw.Draw(canvas)
     font = _font()
@@ -71,7 +71,7 @@ def map_picture(smap, face_values, path, title: str, label: str) -> None:
         y = top + round((1.0 - frac) * (H - 1))
         draw.line((x0 + bar_w, y, x0 + bar_w + 3, y), fill=INK)
         draw.text((x0 + bar_w + 6, y - 5), f"{frac * vmax:.3g}", fill=INK, font=font)
-    draw.text((x0, top + H - 2), label, fill=INK, font=font)
+    draw.text((x0, top + H + 4), label, fill=INK, font=font)
     canvas.save(path, format="PNG", compress_level=1)  # zlib level 1: fast
 
 
