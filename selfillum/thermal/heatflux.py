@@ -32,13 +32,13 @@ a base with ``thickness`` has an insulated back face.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from resection.errors import InputError
+from selfillum.thermal.jsonfile import number, read_object
 
 __all__ = ["Layer", "Substrate", "read_substrate", "step_response", "cook_felderman",
            "impulse_heat_flux", "heat_flux", "surface_temperature", "METHODS"]
@@ -83,23 +83,10 @@ class Substrate:
 def _layer(d, where: str, *, need_thickness: bool) -> Layer:
     if not isinstance(d, dict):
         raise InputError(f"{where}: expected an object with rho, c, k")
-    vals = {}
-    for key in ("rho", "c", "k"):
-        if key not in d:
-            raise InputError(f"{where}: missing {key}")
-        try:
-            v = float(d[key])
-        except (TypeError, ValueError):
-            raise InputError(f"{where}: {key} = {d[key]!r} is not a number") from None
-        if not (np.isfinite(v) and v > 0):
-            raise InputError(f"{where}: {key} = {d[key]!r} must be positive")
-        vals[key] = v
-    th = d.get("thickness")
-    if th is not None:
-        th = float(th)
-        if not (np.isfinite(th) and th > 0):
-            raise InputError(f"{where}: thickness = {d['thickness']!r} must be positive (m)")
-    elif need_thickness:
+    vals = {key: number(d, key, where, positive=True) for key in ("rho", "c", "k")}
+    th = number(d, "thickness", where, positive=True) if d.get("thickness") is not None \
+        else None
+    if th is None and need_thickness:
         raise InputError(f"{where}: a layer needs its thickness (m)")
     unknown = set(d) - {"rho", "c", "k", "thickness", "name"}
     if unknown:
@@ -112,15 +99,8 @@ def read_substrate(path) -> Substrate:
     body, or with ``thickness`` a slab with an insulated back), or ``{"layers": [{"rho",
     "c", "k", "thickness"}, ...], "substrate": {"rho", "c", "k"[, "thickness"]}}`` (layers
     top first)."""
+    d = read_object(path, "substrate file")
     p = Path(path)
-    try:
-        d = json.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(f"{p}: no such file") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"{p}: not a JSON substrate file ({exc})") from None
-    if not isinstance(d, dict):
-        raise InputError(f"{p}: expected a JSON object")
     if "layers" in d:
         if not isinstance(d["layers"], list) or not d["layers"]:
             raise InputError(f"{p}: layers must be a non-empty list")

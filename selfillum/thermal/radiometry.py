@@ -26,13 +26,13 @@ distance 0 and window transmission 1).
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from resection.errors import InputError
+from selfillum.thermal.jsonfile import kelvin, kelvin_range, number, read_object
 
 __all__ = ["Planck", "TableCalibration", "Emissivity", "Radiometry", "read_radiometry",
            "fresnel_emissivity"]
@@ -304,34 +304,13 @@ def read_radiometry(path) -> Radiometry:
     InputError
         One line naming the file and the missing or bad value.
     """
-    p = Path(path)
-    try:
-        d = json.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(f"{p}: no such file") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"{p}: not a JSON radiometry file ({exc})") from None
-    if not isinstance(d, dict):
-        raise InputError(f"{p}: expected a JSON object")
-    where = str(p)
+    d = read_object(path, "radiometry file")
+    where = str(Path(path))
 
     def num(key):
-        try:
-            v = float(d[key])
-        except (TypeError, ValueError):
-            raise InputError(f"{where}: {key} = {d[key]!r} is not a number") from None
-        if not np.isfinite(v):
-            raise InputError(f"{where}: {key} = {d[key]!r} is not finite")
-        return v
+        return number(d, key, where)
 
-    rng = None
-    if "range_K" in d:
-        r = d["range_K"]
-        if not (isinstance(r, list) and len(r) == 2):
-            raise InputError(f"{where}: range_K must be [Tmin, Tmax] in K")
-        rng = (float(r[0]), float(r[1]))
-        if rng[0] <= 0:
-            raise InputError(f"{where}: range_K {rng[0]} K is below 0 K")
+    rng = kelvin_range(d, "range_K", where)
     if "table" in d:
         t = d["table"]
         if not isinstance(t, dict) or "temperature_K" not in t or "counts" not in t:
@@ -356,11 +335,7 @@ def read_radiometry(path) -> Radiometry:
     if "emissivity" not in d:
         raise InputError(f"{where}: missing emissivity")
     eps = _emissivity(d["emissivity"], where)
-    if "reflected_temperature" not in d:
-        raise InputError(f"{where}: missing reflected_temperature (K)")
-    tr = num("reflected_temperature")
-    if tr <= 0:
-        raise InputError(f"{where}: reflected_temperature {tr} K is below 0 K")
+    tr = kelvin(d, "reflected_temperature", where)
     unknown = set(d) - set(_REQUIRED) - set(_EXIF) - {"emissivity", "reflected_temperature",
                                                      "range_K", "table"}
     if unknown:
