@@ -184,16 +184,27 @@ def surface_temperature(sub: Substrate, q, dt: float) -> np.ndarray:
     """The forward problem: surface temperature rise (K) at ``t_n = n dt`` for a heat flux
     (W/m^2, ``(n,)`` or ``(n, m)``) linear between the frames' values ``q`` (``q[0]``
     taken as 0)."""
-    from scipy.signal import fftconvolve
-
     q = np.asarray(q, dtype=np.float64)
     n = q.shape[0]
-    w = hat_response(sub, n, dt)
-    dT = fftconvolve(q[1:], w.reshape((-1,) + (1,) * (q.ndim - 1)), axes=0)[:n - 1]
+    dT = _convolve_time(q[1:], hat_response(sub, n, dt))
     return np.concatenate([np.zeros((1,) + q.shape[1:]), dT])
 
 
 # ------------------------------------------------------------------ the inverses
+def _convolve_time(x, kernel) -> np.ndarray:
+    """The first ``len(x)`` samples of the linear convolution of ``x`` (``(n,)`` or
+    ``(n, m)``, along time) with ``kernel`` (``(n,)``): one real FFT along time for the
+    whole block of nodes (the kernel's once)."""
+    from scipy import fft
+
+    n = x.shape[0]
+    L = fft.next_fast_len(2 * n - 1, real=True)
+    K = fft.rfft(kernel, L)
+    X = fft.rfft(x, L, axis=0)
+    X *= K.reshape((-1,) + (1,) * (x.ndim - 1))
+    return fft.irfft(X, L, axis=0)[:n]
+
+
 def _check_T(T, dt):
     T = np.asarray(T, dtype=np.float64)
     if T.ndim not in (1, 2) or T.shape[0] < 2:
@@ -207,14 +218,10 @@ def _check_T(T, dt):
 def cook_felderman(T, dt: float, effusivity: float) -> np.ndarray:
     """Heat flux (W/m^2) at every sample by Cook-Felderman (module notes): ``T`` (K),
     ``(frames,)`` or ``(frames, nodes)`` at equal steps ``dt`` (s); ``q[0] = 0``."""
-    from scipy.signal import fftconvolve
-
     T = _check_T(T, dt)
     n = T.shape[0]
     m = np.arange(n - 1, dtype=np.float64)
-    g = 1.0 / (np.sqrt(m) + np.sqrt(m + 1.0))
-    dT = np.diff(T, axis=0)
-    q = fftconvolve(dT, g.reshape((-1,) + (1,) * (T.ndim - 1)), axes=0)[:n - 1]
+    q = _convolve_time(np.diff(T, axis=0), 1.0 / (np.sqrt(m) + np.sqrt(m + 1.0)))
     q *= 2.0 * effusivity / np.sqrt(np.pi * dt)
     return np.concatenate([np.zeros((1,) + T.shape[1:]), q])
 
@@ -235,13 +242,10 @@ def impulse_response(sub: Substrate, n: int, dt: float) -> np.ndarray:
 def impulse_heat_flux(T, dt: float, sub: Substrate, h=None) -> np.ndarray:
     """Heat flux (W/m^2) at every sample by the impulse-response method (module notes);
     ``h`` from :func:`impulse_response` when already built for this length and step."""
-    from scipy.signal import fftconvolve
-
     T = _check_T(T, dt)
     n = T.shape[0]
     h = impulse_response(sub, n, dt) if h is None else h
-    dT = T[1:] - T[:1]
-    q = fftconvolve(dT, h.reshape((-1,) + (1,) * (T.ndim - 1)), axes=0)[:n - 1]
+    q = _convolve_time(T[1:] - T[:1], h)
     return np.concatenate([np.zeros((1,) + T.shape[1:]), q])
 
 
@@ -269,6 +273,8 @@ def fill_gaps(T) -> tuple[np.ndarray, np.ndarray]:
     T = np.asarray(T, dtype=np.float64)
     n = T.shape[0]
     fin = np.isfinite(T)
+    if fin.all():  # every node seen in every frame (the usual block): nothing to fill
+        return T, np.ones(T.shape[1:], bool)
     idx = np.arange(n)[:, None] * np.ones((1, T.shape[1]), dtype=np.int64)
     prev = np.maximum.accumulate(np.where(fin, idx, -1), axis=0)
     nxt = np.minimum.accumulate(np.where(fin, idx, n)[::-1], axis=0)[::-1]

@@ -74,6 +74,7 @@ def run_thermal(cfg: ThermalConfig) -> ThermalResult:
     from selfillum.images.image_correction import read_reflectance
     from selfillum.thermal.balance import NodeGeometry, camera_centres
     from selfillum.thermal.inputs import SignalFrames, check_range, track_poses
+    from selfillum.thermal.mapping import moving_phase1, takes
     from selfillum.thermal.output import FORMAT, VERSION, write_xdmf
     from selfillum.thermal.phase2 import BYTES_PER_CELL, run_phase2
     from selfillum.thermal.reflections import HeatingSelfIllumination
@@ -188,8 +189,13 @@ def run_thermal(cfg: ThermalConfig) -> ThermalResult:
         t1 = time.perf_counter()
         todo = np.arange(T)[done:] if done == 0 else np.concatenate([[0],
                                                                     np.arange(T)[done:]])
-        local_phase1(p1, grid, runs, todo, spots, si, None, store, R, t, done,
-                     plan.frames_per_block, T, N, prog, caster=caster)
+        counts: dict = {}
+        if takes(cfg.registration, cfg.overlap, si_on):  # one product a frame
+            moving_phase1(p1, grid, runs, todo, spots, store, R, t, done,
+                          plan.frames_per_block, T, N, prog, caster=caster, counts=counts)
+        else:
+            local_phase1(p1, grid, runs, todo, spots, si, None, store, R, t, done,
+                         plan.frames_per_block, T, N, prog, caster=caster, counts=counts)
         caster = None
         store.close()
         t2 = time.perf_counter()
@@ -241,6 +247,7 @@ def run_thermal(cfg: ThermalConfig) -> ThermalResult:
                     "seed": cfg.seed,
                     "si_refresh": cfg.si_refresh,
                     "si_solves": si.solves if si is not None else 0,
+                    "phase1_frames": counts,
                     "polarity": cfg.polarity, "chunks": [tc, nc]})
                 f.attrs["provenance"] = json_attr(provenance({
                     "grid": cfg.grid, "targets": cfg.targets, "substrate": cfg.substrate,
