@@ -5,10 +5,15 @@ Generates the synthetic IR run of :mod:`scenes.ir_run` (the launcher top as a Pl
 of about ``--nodes`` nodes, ``--frames`` frames of ``--width`` x ``--height`` uint16 at 50
 frames/s: markers that appear, 8 px settling then vibration, Fresnel emissivity), then runs
 the command in a fresh process (its own tracking of the markers, the view factors of
-``--rays`` rays a face, Cook-Felderman) and, in the same session, the bare reading of every
-frame of the video through ``resection.io.video.open_frames`` (the I/O floor the run cannot
-beat) for the ratio. Prints frames/s over the whole process and over the run (inputs read
-before excluded), each phase's time, and ``uptime``'s load before and after.
+``--rays`` rays a face, Cook-Felderman) and, in the same session and on the same cores, two
+peers for the ratios: the bare reading of every frame of the video through
+``resection.io.video.open_frames`` (the I/O floor the run cannot beat), and a bare
+library floor of Phase 1's per-frame work: every frame read, carried by ``cv2.remap``
+(bilinear, a sub-pixel shift of the whole frame) and taken to the nodes by one SciPy
+sparse product with about as many entries as the run's pixel-to-node operator (3 for
+each of the 24 % of the pixels that see the model in this scene).
+Prints frames/s over the whole process and over the run (inputs read before excluded),
+each phase's time, the ratios, and ``uptime``'s load before and after.
 
     python bench/bench_thermal.py --nodes 100000 --frames 200 [--threads 2]
 """
@@ -73,6 +78,24 @@ def main() -> None:
     res = subprocess.run([sys.executable, "-c", code, str(run.video)], capture_output=True,
                          text=True, env=env, cwd=str(ROOT), check=True)
     t_read = float(re.search(r"READ ([\d.]+)", res.stdout).group(1))
+    # the floor of Phase 1's per-frame work by bare library calls (same process kind)
+    code = ("import sys, time, numpy as np, scipy.sparse as sp, cv2; "
+            "from resection.io.video import open_frames; "
+            "s = open_frames(sys.argv[1]); n = int(sys.argv[2]); H, W = s.shape; "
+            "rng = np.random.default_rng(0); "
+            "px = rng.choice(H * W, min(H * W, int(0.24 * H * W)), replace=False); "
+            "M = sp.csr_matrix((rng.random(3 * px.size), (rng.integers(0, n, 3 * px.size), "
+            "np.repeat(px, 3))), shape=(n, H * W)); "
+            "mx, my = np.meshgrid(np.arange(W, dtype=np.float32) + 0.3, "
+            "np.arange(H, dtype=np.float32) + 0.2); "
+            "t = time.perf_counter(); "
+            "[M @ cv2.remap(s.native(k).astype(np.float32), mx, my, "
+            "cv2.INTER_LINEAR).ravel() for k in range(len(s))]; "
+            "print('FLOOR', time.perf_counter() - t)")
+    res = subprocess.run(["taskset", "-c", ",".join(str(c) for c in range(args.threads)),
+                          sys.executable, "-c", code, str(run.video), str(args.nodes)],
+                         capture_output=True, text=True, env=env, cwd=str(ROOT), check=True)
+    t_floor = float(re.search(r"FLOOR ([\d.]+)", res.stdout).group(1))
     out = folder / "thermal.h5"
     cmd = [sys.executable, "-m", "selfillum.cli", "thermal", "--grid", str(run.grid),
            "--targets", str(run.targets), "--video", str(run.video), "--calibration",
@@ -100,6 +123,9 @@ def main() -> None:
     print(f"bare read of every frame: {t_read:.2f} s ({T / t_read:.0f} frames/s); the run "
           f"costs {wall / t_read:.1f} x the read (process), {(setup + p1 + p2) / t_read:.1f} "
           "x (run)")
+    print(f"bare remap and node product of every frame: {t_floor:.2f} s ({T / t_floor:.0f} "
+          f"frames/s); phase 1 costs {p1 / t_floor:.1f} x it, the whole process "
+          f"{wall / t_floor:.1f} x")
     for p in folder.glob("thermal*"):
         if p.is_file():
             p.unlink()
