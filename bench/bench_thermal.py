@@ -49,6 +49,9 @@ def main() -> None:
     ap.add_argument("--extra", default="", help="more flags for the run")
     ap.add_argument("--reuse", action="store_true",
                     help="use the inputs already in --folder (an earlier run's)")
+    ap.add_argument("--tree", default=str(ROOT),
+                    help="the source tree the command runs from (another checkout: a before "
+                    "and after in the same session)")
     args = ap.parse_args()
     folder = Path(args.folder) if args.folder else Path(tempfile.mkdtemp(prefix="bench_t_"))
     nphi = int(round(np.sqrt(args.nodes / 1.6)))
@@ -97,6 +100,7 @@ def main() -> None:
                          capture_output=True, text=True, env=env, cwd=str(ROOT), check=True)
     t_floor = float(re.search(r"FLOOR ([\d.]+)", res.stdout).group(1))
     out = folder / "thermal.h5"
+    env_run = dict(env, PYTHONPATH=str(Path(args.tree).resolve()))
     cmd = [sys.executable, "-m", "selfillum.cli", "thermal", "--grid", str(run.grid),
            "--targets", str(run.targets), "--video", str(run.video), "--calibration",
            str(run.calibration), "--radiometry", str(run.radiometry), "--substrate",
@@ -106,7 +110,7 @@ def main() -> None:
     if args.threads:
         cmd = ["taskset", "-c", ",".join(str(c) for c in range(args.threads))] + cmd
     t0 = time.perf_counter()
-    res = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=str(ROOT))
+    res = subprocess.run(cmd, capture_output=True, text=True, env=env_run, cwd=args.tree)
     wall = time.perf_counter() - t0
     if res.returncode != 0:
         raise SystemExit(res.stderr.strip()[-2000:])

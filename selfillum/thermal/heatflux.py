@@ -271,10 +271,16 @@ def fill_gaps(T) -> tuple[np.ndarray, np.ndarray]:
     last seen value; ``usable`` (nodes,) is False for a node unseen at the first frame (no
     initial temperature) or never seen. Vectorized over nodes (indices by running maxima)."""
     T = np.asarray(T, dtype=np.float64)
-    n = T.shape[0]
     fin = np.isfinite(T)
-    if fin.all():  # every node seen in every frame (the usual block): nothing to fill
-        return T, np.ones(T.shape[1:], bool)
+    if T.ndim == 2 and T.shape[0]:  # only the nodes with a gap (most are seen throughout)
+        gap = ~fin.all(axis=0)
+        if not gap.any():
+            return T, np.ones(T.shape[1], bool)
+        if not gap.all():
+            out, usable = T.copy(), np.ones(T.shape[1], bool)
+            out[:, gap], usable[gap] = fill_gaps(T[:, gap])
+            return out, usable
+    n = T.shape[0]
     idx = np.arange(n)[:, None] * np.ones((1, T.shape[1]), dtype=np.int64)
     prev = np.maximum.accumulate(np.where(fin, idx, -1), axis=0)
     nxt = np.minimum.accumulate(np.where(fin, idx, n)[::-1], axis=0)[::-1]

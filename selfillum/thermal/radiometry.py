@@ -170,7 +170,12 @@ def fresnel_emissivity(theta, n: float) -> np.ndarray:
     """Directional emissivity of a smooth, opaque dielectric of refractive index ``n``
     (Kirchhoff: ``1 -`` Fresnel's unpolarised reflectance from air), ``theta`` radians
     from the normal: ``4 n / (n + 1)^2`` at normal view, falling to 0 at 90 deg."""
-    c = np.cos(np.clip(np.asarray(theta, float), 0.0, np.pi / 2))
+    return _fresnel_of_cosine(np.cos(np.clip(np.asarray(theta, float), 0.0, np.pi / 2)), n)
+
+
+def _fresnel_of_cosine(c, n: float) -> np.ndarray:
+    """:func:`fresnel_emissivity` from the cosine ``c`` (in [0, 1]) of the view angle."""
+    c = np.clip(np.asarray(c, dtype=np.float64), 0.0, 1.0)
     s2 = 1.0 - c * c
     ct = np.sqrt(np.maximum(n * n - s2, 0.0)) / n  # cos of the refracted angle
     rs = ((c - n * ct) / (c + n * ct)) ** 2
@@ -201,6 +206,16 @@ class Emissivity:
         if self.model == "fresnel":
             return fresnel_emissivity(th, self.n)
         return np.interp(np.degrees(th), self.angles, self.values)
+
+    def of_cosine(self, cos) -> np.ndarray:
+        """``eps`` at the view angle whose cosine is ``cos`` (no angle computed where the
+        model does not need one)."""
+        c = np.asarray(cos, dtype=np.float64)
+        if self.model == "constant":
+            return np.full(c.shape, self.value)
+        if self.model == "fresnel":
+            return _fresnel_of_cosine(c, self.n)
+        return self(np.arccos(np.clip(c, -1.0, 1.0)))
 
     @property
     def directional(self) -> bool:
