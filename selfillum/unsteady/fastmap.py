@@ -167,6 +167,21 @@ class FrameOperator:
             self.node_unseen = (den == 0)[grid.node_vertex]
         return self._nodes
 
+    def seen_node_rows(self, W, grid, by_columns: bool = False):
+        """``(Wr, rows)``: :meth:`node_matrix`'s non-empty rows and their node numbers,
+        built once: a frame's products over the nodes it can give a value (a quarter of a
+        model's nodes for one camera), not over every node. ``by_columns``: ``Wr`` as a
+        CSC matrix alone (the nodes around a few faces)."""
+        if "seen_rows" not in self._shares:
+            Wn = self.node_matrix(W, grid)
+            rows = np.flatnonzero(~self.node_unseen)
+            self._shares["seen_rows"] = (sp.csr_matrix(Wn[rows]), rows)
+        if by_columns:
+            if "seen_rows_csc" not in self._shares:
+                self._shares["seen_rows_csc"] = sp.csc_matrix(self._shares["seen_rows"][0])
+            return self._shares["seen_rows_csc"]
+        return self._shares["seen_rows"]
+
     def nodes(self, images, W, grid) -> np.ndarray | None:
         """Node values (N,) float32 (NaN where no seen face) of a frame whose pose is the
         reference's, without the SI removal: one product a camera from its pixels (counts
@@ -312,22 +327,38 @@ class FrameOperator:
         share = self._share(c)
         xs = np.where(bad, 0.0, x)
         bi = np.flatnonzero(bad)  # few: the weight they leave, by their columns only
-        kept = share - np.asarray(self._columns(c)[:, bi].sum(axis=1)).ravel()
+        rows, lost_w = _column_entries(self._columns(c), bi)
         num = A @ xs
         if pt is not None:
             A2, Cu, _, Aw = pt
             nP = Cu.shape[0] // Aw.shape[1]
-            rows = np.unique(self._columns(c, patch=True)[:, bi].indices)
             lost = np.zeros(Aw.shape[1], bool)
-            lost[rows // nP] = True
+            lost[_column_entries(self._columns(c, patch=True), bi)[0] // nP] = True
             coef = (Cu @ xs).reshape(-1, nP)
             coef[lost] = 0.0
             num += A2 @ coef.ravel()
-            if lost.any():
-                kept -= np.asarray(Aw[:, np.flatnonzero(lost)].sum(axis=1)).ravel()
+            if lost.any():  # the spots' weights, by their columns
+                r2, w2 = _column_entries(sp.csc_matrix(Aw), np.flatnonzero(lost))
+                rows, lost_w = np.concatenate([rows, r2]), np.concatenate([lost_w, w2])
+        # only the faces that lost a pixel change: their sum scaled to their whole share
+        # (NaN when none is left), not passes over every face
+        r, inv = np.unique(rows, return_inverse=True)
+        kept = share[r] - np.bincount(inv, lost_w, minlength=r.size)
         with np.errstate(invalid="ignore", divide="ignore"):
-            part = np.where(kept > 0, num * (share / kept), np.nan)
-        return np.where(share > 0, part, 0.0)
+            num[r] = np.where(kept > 1e-12 * share[r], num[r] * (share[r] / kept), np.nan)
+        return num
+
+
+def _column_entries(M, columns) -> tuple[np.ndarray, np.ndarray]:
+    """Row numbers and values of the entries of the CSC matrix ``M``'s ``columns`` (a
+    few), gathered from its index arrays."""
+    columns = np.asarray(columns, dtype=np.int64)
+    starts, ends = M.indptr[columns], M.indptr[columns + 1]
+    n = ends - starts
+    if n.sum() == 0:
+        return np.zeros(0, np.int64), np.zeros(0)
+    at = np.repeat(starts - np.cumsum(n) + n, n) + np.arange(n.sum())
+    return M.indices[at].astype(np.int64), M.data[at]
 
 
 def _sample_moved(X, uv0, img, cam, refresh_px):

@@ -106,9 +106,10 @@ class AffineRegistration:
             return out.reshape(H, W)
         return self.sample(frame, A, np.arange(H * W, dtype=np.int64)).reshape(H, W)
 
-    def sample(self, frame, A, pixels) -> np.ndarray:
+    def sample(self, frame, A, pixels, workers: int | None = None) -> np.ndarray:
         """The values of :meth:`warp` at the reference's ``pixels`` (flat indices) only,
-        (n,) float64; the compiled kernel on the available cores (blocks of pixels)."""
+        (n,) float64; the compiled kernel on ``workers`` threads (default: the available
+        cores; blocks of pixels)."""
         from resection._threads import run_blocks, split_range
 
         img = np.asarray(frame)
@@ -120,7 +121,7 @@ class AffineRegistration:
         vals = np.empty(idx.size)
         kern = _affine_kernel()
         run_blocks(lambda b: kern(img, A, idx[b[0]:b[1]], vals[b[0]:b[1]]),
-                   split_range(idx.size, None, min_size=65536))
+                   split_range(idx.size, workers, min_size=65536), workers)
         return vals
 
 
@@ -166,10 +167,16 @@ def _affine_kernel():
         NaN outside ``[0, W-1] x [0, H-1]`` or where a neighbour of non-zero weight is
         NaN (as ``scipy.ndimage.map_coordinates(order=1)`` with a NaN mask)."""
         H, W = img.shape
+        row = -1
+        start = 0
         for i in range(pixels.size):
             p = pixels[i]
-            u = p % W
-            v = p // W
+            if p < start or p >= start + W:  # a new image row: one division a row, not
+                # two a pixel (the pixels come sorted), the loop's cost otherwise
+                row = p // W
+                start = row * W
+            u = p - start
+            v = row
             uw = A[0, 0] * u + A[0, 1] * v + A[0, 2]
             vw = A[1, 0] * u + A[1, 1] * v + A[1, 2]
             if not (uw >= 0.0 and uw <= W - 1.0 and vw >= 0.0 and vw <= H - 1.0):
