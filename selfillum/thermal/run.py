@@ -74,7 +74,6 @@ def run_thermal(cfg: ThermalConfig) -> ThermalResult:
     from selfillum.images.image_correction import read_reflectance
     from selfillum.thermal.balance import NodeGeometry, camera_centres
     from selfillum.thermal.inputs import SignalFrames, check_range, track_poses
-    from selfillum.thermal.mapping import moving_phase1, takes
     from selfillum.thermal.output import FORMAT, VERSION, write_xdmf
     from selfillum.thermal.phase2 import BYTES_PER_CELL, run_phase2
     from selfillum.thermal.reflections import HeatingSelfIllumination
@@ -189,13 +188,9 @@ def run_thermal(cfg: ThermalConfig) -> ThermalResult:
         t1 = time.perf_counter()
         todo = np.arange(T)[done:] if done == 0 else np.concatenate([[0],
                                                                     np.arange(T)[done:]])
-        counts: dict = {}
-        if takes(cfg.registration, cfg.overlap, si_on):  # one product a frame
-            moving_phase1(p1, grid, runs, todo, spots, store, R, t, done,
-                          plan.frames_per_block, T, N, prog, caster=caster, counts=counts)
-        else:
-            local_phase1(p1, grid, runs, todo, spots, si, None, store, R, t, done,
-                         plan.frames_per_block, T, N, prog, caster=caster, counts=counts)
+        counts: dict = {}  # the frames mapped each way, kept in the file's options
+        local_phase1(p1, grid, runs, todo, spots, si, None, store, R, t, done,
+                     plan.frames_per_block, T, N, prog, caster=caster, counts=counts)
         caster = None
         store.close()
         t2 = time.perf_counter()
