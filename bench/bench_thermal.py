@@ -16,6 +16,7 @@ Prints frames/s over the whole process and over the run (inputs read before excl
 each phase's time, the ratios, and ``uptime``'s load before and after.
 
     python bench/bench_thermal.py --nodes 100000 --frames 200 [--threads 2]
+    python bench/bench_thermal.py --folder DIR --reuse --frames 500 --tree OTHER_CHECKOUT
 """
 
 from __future__ import annotations
