@@ -216,6 +216,15 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
             caster = None
         store.close()
         t_p2 = time.perf_counter()
+        view = None  # the RMS picture's view of the model, made beside Phase 2 (its own
+        # ray-tracing scene and mesh copy; Phase 2's reads and writes leave a core free)
+        if pngs:
+            from concurrent.futures import ThreadPoolExecutor
+
+            from selfillum.unsteady.plots import prepare_rms_view
+
+            pool = stack0.enter_context(ThreadPoolExecutor(1, thread_name_prefix="picture"))
+            view = pool.submit(prepare_rms_view, grid)
         # a chunk column of each dataset held in HDF5's cache: node blocks narrower than a
         # chunk (a small budget, a long run) then read each chunk once, not once a block
         # (each dataset has its cache; only when the blocks are narrower than a chunk)
@@ -273,7 +282,8 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
                                              node_block=plan.nodes_per_block)
                     if pngs:
                         with writing(pngs[0], named):
-                            write_pictures(grid, stats["rms"], spectra, tmp[-len(pngs):])
+                            write_pictures(grid, stats["rms"], spectra, tmp[-len(pngs):],
+                                           view=view.result())
         finished = True
     except InputError:
         finished = True  # bad input: nothing to resume, nothing left
