@@ -16,6 +16,7 @@ Prints frames/s over the whole process and over the run (inputs read before excl
 each phase's time, the ratios, and ``uptime``'s load before and after.
 
     python bench/bench_thermal.py --nodes 100000 --frames 200 [--threads 2]
+    python bench/bench_thermal.py --frames 500 --q-max 15000 --folder DIR
     python bench/bench_thermal.py --folder DIR --reuse --frames 500 --tree OTHER_CHECKOUT
 """
 
@@ -45,6 +46,9 @@ def main() -> None:
     ap.add_argument("--width", type=int, default=640)
     ap.add_argument("--height", type=int, default=512)
     ap.add_argument("--rays", type=int, default=16)
+    ap.add_argument("--q-max", type=float, default=3.0e4,
+                    help="the scene's largest heat flux, W/m^2 (1.5e4 keeps a 500-frame run "
+                    "within the 16-bit range and the radiometry's range_K)")
     ap.add_argument("--threads", type=int, default=2, help="cores the run may use")
     ap.add_argument("--folder", help="keep the inputs here (default: a temporary folder)")
     ap.add_argument("--extra", default="", help="more flags for the run")
@@ -68,7 +72,7 @@ def main() -> None:
         print(f"inputs: reused from {folder}")
     else:
         run = make_ir_run(folder, frames=args.frames, width=args.width, height=args.height,
-                          nx=nx, nphi=nphi)
+                          nx=nx, nphi=nphi, q_max=args.q_max)
         print(f"inputs: {len(run.q0)} nodes, {args.frames} frames of {args.width}x"
               f"{args.height} uint16 ({time.perf_counter() - t0:.0f} s to make)")
     env = dict(os.environ, PYTHONPATH=str(ROOT), OMP_NUM_THREADS=str(args.threads),
