@@ -6,7 +6,6 @@ Only parses arguments and calls :func:`selfillum.thermal.run_thermal`.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 from resection.errors import InputError
@@ -23,11 +22,6 @@ def _numbers(text: str | None, kind, what: str) -> list:
 
 
 def _cmd_thermal(args) -> int:
-    # numba's parallel kernels run on OpenMP (GNU libgomp, read when it is first loaded, by
-    # the run's first parallel kernel): its threads spin while they wait, which on cores
-    # shared with other work made each launch of the per-frame sampling cost 6x its work
-    # (bench/bench_thermal.py); passive waiting leaves the cores to the threads that work
-    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     from selfillum.thermal import CameraInput, ThermalConfig, run_thermal
 
     if len(args.video) != len(args.calibration):

@@ -536,17 +536,18 @@ def plan_references(poses, probes, frames, refresh_px: float, *, first: int | No
 def _kernel():
     import numba
 
-    @numba.njit(parallel=True, cache=True, fastmath=False)
-    def project_sample(X, R, t, K, dist, max_radius, uv0, img, refresh, out):
-        """Project every point (as Camera.project), flag a move over ``refresh`` pixels
-        (status 1), a point off the sensor or not projectable (status 2), else sample the
-        image bilinearly there (pixel centres at integers, edges clamped). A point of NaN
-        (a background pixel) reads the image at its own pixel ``uv0``."""
-        n = X.shape[0]
+    @numba.njit(cache=True, nogil=True, fastmath=False)
+    def project_sample(X, R, t, K, dist, max_radius, uv0, img, refresh, out, status, r0,
+                       r1):  # pragma: no cover - compiled
+        """Project the points ``r0:r1`` (as Camera.project), flag a move over ``refresh``
+        pixels (status 1), a point off the sensor or not projectable (status 2), else
+        sample the image bilinearly there (pixel centres at integers, edges clamped). A
+        point of NaN (a background pixel) reads the image at its own pixel ``uv0``. One
+        thread, without the GIL: the caller's threads take blocks of points."""
         H, W = img.shape
         k1, k2, p1, p2, k3 = dist[0], dist[1], dist[2], dist[3], dist[4]
-        status = np.zeros(n, np.uint8)
-        for i in numba.prange(n):
+        for i in range(r0, r1):
+            status[i] = 0
             if X[i, 0] != X[i, 0]:  # a pixel on the background: sampled where it is
                 u = min(max(np.float64(uv0[i, 0]), 0.0), W - 1.0)
                 v = min(max(np.float64(uv0[i, 1]), 0.0), H - 1.0)
@@ -585,7 +586,6 @@ def _kernel():
             v1 = min(v0 + 1, H - 1)
             out[i] = ((1.0 - fv) * ((1.0 - fu) * img[v0, u0] + fu * img[v0, u1])
                       + fv * ((1.0 - fu) * img[v1, u0] + fu * img[v1, u1]))
-        return status
 
     return project_sample
 
@@ -611,8 +611,14 @@ def _spmv_kernel():
     return spmv_add
 
 
-def _project_sample(*args):
-    from resection._threads import numba_threads
+def _project_sample(X, *args):
+    """:func:`_kernel` over all of ``X``'s points, in blocks on the available cores (the
+    threads of :func:`resection._threads.run_blocks`; numba's parallel loops spun on the
+    shared cores, the sampling then cost several times its work); returns the statuses."""
+    from resection._threads import run_blocks, split_range
 
-    with numba_threads(None):  # one parallel launch at a time (numba's workqueue layer)
-        return _kernel()(*args)  # compiled on first use (and cached on disk by numba)
+    status = np.empty(len(X), np.uint8)
+    kern = _kernel()  # compiled on first use (and cached on disk by numba)
+    run_blocks(lambda b: kern(X, *args, status, b[0], b[1]),
+               split_range(len(X), None, min_size=32768))
+    return status
