@@ -7,8 +7,6 @@
 * faces lost in a frame leave their nodes: :func:`phase1._fast_nodes` rescales only the
   nodes around them, checked against :func:`phase1._to_nodes` (the area-weighted mean of
   the finite faces around each node, the full way's);
-* :class:`FramePrefetch` makes frames in order, one ahead, and gives a frame's error
-  with that frame;
 * a picture drawn into a :func:`resection.surface.plots.prepare_view` made apart equals
   the one drawn from scratch.
 """
@@ -22,7 +20,6 @@ import trimesh
 
 from selfillum.unsteady.fastmap import FrameOperator
 from selfillum.unsteady.phase1 import _face_to_vertex, _fast_nodes, _to_nodes
-from selfillum.unsteady.prefetch import FramePrefetch
 
 
 def _operator(A, patch=None, seen=None) -> FrameOperator:
@@ -115,28 +112,6 @@ def test_faces_lost_in_a_frame_leave_only_their_nodes():
         np.testing.assert_allclose(got[~np.isnan(want)], want[~np.isnan(want)], rtol=1e-6)
 
 
-def test_prefetch_makes_frames_in_order_one_ahead_and_keeps_errors_with_their_frame():
-    made = []
-
-    def make(k):
-        made.append(k)
-        if k == 4:
-            raise ValueError("frame 4 damaged")
-        return k * 10
-
-    with FramePrefetch(make, [1, 2, 3, 4, 5]) as pre:
-        assert pre.get(1) == 10
-        pre.settle()
-        assert made == [1, 2]  # frame 2 made ahead
-        assert pre.get(2) == 20 and pre.get(3) == 30
-        with pytest.raises(ValueError, match="frame 4"):
-            pre.get(4)
-        assert pre.get(5) == 50
-    assert made == [1, 2, 3, 4, 5]  # each frame made once, in order
-    with FramePrefetch(make, [7, 8]) as pre:  # a frame asked out of order: made then
-        assert pre.get(8) == 80
-
-
 def test_a_prepared_view_draws_the_same_picture():
     from resection.surface.plots import plot_surface, prepare_view
 
@@ -157,3 +132,33 @@ def test_a_prepared_view_draws_the_same_picture():
     np.testing.assert_array_equal(a, b)
     with pytest.raises(Exception, match="faces"):
         plot_surface(trimesh.creation.icosphere(), np.zeros(80), view=view)
+
+
+@pytest.mark.parametrize("A", [[[1.001, 0.0002, 0.3], [0.0001, 0.999, -0.2]],
+                               [[1.0, 0.0, 2.0], [0.0, 1.0, -3.0]]],
+                         ids=["affine", "whole-pixel shift"])
+def test_affine_sampling_is_scipys_bilinear_with_nan_neighbours_of_zero_weight_left_out(A):
+    """The registration's sampler against ``scipy.ndimage.map_coordinates(order=1)``:
+    equal values; NaN exactly where a neighbour of non-zero weight is NaN or the point
+    falls outside the frame (a whole-pixel shift reads no NaN it gives no weight)."""
+    from scipy import ndimage
+
+    from selfillum.unsteady.registration import AffineRegistration
+
+    rng = np.random.default_rng(0)
+    img = rng.integers(0, 4000, (80, 128)).astype(np.float64)
+    img[rng.random(img.shape) < 0.02] = np.nan
+    mask = np.zeros(img.shape, bool)
+    mask[5:75, 4:124] = True
+    A = np.asarray(A)
+    reg = AffineRegistration(np.nan_to_num(img), mask)
+    pix = np.flatnonzero(np.ones(img.shape, bool))
+    got = reg.sample(img, A, pix, 1)
+    v, u = np.divmod(pix, img.shape[1])
+    at = [A[1, 0] * u + A[1, 1] * v + A[1, 2], A[0, 0] * u + A[0, 1] * v + A[0, 2]]
+    want = ndimage.map_coordinates(np.nan_to_num(img), at, order=1)
+    bad = ndimage.map_coordinates(np.isnan(img).astype(float), at, order=1) > 0
+    bad |= ~((at[0] >= 0) & (at[0] <= img.shape[0] - 1) & (at[1] >= 0)
+             & (at[1] <= img.shape[1] - 1))
+    np.testing.assert_array_equal(np.isnan(got), bad)
+    np.testing.assert_allclose(got[~bad], want[~bad], rtol=1e-12, atol=1e-9)

@@ -531,6 +531,7 @@ def _true_track(run, folder):
     return folder
 
 
+@pytest.mark.slow  # 10-15 s: the untracked Dask test stays in the default run
 def test_dask_tracked_run_gives_the_one_process_dcp(run, capsys):
     """``--registration track`` (each frame's own pose, here the true ones as a track
     folder) with a map cast every frame (``--full-maps``) on 2 Dask workers gives the
@@ -551,6 +552,7 @@ def test_dask_tracked_run_gives_the_one_process_dcp(run, capsys):
     np.testing.assert_allclose(b, a, rtol=1e-5, atol=1e-7 * np.nanmax(np.abs(a)))
 
 
+@pytest.mark.slow  # 9-15 s
 def test_dask_tracked_fast_run_plans_the_one_process_references(tmp_path, capsys,
                                                                 monkeypatch):
     """``--registration track`` with the fast way (references planned from the poses) on 2
