@@ -126,11 +126,21 @@ def test_bad_input_exit_2(upsp_samples, tmp_path, capsys):
     rc = main(["entry", str(idx), *tc, "--only", "999999", "--out", str(tmp_path / "o")])
     assert rc == 2 and "--only 999999: no such datapoint" in capsys.readouterr().err
     proc = tmp_path / "proc.json"
+    for x, say in (("abc", "cutoff_x_max must be a number, got 'abc'"),
+                   (-1e6, "cutoff_x_max -1e+06: every node of ")):
+        proc.write_text(json.dumps({"processing": {"defaults": {
+            "psp_process": {"cutoff_x_max": x}}, "__overlays__": [["defaults",
+                                                                  {".*": ".*"}]]}}))
+        rc = main(["entry", str(idx), *tc, "--processing", str(proc), "--out",
+                   str(tmp_path / "o")])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert rc == 2 and len(err) == 1 and say in err[0] and "datapoint 3016" in err[0]
+        assert not (tmp_path / "o").exists()
     proc.write_text(json.dumps({"processing": {"defaults": {
-        "psp_process": {"cutoff_x_max": 120}}, "__overlays__": [["defaults", {".*": ".*"}]]}}))
+        "psp_process": {"bound_pts": 3}}, "__overlays__": [["defaults", {".*": ".*"}]]}}))
     rc = main(["entry", str(idx), *tc, "--processing", str(proc), "--out",
                str(tmp_path / "o")])
-    assert rc == 2 and "psp_process parameter 'cutoff_x_max' is not supported" in \
+    assert rc == 2 and "psp_process parameter 'bound_pts' is not supported" in \
         capsys.readouterr().err
     from resection.io.plot3d import write_plot3d_function
 
