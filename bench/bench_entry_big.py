@@ -262,6 +262,60 @@ def run_bench(out: Path, rounds: int, cameras: int, rays: int, warmup: bool) -> 
               f"{res['A'][1]:.1f} / {res['B'][1]:.1f}", flush=True)
 
 
+_TIME = re.compile(r"time: set-up ([\d.]+) s, phase 1 ([\d.]+) s \(first frame ([\d.]+) s\), "
+                   r"phase 2 and outputs ([\d.]+) s")
+_SIZE = re.compile(r"unsteady: (\d+) frames x (\d+) nodes")
+_CPU = re.compile(r"(User|System) time \(seconds\): ([\d.]+)")
+_WALL = re.compile(r"Elapsed \(wall clock\) time.*: (?:(\d+):)?(\d+):([\d.]+)")
+
+
+def phase_costs(log: Path, cameras: int) -> dict:
+    """A ``selfillum unsteady`` log under ``/usr/bin/time -v``: its phases (wall s), its
+    size, its CPU seconds, and the per-cell costs: Phase 1 after frame 0 per frame and
+    camera, Phase 2 per node and frame (wall s, and CPU s by the run's CPU/wall)."""
+    t = log.read_text()
+    setup, p1, first, p2 = (float(x) for x in _TIME.search(t).groups())
+    T, N = (int(x) for x in _SIZE.search(t).groups())
+    cpu = sum(float(v) for _, v in _CPU.findall(t))
+    h, mi, sec = _WALL.search(t).groups()
+    wall = int(h or 0) * 3600 + int(mi) * 60 + float(sec)
+    util = cpu / wall
+    return {"wall": wall, "cpu": cpu, "util": util, "setup": setup, "first": first,
+            "phase1": p1, "phase2": p2, "frames": T, "nodes": N,
+            "p1_frame_cam": (p1 - first) / ((T - 1) * cameras),
+            "p2_cell": p2 / (T * N), "fixed": wall - (p1 - first) - p2}
+
+
+def run_cores(out: Path, frames: int, repeat: int) -> list:
+    """The first datapoint alone (``selfillum unsteady``, its deck, ``--number-frames``)
+    on one core and on two (``taskset``), alternating, ``repeat`` times each: Amdahl's
+    serial share of the 1-core time, ``s = 2 T2 / T1 - 1``."""
+    exe = str(Path(sys.executable).with_name("selfillum"))
+    ids = list(json.loads((out / "index.json").read_text())["datapoints"])
+    deck = out / "decks" / f"{ids[0]}.inp"
+    logs = out / "logs"
+    res = {1: [], 2: []}
+    for r in range(repeat):
+        for c in ((1, 2) if r % 2 == 0 else (2, 1)):
+            dst = out / f"cores{c}.h5"
+            for q in out.glob(f"cores{c}*"):
+                shutil.rmtree(q) if q.is_dir() else q.unlink()
+            log = logs / f"cores{c}-{r}.log"
+            el = _timed(["taskset", "-c", "0" if c == 1 else "0,1", exe, "unsteady",
+                         str(deck), "--paint-calibration", str(out / "inputs" / "paint.txt"),
+                         "--steady", str(out / "inputs" / "steady.f"), "--reflectance",
+                         "0.6", "--number-frames", str(frames), "--out", str(dst)], log)
+            res[c].append(el)
+            print(f"cores {c} (round {r}, load {os.getloadavg()[0]:.1f}): {el:.1f} s; "
+                  f"{phase_costs(log, 2)}", flush=True)
+    for q in out.glob("cores[12]*"):
+        shutil.rmtree(q) if q.is_dir() else q.unlink()
+    t1, t2 = min(res[1]), min(res[2])
+    print(f"best of {repeat}: 1 core {t1:.1f} s, 2 cores {t2:.1f} s: speed-up {t1 / t2:.2f}, "
+          f"serial share of the 1-core time {2 * t2 / t1 - 1:.2f}", flush=True)
+    return [t1, t2]
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--make", metavar="DIR", help="write the entry into DIR")
@@ -275,6 +329,12 @@ def main() -> None:
     ap.add_argument("--rays", type=int, default=64)
     ap.add_argument("--no-warmup", action="store_true",
                     help="reuse DIR/calibrated from an earlier warm-up")
+    ap.add_argument("--cores", metavar="DIR",
+                    help="the first datapoint alone on 1 core and on 2 (taskset)")
+    ap.add_argument("--cores-frames", type=int, default=128)
+    ap.add_argument("--repeat", type=int, default=2)
+    ap.add_argument("--costs", metavar="LOG", nargs="+",
+                    help="print the phases and per-cell costs of these alone-run logs")
     a = ap.parse_args()
     if a.make:
         if not a.source:
@@ -286,6 +346,10 @@ def main() -> None:
               f"{a.make} ({time.perf_counter() - t0:.1f} s)")
     if a.run:
         run_bench(Path(a.run), a.rounds, a.cameras, a.rays, not a.no_warmup)
+    if a.cores:
+        run_cores(Path(a.cores), a.cores_frames, a.repeat)
+    for log in a.costs or []:
+        print(log, phase_costs(Path(log), a.cameras))
 
 
 if __name__ == "__main__":
