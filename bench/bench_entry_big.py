@@ -211,13 +211,14 @@ def _timed(cmd: list, log: Path) -> float:
     return el
 
 
-def run_bench(out: Path, rounds: int, cameras: int, rays: int, warmup: bool) -> None:
+def run_bench(out: Path, rounds: int, cameras: int, rays: int, warmup: bool,
+              workers: int = 1, first: int = 0) -> None:
     exe = [str(Path(sys.executable).with_name("selfillum"))]
     ids = list(json.loads((out / "index.json").read_text())["datapoints"])
     logs = out / "logs"
     logs.mkdir(exist_ok=True)
     cal = out / "calibrated"
-    base = [str(out / "index.json"), "--rays", str(rays), "--quiet"]
+    base = [str(out / "index.json"), "--rays", str(rays), "--quiet", "--workers", str(workers)]
     if warmup or not cal.is_dir():
         if cal.exists():
             shutil.rmtree(cal)
@@ -225,7 +226,7 @@ def run_bench(out: Path, rounds: int, cameras: int, rays: int, warmup: bool) -> 
                      "--out", str(cal)], logs / "warmup.log")
         print(f"warm-up entry (8 frames, untimed for the ratio): {el:.1f} s", flush=True)
     decks = {dp: _deck(out, dp, cameras, cal) for dp in ids}
-    for r in range(rounds):
+    for r in range(first, first + rounds):
         order = ("A", "B") if r % 2 == 0 else ("B", "A")
         res = {}
         for side in order:
@@ -239,7 +240,8 @@ def run_bench(out: Path, rounds: int, cameras: int, rays: int, warmup: bool) -> 
                                    logs / f"A{r}.log"), load)
                 summ = (dst / "summary.csv").read_text()
                 shutil.rmtree(dst)
-                print(f"round {r} A: entry {res['A'][0]:.1f} s (load {load:.1f})\n{summ}",
+                print(f"round {r} A: entry (--workers {workers}) {res['A'][0]:.1f} s "
+                      f"(load {load:.1f})\n{summ}",
                       flush=True)
             else:
                 dst = out / f"B{r}"
@@ -327,6 +329,11 @@ def main() -> None:
     ap.add_argument("--alpha-step", type=float, default=0.1, metavar="DEG")
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument("--rays", type=int, default=64)
+    ap.add_argument("--workers", type=int, default=1,
+                    help="the entry's --workers (1: Dask local cluster, the default; 0: in "
+                    "this process)")
+    ap.add_argument("--first-round", type=int, default=0,
+                    help="number of the first round (its parity sets the order A-B / B-A)")
     ap.add_argument("--no-warmup", action="store_true",
                     help="reuse DIR/calibrated from an earlier warm-up")
     ap.add_argument("--cores", metavar="DIR",
@@ -345,7 +352,8 @@ def main() -> None:
         print(f"entry of {len(ids)} datapoints x {a.cameras} cameras x {a.frames} frames in "
               f"{a.make} ({time.perf_counter() - t0:.1f} s)")
     if a.run:
-        run_bench(Path(a.run), a.rounds, a.cameras, a.rays, not a.no_warmup)
+        run_bench(Path(a.run), a.rounds, a.cameras, a.rays, not a.no_warmup, a.workers,
+                  a.first_round)
     if a.cores:
         run_cores(Path(a.cores), a.cores_frames, a.repeat)
     for log in a.costs or []:
