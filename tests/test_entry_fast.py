@@ -126,12 +126,33 @@ def test_bad_input_exit_2(upsp_samples, tmp_path, capsys):
     rc = main(["entry", str(idx), *tc, "--only", "999999", "--out", str(tmp_path / "o")])
     assert rc == 2 and "--only 999999: no such datapoint" in capsys.readouterr().err
     proc = tmp_path / "proc.json"
+    for x, say in (("abc", "cutoff_x_max must be a number, got 'abc'"),
+                   (-1e6, "cutoff_x_max -1e+06: every node of ")):
+        proc.write_text(json.dumps({"processing": {"defaults": {
+            "psp_process": {"cutoff_x_max": x}}, "__overlays__": [["defaults",
+                                                                  {".*": ".*"}]]}}))
+        rc = main(["entry", str(idx), *tc, "--processing", str(proc), "--out",
+                   str(tmp_path / "o")])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert rc == 2 and len(err) == 1 and say in err[0]
+        assert "301601" in err[0] and str(proc) in err[0]  # the datapoint, the file
+        assert not (tmp_path / "o").exists()
     proc.write_text(json.dumps({"processing": {"defaults": {
-        "psp_process": {"cutoff_x_max": 120}}, "__overlays__": [["defaults", {".*": ".*"}]]}}))
+        "psp_process": {"bound_pts": 3}}, "__overlays__": [["defaults", {".*": ".*"}]]}}))
     rc = main(["entry", str(idx), *tc, "--processing", str(proc), "--out",
                str(tmp_path / "o")])
-    assert rc == 2 and "psp_process parameter 'cutoff_x_max' is not supported" in \
+    assert rc == 2 and "psp_process parameter 'bound_pts' is not supported" in \
         capsys.readouterr().err
+    # a cut-off that leaves nodes: every datapoint's run gets it (as psp_process's
+    # -cutoff_x_max, from the psp_process set, as uPSP's tree.py passes it)
+    from selfillum.entry.run import EntryConfig, prepare_entry
+
+    proc.write_text(json.dumps({"processing": {"defaults": {
+        "psp_process": {"cutoff_x_max": "1e6"}}, "__overlays__": [["defaults",
+                                                                    {".*": ".*"}]]}}))
+    _, tasks, _ = prepare_entry(EntryConfig(idx, tmp_path / "o", processing=proc,
+                                            test_config=tmp_path / "test_config.json"))
+    assert tasks and all(t.unsteady["cutoff_x_max"] == 1e6 for t in tasks)
     from resection.io.plot3d import write_plot3d_function
 
     write_plot3d_function(tmp_path / "small.f", [np.zeros((3, 4, 1))])

@@ -143,9 +143,15 @@ def test_processing_overlays_as_upsp_resolves_them(tmp_path):
     assert psp_options(got["301103"]["psp_process"], "w") == {
         "filter": "gaussian", "filter_size": 1, "number_frames": -1,
         "registration": "first-frame"}
-    with pytest.raises(InputError, match="w: psp_process parameter 'cutoff_x_max' is not "
+    # uPSP's tree puts cutoff_x_max on psp_process's command line as it is: a number
+    assert psp_options({"cutoff_x_max": 120}, "w") == {"cutoff_x_max": 120.0}
+    assert psp_options({"cutoff_x_max": "-1.5"}, "w") == {"cutoff_x_max": -1.5}
+    for bad_x in ("abc", None, True, "nan"):
+        with pytest.raises(InputError, match="w: cutoff_x_max must be a "):
+            psp_options({"cutoff_x_max": bad_x}, "w")
+    with pytest.raises(InputError, match="w: psp_process parameter 'target_diam_sf' is not "
                                          "supported"):
-        psp_options({"cutoff_x_max": 120}, "w")
+        psp_options({"target_diam_sf": 1.2}, "w")
     proc["__overlays__"].append(["nope", {".*": ".*"}])
     p.write_text(json.dumps({"processing": proc}))
     with pytest.raises(InputError, match=r"__overlays__\[3\] names 'nope', not a parameter"):

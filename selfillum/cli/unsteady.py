@@ -30,7 +30,8 @@ def _cmd_unsteady(args) -> int:
 
     flags = {"registration": args.registration, "target_patcher": args.target_patcher,
              "overlap": args.overlap, "filter": args.filter, "filter_size": args.filter_size,
-             "oblique_angle": args.oblique_angle, "number_frames": args.number_frames}
+             "oblique_angle": args.oblique_angle, "number_frames": args.number_frames,
+             "cutoff_x_max": args.cutoff_x_max}
     common = {"paint_calibration": Path(args.paint_calibration) if args.paint_calibration
               else None, "steady": Path(args.steady), "si": not args.no_si,
               "reflectance": args.reflectance, "unpainted": args.unpainted, "rays": args.rays,
@@ -174,6 +175,9 @@ def register(sub) -> None:
                    help="obliqueness cut-off, degrees (default 70)")
     p.add_argument("--number-frames", type=int, default=None,
                    help="frames to process (-1: all, default)")
+    p.add_argument("--cutoff-x-max", type=float, default=None, metavar="X",
+                   help="uPSP's psp_process -cutoff_x_max: grid nodes of x > X (grid units) "
+                   "get no data (NaN); the model beyond still hides and lights the rest")
     p.add_argument("--no-si", action="store_true",
                    help="do not remove the self-illumination (uPSP's answer)")
     p.add_argument("--unpainted", metavar="FILE|BLOCKS",

@@ -14,6 +14,7 @@ applications read here are ``psp_process`` (:func:`psp_options`) and
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 import warnings
@@ -24,7 +25,7 @@ __all__ = ["read_processing", "resolve_overlays", "psp_options", "PSP_KEYS"]
 
 #: ``psp_process`` parameters honoured, and how each maps onto ``UnsteadyConfig``.
 PSP_KEYS = ("target_patcher", "registration", "overlap", "filter", "filter_size",
-            "oblique_angle", "number_frames", "pixel_interpolation")
+            "oblique_angle", "number_frames", "pixel_interpolation", "cutoff_x_max")
 _REGISTRATION = {"pixel": "first-frame", "none": "none", "track": "track",
                  "first-frame": "first-frame"}
 
@@ -130,12 +131,17 @@ def psp_options(params: dict, where: str) -> dict:
                     not str(v).lstrip("-").isdigit():
                 raise InputError(f"{where}: {k} must be an integer, got {v!r}")
             kw[k] = int(v)
-        elif k == "oblique_angle":
+        elif k in ("oblique_angle", "cutoff_x_max"):
+            # uPSP's tree writes cutoff_x_max onto psp_process's command line as it is
+            # (-cutoff_x_max=120): a number, in the grid's units
             try:
+                if isinstance(v, bool):
+                    raise TypeError
                 kw[k] = float(v)
             except (TypeError, ValueError):
-                raise InputError(f"{where}: oblique_angle must be a number, got {v!r}") \
-                    from None
+                raise InputError(f"{where}: {k} must be a number, got {v!r}") from None
+            if not math.isfinite(kw[k]):
+                raise InputError(f"{where}: {k} must be a finite number, got {v!r}")
         else:
             kw[k] = str(v)
     return kw

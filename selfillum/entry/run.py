@@ -153,7 +153,7 @@ def prepare_entry(cfg: EntryConfig):
     from selfillum.entry.processing import psp_options, read_processing, resolve_overlays
     from selfillum.entry.tunnel import attitude_from_wtd, read_test_config, tunnel_config
     from selfillum.unsteady.config import CameraInput, UnsteadyConfig, check_options
-    from selfillum.unsteady.grid import load_run_grid, read_steady_cp
+    from selfillum.unsteady.grid import load_run_grid, nondata_nodes, read_steady_cp
 
     idx = read_index(cfg.index)
     dps = list(idx.datapoints)
@@ -223,6 +223,10 @@ def prepare_entry(cfg: EntryConfig):
                                                                             d.wtd)],
                                out=Path("x.h5"), source=w, **uns)
         check_options(probe)
+        try:
+            nondata_nodes(checked[d.grid], uns.get("cutoff_x_max"), "cutoff_x_max")
+        except InputError as e:
+            raise InputError(f"{w}: {cfg.processing or idx.source}: {e}") from None
         ff = None
         if uns.get("si", True):
             fk = _key({"grid": _stat(d.grid), "rays": cfg.rays, "seed": cfg.seed})[:16]

@@ -11,11 +11,12 @@ __all__ = ["local_phase1", "cluster_phase1"]
 
 
 def local_phase1(cfg, grid, runs, todo, spots, si, unpainted, store, R, t, done, fb, T, N,
-                  prog, caster=None, counts=None):
+                  prog, caster=None, counts=None, nondata=None):
     """Phase 1 in this process, committing blocks of ``fb`` frames; returns frame 0's
     gains. ``caster``: the grid's Embree scene when built already (the view factors');
-    ``counts``: the frames mapped each way (:func:`~selfillum.unsteady.phase1.map_run`)."""
-    buf = BlockBuffer(fb, N, with_raw=si is not None)
+    ``counts``: the frames mapped each way (:func:`~selfillum.unsteady.phase1.map_run`);
+    ``nondata``: nodes stored unseen (``cutoff_x_max``)."""
+    buf = BlockBuffer(fb, N, with_raw=si is not None, nondata=nondata)
     a = done
     gains0 = None
     for fn in map_run(grid, runs, todo, spots=spots, registration=cfg.registration,
@@ -40,15 +41,17 @@ def local_phase1(cfg, grid, runs, todo, spots, si, unpainted, store, R, t, done,
 
 
 def cluster_phase1(client, cfg, grid, runs, spots, unpainted, rho, F, store, R, t, done, fb,
-                    T, prog):
+                    T, prog, nondata=None):
     """Phase 1 on Dask: blocks of frames on the workers, written here as they finish;
-    returns frame 0's gains (mapped here, for the in-situ fit)."""
+    returns frame 0's gains (mapped here, for the in-situ fit). ``nondata``: nodes stored
+    unseen (``cutoff_x_max``)."""
     from selfillum.unsteady.cluster import Phase1Job, phase1_blocks
 
     job = Phase1Job(str(cfg.grid), tuple(str(c.video) for c in cfg.cameras),
                     tuple(r.camera for r in runs), tuple(r.number for r in runs),
                     spots, cfg.registration, cfg.target_patcher, cfg.overlap, cfg.filter,
-                    cfg.filter_size, cfg.oblique_angle, unpainted, rho, None, cfg.fast)
+                    cfg.filter_size, cfg.oblique_angle, unpainted, rho, None, cfg.fast,
+                    nondata)
     poses = None if runs[0].poses is None else [r.poses for r in runs]
     blocks = [(a, min(a + fb, T)) for a in range(done, T, fb)]
     finished, prefix, count = set(), done, done

@@ -50,6 +50,7 @@ class Phase1Job:
     rho: object
     gains: object
     fast: bool
+    nondata: object = None  # (N,) bool: nodes stored unseen (cutoff_x_max)
 
 
 @contextlib.contextmanager
@@ -120,7 +121,7 @@ def _map_block(job: Phase1Job, F, a: int, b: int, poses=None):
         si = None if F is None else SelfIllumination(grid.mesh, F, job.rho, job.unpainted)
         frames = list(range(a, b)) if a == 0 else [0, *range(a, b)]
         every = None if poses is None else range(len(poses[0]))  # the one-process plan
-        buf = BlockBuffer(b - a, grid.n_nodes, with_raw=si is not None)
+        buf = BlockBuffer(b - a, grid.n_nodes, with_raw=si is not None, nondata=job.nondata)
         C = len(runs)
         R, t = np.empty((C, b - a, 3, 3)), np.empty((C, b - a, 3))
         for fn in map_run(grid, runs, frames, spots=job.spots, registration=job.registration,

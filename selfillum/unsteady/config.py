@@ -32,6 +32,8 @@ class CameraInput:
 class UnsteadyConfig:
     """Everything a run needs (the command's flags or a uPSP deck, :func:`config_from_deck`).
 
+    ``cutoff_x_max``: uPSP's ``psp_process -cutoff_x_max`` (grid units): the nodes of
+    greater x get no data (:func:`selfillum.unsteady.grid.nondata_nodes`); None: none cut.
     ``registration``: ``track`` (each frame's own pose from the project's tracking, or
     ``track_dirs``), ``first-frame`` (uPSP: affine pixel registration onto frame 0, its
     map), ``none`` (a fixed model: frame 0's map). ``number_frames``: -1 for all.
@@ -66,6 +68,7 @@ class UnsteadyConfig:
     filter_size: int = 3
     oblique_angle: float = 70.0
     number_frames: int = -1
+    cutoff_x_max: float | None = None
     si: bool = True
     reflectance: object = 0.6
     unpainted: object = None
@@ -223,11 +226,15 @@ def _finite(value, name: str, lo: float, hi: float, unit: str = "") -> float:
 
 def check_numbers(cfg: UnsteadyConfig) -> None:
     """The numeric options finite and within their ranges (:class:`InputError` naming the
-    option): ``--fps``, ``--tinf`` (above absolute zero), ``--memory``, ``--seed`` (a
-    64-bit unsigned integer), ``--rays``, ``--workers``, ``--psd-bands``,
+    option): ``--fps``, ``cutoff_x_max``, ``--tinf`` (above absolute zero), ``--memory``,
+    ``--seed`` (a 64-bit unsigned integer), ``--rays``, ``--workers``, ``--psd-bands``,
     ``--psd-nperseg``, ``--p-ref``, and the camera numbers."""
     if cfg.fps is not None:
         _finite(cfg.fps, "--fps", *FRAME_RATE_RANGE, "frames/s")
+    if cfg.cutoff_x_max is not None:
+        if isinstance(cfg.cutoff_x_max, bool):
+            raise InputError(f"{cfg.source}: cutoff_x_max {cfg.cutoff_x_max!r}: not a number")
+        _finite(cfg.cutoff_x_max, f"{cfg.source}: cutoff_x_max", -1e30, 1e30, "grid units")
     if cfg.tinf is not None:
         from selfillum.unsteady.conditions import MAX_TEMPERATURE_F, RANKINE
 

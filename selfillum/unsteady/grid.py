@@ -19,7 +19,7 @@ import trimesh
 
 from resection.errors import InputError
 
-__all__ = ["RunGrid", "load_run_grid", "read_steady_cp"]
+__all__ = ["RunGrid", "load_run_grid", "read_steady_cp", "nondata_nodes"]
 
 
 @dataclass(frozen=True)
@@ -164,3 +164,28 @@ def _triq_cp(p: str, grid: RunGrid) -> np.ndarray:
     if S.shape[1] < 1:
         raise InputError(f"{p}: no scalar (the steady Cp)")
     return S[:, 0].copy()
+
+
+def nondata_nodes(grid: RunGrid, cutoff_x_max: float | None, source: str = "cutoff_x_max"):
+    """uPSP's ``cutoff_x_max`` (``psp_process -cutoff_x_max=X``): the grid nodes whose x
+    (grid units, the grid file's own frame) is greater than ``X`` are non-data nodes,
+    never projected, so they have no value in any frame (``psp_process`` marks them with
+    ``set_node_nondata`` before Phase 1; its projection skips them and its solution gives
+    them NaN). The model is whole otherwise: its faces beyond ``X`` still hide what lies
+    behind them and, here, still light the rest of the model (self-illumination).
+
+    Returns
+    -------
+    (N,) bool or None
+        True at the non-data nodes; None without a cut-off. A cut-off beyond which every
+        node lies is refused (:class:`InputError` naming ``source``): nothing would be
+        left to process.
+    """
+    if cutoff_x_max is None:
+        return None
+    x = np.asarray(grid.points[:, 0])
+    cut = x > float(cutoff_x_max)
+    if cut.all():
+        raise InputError(f"{source} {cutoff_x_max:g}: every node of {grid.path} lies beyond "
+                         f"it (x from {x.min():.6g} to {x.max():.6g}): no node would get data")
+    return cut

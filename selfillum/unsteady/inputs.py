@@ -177,7 +177,8 @@ def work_inputs(cfg: UnsteadyConfig, T: int, N: int, fps: float) -> dict:
                 "track": cfg.track_dirs, "form_factors": cfg.form_factors}),
             "registration": cfg.registration, "target_patcher": cfg.target_patcher,
             "overlap": cfg.overlap, "filter": cfg.filter, "filter_size": cfg.filter_size,
-            "oblique_angle": cfg.oblique_angle, "frames": T, "nodes": N, "fps": fps,
+            "oblique_angle": cfg.oblique_angle, "cutoff_x_max": cfg.cutoff_x_max,
+            "frames": T, "nodes": N, "fps": fps,
             "si": cfg.si, "reflectance": str(cfg.reflectance),
             "unpainted": str(cfg.unpainted), "rays": cfg.rays, "seed": cfg.seed,
             "fast_maps": bool(cfg.fast)}

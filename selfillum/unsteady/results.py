@@ -89,7 +89,8 @@ def write_results(f, cfg, grid, cond, cp, gain, s1, times, frames, runs, R, t, t
     f.attrs["options"] = json_attr({
         "registration": cfg.registration, "target_patcher": cfg.target_patcher,
         "overlap": cfg.overlap, "filter": cfg.filter, "filter_size": cfg.filter_size,
-        "oblique_angle": cfg.oblique_angle, "number_frames": T, "si": cfg.si,
+        "oblique_angle": cfg.oblique_angle, "number_frames": T,
+        "cutoff_x_max": cfg.cutoff_x_max, "si": cfg.si,
         "reflectance": str(cfg.reflectance), "unpainted": str(cfg.unpainted),
         "rays": cfg.rays, "seed": cfg.seed, "detrend_order": DETREND_ORDER,
         "general": cfg.general, "source": cfg.source, "chunks": [tc, nc],

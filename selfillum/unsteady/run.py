@@ -84,7 +84,7 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     from selfillum.images.image_correction import read_reflectance
     from selfillum.solve.unseen import read_unpainted
     from selfillum.unsteady.conditions import Conditions
-    from selfillum.unsteady.grid import load_run_grid, read_steady_cp
+    from selfillum.unsteady.grid import load_run_grid, nondata_nodes, read_steady_cp
     from selfillum.unsteady.spots import DarkSpots
 
     check_options(cfg)
@@ -93,6 +93,7 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
         raise InputError(f"{out}: output folder {out.parent} does not exist")
     # ---------------------------------------------------------------- inputs, all checked
     grid = load_run_grid(cfg.grid)
+    nondata = nondata_nodes(grid, cfg.cutoff_x_max, f"{cfg.source}: cutoff_x_max")
     if cfg.steady is None:
         raise InputError("no steady Cp: give --steady STEADY.f")
     cp = read_steady_cp(cfg.steady, grid)
@@ -216,10 +217,11 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
 
             client = stack0.enter_context(open_client(cfg.workers, cfg.scheduler))
             gains0 = cluster_phase1(client, cfg, grid, runs, spots, unpainted, rho, F,
-                                     store, R, t, done, fb, T, prog)
+                                     store, R, t, done, fb, T, prog, nondata=nondata)
         else:
             gains0 = local_phase1(cfg, grid, runs, todo, spots, si, unpainted, store, R, t,
-                                   done, fb, T, N, prog, caster=caster, counts=counts)
+                                   done, fb, T, N, prog, caster=caster, counts=counts,
+                                   nondata=nondata)
             caster = None
         store.close()
         t_p2 = time.perf_counter()
@@ -289,6 +291,8 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
                             write_flat(f, tmp[2], tmp[3], node_block=plan.nodes_per_block)
                             cover = camera_coverage(grid, [r.camera for r in runs],
                                                     cfg.oblique_angle)
+                            if nondata is not None:  # never projected (cutoff_x_max)
+                                cover[nondata] = 0
                             write_node_files(f, dict(zip(FLAT_FILES[2:],
                                                          tmp[4:len(flat) + 2], strict=True)),
                                              work=s1, coverage=cover,

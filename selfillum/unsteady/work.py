@@ -113,16 +113,23 @@ def _encoder():
 
 class BlockBuffer:
     """A block of ``n`` frames of ``N`` nodes, encoded frame by frame as they come
-    (uint16 codes and scales; ``raw`` only in a run that removes the SI)."""
+    (uint16 codes and scales; ``raw`` only in a run that removes the SI). ``nondata``:
+    (N,) bool, nodes that get no data (:func:`selfillum.unsteady.grid.nondata_nodes`)."""
 
-    def __init__(self, n: int, N: int, with_raw: bool):
+    def __init__(self, n: int, N: int, with_raw: bool, nondata=None):
         self.values = np.zeros((n, N), np.uint16)
         self.values_scale = np.ones(n)
         self.raw = np.zeros((n, N), np.uint16) if with_raw else None
         self.raw_scale = np.ones(n) if with_raw else None
+        self.nondata = None if nondata is None or not np.any(nondata) else \
+            np.asarray(nondata, bool)
 
     def put(self, i: int, values, raw=None) -> None:
-        """Frame ``i`` of the block (node intensities, (N,), NaN unseen)."""
+        """Frame ``i`` of the block (node intensities, (N,), NaN unseen); the
+        ``nondata`` nodes (uPSP's ``cutoff_x_max``) stored unseen."""
+        if self.nondata is not None:
+            values = np.where(self.nondata, np.nan, values)
+            raw = None if raw is None else np.where(self.nondata, np.nan, raw)
         _, s = encode_rows(values, self.values[i:i + 1])
         self.values_scale[i] = s[0]
         if self.raw is not None:
