@@ -177,7 +177,7 @@ class CineFramesVsCineReader:
 
 class HistoryAppendVsRawWrite:
     """``HistoryWriter.append`` (each frame committed and flushed, the undo journal kept)
-    of 100 frames of 160,000 node values against appending the same bytes to one raw file
+    of 100 frames of 600,625 node values against appending the same bytes to one raw file
     (``write`` + ``flush``), interleaved frame by frame. Tracked beside: the resident
     memory's growth over the frames (MB; flat: nothing is kept but the frame written)."""
 
@@ -189,7 +189,7 @@ class HistoryAppendVsRawWrite:
 
         from ._scenes import plate
 
-        self.mesh = plate(400)
+        self.mesh = plate(775)
         self.cam = Camera.look_at([0.2, -0.6, 1.1], [0, 0, 0], [0, 1, 0],
                                   K=[[1100.0, 0, 511.5], [0, 1100.0, 511.5], [0, 0, 1]],
                                   width=1024, height=1024)
