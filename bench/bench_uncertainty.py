@@ -28,42 +28,17 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 
-def psp_files(folder: Path, resolution: int) -> list:
-    from resection.io.cameras import write_camera
-    from scenes.psp_uncertainty import psp_uncertainty_case
+def psp_files(folder: Path, resolution: int) -> tuple:
+    from scenes.psp_uncertainty import psp_uncertainty_case, write_psp_files
 
     c = psp_uncertainty_case(resolution=resolution, width=640, height=480, exact_rays=1024)
-    rng = np.random.default_rng(0)
-    off, on = c.images()
-    c.mesh.export(folder / "corner.ply")
-    write_camera(folder / "cam.json", c.camera)
-    g, r = c.sources["camera_gain"], c.sources["read_noise"]
-    for name, im in (("off", off), ("on", on)):
-        st = im[None] + np.sqrt(np.maximum(im, 0) / g + (r / g) ** 2)[None] \
-            * rng.standard_normal((5,) + im.shape)
-        np.save(folder / f"{name}.npy", st.astype(np.float32))
-    q, ps = 40.0, 100.0
-    cp = (c.p_true_taps - ps) / q
-    (folder / "run.wtd").write_text(
-        f"# MACH\tALPHA\tTTF\tPS\tQ\n0.5\t0.0\t80.0\t{ps!r}\t{q!r}\n# Tap CP\n"
-        + "".join(f"{k + 1}\t{float(v)!r}\n" for k, v in enumerate(cp)))
-    rows = ["*Targets"] + [f"{k + 1} {x!r} {y!r} {z!r} 0 0 1 0.01 1 1 1 M{k + 1}"
-                           for k, (x, y, z) in enumerate(c.markers.tolist())] + ["*Taps"]
-    rows += [f"{k + 100} {x!r} {y!r} {z!r} 0 0 1 0.005 1 1 1 CP{k + 1:02d}"
-             for k, (x, y, z) in enumerate(c.tap_points.tolist())]
-    (folder / "model.tgts").write_text("\n".join(rows) + "\n")
-    return ["psp", "--mesh", str(folder / "corner.ply"), "--camera", str(folder / "cam.json"),
-            "--wind-off", str(folder / "off.npy"), "--wind-on", str(folder / "on.npy"),
-            "--taps", str(folder / "run.wtd"), "--tap-positions", str(folder / "model.tgts"),
-            "--p-ref", "100", "--reflectance", "0.6", "--rays", "1024", "--quiet"], \
-        ["--uncertainty", "--markers", str(folder / "model.tgts"), "--u", "marker=0.05px"], \
-        len(c.mesh.faces)
+    args = write_psp_files(c, folder, 5, rays=1024, seed=0)
+    return args, ["--uncertainty", "--markers", str(folder / "model.tgts"), "--u",
+                  "marker=0.05px"], len(c.mesh.faces)
 
 
 def unsteady_files(folder: Path, frames: int) -> tuple:

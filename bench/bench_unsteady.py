@@ -15,9 +15,19 @@ peak RSS from ``getrusage``) for:
   path before the sparse products), for the ratio.
 
 Prints frames/s end to end, each phase's share (set-up = inputs and form factors, Phase 1,
-Phase 2 with the outputs), peak RSS, and ``uptime``'s load.
+Phase 2 with the outputs), peak RSS, and ``uptime``'s load. The runs use the command's own
+defaults (view factors' rays, pictures) unless ``--rays``/``--no-plots`` are given.
+
+``--deck FOLDER`` runs instead a uPSP run as a user has it: the folder made by
+:func:`scenes.unsteady_run.make_unsteady_run` (its ``run.inp`` deck with uPSP's options,
+``target_patcher = polynomial``, ``registration = pixel``, ``overlap = average_view``; the
+``.wtd`` with NASA's ``RUN`` line), the whole command
+``selfillum unsteady run.inp --paint-calibration paint.txt --steady steady.f
+--reflectance 0.6 --out OUT.h5``, each run beside ``--baseline``'s (alternating) for the
+ratio.
 
     python bench/bench_unsteady.py --nodes 600000 --frames 2000 [--full] [--rays 16]
+    python bench/bench_unsteady.py --deck RUN_FOLDER --baseline OLD_CHECKOUT --repeat 3
 """
 
 from __future__ import annotations
@@ -38,21 +48,29 @@ sys.path.insert(0, str(ROOT))
 from scenes.unsteady_large import make_large_run  # noqa: E402
 
 
-def run_case(folder: Path, name: str, extra: list, fps: float, rays: int,
-             root: Path = ROOT) -> dict:
-    out = folder / f"{name}.h5"
-    for p in folder.glob(f"{name}*"):
+def run_case(folder: Path, name: str, extra: list, fps: float, rays: int | None,
+             root: Path = ROOT, deck: bool = False, out_dir: Path | None = None) -> dict:
+    out = (out_dir or folder) / f"{name}.h5"
+    for p in out.parent.glob(f"{name}*"):
         if p.is_file():
             p.unlink()
-    cmd = [sys.executable, "-c",
-           "import sys; from selfillum.cli import main; "
-           "from selfillum.unsteady.budget import peak_rss_mb; rc = main(sys.argv[1:]); "
-           "print('PEAK_MB', peak_rss_mb()); sys.exit(rc)",
-           "unsteady", "--grid", str(folder / "model.grid"), "--sds", str(folder / "run.wtd"),
-           "--video", str(folder / "cam01.npy"), "--calibration", str(folder / "cam01.json"),
-           "--paint-calibration", str(folder / "paint.txt"), "--steady",
-           str(folder / "steady.f"), "--fps", str(fps), "--out", str(out), "--rays",
-           str(rays), "--no-plots", "--quiet", "--overlap", "average_view", *extra]
+    head = [sys.executable, "-c",
+            "import sys; from selfillum.cli import main; "
+            "from selfillum.unsteady.budget import peak_rss_mb; rc = main(sys.argv[1:]); "
+            "print('PEAK_MB', peak_rss_mb()); sys.exit(rc)", "unsteady"]
+    if deck:  # the user's command on the scene's deck, nothing else
+        cmd = head + [str(folder / "run.inp"), "--paint-calibration",
+                      str(folder / "paint.txt"), "--steady", str(folder / "steady.f"),
+                      "--reflectance", "0.6", "--out", str(out), *extra]
+    else:
+        cmd = head + ["--grid", str(folder / "model.grid"), "--sds", str(folder / "run.wtd"),
+                      "--video", str(folder / "cam01.npy"), "--calibration",
+                      str(folder / "cam01.json"), "--paint-calibration",
+                      str(folder / "paint.txt"), "--steady", str(folder / "steady.f"),
+                      "--fps", str(fps), "--out", str(out), "--quiet", "--overlap",
+                      "average_view", *extra]
+    if rays is not None:
+        cmd += ["--rays", str(rays)]
     env = dict(os.environ, PYTHONPATH=str(root))
     t0 = time.perf_counter()
     # cwd = the revision: "python -c" puts the working folder first on sys.path
@@ -66,7 +84,7 @@ def run_case(folder: Path, name: str, extra: list, fps: float, rays: int,
                    r"phase 2 and outputs ([\d.]+) s", txt)
     setup, p1, first, p2 = (float(v) for v in tm.groups())
     rss = float(re.search(r"PEAK_MB ([\d.]+)", txt).group(1))  # VmHWM: this process's
-    for p in folder.glob(f"{name}*"):
+    for p in out.parent.glob(f"{name}*"):
         if p.is_file():
             p.unlink()
     return {"case": name, "frames": fr, "wall": wall, "setup": setup, "phase1": p1,
@@ -81,7 +99,10 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=2000)
     ap.add_argument("--width", type=int, default=1280)
     ap.add_argument("--height", type=int, default=800)
-    ap.add_argument("--rays", type=int, default=16, help="rays a face for the view factors")
+    ap.add_argument("--rays", type=int, help="rays a face for the view factors (default: "
+                    "the command's)")
+    ap.add_argument("--no-plots", action="store_true", help="runs without the pictures")
+    ap.add_argument("--deck", help="a make_unsteady_run folder: its deck's whole command")
     ap.add_argument("--full", action="store_true", help="also the full per-frame maps")
     ap.add_argument("--vibration-deg", type=float, default=0.1,
                     help="pitch amplitude (the heave 0.6 mm per 0.1 degree), 30 Hz")
@@ -97,6 +118,8 @@ def main() -> None:
                     help="use the inputs already in --folder (made by an earlier run with "
                     "the same sizes)")
     args = ap.parse_args()
+    if args.deck:
+        return deck_runs(args)
     folder = Path(args.folder) if args.folder else Path(tempfile.mkdtemp(prefix="bench_u_"))
     folder.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -120,7 +143,8 @@ def main() -> None:
     rows = []
     for _ in range(args.repeat):
         for name in args.cases.split(","):
-            extra = cases[name] + ["--memory", args.memory] + args.extra.split()
+            extra = cases[name] + ["--memory", args.memory] + args.extra.split() + \
+                (["--no-plots"] if args.no_plots else [])
             rows.append(run_case(folder, name, extra, info["fps"], args.rays))
             if args.baseline:
                 rows.append(run_case(folder, name + "(base)", extra, info["fps"], args.rays,
@@ -128,6 +152,32 @@ def main() -> None:
             if args.full:
                 rows.append(run_case(folder, name + "(full)", extra + ["--full-maps"],
                                      info["fps"], args.rays))
+    report(rows)
+
+
+def deck_runs(args) -> None:
+    """The user's command on a deck folder, beside ``--baseline``'s, ``--repeat`` times."""
+    folder = Path(args.deck)
+    out_dir = Path(tempfile.mkdtemp(prefix="bench_deck_"))
+    extra = args.extra.split() + (["--no-plots"] if args.no_plots else [])
+    print("load:", subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip())
+    rows = []
+    for _ in range(args.repeat):
+        rows.append(run_case(folder, "deck", extra, 0.0, args.rays, deck=True,
+                             out_dir=out_dir))
+        if args.baseline:
+            rows.append(run_case(folder, "deck(base)", extra, 0.0, args.rays,
+                                 Path(args.baseline), deck=True, out_dir=out_dir))
+    report(rows)
+    if args.baseline:
+        new = [r["wall"] for r in rows if r["case"] == "deck"]
+        old = [r["wall"] for r in rows if r["case"] == "deck(base)"]
+        ratios = sorted(o / n for n, o in zip(new, old, strict=True))
+        print(f"speed-up over the baseline (wall, pair by pair): median "
+              f"{ratios[len(ratios) // 2]:.2f}x, range {ratios[0]:.2f}-{ratios[-1]:.2f}x")
+
+
+def report(rows) -> None:
     print("load:", subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip())
     print("frames/s: over the run's set-up and phases (inputs read before excluded); wall: "
           "the whole process (start, imports, inputs read) as a user times it")

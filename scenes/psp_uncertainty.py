@@ -33,10 +33,13 @@ import numpy as np
 
 from resection.camera.model import Camera
 
-__all__ = ["PSPUncertaintyCase", "psp_uncertainty_case", "P_REF", "SV"]
+__all__ = ["PSPUncertaintyCase", "psp_uncertainty_case", "write_psp_files", "P_REF",
+           "SV", "TUNNEL_PS", "TUNNEL_Q"]
 
 P_REF = 100.0
 SV = (0.15, 0.85)
+#: The ``.wtd``'s static pressure and dynamic pressure (psf) of :func:`write_psp_files`.
+TUNNEL_PS, TUNNEL_Q = 100.0, 40.0
 
 
 @dataclass
@@ -155,3 +158,42 @@ def psp_uncertainty_case(*, resolution: int = 10, exact_rays: int = 8192,
     return PSPUncertaintyCase(mesh, cam, sc.reflectance, p_true, b_off, b_on,
                               [f"T{i}" for i in range(pick.size)], c[pick],
                               np.vstack([floor, wall]), level, F, e_on, stated)
+
+
+def write_psp_files(case: PSPUncertaintyCase, folder, frames: int, *, rays: int = 256,
+                    seed: int = 4) -> list:
+    """The case as ``selfillum psp`` reads it, in ``folder``: the mesh (``corner.ply``), the
+    camera (``cam.json``), wind-off / wind-on NPY stacks of ``frames`` frames with the
+    camera's noise drawn (one image for ``frames`` 1), the taps as Cp in a ``.wtd``
+    (``PS`` :data:`TUNNEL_PS`, ``Q`` :data:`TUNNEL_Q`) placed by a ``.tgts`` whose targets
+    are the markers. Returns the command's arguments (without ``--uncertainty`` nor
+    ``--out``), ``rays`` rays a face."""
+    from pathlib import Path
+
+    from resection.io.cameras import write_camera
+
+    folder = Path(folder)
+    rng = np.random.default_rng(seed)
+    g, r = case.sources["camera_gain"], case.sources["read_noise"]
+    off, on = case.images()
+    case.mesh.export(folder / "corner.ply")
+    write_camera(folder / "cam.json", case.camera)
+    for name, im in (("off", off), ("on", on)):
+        st = im[None] + np.sqrt(np.maximum(im, 0) / g + (r / g) ** 2)[None] \
+            * rng.standard_normal((frames,) + im.shape)
+        np.save(folder / f"{name}.npy", (st if frames > 1 else st[0]).astype(np.float32))
+    ps, q = TUNNEL_PS, TUNNEL_Q
+    cp = (case.p_true_taps - ps) / q
+    (folder / "run.wtd").write_text(
+        f"# MACH\tALPHA\tTTF\tPS\tQ\n0.5\t0.0\t80.0\t{ps!r}\t{q!r}\n# Tap CP\n"
+        + "".join(f"{k + 1}\t{float(v)!r}\n" for k, v in enumerate(cp)))
+    rows = ["*Targets"] + [f"{k + 1} {x!r} {y!r} {z!r} 0 0 1 0.01 1 1 1 M{k + 1}"
+                           for k, (x, y, z) in enumerate(case.markers.tolist())] + ["*Taps"]
+    rows += [f"{k + 100} {x!r} {y!r} {z!r} 0 0 1 0.005 1 1 1 CP{k + 1:02d}"
+             for k, (x, y, z) in enumerate(case.tap_points.tolist())]
+    (folder / "model.tgts").write_text("\n".join(rows) + "\n")
+    return ["psp", "--mesh", str(folder / "corner.ply"), "--camera", str(folder / "cam.json"),
+            "--wind-off", str(folder / "off.npy"), "--wind-on", str(folder / "on.npy"),
+            "--taps", str(folder / "run.wtd"), "--tap-positions", str(folder / "model.tgts"),
+            "--p-ref", repr(P_REF), "--reflectance", str(case.reflectance), "--rays",
+            str(rays), "--quiet"]

@@ -147,7 +147,9 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
                       options: dict | None = None, freqs: dict | None = None,
                       heave_m: float = 0.003, drift_deg: float = 0.0, bits: int | None = None,
                       video_format: str = "npy", truth_rays: int = 4096,
-                      cameras0=None, targets=None, amplitude: float = 1.0) -> UnsteadyRun:
+                      cameras0=None, targets=None, amplitude: float = 1.0,
+                      pixel_noise: tuple | None = None,
+                      wind_off_frames: int = 0, smooth: bool = False) -> UnsteadyRun:
     """Write a run into ``folder`` (created) and return its paths and truth; ``cameras``
     1 to 4 (the second from the opposite side, seeing the block's other sides; the third
     and fourth from the other two diagonals).
@@ -172,7 +174,20 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
     ``I_ref / I = A + B p / p_ref`` instead of the paint calibration, and a wind-off image
     per camera at ``p_ref`` is written (``wind_off_camNN.npy``) for the in-situ fit.
     ``amplitude`` scales the three dCp amplitudes (small signals: the errors that grow with
-    the signal then stay below the noise)."""
+    the signal then stay below the noise).
+
+    ``pixel_noise = (g, r)``: the camera's noise instead of ``noise`` (relative): each
+    pixel of ``I`` counts gets ``N(0, I / g + (r / g)^2)`` (``g`` e-/count, ``r`` e-
+    read noise: shot and read noise), in the run's frames and the wind-off ones.
+    ``wind_off_frames``: the wind-off file is a stack of that many frames (each with its
+    own noise), also without ``stern_volmer`` (then at the steady pressure, the emission
+    ``E0``): the frames the noise can be measured on.
+
+    ``smooth``: each pixel shows the emission of its own surface point (the dCp field, the
+    paint and the gain evaluated there; the reflected light, smooth, interpolated from the
+    faces) instead of the faces' values interpolated over the vertices, whose
+    piecewise-linear field bends only at the edges: a field that varies within a face as
+    the paint's does (for the mapping's error against the field at the node)."""
     from resection.io.cameras import write_camera
     from resection.surface.surface_map import SurfaceMap
     from scenes.slab_block import paint, slab_block, write_slab_block
@@ -202,7 +217,7 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
             "lam": 0.3}
     t = np.arange(frames) / fps
 
-    def dcp(points, is_block):
+    def dcp(points, is_block, t=t):
         x = points[:, 0]
         plate = (amps["tone"] * np.sin(2 * np.pi * freqs["tone"] * t)[:, None]
                  + amps["wave"] * np.sin(2 * np.pi * (freqs["wave"] * t[:, None]
@@ -230,7 +245,31 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
 
     p_face = dcp(centres, on_block) * cond.q / 144.0  # psi, (T, F)
     drift = 1.0 - 0.01 * (t / t[-1]) + 0.003 * (t / t[-1]) ** 2
-    E0 = 1000.0 * paint(centres) * (1.0 + texture * rng.uniform(-1.0, 1.0, nf))
+    tex = 1.0 + texture * rng.uniform(-1.0, 1.0, nf)  # the paint's texture, per face
+    E0 = 1000.0 * paint(centres) * tex
+
+    def emission_at(X, fidx, k):
+        """The emission of frame ``k`` (None: wind-off) at surface points ``X`` on faces
+        ``fidx``."""
+        e0 = 1000.0 * paint(X) * tex[fidx]
+        if k is None:
+            return e0 if stern_volmer is None else e0 / (stern_volmer[0] + stern_volmer[1])
+        pk = dcp(X, on_block[fidx], t[k:k + 1])[0] * cond.q / 144.0
+        if stern_volmer is None:
+            return e0 * drift[k] / (1.0 + pk / gain(X))
+        A_sv, B_sv, p_ref = stern_volmer
+        pa = cp_steady(X) * cond.q + cond.p_inf + 144.0 * pk
+        return e0 * drift[k] / (A_sv + B_sv * pa / p_ref)
+
+    def render(smap, B_k, E_k, k):
+        """The image of radiosity ``B_k`` (emission ``E_k``) per face, frame ``k``."""
+        if not smooth:
+            return smap.to_image(B_k, background=30.0)
+        img = smap.to_image(B_k - E_k, background=30.0).reshape(-1)  # reflected light
+        fi = smap.face_index.ravel()
+        hit = np.flatnonzero(fi >= 0)
+        img[hit] += emission_at(smap.points.reshape(-1, 3)[hit], fi[hit], k)
+        return img.reshape(smap.shape)
     if stern_volmer is None:  # uPSP's paint calibration
         E = E0[None, :] * drift[:, None] / (1.0 + p_face / gain(centres)[None, :])
     else:  # I_ref / I = A + B p / p_ref, p = Pss + dCp q (psf)
@@ -260,6 +299,16 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
     B = solve(np.ascontiguousarray(E.T)).T  # (T, F)
     B_off = None if stern_volmer is None else \
         solve(E0 / (stern_volmer[0] + stern_volmer[1]))  # wind-off: p = p_ref
+    if B_off is None and wind_off_frames:
+        B_off = solve(E0)
+    E0_off = E0 if stern_volmer is None else E0 / (stern_volmer[0] + stern_volmer[1])
+
+    def noisy(img):
+        if pixel_noise is None:
+            return img * (1.0 + noise * rng.standard_normal(img.shape))
+        g, r = pixel_noise
+        return img + np.sqrt(np.maximum(img, 0.0) / g + (r / g) ** 2) \
+            * rng.standard_normal(img.shape)
     # ------------------------------------------------------------------ targets and spots
     cams0 = list(cameras0) if cameras0 is not None else \
         [_camera(width, height, index=c) for c in range(cameras)]
@@ -305,12 +354,12 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
             cam = camc.with_pose(R=camc.R @ M, t=camc.R @ d + camc.t)
             poses[c, k, :3], poses[c, k, 3] = cam.R, cam.t
             smap = SurfaceMap(mesh, cam, max_obliqueness=None, caster=caster)
-            img = smap.to_image(B[k], background=30.0)
+            img = render(smap, B[k], E[k], k)
             pts = smap.points.reshape(-1, 3)
             hit = np.flatnonzero(np.isfinite(pts[:, 0]))
             flat = img.reshape(-1)
             flat[hit[_in_spots(pts[hit], spots, srad)]] *= 0.12
-            img = flat.reshape(height, width) * (1.0 + noise * rng.standard_normal(img.shape))
+            img = noisy(flat.reshape(height, width))
             video[k] = img if bits is None else np.clip(np.rint(img), 0, (1 << bits) - 1)
         if video_format == "mraw":
             import pyMRAW
@@ -321,15 +370,17 @@ def make_unsteady_run(folder: str | os.PathLike, *, faces: int = 2500, frames: i
             np.save(out / f"cam{c + 1:02d}.npy", video)
         if B_off is not None:  # the wind-off image, frame 0's pose, no vibration
             smap = SurfaceMap(mesh, camc, max_obliqueness=None)
-            img = smap.to_image(B_off, background=30.0).reshape(-1)
+            img = render(smap, B_off, E0_off, None).reshape(-1)
             pts = smap.points.reshape(-1, 3)
             hit = np.isfinite(pts[:, 0])
             dist = np.linalg.norm(pts[hit][:, None, :] - spots[None, :, :], axis=2)
             idx = np.flatnonzero(hit)[(dist <= srad[None, :]).any(axis=1)]
             img[idx] = 0.12 * img[idx]
             img = img.reshape(height, width)
+            k_off = max(int(wind_off_frames), 1)
+            stack = np.stack([noisy(img) for _ in range(k_off)])  # a few frames
             np.save(out / f"wind_off_cam{c + 1:02d}.npy",
-                    (img * (1.0 + noise * rng.standard_normal(img.shape))).astype(np.float32))
+                    (stack if wind_off_frames else stack[0]).astype(np.float32))
         write_camera(out / f"cam{c + 1:02d}.json", camc)
     # ------------------------------------------------------------------ other inputs
     ext = "mraw" if video_format == "mraw" else "npy"

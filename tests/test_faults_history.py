@@ -145,7 +145,8 @@ def test_a_second_writer_is_refused_and_never_undoes_the_first(tmp_path):
             "resume=True)\n")
     r = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True,
                        text=True, env=_env())
-    assert r.returncode != 0 and "another process is writing" in r.stderr, r.stderr
+    assert r.returncode != 0 and "another process has this time history open" in r.stderr, \
+        r.stderr
     assert (tmp_path / "P.h5.journal").read_bytes() == journal
     w.append(_values(1, n), time=1.0, index=1)
     w.close()
@@ -365,6 +366,25 @@ def test_map_history_survives_kill_9(tmp_path):
         np.testing.assert_array_equal(read_history(out).values, ref)
         assert not (tmp_path / f"k{trial}.h5.journal").exists()
     assert sum(0 < c < 60 for c in counts) >= 3, counts  # the kills landed mid-run
+
+
+def test_a_reader_holding_the_file_briefly_does_not_refuse_the_writer(tmp_path):
+    """HDF5 readers hold a shared lock while the file is open: a writer that starts (or
+    resumes) while a viewer reads waits for it (up to 2 s) instead of being refused."""
+    import threading
+
+    import h5py
+
+    mesh = trimesh.creation.icosphere(subdivisions=1)
+    n = len(mesh.vertices)
+    path = tmp_path / "P.h5"
+    with HistoryWriter(path, mesh) as w:
+        w.append(_values(0, n), time=0.0, index=0)
+    reader = h5py.File(path, "r")  # HDF5's shared lock on the file
+    threading.Timer(0.3, reader.close).start()
+    with HistoryWriter(path, mesh, resume=True) as w:
+        w.append(_values(1, n), time=1.0, index=1)
+    assert read_history(path).n_frames == 2
 
 
 def test_ctrl_c_on_a_running_map_history(tmp_path):

@@ -71,3 +71,26 @@ def test_out_of_range_counted():
     U = PL.radiance(np.array([[300.0, 390.0]]))
     got, bad = ir_temperature(rad, U, None, 0.0, np.ones((1, 2)), np.ones(2))
     assert bad == 1 and np.isnan(got[0, 1]) and got[0, 0] == pytest.approx(300.0)
+
+
+def test_view_cosines_closed_form():
+    """A node's view cosine from the camera centres of each frame, against the angle
+    between its normal and the line to the camera written out (two cameras: the squarer
+    one's; a normal pointing away: the absolute cosine)."""
+    from selfillum.thermal.balance import camera_centres, view_cosines
+
+    pts = np.array([[0.0, 0.0, 0.0], [1.0, 2.0, -1.0]])
+    nrm = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]])
+    # camera 1 over the first node, then at 45 deg; camera 2 always at 60 deg of node 1
+    c1 = np.array([[0.0, 0.0, 2.0], [3.0, 0.0, 3.0]])
+    c2 = np.array([[np.sqrt(3.0), 0.0, 1.0], [np.sqrt(3.0), 0.0, 1.0]])
+    R = np.broadcast_to(np.eye(3), (2, 2, 3, 3))
+    t = -np.stack([c1, c2])  # x_cam = X - C: centre C
+    C = camera_centres(R, t)
+    np.testing.assert_allclose(C, np.stack([c1, c2]))
+    cos = view_cosines(C, pts, nrm)
+    np.testing.assert_allclose(cos[:, 0], [1.0, np.sqrt(0.5)], atol=1e-12)
+    for k in range(2):  # node 2 (normal -z, pointing away from both): |cos|, best camera
+        d = np.stack([c1[k], c2[k]]) - pts[1]
+        ref = np.max(np.abs(d[:, 2]) / np.linalg.norm(d, axis=1))
+        assert cos[k, 1] == pytest.approx(ref, abs=1e-12)

@@ -125,12 +125,17 @@ def test_finite_base_and_talbot_agree_with_the_closed_form():
 
 
 def test_gaps_are_filled_and_unseen_starts_are_refused():
-    T = np.array([[1.0, np.nan, 1.0], [2.0, 5.0, np.nan], [np.nan, 6.0, np.nan],
-                  [4.0, 7.0, 4.0]])
+    T = np.array([[1.0, np.nan, 1.0, 9.0], [2.0, 5.0, np.nan, 8.0],
+                  [np.nan, 6.0, np.nan, 7.0], [4.0, 7.0, 4.0, 6.0]])
     f, ok = fill_gaps(T)
     np.testing.assert_allclose(f[:, 0], [1, 2, 3, 4])
     np.testing.assert_allclose(f[:, 2], [1, 2, 3, 4])
-    assert list(ok) == [True, False, True]
+    np.testing.assert_array_equal(f[:, 3], [9, 8, 7, 6])  # seen throughout: as it is
+    assert np.isnan(f[:, 1]).all()
+    assert list(ok) == [True, False, True, True]
+    f, ok = fill_gaps(T[:, 3:])  # no gap at all
+    np.testing.assert_array_equal(f[:, 0], [9, 8, 7, 6])
+    assert list(ok) == [True]
 
 
 @pytest.mark.parametrize("d, words", [

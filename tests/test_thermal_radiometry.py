@@ -80,6 +80,13 @@ def test_fresnel_emissivity_and_hemispherical():
                np.pi / 2, limit=200)[0]
     assert e.hemispherical() == pytest.approx(ref, abs=1e-6)
     assert e.hemispherical() < e(0.0)  # it falls at grazing angles
+    # from the view angle's cosine (as the run takes it), each model
+    np.testing.assert_allclose(e.of_cosine(np.cos(th)), _fresnel_independent(th, n),
+                               atol=1e-12)
+    tab = Emissivity("table", 0.9, angles=(0.0, 60.0, 90.0), values=(0.9, 0.8, 0.2))
+    np.testing.assert_allclose(tab.of_cosine([1.0, 0.5, np.cos(np.radians(75.0)), 0.0]),
+                               [0.9, 0.8, 0.5, 0.2], atol=1e-12)
+    assert Emissivity("constant", 0.7).of_cosine([0.2, 1.0]).tolist() == [0.7, 0.7]
 
 
 def _write(tmp_path, d):

@@ -284,7 +284,7 @@ def test_polynomial_patch_on_a_moving_model(tiny, tmp_path):
     """uPSP's polynomial patch with each frame's tracked pose (the fast way's patch
     operator, whose ring reaches pixels off the model near its edges): the same
     temperatures as the markers left out, away from the markers."""
-    a = run_thermal(_config(tiny, tmp_path / "none.h5"))
+    a = run_thermal(_config(tiny, tmp_path / "none.h5", target_patcher="none"))
     b = run_thermal(_config(tiny, tmp_path / "poly.h5", target_patcher="polynomial"))
     with h5py.File(a.out) as fa, h5py.File(b.out) as fb:
         Ta, Tb = fa["temperature"][()], fb["temperature"][()]
@@ -301,3 +301,13 @@ def test_a_small_memory_budget_gives_the_same_result(tiny, tmp_path):
     with h5py.File(a.out) as fa, h5py.File(b.out) as fb:
         for name in ("temperature", "heat_flux"):
             np.testing.assert_array_equal(fa[name][()], fb[name][()])
+
+
+def test_phase1_frames_counted(tiny, tmp_path):
+    """The file says how Phase 1 mapped the frames: a moving model's frames by the fast
+    sparse products through a few references cast from the tracked poses."""
+    res = run_thermal(_config(tiny, tmp_path / "ways.h5"))
+    with h5py.File(res.out) as f:
+        ways = json.loads(f.attrs["options"])["phase1_frames"]
+    assert ways["fast"] + ways["full"] == res.n_frames
+    assert ways["fast"] >= res.n_frames - 1 and 1 <= ways["references"] <= 4

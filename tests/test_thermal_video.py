@@ -1,10 +1,14 @@
 """IR video formats (resection.io.video): Telops ``.hcc`` written by ``fasthcc``'s own
 writer and read back through ``open_frames`` (counts, size, rate); a TIFF stack's rate from
 its ImageJ metadata (``finterval``) as tifffile writes it; a FLIR ``.seq`` made of a
-frame a FLIR camera wrote, read against flirpy; a truncated file named."""
+frame a FLIR camera wrote, read against flirpy; a FLIR ``.csq`` a camera wrote (JPEG-LS
+frames) read against exiftool (the frames' tags and streams) and FFmpeg's own JPEG-LS
+decoder; a truncated file named."""
 
 from __future__ import annotations
 
+import json
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -96,10 +100,6 @@ def test_flir_seq_of_a_camera_frame(tmp_path):
     with pytest.raises(InputError) as ei:
         open_frames(bad)
     assert str(bad) in str(ei.value)
-    csq = tmp_path / "run.csq"
-    csq.write_bytes(blob)
-    with pytest.raises(InputError, match="csq"):
-        open_frames(csq)
 
 
 def test_temperature_of_the_camera_frame_as_flirpy():
@@ -118,3 +118,80 @@ def test_temperature_of_the_camera_frame_as_flirpy():
                      meta["Reflected Apparent Temperature"] + 273.15)
     np.testing.assert_allclose(rad.temperature(raw), ref, atol=1e-6)
     assert 270.0 < np.median(ref) < 320.0  # a scene near room temperature
+
+
+# Two frames a FLIR T1030sc wrote (1024 x 768, each frame's counts a JPEG-LS stream): the
+# start of the Thermimage R package's SampleCSQ.csq (GPL >= 2; see
+# tests/data/LICENSE-Thermimage-GPL.txt).
+FLIR_CSQ = Path(__file__).parent / "data" / "flir_t1030sc_2frames.csq"
+
+
+def _exiftool(*args) -> bytes:
+    """ExifTool (the copy flirpy ships, run by perl): FLIR's FFF records read by the
+    maintained reader of FLIR metadata."""
+    import flirpy
+
+    exe = Path(flirpy.__file__).parent / "bin" / "exiftool"
+    return subprocess.run(["perl", str(exe), *map(str, args)], capture_output=True,
+                          check=True).stdout
+
+
+def _ffmpeg_jpegls(stream: bytes, shape) -> np.ndarray:
+    """A JPEG-LS stream decoded by FFmpeg's own decoder (libavcodec's, not CharLS)."""
+    import imageio_ffmpeg
+
+    out = subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-v", "error", "-f",
+                          "jpegls_pipe", "-i", "-", "-f", "rawvideo", "-pix_fmt",
+                          "gray16le", "-"], input=stream, capture_output=True, check=True)
+    return np.frombuffer(out.stdout, "<u2").reshape(shape)
+
+
+def test_flir_csq_of_a_camera_against_exiftool_and_ffmpeg(tmp_path):
+    """Each frame of the camera's .csq through open_frames: its size and rate as exiftool
+    reads the frame's tags, its counts as FFmpeg decodes the JPEG-LS stream exiftool
+    extracts (the frames split at their FFF headers); its temperature through our Planck
+    form with exiftool's constants as flirpy's raw2temp."""
+    from flirpy.util.raw import raw2temp
+
+    from selfillum.thermal.radiometry import Emissivity, Planck, Radiometry
+
+    blob = FLIR_CSQ.read_bytes()
+    starts = [i for i in range(len(blob)) if blob.startswith(b"FFF\x00", i)]
+    assert starts == [0, 213196]
+    src = open_frames(FLIR_CSQ)
+    assert len(src) == 2
+    for k, a in enumerate(starts):
+        fr = tmp_path / f"frame{k}.fff"
+        fr.write_bytes(blob[a:(starts + [len(blob)])[k + 1]])
+        tags = json.loads(_exiftool("-j", "-n", fr))[0]
+        shape = (tags["RawThermalImageHeight"], tags["RawThermalImageWidth"])
+        assert tuple(src.shape) == shape == (768, 1024)
+        assert src.frame_rate == pytest.approx(tags["FrameRate"])
+        ref = _ffmpeg_jpegls(_exiftool("-b", "-RawThermalImage", fr), shape)
+        img = src.native(k)
+        assert img.dtype == np.uint16
+        np.testing.assert_array_equal(img, ref)
+    assert not np.array_equal(src.native(0), src.native(1))  # two frames, each its own
+    names = ("Planck R1", "Planck R2", "Planck B", "Planck F", "Planck O", "Emissivity",
+             "Reflected Apparent Temperature", "Atmospheric Temperature",
+             "IR Window Temperature", "IR Window Transmission", "Relative Humidity",
+             "Atmospheric Trans Alpha 1", "Atmospheric Trans Alpha 2",
+             "Atmospheric Trans Beta 1", "Atmospheric Trans Beta 2", "Atmospheric Trans X")
+    meta = {n: tags[n.replace(" ", "")] for n in names} | {"Object Distance": 0.0}
+    raw = src.native(1).astype(np.float64)
+    rad = Radiometry(Planck.from_exif(meta), Emissivity("constant", meta["Emissivity"]),
+                     meta["Reflected Apparent Temperature"] + 273.15)
+    np.testing.assert_allclose(rad.temperature(raw), raw2temp(raw, meta) + 273.15,
+                               atol=1e-6)
+    src.close()
+
+
+def test_flir_csq_bad_stream_named(tmp_path):
+    """A .csq whose JPEG-LS stream is cut short: one line naming the file and frame."""
+    blob = FLIR_CSQ.read_bytes()[:213196]
+    p = tmp_path / "cut.csq"
+    p.write_bytes(blob[:8000])
+    with pytest.raises(InputError) as ei:
+        open_frames(p)
+    msg = str(ei.value)
+    assert str(p) in msg and "\n" not in msg

@@ -201,35 +201,10 @@ def test_linear_agrees_with_monte_carlo(case):
     assert 0.88 < ratio < 1.12, ratio
 
 
-def _write_cli_case(case, tmp_path, frames: int, seed: int = 4):
-    """The case as files: a mesh, a camera, wind-off/on NPY stacks of ``frames`` noisy
-    frames, the taps in a .wtd (Cp, PS, Q) placed by a .tgts whose targets are the markers."""
-    from resection.io.cameras import write_camera
+def _write_cli_case(case, tmp_path, frames: int):
+    from scenes.psp_uncertainty import write_psp_files
 
-    c = case[0]
-    rng = np.random.default_rng(seed)
-    g, r = c.sources["camera_gain"], c.sources["read_noise"]
-    off, on = c.images()
-    c.mesh.export(tmp_path / "corner.ply")
-    write_camera(tmp_path / "cam.json", c.camera)
-    for name, im in (("off", off), ("on", on)):
-        st = im[None] + np.sqrt(np.maximum(im, 0) / g + (r / g) ** 2)[None] \
-            * rng.standard_normal((frames,) + im.shape)
-        np.save(tmp_path / f"{name}.npy", (st if frames > 1 else st[0]).astype(np.float32))
-    q, ps = 40.0, 100.0
-    cp = (c.p_true_taps - ps) / q
-    (tmp_path / "run.wtd").write_text(
-        f"# MACH\tALPHA\tTTF\tPS\tQ\n0.5\t0.0\t80.0\t{ps!r}\t{q!r}\n# Tap CP\n"
-        + "".join(f"{k + 1}\t{float(v)!r}\n" for k, v in enumerate(cp)))
-    rows = ["*Targets"] + [f"{k + 1} {x!r} {y!r} {z!r} 0 0 1 0.01 1 1 1 M{k + 1}"
-                           for k, (x, y, z) in enumerate(c.markers.tolist())] + ["*Taps"]
-    rows += [f"{k + 100} {x!r} {y!r} {z!r} 0 0 1 0.005 1 1 1 CP{k + 1:02d}"
-             for k, (x, y, z) in enumerate(c.tap_points.tolist())]
-    (tmp_path / "model.tgts").write_text("\n".join(rows) + "\n")
-    return ["psp", "--mesh", str(tmp_path / "corner.ply"), "--camera", str(tmp_path / "cam.json"),
-            "--wind-off", str(tmp_path / "off.npy"), "--wind-on", str(tmp_path / "on.npy"),
-            "--taps", str(tmp_path / "run.wtd"), "--tap-positions", str(tmp_path / "model.tgts"),
-            "--p-ref", "100", "--reflectance", str(c.reflectance), "--rays", "256", "--quiet"]
+    return write_psp_files(case[0], tmp_path, frames)
 
 
 def test_psp_cli_uncertainty(case, tmp_path, capsys):

@@ -143,8 +143,9 @@ class HistoryWriter:
             try:
                 self._jf = JournaledFile(self.path, opener=opener)
             except BlockingIOError:
-                raise InputError(f"{self.path}: another process is writing this time "
-                                 "history") from None
+                raise InputError(f"{self.path}: another process has this time history "
+                                 "open (writing it, or reading it for more than "
+                                 "2 s)") from None
             try:
                 self._f = h5py.File(self._jf, "r+")
             except OSError as exc:

@@ -169,17 +169,30 @@ def committed_view(path: str | os.PathLike):
     return _View(Path(path), committed, records)
 
 
-def _lock(fh) -> None:
+#: Seconds a writer waits for the file's lock before it is refused: a reader holds HDF5's
+#: shared lock while it reads (a viewer polling the file), briefly; a writer holds it for
+#: its whole run.
+LOCK_WAIT_S = 2.0
+
+
+def _lock(fh, wait_s: float = LOCK_WAIT_S) -> None:
     try:
         import fcntl
     except ImportError:  # pragma: no cover - Windows
         return
-    try:
-        fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        raise
-    except OSError:
-        pass  # a file system without flock
+    import time
+
+    end = time.monotonic() + wait_s
+    while True:
+        try:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return
+        except BlockingIOError:
+            if time.monotonic() >= end:
+                raise
+            time.sleep(0.01)
+        except OSError:
+            return  # a file system without flock
 
 
 class JournaledFile(ShadowedFile):

@@ -33,11 +33,13 @@ Readers
   frame, 16-bit pixels memory-mapped); the rate is the header's ``AcquisitionFrameRate``.
   Counts are the file's raw 16-bit values (a calibrated file's ``DataOffset`` and
   ``DataExp`` are not applied).
-* FLIR ``.seq`` (FFF frames one after another, as FLIR's cameras and ResearchIR record
-  them): the ``flirpy`` package's FFF parser on a memory map of the file (its frame
-  positions, then one frame's records when the frame is asked for); the rate is the first
-  frame's ``FrameRate`` tag. FLIR's compressed ``.csq`` (JPEG-LS frames) is not read:
-  flirpy has no decoder for it.
+* FLIR ``.seq`` and ``.csq`` (FFF frames one after another, as FLIR's cameras and
+  ResearchIR record them): the ``flirpy`` package's FFF parser on a memory map of the file
+  (its frame positions, then one frame's records when the frame is asked for); the rate is
+  the first frame's ``FrameRate`` tag. A ``.seq`` frame's raw-data record holds the 16-bit
+  counts as they are (flirpy's ``Fff.get_image``). A ``.csq`` (FLIR's compressed
+  sequence) holds them as a JPEG-LS stream, which flirpy cannot decode: the record's
+  stream is decoded by ``imagecodecs.jpegls_decode`` (CharLS), lossless.
 * A TIFF stack's rate comes from its ImageJ metadata (``finterval``, seconds between
   frames) when it has it.
 
@@ -61,7 +63,7 @@ from resection.io.images import read_image
 
 __all__ = ["FrameSource", "open_frames", "iter_frames", "frame_rate_of", "VIDEO_SUFFIXES"]
 
-VIDEO_SUFFIXES = (".cine", ".mraw", ".cih", ".cihx", ".hcc", ".seq")
+VIDEO_SUFFIXES = (".cine", ".mraw", ".cih", ".cihx", ".hcc", ".seq", ".csq")
 
 
 class FrameSource:
@@ -215,11 +217,8 @@ def open_frames(
         return _npy_stack(p, mask_saturated)
     if suf == ".hcc":
         return _hcc(p, mask_saturated)
-    if suf == ".seq":
+    if suf in (".seq", ".csq"):
         return _flir_seq(p, mask_saturated)
-    if suf == ".csq":
-        raise InputError(f"{p}: FLIR .csq (compressed frames) is not supported; export the "
-                         "run as .seq, TIFF or NPY")
     return _image_files(paths, mask_saturated)
 
 
@@ -265,15 +264,48 @@ def _tiff_stack(p: Path, mask_saturated: bool) -> FrameSource:
                        frame_rate=rate, mask_saturated=mask_saturated, closer=tf.close)
 
 
+#: The start of a JPEG-LS stream (SOI, then SOF55): a ``.csq`` frame's raw data.
+_JPEG_LS = b"\xff\xd8\xff\xf7"
+
+
+def _flir_image(p: Path, i: int, frame: bytes):
+    """Frame ``i``'s counts (uint16) from its FFF bytes: flirpy's ``Fff`` for the records;
+    a raw-data record holding a JPEG-LS stream (a ``.csq``) decoded by ``imagecodecs``."""
+    from flirpy.io.fff import Fff
+
+    f = Fff(frame)
+    raw = next((r for r in f.records if r.record_type == 1), None)
+    if raw is None:
+        raise InputError(f"{p}#{i}: a FLIR frame without raw data")
+    start, end = f.image_offset, raw.record_offset + raw.record_length
+    if frame[start:start + 4] != _JPEG_LS:
+        return f, f.get_image()
+    try:
+        import imagecodecs
+    except ImportError:
+        raise InputError(f"{p}: reading FLIR .csq (JPEG-LS frames) needs the imagecodecs "
+                         "package (pip install imagecodecs)") from None
+    try:
+        img = imagecodecs.jpegls_decode(frame[start:end])
+    except Exception as exc:  # imagecodecs raises its own JpeglsError
+        raise InputError(f"{p}#{i}: cannot decode the frame's JPEG-LS data "
+                         f"({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})"
+                         ) from None
+    if img.shape != (f.height, f.width):
+        raise InputError(f"{p}#{i}: JPEG-LS frame {img.shape[1]}x{img.shape[0]}, its "
+                         f"header {f.width}x{f.height}")
+    return f, img
+
+
 def _flir_seq(p: Path, mask_saturated: bool) -> FrameSource:
-    """A FLIR ``.seq`` through ``flirpy``'s FFF parser, on a memory map of the file."""
+    """A FLIR ``.seq`` or ``.csq`` through ``flirpy``'s FFF parser, on a memory map of the
+    file (``.csq`` frames decoded by :func:`_flir_image`)."""
     import mmap
 
     try:
-        from flirpy.io.fff import Fff
         from flirpy.io.seq import Seq
     except ImportError:
-        raise InputError(f"{p}: reading FLIR .seq needs the flirpy package "
+        raise InputError(f"{p}: reading FLIR {p.suffix.lower()} needs the flirpy package "
                          "(pip install flirpy)") from None
     fh = open(p, "rb")  # noqa: SIM115 - closed by the source's closer
     try:
@@ -281,16 +313,20 @@ def _flir_seq(p: Path, mask_saturated: bool) -> FrameSource:
         pos = Seq._get_frame_positions(mm)  # flirpy's walk of the FFF headers
         if not pos:
             raise ValueError("no FFF frame")
-        first = Fff(bytes(mm[pos[0][0]:pos[0][0] + pos[0][1]]))
-        shape = (int(first.height), int(first.width))
+        first, img0 = _flir_image(p, 0, bytes(mm[pos[0][0]:pos[0][0] + pos[0][1]]))
+        shape = img0.shape
         rate = float(first.meta.get("FrameRate") or 0) or None
-    except (OSError, ValueError, struct.error, AttributeError) as exc:
+    except InputError:
         fh.close()
-        raise InputError(f"{p}: cannot read FLIR SEQ ({str(exc).splitlines()[0]})") from None
+        raise
+    except (OSError, ValueError, struct.error, AttributeError, IndexError) as exc:
+        fh.close()
+        raise InputError(f"{p}: cannot read FLIR {p.suffix.lower()[1:].upper()} "
+                         f"({str(exc).splitlines()[0]})") from None
 
     def read(i):
         a, n = pos[int(i)]
-        img = Fff(bytes(mm[a:a + n])).get_image()
+        img = _flir_image(p, int(i), bytes(mm[a:a + n]))[1]
         if img.shape != shape:
             raise InputError(f"{p}#{i}: a {img.shape[1]}x{img.shape[0]} frame in a "
                              f"{shape[1]}x{shape[0]} sequence")

@@ -289,7 +289,8 @@ def merge_views(maps: Sequence, images: Sequence, *, method: str = "weighted",
                 min_pixels: int = 1, edge_margin: int = 1, feather_px: float | None = None,
                 max_obliqueness: float | None = None, match_gain: bool = True,
                 reference: int = 0, min_overlap: int = 10, depth_jump: float = 0.02,
-                crease_deg: float = 45.0, gains=None) -> MergedViews:
+                crease_deg: float = 45.0, gains=None,
+                pixel_weights_=None) -> MergedViews:
     """Merge what several cameras see of the same surface onto its faces.
 
     Parameters
@@ -325,6 +326,9 @@ def merge_views(maps: Sequence, images: Sequence, *, method: str = "weighted",
     gains : (C,) array_like, optional
         Gains to use instead of matching them (e.g. those of the wind-off merge for the
         wind-on images of the same cameras, so that a ratio of the two has no seam).
+    pixel_weights_ : sequence of (H_c, W_c) arrays, optional
+        Each camera's :func:`pixel_weights` with these options, when the caller has them
+        (several merges of the same maps: computed once).
 
     Returns
     -------
@@ -366,7 +370,8 @@ def merge_views(maps: Sequence, images: Sequence, *, method: str = "weighted",
                              f"{m.shape}")
         try:
             pw = pixel_weights(m, feather_px=feather_px, edge_margin=edge_margin,
-                               depth_jump=depth_jump, crease_deg=crease_deg)
+                               depth_jump=depth_jump, crease_deg=crease_deg) \
+                if pixel_weights_ is None else np.asarray(pixel_weights_[c], np.float64)
         except InputError as e:
             raise InputError(f"merge_views: {e}") from None
         finite = np.isfinite(arr)

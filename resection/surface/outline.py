@@ -67,8 +67,13 @@ def outline_edges(mesh: trimesh.Trimesh, crease_deg: float = 30.0, *,
         raise InputError(f"crease_deg must be in [0, 180] degrees, got {crease_deg}")
     V = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces)
-    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    uniq, inv, counts = np.unique(edges, axis=0, return_inverse=True, return_counts=True)
+    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1).astype(np.int64)
+    # the edges as one integer each (a, b) -> a nV + b: the same sorted unique rows as
+    # np.unique(axis=0), a sort of integers instead of rows (a tenth of the time)
+    nV = max(len(V), 1)
+    ukey, inv, counts = np.unique(edges[:, 0] * nV + edges[:, 1], return_inverse=True,
+                                  return_counts=True)
+    uniq = np.column_stack([ukey // nV, ukey % nV])
     keep = np.zeros(len(uniq), dtype=bool)
     n = np.asarray(mesh.face_normals, dtype=np.float64)
     front = None

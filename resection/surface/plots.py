@@ -17,6 +17,7 @@ state) and save a PNG when ``path`` is given.
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass
 
 import numpy as np
 import trimesh
@@ -35,7 +36,7 @@ from resection.surface.surface_map import SurfaceMap
 from resection.surface.visibility import visible_faces
 
 __all__ = ["plot_surface", "virtual_camera", "frame_camera", "plot_resection",
-           "outline_edges"]
+           "outline_edges", "SurfaceView", "prepare_view"]
 
 
 def virtual_camera(mesh: trimesh.Trimesh, azimuth_deg: float = 30.0,
@@ -149,11 +150,12 @@ def frame_camera(camera: Camera, *, target=None, zoom: float = 1.0, box=None,
     return camera.replace(K=K)
 
 
-def _draw_outline(ax, mesh, camera, crease_deg, color, width, label) -> None:
-    """Silhouettes and creases of ``mesh`` seen by ``camera``, hidden parts removed."""
+def _outline_uv(mesh, camera, crease_deg) -> np.ndarray:
+    """(S, 2, 2) pixel segments of the silhouettes and creases of ``mesh`` seen by
+    ``camera``, hidden parts removed."""
     seg = outline_edges(mesh, crease_deg, camera=camera)
     if not len(seg):
-        return
+        return np.zeros((0, 2, 2))
     # split long edges so that partly hidden ones are drawn in part
     n = 4
     s = np.linspace(0.0, 1.0, n + 1)
@@ -161,8 +163,53 @@ def _draw_outline(ax, mesh, camera, crease_deg, color, width, label) -> None:
     sub = np.stack([pts[:, :-1], pts[:, 1:]], axis=2).reshape(-1, 2, 3)
     sub = sub[visible_segments(mesh, camera, sub)]
     uv = camera.project(sub.reshape(-1, 3)).reshape(-1, 2, 2)
-    uv = uv[np.all(np.isfinite(uv), axis=(1, 2))]
-    ax.add_collection(LineCollection(uv, colors=color, linewidths=width, label=label))
+    return uv[np.all(np.isfinite(uv), axis=(1, 2))]
+
+
+def _draw_outline(ax, mesh, camera, crease_deg, color, width, label, uv=None) -> None:
+    """Silhouettes and creases of ``mesh`` seen by ``camera``, hidden parts removed
+    (``uv``: their segments when made already)."""
+    uv = _outline_uv(mesh, camera, crease_deg) if uv is None else uv
+    if len(uv):
+        ax.add_collection(LineCollection(uv, colors=color, linewidths=width, label=label))
+
+
+@dataclass(frozen=True)
+class SurfaceView:
+    """What a raster picture of a mesh from a camera needs besides the values: the face
+    each pixel sees and, optionally, the outline's segments (pixels). Made once by
+    :func:`prepare_view` (for instance while a run computes the values), then given to
+    :func:`plot_surface` as ``view``.
+
+    Attributes
+    ----------
+    camera : Camera
+    surface_map : SurfaceMap
+    outline_uv : (S, 2, 2) ndarray or None
+        Pixel segments of the outline (None: not prepared).
+    crease_deg : float
+        The crease angle the outline was made with, degrees.
+    """
+
+    camera: Camera
+    surface_map: SurfaceMap
+    outline_uv: np.ndarray | None
+    crease_deg: float = 30.0
+
+
+def prepare_view(mesh: trimesh.Trimesh, camera: Camera | None = None, *,
+                 outline: bool = False, crease_deg: float = 30.0) -> SurfaceView:
+    """The :class:`SurfaceView` of ``mesh`` from ``camera`` (default
+    :func:`virtual_camera`): one Embree ray a pixel, and the outline when asked. Builds
+    its own ray-tracing scene, so it may run in another thread than the one that uses
+    ``mesh`` (trimesh's caches are not shared: it works on a copy of the faces)."""
+    local = trimesh.Trimesh(np.asarray(mesh.vertices), np.asarray(mesh.faces), process=False)
+    camera = virtual_camera(local) if camera is None else camera
+    if not isinstance(camera, Camera):
+        raise InputError(f"camera: expected a resection.Camera, got {type(camera).__name__}")
+    smap = SurfaceMap(local, camera)
+    uv = _outline_uv(local, camera, crease_deg) if outline else None
+    return SurfaceView(camera, smap, uv, float(crease_deg))
 
 
 def finish_figure(fig: Figure, path, dpi: float | None = None) -> Figure:
@@ -202,6 +249,7 @@ def plot_surface(
     crease_deg: float = 30.0,
     path: str | os.PathLike | None = None,
     dpi: int = 100,
+    view: SurfaceView | None = None,
 ) -> Figure:
     """Per-face data seen from ``camera`` with a colour map and a colour bar.
 
@@ -228,6 +276,9 @@ def plot_surface(
         hidden parts removed.
     path : path-like, optional
         Save a PNG there.
+    view : SurfaceView, optional
+        Raster only: the pixels' faces (and the outline) made already by
+        :func:`prepare_view`; its camera is used (``camera`` must then be None or it).
     """
     fv = np.asarray(face_values, dtype=np.float64)
     if fv.shape != (len(mesh.faces),):
@@ -236,6 +287,13 @@ def plot_surface(
         )
     if method not in ("raster", "polygons"):
         raise InputError(f"method must be 'raster' or 'polygons', got {method!r}")
+    if view is not None:
+        if method != "raster" or (camera is not None and camera is not view.camera):
+            raise InputError("view: only for method='raster', with its own camera")
+        if view.surface_map.n_faces != len(mesh.faces):
+            raise InputError(f"view: made for {view.surface_map.n_faces} faces, the mesh has "
+                             f"{len(mesh.faces)}")
+        camera = view.camera
     camera = virtual_camera(mesh) if camera is None else camera
     if not isinstance(camera, Camera):
         raise InputError(f"camera: expected a resection.Camera, got {type(camera).__name__}")
@@ -268,7 +326,8 @@ def plot_surface(
                 raise InputError(f"background: shape {bg.shape} does not match the camera "
                                  f"image (H, W) = ({H}, {W})")
             ax.imshow(bg, cmap="gray", interpolation="nearest")
-        img = SurfaceMap(mesh, camera).to_image(fv, interpolation=interpolation)
+        smap = SurfaceMap(mesh, camera) if view is None else view.surface_map
+        img = smap.to_image(fv, interpolation=interpolation)
         mappable = ax.imshow(np.ma.masked_invalid(img), cmap=cm, norm=norm,
                              interpolation="nearest")
     else:
@@ -285,7 +344,10 @@ def plot_surface(
                                linewidths=0.2 if edges else 0.3)
         mappable = ax.add_collection(polys)
     if outline:
-        _draw_outline(ax, mesh, camera, crease_deg, "black", 0.9, None)
+        ready = view is not None and view.outline_uv is not None and \
+            view.crease_deg == float(crease_deg)
+        _draw_outline(ax, mesh, camera, crease_deg, "black", 0.9, None,
+                      uv=view.outline_uv if ready else None)
     cb = fig.colorbar(mappable, ax=ax, shrink=0.85)
     if label:
         cb.set_label(label)

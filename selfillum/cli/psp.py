@@ -14,6 +14,7 @@ import numpy as np
 from resection.cli.paths import FolderOutput
 from resection.cli.util import add_mesh_format
 from resection.errors import InputError
+from selfillum.cli.surfaces import surface_paths, write_surfaces
 from selfillum.cli.uncertainty import add_uncertainty_options, uncertainty_settings
 
 
@@ -42,6 +43,7 @@ def _cmd_psp(args) -> int:
         raise InputError(f"give one wind-on image per camera ({len(cams)} cameras, "
                          f"{len(ons)} wind-on images)")
     mesh = load_mesh(args.mesh, format=args.mesh_format)
+    surfaces = surface_paths(args, mesh)
     taps = read_taps(args.taps, positions=args.tap_positions)
     check_fit_inputs(taps, args.p_ref, args.taps)  # before the maps and the view factors
     maps = [SurfaceMap(mesh, read_camera(c)) for c in cams]
@@ -71,11 +73,13 @@ def _cmd_psp(args) -> int:
                      delimiter=",", header="face,pressure,ratio", comments="")
         atomic_write(out / "stern_volmer.json", Path.write_text,
                      json.dumps(info, indent=2) + "\n")
+    write_surfaces(surfaces, mesh, {"pressure": res.pressure, "ratio": res.ratio})
     rms = float(np.sqrt(np.nanmean(res.tap_residuals**2)))
     print(f"Stern-Volmer   I_ref/I = {law.A:.4f} + {law.B:.4f} p/p_ref (p_ref {law.p_ref:g})")
     print(f"taps           {len(taps.ids)}, rms residual {rms:.4g}")
     print(f"SI corrected   {'yes' if res.corrected else 'no'}")
-    print(f"wrote {out}/pressure_*.tif, pressure_faces.csv, stern_volmer.json")
+    print(f"wrote {out}/pressure_*.tif, pressure_faces.csv, stern_volmer.json"
+          + "".join(f", {p}" for p in surfaces))
     return 0
 
 
@@ -115,6 +119,11 @@ def register(sub) -> None:
     p.add_argument("--out", required=True, help="output folder (created if needed)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_uncertainty_options(p)
+    p.add_argument("--surface", action="append", metavar="FILE",
+                   help="also write the per-face results and their node values on the model: "
+                   ".vtu, .vtk, .xdmf, .ply, .csv, or a Plot3D function file .f (node values, "
+                   "a Plot3D --mesh); with --uncertainty, cp_u / p_u and each source's part "
+                   "too; repeat for several files")
     p.add_argument("--no-plots", action="store_true",
                    help="with --uncertainty: no picture of the uncertainty nor budget chart")
     p.add_argument("--markers", metavar="FILE",

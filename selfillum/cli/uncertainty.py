@@ -49,11 +49,18 @@ def psp_with_uncertainty(args, stated) -> int:
     from resection.io.wtd import is_wtd, read_wtd
     from resection.surface.surface_map import SurfaceMap
     from resection.surface.visibility import RayCaster
+    from selfillum.cli.surfaces import surface_paths
     from selfillum.images.image_correction import read_reflectance
     from selfillum.images.psp import read_taps
+    from selfillum.surface_fields import write_mesh_fields
     from selfillum.transport.viewfactors import view_factors
     from selfillum.uncertainty.psp_chain import PSPInputs
-    from selfillum.uncertainty.psp_io import read_condition, write_uncertainty
+    from selfillum.uncertainty.psp_io import (
+        face_columns,
+        node_columns,
+        read_condition,
+        write_uncertainty,
+    )
     from selfillum.uncertainty.psp_run import noise_models, psp_uncertainty
 
     cams = args.camera
@@ -63,6 +70,7 @@ def psp_with_uncertainty(args, stated) -> int:
     off, noff, voff = read_condition(args.wind_off, len(cams), "--wind-off")
     on, non, von = read_condition(args.wind_on, len(cams), "--wind-on")
     mesh = load_mesh(args.mesh, format=args.mesh_format)
+    surfaces = surface_paths(args, mesh)
     taps = read_taps(args.taps, positions=args.tap_positions)
     tunnel = None
     if is_wtd(args.taps):
@@ -91,10 +99,16 @@ def psp_with_uncertainty(args, stated) -> int:
         for k, m in enumerate(maps):
             atomic_write(out / f"pressure_{k}.tif", write_image,
                          m.to_image(res.pressure).astype(np.float32))
-        written = write_uncertainty(out, mesh, [m.camera for m in maps], state, budgets,
+        written = write_uncertainty(out, mesh, maps, state, budgets,
                                     stated, atomic_write, plots=not args.no_plots)
         atomic_write(out / "stern_volmer.json", Path.write_text,
                      json.dumps(info, indent=2) + "\n")
+    if surfaces:
+        cols = face_columns(state, budgets)
+        cols.pop("face")
+        nodes = node_columns(mesh, cols)
+        for p in surfaces:
+            write_mesh_fields(p, mesh, cols, nodes)
     q = "cp" if "cp" in budgets else "p"
     b = budgets[q]
     fin = b.combined[np.isfinite(b.combined)]
@@ -105,5 +119,6 @@ def psp_with_uncertainty(args, stated) -> int:
         print(f"  {src:13s}{st}")
     if "tap_scatter_ratio" in b.info:
         print(f"taps           scatter / stated sources: {b.info['tap_scatter_ratio']:.3g}")
-    print(f"wrote {out}/pressure_*.tif, {', '.join(written)}, stern_volmer.json")
+    print(f"wrote {out}/pressure_*.tif, {', '.join(written)}, stern_volmer.json"
+          + "".join(f", {p}" for p in surfaces))
     return 0

@@ -45,7 +45,8 @@ def _cmd_unsteady(args) -> int:
               "plots": not args.no_plots, "resume": args.resume,
               "fast": not args.full_maps, "workers": args.workers,
               "scheduler": args.scheduler, "uncertainty": args.uncertainty,
-              "samples": args.samples, "stated": uncertainty_settings(args)}
+              "samples": args.samples, "stated": uncertainty_settings(args),
+              "surface": [Path(p) for p in args.surface or []]}
     if args.deck:
         if args.grid or args.sds or args.video or args.calibration:
             raise InputError("give either DECK.inp or --grid/--sds/--video/--calibration, "
@@ -193,6 +194,11 @@ def register(sub) -> None:
                    "read next to OUT.h5: pressure, pressure_transpose, X, Y, Z and per-node "
                    "avg, rms, gain, steady_state, model_temp, coverage, intensity_avg, "
                    "intensity_rms, intensity_ratio_0 (docs/unsteady.md)")
+    p.add_argument("--surface", action="append", metavar="FILE",
+                   help="also write the per-node fields on the grid: steady cp, dcp_mean, "
+                   "dcp_rms and, with --uncertainty, dcp_u, dcp_u_gain, dcp_rms_signal, "
+                   "dcp_rms_signal_u, noise_floor: .vtu, .vtk, .xdmf, .ply, .csv or a Plot3D "
+                   "function file .f (with its .nam); repeat for several files")
     p.add_argument("--psd", metavar="N1,N2,...",
                    help="probe nodes (grid file order, from 0): their Welch PSD of dCp is "
                    "stored (/psd/probe_psd) and plotted (OUT_psd.png)")

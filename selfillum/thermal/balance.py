@@ -74,9 +74,15 @@ def view_cosines(centres, points, normals) -> np.ndarray:
     cameras (``centres`` (C, T, 3); ``points``, ``normals`` (n, 3)). Its absolute value,
     as :func:`resection.surface.surface_map.oblique_faces` takes it: a grid's faces may
     point in or out, and whether a node is seen at all is the ray cast's answer (Phase 1)."""
+    p = np.asarray(points, dtype=np.float64)
+    n = np.asarray(normals, dtype=np.float64)
+    pn = np.einsum("nk,nk->n", p, n)
+    pp = np.einsum("nk,nk->n", p, p)
     best = None
-    for C in centres:  # a few cameras
-        d = C[:, None, :] - points[None, :, :]
-        c = np.abs(np.einsum("tnk,nk->tn", d, normals)) / np.linalg.norm(d, axis=2)
+    for C in np.asarray(centres, dtype=np.float64):  # a few cameras
+        # (C - p).n and |C - p|^2 by products of (T, 3) and (3, n): no (T, n, 3) array
+        dn = C @ n.T - pn
+        d2 = np.einsum("tk,tk->t", C, C)[:, None] - 2.0 * (C @ p.T) + pp
+        c = np.abs(dn) / np.sqrt(np.maximum(d2, 1e-300))
         best = c if best is None else np.maximum(best, c)
     return np.clip(best, 0.0, 1.0)

@@ -32,13 +32,13 @@ a base with ``thickness`` has an insulated back face.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from resection.errors import InputError
+from selfillum.thermal.jsonfile import number, read_object
 
 __all__ = ["Layer", "Substrate", "read_substrate", "step_response", "cook_felderman",
            "impulse_heat_flux", "heat_flux", "surface_temperature", "METHODS"]
@@ -83,23 +83,10 @@ class Substrate:
 def _layer(d, where: str, *, need_thickness: bool) -> Layer:
     if not isinstance(d, dict):
         raise InputError(f"{where}: expected an object with rho, c, k")
-    vals = {}
-    for key in ("rho", "c", "k"):
-        if key not in d:
-            raise InputError(f"{where}: missing {key}")
-        try:
-            v = float(d[key])
-        except (TypeError, ValueError):
-            raise InputError(f"{where}: {key} = {d[key]!r} is not a number") from None
-        if not (np.isfinite(v) and v > 0):
-            raise InputError(f"{where}: {key} = {d[key]!r} must be positive")
-        vals[key] = v
-    th = d.get("thickness")
-    if th is not None:
-        th = float(th)
-        if not (np.isfinite(th) and th > 0):
-            raise InputError(f"{where}: thickness = {d['thickness']!r} must be positive (m)")
-    elif need_thickness:
+    vals = {key: number(d, key, where, positive=True) for key in ("rho", "c", "k")}
+    th = number(d, "thickness", where, positive=True) if d.get("thickness") is not None \
+        else None
+    if th is None and need_thickness:
         raise InputError(f"{where}: a layer needs its thickness (m)")
     unknown = set(d) - {"rho", "c", "k", "thickness", "name"}
     if unknown:
@@ -112,15 +99,8 @@ def read_substrate(path) -> Substrate:
     body, or with ``thickness`` a slab with an insulated back), or ``{"layers": [{"rho",
     "c", "k", "thickness"}, ...], "substrate": {"rho", "c", "k"[, "thickness"]}}`` (layers
     top first)."""
+    d = read_object(path, "substrate file")
     p = Path(path)
-    try:
-        d = json.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(f"{p}: no such file") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"{p}: not a JSON substrate file ({exc})") from None
-    if not isinstance(d, dict):
-        raise InputError(f"{p}: expected a JSON object")
     if "layers" in d:
         if not isinstance(d["layers"], list) or not d["layers"]:
             raise InputError(f"{p}: layers must be a non-empty list")
@@ -204,16 +184,27 @@ def surface_temperature(sub: Substrate, q, dt: float) -> np.ndarray:
     """The forward problem: surface temperature rise (K) at ``t_n = n dt`` for a heat flux
     (W/m^2, ``(n,)`` or ``(n, m)``) linear between the frames' values ``q`` (``q[0]``
     taken as 0)."""
-    from scipy.signal import fftconvolve
-
     q = np.asarray(q, dtype=np.float64)
     n = q.shape[0]
-    w = hat_response(sub, n, dt)
-    dT = fftconvolve(q[1:], w.reshape((-1,) + (1,) * (q.ndim - 1)), axes=0)[:n - 1]
+    dT = _convolve_time(q[1:], hat_response(sub, n, dt))
     return np.concatenate([np.zeros((1,) + q.shape[1:]), dT])
 
 
 # ------------------------------------------------------------------ the inverses
+def _convolve_time(x, kernel) -> np.ndarray:
+    """The first ``len(x)`` samples of the linear convolution of ``x`` (``(n,)`` or
+    ``(n, m)``, along time) with ``kernel`` (``(n,)``): one real FFT along time for the
+    whole block of nodes (the kernel's once)."""
+    from scipy import fft
+
+    n = x.shape[0]
+    L = fft.next_fast_len(2 * n - 1, real=True)
+    K = fft.rfft(kernel, L)
+    X = fft.rfft(x, L, axis=0)
+    X *= K.reshape((-1,) + (1,) * (x.ndim - 1))
+    return fft.irfft(X, L, axis=0)[:n]
+
+
 def _check_T(T, dt):
     T = np.asarray(T, dtype=np.float64)
     if T.ndim not in (1, 2) or T.shape[0] < 2:
@@ -227,14 +218,10 @@ def _check_T(T, dt):
 def cook_felderman(T, dt: float, effusivity: float) -> np.ndarray:
     """Heat flux (W/m^2) at every sample by Cook-Felderman (module notes): ``T`` (K),
     ``(frames,)`` or ``(frames, nodes)`` at equal steps ``dt`` (s); ``q[0] = 0``."""
-    from scipy.signal import fftconvolve
-
     T = _check_T(T, dt)
     n = T.shape[0]
     m = np.arange(n - 1, dtype=np.float64)
-    g = 1.0 / (np.sqrt(m) + np.sqrt(m + 1.0))
-    dT = np.diff(T, axis=0)
-    q = fftconvolve(dT, g.reshape((-1,) + (1,) * (T.ndim - 1)), axes=0)[:n - 1]
+    q = _convolve_time(np.diff(T, axis=0), 1.0 / (np.sqrt(m) + np.sqrt(m + 1.0)))
     q *= 2.0 * effusivity / np.sqrt(np.pi * dt)
     return np.concatenate([np.zeros((1,) + T.shape[1:]), q])
 
@@ -255,13 +242,10 @@ def impulse_response(sub: Substrate, n: int, dt: float) -> np.ndarray:
 def impulse_heat_flux(T, dt: float, sub: Substrate, h=None) -> np.ndarray:
     """Heat flux (W/m^2) at every sample by the impulse-response method (module notes);
     ``h`` from :func:`impulse_response` when already built for this length and step."""
-    from scipy.signal import fftconvolve
-
     T = _check_T(T, dt)
     n = T.shape[0]
     h = impulse_response(sub, n, dt) if h is None else h
-    dT = T[1:] - T[:1]
-    q = fftconvolve(dT, h.reshape((-1,) + (1,) * (T.ndim - 1)), axes=0)[:n - 1]
+    q = _convolve_time(T[1:] - T[:1], h)
     return np.concatenate([np.zeros((1,) + T.shape[1:]), q])
 
 
@@ -287,8 +271,16 @@ def fill_gaps(T) -> tuple[np.ndarray, np.ndarray]:
     last seen value; ``usable`` (nodes,) is False for a node unseen at the first frame (no
     initial temperature) or never seen. Vectorized over nodes (indices by running maxima)."""
     T = np.asarray(T, dtype=np.float64)
-    n = T.shape[0]
     fin = np.isfinite(T)
+    if T.ndim == 2 and T.shape[0]:  # only the nodes with a gap (most are seen throughout)
+        gap = ~fin.all(axis=0)
+        if not gap.any():
+            return T, np.ones(T.shape[1], bool)
+        if not gap.all():
+            out, usable = T.copy(), np.ones(T.shape[1], bool)
+            out[:, gap], usable[gap] = fill_gaps(T[:, gap])
+            return out, usable
+    n = T.shape[0]
     idx = np.arange(n)[:, None] * np.ones((1, T.shape[1]), dtype=np.int64)
     prev = np.maximum.accumulate(np.where(fin, idx, -1), axis=0)
     nxt = np.minimum.accumulate(np.where(fin, idx, n)[::-1], axis=0)[::-1]

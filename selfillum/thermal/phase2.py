@@ -30,12 +30,8 @@ def ir_temperature(rad, raw, values, rho_h, cosines, wall):
     H = wall[None, :] * Uw
     if values is not None and rho_h > 0:
         H = H + (raw - values) / rho_h
-    if rad.emissivity.directional:  # at the seen samples only
-        fin = np.isfinite(raw) & (cosines > 0)
-        eps = np.ones(raw.shape)
-        eps[fin] = rad.emissivity(np.arccos(cosines[fin]))
-    else:
-        eps = rad.emissivity.value
+    eps = rad.emissivity.of_cosine(cosines) if rad.emissivity.directional else \
+        rad.emissivity.value
     with np.errstate(divide="ignore", invalid="ignore"):
         U = (raw - (1.0 - eps) * H) / eps
     T = pl.temperature(np.where(cosines > 0, U, np.nan))

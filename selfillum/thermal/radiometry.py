@@ -26,13 +26,13 @@ distance 0 and window transmission 1).
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from resection.errors import InputError
+from selfillum.thermal.jsonfile import kelvin, kelvin_range, number, read_object
 
 __all__ = ["Planck", "TableCalibration", "Emissivity", "Radiometry", "read_radiometry",
            "fresnel_emissivity"]
@@ -170,7 +170,12 @@ def fresnel_emissivity(theta, n: float) -> np.ndarray:
     """Directional emissivity of a smooth, opaque dielectric of refractive index ``n``
     (Kirchhoff: ``1 -`` Fresnel's unpolarised reflectance from air), ``theta`` radians
     from the normal: ``4 n / (n + 1)^2`` at normal view, falling to 0 at 90 deg."""
-    c = np.cos(np.clip(np.asarray(theta, float), 0.0, np.pi / 2))
+    return _fresnel_of_cosine(np.cos(np.clip(np.asarray(theta, float), 0.0, np.pi / 2)), n)
+
+
+def _fresnel_of_cosine(c, n: float) -> np.ndarray:
+    """:func:`fresnel_emissivity` from the cosine ``c`` (in [0, 1]) of the view angle."""
+    c = np.clip(np.asarray(c, dtype=np.float64), 0.0, 1.0)
     s2 = 1.0 - c * c
     ct = np.sqrt(np.maximum(n * n - s2, 0.0)) / n  # cos of the refracted angle
     rs = ((c - n * ct) / (c + n * ct)) ** 2
@@ -201,6 +206,16 @@ class Emissivity:
         if self.model == "fresnel":
             return fresnel_emissivity(th, self.n)
         return np.interp(np.degrees(th), self.angles, self.values)
+
+    def of_cosine(self, cos) -> np.ndarray:
+        """``eps`` at the view angle whose cosine is ``cos`` (no angle computed where the
+        model does not need one)."""
+        c = np.asarray(cos, dtype=np.float64)
+        if self.model == "constant":
+            return np.full(c.shape, self.value)
+        if self.model == "fresnel":
+            return _fresnel_of_cosine(c, self.n)
+        return self(np.arccos(np.clip(c, -1.0, 1.0)))
 
     @property
     def directional(self) -> bool:
@@ -304,34 +319,13 @@ def read_radiometry(path) -> Radiometry:
     InputError
         One line naming the file and the missing or bad value.
     """
-    p = Path(path)
-    try:
-        d = json.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(f"{p}: no such file") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"{p}: not a JSON radiometry file ({exc})") from None
-    if not isinstance(d, dict):
-        raise InputError(f"{p}: expected a JSON object")
-    where = str(p)
+    d = read_object(path, "radiometry file")
+    where = str(Path(path))
 
     def num(key):
-        try:
-            v = float(d[key])
-        except (TypeError, ValueError):
-            raise InputError(f"{where}: {key} = {d[key]!r} is not a number") from None
-        if not np.isfinite(v):
-            raise InputError(f"{where}: {key} = {d[key]!r} is not finite")
-        return v
+        return number(d, key, where)
 
-    rng = None
-    if "range_K" in d:
-        r = d["range_K"]
-        if not (isinstance(r, list) and len(r) == 2):
-            raise InputError(f"{where}: range_K must be [Tmin, Tmax] in K")
-        rng = (float(r[0]), float(r[1]))
-        if rng[0] <= 0:
-            raise InputError(f"{where}: range_K {rng[0]} K is below 0 K")
+    rng = kelvin_range(d, "range_K", where)
     if "table" in d:
         t = d["table"]
         if not isinstance(t, dict) or "temperature_K" not in t or "counts" not in t:
@@ -356,11 +350,7 @@ def read_radiometry(path) -> Radiometry:
     if "emissivity" not in d:
         raise InputError(f"{where}: missing emissivity")
     eps = _emissivity(d["emissivity"], where)
-    if "reflected_temperature" not in d:
-        raise InputError(f"{where}: missing reflected_temperature (K)")
-    tr = num("reflected_temperature")
-    if tr <= 0:
-        raise InputError(f"{where}: reflected_temperature {tr} K is below 0 K")
+    tr = kelvin(d, "reflected_temperature", where)
     unknown = set(d) - set(_REQUIRED) - set(_EXIF) - {"emissivity", "reflected_temperature",
                                                      "range_K", "table"}
     if unknown:

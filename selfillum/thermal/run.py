@@ -188,8 +188,9 @@ def run_thermal(cfg: ThermalConfig) -> ThermalResult:
         t1 = time.perf_counter()
         todo = np.arange(T)[done:] if done == 0 else np.concatenate([[0],
                                                                     np.arange(T)[done:]])
+        counts: dict = {}  # the frames mapped each way, kept in the file's options
         local_phase1(p1, grid, runs, todo, spots, si, None, store, R, t, done,
-                     plan.frames_per_block, T, N, prog, caster=caster)
+                     plan.frames_per_block, T, N, prog, caster=caster, counts=counts)
         caster = None
         store.close()
         t2 = time.perf_counter()
@@ -241,6 +242,7 @@ def run_thermal(cfg: ThermalConfig) -> ThermalResult:
                     "seed": cfg.seed,
                     "si_refresh": cfg.si_refresh,
                     "si_solves": si.solves if si is not None else 0,
+                    "phase1_frames": counts,
                     "polarity": cfg.polarity, "chunks": [tc, nc]})
                 f.attrs["provenance"] = json_attr(provenance({
                     "grid": cfg.grid, "targets": cfg.targets, "substrate": cfg.substrate,

@@ -13,13 +13,13 @@ wind-off image taken at the uniform temperature ``T_ref``). Calibrations:
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from resection.errors import InputError
+from selfillum.thermal.jsonfile import kelvin, kelvin_range, number, read_object
 
 __all__ = ["TSPCalibration", "read_tsp_calibration", "GAS_CONSTANT"]
 
@@ -67,37 +67,15 @@ def read_tsp_calibration(path) -> TSPCalibration:
     """A TSP calibration (JSON): ``{"model": "arrhenius", "E_nr": J/mol | "E_over_R": K,
     "T_ref": K}`` or ``{"model": "polynomial", "coefficients": [...], "T_ref": K}``, each
     with an optional ``range_K: [Tmin, Tmax]``."""
+    d = read_object(path, "TSP calibration")
     p = Path(path)
-    try:
-        d = json.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(f"{p}: no such file") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(f"{p}: not a JSON TSP calibration ({exc})") from None
-    if not isinstance(d, dict):
-        raise InputError(f"{p}: expected a JSON object")
 
     def num(key):
-        if key not in d:
-            raise InputError(f"{p}: missing {key}")
-        try:
-            v = float(d[key])
-        except (TypeError, ValueError):
-            raise InputError(f"{p}: {key} = {d[key]!r} is not a number") from None
-        if not np.isfinite(v):
-            raise InputError(f"{p}: {key} = {d[key]!r} is not finite")
-        return v
+        return number(d, key, str(p))
 
     model = d.get("model")
-    t_ref = num("T_ref")
-    if t_ref <= 0:
-        raise InputError(f"{p}: T_ref {t_ref} K is below 0 K")
-    rng = None
-    if "range_K" in d:
-        r = d["range_K"]
-        if not (isinstance(r, list) and len(r) == 2 and 0 < float(r[0]) < float(r[1])):
-            raise InputError(f"{p}: range_K must be [Tmin, Tmax] with 0 < Tmin < Tmax (K)")
-        rng = (float(r[0]), float(r[1]))
+    t_ref = kelvin(d, "T_ref", str(p))
+    rng = kelvin_range(d, "range_K", str(p))
     if model == "arrhenius":
         if "E_over_R" in d:
             eor = num("E_over_R")

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Budget", "combine", "shares", "CORRELATION", "plot_budget"]
+__all__ = ["Budget", "combine", "shares", "CORRELATION"]
 
 #: How a source's errors are correlated between faces (nodes).
 CORRELATION = {
@@ -106,32 +106,3 @@ def shares(parts: dict, area=None, mask=None) -> dict:
     var = {k: float(np.sum(w[ok] * np.asarray(v)[ok] ** 2)) for k, v in parts.items()}
     tot = sum(var.values())
     return {k: (v / tot if tot > 0 else 0.0) for k, v in var.items()}
-
-
-def plot_budget(budget: Budget, path, area=None, mask=None) -> None:
-    """Bar chart of each source's share of the variance over the painted area, with its
-    median standard uncertainty."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    sh = shares(budget.parts, area, mask)
-    names = sorted(sh, key=sh.get, reverse=True)
-    fig, ax = plt.subplots(figsize=(6.4, 0.5 * len(names) + 1.6), dpi=100)
-    y = np.arange(len(names))
-    ax.barh(y, [100 * sh[k] for k in names], color="tab:blue")
-    ok = np.ones(len(budget.combined), bool) if mask is None else np.asarray(mask, bool)
-    for i, k in enumerate(names):
-        v = np.asarray(budget.parts[k])[ok]
-        v = v[np.isfinite(v)]
-        med = float(np.median(v)) if v.size else float("nan")
-        ax.text(100 * sh[k] + 1, i, f"median {med:.3g}", va="center", fontsize=8)
-    ax.set_yticks(y, names)
-    ax.invert_yaxis()
-    ax.set_xlim(0, 125)
-    ax.set_xlabel("share of the variance over the painted area (%)")
-    ax.set_title(f"{budget.quantity} uncertainty budget ({budget.method}, k = 1)")
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)

@@ -39,14 +39,17 @@ class MergeWeights:
     share: np.ndarray
 
     @classmethod
-    def from_merge(cls, maps, images, merged, edge_margin: int = 1) -> MergeWeights:
+    def from_merge(cls, maps, images, merged, edge_margin: int = 1,
+                   pixel_weights_=None) -> MergeWeights:
         """The weights :func:`selfillum.images.multiview.merge_views` used for ``images``
-        (``merged`` its result; the default options)."""
+        (``merged`` its result; the default options); ``pixel_weights_``: the merge's
+        :func:`resection.surface.merge.pixel_weights` per camera, when known."""
         from resection.surface.merge import pixel_weights
 
         pix = []
-        for m, img in zip(maps, images, strict=True):
-            pw = pixel_weights(m, edge_margin=edge_margin)
+        for c, (m, img) in enumerate(zip(maps, images, strict=True)):
+            pw = pixel_weights(m, edge_margin=edge_margin) if pixel_weights_ is None \
+                else pixel_weights_[c]
             pix.append(np.where(np.isfinite(np.asarray(img, np.float64)), pw, 0.0))
         W = np.asarray(merged.camera_weights, np.float64)
         tot = W.sum(axis=0)

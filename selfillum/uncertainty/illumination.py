@@ -35,7 +35,7 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["rays_variance", "rqmc_ratio", "reflectance_vector", "unseen_vector",
-           "ROWS_CHECKED"]
+           "hidden_response", "ROWS_CHECKED"]
 
 #: Rows of ``F`` cast again to measure the quasi-random rays' variance ratio.
 ROWS_CHECKED = 256
@@ -49,8 +49,8 @@ def rays_variance(F, b_off, b_on, e_off, e_on, reflectance, rays: int) -> np.nda
     al = np.asarray(e_off, np.float64)
     be = np.asarray(e_on, np.float64)
     rho = np.broadcast_to(np.asarray(reflectance, np.float64), al.shape)
-    Fa, Fb = F @ a, F @ b
-    Faa, Fbb, Fab = F @ (a * a), F @ (b * b), F @ (a * b)
+    # one pass over F for the five products
+    Fa, Fb, Faa, Fbb, Fab = (F @ np.column_stack([a, b, a * a, b * b, a * b])).T
     with np.errstate(invalid="ignore", divide="ignore"):
         ex2 = Faa / al**2 - 2.0 * Fab / (al * be) + Fbb / be**2
         ex = Fa / al - Fb / be
@@ -90,3 +90,67 @@ def unseen_vector(ratio, ratio_shifted) -> np.ndarray:
     with np.errstate(invalid="ignore", divide="ignore"):
         return (np.asarray(ratio_shifted, np.float64) / np.asarray(ratio, np.float64)
                 - 1.0) / np.sqrt(3.0)
+
+
+def hidden_response(F, reflectance, seen, radiosities, emissions, scale: float,
+                    tol: float = 1e-10, maxiter: int = 5000) -> tuple[list, list]:
+    """The hidden faces' radiosity, and the seen faces' emission change when the hidden
+    faces emit ``1 + scale`` times what the chain took, for several images at once.
+
+    With ``RF = diag(rho) F`` split into seen ``s`` and hidden ``h`` faces, the hidden
+    radiosity of emission ``E_h`` is ``B_h = (I - RF_hh)^-1 (E_h + RF_hs B_s)`` and the seen
+    emission ``E_s = B_s - RF_ss B_s - RF_sh B_h``: linear in ``E_h``, so ``E_h (1 + r)``
+    changes ``E_s`` by ``-RF_sh (I - RF_hh)^-1 (r E_h)`` exactly (what the chain re-run with
+    that emission gives, :func:`selfillum.solve.radiosity.correct` with given values). One
+    block Neumann series for every image and both right-hand sides (it converges:
+    ``|RF_hh|_inf <= max rho < 1``).
+
+    Parameters
+    ----------
+    radiosities : sequence of (N,)
+        Measured ``B`` (used on the seen faces).
+    emissions : sequence of (N,)
+        The chain's emission (on the hidden faces: its continuation; NaN counts as 0).
+
+    Returns
+    -------
+    full : list of (N,)
+        ``B`` measured on the seen faces, ``B_h`` on the hidden ones.
+    change : list of (N,)
+        The seen faces' emission change (0 on the hidden faces).
+    """
+    import scipy.sparse as sp
+
+    from resection.errors import SolveError
+
+    seen = np.asarray(seen, bool)
+    h, s = np.flatnonzero(~seen), np.flatnonzero(seen)
+    n = len(seen)
+    rho = np.broadcast_to(np.asarray(reflectance, np.float64), (n,))
+    RF = (sp.diags(rho) @ F).tocsr()
+    RFh = RF[h]
+    RF_hh, RF_hs = RFh[:, h], RFh[:, s]
+    k = len(radiosities)
+    bs = np.column_stack([np.nan_to_num(np.asarray(b, np.float64)[s]) for b in radiosities])
+    eh = np.column_stack([np.nan_to_num(np.asarray(e, np.float64)[h]) for e in emissions])
+    rhs = np.hstack([eh + RF_hs @ bs, float(scale) * eh])
+    X = rhs.copy()
+    norm = np.maximum(np.linalg.norm(rhs, axis=0), 1e-300)
+    for _ in range(maxiter):
+        nxt = rhs + RF_hh @ X
+        done = np.all(np.linalg.norm(nxt - X, axis=0) <= tol * norm)
+        X = nxt
+        if done:
+            break
+    else:
+        raise SolveError(f"hidden faces' radiosity: no convergence in {maxiter} terms")
+    dE = -(RF[s][:, h] @ X[:, k:])
+    full, change = [], []
+    for j, b in enumerate(radiosities):
+        f = np.array(b, np.float64, copy=True)
+        f[h] = X[:, j]
+        full.append(f)
+        d = np.zeros(n)
+        d[s] = dE[:, j]
+        change.append(d)
+    return full, change

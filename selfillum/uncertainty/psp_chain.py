@@ -110,14 +110,16 @@ def run_chain(inp: PSPInputs, *, maps=None, off=None, on=None, F=None, reflectan
     """
     from dataclasses import replace
 
+    from resection.surface.merge import pixel_weights
     from selfillum.images.multiview import merge_views
     from selfillum.images.psp import psp_pressure
 
     maps = inp.maps if maps is None else maps
     off = inp.off if off is None else off
     on = inp.on if on is None else on
-    mo = merge_views(maps, off)
-    mn = merge_views(maps, on, gains=mo.gains)
+    pw = [pixel_weights(m, edge_margin=1) for m in maps]  # both merges' (the defaults)
+    mo = merge_views(maps, off, pixel_weights_=pw)
+    mn = merge_views(maps, on, gains=mo.gains, pixel_weights_=pw)
     seen = mo.seen & mn.seen
     if not seen.any():
         raise InputError("psp: no face is seen in both images")
@@ -152,4 +154,5 @@ def run_chain(inp: PSPInputs, *, maps=None, off=None, on=None, F=None, reflectan
         ps, q = (inp.tunnel[0], inp.tunnel[1]) if tunnel is None else tunnel
         cp = (res.pressure - ps) / q
     return ChainState(res, mo, mn, seen, np.where(seen, mo.values, np.nan),
-                      np.where(seen, mn.values, np.nan), e_off, e_on, hidden, cp)
+                      np.where(seen, mn.values, np.nan), e_off, e_on, hidden, cp,
+                      extra={"pixel_weights": pw})

@@ -12,7 +12,8 @@ import numpy as np
 from resection.errors import InputError
 from selfillum.uncertainty.noise import frame_mean
 
-__all__ = ["read_condition", "node_values", "node_operator", "write_uncertainty"]
+__all__ = ["read_condition", "node_values", "node_operator", "write_uncertainty", "write_table",
+           "face_columns", "node_columns"]
 
 
 def read_condition(paths, n_cameras: int, option: str) -> tuple[list, list, list]:
@@ -66,7 +67,18 @@ def node_operator(mesh):
                          shape=(len(mesh.vertices), nf))
 
 
-def write_uncertainty(out: Path, mesh, cameras, state, budgets, stated, atomic_write,
+def write_table(path, columns: dict) -> None:
+    """A CSV of ``columns`` (name -> (n,) values): a header line, then one row per item,
+    the first column as integers, the others with 9 significant digits (``nan`` where
+    NaN)."""
+    names = list(columns)
+    fmt = ",".join(["%d"] + ["%.9g"] * (len(names) - 1))
+    rows = np.column_stack([np.asarray(columns[k], np.float64) for k in names]).tolist()
+    Path(path).write_text(",".join(names) + "\n"
+                          + "".join([fmt % tuple(r) + "\n" for r in rows]))
+
+
+def write_uncertainty(out: Path, mesh, maps, state, budgets, stated, atomic_write,
                       plots: bool = True) -> list:
     """Write ``pressure_faces.csv`` (replacing the plain one), ``pressure_nodes.csv``,
     ``uncertainty.json``, ``<q>_u.png`` and ``budget.png``; returns the names written.
@@ -74,28 +86,11 @@ def write_uncertainty(out: Path, mesh, cameras, state, budgets, stated, atomic_w
     The node value of an uncertainty is the area-weighted mean of its faces' (their
     errors taken as fully correlated: an upper bound for the independent parts)."""
     res = state.result
-    q = "cp" if "cp" in budgets else "p"
-    cols = {"face": np.arange(len(res.pressure)), "pressure": res.pressure,
-            "ratio": res.ratio}
-    for name, b in budgets.items():
-        val = state.cp if name == "cp" else res.pressure
-        if name == "cp":
-            cols["cp"] = val
-        cols[f"{name}_u"] = b.combined
-        for src, u in b.parts.items():
-            cols[f"{name}_u_{src}"] = u
-    names = list(cols)
-    table = np.column_stack([cols[k] for k in names])
-    fmt = ["%d"] + ["%.9g"] * (len(names) - 1)
-    atomic_write(out / "pressure_faces.csv", np.savetxt, table, fmt=fmt, delimiter=",",
-                 header=",".join(names), comments="")
+    cols = face_columns(state, budgets)
+    atomic_write(out / "pressure_faces.csv", write_table, cols)
     ncols = {"node": np.arange(len(mesh.vertices))}
-    A = node_operator(mesh)
-    ncols.update({k: node_values(mesh, v, A) for k, v in cols.items() if k != "face"})
-    nn = list(ncols)
-    atomic_write(out / "pressure_nodes.csv", np.savetxt,
-                 np.column_stack([ncols[k] for k in nn]), fmt=["%d"] + ["%.9g"] * (len(nn) - 1),
-                 delimiter=",", header=",".join(nn), comments="")
+    ncols.update(node_columns(mesh, cols))
+    atomic_write(out / "pressure_nodes.csv", write_table, ncols)
     area = np.asarray(mesh.area_faces)
     painted = np.isfinite(res.pressure)
     doc = {"stated": stated.to_dict(), "not_stated": [k for k in _all_keys()
@@ -106,20 +101,36 @@ def write_uncertainty(out: Path, mesh, cameras, state, budgets, stated, atomic_w
     written = ["pressure_faces.csv", "pressure_nodes.csv", "uncertainty.json"]
     if not plots:
         return written
-    b = budgets[q]
-    from resection.surface.plots import plot_surface
+    from selfillum.uncertainty.pictures import budget_chart, map_picture
 
-    atomic_write(out / f"{q}_u.png", lambda p: plot_surface(
-        mesh, b.combined, cameras[0], label=f"{q}_u (k = 1)",
-        title=f"standard uncertainty of {q} ({b.method})", path=p))
-    atomic_write(out / "budget.png", lambda p: _budget_png(b, p, area, painted))
+    q = "cp" if "cp" in budgets else "p"
+    b = budgets[q]
+    atomic_write(out / f"{q}_u.png", lambda p: map_picture(
+        maps[0], b.combined, p, f"standard uncertainty of {q} ({b.method}, k = 1)",
+        f"{q}_u"))
+    atomic_write(out / "budget.png", lambda p: budget_chart(b, p, area, painted))
     return written + [f"{q}_u.png", "budget.png"]
 
 
-def _budget_png(b, path, area, painted):
-    from selfillum.uncertainty.budget import plot_budget
+def face_columns(state, budgets) -> dict:
+    """The per-face fields: ``face``, ``pressure``, ``ratio``, then per budget (``cp``
+    with its value first) the combined ``<q>_u`` and each source's ``<q>_u_<source>``."""
+    res = state.result
+    cols = {"face": np.arange(len(res.pressure)), "pressure": res.pressure,
+            "ratio": res.ratio}
+    for name, b in budgets.items():
+        if name == "cp":
+            cols["cp"] = state.cp
+        cols[f"{name}_u"] = b.combined
+        for src, u in b.parts.items():
+            cols[f"{name}_u_{src}"] = u
+    return cols
 
-    plot_budget(b, path, area, painted)
+
+def node_columns(mesh, face_cols: dict) -> dict:
+    """:func:`node_values` of every face field but ``face``."""
+    A = node_operator(mesh)
+    return {k: node_values(mesh, v, A) for k, v in face_cols.items() if k != "face"}
 
 
 def _all_keys():

@@ -18,12 +18,13 @@ from selfillum.uncertainty.budget import Budget, combine
 from selfillum.uncertainty.faces import MergeWeights
 from selfillum.uncertainty.illumination import (
     ROWS_CHECKED,
+    hidden_response,
     rays_variance,
     reflectance_vector,
     rqmc_ratio,
     unseen_vector,
 )
-from selfillum.uncertainty.psp_chain import PSPInputs, run_chain
+from selfillum.uncertainty.psp_chain import PSPInputs
 from selfillum.uncertainty.registration import (
     pose_covariance,
     ratio_sensitivity,
@@ -70,7 +71,8 @@ def model_sources(inp: PSPInputs, state, stated, noise_models) -> Sources:
     R = state.result.ratio
     W = MergeWeights.from_merge(inp.maps, [np.where(np.isfinite(n), o, np.nan)
                                            for o, n in zip(inp.off, inp.on, strict=True)],
-                                state.merged_off)
+                                state.merged_off,
+                                pixel_weights_=state.extra.get("pixel_weights"))
     # ---- noise
     if noise_models is not None:
         v_off = W.variance([nm[0].variance(o, k) for nm, o, k in
@@ -99,7 +101,8 @@ def model_sources(inp: PSPInputs, state, stated, noise_models) -> Sources:
                                     "poses' covariance")
     # ---- self-illumination
     if inp.correct_si:
-        b_off, b_on = _full_radiosity(inp, state)
+        r = stated.unseen if stated.unseen is not None else DEFAULT_UNSEEN_RANGE
+        b_off, b_on, d_off, d_on = _hidden(inp, state, r)
         bound = rays_variance(inp.F, b_off, b_on, state.e_off, state.e_on, inp.reflectance,
                               inp.rays)
         kappa = _rqmc_kappa(inp, state, b_off, b_on, bound)
@@ -115,11 +118,13 @@ def model_sources(inp: PSPInputs, state, stated, noise_models) -> Sources:
         else:
             S.status["reflectance"] = "missing: give --u reflectance="
         if state.hidden_emission is not None:
-            r = stated.unseen if stated.unseen is not None else DEFAULT_UNSEEN_RANGE
             S.unseen_range = r
             if r > 0:
-                shifted = run_chain(inp, unseen_scale=r)
-                S.shared["unseen"] = unseen_vector(R, shifted.result.ratio)[None]
+                with np.errstate(invalid="ignore", divide="ignore"):
+                    e_on = state.e_on + d_on
+                    shifted = np.where(state.seen & (e_on > 0),
+                                       (state.e_off + d_off) / e_on, np.nan)
+                S.shared["unseen"] = unseen_vector(R, shifted)[None]
             S.status["unseen"] = ("stated" if stated.unseen is not None else
                                   f"estimated: default range +-{100 * r:.0f} %")
     # ---- temperature
@@ -150,18 +155,18 @@ def _rqmc_kappa(inp, state, b_off, b_on, bound) -> float:
                       inp.reflectance, bound)
 
 
-def _full_radiosity(inp, state):
-    """Radiosity of every face: measured where seen, the forward solve of the chain's
-    emission on the hidden ones."""
+def _hidden(inp, state, r: float):
+    """Radiosity of every face (measured where seen, the chain's emission solved forward
+    on the hidden ones) and the seen faces' emission change when the hidden ones emit
+    ``1 + r`` times the continuation
+    (:func:`selfillum.uncertainty.illumination.hidden_response`), wind-off and wind-on."""
     if state.seen.all():
-        return state.b_off, state.b_on
-    from selfillum.solve.radiosity import forward
-
-    out = []
-    for b, e in ((state.b_off, state.e_off), (state.b_on, state.e_on)):
-        full = forward(inp.F, np.nan_to_num(e), inp.reflectance)
-        out.append(np.where(state.seen, b, full))
-    return out
+        z = np.zeros_like(state.b_off)
+        return state.b_off, state.b_on, z, z
+    (b_off, b_on), (d_off, d_on) = hidden_response(
+        inp.F, inp.reflectance, state.seen, (state.b_off, state.b_on),
+        (state.e_off, state.e_on), r)
+    return b_off, b_on, d_off, d_on
 
 
 def linear_budget(inp: PSPInputs, state, S: Sources, stated) -> dict:

@@ -25,8 +25,8 @@ import numpy as np
 
 from resection.errors import InputError
 
-__all__ = ["perturbed", "pose_covariance", "pixel_jacobian", "ratio_sensitivity",
-           "switching_variance", "normal_points"]
+__all__ = ["perturbed", "pose_covariance", "face_jacobian", "pixel_jacobian",
+           "ratio_sensitivity", "switching_variance", "normal_points"]
 
 
 
@@ -91,25 +91,30 @@ def pose_covariance(camera, markers, sigma_px: float, name: str = "markers") -> 
     return float(sigma_px) ** 2 * np.linalg.inv(N)
 
 
-def pixel_jacobian(smap) -> np.ndarray:
-    """(6, H, W, 2) pixel displacement of each pixel's surface point per unit ``theta``
-    (NaN off the model): the Jacobian at the centroid of the pixel's face (it varies over
-    a face by the face's share of the image); kept on the map (both registration terms
-    use it)."""
-    cached = getattr(smap, "_uncertainty_jacobian", None)
+def face_jacobian(smap) -> np.ndarray:
+    """(F, 2, 6) pixel displacement of each face's centroid per unit ``theta`` (NaN for the
+    faces no pixel sees); kept on the map."""
+    cached = getattr(smap, "_uncertainty_face_jacobian", None)
     if cached is not None:
         return cached
+    f = smap.face_index.ravel()
+    used = np.unique(f[f >= 0])
+    Jf = np.full((smap.n_faces, 2, 6), np.nan)
+    Jf[used] = _jacobian(smap.camera, np.asarray(smap.mesh.triangles_center)[used])
+    smap._uncertainty_face_jacobian = Jf
+    return Jf
+
+
+def pixel_jacobian(smap) -> np.ndarray:
+    """(6, H, W, 2) pixel displacement of each pixel's surface point per unit ``theta``
+    (NaN off the model): the Jacobian at the centroid of the pixel's face
+    (:func:`face_jacobian`; it varies over a face by the face's share of the image)."""
     H, W = smap.shape
     f = smap.face_index.ravel()
     hit = f >= 0
-    used = np.unique(f[hit])
-    Jf = np.full((smap.n_faces, 2, 6), np.nan)
-    Jf[used] = _jacobian(smap.camera, np.asarray(smap.mesh.triangles_center)[used])
     J = np.full((H * W, 2, 6), np.nan)
-    J[hit] = Jf[f[hit]]
-    out = np.moveaxis(J, 2, 0).reshape(6, H, W, 2)
-    smap._uncertainty_jacobian = out
-    return out
+    J[hit] = face_jacobian(smap)[f[hit]]
+    return np.moveaxis(J, 2, 0).reshape(6, H, W, 2)
 
 
 def ratio_sensitivity(weights, off_images, on_images, covariances) -> np.ndarray:
@@ -131,13 +136,21 @@ def ratio_sensitivity(weights, off_images, on_images, covariances) -> np.ndarray
         with np.errstate(invalid="ignore", divide="ignore"):
             lr = np.log(np.asarray(off, np.float64) / np.asarray(on, np.float64))
         gy, gx = np.gradient(lr)  # d/dv, d/du, pixels
-        Jp = pixel_jacobian(m)  # (6, H, W, 2)
-        s = Jp[..., 0] * gx[None] + Jp[..., 1] * gy[None]  # (6, H, W): d ln R / d theta
+        fidx = m.face_index.ravel()
+        hit = np.flatnonzero(fidx >= 0)
+        f = fidx[hit]
+        Jf = face_jacobian(m)[f]  # (P, 2, 6): the pixel's face's Jacobian
+        s = Jf[:, 0] * gx.ravel()[hit, None] + Jf[:, 1] * gy.ravel()[hit, None]  # d ln R / d th
         L = np.linalg.cholesky(S + 1e-30 * np.eye(6))
-        planes = np.einsum("khw,kj->jhw", np.nan_to_num(s), L)  # one std of each component
-        per_cam = [np.zeros((6,) + mm.shape) for mm in weights.maps]
-        per_cam[c] = planes
-        rows.append(weights.mean(per_cam, relative=True))
+        x = np.nan_to_num(s) @ L  # (P, 6): one standard deviation of each component
+        # the merge's mean of the camera's pixels on each face, its share of the face
+        pw = weights.pixel[c].ravel()[hit]
+        nf = m.n_faces
+        den = np.bincount(f, weights=pw, minlength=nf)
+        num = np.stack([np.bincount(f, weights=pw * x[:, j], minlength=nf) for j in range(6)])
+        with np.errstate(invalid="ignore", divide="ignore"):
+            v = np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0)
+        rows.append(v * weights.share[c])
     return np.concatenate(rows) if C else np.zeros((0, weights.camera.shape[1]))
 
 
@@ -147,17 +160,17 @@ def _edge_neighbours(mesh) -> np.ndarray:
     V = np.asarray(mesh.vertices, np.float64)
     tol = 1e-9 * max(float(np.ptp(V, axis=0).max()), 1e-300)
     _, vid = np.unique(np.round(V / tol), axis=0, return_inverse=True)
-    f = vid.ravel()[np.asarray(mesh.faces, dtype=np.int64)]
+    vid = vid.ravel().astype(np.int64)
+    f = vid[np.asarray(mesh.faces, dtype=np.int64)]
     nf = len(f)
     e = np.stack([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]], axis=1).reshape(-1, 2)
     e.sort(axis=1)
-    _, inv = np.unique(e, axis=0, return_inverse=True)
-    inv = inv.ravel()
+    key = e[:, 0] * (int(vid.max()) + 1) + e[:, 1]  # one integer an edge
     owner = np.repeat(np.arange(nf), 3)
-    order = np.argsort(inv, kind="stable")
-    s_inv, s_own = inv[order], owner[order]
+    order = np.argsort(key, kind="stable")
+    s_key, s_own = key[order], owner[order]
     out = np.full(3 * nf, -1, np.int64)
-    pair = np.flatnonzero(s_inv[1:] == s_inv[:-1])  # consecutive slots of one edge
+    pair = np.flatnonzero(s_key[1:] == s_key[:-1])  # consecutive slots of one edge
     out[order[pair]] = s_own[pair + 1]
     out[order[pair + 1]] = s_own[pair]
     return out.reshape(nf, 3)
@@ -207,6 +220,8 @@ def switching_variance(weights, off_images, on_images, covariances,
     Taken as independent between faces; edges on the model's outline (no face across)
     are left out.
     """
+    import scipy.sparse as sp
+
     nf = weights.camera.shape[1]
     out = np.zeros(nf)
     for c, (m, off, on, S) in enumerate(zip(weights.maps, off_images, on_images, covariances,
@@ -234,9 +249,9 @@ def switching_variance(weights, off_images, on_images, covariances,
         # outward normal of the nearest edge: away from the opposite vertex
         nvec = -side[rows, k][:, None] * np.stack([-ev[rows, k, 1], ev[rows, k, 0]], 1) \
             / ln[rows, k][:, None]
-        J = pixel_jacobian(m).reshape(6, H * W, 2)[:, hit]  # (6, P, 2)
-        Jn = np.einsum("kpd,pd->pk", np.nan_to_num(J), nvec)  # (P, 6)
-        sig = np.sqrt(np.maximum(np.einsum("pk,kl,pl->p", Jn, S, Jn), 0.0))
+        Jf = np.nan_to_num(face_jacobian(m))  # (F, 2, 6)
+        Jn = Jf[f, 0] * nvec[:, :1] + Jf[f, 1] * nvec[:, 1:]  # (P, 6)
+        sig = np.sqrt(np.maximum(np.sum((Jn @ S) * Jn, axis=1), 0.0))
         with np.errstate(invalid="ignore", divide="ignore"):
             r = np.log(np.asarray(off, np.float64).ravel()[hit]
                        / np.asarray(on, np.float64).ravel()[hit])
@@ -252,15 +267,20 @@ def switching_variance(weights, off_images, on_images, covariances,
         z = normal_points(draws, 6, seed=c)
         theta = z @ np.linalg.cholesky(S + 1e-30 * np.eye(6)).T  # (M, 6)
         # the triangle moves by J theta: the pixel's place in it by -J theta
-        leave = (-(Jn[sel] @ theta.T)) > dk[sel, None]  # (Psel, M)
+        # (single precision: the displacements are a few pixels, compared with d)
+        leave = (Jn[sel].astype(np.float32) @ (-theta.T).astype(np.float32)
+                 > dk[sel, None].astype(np.float32))  # (Psel, M)
         faces = np.concatenate([f[sel], nb[sel]])
         uniq, loc = np.unique(faces, return_inverse=True)
-        E = np.zeros((len(uniq), draws))
+        lumps = []
         for part, face in ((0, f[sel]), (1, nb[sel])):  # losing, gaining face
             with np.errstate(invalid="ignore", divide="ignore"):
                 lump = pw[sel] / Wsum[face] * (r[sel] - rf[face]) * weights.share[c][face]
-            lump = np.nan_to_num(lump) * (-1.0 if part == 0 else 1.0)
-            rows_ = loc[part * len(sel):(part + 1) * len(sel)]
-            np.add.at(E, rows_, leave * lump[:, None])
-        out[uniq] += E.var(axis=1) + E.mean(axis=1) ** 2
+            lumps.append(np.nan_to_num(lump) * (-1.0 if part == 0 else 1.0))
+        # E (faces, draws) = sum over the pixels of each face's lump where the pixel left
+        A = sp.csr_matrix((np.concatenate(lumps), (loc.ravel(), np.tile(np.arange(len(sel)),
+                                                                         2))),
+                          shape=(len(uniq), len(sel)), dtype=np.float32)
+        E = (A @ leave.astype(np.float32)).astype(np.float64)
+        out[uniq] += np.mean(E * E, axis=1)  # the variance about 0 (no error: 0)
     return out

@@ -95,6 +95,7 @@ class UnsteadyConfig:
     uncertainty: str | None = None  # None, "linear" or "mc" (docs/uncertainty.md)
     samples: int = 200
     stated: object = None  # selfillum.uncertainty.stated.Stated
+    surface: list = field(default_factory=list)  # --surface: per-node fields files
 
 
 @dataclass(frozen=True)

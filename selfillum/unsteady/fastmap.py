@@ -167,6 +167,21 @@ class FrameOperator:
             self.node_unseen = (den == 0)[grid.node_vertex]
         return self._nodes
 
+    def seen_node_rows(self, W, grid, by_columns: bool = False):
+        """``(Wr, rows)``: :meth:`node_matrix`'s non-empty rows and their node numbers,
+        built once: a frame's products over the nodes it can give a value (a quarter of a
+        model's nodes for one camera), not over every node. ``by_columns``: ``Wr`` as a
+        CSC matrix alone (the nodes around a few faces)."""
+        if "seen_rows" not in self._shares:
+            Wn = self.node_matrix(W, grid)
+            rows = np.flatnonzero(~self.node_unseen)
+            self._shares["seen_rows"] = (sp.csr_matrix(Wn[rows]), rows)
+        if by_columns:
+            if "seen_rows_csc" not in self._shares:
+                self._shares["seen_rows_csc"] = sp.csc_matrix(self._shares["seen_rows"][0])
+            return self._shares["seen_rows_csc"]
+        return self._shares["seen_rows"]
+
     def nodes(self, images, W, grid) -> np.ndarray | None:
         """Node values (N,) float32 (NaN where no seen face) of a frame whose pose is the
         reference's, without the SI removal: one product a camera from its pixels (counts
@@ -312,22 +327,38 @@ class FrameOperator:
         share = self._share(c)
         xs = np.where(bad, 0.0, x)
         bi = np.flatnonzero(bad)  # few: the weight they leave, by their columns only
-        kept = share - np.asarray(self._columns(c)[:, bi].sum(axis=1)).ravel()
+        rows, lost_w = _column_entries(self._columns(c), bi)
         num = A @ xs
         if pt is not None:
             A2, Cu, _, Aw = pt
             nP = Cu.shape[0] // Aw.shape[1]
-            rows = np.unique(self._columns(c, patch=True)[:, bi].indices)
             lost = np.zeros(Aw.shape[1], bool)
-            lost[rows // nP] = True
+            lost[_column_entries(self._columns(c, patch=True), bi)[0] // nP] = True
             coef = (Cu @ xs).reshape(-1, nP)
             coef[lost] = 0.0
             num += A2 @ coef.ravel()
-            if lost.any():
-                kept -= np.asarray(Aw[:, np.flatnonzero(lost)].sum(axis=1)).ravel()
+            if lost.any():  # the spots' weights, by their columns
+                r2, w2 = _column_entries(sp.csc_matrix(Aw), np.flatnonzero(lost))
+                rows, lost_w = np.concatenate([rows, r2]), np.concatenate([lost_w, w2])
+        # only the faces that lost a pixel change: their sum scaled to their whole share
+        # (NaN when none is left), not passes over every face
+        r, inv = np.unique(rows, return_inverse=True)
+        kept = share[r] - np.bincount(inv, lost_w, minlength=r.size)
         with np.errstate(invalid="ignore", divide="ignore"):
-            part = np.where(kept > 0, num * (share / kept), np.nan)
-        return np.where(share > 0, part, 0.0)
+            num[r] = np.where(kept > 1e-12 * share[r], num[r] * (share[r] / kept), np.nan)
+        return num
+
+
+def _column_entries(M, columns) -> tuple[np.ndarray, np.ndarray]:
+    """Row numbers and values of the entries of the CSC matrix ``M``'s ``columns`` (a
+    few), gathered from its index arrays."""
+    columns = np.asarray(columns, dtype=np.int64)
+    starts, ends = M.indptr[columns], M.indptr[columns + 1]
+    n = ends - starts
+    if n.sum() == 0:
+        return np.zeros(0, np.int64), np.zeros(0)
+    at = np.repeat(starts - np.cumsum(n) + n, n) + np.arange(n.sum())
+    return M.indices[at].astype(np.int64), M.data[at]
 
 
 def _sample_moved(X, uv0, img, cam, refresh_px):
@@ -505,17 +536,18 @@ def plan_references(poses, probes, frames, refresh_px: float, *, first: int | No
 def _kernel():
     import numba
 
-    @numba.njit(parallel=True, cache=True, fastmath=False)
-    def project_sample(X, R, t, K, dist, max_radius, uv0, img, refresh, out):
-        """Project every point (as Camera.project), flag a move over ``refresh`` pixels
-        (status 1), a point off the sensor or not projectable (status 2), else sample the
-        image bilinearly there (pixel centres at integers, edges clamped). A point of NaN
-        (a background pixel) reads the image at its own pixel ``uv0``."""
-        n = X.shape[0]
+    @numba.njit(cache=True, nogil=True, fastmath=False)
+    def project_sample(X, R, t, K, dist, max_radius, uv0, img, refresh, out, status, r0,
+                       r1):  # pragma: no cover - compiled
+        """Project the points ``r0:r1`` (as Camera.project), flag a move over ``refresh``
+        pixels (status 1), a point off the sensor or not projectable (status 2), else
+        sample the image bilinearly there (pixel centres at integers, edges clamped). A
+        point of NaN (a background pixel) reads the image at its own pixel ``uv0``. One
+        thread, without the GIL: the caller's threads take blocks of points."""
         H, W = img.shape
         k1, k2, p1, p2, k3 = dist[0], dist[1], dist[2], dist[3], dist[4]
-        status = np.zeros(n, np.uint8)
-        for i in numba.prange(n):
+        for i in range(r0, r1):
+            status[i] = 0
             if X[i, 0] != X[i, 0]:  # a pixel on the background: sampled where it is
                 u = min(max(np.float64(uv0[i, 0]), 0.0), W - 1.0)
                 v = min(max(np.float64(uv0[i, 1]), 0.0), H - 1.0)
@@ -554,7 +586,6 @@ def _kernel():
             v1 = min(v0 + 1, H - 1)
             out[i] = ((1.0 - fv) * ((1.0 - fu) * img[v0, u0] + fu * img[v0, u1])
                       + fv * ((1.0 - fu) * img[v1, u0] + fu * img[v1, u1]))
-        return status
 
     return project_sample
 
@@ -580,8 +611,14 @@ def _spmv_kernel():
     return spmv_add
 
 
-def _project_sample(*args):
-    from resection._threads import numba_threads
+def _project_sample(X, *args):
+    """:func:`_kernel` over all of ``X``'s points, in blocks on the available cores (the
+    threads of :func:`resection._threads.run_blocks`; numba's parallel loops spun on the
+    shared cores, the sampling then cost several times its work); returns the statuses."""
+    from resection._threads import run_blocks, split_range
 
-    with numba_threads(None):  # one parallel launch at a time (numba's workqueue layer)
-        return _kernel()(*args)  # compiled on first use (and cached on disk by numba)
+    status = np.empty(len(X), np.uint8)
+    kern = _kernel()  # compiled on first use (and cached on disk by numba)
+    run_blocks(lambda b: kern(X, *args, status, b[0], b[1]),
+               split_range(len(X), None, min_size=32768))
+    return status

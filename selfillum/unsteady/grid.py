@@ -63,8 +63,15 @@ def _merged(path: str, raw, perm, dims, fmt: str) -> RunGrid:
     pts_u = np.asarray(raw.vertices, dtype=np.float64)
     scale = float(np.ptp(pts_u, axis=0).max()) or 1.0
     key = np.round(pts_u / (scale * 1e-9)).astype(np.int64)
-    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
-    inverse = inverse.ravel()
+    # np.unique(key, axis=0, return_index=True, return_inverse=True) by a lexsort of the
+    # columns (the same sorted rows and first occurrences, without sorting rows as bytes)
+    order = np.lexsort(key.T[::-1])
+    ks = key[order]
+    new = np.ones(len(key), bool)
+    new[1:] = (ks[1:] != ks[:-1]).any(axis=1)
+    first = order[new]
+    inverse = np.empty(len(key), np.int64)
+    inverse[order] = np.cumsum(new) - 1
     faces_u = np.asarray(raw.faces, dtype=np.int64)
     mesh = trimesh.Trimesh(pts_u[first], inverse[faces_u], process=False)
     for k, v in raw.face_attributes.items():

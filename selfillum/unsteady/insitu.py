@@ -64,8 +64,8 @@ def insitu_gain(law, cp_steady, conditions) -> np.ndarray:
 
 def insitu_inputs(cfg, grid):
     """Taps, their grid nodes and the wind-off images, checked (no paint calibration)."""
-    from resection.io.images import read_image
     from selfillum.images.psp import read_taps
+    from selfillum.uncertainty.psp_io import read_condition
     from selfillum.unsteady.insitu import tap_nodes
 
     if cfg.taps is None:
@@ -81,7 +81,8 @@ def insitu_inputs(cfg, grid):
     positions = cfg.tap_positions if cfg.tap_positions is not None else cfg.targets
     taps = read_taps(cfg.taps, positions=positions)
     nodes = tap_nodes(grid, taps.points, taps.ids, str(cfg.taps))
-    offs = [np.asarray(read_image(p), dtype=np.float64) for p in cfg.wind_off]
+    # one image, or a stack (a multi-page TIFF / NPY) averaged, per camera
+    offs = read_condition(cfg.wind_off, len(cfg.cameras), "--wind-off")[0]
     return taps, nodes, offs
 
 

@@ -56,7 +56,7 @@ from xml.sax.saxutils import escape
 import numpy as np
 
 __all__ = ["FORMAT", "VERSION", "FLAT_FILES", "chunk_shape", "write_xdmf", "write_flat",
-           "write_node_files", "camera_coverage", "writing"]
+           "write_node_files", "camera_coverage", "writing", "node_fields", "surface_fields"]
 
 FORMAT = "selfillum-unsteady"
 VERSION = 1
@@ -102,9 +102,17 @@ def json_attr(obj) -> str:
 def node_fields(h5file) -> list:
     """``(name, dataset)`` of the per-node fields beyond the statistics that the file holds
     (the uncertainty's, ``--uncertainty``)."""
-    names = ("dcp_u", "dcp_u_gain", "stats/dcp_rms_signal", "stats/dcp_rms_signal_u",
-             "psd/noise_floor")
+    names = ("dcp_u", "dcp_u_noise", "dcp_u_mapping", "dcp_u_gain", "stats/dcp_rms_signal",
+             "stats/dcp_rms_signal_u", "psd/noise_floor")
     return [(n.split("/")[-1], "/" + n) for n in names if n in h5file]
+
+
+def surface_fields(h5file) -> list:
+    """``(name, dataset)`` of the per-node fields ``--surface`` writes: the steady Cp, the
+    mean and RMS of dCp, and :func:`node_fields`."""
+    base = [("cp", "/steady/cp"), ("dcp_mean", "/stats/dcp_mean"),
+            ("dcp_rms", "/stats/dcp_rms")]
+    return [(n, d) for n, d in base if d[1:] in h5file] + node_fields(h5file)
 
 
 def write_xdmf(path: Path, h5_name: str, n_frames: int, n_nodes: int, n_tris: int,

@@ -36,6 +36,7 @@ from scipy import ndimage
 from resection.errors import InputError
 from resection.memory import release_freed_memory
 from selfillum.unsteady.options import FILTERS, OVERLAPS, REGISTRATIONS
+from selfillum.unsteady.prefetch import FramePrefetch
 from selfillum.unsteady.spots import DarkSpots, mask_spots, patch_operator, project_spots
 
 __all__ = ["CameraRun", "SelfIllumination", "FrameNodes", "map_run", "REGISTRATIONS",
@@ -311,126 +312,135 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
     counts = {} if counts is None else counts
     for key in ("fast", "full", "references"):
         counts.setdefault(key, 0)
-    for k in frame_numbers:  # frames, one at a time
-        if ops and si is None and not moving:  # a fixed map, no SI: pixels to nodes
-            imgs = _fixed_images(cameras, k, regs, spot_px, filter, filter_size, pres,
-                                 ops[0].cols)
-            v = ops[0].nodes(imgs, W, grid)
-            if v is not None:
-                counts["fast"] += 1
-                yield FrameNodes(k, v, v, [c.camera for c in cameras], ops[0].gains)
-                continue
-            # else: a pixel that counts is not finite (warped in from beyond the edge):
-            # the faces' way, which leaves it out
-        if ops:
-            fv = _fast_frame(ops, cameras, k, regs, spots, spot_px, filter, filter_size,
-                             moving, refresh_px, op=planned(k) if moving else None,
-                             pres=pres, halo=halo)
-            if fv is not None:
-                B, cams, op_seen, _ = fv
-                seen = op_seen & np.isfinite(B)
-                raw_f = np.where(seen, B, np.nan)
-                E = si(B, seen) if si is not None else raw_f
-                vals = _fast_nodes(fv[3], W, grid, E, B, seen)
-                counts["fast"] += 1
-                yield FrameNodes(k, vals[0], vals[1], cams, ops[0].gains)
-                continue
-            # else: no reference near this pose: cast anew from this frame (the full way)
-        counts["full"] += 1
-        maps, imgs, cams, finite = [], [], [], []
-        for ci, c in enumerate(cameras):  # a few cameras
-            img = np.asarray(c.frames[k], dtype=np.float64)
-            shape = (c.camera.height, c.camera.width)
-            if img.shape != shape:
-                raise InputError(f"camera {c.number}: frame {k} is {img.shape}, its "
-                                 f"calibration {shape}")
-            if registration == "track":
-                cam = c.poses[k]
-                smap = SurfaceMap(mesh, cam, max_obliqueness=max_obliqueness, caster=caster)
-            else:
-                if maps0[ci] is None:
-                    maps0[ci] = SurfaceMap(mesh, c.camera, max_obliqueness=max_obliqueness,
-                                           caster=caster)
-                cam, smap = c.camera, maps0[ci]
-                if registration == "first-frame":
-                    if regs[ci] is None:
-                        regs[ci] = AffineRegistration(img, smap.mask)
-                    img = regs[ci].warp(img, regs[ci].fit(img))
-            if spots is not None and len(spots):
-                cen, rad = project_spots(spots, smap, margin_px=spot_margin_px)
-                spot_px[ci] = (cen, rad)
-                if patcher == "polynomial":
-                    pres[ci] = patch_operator(img.shape, cen, rad, finite=np.isfinite(img))
-                    img = pres[ci].apply(img)
+    # a fixed map's next frame read, registered and sampled in a background thread while
+    # this one is mapped (FramePrefetch): the two kinds of work on two cores, the
+    # sampling in that one thread (no pool of threads started a frame)
+    prefetch = FramePrefetch(
+        lambda k: _fixed_images(cameras, k, regs, spot_px, filter, filter_size, pres,
+                                ops[0].cols, workers=1), frame_numbers)
+    try:
+        for k in frame_numbers:  # frames, one at a time
+            imgs = prefetch.get(k) if ops and not moving else None  # a fixed map's images
+            if ops and si is None and not moving:  # a fixed map, no SI: pixels to nodes
+                v = ops[0].nodes(imgs, W, grid)
+                if v is not None:
+                    counts["fast"] += 1
+                    yield FrameNodes(k, v, v, [c.camera for c in cameras], ops[0].gains)
+                    continue
+                # else: a pixel that counts is not finite (warped in from beyond the edge):
+                # the faces' way, which leaves it out
+            if ops:
+                fv = _fast_frame(ops, cameras, k, regs, spots, spot_px, filter, filter_size,
+                                 moving, refresh_px, op=planned(k) if moving else None,
+                                 pres=pres, halo=halo, imgs=imgs)
+                if fv is not None:
+                    B, cams, op_seen, _ = fv
+                    seen = op_seen & np.isfinite(B)
+                    raw_f = np.where(seen, B, np.nan)
+                    E = si(B, seen) if si is not None else raw_f
+                    vals = _fast_nodes(fv[3], W, grid, E, B, seen)
+                    counts["fast"] += 1
+                    yield FrameNodes(k, vals[0], vals[1], cams, ops[0].gains)
+                    continue
+                # else: no reference near this pose: cast anew from this frame (the full way)
+            counts["full"] += 1
+            prefetch.settle()  # the next frame's reading done: no reader used from two threads
+            maps, imgs, cams, finite = [], [], [], []
+            for ci, c in enumerate(cameras):  # a few cameras
+                img = np.asarray(c.frames[k], dtype=np.float64)
+                shape = (c.camera.height, c.camera.width)
+                if img.shape != shape:
+                    raise InputError(f"camera {c.number}: frame {k} is {img.shape}, its "
+                                     f"calibration {shape}")
+                if registration == "track":
+                    cam = c.poses[k]
+                    smap = SurfaceMap(mesh, cam, max_obliqueness=max_obliqueness, caster=caster)
                 else:
-                    img = mask_spots(img, cen, rad)
-            finite.append(np.isfinite(img))
-            if filter == "gaussian":
-                img = _gaussian(img, filter_size)
-            maps.append(smap)
-            imgs.append(img)
-            cams.append(cam)
-        if use_fast and ops:  # a new reference of a moving model: its operator gives the
-            # merge (the gains are frame 0's; the same sums as merge_views with them)
-            from selfillum.unsteady.fastmap import FrameOperator
-
-            op = FrameOperator(maps, finite, merge_kw, ops[0].gains, off, sample_points=True,
-                               pre=pres if compose else None, halo_px=halo)
-            op.spots = list(pres) if patcher == "polynomial" else list(spot_px)
-            op.frame = op.last_used = k
-            _keep(ops, op)
-            B = op.faces(imgs)
-            maps = imgs = finite = None  # not held while the frame is out
-            seen = op.seen & np.isfinite(B)
-            raw_f = np.where(seen, B, np.nan)
-            E = si(B, seen) if si is not None else raw_f
-            vals = _fast_nodes(op, W, grid, E, B, seen)
-            _shed_mesh_cache(mesh)
-            release_freed_memory()
-            yield FrameNodes(k, vals[0], vals[1], cams, op.gains)
-            continue
-        B = None
-        known = gains if gains is not None else (
-            np.ones(len(cameras)) if overlap != "merge" else None)
-        if use_fast and known is not None:  # the first reference, its gains known (not
-            # matched on this frame): the operator gives this frame's merge too
-            from selfillum.unsteady.fastmap import FrameOperator
-
-            op = FrameOperator(maps, finite, merge_kw, known, off, sample_points=moving,
-                               pre=pres if compose else None, halo_px=halo)
-            op.spots = list(pres) if patcher == "polynomial" else list(spot_px)
-            B = op.faces(imgs)
-            if B is not None:
-                ops.append(op)
-                op.frame = op.last_used = k
-                op.workers = workers
-                maps0 = [None] * len(cameras)
-                seen, mv_gains = op.seen & np.isfinite(B), op.gains
-        if B is None:
-            mv = merge_views(maps, imgs, gains=gains, **merge_kw)
-            if overlap == "merge" and gains is None:
-                gains = mv.gains  # matched on frame 0, kept: no seam moving over time
-            if use_fast:  # the first reference
+                    if maps0[ci] is None:
+                        maps0[ci] = SurfaceMap(mesh, c.camera, max_obliqueness=max_obliqueness,
+                                               caster=caster)
+                    cam, smap = c.camera, maps0[ci]
+                    if registration == "first-frame":
+                        if regs[ci] is None:
+                            regs[ci] = AffineRegistration(img, smap.mask)
+                        img = regs[ci].warp(img, regs[ci].fit(img))
+                if spots is not None and len(spots):
+                    cen, rad = project_spots(spots, smap, margin_px=spot_margin_px)
+                    spot_px[ci] = (cen, rad)
+                    if patcher == "polynomial":
+                        pres[ci] = patch_operator(img.shape, cen, rad, finite=np.isfinite(img))
+                        img = pres[ci].apply(img)
+                    else:
+                        img = mask_spots(img, cen, rad)
+                finite.append(np.isfinite(img))
+                if filter == "gaussian":
+                    img = _gaussian(img, filter_size)
+                maps.append(smap)
+                imgs.append(img)
+                cams.append(cam)
+            if use_fast and ops:  # a new reference of a moving model: its operator gives the
+                # merge (the gains are frame 0's; the same sums as merge_views with them)
                 from selfillum.unsteady.fastmap import FrameOperator
 
-                ops.append(FrameOperator(maps, finite, merge_kw, mv.gains, off,
-                                         sample_points=moving,
-                                         pre=pres if compose else None, halo_px=halo))
-                ops[0].spots = list(pres) if patcher == "polynomial" else list(spot_px)
-                ops[0].frame = ops[0].last_used = k
-                ops[0].workers = workers
-                maps0 = [None] * len(cameras)
-            B, seen, mv_gains = mv.values, mv.seen & np.isfinite(mv.values), mv.gains
-        maps = imgs = finite = mv = None  # not held while the frame is out
-        if off is not None:
-            seen = seen & ~off
-        raw_f = np.where(seen, B, np.nan)
-        E = si(B, seen) if si is not None else raw_f
-        vals = _to_nodes(W, np.vstack([E, raw_f]), grid)
-        if use_fast:
-            _shed_mesh_cache(mesh)
-        release_freed_memory()  # the cast's, the merge's and the SI solve's work arrays
-        yield FrameNodes(k, vals[0], vals[1], cams, mv_gains)
+                op = FrameOperator(maps, finite, merge_kw, ops[0].gains, off, sample_points=True,
+                                   pre=pres if compose else None, halo_px=halo)
+                op.spots = list(pres) if patcher == "polynomial" else list(spot_px)
+                op.frame = op.last_used = k
+                _keep(ops, op)
+                B = op.faces(imgs)
+                maps = imgs = finite = None  # not held while the frame is out
+                seen = op.seen & np.isfinite(B)
+                raw_f = np.where(seen, B, np.nan)
+                E = si(B, seen) if si is not None else raw_f
+                vals = _fast_nodes(op, W, grid, E, B, seen)
+                _shed_mesh_cache(mesh)
+                release_freed_memory()
+                yield FrameNodes(k, vals[0], vals[1], cams, op.gains)
+                continue
+            B = None
+            known = gains if gains is not None else (
+                np.ones(len(cameras)) if overlap != "merge" else None)
+            if use_fast and known is not None:  # the first reference, its gains known (not
+                # matched on this frame): the operator gives this frame's merge too
+                from selfillum.unsteady.fastmap import FrameOperator
+
+                op = FrameOperator(maps, finite, merge_kw, known, off, sample_points=moving,
+                                   pre=pres if compose else None, halo_px=halo)
+                op.spots = list(pres) if patcher == "polynomial" else list(spot_px)
+                B = op.faces(imgs)
+                if B is not None:
+                    ops.append(op)
+                    op.frame = op.last_used = k
+                    op.workers = workers
+                    maps0 = [None] * len(cameras)
+                    seen, mv_gains = op.seen & np.isfinite(B), op.gains
+            if B is None:
+                mv = merge_views(maps, imgs, gains=gains, **merge_kw)
+                if overlap == "merge" and gains is None:
+                    gains = mv.gains  # matched on frame 0, kept: no seam moving over time
+                if use_fast:  # the first reference
+                    from selfillum.unsteady.fastmap import FrameOperator
+
+                    ops.append(FrameOperator(maps, finite, merge_kw, mv.gains, off,
+                                             sample_points=moving,
+                                             pre=pres if compose else None, halo_px=halo))
+                    ops[0].spots = list(pres) if patcher == "polynomial" else list(spot_px)
+                    ops[0].frame = ops[0].last_used = k
+                    ops[0].workers = workers
+                    maps0 = [None] * len(cameras)
+                B, seen, mv_gains = mv.values, mv.seen & np.isfinite(mv.values), mv.gains
+            maps = imgs = finite = mv = None  # not held while the frame is out
+            if off is not None:
+                seen = seen & ~off
+            raw_f = np.where(seen, B, np.nan)
+            E = si(B, seen) if si is not None else raw_f
+            vals = _to_nodes(W, np.vstack([E, raw_f]), grid)
+            if use_fast:
+                _shed_mesh_cache(mesh)
+            release_freed_memory()  # the cast's, the merge's and the SI solve's work arrays
+            yield FrameNodes(k, vals[0], vals[1], cams, mv_gains)
+    finally:
+        prefetch.close()
 
 
 #: References (full casts) a moving model keeps: a vibrating model returns to earlier poses.
@@ -500,11 +510,11 @@ def _frame(frames, k: int) -> np.ndarray:
 
 
 def _fixed_images(cameras, k, regs, spot_px, filter, filter_size, pres=None,
-                  read=None) -> list:
+                  read=None, workers=None) -> list:
     """Frame ``k`` of every camera for frame 0's map: as stored, or warped onto frame 0
     (``first-frame``) and filtered (its spots patched by ``pres`` or masked first), in
     float64. Without a filter, a warp samples only the pixels ``read[c]`` (the operator's),
-    when given."""
+    when given, on ``workers`` threads."""
     imgs = []
     for ci, c in enumerate(cameras):  # a few cameras
         img = _frame(c.frames, k)
@@ -515,7 +525,7 @@ def _fixed_images(cameras, k, regs, spot_px, filter, filter_size, pres=None,
                     from selfillum.unsteady.fastmap import PixelValues
 
                     imgs.append(PixelValues(regs[ci].sample(img, regs[ci].fit(img),
-                                                            read[ci])))
+                                                            read[ci], workers)))
                     continue
                 img = regs[ci].warp(img, regs[ci].fit(img))
             if filter == "gaussian":
@@ -529,7 +539,7 @@ def _fixed_images(cameras, k, regs, spot_px, filter, filter_size, pres=None,
 
 
 def _fast_frame(ops, cameras, k, regs, spots, spot_px, filter, filter_size, moving,
-                refresh_px, op=None, pres=None, halo=0):
+                refresh_px, op=None, pres=None, halo=0, imgs=None):
     """Face values of frame ``k`` by the operator (None: take the full way); a moving
     model uses ``op`` when given (its planned reference), else the nearest reference."""
     if moving:  # sampled as it is (a video's counts)
@@ -553,8 +563,9 @@ def _fast_frame(ops, cameras, k, regs, spots, spot_px, filter, filter_size, movi
         B = op.faces_moved(imgs, cams, refresh_px, prepare=prep)
         return None if B is None else (B, cams, op.seen, op)
     else:
-        imgs = _fixed_images(cameras, k, regs, spot_px, filter, filter_size, pres,
-                             ops[0].cols)
+        if imgs is None:
+            imgs = _fixed_images(cameras, k, regs, spot_px, filter, filter_size, pres,
+                                 ops[0].cols)
         cams = [c.camera for c in cameras]
         j, B = 0, ops[0].faces(imgs)
     return None if B is None else (B, cams, ops[j].seen, ops[j])
@@ -571,17 +582,28 @@ def _fast_nodes(op, W, grid, E, B, seen) -> np.ndarray:
     if not same and (seen & ~op.seen).any():
         return _to_nodes(W, np.vstack([E, np.where(seen, B, np.nan)]), grid)
     Wn = op.node_matrix(W, grid)  # over the reference's seen faces
+    Wr, rows = op.seen_node_rows(W, grid)  # its non-empty rows (each sums to 1)
     idx = op.seen_faces
+    out = np.full((2, Wn.shape[0]), np.nan, np.float32)
+    e, b = E[idx], B[idx]
     if same:
-        out = (Wn @ np.column_stack([E[idx], B[idx]])).T
-        out[:, op.node_unseen] = np.nan
-        return out.astype(np.float32)
-    s = seen[idx]
-    Y = Wn @ np.column_stack([np.where(s, E[idx], 0.0), np.where(s, B[idx], 0.0),
-                              s.astype(np.float64)])
+        out[0, rows], out[1, rows] = Wr @ e, Wr @ b
+        return out
+    lost = np.flatnonzero(~seen[idx])  # few (at the frame's edge): their nodes rescaled
+    e[lost], b[lost] = 0.0, 0.0
+    ye, yb = Wr @ e, Wr @ b
+    Wc = op.seen_node_rows(W, grid, by_columns=True)
+    starts, ends = Wc.indptr[lost], Wc.indptr[lost + 1]
+    n = ends - starts
+    at = np.repeat(starts - np.cumsum(n) + n, n) + np.arange(n.sum())
+    hit, inv = np.unique(Wc.indices[at], return_inverse=True)
+    kept = 1.0 - np.bincount(inv, Wc.data[at], minlength=hit.size)
     with np.errstate(invalid="ignore", divide="ignore"):
-        out = np.where(Y[:, 2:] > 0, Y[:, :2] / Y[:, 2:], np.nan).T
-    return out.astype(np.float32)
+        scale = np.where(kept > 1e-9, 1.0 / kept, np.nan)
+    ye[hit] *= scale
+    yb[hit] *= scale
+    out[0, rows], out[1, rows] = ye, yb
+    return out
 
 
 def _to_nodes(W, face_values, grid) -> np.ndarray:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["node_to_faces", "plot_rms", "plot_psd", "write_pictures"]
+__all__ = ["node_to_faces", "plot_rms", "plot_psd", "write_pictures", "prepare_rms_view"]
 
 
 def node_to_faces(triangles, node_values) -> np.ndarray:
@@ -20,19 +20,32 @@ def node_to_faces(triangles, node_values) -> np.ndarray:
     return v[np.asarray(triangles, dtype=np.int64)].mean(axis=1)
 
 
-def plot_rms(grid, rms, path, camera=None, *, title: str | None = None):
+def prepare_rms_view(grid):
+    """The RMS picture's view of the model (:func:`resection.surface.plots.prepare_view`
+    from the default virtual camera, with the outline): what :func:`plot_rms` draws the
+    values into, made apart from them (a run makes it in another thread while it maps
+    the frames)."""
+    from resection.surface.plots import prepare_view
+
+    return prepare_view(grid.mesh, outline=True)
+
+
+def plot_rms(grid, rms, path, camera=None, *, title: str | None = None, view=None):
     """dCp RMS (per node, ``(N,)``) on the model of ``grid`` (a
-    :class:`~selfillum.unsteady.grid.RunGrid`), saved as a picture at ``path``."""
+    :class:`~selfillum.unsteady.grid.RunGrid`), saved as a picture at ``path``; ``view``
+    from :func:`prepare_rms_view` when made already (then ``camera`` is its own)."""
     from resection.surface.plots import plot_surface, virtual_camera
 
     # grid.triangles are the mesh's faces written in node numbers: face k of the mesh
     fv = node_to_faces(grid.triangles, rms)
-    cam = camera if camera is not None else virtual_camera(grid.mesh)
+    cam = view.camera if view is not None else (
+        camera if camera is not None else virtual_camera(grid.mesh))
     fin = fv[np.isfinite(fv)]
     vmax = float(np.percentile(fin, 99)) if fin.size else None
     return plot_surface(grid.mesh, fv, cam, cmap="viridis", vmin=0.0,
                         vmax=vmax if vmax and vmax > 0 else None, label="dCp RMS",
-                        title=title or "dCp RMS over the run", outline=True, path=path)
+                        title=title or "dCp RMS over the run", outline=True, path=path,
+                        view=view)
 
 
 def plot_psd(freq, probe_psd, probe_nodes, path, *, mean_psd=None, points=None):
@@ -66,9 +79,10 @@ def plot_psd(freq, probe_psd, probe_nodes, path, *, mean_psd=None, points=None):
     return finish_figure(fig, path)
 
 
-def write_pictures(grid, rms, spectra, paths) -> None:
-    """The dCp RMS on the model and, with probes, their PSD (PNG)."""
-    plot_rms(grid, rms, paths[0])
+def write_pictures(grid, rms, spectra, paths, view=None) -> None:
+    """The dCp RMS on the model and, with probes, their PSD (PNG); ``view``: the RMS
+    picture's, made already (:func:`prepare_rms_view`)."""
+    plot_rms(grid, rms, paths[0], view=view)
     if len(paths) > 1:
         plot_psd(spectra.freq, spectra.probe_psd, spectra.probes, paths[1],
                  mean_psd=spectra.mean_psd, points=grid.points)

@@ -61,6 +61,7 @@ class AffineRegistration:
         gxm, gym = gx[v, u] * self._s, gy[v, u] * self._s  # d/dx in normalised units
         self._sd = np.column_stack([gxm * x, gxm * y, gxm, gym * x, gym * y, gym])
         self._H = self._sd.T @ self._sd
+        self._Hinv = np.linalg.pinv(self._H) if u.size else np.zeros((6, 6))
         self._x, self._y, self._u, self._v = x, y, u, v
         self._ref = ref[v, u]
         self.iterations = int(iterations)
@@ -77,19 +78,11 @@ class AffineRegistration:
         elif img.dtype.kind not in "fiu":
             img = img.astype(np.float64)
         img = np.ascontiguousarray(img)
-        M = self._M.copy()
-        g = np.empty(6)
-        for _ in range(self.iterations):  # Gauss-Newton steps (a few), not pixels
-            # sd^T (frame warped - reference): one compiled pass over the fit's pixels
-            A = M[:2] * 1.0
-            _residual_kernel()(img, A, self._x, self._y, float(self._s), self._c,
-                               self._ref, self._sd, g)
-            dp = np.linalg.solve(self._H, g)
-            D = np.array([[1 + dp[0], dp[1], dp[2]], [dp[3], 1 + dp[4], dp[5]], [0, 0, 1]])
-            M = M @ np.linalg.inv(D)
-            step = self._s * (np.abs(dp[[0, 1, 3, 4]]).sum() + np.abs(dp[[2, 5]]).sum())
-            if step < self.tol:
-                break
+        # the Gauss-Newton steps in one compiled call that releases the GIL (a run maps
+        # frames in another thread meanwhile): no Python between the steps
+        M = np.ascontiguousarray(self._M, dtype=np.float64).copy()
+        _gauss_newton_kernel()(img, M, self._x, self._y, float(self._s), self._c, self._ref,
+                               self._sd, self._Hinv, self.iterations, self.tol)
         self._M = M
         S = np.array([[self._s, 0, self._c[0]], [0, self._s, self._c[1]], [0, 0, 1]])
         return (S @ M @ np.linalg.inv(S))[:2]
@@ -106,9 +99,10 @@ class AffineRegistration:
             return out.reshape(H, W)
         return self.sample(frame, A, np.arange(H * W, dtype=np.int64)).reshape(H, W)
 
-    def sample(self, frame, A, pixels) -> np.ndarray:
+    def sample(self, frame, A, pixels, workers: int | None = None) -> np.ndarray:
         """The values of :meth:`warp` at the reference's ``pixels`` (flat indices) only,
-        (n,) float64; the compiled kernel on the available cores (blocks of pixels)."""
+        (n,) float64; the compiled kernel on ``workers`` threads (default: the available
+        cores; blocks of pixels)."""
         from resection._threads import run_blocks, split_range
 
         img = np.asarray(frame)
@@ -120,7 +114,7 @@ class AffineRegistration:
         vals = np.empty(idx.size)
         kern = _affine_kernel()
         run_blocks(lambda b: kern(img, A, idx[b[0]:b[1]], vals[b[0]:b[1]]),
-                   split_range(idx.size, None, min_size=65536))
+                   split_range(idx.size, workers, min_size=65536), workers)
         return vals
 
 
@@ -157,6 +151,52 @@ def _residual_kernel():
 
 
 @functools.cache
+def _gauss_newton_kernel():
+    import numba
+
+    residual = _residual_kernel()
+
+    @numba.njit(cache=True, nogil=True)
+    def gauss_newton(img, M, x, y, s, c, ref, sd, Hinv, iterations, tol):  # pragma: no cover
+        """Inverse-compositional steps on the normalised warp ``M`` (3 x 3, updated in
+        place) until a step moves no pixel of the fit by ``tol`` or more; returns the
+        steps taken. ``dp = H^-1 sd^T e``, ``M <- M D(dp)^-1`` (``D`` affine: its inverse
+        in closed form)."""
+        g = np.empty(6)
+        A = np.empty((2, 3))
+        T = np.empty((3, 3))
+        for it in range(iterations):
+            for i in range(2):
+                for j in range(3):
+                    A[i, j] = M[i, j]
+            residual(img, A, x, y, s, c, ref, sd, g)
+            dp = np.zeros(6)
+            for i in range(6):
+                for j in range(6):
+                    dp[i] += Hinv[i, j] * g[j]
+            a, b, tx = 1.0 + dp[0], dp[1], dp[2]
+            d, e, ty = dp[3], 1.0 + dp[4], dp[5]
+            det = a * e - b * d
+            # D^-1 = [[e, -b, b ty - e tx], [-d, a, d tx - a ty], [0, 0, det]] / det
+            Di = np.array([[e / det, -b / det, (b * ty - e * tx) / det],
+                           [-d / det, a / det, (d * tx - a * ty) / det],
+                           [0.0, 0.0, 1.0]])
+            for i in range(3):
+                for j in range(3):
+                    T[i, j] = M[i, 0] * Di[0, j] + M[i, 1] * Di[1, j] + M[i, 2] * Di[2, j]
+            for i in range(3):
+                for j in range(3):
+                    M[i, j] = T[i, j]
+            step = s * (abs(dp[0]) + abs(dp[1]) + abs(dp[3]) + abs(dp[4])
+                        + abs(dp[2]) + abs(dp[5]))
+            if step < tol:
+                return it + 1
+        return iterations
+
+    return gauss_newton
+
+
+@functools.cache
 def _affine_kernel():
     import numba
 
@@ -166,10 +206,16 @@ def _affine_kernel():
         NaN outside ``[0, W-1] x [0, H-1]`` or where a neighbour of non-zero weight is
         NaN (as ``scipy.ndimage.map_coordinates(order=1)`` with a NaN mask)."""
         H, W = img.shape
+        row = -1
+        start = 0
         for i in range(pixels.size):
             p = pixels[i]
-            u = p % W
-            v = p // W
+            if p < start or p >= start + W:  # a new image row: one division a row, not
+                # two a pixel (the pixels come sorted), the loop's cost otherwise
+                row = p // W
+                start = row * W
+            u = p - start
+            v = row
             uw = A[0, 0] * u + A[0, 1] * v + A[0, 2]
             vw = A[1, 0] * u + A[1, 1] * v + A[1, 2]
             if not (uw >= 0.0 and uw <= W - 1.0 and vw >= 0.0 and vw <= H - 1.0):

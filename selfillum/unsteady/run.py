@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from resection.errors import InputError
+from selfillum.surface_fields import check_surface_paths, write_grid_fields
 from selfillum.unsteady.blocks import cluster_phase1, local_phase1
 from selfillum.unsteady.budget import (
     Progress,
@@ -51,6 +52,7 @@ from selfillum.unsteady.output import (
     chunk_shape,
     json_attr,
     node_fields,
+    surface_fields,
     write_flat,
     write_node_files,
     write_xdmf,
@@ -61,6 +63,7 @@ from selfillum.unsteady.phase2 import DETREND_ORDER, node_gain
 from selfillum.unsteady.plots import write_pictures
 from selfillum.unsteady.results import write_results
 from selfillum.unsteady.spectra import Spectra, default_bands
+from selfillum.unsteady.uncertainty_out import wind_off_noise
 from selfillum.unsteady.work import Phase1Store
 
 __all__ = ["CameraInput", "UnsteadyConfig", "UnsteadyResult", "run_unsteady",
@@ -96,6 +99,7 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     wtd = read_wtd(cfg.sds)
     cond = Conditions.from_wtd(wtd, tinf=cfg.tinf)
     law = gain = taps = tapn = offs = coeffs = None
+    off_noise = wind_off_noise(cfg)  # --uncertainty: the camera noise of wind-off frames
     if cfg.paint_calibration is not None:
         cal = read_paint_calibration(cfg.paint_calibration)
         gain = node_gain(cal, cond.surface_temperature, cp, cond)
@@ -145,6 +149,9 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     for p in [out, xdmf, *flat, *pngs]:
         if p.exists():
             raise InputError(f"{p}: exists; remove it or choose another --out")
+    surfaces = check_surface_paths(cfg.surface, outputs=[out, xdmf, *flat, *pngs],
+                                   inputs=[cfg.grid, cfg.steady, cfg.sds],
+                                   plot3d=bool(grid.dims))
     N = grid.n_nodes
     tc, nc = chunk_shape(T, N)
     frames = np.arange(T)
@@ -216,6 +223,15 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
             caster = None
         store.close()
         t_p2 = time.perf_counter()
+        view = None  # the RMS picture's view of the model, made beside Phase 2 (its own
+        # ray-tracing scene and mesh copy; Phase 2's reads and writes leave a core free)
+        if pngs:
+            from concurrent.futures import ThreadPoolExecutor
+
+            from selfillum.unsteady.plots import prepare_rms_view
+
+            pool = stack0.enter_context(ThreadPoolExecutor(1, thread_name_prefix="picture"))
+            view = pool.submit(prepare_rms_view, grid)
         # a chunk column of each dataset held in HDF5's cache: node blocks narrower than a
         # chunk (a small budget, a long run) then read each chunk once, not once a block
         # (each dataset has its cache; only when the blocks are narrower than a chunk)
@@ -254,7 +270,13 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
 
                         stats["uncertainty"] = write_uncertainty(
                             f, cfg, grid, runs, s1, stats, spectra, fps, frames, gain, cond,
-                            cp, coeffs)
+                            cp, coeffs, off_noise, chain={"spots": spots, "F": F, "rho": rho,
+                                                          "unpainted": unpainted})
+                    if surfaces:
+                        fields = {k: f[d][()] for k, d in surface_fields(f)}
+                        for p in surfaces:
+                            with writing(p):
+                                write_grid_fields(p, grid, fields)
                     if law is not None:
                         f.attrs["stern_volmer"] = json_attr(
                             {"A": law.A, "B": law.B, "p_ref": law.p_ref,
@@ -273,7 +295,8 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
                                              node_block=plan.nodes_per_block)
                     if pngs:
                         with writing(pngs[0], named):
-                            write_pictures(grid, stats["rms"], spectra, tmp[-len(pngs):])
+                            write_pictures(grid, stats["rms"], spectra, tmp[-len(pngs):],
+                                           view=view.result())
         finished = True
     except InputError:
         finished = True  # bad input: nothing to resume, nothing left
@@ -294,7 +317,8 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
                "first_frame": (prog.t_first or t_p2) - t_p1, **{
                    f"frames_{k}": v for k, v in counts.items()}}
     return UnsteadyResult(out, T, N, (tc, nc), stats["seen"], stats["si_median"],
-                          stats["si_p95"], failed, tuple(files), peak_rss_mb(),
+                          stats["si_p95"], failed, tuple(files) + tuple(surfaces),
+                          peak_rss_mb(),
                           T / el if el > 0 else float("nan"),
                           (plan.frames_per_block, plan.nodes_per_block), timings,
                           stats.get("uncertainty", {}), si=bool(cfg.si))

@@ -3,19 +3,29 @@ dCp (:func:`write_uncertainty`; the models: :mod:`selfillum.uncertainty.unsteady
 
 Written into the output file::
 
-    /dcp_u                      (N,) standard uncertainty of one frame's dCp (random part)
+    /dcp_u                      (N,) standard uncertainty of one frame's dCp (random part):
+                                the root sum of squares of the next two
+    /dcp_u_noise                (N,) its noise part (the run's white floor, the camera's
+                                noise model stated or measured on wind-off frames)
+    /dcp_u_mapping              (N,) its mapping part: a field varying over the pixels a node
+                                averages (:mod:`selfillum.uncertainty.mapping`)
     /dcp_u_gain                 (N,) relative standard uncertainty of the gain (systematic)
     /stats/dcp_rms_signal       (N,) RMS of dCp with the noise's variance removed
     /stats/dcp_rms_signal_u     (N,) its standard uncertainty (random part)
     /psd/noise_floor            (N,) the PSD's level in the highest band (dCp^2/Hz)
     attribute "uncertainty"     JSON: method, each source's status, medians
 
-``--uncertainty mc --samples S`` re-runs Phase 2 (the ratio, the detrend, the gain) ``S``
-times on the node intensities with the noise drawn (each node's intensity times ``1 + e``,
-``e ~ N(0, (sigma / (G 144 / q))^2)``), and draws the gain's inputs (``a .. f``, ``T0``,
-``Tinf``, the model temperature, ``q``, ``p_inf``; or the in-situ fit's ``A, B`` from their
-covariance) from their normal distributions;
-Phase 1 (the maps, the self-illumination) is not re-run.
+The noise, in order of preference: the stated camera gain and read noise; the wind-off
+frames' (``--wind-off`` stacks of two frames or more, :func:`wind_off_noise`); else the
+run's own frames after their mean and fitted trend are removed (the white floor of dCp's
+PSD, :func:`selfillum.uncertainty.unsteady.noise_from_floor`).
+
+``--uncertainty mc --samples S``: the noise by Monte Carlo through Phase 1
+(:func:`selfillum.unsteady.uncertainty_chain.chain_noise`: drawn pixels, registration
+refitted or poses drawn, mapping, self-illumination, Phase 2 linearised), and the gain's
+inputs (``a .. f``, ``T0``, ``Tinf``, the model temperature, ``q``, ``p_inf``; or the
+in-situ fit's ``A, B`` from their covariance) drawn ``S`` times from their normal
+distributions. The mapping's part is the same model in both methods.
 """
 
 from __future__ import annotations
@@ -23,20 +33,24 @@ from __future__ import annotations
 import numpy as np
 
 from selfillum.unsteady.output import json_attr
-from selfillum.unsteady.phase2 import legendre_basis, phase2_block
 
 __all__ = ["write_uncertainty"]
 
 
-def _effective_pixels(grid, runs, n_nodes: int) -> np.ndarray:
-    """Per node, the effective number of pixels of frame 0 (every camera's pixels on the
-    faces around it, area-weighted as the node value): ``(sum a)^2 / sum (a^2 / n_f)``."""
+def _frame0_maps(grid, runs) -> list:
+    """Each camera's map of frame 0 (its pose in the first frame)."""
     from resection.surface.surface_map import SurfaceMap
 
+    return [SurfaceMap(grid.mesh, r.camera) for r in runs]
+
+
+def _effective_pixels(grid, maps, n_nodes: int) -> np.ndarray:
+    """Per node, the effective number of pixels of frame 0 (every camera's pixels on the
+    faces around it, area-weighted as the node value): ``(sum a)^2 / sum (a^2 / n_f)``."""
     mesh = grid.mesh
     counts = np.zeros(len(mesh.faces))
-    for r in runs:
-        counts += SurfaceMap(mesh, r.camera).pixel_counts
+    for m in maps:
+        counts += m.pixel_counts
     a = np.asarray(mesh.area_faces, np.float64)
     tri = np.asarray(grid.triangles)
     ok = counts > 0
@@ -49,10 +63,38 @@ def _effective_pixels(grid, runs, n_nodes: int) -> np.ndarray:
         return np.where(s2 > 0, s1 * s1 / s2, np.nan)
 
 
+def wind_off_noise(cfg):
+    """The camera's noise (:class:`selfillum.uncertainty.noise.PixelNoise`) measured on
+    the wind-off frames: with ``--uncertainty``, no stated ``camera_gain`` and ``--wind-off``
+    stacks of at least two frames, the photon transfer curve of their temporal variance
+    against their mean (:func:`selfillum.uncertainty.noise.estimate_noise`, every camera's
+    pixels on one curve: one sensor model); else None. Read before any heavy step (a stack
+    whose variance does not grow with the level is refused here)."""
+    from selfillum.uncertainty.noise import estimate_noise
+    from selfillum.uncertainty.psp_io import read_condition
+
+    stated = cfg.stated
+    if cfg.uncertainty is None or not cfg.wind_off or (
+            stated is not None and stated.camera_gain is not None):
+        return None
+    means, counts, variances = read_condition(cfg.wind_off, len(cfg.wind_off), "--wind-off")
+    pairs = [(m, v) for m, v in zip(means, variances, strict=True) if v is not None]
+    if not pairs:
+        return None
+    pn = estimate_noise([m for m, _ in pairs], [v for _, v in pairs],
+                        f"{cfg.wind_off[0]}: the wind-off frames")
+    from dataclasses import replace
+
+    return replace(pn, source=f"estimated from the wind-off frames' temporal variance "
+                   f"({min(c for c in counts if c > 1)}+ frames)")
+
+
 def write_uncertainty(f, cfg, grid, runs, s1, stats, spectra, fps: float, frames, gain,
-                      cond, cp, coeffs) -> dict:
+                      cond, cp, coeffs, off_noise=None, chain=None) -> dict:
     """Write the uncertainty fields into the open output file ``f`` (see the module notes);
-    returns the JSON summary."""
+    returns the JSON summary. ``off_noise``: :func:`wind_off_noise`'s camera noise;
+    ``chain``: Phase 1's inputs for the Monte Carlo
+    (:func:`selfillum.unsteady.uncertainty_chain.chain_noise`)."""
     from selfillum.uncertainty.stated import Stated
     from selfillum.uncertainty.unsteady import (
         floor_dof,
@@ -64,6 +106,7 @@ def write_uncertainty(f, cfg, grid, runs, s1, stats, spectra, fps: float, frames
 
     stated = cfg.stated if cfg.stated is not None else Stated()
     T, N = s1["values"].shape
+    maps = _frame0_maps(grid, runs)
     gf = np.asarray(gain, np.float64) * 144.0 / cond.q
     rms = np.asarray(stats["rms"], np.float64)
     status = {}
@@ -73,14 +116,20 @@ def write_uncertainty(f, cfg, grid, runs, s1, stats, spectra, fps: float, frames
         sig_floor, floor = noise_from_floor(f["psd/band_psd"][()], fps)
         dof = floor_dof(spectra.freq, spectra.edges, T, spectra.nperseg)
         f.require_group("psd").create_dataset("noise_floor", data=floor.astype(np.float32))
-    if stated.camera_gain is not None:
+    info = {"method": cfg.uncertainty}
+    npx = camera_noise = None
+    if stated.camera_gain is not None or off_noise is not None:
+        g, r = ((stated.camera_gain, float(stated.read_noise or 0.0))
+                if stated.camera_gain is not None else (off_noise.gain, off_noise.read_noise))
         scale0 = float(s1["values_scale"][0])
         I0 = s1["values"][0].astype(np.float64) / scale0
-        npx = _effective_pixels(grid, runs, N)
-        sigma = noise_from_camera(np.where(I0 > 0, I0, np.nan), npx, stated.camera_gain,
-                                  float(stated.read_noise or 0.0), gf)
-        status["noise"] = (f"stated: gain {stated.camera_gain:g} e-/count, read noise "
-                           f"{stated.read_noise or 0:g} e-, frame 0's pixels per node")
+        npx = _effective_pixels(grid, maps, N)
+        sigma = noise_from_camera(np.where(I0 > 0, I0, np.nan), npx, g, r, gf)
+        how = "stated" if stated.camera_gain is not None else off_noise.source
+        status["noise"] = (f"{how}: gain {g:.4g} e-/count, read noise {r:.3g} e-, frame 0's "
+                           "pixels per node")
+        info["camera_noise"] = {"gain": float(g), "read_noise": float(r)}
+        camera_noise = (g, r)
     elif floor is not None:
         sigma = sig_floor
         status["noise"] = ("estimated: the run's dCp PSD in its highest band "
@@ -93,26 +142,73 @@ def write_uncertainty(f, cfg, grid, runs, s1, stats, spectra, fps: float, frames
     urel, gstatus = gain_relative_u(coeffs, stated, T_f, cp, cond.q, cond.p_inf)
     status.update(gstatus)
     method = cfg.uncertainty
-    info = {"method": method}
     if method == "mc":
-        sigma_mc, urel_mc = _monte_carlo(cfg, s1, frames, gain, cond, cp, coeffs, sigma,
-                                         T_f)
-        info.update(samples=int(cfg.samples),
-                    linear_median={"dcp_u": _med(sigma), "dcp_u_gain": _med(urel)})
+        from selfillum.unsteady.uncertainty_chain import chain_noise
+
+        if npx is None:
+            npx = _effective_pixels(grid, maps, N)
+        sigma_mc, drawn = chain_noise(cfg, grid, runs, chain or {}, T, gf, sigma, npx,
+                                      camera_noise, int(cfg.samples))
+        urel_mc = _gain_monte_carlo(cfg, gain, cond, cp, coeffs, T_f)
+        info.update(samples=int(cfg.samples), chain=drawn,
+                    linear_median={"dcp_u_noise": _med(sigma), "dcp_u_gain": _med(urel)})
+        status["noise"] += (f"; Monte Carlo through Phase 1: {drawn['frames']} frames x "
+                            f"{drawn['draws']} draws of the {drawn['pixels']}, poses "
+                            f"{drawn['poses']}")
         sigma = sigma_mc
         urel = urel_mc if urel_mc is not None else urel
-    f.create_dataset("dcp_u", data=sigma.astype(np.float32))
+    u_map, used = _mapping(f, grid, maps, [r.frames[0] for r in runs], sigma, rms)
+    status["mapping"] = ("estimated: the node's pixels' first and second moments about it "
+                         "(frame 0) times the measured field's gradient and curvature "
+                         f"(a cubic over two rings of nodes), RMS over {used} frames")
+    f.create_dataset("dcp_u", data=np.hypot(sigma, u_map).astype(np.float32))
+    f.create_dataset("dcp_u_noise", data=sigma.astype(np.float32))
+    f.create_dataset("dcp_u_mapping", data=u_map.astype(np.float32))
     if urel is not None:
         f.create_dataset("dcp_u_gain", data=np.broadcast_to(urel, (N,)).astype(np.float32))
     rs, u_rs = signal_rms(rms, sigma, T, dof)
     st = f.require_group("stats")
     st.create_dataset("dcp_rms_signal", data=rs.astype(np.float32))
     st.create_dataset("dcp_rms_signal_u", data=u_rs.astype(np.float32))
-    info.update(sources=status, dcp_u_median=_med(sigma),
+    info.update(sources=status, dcp_u_median=_med(np.hypot(sigma, u_map)),
+                dcp_u_noise_median=_med(sigma), dcp_u_mapping_median=_med(u_map),
                 dcp_u_gain_median=_med(urel) if urel is not None else None,
                 missing=[k for k, v in status.items() if v.startswith("missing")])
     f.attrs["uncertainty"] = json_attr(info)
     return info
+
+
+def _mapping(f, grid, maps, images, sigma, rms) -> tuple[np.ndarray, int]:
+    """Per node the mapping's error (:mod:`selfillum.uncertainty.mapping`) over up to
+    ``MAX_FRAMES`` frames of ``/dcp``, read in a few blocks of consecutive frames spread over
+    the run; and the number of frames."""
+    from selfillum.uncertainty.mapping import (
+        MAX_FRAMES,
+        mapping_operator,
+        mapping_u,
+        support_moments,
+    )
+
+    mesh = grid.mesh
+    nv = len(mesh.vertices)
+    node_of = np.empty(nv, np.int64)  # one grid node a vertex (seam copies share a value)
+    node_of[grid.node_vertex] = np.arange(len(grid.node_vertex))
+    delta, Q = support_moments(mesh, maps, images)
+    D = mapping_operator(mesh, delta, Q, use=np.isfinite(np.asarray(rms))[node_of])
+    dset = f["dcp"]
+    T = dset.shape[0]
+    blocks = 8
+    size = max(1, min(T, MAX_FRAMES) // blocks)
+    starts = np.unique(np.linspace(0, T - size, min(blocks, max(T // size, 1))).astype(int))
+
+    def frames():
+        for a in starts:  # a few blocks of frames
+            x = np.asarray(dset[a:a + size, :], np.float64)
+            yield x[:, node_of]
+
+    u, used = mapping_u(D, frames(), np.nan_to_num(np.asarray(sigma, np.float64))[node_of])
+    out = u[grid.node_vertex]
+    return np.where(np.isfinite(np.asarray(rms)), out, np.nan), used
 
 
 def _med(x):
@@ -123,39 +219,15 @@ def _med(x):
     return float(np.median(v)) if v.size else None
 
 
-def _monte_carlo(cfg, s1, frames, gain, cond, cp, coeffs, sigma, T_f):
-    """GUM S1 over Phase 2: per node the RMS over the frames and draws of the drawn dCp
-    minus the nominal one (noise drawn), and the relative spread of the gain factor
-    (the gain's inputs drawn)."""
+def _gain_monte_carlo(cfg, gain, cond, cp, coeffs, T_f):
+    """GUM S1 of the gain: the relative spread of ``G 144 / q`` with the gain's inputs
+    drawn (``a .. f``, ``T0``, ``Tinf``, the model temperature, ``q``, ``p_inf``; or the
+    in-situ fit's ``A, B`` from their covariance); None when nothing is stated."""
     from resection.io.upsp_inputs import PaintCalibration
     from selfillum.uncertainty.temperature import RECOVERY
 
     rng = np.random.default_rng(cfg.seed)
     S = int(cfg.samples)
-    vals, scale = s1["values"], s1["values_scale"][()]
-    T, N = vals.shape
-    basis = legendre_basis(frames) if T > 6 else None
-    gf = np.asarray(gain, np.float64) * 144.0 / cond.q
-    rel = np.asarray(sigma, np.float64) / gf  # the intensity's relative noise
-    out = np.full(N, np.nan)
-    nb = max(1, min(N, 2**22 // max(T, 1)))
-    for a in range(0, N, nb):
-        b = min(a + nb, N)
-        I = vals[:, a:b].astype(np.float64) / scale[:, None]
-        I = np.where(I > 0, I, np.nan)
-        d0 = phase2_block(I, frames, gain[a:b], cond.q, basis=basis)[0].astype(np.float64)
-        acc = np.zeros(b - a)
-        cnt = np.zeros(b - a)
-        r = np.nan_to_num(rel[a:b])
-        for _ in range(S):
-            Is = I * (1.0 + r * rng.standard_normal(I.shape))
-            ds = phase2_block(Is, frames, gain[a:b], cond.q, basis=basis)[0]
-            e = ds - d0
-            fin = np.isfinite(e)
-            acc += np.where(fin, e * e, 0.0).sum(axis=0)
-            cnt += fin.sum(axis=0)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            out[a:b] = np.sqrt(acc / cnt)
     urel = None
     from selfillum.uncertainty.stated import Stated
 
@@ -172,7 +244,7 @@ def _monte_carlo(cfg, s1, frames, gain, cond, cp, coeffs, sigma, T_f):
             q = cond.q + (st.q or 0.0) * rng.standard_normal()
             pinf = cond.p_inf + (st.p_inf or 0.0) * rng.standard_normal()
             ratios.append((A * law.p_ref / B + cp * q + pinf) / q / g0 - 1.0)
-        return out, np.std(np.asarray(ratios), axis=0, ddof=1)
+        return np.std(np.asarray(ratios), axis=0, ddof=1)
     uc = st.gain_coefficients()
     if coeffs is not None and (uc is not None or st.t0 is not None or st.tinf is not None
                                or st.temperature is not None or st.q is not None
@@ -192,4 +264,4 @@ def _monte_carlo(cfg, s1, frames, gain, cond, cp, coeffs, sigma, T_f):
             g = PaintCalibration(*c).gain(T_f + dT, cp * q + pinf) / q
             ratios.append(g / g0 - 1.0)
         urel = np.std(np.asarray(ratios), axis=0, ddof=1)
-    return out, urel
+    return urel

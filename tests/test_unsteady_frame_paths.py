@@ -1,0 +1,159 @@
+"""The fast way's per-frame shortcuts, each against the plain computation it replaces.
+
+* pixels warped in from beyond the frame's edge (NaN) leave their faces: the sparse
+  products rescale only the faces they touch (:meth:`FrameOperator._camera_faces`), checked
+  against the dense weighted mean over each face's remaining pixels, with and without
+  uPSP's polynomial patch (a spot whose ring lost a pixel leaves as a whole);
+* faces lost in a frame leave their nodes: :func:`phase1._fast_nodes` rescales only the
+  nodes around them, checked against :func:`phase1._to_nodes` (the area-weighted mean of
+  the finite faces around each node, the full way's);
+* :class:`FramePrefetch` makes frames in order, one ahead, and gives a frame's error
+  with that frame;
+* a picture drawn into a :func:`resection.surface.plots.prepare_view` made apart equals
+  the one drawn from scratch.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import trimesh
+
+from selfillum.unsteady.fastmap import FrameOperator
+from selfillum.unsteady.phase1 import _face_to_vertex, _fast_nodes, _to_nodes
+from selfillum.unsteady.prefetch import FramePrefetch
+
+
+def _operator(A, patch=None, seen=None) -> FrameOperator:
+    op = object.__new__(FrameOperator)  # the products alone, without a cast
+    op.A, op.patch, op._shares, op._nodes = [sp.csr_matrix(A)], [patch], {}, None
+    op.seen = np.ones(A.shape[0], bool) if seen is None else seen
+    return op
+
+
+def _dense_faces(A, x, bad, A2=None, Cu=None, Aw=None, nP=1):
+    """Each face's value from its pixels left (and its spots whose rings are whole),
+    scaled to the face's whole weight; NaN for a face left with none."""
+    A = np.asarray(A)
+    good = ~bad
+    share = A.sum(axis=1)
+    num = A[:, good] @ x[good]
+    kept = A[:, good].sum(axis=1)
+    if A2 is not None:
+        Cu, A2, Aw = np.asarray(Cu), np.asarray(A2), np.asarray(Aw)
+        share = share + Aw.sum(axis=1)
+        m = Aw.shape[1]
+        ring_ok = ~np.array([(Cu[s * nP:(s + 1) * nP][:, bad] != 0).any() for s in range(m)])
+        coef = (Cu[:, good] @ x[good]).reshape(m, nP)
+        num = num + A2 @ (coef * ring_ok[:, None]).ravel()
+        kept = kept + Aw[:, ring_ok].sum(axis=1)
+    out = np.zeros(A.shape[0])
+    has = share > 0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out[has] = np.where(kept[has] > 0, num[has] * share[has] / kept[has], np.nan)
+    return out
+
+
+@pytest.mark.parametrize("with_patch", [False, True])
+def test_pixels_off_the_frame_leave_only_their_faces(with_patch):
+    rng = np.random.default_rng(3)
+    nf, npx, m, nP = 60, 400, 4, 3
+    face = rng.integers(0, nf - 5, npx)  # the last 5 faces have no pixel
+    A = sp.csr_matrix((rng.uniform(0.1, 1.0, npx), (face, np.arange(npx))), shape=(nf, npx))
+    patch, dense = None, {}
+    if with_patch:
+        ring = [rng.choice(npx, 6, replace=False) for _ in range(m)]
+        Cu = np.zeros((m * nP, npx))
+        for s, r in enumerate(ring):
+            Cu[s * nP:(s + 1) * nP, r] = rng.normal(size=(nP, r.size))
+        A2 = sp.random(nf, m * nP, density=0.2, random_state=4).toarray()
+        Aw = np.abs(sp.random(nf, m, density=0.3, random_state=5).toarray())
+        patch = (sp.csr_matrix(A2), sp.csr_matrix(Cu), None, sp.csr_matrix(Aw))
+        dense = dict(A2=A2, Cu=Cu, Aw=Aw, nP=nP)
+    op = _operator(A, patch)
+    x = rng.uniform(100.0, 4000.0, npx)
+    for n_bad in (0, 1, 25):
+        bad = np.zeros(npx, bool)
+        bad[rng.choice(npx, n_bad, replace=False)] = True
+        # every pixel of face 0 off the frame: that face is not seen
+        if n_bad == 25:
+            bad[face == 0] = True
+        got = op._camera_faces(0, np.where(bad, np.nan, x), bad)
+        want = _dense_faces(A.toarray(), x, bad, **dense)
+        np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
+        np.testing.assert_allclose(got[~np.isnan(want)], want[~np.isnan(want)], rtol=1e-12)
+        if n_bad == 25 and not with_patch:  # (a patched spot may still light it)
+            assert np.isnan(got[0])
+
+
+class _Grid:
+    def __init__(self, n_vertices, order):
+        self.node_vertex = order
+
+    def to_nodes(self, v):
+        return np.asarray(v)[..., self.node_vertex]
+
+
+def test_faces_lost_in_a_frame_leave_only_their_nodes():
+    mesh = trimesh.creation.icosphere(subdivisions=2)
+    nf, nv = len(mesh.faces), len(mesh.vertices)
+    rng = np.random.default_rng(7)
+    W = _face_to_vertex(mesh)
+    grid = _Grid(nv, rng.permutation(nv))  # grid nodes in another order than vertices
+    seen_ref = rng.random(nf) < 0.7
+    op = _operator(sp.csr_matrix((nf, 1)), seen=seen_ref)
+    B = rng.uniform(1.0, 2.0, nf)
+    E = B - rng.uniform(0.0, 0.1, nf)
+    for lost in (0, 1, 40):
+        seen = seen_ref.copy()
+        seen[rng.choice(np.flatnonzero(seen_ref), lost, replace=False)] = False
+        Ei, Bi = np.where(seen, E, np.nan), np.where(seen, B, np.nan)
+        got = _fast_nodes(op, W, grid, Ei, Bi, seen)
+        want = _to_nodes(W, np.vstack([Ei, Bi]), grid)
+        np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
+        np.testing.assert_allclose(got[~np.isnan(want)], want[~np.isnan(want)], rtol=1e-6)
+
+
+def test_prefetch_makes_frames_in_order_one_ahead_and_keeps_errors_with_their_frame():
+    made = []
+
+    def make(k):
+        made.append(k)
+        if k == 4:
+            raise ValueError("frame 4 damaged")
+        return k * 10
+
+    with FramePrefetch(make, [1, 2, 3, 4, 5]) as pre:
+        assert pre.get(1) == 10
+        pre.settle()
+        assert made == [1, 2]  # frame 2 made ahead
+        assert pre.get(2) == 20 and pre.get(3) == 30
+        with pytest.raises(ValueError, match="frame 4"):
+            pre.get(4)
+        assert pre.get(5) == 50
+    assert made == [1, 2, 3, 4, 5]  # each frame made once, in order
+    with FramePrefetch(make, [7, 8]) as pre:  # a frame asked out of order: made then
+        assert pre.get(8) == 80
+
+
+def test_a_prepared_view_draws_the_same_picture():
+    from resection.surface.plots import plot_surface, prepare_view
+
+    mesh = trimesh.creation.box(extents=(1.0, 2.0, 0.5)).subdivide().subdivide()
+    fv = np.linspace(0.0, 1.0, len(mesh.faces))
+    view = prepare_view(mesh, outline=True)
+    assert view.outline_uv is not None and len(view.outline_uv) > 0
+
+    def pixels(fig):
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+        canvas = FigureCanvasAgg(fig)
+        canvas.draw()
+        return np.asarray(canvas.buffer_rgba()).copy()
+
+    a = pixels(plot_surface(mesh, fv, outline=True))
+    b = pixels(plot_surface(mesh, fv, outline=True, view=view))
+    np.testing.assert_array_equal(a, b)
+    with pytest.raises(Exception, match="faces"):
+        plot_surface(trimesh.creation.icosphere(), np.zeros(80), view=view)
