@@ -129,7 +129,7 @@ def _tangent_frames(mesh) -> tuple[np.ndarray, np.ndarray]:
 
 
 def mapping_operator(mesh, delta, Q, use=None) -> sp.csr_matrix:
-    """(V, V) sparse ``D``: ``(D s)_n = delta_n . grad s + Q_n : H / 2`` with the gradient
+    """(V, V) sparse ``D``: ``(D s)_n = delta_n · grad s + Q_n : H / 2`` with the gradient
     and Hessian of ``s`` from a cubic in vertex ``n``'s tangent plane, least squares
     over its two rings of neighbours among the ``use`` vertices (default all: those with a
     value); rows of vertices without moments or outside ``use`` are empty."""
