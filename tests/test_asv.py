@@ -32,5 +32,10 @@ def test_asv_check_finds_the_suite():
                 names = [n for n in dir(cls) if n.startswith(("time_", "track_"))]
                 assert sum(n.startswith("track_ratio") for n in names) == 1, cls
                 assert sum(n.startswith("time_") for n in names) >= 2, cls
+                # what it measures, on what, and the unit of every tracked value
+                assert cls.__doc__ and len(cls.__doc__.split()) > 10, cls
+                for n in names:
+                    if n.startswith("track_"):
+                        assert getattr(getattr(cls, n), "unit", ""), f"{cls.__name__}.{n}"
     finally:
         sys.path.remove(str(ROOT))

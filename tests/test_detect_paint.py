@@ -4,7 +4,8 @@ reference, targets inside or beside saturated glare, and on the frames of
 at SNR 20 against the generator's truth, beside OpenCV's blob detector.
 
 The paint-frame seeds here (200-207) are neither those used to develop the detector (0-15)
-nor those of ``bench/bench_detect_paint.py`` (100-111).
+nor that of the asv benchmark ``bench_markers.DetectPaintVsOpenCV`` (100; the former
+bench script used 100-111).
 """
 
 from __future__ import annotations
@@ -119,7 +120,7 @@ def test_target_in_saturated_glare_is_reported_saturated_not_missed():
 
 # ----------------------------------------------------------------------------- paint frames
 def _opencv(img, d):
-    """OpenCV's blob detector set as in bench/bench_detect_paint.py."""
+    """OpenCV's blob detector set as in the asv benchmark ``bench_markers.DetectPaintVsOpenCV``."""
     cv2 = pytest.importorskip("cv2")
     p = cv2.SimpleBlobDetector_Params()
     p.filterByColor, p.blobColor = True, 0

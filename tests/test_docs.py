@@ -77,6 +77,9 @@ def _check_site(out: Path, slow: bool) -> None:
     tutorial = (out / "tutorial_built" / "tutorial_unsteady.html").read_text()
     assert len(set(re.findall(r"sphx_glr_tutorial_unsteady_\d+\.png", tutorial))) >= 7
     assert "Traceback" not in tutorial
+    # the ParaView step: VTK's vtkXdmfReader (ParaView's "Xdmf Reader") read run.xdmf and
+    # found the same dCp as h5py in run.h5
+    assert "dCp as in run.h5: True" in tutorial
 
 
 def test_site_builds_warning_free_and_runs_the_gallery(tmp_path):

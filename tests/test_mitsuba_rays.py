@@ -76,7 +76,8 @@ def test_variant_is_restored_and_bad_variants_refused():
 def test_view_factors_traced_by_mitsuba_match_the_closed_form_and_embree():
     """Perpendicular unit squares sharing an edge (Howell C-14: F = 0.20004378): the plate
     total of F traced by Mitsuba is within the RQMC noise of the closed form (tolerance
-    4e-3, twice the rms error over seeds measured at K = 256 in bench_viewfactors [5]),
+    4e-3, twice the rms error over seeds measured at K = 256 in the former
+    bench_viewfactors.py [5], docs/benchmark_history.md),
     and F equals Embree's on the same rays but for the few rays that graze an edge:
     the plate totals within 1e-4."""
     from selfillum import view_factors

@@ -590,7 +590,7 @@ def test_frames_from_one_multi_frame_file(run60, tmp_path):
 
 
 def test_memory_does_not_grow_with_the_frames(run60, tmp_path):
-    """Issue 13 item 4, the fast check (bench/bench_track_memory.py follows the RSS over
+    """Issue 13 item 4, the fast check (the former bench/bench_track_memory.py follows the RSS over
     10,000 frames): while the frames are computed, the memory held grows by well under
     1 kB a frame (a finished frame is kept as its file and two numbers: about 0.2 kB;
     keeping each frame's whole record, as before, holds about 12 kB a frame here)."""

@@ -4,7 +4,9 @@
 # - on Debian as root: libllvm19, which Mitsuba's CPU `llvm_ad_rgb` variant needs
 #   (without it the renders fall back to the slower `scalar_rgb` variant);
 # - on Debian as root: chromium and chromium-driver, which the browser test of the linking
-#   page (tests/test_link_page.py, selenium) drives headless.
+#   page (tests/test_link_page.py, selenium) drives headless;
+# - on Debian as root: Mesa's EGL, which VTK's offscreen rendering uses without a display
+#   (the tutorial's ParaView step draws the run's XDMF through VTK).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
@@ -19,6 +21,8 @@ if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1; then
         "ldconfig -p | grep 'libLLVM-19\\|libLLVM.so.19'" libllvm19 || true
     apt_install_checked "chromium and chromium-driver; the browser test will fail" \
         "command -v chromium && command -v chromedriver" chromium chromium-driver || true
+    apt_install_checked "Mesa's EGL; VTK's offscreen pictures (the tutorial) will fail" \
+        "ldconfig -p | grep 'libEGL_mesa.so.0'" libegl1 libegl-mesa0 libgl1-mesa-dri || true
 fi
 stamp=.venv/.installed-$(sha1sum pyproject.toml | cut -c1-12)
 if [ ! -f "$stamp" ]; then

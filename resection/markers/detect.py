@@ -24,7 +24,8 @@ Markers are disks 3 to 10 pixels across, darker or brighter than the model aroun
    matters afterwards with :func:`refine_markers`).
 
 Cost: on a 1 Mpx frame with 400 markers, about the time of OpenCV's blob detector (see
-``bench/bench_detect.py``); a ``roi`` reads and searches only its part of the frame.
+the asv benchmark ``bench_markers.DetectVsOpenCV``); a ``roi`` reads and searches only
+its part of the frame.
 
 NaN, infinite and saturated pixels (and a user mask) are masked: excluded from the noise
 estimate, the screen and the fit, counted in :attr:`Candidates.n_masked`. Saturated pixels
@@ -67,7 +68,7 @@ CANDIDATE_FIELDS = ("u", "v", "diameter", "depth", "merit", "snr")
 #: Levenberg-Marquardt iterations of a candidate's disk fit in detection. A marker converges
 #: in 2 or 3 model evaluations from its start; a speckle grain or noise blob does not
 #: converge and would use them all (30 took 1.75 times as long on speckled paint, for the
-#: same markers: bench/bench_detect_paint.py).
+#: same markers: the asv benchmark ``bench_markers.DetectPaintVsOpenCV``).
 FIT_ITERATIONS = 10
 
 

@@ -13,7 +13,8 @@ fill pass over the rows taken, every block at once) and the difference one pass:
 The passes run on one thread. On numba's threads, the solve's sparse passes and products
 (0.2-20 ms each on the 610,704-face grid) were slower on a busy machine: a parallel
 launch waits for every thread of the team, and a thread whose core another process holds
-waits for its turn (``bench/bench_launch.py``: 0.67-0.86x SciPy's one-thread product
+waits for its turn (asv's ``bench_transport.SparseProductThreadsVsScipy``, formerly
+``bench/bench_launch.py``: 0.67-0.86x SciPy's one-thread product
 with no process beside, 1.1-3.2x with 2 CPU-bound processes beside, on 2 cores).
 """
 

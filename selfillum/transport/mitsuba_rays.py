@@ -6,7 +6,8 @@ The view factors' default tracer is Embree through ``embreex`` (:class:`RayScene
 (which face each ray hits first) through Mitsuba's ``Scene.ray_intersect_preliminary``: with the
 ``cuda_ad_rgb`` variant the rays are traced by OptiX on the GPU, with ``llvm_ad_rgb`` by
 Mitsuba's own Embree on every CPU core. It takes the same float32 rays in the same centred
-frame, so the two tracers can be compared ray for ray (``bench/bench_viewfactors.py``,
+frame, so the two tracers can be compared ray for ray (the former
+``bench/bench_viewfactors.py``,
 section [7]) and :func:`selfillum.view_factors` can use either (``tracer="mitsuba"``).
 
 Mitsuba's variant is process-wide state: each call sets the scene's variant and restores the

@@ -167,7 +167,7 @@ def rqmc_points(k: int, face_ids: np.ndarray, seed: int, dims: int = 4) -> np.nd
     ``[0, 1)^dims`` (to 2**-24; ``dims`` at most 5), so every estimate built on these points
     is unbiased,
     while the error of one face's points falls faster than ``1/sqrt(k)`` (measured
-    against Howell's closed forms in ``bench/bench_viewfactors.py``).
+    against Howell's closed forms in the former ``bench/bench_viewfactors.py``).
     """
     rbase = _reversed_base(_sobol_base(k, dims))
     keys = digital_shifts(seed, face_ids, dims)

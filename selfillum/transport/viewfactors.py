@@ -10,7 +10,7 @@ first hit is the painted side of face ``j``:
 The points and directions are randomised quasi-Monte Carlo (a Sobol net with a random
 digital shift per face): the estimator is unbiased, and its error falls faster than the
 ``1/sqrt(K)`` of independent rays (about ``K^-3/4``, measured against Howell's closed forms
-in ``bench/bench_viewfactors.py``). ``F`` is a ``scipy.sparse`` CSR matrix with
+in the former ``bench/bench_viewfactors.py``). ``F`` is a ``scipy.sparse`` CSR matrix with
 at most ``K`` non-zeros a row, so memory grows as ``N K``, not ``N^2``.
 """
 
