@@ -305,6 +305,16 @@ def _stages(cfg, todo, ff_jobs, rows, out, submit, gather) -> None:
     collect(hs, go, "run")
 
 
+def _on_worker(fn, *a):
+    """``fn(*a)`` on a Dask worker, glibc told first to keep freed arrays for reuse
+    (:func:`resection.memory.keep_freed_memory`: the nanny's ``MALLOC_TRIM_THRESHOLD_``
+    made the worker fault every array's pages in anew)."""
+    from resection.memory import keep_freed_memory
+
+    keep_freed_memory()
+    return fn(*a)
+
+
 def _local():
     def submit(fn, *a):
         try:
@@ -323,7 +333,7 @@ def _dask(client):
     from dask.distributed import as_completed
 
     def submit(fn, *a):
-        return client.submit(fn, *a, pure=False)
+        return client.submit(_on_worker, fn, *a, pure=False)
 
     def gather(futs):
         where = {f.key: i for i, f in enumerate(futs)}

@@ -109,6 +109,9 @@ def _map_block(job: Phase1Job, F, a: int, b: int, poses=None):
     camera a :class:`PoseArrays` of every frame (a moving model's references planned
     over them all)."""
     from resection.io.video import open_frames
+    from resection.memory import keep_freed_memory
+
+    keep_freed_memory()  # the nanny's MALLOC_TRIM_THRESHOLD_ undone (page faults)
     from selfillum.unsteady.phase1 import CameraRun, SelfIllumination, map_run
     from selfillum.unsteady.work import BlockBuffer
 
@@ -164,6 +167,10 @@ def _phase2_block(path: str, a: int, b: int, times, gain, q: float, with_raw: bo
                   fs: float | None, nperseg: int | None):
     """dCp of nodes ``a .. b`` from the work file, its statistics and spectra."""
     import h5py
+
+    from resection.memory import keep_freed_memory
+
+    keep_freed_memory()  # the nanny's MALLOC_TRIM_THRESHOLD_ undone (page faults)
 
     from selfillum.unsteady.phase2 import phase2_block
     from selfillum.unsteady.spectra import welch_block
