@@ -178,7 +178,10 @@ def test_connections_beyond_the_limit_are_refused_not_queued(scene, tmp_path):
     port, tok = server.server_address[1], server.token
     held = [socket.create_connection(("127.0.0.1", port)) for _ in range(MAX_CONNECTIONS)]
     try:
-        time.sleep(0.3)  # every held connection taken by its thread
+        deadline = time.monotonic() + 20.0
+        while server._slots._value > 0 and time.monotonic() < deadline:
+            time.sleep(0.02)  # every held connection taken by its thread (a loaded machine)
+        assert server._slots._value == 0
         t0 = time.monotonic()
         assert _raw(port, b"", wait=3.0).startswith(b"HTTP/1.1 503")
         assert time.monotonic() - t0 < 2.0

@@ -219,6 +219,9 @@ class LinkServer(ThreadingHTTPServer):
     """
 
     daemon_threads = True
+    #: connections the system queues before they are accepted (socketserver's default 5
+    #: dropped some of a burst on a loaded machine: each is accepted, then served or 503)
+    request_queue_size = 2 * MAX_CONNECTIONS
     allow_reuse_address = False
 
     def __init__(self, session: LinkSession, port: int = 0, *, token: str | None = None,
