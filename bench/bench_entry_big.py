@@ -27,9 +27,9 @@ the order alternating (A B, B A, ...), every command whole under ``/usr/bin/time
 and ``nice -n 10``; the ratio A / B per round is printed with the machine's load. The
 machine is shared: read the ratios, not the seconds.
 
-    python bench/bench_entry_big.py --make /work/scratch/entry-big \\
-        --source /work/scratch/big609 --datapoints 4 --cameras 2 --frames 500
-    python bench/bench_entry_big.py --run /work/scratch/entry-big --rounds 2
+    python bench/bench_entry_big.py --make ENTRY_DIR \\
+        --source RUN_DIR --datapoints 4 --cameras 2 --frames 500
+    python bench/bench_entry_big.py --run ENTRY_DIR --rounds 2
 """
 
 from __future__ import annotations
