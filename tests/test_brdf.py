@@ -86,6 +86,7 @@ def test_ggx_albedo_equals_mitsuba_sampling():
     assert PAINT.albedo(0.5) == pytest.approx(0.6 * 0.5 + 0.4 * PAINT.specular_albedo())
 
 
+@pytest.mark.slow  # 11 s
 def test_bad_paint_and_inputs():
     with pytest.raises(InputError, match="specular_weight"):
         GlossyPaint(1.0, 0.3)

@@ -189,6 +189,7 @@ def _accuracy(seeds):
     return np.concatenate(ours), np.concatenate(cv)
 
 
+@pytest.mark.slow  # 7 s; speckled paint's test stays in the default run
 def test_accuracy_on_plain_paint_snr20():
     # two frames, 38 targets: the median error's sampling spread is about 12 %, so the
     # issue's 0.05 px is asserted on eight frames (below); here 0.049 px, OpenCV 0.077 px

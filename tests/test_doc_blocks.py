@@ -102,8 +102,10 @@ def _fence_languages(text: str) -> list[tuple[int, str]]:
 #: Pages whose blocks run a whole command on a generated run (8-13 s each on 2 cores):
 #: with the slow tests, so that CI's default run stays under 10 minutes; the commands
 #: themselves are tested in their own files (test_entry*, test_thermal*,
-#: test_uncertainty*)
-SLOW_PAGES = {"docs/entry.md", "docs/thermal.md", "docs/uncertainty.md"}
+#: test_uncertainty*, test_unsteady*, test_cli_*, test_merge*, test_link*)
+SLOW_PAGES = {"docs/entry.md", "docs/thermal.md", "docs/uncertainty.md",
+              "docs/unsteady.md", "docs/mapping.md", "docs/merge_and_views.md",
+              "docs/linking.md"}
 
 
 @pytest.mark.parametrize("page", [

@@ -57,6 +57,7 @@ def _truth_candidates(session, scene_):
     return {k: int(j[i]) for i, k in enumerate(scene_.marker_ids) if d[i] < 1.0}
 
 
+@pytest.mark.slow  # 9 s; the page's plan test in Chromium stays in the default run
 def test_link_page_in_chromium(scene, tmp_path):
     from selenium.common.exceptions import StaleElementReferenceException
     from selenium.webdriver.common.action_chains import ActionChains

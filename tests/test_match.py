@@ -43,6 +43,7 @@ def _frame(rng, ids, X, *, rot_sigma=0.004, t_sigma=0.004, missing=0.3, spurious
     return Q[perm], truth[perm], cam
 
 
+@pytest.mark.slow  # 8-11 s
 def test_200_frames_from_approximate_camera_all_correct():
     rng = np.random.default_rng(1)
     ids, X = _model(rng)

@@ -50,6 +50,7 @@ def test_fisher_bound_of_rendered_disks_equals_the_analytic_bound():
     assert np.all(known[:, 0, 0] <= cov[:, 0, 0] * (1 + 1e-12))
 
 
+@pytest.mark.slow  # 8 s
 def test_paint_frame_snr_is_the_median_targets_drawn_depth_over_the_noise():
     """``paint_frame``'s ``snr``: the median drawn depth of the targets it returns over the
     noise's standard deviation; the noise of the 8-bit frame about the noise-free render

@@ -489,6 +489,7 @@ def test_fast_phase1_agrees_with_the_full_per_frame_map(monkeypatch):
 # ---------------------------------------------------------------------------- Dask
 
 
+@pytest.mark.slow  # 11-13 s; Dask's parity is also tested by test_sequence and test_entry_fast
 def test_dask_two_workers_give_the_one_process_dcp(run, capsys):
     """Phase 1 over blocks of frames and Phase 2 over blocks of nodes on a local Dask
     cluster: 1 worker and 2 workers write the dCp, statistics and spectra of the run in one

@@ -448,6 +448,7 @@ def test_sobol_base_is_scipys_sobol_sequence(dims):
         _sobol_base(16, 6)
 
 
+@pytest.mark.slow  # 10 s
 def test_view_factors_from_two_threads_on_numbas_workqueue_layer(tmp_path):
     """numba's fallback threading layer (workqueue: no libgomp, no TBB) aborts the process
     when two Python threads launch parallel kernels at once; view_factors from two threads
