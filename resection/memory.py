@@ -84,16 +84,26 @@ def release_freed_memory() -> bool:
     first frame (1.1 M faces, 1 Mpx): 1,029 MB resident before, 816 MB after.
     """
     import ctypes
+
+    trim = _libc_call("malloc_trim", [ctypes.c_size_t])
+    if trim is None:
+        return False
+    trim(0)
+    return True
+
+
+def _libc_call(name: str, argtypes: list):
+    """The C library's function ``name`` with its argument types, or None where there is
+    no such call (not glibc)."""
+    import ctypes
     import ctypes.util
 
     try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        trim = libc.malloc_trim
+        fn = getattr(ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6"), name)
     except (OSError, AttributeError):
-        return False
-    trim.argtypes = [ctypes.c_size_t]
-    trim(0)
-    return True
+        return None
+    fn.argtypes = argtypes
+    return fn
 
 
 #: glibc's ``mallopt`` parameters (``malloc.h``).
@@ -117,14 +127,10 @@ def keep_freed_memory(mmap_threshold: int = 32 * 2**20,
     started without the variable).
     """
     import ctypes
-    import ctypes.util
 
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        mallopt = libc.mallopt
-    except (OSError, AttributeError):
+    mallopt = _libc_call("mallopt", [ctypes.c_int, ctypes.c_int])
+    if mallopt is None:
         return False
-    mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
     ok = mallopt(_M_MMAP_THRESHOLD, int(mmap_threshold)) == 1
     ok &= mallopt(_M_TRIM_THRESHOLD, int(trim_threshold)) == 1
     return bool(ok)
