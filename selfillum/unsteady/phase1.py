@@ -31,7 +31,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
-from scipy import ndimage
 
 from resection.errors import InputError
 from resection.memory import release_freed_memory
@@ -158,14 +157,10 @@ class SelfIllumination:
 
 def _gaussian(img: np.ndarray, size: int) -> np.ndarray:
     """NaN-aware Gaussian low-pass of a ``size`` x ``size`` kernel (OpenCV's sigma for a
-    kernel size: ``0.3 ((size - 1) / 2 - 1) + 0.8``)."""
-    sigma = 0.3 * ((size - 1) * 0.5 - 1) + 0.8
-    fin = np.isfinite(img)
-    r = (size - 1) // 2
-    num = ndimage.gaussian_filter(np.where(fin, img, 0.0), sigma, truncate=r / sigma)
-    den = ndimage.gaussian_filter(fin.astype(np.float64), sigma, truncate=r / sigma)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(fin & (den > 0), num / den, np.nan)
+    kernel size: ``0.3 ((size - 1) / 2 - 1) + 0.8``): :func:`.lowpass.gaussian_lowpass`."""
+    from selfillum.unsteady.lowpass import gaussian_lowpass
+
+    return gaussian_lowpass(img, size)
 
 
 def _face_to_vertex(mesh) -> sp.csr_matrix:
