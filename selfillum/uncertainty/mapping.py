@@ -1,31 +1,33 @@
 """Mapping: the error of a node value from the pixels it averages, for a field that varies
 over the node's support (``/dcp_u_mapping`` of ``selfillum unsteady --uncertainty``).
 
-Model. A node's value is a weighted mean of pixels: each face's pixels averaged, the faces
-around the node averaged with their areas (:mod:`selfillum.unsteady.phase1`). The pixels'
-surface points ``X_p`` with those weights ``w_p`` have, about the node ``x``, a first
-moment ``delta = sum w_p (X_p - x)`` and a second moment ``Q = sum w_p (X_p - x)(X_p -
-x)^T`` (plus each pixel's own footprint: ``side^2 / 12`` per axis, stretched along the view
-by its obliqueness):
-:func:`support_moments`, from frame 0's maps. A field ``s`` smooth over the support then
-reads ``s(x) + delta . grad s + Q : H / 2`` (``H`` its Hessian): a shift of the node by
-``delta`` (pixels that fall unevenly on the faces around it, an oblique view) and a
-smoothing of the field's curvature. Both are errors of the node value against the field at
-the node, proportional to the signal's spatial variation (a convected wave, a shock), at
-the signal's own frequencies: the run's white noise floor does not see them.
+Model. A node's value is a weighted mean of pixels (:mod:`selfillum.unsteady.phase1`:
+each face's pixels averaged, the faces around the node averaged with their areas, the dark
+spots masked or patched). The pixels' surface points ``X_p`` with those weights ``w_p``
+(times the pixel's intensity: its share of the node's intensity) have, about the node
+``x``, a first moment ``delta = sum w_p (X_p - x)`` and a second moment ``Q = sum w_p (X_p
+- x)(X_p - x)^T``, taken through Phase 1 itself
+(:func:`selfillum.unsteady.uncertainty_images.support_moments`). A field ``s`` smooth over
+the support then reads ``s(x) + delta . grad s + Q : H / 2`` (``H`` its Hessian): a shift
+of the node by ``delta`` and a smoothing of the field's curvature. Both are errors of the
+node value against the field at the node, proportional to the signal's spatial variation
+(a convected wave, a shock), at the signal's own frequencies: the run's white noise floor
+does not see them.
 
-The field's gradient and Hessian come from the measured dCp of the frame itself: per node,
-a cubic in the tangent plane fitted by least squares to the node's two rings of
-neighbours (:func:`mapping_operator`: one sparse (V, V) operator ``D``, ``e = D s``).
-The node's mapping error of a frame is ``e``, and ``/dcp_u_mapping`` its RMS over the
-frames (up to :data:`MAX_FRAMES` of them, spread over the run), with the part of the noise
-that ``D`` carries removed (``sum_j D_nj^2 sigma_j^2``, taken as independent between
-nodes): :func:`mapping_u`.
+The field's gradient and Hessian at the node come from the measured dCp of the frame
+itself: a quartic in the node's tangent plane fitted by least squares to its three rings
+of neighbours (:func:`mapping_operator`: one sparse (V, V) operator ``D``, ``e = D s``).
+Each neighbour's value is the field over its own pixels, so it is sampled at their
+centroid ``x_j + delta_j`` and its quadratic terms are spread by their covariance. The
+node's mapping error of a frame is ``e``, and ``/dcp_u_mapping`` its RMS over the frames
+(up to :data:`MAX_FRAMES` of them, spread over the run), with the part of the noise that
+``D`` carries removed (:func:`carried_noise`: the node noises made of their faces'
+independent noises, shared between neighbours): :func:`mapping_u`.
 
-Left out: the curvature of the field within one face beyond the cubic fit, the change
-of the support with the model's motion (frame 0's maps), the dark spots' pixels (patched
-or left out by Phase 1, counted here as seen), and the part of the cubic fit's own error
-that is not noise.
+Left out: the field's fifth and higher derivatives over the rings, the support's third and
+higher moments (the cubic and quartic terms taken at the centroid), the change of the
+support with the model's motion (frame 0's maps), and a variation of the faces' noise
+around a node.
 """
 
 from __future__ import annotations

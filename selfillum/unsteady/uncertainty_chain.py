@@ -10,7 +10,8 @@ drawn frames then go through Phase 1 exactly as the run's own
 (:func:`selfillum.unsteady.phase1.map_run` with the run's options): the registration
 onto frame 0 fitted again on the noisy frame (``first-frame``), or the frame's tracked
 pose drawn from its covariance (``track``, with ``--u marker=`` and the targets: the
-resection's least squares, :func:`selfillum.uncertainty.registration.pose_covariance`);
+resection's least squares, :func:`selfillum.uncertainty.registration.pose_covariance`; in
+frames of their own, the pixels held: each source alone);
 the dark spots patched or left out; the cameras merged with frame 0's gains; the
 self-illumination removed with the run's form factors, its hidden faces continued. The
 drawn node intensity ``I + dI`` then enters Phase 2 linearised (``dCp = (I' - fit) G 144 /

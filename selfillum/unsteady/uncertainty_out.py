@@ -4,11 +4,15 @@ dCp (:func:`write_uncertainty`; the models: :mod:`selfillum.uncertainty.unsteady
 Written into the output file::
 
     /dcp_u                      (N,) standard uncertainty of one frame's dCp (random part):
-                                the root sum of squares of the next two
+                                the root sum of squares of the next three
     /dcp_u_noise                (N,) its noise part (the run's white floor, the camera's
                                 noise model stated or measured on wind-off frames)
     /dcp_u_mapping              (N,) its mapping part: a field varying over the pixels a node
                                 averages (:mod:`selfillum.uncertainty.mapping`)
+    /dcp_u_registration         (N,) its tracked poses' part (``--registration track`` with
+                                ``--u marker=``: each frame's pose covariance times the
+                                node's mapped image gradient,
+                                :mod:`selfillum.unsteady.uncertainty_images`)
     /dcp_u_gain                 (N,) relative standard uncertainty of the gain (systematic)
     /stats/dcp_rms_signal       (N,) RMS of dCp with the noise's variance removed
     /stats/dcp_rms_signal_u     (N,) its standard uncertainty (random part)
