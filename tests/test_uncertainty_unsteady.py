@@ -1,9 +1,8 @@
 """``selfillum unsteady --uncertainty``: the per-node fields, checked against the errors of
 a synthetic run of known dCp (scenes/unsteady_run.py: small signals, so that the errors
 the budget does not hold, at the signals' own frequencies, stay below the noise; a model
-that does not move, so that the per-frame registration, not in the budget either, adds
-nothing) and against the
-closed forms of the gain's partial derivatives."""
+that does not move, except in the tracked poses' test), against the Monte Carlo through
+Phase 1 and against the closed forms of the gain's partial derivatives."""
 
 from __future__ import annotations
 
