@@ -1,9 +1,8 @@
 """``selfillum unsteady --uncertainty``: the per-node fields, checked against the errors of
 a synthetic run of known dCp (scenes/unsteady_run.py: small signals, so that the errors
 the budget does not hold, at the signals' own frequencies, stay below the noise; a model
-that does not move, so that the per-frame registration, not in the budget either, adds
-nothing) and against the
-closed forms of the gain's partial derivatives."""
+that does not move, except in the tracked poses' test), against the Monte Carlo through
+Phase 1 and against the closed forms of the gain's partial derivatives."""
 
 from __future__ import annotations
 
@@ -250,9 +249,9 @@ def test_unsteady_mapping_coverage_spatially_varying(tmp_path, capsys):
     from the block, |dCp - truth at the node| against dcp_u. The noise floor alone covers
     about 60 % at k = 2: the node value averages pixels spread over the faces around it
     (their centroid off the node, their spread), so a varying field reads shifted and
-    smoothed. With the mapping's part (dcp_u_mapping) k = 2 covers 91 % (measured 91.4 %;
-    asserted >= 88 %), and dcp_u_mapping follows the nodes' actual mapping error
-    (correlation 0.79 measured, > 0.7 asserted; median ratio within 0.8-1.4)."""
+    smoothed. With the mapping's part (dcp_u_mapping) k = 2 covers 93-97 % (measured
+    95.4 %), and dcp_u_mapping follows the nodes' actual mapping error (correlation 0.77
+    measured, > 0.7 asserted; median ratio 1.06, 10-90 % of the nodes 0.66-1.33)."""
     from scenes.unsteady_run import make_unsteady_run
 
     run = make_unsteady_run(tmp_path, frames=200, noise=0.01, vibration_deg=0.0,
@@ -272,10 +271,12 @@ def test_unsteady_mapping_coverage_spatially_varying(tmp_path, capsys):
     E = e[:, inner]
     k2 = np.mean(np.abs(E) / u[inner] <= 2)
     assert np.mean(np.abs(E) / un[inner] <= 2) < 0.75  # the noise alone: far too small
-    assert 0.88 <= k2 <= 0.98, k2
+    assert 0.93 <= k2 <= 0.97, k2
     actual = np.sqrt(np.maximum(np.mean(E**2, axis=0) - un[inner] ** 2, 0.0))
     assert np.corrcoef(actual, um[inner])[0, 1] > 0.7, np.corrcoef(actual, um[inner])
-    assert 0.8 < np.median(actual / um[inner]) < 1.4, np.median(actual / um[inner])
+    r = actual / um[inner]
+    assert 0.9 < np.median(r) < 1.2, np.median(r)
+    assert 0.5 < np.percentile(r, 10) and np.percentile(r, 90) < 1.5, np.percentile(r, [10, 90])
 
 
 def test_unsteady_monte_carlo_through_phase1(small_run, capsys):
@@ -352,31 +353,40 @@ def test_unsteady_surface_files(small_run, tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_unsteady_monte_carlo_draws_tracked_poses(tmp_path, capsys):
-    """``--registration track --uncertainty mc --u marker=..px``: each drawn frame's pose is
-    drawn from the markers' least-squares covariance and carried through the mapping. With
-    0.05 px the poses add nothing visible to the pixel noise (MC / linear floor 1.00
-    measured; within 15 %); with 0.5 px the registration's error (pixel displacement times
-    the image's gradient) raises the frames' noise (1.50 measured; > 1.2)."""
+def test_unsteady_registration_term_against_monte_carlo(tmp_path, capsys):
+    """``--registration track --u marker=0.5px``: the linear method's per-frame pose term
+    (``/dcp_u_registration``: the markers' least-squares pose covariance times each node's
+    mapped image gradient) against the Monte Carlo drawing each frame's pose from that
+    covariance with the pixels held (the source alone): the median ratio over the nodes
+    within 15 % (measured 1.07; 10-90 % of the nodes 0.82-2.0, 80 draws), and the pixels'
+    part of the Monte Carlo still the linear floor (within 15 %; 1.01); the combined
+    dcp_u holds the term. Without ``--u marker=`` the
+    source is named as missing."""
     from scenes.unsteady_run import make_unsteady_run
 
     run = make_unsteady_run(tmp_path, faces=800, frames=40, noise=0.01, amplitude=0.1)
     args = ["--registration", "track", "--no-plots"]
-    assert _cli(run, tmp_path / "lin.h5", "--uncertainty", *args) == 0, \
+    assert _cli(run, tmp_path / "none.h5", "--uncertainty", *args) == 0, \
         capsys.readouterr().err
+    with h5py.File(tmp_path / "none.h5") as f:
+        assert "dcp_u_registration" not in f
+        info = json.loads(f.attrs["uncertainty"])
+    assert info["sources"]["registration"].startswith("missing")
+    m = ["--u", "marker=0.5px"]
+    assert _cli(run, tmp_path / "lin.h5", "--uncertainty", *m, *args) == 0, \
+        capsys.readouterr().err
+    assert _cli(run, tmp_path / "mc.h5", "--uncertainty", "mc", "--samples", "10", *m,
+                *args) == 0, capsys.readouterr().err
     with h5py.File(tmp_path / "lin.h5") as f:
-        ul = f["dcp_u_noise"][()]
-    ratio = {}
-    for m in ("0.05", "0.5"):
-        out = tmp_path / f"mc{m}.h5"
-        assert _cli(run, out, "--uncertainty", "mc", "--samples", "10", "--u",
-                    f"marker={m}px", *args) == 0, capsys.readouterr().err
-        with h5py.File(out) as f:
-            um = f["dcp_u_noise"][()]
-            assert json.loads(f.attrs["uncertainty"])["chain"]["poses"] == \
-                "drawn from the covariance"
-        ok = np.isfinite(ul) & np.isfinite(um) & (ul > 0)
-        assert ok.sum() > 100
-        ratio[m] = float(np.median(um[ok] / ul[ok]))
-    assert ratio["0.05"] == pytest.approx(1.0, abs=0.15)
-    assert ratio["0.5"] > 1.2
+        ul, rl, ua = (f[k][()] for k in ("dcp_u_noise", "dcp_u_registration", "dcp_u"))
+        um_ = f["dcp_u_mapping"][()]
+    with h5py.File(tmp_path / "mc.h5") as f:
+        un, rm = f["dcp_u_noise"][()], f["dcp_u_registration"][()]
+        assert json.loads(f.attrs["uncertainty"])["chain"]["poses"] == \
+            "drawn from the covariance"
+    ok = np.isfinite(rl) & np.isfinite(rm) & (rl > 0) & np.isfinite(un) & (ul > 0)
+    assert ok.sum() > 100
+    assert np.median(rm[ok] / rl[ok]) == pytest.approx(1.0, abs=0.15)
+    assert np.median(un[ok] / ul[ok]) == pytest.approx(1.0, abs=0.15)
+    assert np.median(rl[ok] / ul[ok]) > 0.3  # a visible part at 0.5 px
+    np.testing.assert_allclose(ua[ok], np.sqrt(ul**2 + um_**2 + rl**2)[ok], rtol=1e-5)

@@ -10,7 +10,8 @@ drawn frames then go through Phase 1 exactly as the run's own
 (:func:`selfillum.unsteady.phase1.map_run` with the run's options): the registration
 onto frame 0 fitted again on the noisy frame (``first-frame``), or the frame's tracked
 pose drawn from its covariance (``track``, with ``--u marker=`` and the targets: the
-resection's least squares, :func:`selfillum.uncertainty.registration.pose_covariance`);
+resection's least squares, :func:`selfillum.uncertainty.registration.pose_covariance`; in
+frames of their own, the pixels held: each source alone);
 the dark spots patched or left out; the cameras merged with frame 0's gains; the
 self-illumination removed with the run's form factors, its hidden faces continued. The
 drawn node intensity ``I + dI`` then enters Phase 2 linearised (``dCp = (I' - fit) G 144 /
@@ -41,9 +42,11 @@ class _DrawnFrames:
     """A camera's video with virtual frames ``T + s K + j``: frame ``real[j]`` plus draw
     ``s`` of the pixel noise."""
 
-    def __init__(self, frames, T: int, real, noise, seed: int, camera: int):
+    def __init__(self, frames, T: int, real, noise, seed: int, camera: int,
+                 draws: int | None = None):
         self.frames, self.T, self.real = frames, T, list(real)
         self.noise, self.seed, self.camera = noise, seed, camera
+        self.draws = draws  # draws from this one on: the frame as it is (poses alone)
 
     @property
     def shape(self):
@@ -55,6 +58,8 @@ class _DrawnFrames:
             return self.frames[v]
         s, j = divmod(v - self.T, len(self.real))
         img = np.asarray(self.frames[self.real[j]], np.float64)
+        if self.draws is not None and s >= self.draws:
+            return img
         rng = np.random.default_rng((self.seed, self.camera, s, j))
         return img + self.noise(img) * rng.standard_normal(img.shape)
 
@@ -62,9 +67,10 @@ class _DrawnFrames:
 class _DrawnPoses:
     """A camera's tracked poses with virtual frames drawn from the pose covariance."""
 
-    def __init__(self, poses, T: int, real, cov, seed: int, camera: int):
+    def __init__(self, poses, T: int, real, cov, seed: int, camera: int, draws: int = 0):
         self.poses, self.T, self.real, self.cov = poses, T, list(real), cov
         self.seed, self.camera = seed, camera
+        self.draws = draws  # draws before this one: the pose as tracked (pixels alone)
 
     def __len__(self):
         return len(self.poses)
@@ -77,16 +83,19 @@ class _DrawnPoses:
 
         s, j = divmod(v - self.T, len(self.real))
         cam = self.poses[self.real[j]]
-        if self.cov is None:
+        if self.cov is None or s < self.draws:
             return cam
         rng = np.random.default_rng((self.seed, self.camera, s, j, 1))
         return perturbed(cam, rng.multivariate_normal(np.zeros(6), self.cov))
 
 
 def chain_noise(cfg, grid, runs, chain: dict, T: int, gf, sigma, npx, camera_noise,
-                samples: int) -> tuple[np.ndarray, dict]:
+                samples: int) -> tuple[np.ndarray, np.ndarray | None, dict]:
     """Per node the standard deviation of a frame's dCp from the drawn frames (see the
-    module notes) and what was drawn.
+    module notes), that of the drawn poses alone (None when none is drawn), and what was
+    drawn. The pixels' noise and the poses are drawn in separate frames (each source
+    alone: ``S`` draws of the pixels with the tracked poses, then ``S`` of the poses with
+    the measured pixels).
 
     Parameters
     ----------
@@ -133,17 +142,21 @@ def chain_noise(cfg, grid, runs, chain: dict, T: int, gf, sigma, npx, camera_noi
         xyz = read_markers(cfg.targets).xyz
         covs = [pose_covariance(r.camera, xyz, stated.marker, str(cfg.targets))
                 for r in runs]
+    posed = any(c is not None for c in covs)
     drawn = []
     for c, r_ in enumerate(runs):  # cameras
-        poses = None if r_.poses is None else _DrawnPoses(r_.poses, T, real, covs[c], seed, c)
-        drawn.append(replace(r_, frames=_DrawnFrames(r_.frames, T, real, noise, seed, c),
+        poses = None if r_.poses is None else _DrawnPoses(r_.poses, T, real, covs[c], seed, c,
+                                                          draws=S)
+        drawn.append(replace(r_, frames=_DrawnFrames(r_.frames, T, real, noise, seed, c,
+                                                     draws=S if posed else None),
                              poses=poses))
     si = None
     if chain.get("F") is not None:
         si = SelfIllumination(grid.mesh, chain["F"], chain["rho"], chain.get("unpainted"))
-    virtual = [T + s * K + j for s in range(S) for j in range(K)]
+    virtual = [T + s * K + j for s in range(2 * S if posed else S) for j in range(K)]
     order = [0, *real.tolist(), *virtual]
-    base, acc, cnt = {}, np.zeros(grid.n_nodes), np.zeros(grid.n_nodes)
+    base = {}
+    acc, cnt = np.zeros((2, grid.n_nodes)), np.zeros((2, grid.n_nodes))
     for fn in map_run(grid, drawn, order, spots=chain.get("spots"),
                       registration=cfg.registration, patcher=cfg.target_patcher,
                       overlap=cfg.overlap, filter=cfg.filter, filter_size=cfg.filter_size,
@@ -154,17 +167,18 @@ def chain_noise(cfg, grid, runs, chain: dict, T: int, gf, sigma, npx, camera_noi
         if k < T:
             base[k] = v
             continue
-        j = (k - T) % K
+        s, j = divmod(k - T, K)
         I0 = base[int(real[j])]
         with np.errstate(invalid="ignore", divide="ignore"):
             e = -np.asarray(gf) * (v - I0) / I0
         fin = np.isfinite(e)
-        acc += np.where(fin, e * e, 0.0)
-        cnt += fin
+        part = int(s >= S)  # 0: the pixels drawn, 1: the poses
+        acc[part] += np.where(fin, e * e, 0.0)
+        cnt[part] += fin
     with np.errstate(invalid="ignore", divide="ignore"):
-        out = np.sqrt(acc / cnt)
+        out, out_pose = np.sqrt(acc / cnt)
     info = {"frames": int(K), "draws": int(S), "pixels": how,
             "poses": "drawn from the covariance" if covs[0] is not None else
             ("refitted on the noisy frames" if cfg.registration == "first-frame" else "held"),
             "relative_pixel_noise": rel_px}
-    return out, info
+    return out, (out_pose if posed else None), info

@@ -4,11 +4,15 @@ dCp (:func:`write_uncertainty`; the models: :mod:`selfillum.uncertainty.unsteady
 Written into the output file::
 
     /dcp_u                      (N,) standard uncertainty of one frame's dCp (random part):
-                                the root sum of squares of the next two
+                                the root sum of squares of the next three
     /dcp_u_noise                (N,) its noise part (the run's white floor, the camera's
                                 noise model stated or measured on wind-off frames)
     /dcp_u_mapping              (N,) its mapping part: a field varying over the pixels a node
                                 averages (:mod:`selfillum.uncertainty.mapping`)
+    /dcp_u_registration         (N,) its tracked poses' part (``--registration track`` with
+                                ``--u marker=``: each frame's pose covariance times the
+                                node's mapped image gradient,
+                                :mod:`selfillum.unsteady.uncertainty_images`)
     /dcp_u_gain                 (N,) relative standard uncertainty of the gain (systematic)
     /stats/dcp_rms_signal       (N,) RMS of dCp with the noise's variance removed
     /stats/dcp_rms_signal_u     (N,) its standard uncertainty (random part)
@@ -147,8 +151,9 @@ def write_uncertainty(f, cfg, grid, runs, s1, stats, spectra, fps: float, frames
 
         if npx is None:
             npx = _effective_pixels(grid, maps, N)
-        sigma_mc, drawn = chain_noise(cfg, grid, runs, chain or {}, T, gf, sigma, npx,
-                                      camera_noise, int(cfg.samples))
+        sigma_mc, sigma_reg_mc, drawn = chain_noise(cfg, grid, runs, chain or {}, T, gf,
+                                                    sigma, npx, camera_noise,
+                                                    int(cfg.samples))
         urel_mc = _gain_monte_carlo(cfg, gain, cond, cp, coeffs, T_f)
         info.update(samples=int(cfg.samples), chain=drawn,
                     linear_median={"dcp_u_noise": _med(sigma), "dcp_u_gain": _med(urel)})
@@ -157,11 +162,32 @@ def write_uncertainty(f, cfg, grid, runs, s1, stats, spectra, fps: float, frames
                             f"{drawn['poses']}")
         sigma = sigma_mc
         urel = urel_mc if urel_mc is not None else urel
-    u_map, used = _mapping(f, grid, maps, [r.frames[0] for r in runs], sigma, rms)
+    covs = _pose_covariances(cfg, runs)
+    u_map, used, u_reg = _mapping(f, grid, runs, maps, chain or {}, cfg, sigma, rms, gf, covs)
     status["mapping"] = ("estimated: the node's pixels' first and second moments about it "
-                         "(frame 0) times the measured field's gradient and curvature "
-                         f"(a cubic over two rings of nodes), RMS over {used} frames")
-    f.create_dataset("dcp_u", data=np.hypot(sigma, u_map).astype(np.float32))
+                         "(frame 0, through Phase 1's weights) times the measured field's "
+                         "gradient and curvature (a quartic over three rings of nodes), RMS "
+                         f"over {used} frames")
+    parts = [sigma, u_map]
+    if u_reg is not None:
+        if method == "mc":
+            u_reg = sigma_reg_mc
+        parts.append(u_reg)
+        status["registration"] = (f"stated: markers {stated.marker:.3g} px, each frame's "
+                                  "tracked pose's least-squares covariance, the pixels' "
+                                  "displacement times frame 0's image gradient")
+        f.create_dataset("dcp_u_registration", data=u_reg.astype(np.float32))
+    elif cfg.registration == "track":
+        status["registration"] = ("missing: give --u marker=..px (the tracked poses' "
+                                  "covariance)")
+    else:
+        status["registration"] = (f"in the noise: the {cfg.registration} registration's "
+                                  "error is white over the frames (the floor holds it; "
+                                  "not with a stated camera noise model)"
+                                  if cfg.registration == "first-frame" else
+                                  "zero: the model does not move (registration none)")
+    u_all = np.sqrt(sum(p * p for p in parts))
+    f.create_dataset("dcp_u", data=u_all.astype(np.float32))
     f.create_dataset("dcp_u_noise", data=sigma.astype(np.float32))
     f.create_dataset("dcp_u_mapping", data=u_map.astype(np.float32))
     if urel is not None:
@@ -170,7 +196,7 @@ def write_uncertainty(f, cfg, grid, runs, s1, stats, spectra, fps: float, frames
     st = f.require_group("stats")
     st.create_dataset("dcp_rms_signal", data=rs.astype(np.float32))
     st.create_dataset("dcp_rms_signal_u", data=u_rs.astype(np.float32))
-    info.update(sources=status, dcp_u_median=_med(np.hypot(sigma, u_map)),
+    info.update(sources=status, dcp_u_median=_med(u_all),
                 dcp_u_noise_median=_med(sigma), dcp_u_mapping_median=_med(u_map),
                 dcp_u_gain_median=_med(urel) if urel is not None else None,
                 missing=[k for k, v in status.items() if v.startswith("missing")])
@@ -178,23 +204,58 @@ def write_uncertainty(f, cfg, grid, runs, s1, stats, spectra, fps: float, frames
     return info
 
 
-def _mapping(f, grid, maps, images, sigma, rms) -> tuple[np.ndarray, int]:
-    """Per node the mapping's error (:mod:`selfillum.uncertainty.mapping`) over up to
-    ``MAX_FRAMES`` frames of ``/dcp``, read in a few blocks of consecutive frames spread over
-    the run; and the number of frames."""
+def _pose_covariances(cfg, runs) -> list:
+    """Per camera the (6, 6) covariance of a tracked frame's pose from the markers'
+    least squares (``--registration track`` with ``--u marker=`` and the targets), else
+    None."""
+    stated = cfg.stated
+    if (cfg.registration != "track" or stated is None or stated.marker is None
+            or cfg.targets is None):
+        return [None] * len(runs)
+    from resection.io.markers import read_markers
+    from selfillum.uncertainty.registration import pose_covariance
+
+    xyz = read_markers(cfg.targets).xyz
+    return [pose_covariance(r.camera, xyz, stated.marker, str(cfg.targets)) for r in runs]
+
+
+def _mapping(f, grid, runs, maps, chain, cfg, sigma, rms, gf, covs):
+    """``(u_map, used, u_reg)``: per node the mapping's error
+    (:mod:`selfillum.uncertainty.mapping`) over up to ``MAX_FRAMES`` frames of ``/dcp``,
+    read in a few blocks of consecutive frames spread over the run, and the number of
+    frames; the registration's part of a frame's dCp from the poses' covariances ``covs``
+    (None when none is given). The moments and the pose sensitivities are frame 0's
+    images mapped through Phase 1 in one pass
+    (:mod:`selfillum.unsteady.uncertainty_images`)."""
     from selfillum.uncertainty.mapping import (
         MAX_FRAMES,
         mapping_operator,
         mapping_u,
+        node_weights,
+    )
+    from selfillum.unsteady.uncertainty_images import (
+        pose_images,
+        pose_sensitivity,
         support_moments,
     )
 
     mesh = grid.mesh
     nv = len(mesh.vertices)
+    frame0 = [np.asarray(r.frames[0], np.float64) for r in runs]
+    C = len(runs)
+    posed = [c for c in range(C) if covs[c] is not None]
+    extra = None
+    if posed:  # six images a camera whose pose is uncertain, the others' pixels at 0
+        pim = {c: pose_images(maps[c], frame0[c]) for c in posed}
+        extra = [[pim[c][k] if c == cc else np.zeros_like(frame0[c])
+                  for cc in posed for k in range(6)] for c in range(C)]
+    delta, Q, ext = support_moments(grid, runs, maps, frame0, chain, cfg, extra)
+    u_reg = None
+    if posed:
+        sens = ext.reshape(len(posed), 6, -1)
+        u_reg = np.asarray(gf, np.float64) * pose_sensitivity(sens, [covs[c] for c in posed])
     node_of = np.empty(nv, np.int64)  # one grid node a vertex (seam copies share a value)
     node_of[grid.node_vertex] = np.arange(len(grid.node_vertex))
-    delta, Q = support_moments(mesh, maps, images)
-    D = mapping_operator(mesh, delta, Q, use=np.isfinite(np.asarray(rms))[node_of])
     dset = f["dcp"]
     T = dset.shape[0]
     blocks = 8
@@ -206,9 +267,20 @@ def _mapping(f, grid, maps, images, sigma, rms) -> tuple[np.ndarray, int]:
             x = np.asarray(dset[a:a + size, :], np.float64)
             yield x[:, node_of]
 
-    u, used = mapping_u(D, frames(), np.nan_to_num(np.asarray(sigma, np.float64))[node_of])
+    # the fit's samples: the vertices with a value in every frame read (a node seen in
+    # some frames only, at the view's edge, would enter as a jump)
+    use = np.isfinite(np.asarray(rms))[node_of]
+    for x in frames():
+        use &= np.isfinite(x).all(axis=0)
+    D = mapping_operator(mesh, delta[node_of], Q[node_of], use=use)
+    counts = sum(m.pixel_counts for m in maps)
+    W = node_weights(mesh, counts > 0)
+    u, used = mapping_u(D, frames(), np.nan_to_num(np.asarray(sigma, np.float64))[node_of], W)
     out = u[grid.node_vertex]
-    return np.where(np.isfinite(np.asarray(rms)), out, np.nan), used
+    seen = np.isfinite(np.asarray(rms))
+    if u_reg is not None:
+        u_reg = np.where(seen, u_reg, np.nan)
+    return np.where(seen, out, np.nan), used, u_reg
 
 
 def _med(x):
