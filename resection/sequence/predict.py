@@ -231,6 +231,23 @@ def expected_markers(setup, reference: FrameResult, previous: FrameResult | None
     return (seen | facing) & ~away, away
 
 
+def _survey_offsets(ids: np.ndarray, reference: FrameResult) -> np.ndarray:
+    """(N, 2) pixels: each marker's residual in ``reference`` (observed minus reprojected),
+    zero where it was not found there. A marker's surveyed position is off by its own
+    error (0.5-1.5 px on real models), the same from frame to frame: its window is placed
+    where the reference saw it, moved by the predicted pose, not where the survey puts it.
+    Without this a window's start and its fit fell on different pixels for nearly every
+    marker of every frame, and each was fitted twice (see :func:`track_predicted`)."""
+    off = np.zeros((len(ids), 2))
+    res = np.asarray(reference.residuals, float).reshape(-1, 2)
+    if res.size:
+        row = {m: i for i, m in enumerate(np.asarray(ids).tolist())}
+        at = np.array([row.get(m, -1) for m in np.asarray(reference.ids).tolist()], int)
+        ok = (at >= 0) & np.isfinite(res).all(axis=1)
+        off[at[ok]] = res[ok]
+    return off
+
+
 def track_predicted(img: np.ndarray, setup, reference: FrameResult,
                     previous: FrameResult | None, index: int, name: str) -> FrameResult | None:
     """One frame tracked by prediction from ``reference`` (and ``previous``), or None when
@@ -245,6 +262,7 @@ def track_predicted(img: np.ndarray, setup, reference: FrameResult,
     rvec0, tvec0 = predict_pose(reference, previous, index)
     rmax = cam.max_radius
     pred = project_poses(cam, rvec0, tvec0, X, max_radius=rmax)[0]
+    pred += _survey_offsets(setup.ids, reference)
     d = setup.diameter
     R = d / 2.0
     blur = float(kw.get("blur", 0.6))
@@ -284,7 +302,8 @@ def track_predicted(img: np.ndarray, setup, reference: FrameResult,
     if kw.get("mask") is not None:
         bad |= np.asarray(kw["mask"], bool)[c0[1]:c1[1], c0[0]:c1[0]]
     start = pv - c0
-    fit = refine_markers(signal, start, d, bad=bad, blur=blur, half=half)
+    fit = refine_markers(signal, start, d, bad=bad, blur=blur, half=half,
+                         workers=setup.threads)
     # a window is centred on the pixel of its start: fits that moved to another pixel are
     # fitted again in the window centred on theirs, so that the result does not depend on
     # how far off the prediction was (the window is then the one detection would use)
@@ -292,7 +311,7 @@ def track_predicted(img: np.ndarray, setup, reference: FrameResult,
         np.column_stack([fit["u"], fit["v"]])), axis=1))
     if moved.size:
         again = refine_markers(signal, np.column_stack([fit["u"], fit["v"]])[moved], d,
-                               bad=bad, blur=blur, half=half)
+                               bad=bad, blur=blur, half=half, workers=setup.threads)
         for k in fit:
             fit[k][moved] = again[k]
     lo_d, hi_d = kw.get("diameter_range", (0.5, 2.0))
