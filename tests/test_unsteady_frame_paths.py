@@ -162,3 +162,38 @@ def test_affine_sampling_is_scipys_bilinear_with_nan_neighbours_of_zero_weight_l
              & (at[1] <= img.shape[1] - 1))
     np.testing.assert_array_equal(np.isnan(got), bad)
     np.testing.assert_allclose(got[~bad], want[~bad], rtol=1e-12, atol=1e-9)
+
+
+@pytest.mark.parametrize("filter_", ["none", "gaussian"])
+def test_cameras_prepared_side_by_side_equal_one_by_one(filter_):
+    """Several cameras' frames (the affine fit and warp onto frame 0, the filter) made one
+    thread a camera give the same images as made one after another: each is its camera's
+    own work. Checked against a direct registration of each camera's frame."""
+    from selfillum.unsteady.phase1 import CameraRun, _fixed_images
+    from selfillum.unsteady.registration import AffineRegistration
+
+    rng = np.random.default_rng(3)
+    H, W = 60, 90
+    yy, xx = np.mgrid[:H, :W]
+    cams, regs, read = [], [], []
+    for c in range(3):  # cameras
+        base = 2000 + 600 * np.sin(xx / (5.0 + c)) * np.cos(yy / 7.0)
+        shifted = 2000 + 600 * np.sin((xx - 0.3 * (c + 1)) / (5.0 + c)) * np.cos(yy / 7.0)
+        frames = np.stack([base, shifted]) + rng.normal(0, 2, (2, H, W))
+        mask = np.zeros((H, W), bool)
+        mask[8:52, 10:80] = True
+        cams.append(CameraRun(c + 1, None, frames))
+        regs.append(AffineRegistration(frames[0], mask))
+        read.append(np.flatnonzero(mask))
+    kw = dict(spot_px=[None] * 3, filter=filter_, filter_size=5, pres=None, read=read)
+    one = _fixed_images(cams, 1, regs, workers=1, **kw)
+    for r in regs:
+        r._M = np.eye(3)  # the fits start again from the identity
+    side = _fixed_images(cams, 1, regs, workers=None, **kw)
+    for a, b in zip(one, side, strict=True):
+        np.testing.assert_array_equal(np.asarray(getattr(a, "values", a)),
+                                      np.asarray(getattr(b, "values", b)))
+    for c, r in enumerate(regs):  # each camera's own registration of its frame
+        r._M = np.eye(3)
+        A = r.fit(cams[c].frames[1])
+        np.testing.assert_allclose(A[0, 2], 0.3 * (c + 1), atol=0.05)

@@ -155,12 +155,13 @@ class SelfIllumination:
         return E
 
 
-def _gaussian(img: np.ndarray, size: int) -> np.ndarray:
+def _gaussian(img: np.ndarray, size: int, workers: int | None = None) -> np.ndarray:
     """NaN-aware Gaussian low-pass of a ``size`` x ``size`` kernel (OpenCV's sigma for a
-    kernel size: ``0.3 ((size - 1) / 2 - 1) + 0.8``): :func:`.lowpass.gaussian_lowpass`."""
+    kernel size: ``0.3 ((size - 1) / 2 - 1) + 0.8``): :func:`.lowpass.gaussian_lowpass`
+    on ``workers`` threads (default: the cores)."""
     from selfillum.unsteady.lowpass import gaussian_lowpass
 
-    return gaussian_lowpass(img, size)
+    return gaussian_lowpass(img, size, workers)
 
 
 def _face_to_vertex(mesh) -> sp.csr_matrix:
@@ -311,8 +312,9 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
         if ops and not moving:  # pixels in this thread (measured on the 609k run's 2
             # cores: a pool of threads a frame, or the next frame made in another thread
             # while this one is mapped, each made a frame slower, 1.1x and 1.6x)
+            # (several cameras: one thread a camera)
             imgs = _fixed_images(cameras, k, regs, spot_px, filter, filter_size, pres,
-                                 ops[0].cols, workers=1)
+                                 ops[0].cols, workers=1 if len(cameras) == 1 else None)
         if ops and si is None and not moving:  # a fixed map, no SI: pixels to nodes
             v = ops[0].nodes(imgs, W, grid)
             if v is not None:
@@ -503,9 +505,16 @@ def _fixed_images(cameras, k, regs, spot_px, filter, filter_size, pres=None,
     """Frame ``k`` of every camera for frame 0's map: as stored, or warped onto frame 0
     (``first-frame``) and filtered (its spots patched by ``pres`` or masked first), in
     float64. Without a filter, a warp samples only the pixels ``read[c]`` (the operator's),
-    when given, on ``workers`` threads."""
-    imgs = []
-    for ci, c in enumerate(cameras):  # a few cameras
+    when given, on ``workers`` threads.
+
+    Several cameras are prepared side by side, one thread a camera (the affine fit, the
+    warp and the filter release the GIL), each on one thread of its own: a camera's work
+    is coarse enough to pay a thread, where one camera's pixels split over threads did
+    not (see :func:`map_run`)."""
+    from resection._threads import available_cores, run_blocks
+
+    def one(ci: int, inner: int | None):
+        c = cameras[ci]
         img = _frame(c.frames, k)
         if regs[ci] is not None or filter == "gaussian":
             img = img.astype(np.float64)
@@ -513,18 +522,25 @@ def _fixed_images(cameras, k, regs, spot_px, filter, filter_size, pres=None,
                 if read is not None and filter != "gaussian":  # only what is read
                     from selfillum.unsteady.fastmap import PixelValues
 
-                    imgs.append(PixelValues(regs[ci].sample(img, regs[ci].fit(img),
-                                                            read[ci], workers)))
-                    continue
+                    return PixelValues(regs[ci].sample(img, regs[ci].fit(img), read[ci],
+                                                       inner))
                 img = regs[ci].warp(img, regs[ci].fit(img))
             if filter == "gaussian":
                 if pres is not None and pres[ci] is not None:
                     img = pres[ci].apply(img)
                 elif spot_px[ci] is not None:
                     img = mask_spots(img, *spot_px[ci])
-                img = _gaussian(img, filter_size)
-        imgs.append(img)
-    return imgs
+                img = _gaussian(img, filter_size, inner)
+        return img
+
+    n = len(cameras)
+    busy = regs.count(None) < n or filter == "gaussian"  # work beyond reading the frame
+    threads = min(n, available_cores() if workers is None else max(int(workers), 1))
+    if n < 2 or not busy or threads < 2:
+        return [one(ci, workers) for ci in range(n)]
+    return [im for b in run_blocks(lambda b: [one(ci, 1) for ci in range(*b)],
+                                   [(ci, ci + 1) for ci in range(n)], threads)
+            for im in b]
 
 
 def _fast_frame(ops, cameras, k, regs, spots, spot_px, filter, filter_size, moving,
