@@ -66,6 +66,38 @@ def _read_inputs(cfg: ThermalConfig):
 
 def run_thermal(cfg: ThermalConfig) -> ThermalResult:
     """Run the thermal job (module notes); see ``docs/thermal.md``."""
+    early = _start_tracking(cfg)
+    try:
+        return _run(cfg, early)
+    finally:
+        if early is not None:
+            early.close()
+
+
+def _start_tracking(cfg: ThermalConfig):
+    """The markers' tracking started in a child process
+    (:class:`selfillum.thermal.early.EarlyTracking`) before the rest of the inputs are
+    read, for a fresh run that tracks them; None otherwise (a resumed run, given tracks,
+    no tracking, or options the run will refuse: the run then tracks in its own process,
+    or names the problem)."""
+    from selfillum.unsteady.work import work_folder
+
+    out = Path(cfg.out)
+    if (cfg.registration != "track" or cfg.track_dirs is not None or cfg.targets is None
+            or cfg.resume or not out.parent.is_dir() or out.exists()
+            or work_folder(out).exists()):
+        return None
+    try:
+        cfg.check()
+    except InputError:
+        return None
+    from selfillum.thermal.early import EarlyTracking
+
+    return EarlyTracking(out, cfg.cameras, cfg.targets, cfg.polarity)
+
+
+def _run(cfg: ThermalConfig, early) -> ThermalResult:
+    """:func:`run_thermal`, the tracking started early or None."""
     import h5py
 
     from resection.io.outputs import atomic_path
@@ -163,10 +195,12 @@ def run_thermal(cfg: ThermalConfig) -> ThermalResult:
     failed = 0
     try:
         runs = []
+        tracked = early.adopt(store.folder) if early is not None and early.wait() else {}
         for c, cam, fr in zip(cfg.cameras, cams, frames_in, strict=True):
             poses = None
             if cfg.registration == "track":
-                poses, nf_ = track_poses(cfg, c, cam, T, store.folder, resume=store.resumed)
+                poses, nf_ = track_poses(cfg, c, cam, T, store.folder, resume=store.resumed,
+                                         track_dir=tracked.get(c.number))
                 failed += nf_
             runs.append(CameraRun(c.number, cam, fr, poses))
         si = None
