@@ -311,3 +311,62 @@ def test_phase1_frames_counted(tiny, tmp_path):
         ways = json.loads(f.attrs["options"])["phase1_frames"]
     assert ways["fast"] + ways["full"] == res.n_frames
     assert ways["fast"] >= res.n_frames - 1 and 1 <= ways["references"] <= 4
+
+
+def test_markers_tracked_in_a_child_process(tiny, tmp_path, monkeypatch):
+    """With a core free, the markers are tracked by a child process started before the
+    grid is read (selfillum.thermal.early): the same poses and heat flux as the tracking
+    in the run's own process, the track kept in the work folder while the run works, and
+    no temporary folder left."""
+    import selfillum.thermal.early as early
+    import selfillum.thermal.run as run_mod
+
+    used = []
+    real_adopt = early.EarlyTracking.adopt
+
+    def adopt(self, work):
+        got = real_adopt(self, work)
+        used.append(sorted(got))
+        assert (Path(work) / "track1" / "poses.csv").is_file()
+        return got
+
+    monkeypatch.setattr(early.EarlyTracking, "adopt", adopt)
+    monkeypatch.setattr(run_mod, "EARLY_TRACKING_CORES", 0.0)  # a core always free
+    a = run_thermal(_config(tiny, tmp_path / "child.h5"))
+    assert used == [[1]]
+    monkeypatch.setattr(run_mod, "EARLY_TRACKING_CORES", float("inf"))  # never
+    b = run_thermal(_config(tiny, tmp_path / "here.h5"))
+    assert used == [[1]]
+    assert a.tracked_failed == b.tracked_failed >= 1
+    with h5py.File(a.out) as fa, h5py.File(b.out) as fb:
+        for name in ("cameras/cam01/R", "cameras/cam01/t", "heat_flux"):
+            np.testing.assert_array_equal(fa[name][()], fb[name][()])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["child.h5", "child.xdmf",
+                                                           "here.h5", "here.xdmf"]
+
+
+def test_bad_input_stops_the_tracking_child(tiny, tmp_path, monkeypatch, capsys):
+    """A bad input found after the child has started (the radiometry, read with the grid)
+    is named on one line, exit 2; the child is stopped and its folder removed."""
+    import selfillum.thermal.early as early
+    import selfillum.thermal.run as run_mod
+
+    started = []
+    real_close = early.EarlyTracking.close
+
+    def close(self):
+        started.append(self.proc.pid)
+        real_close(self)
+        assert self.proc.poll() is not None  # stopped
+
+    monkeypatch.setattr(early.EarlyTracking, "close", close)
+    monkeypatch.setattr(run_mod, "EARLY_TRACKING_CORES", 0.0)
+    d = json.loads(Path(tiny.radiometry).read_text())
+    d["emissivity"] = 1.5
+    rj = tmp_path / "R.json"
+    rj.write_text(json.dumps(d))
+    assert _cli(tiny, tmp_path / "bad.h5", radiometry=rj) == 2
+    err = capsys.readouterr().err.strip()
+    assert "emissivity 1.5 is outside (0, 1]" in err and len(err.splitlines()) == 1
+    assert len(started) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["R.json"]

@@ -74,18 +74,27 @@ def run_thermal(cfg: ThermalConfig) -> ThermalResult:
             early.close()
 
 
+#: free cores (this process's included, by the 1-minute load average) from which the
+#: markers are tracked in a child process beside the run's set-up: on a machine whose
+#: cores are busy, the child's own start and imports (about 1.5 s of CPU) cost more than
+#: the overlap gains
+EARLY_TRACKING_CORES = 1.5
+
+
 def _start_tracking(cfg: ThermalConfig):
     """The markers' tracking started in a child process
     (:class:`selfillum.thermal.early.EarlyTracking`) before the rest of the inputs are
-    read, for a fresh run that tracks them; None otherwise (a resumed run, given tracks,
-    no tracking, or options the run will refuse: the run then tracks in its own process,
-    or names the problem)."""
+    read, for a fresh run that tracks them, where a core is free for it
+    (:data:`EARLY_TRACKING_CORES`); None otherwise (a resumed run, given tracks, no
+    tracking, busy cores, or options the run will refuse: the run then tracks in its own
+    process, or names the problem)."""
+    from resection.sequence.load import free_by_load_average
     from selfillum.unsteady.work import work_folder
 
     out = Path(cfg.out)
     if (cfg.registration != "track" or cfg.track_dirs is not None or cfg.targets is None
             or cfg.resume or not out.parent.is_dir() or out.exists()
-            or work_folder(out).exists()):
+            or work_folder(out).exists() or free_by_load_average() < EARLY_TRACKING_CORES):
         return None
     try:
         cfg.check()
