@@ -370,3 +370,19 @@ def test_bad_input_stops_the_tracking_child(tiny, tmp_path, monkeypatch, capsys)
     assert "emissivity 1.5 is outside (0, 1]" in err and len(err.splitlines()) == 1
     assert len(started) == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == ["R.json"]
+
+
+def test_a_failed_tracking_child_leaves_the_tracking_to_the_run(tiny, tmp_path, monkeypatch):
+    """A child that fails (here: a Python that exits at once) leaves the run to track the
+    markers in its own process: the same result as a run that tracks them there."""
+    import selfillum.thermal.early as early
+    import selfillum.thermal.run as run_mod
+
+    monkeypatch.setattr(run_mod, "EARLY_TRACKING_CORES", 0.0)
+    monkeypatch.setattr(early.sys, "executable", "/bin/false")
+    a = run_thermal(_config(tiny, tmp_path / "failed.h5"))
+    monkeypatch.setattr(run_mod, "EARLY_TRACKING_CORES", float("inf"))
+    b = run_thermal(_config(tiny, tmp_path / "here.h5"))
+    with h5py.File(a.out) as fa, h5py.File(b.out) as fb:
+        np.testing.assert_array_equal(fa["heat_flux"][()], fb["heat_flux"][()])
+    assert not [p for p in tmp_path.iterdir() if ".track-" in p.name]

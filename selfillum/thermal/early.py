@@ -53,19 +53,21 @@ class EarlyTracking:
         root = str(Path(__file__).resolve().parents[2])  # this copy of the package
         env = dict(os.environ, PYTHONPATH=os.pathsep.join(
             [root, *filter(None, [os.environ.get("PYTHONPATH")])]))
-        self.proc = subprocess.Popen([sys.executable, "-m", "selfillum.thermal.early",
-                                      *args], stdin=subprocess.DEVNULL,
-                                     stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                                     env=env)
+        self._log = self.folder / "stderr.txt"  # a file: a pipe could fill and stall it
+        with open(self._log, "wb") as log:
+            self.proc = subprocess.Popen([sys.executable, "-m", "selfillum.thermal.early",
+                                          *args], stdin=subprocess.DEVNULL,
+                                         stdout=subprocess.DEVNULL, stderr=log, env=env)
         self._ok: bool | None = None
+        self.error = ""
 
     def wait(self) -> bool:
         """Wait for the child: True when every camera was tracked."""
         if self._ok is None:
-            _, err = self.proc.communicate()
+            self.proc.wait()
             self._ok = self.proc.returncode == 0 and all(
                 (self.track_dir(n) / "poses.csv").is_file() for n in self.numbers)
-            self.error = err.decode(errors="replace").strip()
+            self.error = self._log.read_text(errors="replace").strip()
         return self._ok
 
     def track_dir(self, number: int) -> Path:
@@ -89,7 +91,7 @@ class EarlyTracking:
         if self.proc.poll() is None:
             self.proc.kill()
             with contextlib.suppress(Exception):
-                self.proc.communicate(timeout=30)
+                self.proc.wait(timeout=30)
         shutil.rmtree(self.folder, ignore_errors=True)
 
 
