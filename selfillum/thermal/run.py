@@ -253,7 +253,8 @@ def _run(cfg: ThermalConfig, early) -> ThermalResult:
                 p2 = run_phase2(s1, f, mode=cfg.mode, rad=rad, cal=cal, off=off_nodes,
                                 rho_h=rho_h, geom=geom, centres=camera_centres(R, t),
                                 sub=sub, method=method, dt=1.0 / fps, flow=flow, block=nb,
-                                probes=cfg.probes, progress=prog.nodes)
+                                probes=cfg.probes, progress=prog.nodes,
+                                max_obliqueness=cfg.oblique_angle)
                 prog.close()
                 if not p2["seen"].any():  # never an empty result
                     raise InputError(f"{cfg.grid}: no node has a temperature in any frame "
