@@ -70,8 +70,11 @@ def _pixel_emissivity(emissivity, centres, geom, nodes, cosines, max_obliqueness
         return own * ratio
     t = np.arange(T)
     j = np.clip(np.searchsorted(ks, t, side="right") - 1, 0, ks.size - 2)
-    w = ((t - ks[j]) / (ks[j + 1] - ks[j]))[:, None]
-    own *= ratio[j] * (1.0 - w) + ratio[j + 1] * w
+    slope = np.diff(ratio, axis=0) / np.diff(ks)[:, None]  # per frame, (K - 1, n)
+    factor = slope[j]
+    factor *= (t - ks[j])[:, None]
+    factor += ratio[j]
+    own *= factor
     return own
 
 
