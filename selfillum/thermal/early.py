@@ -54,10 +54,15 @@ class EarlyTracking:
         env = dict(os.environ, PYTHONPATH=os.pathsep.join(
             [root, *filter(None, [os.environ.get("PYTHONPATH")])]))
         self._log = self.folder / "stderr.txt"  # a file: a pipe could fill and stall it
-        with open(self._log, "wb") as log:
-            self.proc = subprocess.Popen([sys.executable, "-m", "selfillum.thermal.early",
-                                          *args], stdin=subprocess.DEVNULL,
-                                         stdout=subprocess.DEVNULL, stderr=log, env=env)
+        try:
+            with open(self._log, "wb") as log:
+                self.proc = subprocess.Popen([sys.executable, "-m",
+                                              "selfillum.thermal.early", *args],
+                                             stdin=subprocess.DEVNULL,
+                                             stdout=subprocess.DEVNULL, stderr=log, env=env)
+        except BaseException:
+            shutil.rmtree(self.folder, ignore_errors=True)
+            raise
         self._ok: bool | None = None
         self.error = ""
 

@@ -102,7 +102,10 @@ def _start_tracking(cfg: ThermalConfig):
         return None
     from selfillum.thermal.early import EarlyTracking
 
-    return EarlyTracking(out, cfg.cameras, cfg.targets, cfg.polarity)
+    try:
+        return EarlyTracking(out, cfg.cameras, cfg.targets, cfg.polarity)
+    except OSError:  # no child (no process or folder to be had): tracked in the run
+        return None
 
 
 def _run(cfg: ThermalConfig, early) -> ThermalResult:
