@@ -134,9 +134,14 @@ def test_ir_run_heat_flux_within_5_percent(tmp_path):
 
 
 @pytest.mark.slow
-def test_interrupted_run_resumes(tiny, tmp_path, monkeypatch):
+@pytest.mark.parametrize("child", [False, True])
+def test_interrupted_run_resumes(tiny, tmp_path, monkeypatch, child):
+    """An interrupted run resumed gives the fresh run's file; with the markers tracked
+    by the child process (selfillum.thermal.early), its track kept in the work folder."""
     import selfillum.thermal.phase2 as p2
+    import selfillum.thermal.run as run_mod
 
+    monkeypatch.setattr(run_mod, "EARLY_TRACKING_CORES", 0.0 if child else float("inf"))
     out = tmp_path / "r.h5"
     real = p2.run_phase2
 
@@ -147,6 +152,7 @@ def test_interrupted_run_resumes(tiny, tmp_path, monkeypatch):
     with pytest.raises(RuntimeError):
         run_thermal(_config(tiny, out))
     assert (tmp_path / "r.h5.work").is_dir() and not out.exists()
+    assert (tmp_path / "r.h5.work" / "track1" / "poses.csv").is_file()
     monkeypatch.setattr(p2, "run_phase2", real)
     with pytest.raises(Exception, match="give --resume"):
         run_thermal(_config(tiny, out))
