@@ -27,9 +27,10 @@ that the camera sees, each face's the mean of the pixels on it, and the pixels o
 see it along one line of sight (a face is small against the camera's distance). As ``M``
 is linear in ``eps``, the node's ``M`` is that of the faces' mean emissivity,
 ``eps_n = sum_f a_f eps(theta_f) / sum_f a_f`` over the faces seen (facing the camera
-within the obliqueness cut-off). Where the grid's faces around a node are nearly
-coplanar this is the emissivity at the node's normal; at a crease or on a coarse grid at
-grazing angles it is not (``bench/bench_thermal_view_angle.py``).
+within the obliqueness cut-off; a face another part hides is counted where it faces the
+camera: the ray cast's visibility is Phase 1's, not known here). Where the grid's faces
+around a node are nearly coplanar this is the emissivity at the node's normal; at a crease
+or on a coarse grid at grazing angles it is not (``bench/bench_thermal_view_angle.py``).
 """
 
 from __future__ import annotations
