@@ -13,7 +13,10 @@ library floor of Phase 1's per-frame work: every frame read, carried by ``cv2.re
 sparse product with about as many entries as the run's pixel-to-node operator (3 for
 each of the 24 % of the pixels that see the model in this scene).
 Prints frames/s over the whole process and over the run (inputs read before excluded),
-each phase's time, the ratios, and ``uptime``'s load before and after.
+each phase's time, the CPU time of the command with its child processes (the markers'
+tracking runs in one: on a loaded machine the wall time follows the CPU time, on two free
+cores the longer of the two processes' paths), the ratios, and ``uptime``'s load before
+and after.
 
     python bench/bench_thermal.py --nodes 100000 --frames 200 [--threads 2]
     python bench/bench_thermal.py --frames 500 --q-max 15000 --folder DIR
@@ -114,9 +117,14 @@ def main() -> None:
            *args.extra.split()]
     if args.threads:
         cmd = ["taskset", "-c", ",".join(str(c) for c in range(args.threads))] + cmd
+    import resource
+
+    ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     res = subprocess.run(cmd, capture_output=True, text=True, env=env_run, cwd=args.tree)
     wall = time.perf_counter() - t0
+    ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
     if res.returncode != 0:
         raise SystemExit(res.stderr.strip()[-2000:])
     txt = res.stdout
@@ -129,6 +137,8 @@ def main() -> None:
     print(f"frames/s: {T / wall:.1f} over the whole process, {fps_run:.1f} over the run; "
           f"phase 1 {T / p1:.1f} frames/s; set-up {setup:.1f} s, phase 1 {p1:.1f} s, "
           f"phase 2 {p2:.1f} s")
+    print(f"CPU time of the command and its child processes: {cpu:.1f} s ({cpu / wall:.2f} "
+          "cores busy on average)")
     print(f"bare read of every frame: {t_read:.2f} s ({T / t_read:.0f} frames/s); the run "
           f"costs {wall / t_read:.1f} x the read (process), {(setup + p1 + p2) / t_read:.1f} "
           "x (run)")

@@ -94,3 +94,57 @@ def test_view_cosines_closed_form():
         d = np.stack([c1[k], c2[k]]) - pts[1]
         ref = np.max(np.abs(d[:, 2]) / np.linalg.norm(d, axis=1))
         assert cos[k, 1] == pytest.approx(ref, abs=1e-12)
+
+
+def _roof(alpha_deg: float, n: int = 9):
+    """A roof of two flat plates tilted by +-alpha about the y axis, meeting at the ridge
+    x = 0, on a regular grid of n x n nodes with every square split the same way (each
+    node inside touches six triangles of equal area: a ridge node three on each plate)."""
+    import trimesh
+
+    x = np.linspace(-1.0, 1.0, n)
+    X, Y = np.meshgrid(x, x, indexing="ij")
+    Z = -np.abs(X) * np.tan(np.radians(alpha_deg))
+    v = np.column_stack([X.ravel(), Y.ravel(), Z.ravel()])
+    f = []
+    for i in range(n - 1):
+        for j in range(n - 1):
+            a, b, c, d = i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1
+            f += [[a, b, c], [a, c, d]]
+    mesh = trimesh.Trimesh(v, np.array(f), process=False)
+    idx = np.arange(len(v))
+    grid = type("Grid", (), {"mesh": mesh, "points": v, "node_vertex": idx,
+                             "to_nodes": staticmethod(lambda a: np.asarray(a)[..., idx])})()
+    return grid, X.ravel(), Y.ravel()
+
+
+@pytest.mark.parametrize("beta", [20.0, 45.0])
+def test_pixel_emissivity_on_a_roof(beta):
+    """The emissivity at each pixel's view angle on a roof of two flat plates tilted by
+    +-30 deg, a camera far off at beta from the vertical toward +x: every pixel of a plate
+    sees it at the same angle, 30 + beta and 30 - beta deg (closed form), so a plate's
+    nodes take eps of their plate's angle, and a ridge node, whose value is the mean of the
+    faces around it (three of equal area on each plate), the mean of the two; with beta
+    45 deg one plate is seen at 75 deg, beyond the 70 deg cut-off, and the ridge takes the
+    other's. The node's own normal (the mean of the two plates') gives another value."""
+    from selfillum.thermal.balance import NodeGeometry, pixel_emissivity, view_cosines
+
+    eps = Emissivity("fresnel", 0.95, n=1.5)
+    grid, X, Y = _roof(30.0)
+    geom = NodeGeometry.from_grid(grid)
+    assert (np.asarray(grid.mesh.face_normals)[:, 2] > 0).all()  # the painted side up
+    b = np.radians(beta)
+    centres = 1e7 * np.array([[[np.sin(b), 0.0, np.cos(b)]] * 2])  # (1 camera, 2 frames)
+    inner = np.abs(Y) < 0.99  # not on the roof's ends (fewer faces there)
+    nodes = np.flatnonzero(inner)
+    cos = view_cosines(centres, geom.points[nodes], geom.normals[nodes])
+    got = pixel_emissivity(eps, centres, geom, nodes, cos, 70.0)
+    x = X[nodes]
+    tA, tB = np.radians(30.0 + beta), np.radians(abs(30.0 - beta))  # x < 0, x > 0
+    eA, eB = float(eps(tA)), float(eps(tB))
+    want = np.where(x < 0, eA, eB)
+    ridge = np.abs(x) < 1e-12
+    want[ridge] = 0.5 * (eA + eB) if 30.0 + beta < 70.0 else eB
+    np.testing.assert_allclose(got, np.broadcast_to(want, got.shape), rtol=1e-6)
+    own = eps.of_cosine(cos[:, ridge])  # the node's own normal: the vertical
+    assert np.abs(own - want[ridge]).min() > 1e-3

@@ -114,11 +114,13 @@ def content_digest(path: str | os.PathLike, size: int | None = None) -> str:
     return h.hexdigest()
 
 
-def fingerprint(frame) -> list | None:
+def fingerprint(frame, digests: dict | None = None) -> list | None:
     """``[size, mtime_ns, ctime_ns, inode, digest]`` of a file frame (of the whole file
     for a :class:`VideoFrame`; ``digest``: :func:`content_digest`), taken before it is
     read; ``[-1, -1, -1, -1, ""]`` for a path that cannot be examined (missing) or is not
-    a regular file; None for an in-memory frame."""
+    a regular file; None for an in-memory frame. ``digests``: the digests already taken
+    (a caller's dict, filled here), reused for a file whose path and metadata are
+    unchanged: the frames of one video share their file's."""
     import stat
 
     if isinstance(frame, np.ndarray):
@@ -128,18 +130,24 @@ def fingerprint(frame) -> list | None:
         st = os.stat(path)
         if not stat.S_ISREG(st.st_mode):
             return [-1, -1, -1, -1, ""]
-        digest = content_digest(path, st.st_size)
+        key = (str(path), st.st_size, st.st_mtime_ns, st.st_ctime_ns, st.st_ino)
+        digest = None if digests is None else digests.get(key)
+        if digest is None:
+            digest = content_digest(path, st.st_size)
+            if digests is not None:
+                digests[key] = digest
     except (OSError, ValueError):
         return [-1, -1, -1, -1, ""]
     return [int(st.st_size), int(st.st_mtime_ns), int(st.st_ctime_ns), int(st.st_ino), digest]
 
 
-def changed(frame, recorded) -> bool:
+def changed(frame, recorded, digests: dict | None = None) -> bool:
     """Whether ``frame`` differs from the frame whose fingerprint was ``recorded`` (a
-    record without one, from an older run, counts as changed)."""
+    record without one, from an older run, counts as changed); ``digests`` as for
+    :func:`fingerprint`."""
     if isinstance(frame, np.ndarray):
         return False  # an in-memory frame has no identity beyond its index
-    return recorded is None or list(recorded) != fingerprint(frame)
+    return recorded is None or list(recorded) != fingerprint(frame, digests)
 
 
 def failure_reason(exc: BaseException, name: str) -> str:

@@ -271,6 +271,7 @@ def start_run(out: Path, frames: list, settings: dict, resume: bool) -> dict[int
         return done
     names = set(os.listdir(frames_dir))
     sources: dict[int, object] = {}  # fingerprints of the frames kept
+    digests: dict = {}  # the files' content digests (:func:`~.frames.fingerprint`)
     for i, f in enumerate(frames):
         path = frame_path(frames_dir, i)
         if path.name not in names:
@@ -283,7 +284,7 @@ def start_run(out: Path, frames: list, settings: dict, resume: bool) -> dict[int
                              f"now {frame_name(f)!r}; use another out_dir or resume=False")
         ref = int(d.get("matched_from", -1))
         stale_ref = ref >= 0 and (ref not in sources or d.get("ref_source") != sources[ref])
-        if ref == DEFERRED or stale_ref or changed(f, d.get("source")):  # recompute it
+        if ref == DEFERRED or stale_ref or changed(f, d.get("source"), digests):  # again
             path.unlink()
             continue
         sources[i] = d.get("source")

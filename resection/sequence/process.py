@@ -122,14 +122,15 @@ def _solve(ids: np.ndarray, uv: np.ndarray, setup: Setup, frame: int, file: str,
 
 def process_frame(frame_data, index: int, setup: Setup, reference: FrameResult | None,
                    previous: FrameResult | None = None, sources: dict | None = None,
-                   match: bool = True) -> FrameResult:
+                   match: bool = True, digests: dict | None = None) -> FrameResult:
     """Read one frame, track its markers by prediction from ``reference`` (and the good
     frame before it, ``previous``) or, when the prediction's gate fails, detect and match
     them from ``reference`` with the statistical matcher (unless ``match`` is false: the
     frame then fails); solve the pose. Never raises for a bad frame: the failure is
     returned with its reason. ``sources``: multi-frame files kept open between frames
-    (see :func:`resection.sequence.frames._load_image`)."""
-    source = fingerprint(frame_data)  # before reading: a later change is seen next time
+    (see :func:`resection.sequence.frames.load_image`); ``digests``: the files' content
+    digests taken so far (:func:`~resection.sequence.frames.fingerprint`)."""
+    source = fingerprint(frame_data, digests)  # before reading: a change is seen next time
     res = _process_frame_unlabelled(frame_data, index, setup, reference, previous, sources,
                                     match)
     return dataclasses.replace(res, matched_from=-1 if reference is None else reference.frame,
@@ -241,6 +242,7 @@ def run_chunk(setup: Setup, items: list, seed: FrameResult | None,
     ref, prev = seed, previous
     out = []
     sources: dict = {}  # multi-frame files, opened once for the chunk
+    digests: dict = {}  # and their content digests, taken once while unchanged
     far_seed = seed is not None and bool(items) and seed.frame < items[0][0] - 1
     deferred = None
     try:
@@ -250,7 +252,7 @@ def run_chunk(setup: Setup, items: list, seed: FrameResult | None,
             elif deferred is not None:
                 res = FrameResult(frame=index, file=frame_name(frame), status="failed",
                                   reason=deferred, matched_from=DEFERRED,
-                                  source=fingerprint(frame))
+                                  source=fingerprint(frame, digests))
                 if frames_dir is not None:
                     try_write_frame(Path(frames_dir), res)
                 if on_frame is not None:
@@ -258,7 +260,7 @@ def run_chunk(setup: Setup, items: list, seed: FrameResult | None,
             else:
                 first_far = far_seed and ref is seed
                 res = process_frame(frame, index, setup, ref, prev, sources=sources,
-                                    match=not first_far)
+                                    match=not first_far, digests=digests)
                 if first_far and not res.ok:
                     deferred = (f"not computed in its chunk: frame {index} failed from "
                                 f"frame {seed.frame}")

@@ -9,6 +9,7 @@ Modules, by concept:
 - :mod:`~selfillum.thermal.heatflux`: Cook-Felderman, impulse response, layered substrates;
 - :mod:`~selfillum.thermal.stanton`: heat-transfer coefficient and Stanton number;
 - :mod:`~selfillum.thermal.inputs`: the frames' signal, tracking with markers that appear;
+- :mod:`~selfillum.thermal.early`: that tracking in a child process beside the set-up;
 - :mod:`~selfillum.thermal.phase2`, :mod:`~selfillum.thermal.output`,
   :mod:`~selfillum.thermal.run`: the command's run, :func:`run_thermal`.
 """

@@ -20,6 +20,17 @@ The view angle of a node in a frame is that of its (area-weighted) normal to the
 centre in that frame's pose; with several cameras, the camera that sees it most squarely
 (exact for one camera and for ``overlap = best_view``; an approximation for
 ``average_view``, whose node value mixes the cameras' views).
+
+A directional emissivity is taken at each pixel's view angle on the map
+(:func:`pixel_emissivity`): a node's value is the area-weighted mean of the faces around it
+that the camera sees, each face's the mean of the pixels on it, and the pixels on a face
+see it along one line of sight (a face is small against the camera's distance). As ``M``
+is linear in ``eps``, the node's ``M`` is that of the faces' mean emissivity,
+``eps_n = sum_f a_f eps(theta_f) / sum_f a_f`` over the faces seen (facing the camera
+within the obliqueness cut-off; a face another part hides is counted where it faces the
+camera: the ray cast's visibility is Phase 1's, not known here). Where the grid's faces
+around a node are nearly coplanar this is the emissivity at the node's normal; at a crease
+or on a coarse grid at grazing angles it is not (``bench/bench_thermal_view_angle.py``).
 """
 
 from __future__ import annotations
@@ -28,17 +39,22 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["NodeGeometry", "camera_centres", "view_cosines"]
+__all__ = ["NodeGeometry", "camera_centres", "view_cosines", "pixel_emissivity"]
 
 
 @dataclass(frozen=True)
 class NodeGeometry:
     """Grid nodes' ``points`` (N, 3), unit ``normals`` (N, 3) and ``wall`` (N,): the share
-    of the hemisphere that sees the tunnel (1 where no view factors are used)."""
+    of the hemisphere that sees the tunnel (1 where no view factors are used); the faces'
+    unit ``face_normals`` and ``face_centres`` (F, 3), and ``node_faces`` (N, F) sparse:
+    each face's area at its three nodes (the weights of a node's mean of its faces)."""
 
     points: np.ndarray
     normals: np.ndarray
     wall: np.ndarray
+    face_normals: np.ndarray | None = None
+    face_centres: np.ndarray | None = None
+    node_faces: object = None
 
     @classmethod
     def from_grid(cls, grid, F=None) -> NodeGeometry:
@@ -60,7 +76,10 @@ class NodeGeometry:
         else:
             rs = np.asarray(F.sum(axis=1)).ravel()
             wall = np.clip(1.0 - (W @ rs) / np.maximum(W @ np.ones(nf), 1e-300), 0.0, 1.0)
-        return cls(np.asarray(grid.points, float), grid.to_nodes(n.T).T, grid.to_nodes(wall))
+        return cls(np.asarray(grid.points, float), grid.to_nodes(n.T).T, grid.to_nodes(wall),
+                   np.asarray(mesh.face_normals, dtype=np.float64),
+                   np.asarray(mesh.triangles_center, dtype=np.float64),
+                   sp.csr_matrix(W[np.asarray(grid.node_vertex)]))
 
 
 def camera_centres(R, t) -> np.ndarray:
@@ -86,3 +105,61 @@ def view_cosines(centres, points, normals) -> np.ndarray:
         c = np.abs(dn) / np.sqrt(np.maximum(d2, 1e-300))
         best = c if best is None else np.maximum(best, c)
     return np.clip(best, 0.0, 1.0)
+
+
+def pixel_emissivity(emissivity, centres, geom: NodeGeometry, nodes, cosines,
+                     max_obliqueness: float) -> np.ndarray:
+    """``(T, n)`` emissivity of the nodes ``nodes`` in each frame at each pixel's view angle
+    on the map (module notes): the area-weighted mean, over the faces around each node that
+    the camera sees (facing it, within ``max_obliqueness`` degrees), of the emissivity at
+    each face's view angle; with several cameras, that of the camera whose view of the
+    node is the squarest (as ``cosines``, :func:`view_cosines`, the node's (T, n)). A node
+    none of whose faces passes is given the emissivity at its own view angle.
+
+    Parameters
+    ----------
+    emissivity : Emissivity
+        Its ``of_cosine``.
+    centres : (C, T, 3) array
+        The cameras' centres (:func:`camera_centres`).
+    geom : NodeGeometry
+        With its faces (:meth:`NodeGeometry.from_grid`).
+    nodes : (n,) int array
+    cosines : (T, n) array
+        The nodes' view cosines.
+    max_obliqueness : float
+        Degrees.
+    """
+    nodes = np.asarray(nodes, dtype=np.int64)
+    A = geom.node_faces[nodes]  # (n, F) areas
+    used = np.unique(A.indices)
+    A = A[:, used].tocsr()  # (n, m)
+    fn, fc = geom.face_normals[used], geom.face_centres[used]
+    fcn = np.einsum("mk,mk->m", fc, fn)
+    fcc = np.einsum("mk,mk->m", fc, fc)
+    lo = np.cos(np.radians(max_obliqueness))
+    best = None
+    out = None
+    for C in np.asarray(centres, dtype=np.float64):  # a few cameras
+        dn = C @ fn.T - fcn  # (T, m): (C - c).n, the faces' front toward the camera
+        d2 = np.einsum("tk,tk->t", C, C)[:, None] - 2.0 * (C @ fc.T) + fcc
+        c = dn / np.sqrt(np.maximum(d2, 1e-300))
+        w = (c > lo).astype(np.float64)  # (T, m) seen
+        num = (A @ (w * emissivity.of_cosine(c)).T).T  # (T, n)
+        den = (A @ w.T).T
+        with np.errstate(invalid="ignore", divide="ignore"):
+            eps = np.where(den > 0, num / den, np.nan)
+        if out is None:
+            out = eps
+            if len(centres) > 1:
+                p, nn = geom.points[nodes], geom.normals[nodes]
+                best = view_cosines(C[None], p, nn)
+        else:
+            cc = view_cosines(C[None], geom.points[nodes], geom.normals[nodes])
+            take = cc > best
+            out = np.where(take, eps, out)
+            best = np.maximum(best, cc)
+    own = np.isnan(out)
+    if own.any():
+        out[own] = emissivity.of_cosine(np.asarray(cosines)[own])
+    return out

@@ -13,7 +13,7 @@ import numpy as np
 
 from resection.errors import InputError
 
-__all__ = ["SignalFrames", "track_poses", "check_range", "interpolate_poses"]
+__all__ = ["SignalFrames", "run_tracking", "track_poses", "check_range", "interpolate_poses"]
 
 
 class SignalFrames:
@@ -83,29 +83,46 @@ def interpolate_poses(frames_ok, rvecs, tvecs, T, first=None):
     return R, t
 
 
-def track_poses(cfg, cam_in, camera, T, tmp: Path, *, resume: bool = False):
-    """Each frame's camera (``(poses, failed)``): the project's tracking
-    (:func:`resection.sequence.track`, markers of ``cfg.polarity``) or a given track folder;
-    frames without their own pose (too few markers seen: at the start of an IR run the
-    markers have no contrast yet) are interpolated in time between the tracked frames, the
-    calibration's pose standing for frame 0 (:func:`interpolate_poses`)."""
-    from resection.camera.rotation import matrix_to_rotvec
+def run_tracking(video, camera, targets, polarity: str, out_dir, *, progress: bool = False,
+                 resume: bool = False):
+    """The project's tracking (:func:`resection.sequence.track`, one process) of the markers
+    ``targets`` of ``polarity`` in ``video`` with ``camera``'s calibration, into
+    ``out_dir``; the markers' diameter in pixels from their size and distance."""
     from resection.io.markers import read_markers
-    from resection.sequence import read_track, track
+    from resection.sequence import track
+
+    ms = read_markers(targets)
+    z = camera.to_camera_frame(ms.xyz)[:, 2]
+    f = 0.5 * (camera.K[0, 0] + camera.K[1, 1])
+    dpx = float(np.median(ms.diameter * f / z[z > 0])) if ms.diameter is not None \
+        else 5.0
+    return track(str(video), camera, ms, diameter=dpx, polarity=polarity, out_dir=out_dir,
+                 workers=1, progress=progress, resume=resume)
+
+
+def track_poses(cfg, cam_in, camera, T, tmp: Path, *, resume: bool = False,
+                track_dir: Path | None = None):
+    """Each frame's camera (``(poses, failed)``): the project's tracking
+    (:func:`run_tracking`, markers of ``cfg.polarity``), a given track folder
+    (``cfg.track_dirs``) or the one tracked already (``track_dir``,
+    :class:`selfillum.thermal.early.EarlyTracking`); frames without their own pose (too
+    few markers seen: at the start of an IR run the markers have no contrast yet) are
+    interpolated in time between the tracked frames, the calibration's pose standing for
+    frame 0 (:func:`interpolate_poses`)."""
+    from resection.camera.rotation import matrix_to_rotvec
+    from resection.sequence import read_track
 
     if cfg.track_dirs is not None:
         tr = read_track(cfg.track_dirs[cfg.cameras.index(cam_in)])
+    elif track_dir is not None:
+        tr = read_track(track_dir)
     else:
         if cfg.targets is None:
             raise InputError("registration 'track' needs the targets (--targets)")
-        ms = read_markers(cfg.targets)
-        z = camera.to_camera_frame(ms.xyz)[:, 2]
-        f = 0.5 * (camera.K[0, 0] + camera.K[1, 1])
-        dpx = float(np.median(ms.diameter * f / z[z > 0])) if ms.diameter is not None \
-            else 5.0
-        tr = track(str(cam_in.video), camera, ms, diameter=dpx, polarity=cfg.polarity,
-                   out_dir=tmp / f"track{cam_in.number}", workers=1, progress=cfg.progress,
-                   resume=resume)
+        folder = tmp / f"track{cam_in.number}"
+        run_tracking(cam_in.video, camera, cfg.targets, cfg.polarity, folder,
+                     progress=cfg.progress, resume=resume)
+        tr = read_track(folder)  # as written (10 digits), as a track done early is read
     ok = np.flatnonzero((tr.status == "ok") & (tr.frame < T))
     if ok.size == 0:
         raise InputError(f"{cam_in.video}: tracking found the pose in no frame")

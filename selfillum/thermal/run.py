@@ -66,6 +66,50 @@ def _read_inputs(cfg: ThermalConfig):
 
 def run_thermal(cfg: ThermalConfig) -> ThermalResult:
     """Run the thermal job (module notes); see ``docs/thermal.md``."""
+    early = _start_tracking(cfg)
+    try:
+        return _run(cfg, early)
+    finally:
+        if early is not None:
+            early.close()
+
+
+#: free cores (this process's included, by the 1-minute load average) from which the
+#: markers are tracked in a child process beside the run's set-up: on a machine whose
+#: cores are busy, the child's own start and imports (about 1.5 s of CPU) cost more than
+#: the overlap gains
+EARLY_TRACKING_CORES = 1.5
+
+
+def _start_tracking(cfg: ThermalConfig):
+    """The markers' tracking started in a child process
+    (:class:`selfillum.thermal.early.EarlyTracking`) before the rest of the inputs are
+    read, for a fresh run that tracks them, where a core is free for it
+    (:data:`EARLY_TRACKING_CORES`); None otherwise (a resumed run, given tracks, no
+    tracking, busy cores, or options the run will refuse: the run then tracks in its own
+    process, or names the problem)."""
+    from resection.sequence.load import free_by_load_average
+    from selfillum.unsteady.work import work_folder
+
+    out = Path(cfg.out)
+    if (cfg.registration != "track" or cfg.track_dirs is not None or cfg.targets is None
+            or cfg.resume or not out.parent.is_dir() or out.exists()
+            or work_folder(out).exists() or free_by_load_average() < EARLY_TRACKING_CORES):
+        return None
+    try:
+        cfg.check()
+    except InputError:
+        return None
+    from selfillum.thermal.early import EarlyTracking
+
+    try:
+        return EarlyTracking(out, cfg.cameras, cfg.targets, cfg.polarity)
+    except OSError:  # no child (no process or folder to be had): tracked in the run
+        return None
+
+
+def _run(cfg: ThermalConfig, early) -> ThermalResult:
+    """:func:`run_thermal`, the tracking started early or None."""
     import h5py
 
     from resection.io.outputs import atomic_path
@@ -163,10 +207,12 @@ def run_thermal(cfg: ThermalConfig) -> ThermalResult:
     failed = 0
     try:
         runs = []
+        tracked = early.adopt(store.folder) if early is not None and early.wait() else {}
         for c, cam, fr in zip(cfg.cameras, cams, frames_in, strict=True):
             poses = None
             if cfg.registration == "track":
-                poses, nf_ = track_poses(cfg, c, cam, T, store.folder, resume=store.resumed)
+                poses, nf_ = track_poses(cfg, c, cam, T, store.folder, resume=store.resumed,
+                                         track_dir=tracked.get(c.number))
                 failed += nf_
             runs.append(CameraRun(c.number, cam, fr, poses))
         si = None
@@ -210,7 +256,8 @@ def run_thermal(cfg: ThermalConfig) -> ThermalResult:
                 p2 = run_phase2(s1, f, mode=cfg.mode, rad=rad, cal=cal, off=off_nodes,
                                 rho_h=rho_h, geom=geom, centres=camera_centres(R, t),
                                 sub=sub, method=method, dt=1.0 / fps, flow=flow, block=nb,
-                                probes=cfg.probes, progress=prog.nodes)
+                                probes=cfg.probes, progress=prog.nodes,
+                                max_obliqueness=cfg.oblique_angle)
                 prog.close()
                 if not p2["seen"].any():  # never an empty result
                     raise InputError(f"{cfg.grid}: no node has a temperature in any frame "
