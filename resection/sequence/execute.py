@@ -5,7 +5,6 @@ Dask cluster, a deferred chunk started again from the chunk before it
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import time
 from pathlib import Path
@@ -118,9 +117,7 @@ def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
             last = (seed0, None)
         before = _tail(last)
         if tasks and scheduler is None and n_local == 1:
-            # every frame left in this process: a frame's marker windows on its cores
-            _execute_local(dataclasses.replace(setup, threads=available_cores()), tasks, record,
-                           last)
+            _execute_local(setup, tasks, record, last)
         elif tasks:
             on_poll = _on_poll(frames_dir, tasks, done, note) if progress else None
             if scheduler is None:

@@ -302,8 +302,7 @@ def track_predicted(img: np.ndarray, setup, reference: FrameResult,
     if kw.get("mask") is not None:
         bad |= np.asarray(kw["mask"], bool)[c0[1]:c1[1], c0[0]:c1[0]]
     start = pv - c0
-    fit = refine_markers(signal, start, d, bad=bad, blur=blur, half=half,
-                         workers=setup.threads)
+    fit = refine_markers(signal, start, d, bad=bad, blur=blur, half=half)
     # a window is centred on the pixel of its start: fits that moved to another pixel are
     # fitted again in the window centred on theirs, so that the result does not depend on
     # how far off the prediction was (the window is then the one detection would use)
@@ -311,7 +310,7 @@ def track_predicted(img: np.ndarray, setup, reference: FrameResult,
         np.column_stack([fit["u"], fit["v"]])), axis=1))
     if moved.size:
         again = refine_markers(signal, np.column_stack([fit["u"], fit["v"]])[moved], d,
-                               bad=bad, blur=blur, half=half, workers=setup.threads)
+                               bad=bad, blur=blur, half=half)
         for k in fit:
             fit[k][moved] = again[k]
     lo_d, hi_d = kw.get("diameter_range", (0.5, 2.0))

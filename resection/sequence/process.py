@@ -35,9 +35,6 @@ class Setup:
     roi_margin: float | None = None
     #: (N, 3) outward unit normals at the markers (NaN rows where unknown), or None
     normals: np.ndarray | None = None
-    #: threads a frame's marker windows are fitted on (the run's frames in this one
-    #: process: its cores; 1 when processes share the frames)
-    threads: int = 1
 
 def _search_roi(setup: Setup, reference: FrameResult | None, shape) -> tuple | None:
     """Bounding box ``(u_min, v_min, u_max, v_max)`` of all the markers projected with the
