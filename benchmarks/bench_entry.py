@@ -129,7 +129,7 @@ class EntryVsUnsteadyAlone:
         s = BIG_ENTRY[size]
         source = deck_scene(size)
         out = cache_dir(f"entry_big_{size}")
-        if not (out / "index.json").exists():
+        if not (out / "processing-warmup.json").exists():  # the last file it writes
             make_big_entry(out, source, datapoints=s["datapoints"], cameras=s["cameras"],
                            frames=s["frames"])
         ids = list(json.loads((out / "index.json").read_text())["datapoints"])

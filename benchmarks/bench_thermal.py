@@ -35,7 +35,7 @@ def ir_scene(size: str) -> Path:
 
     s = THERMAL[size]
     folder = cache_dir(f"thermal_{size}")
-    if not (folder / "ir.npy").is_file():
+    if not (folder / "run.wtd").is_file():  # the last file make_ir_run writes
         nphi = int(round(np.sqrt(s["nodes"] / 1.6)))
         nx = int(round(s["nodes"] / (nphi + 1)))
         make_ir_run(folder, frames=s["frames"], width=s["width"], height=s["height"],
