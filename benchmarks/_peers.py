@@ -35,10 +35,13 @@ def bench_size() -> str:
 
 def baseline_root() -> Path | None:
     """The other checkout named by ``WTO_BENCH_BASELINE``, or None when it is unset. A
-    folder without the project's packages raises."""
+    relative path (asv runs the benchmarks in a folder of its own) or a folder without the
+    project's packages raises."""
     value = os.environ.get(BASELINE_VARIABLE)
     if not value:
         return None
+    if not Path(value).is_absolute():
+        raise ValueError(f"{BASELINE_VARIABLE}={value}: give an absolute path")
     root = Path(value).resolve()
     if not ((root / "selfillum").is_dir() and (root / "resection").is_dir()):
         raise ValueError(f"{BASELINE_VARIABLE}={value}: not a checkout of the project "

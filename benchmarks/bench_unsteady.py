@@ -195,8 +195,9 @@ class UnsteadyDeckVsRead:
 
 class UnsteadyDeckVsBaseline:
     """The command of ``UnsteadyDeckVsRead`` on the same run, beside the same command run
-    from another checkout (``WTO_BENCH_BASELINE``: a folder with that revision's
-    ``resection/`` and ``selfillum/``, e.g. ``git worktree add ../base REV``), the two in
+    from another checkout (``WTO_BENCH_BASELINE``: the absolute path of a folder with that
+    revision's ``resection/`` and ``selfillum/``, e.g. made by ``git archive REV | tar -x
+    -C DIR``; it runs with this environment's libraries), the two in
     turn, the order alternating, best of 3 each: the ratio is this checkout's time over
     the baseline's (below 1: faster). Skipped when ``WTO_BENCH_BASELINE`` is unset."""
 
