@@ -6,6 +6,8 @@ Run it in the project's ``.venv``, without asv building environments::
     .venv/bin/asv run --python=same --quick      # one pass, the current checkout
     .venv/bin/asv run --python=same              # full timing, results in .asv/results
 
-The ``bench/bench_*.py`` scripts are the long forms: more cases, the accuracy against the
-truth, and the history in ``docs/benchmark_history.md``.
+The size of the issue-size benchmarks is ``WTO_BENCH_SIZE`` (``small`` by default, or
+``issue``); ``WTO_BENCH_BASELINE`` names another checkout to run beside (``_peers.py``).
+The figures measured before the suite, by the former ``bench/`` scripts, are in
+``docs/benchmark_history.md``.
 """

@@ -4,8 +4,8 @@ frame: the path before the sparse products), each deck option against the deck, 
 ``--uncertainty`` adds to ``selfillum psp`` and ``selfillum unsteady``.
 
 Folded from ``bench/bench_unsteady_options.py`` and ``bench/bench_uncertainty.py``. The
-issue-size run (609,000 faces, 256 frames of 1280 x 800: 47 minutes to render here) stays a
-script, ``bench/bench_unsteady.py --deck``, beside a checkout of another revision.
+whole run at the issue's size (609,000 faces, 256 frames of 1280 x 800), and beside a
+checkout of another revision, is in ``bench_unsteady``.
 """
 
 from __future__ import annotations

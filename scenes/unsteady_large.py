@@ -1,11 +1,11 @@
-"""A large unsteady run made cheaply, for speed and memory at scale (``bench/
-bench_unsteady.py``, the whole command's memory test): the slab-and-block model as a Plot3D
-grid of about ``nodes`` nodes, one ``width`` x ``height`` 12-bit camera (a uint16 NPY stack
-of ``frames`` frames: the model rendered once, a 120 Hz tone of 1 % in its light and 0.5 %
-noise), the ``.wtd``, the paint calibration, the steady Cp and a ``resection track`` folder
-of the true poses of a vibrating model (``vibration_deg`` pitch and a 0.6 mm heave per 0.1
-degree at 30 Hz). Unlike :func:`scenes.unsteady_run.make_unsteady_run` no frame is
-rendered with its own pose or self-illumination: the frames are for throughput and memory,
+"""A large unsteady run made cheaply, for speed and memory at scale (the asv benchmark
+``bench_unsteady.UnsteadyCasesVsRead``, the whole command's memory test): the slab-and-block
+model as a Plot3D grid of about ``nodes`` nodes, one ``width`` x ``height`` 12-bit camera (a
+uint16 NPY stack of ``frames`` frames: the model rendered once, a 120 Hz tone of 1 % in its
+light and 0.5 % noise), the ``.wtd``, the paint calibration, the steady Cp and a ``resection
+track`` folder of the true poses of a vibrating model (``vibration_deg`` pitch and a 0.6 mm
+heave per 0.1 degree at 30 Hz). Unlike :func:`scenes.unsteady_run.make_unsteady_run` no frame
+is rendered with its own pose or self-illumination: the frames are for throughput and memory,
 not for accuracy."""
 
 from __future__ import annotations

@@ -173,6 +173,26 @@ def test_view_and_backproject_read_what_map_writes(plate, ext, capsys):
     capsys.readouterr()
 
 
+def test_map_xdmf_names_its_data_file_by_the_final_name(plate, tmp_path, capsys):
+    """``map --out m.xdmf`` leaves ``m.xdmf`` and ``m.data.h5`` only, the XML naming
+    ``m.data.h5`` (the command once wrote through a temporary name, so the XML named a
+    temporary data file that was never renamed), and its values are the data file's."""
+    import h5py
+
+    d, _ = plate
+    out = tmp_path / "m.xdmf"
+    assert main(["map", "--mesh", str(d / "panel.grid"), "--camera", str(d / "off.json"),
+                 "--image", str(d / "xcoord.npy"), "--out", str(out)]) == 0
+    capsys.readouterr()
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["m.data.h5", "m.xdmf"]
+    items = ET.parse(out).getroot().findall(".//DataItem")
+    assert items and {i.text.split(":")[0] for i in items} == {"m.data.h5"}
+    with h5py.File(tmp_path / "m.data.h5") as f:
+        seen = f["cell/xcoord_seen"][()]
+        assert seen.sum() > 50
+        np.testing.assert_array_equal(read_fields(out)["xcoord_seen"], seen)
+
+
 def test_map_writes_plot3d_function_file(plate):
     """``--out P.f`` on a Plot3D grid: per-node values on the original grid with a ``.nam``
     sidecar naming them, and one definition of a node value: the .f holds, for the same

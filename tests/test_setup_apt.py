@@ -103,3 +103,20 @@ def test_nothing_is_run_when_already_installed(fake_apt):
     done = _run(bin_dir, "pkgD", "true", "pkgD")
     assert done.returncode == 0 and done.stderr == ""
     assert not (state / "calls").exists()
+
+
+def test_apt_extra_reaches_apt_get_install_only(fake_apt):
+    """``APT_EXTRA=--no-install-recommends`` (ParaView's install in tools/setup.sh) is
+    given to ``apt-get install``, before the packages, and not to ``apt-get update``."""
+    bin_dir, state = fake_apt
+    (state / "mode").write_text("locked")
+    env_cmd = f'. "{SCRIPT}"; APT_EXTRA=--no-install-recommends apt_install_checked "$@"'
+    done = subprocess.run(
+        ["bash", "-c", env_cmd, "apt_install_checked", "pkgE", "true", "pkgE"],
+        capture_output=True, text=True, timeout=60,
+        env=dict(os.environ, PATH=f"{bin_dir}:{os.environ['PATH']}", APT_LOCK_WAIT="7"))
+    assert done.returncode == 0, done.stderr
+    calls = (state / "calls").read_text().splitlines()
+    install = [c for c in calls if " install " in f" {c} "]
+    assert len(install) == 1 and install[0].split()[-2:] == ["--no-install-recommends", "pkgE"]
+    assert all("--no-install-recommends" not in c for c in calls if c not in install)

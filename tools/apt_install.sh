@@ -19,6 +19,7 @@ apt_installed() {
 # already succeeds; warn with WHAT only when, after apt-get has run (waiting for any lock
 # held by another apt), CHECK still fails or a PKG is not installed. The last apt-get
 # lines are shown with the warning so that the cause is visible.
+# APT_EXTRA: more options for apt-get install (e.g. --no-install-recommends).
 apt_install_checked() {
     local what=$1 check=$2
     shift 2
@@ -30,7 +31,7 @@ apt_install_checked() {
     # -o DPkg::Lock::Timeout: wait for dpkg's and apt's locks instead of failing at once
     apt-get -o DPkg::Lock::Timeout="$APT_LOCK_WAIT" update -qq >"$log" 2>&1 || true
     DEBIAN_FRONTEND=noninteractive apt-get -o DPkg::Lock::Timeout="$APT_LOCK_WAIT" \
-        install -y -qq "$@" >>"$log" 2>&1 || true
+        install -y -qq ${APT_EXTRA:-} "$@" >>"$log" 2>&1 || true
     if eval "$check" >/dev/null 2>&1 && apt_installed "$@"; then
         rm -f "$log"
         return 0

@@ -5,8 +5,11 @@
 #   (without it the renders fall back to the slower `scalar_rgb` variant);
 # - on Debian as root: chromium and chromium-driver, which the browser test of the linking
 #   page (tests/test_link_page.py, selenium) drives headless;
-# - on Debian as root: Mesa's EGL, which VTK's offscreen rendering uses without a display
-#   (the tutorial's ParaView step draws the run's XDMF through VTK).
+# - on Debian as root: Mesa's EGL, which VTK's offscreen rendering uses without a display;
+# - on Debian as root: ParaView (paraview, python3-paraview: 5.11 on Debian 12, without its
+#   recommended packages; about 1.3 GB installed, 2 minutes here) and Xvfb, a virtual
+#   display it draws in: the tutorial opens the run's XDMF in ParaView and
+#   tests/test_paraview.py (slow) checks what ParaView reads (tools/paraview_frame.py).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
@@ -23,6 +26,9 @@ if [ "$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1; then
         "command -v chromium && command -v chromedriver" chromium chromium-driver || true
     apt_install_checked "Mesa's EGL; VTK's offscreen pictures (the tutorial) will fail" \
         "ldconfig -p | grep 'libEGL_mesa.so.0'" libegl1 libegl-mesa0 libgl1-mesa-dri || true
+    APT_EXTRA=--no-install-recommends apt_install_checked \
+        "ParaView and Xvfb; the tutorial reads the XDMF with VTK, tests/test_paraview.py fails" \
+        "command -v pvbatch && command -v Xvfb" paraview python3-paraview xvfb || true
 fi
 stamp=.venv/.installed-$(sha1sum pyproject.toml | cut -c1-12)
 if [ ! -f "$stamp" ]; then

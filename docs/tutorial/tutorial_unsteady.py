@@ -23,6 +23,8 @@ checked against the truth.
 # ``make_unsteady_run`` writes a run as a tunnel would: the grid (Plot3D), the targets
 # (``.tgts``), the camera's video (an NPY stack here; ``.cine`` and ``.mraw`` are read the
 # same way), its calibration, the ``.wtd``, the paint gain file, the steady Cp and a deck.
+import os
+import shlex
 import shutil
 import subprocess
 import sys
@@ -34,6 +36,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 from scipy.signal import welch
 
+import scenes
 from resection import read_camera, read_image, read_markers, write_camera, write_image
 from scenes.unsteady_run import make_unsteady_run
 
@@ -192,80 +195,104 @@ with h5py.File(work / "out" / "run.h5") as f:
 # %%
 # Open it in ParaView
 # -------------------
-# In ParaView: File > Open, ``out/run.xdmf``, the reader "Xdmf Reader", Apply; colour by
-# ``dCp``; the time bar steps through the frames. ParaView's "Xdmf Reader" is VTK's
-# ``vtkXdmfReader``. This page is built without ParaView (it is not a pip package), so the
-# step below runs that same reader from the ``vtk`` package: it opens ``run.xdmf``, reads
-# one frame's dCp on the grid, and draws it offscreen as ParaView would, seen from the
-# solved camera. The values it reads are checked against row ``k`` of ``/dcp`` in
+# In ParaView's window: File > Open, ``out/run.xdmf``, the reader "Xdmf Reader", Apply;
+# colour by ``dCp``; the time bar steps through the frames. The same done by ParaView's
+# own Python (``pvbatch``) is ``tools/paraview_frame.py`` in the repository: it opens the
+# file with that reader, goes to a time step, saves that step's dCp and a picture seen
+# from the solved camera. Where ParaView is installed (``tools/setup.sh`` installs
+# Debian's when run as root; it is no pip package), this page runs it. Where it is not,
+# the page runs instead the reader behind ParaView's "Xdmf Reader", VTK's
+# ``vtkXdmfReader`` from the ``vtk`` package, and draws with VTK: the output below says
+# which one ran. Either way the values read are checked against row ``k`` of ``/dcp`` in
 # ``run.h5``.
-import vtk  # noqa: E402
-from vtkmodules.util.numpy_support import vtk_to_numpy  # noqa: E402
-
-reader = vtk.vtkXdmfReader()
-reader.SetFileName(str(work / "out" / "run.xdmf"))
-reader.UpdateInformation()
-steps = reader.GetOutputInformation(0).Get(vtk.vtkStreamingDemandDrivenPipeline.TIME_STEPS())
-k = len(steps) // 3
-reader.UpdateTimeStep(steps[k])  # ParaView's time bar
-blocks = reader.GetOutputDataObject(0).NewIterator()  # the grid and its time series
-blocks.InitTraversal()
-while not blocks.IsDoneWithTraversal():
-    if blocks.GetCurrentDataObject().GetPointData().GetArray("dCp") is not None:
-        frame = blocks.GetCurrentDataObject()  # the time series' grid at step k
-    blocks.GoToNextItem()
-surface = vtk.vtkGeometryFilter()
-surface.SetInputData(frame)
-surface.Update()
-grid = surface.GetOutput()
-values = vtk_to_numpy(grid.GetPointData().GetArray("dCp"))
-print(f"{len(steps)} time steps, t = {steps[0]:.4f} .. {steps[-1]:.4f} s; frame {k}: "
-      f"{grid.GetNumberOfPoints()} nodes, {grid.GetNumberOfCells()} faces; dCp as in run.h5: "
-      f"{np.array_equal(values, dcp[k], equal_nan=True)}")
-
-lut = vtk.vtkLookupTable()
-lut.SetHueRange(0.667, 0.0)  # blue to red, ParaView's rainbow
-lut.SetNanColor(0.6, 0.6, 0.6, 1.0)  # nodes no camera saw
-lut.Build()
-low, high = np.nanpercentile(dcp, [1, 99])
-mapper = vtk.vtkPolyDataMapper()
-mapper.SetInputData(grid)
-mapper.SetScalarModeToUsePointFieldData()
-mapper.SelectColorArray("dCp")
-mapper.SetLookupTable(lut)
-mapper.SetScalarRange(low, high)
-actor = vtk.vtkActor()
-actor.SetMapper(mapper)
-bar = vtk.vtkScalarBarActor()
-bar.SetLookupTable(lut)
-bar.SetTitle("dCp")
-bar.SetWidth(0.1)
-renderer = vtk.vtkRenderer()
-renderer.AddActor(actor)
-renderer.AddViewProp(bar)
-renderer.SetBackground(1.0, 1.0, 1.0)
-bar.GetTitleTextProperty().SetColor(0, 0, 0)
-bar.GetLabelTextProperty().SetColor(0, 0, 0)
+k = len(dcp) // 3  # the time step shown
 pose = read_camera(work / "pose.json")  # look from where the camera was
-view = renderer.GetActiveCamera()
-view.SetPosition(*pose.center)
-view.SetFocalPoint(*(pose.center + pose.R[2]))
-view.SetViewUp(*(-pose.R[1]))
-view.SetViewAngle(float(np.degrees(2 * np.arctan(pose.height / 2 / pose.K[1, 1]))))
-renderer.ResetCameraClippingRange()
-window = vtk.vtkRenderWindow()
-window.SetOffScreenRendering(1)
-window.AddRenderer(renderer)
-window.SetSize(3 * pose.width, 3 * pose.height)
-window.Render()
-shot = vtk.vtkWindowToImageFilter()
-shot.SetInput(window)
-png = vtk.vtkPNGWriter()
-png.SetFileName(str(work / "paraview_frame.png"))
-png.SetInputConnection(shot.GetOutputPort())
-png.Write()
-window.Finalize()
-show(work / "paraview_frame.png", f"run.xdmf through VTK's vtkXdmfReader: dCp, frame {k}")
+angle = float(np.degrees(2 * np.arctan(pose.height / 2 / pose.K[1, 1])))
+low, high = np.nanpercentile(dcp, [1, 99])
+paraview = shutil.which("pvbatch") and (os.environ.get("DISPLAY") or shutil.which("Xvfb"))
+if paraview:
+    tool = Path(scenes.__file__).resolve().parents[1] / "tools" / "paraview_frame.py"
+    view = [*pose.center, *(pose.center + pose.R[2]), *(-pose.R[1]), angle]
+    args = ["out/run.xdmf", "--array", "dCp", "--step", str(k), "--reader", "Xdmf Reader",
+            "--view=" + ",".join(f"{v:.6g}" for v in view), f"--range={low:.6g},{high:.6g}",
+            "--size", f"{3 * pose.width},{3 * pose.height}", "--npy", "paraview_frame.npy",
+            "--png", "paraview_frame.png"]
+    print("$ python tools/paraview_frame.py", shlex.join(args))
+    done = subprocess.run([sys.executable, str(tool), *args], cwd=work, capture_output=True,
+                          text=True)
+    print(done.stdout.strip())
+    if done.returncode != 0:
+        raise RuntimeError(f"tools/paraview_frame.py exited {done.returncode}: "
+                           f"{done.stderr.strip()[-500:]}")
+    values = np.load(work / "paraview_frame.npy")
+    title = f"out/run.xdmf in ParaView (pvbatch), the Xdmf Reader: dCp, frame {k}"
+else:
+    import vtk
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+
+    print("ParaView is not installed here: VTK's vtkXdmfReader (ParaView's Xdmf Reader)")
+    reader = vtk.vtkXdmfReader()
+    reader.SetFileName(str(work / "out" / "run.xdmf"))
+    reader.UpdateInformation()
+    steps = reader.GetOutputInformation(0).Get(
+        vtk.vtkStreamingDemandDrivenPipeline.TIME_STEPS())
+    reader.UpdateTimeStep(steps[k])  # ParaView's time bar
+    blocks = reader.GetOutputDataObject(0).NewIterator()  # the grid and its time series
+    blocks.InitTraversal()
+    while not blocks.IsDoneWithTraversal():
+        if blocks.GetCurrentDataObject().GetPointData().GetArray("dCp") is not None:
+            frame = blocks.GetCurrentDataObject()  # the time series' grid at step k
+        blocks.GoToNextItem()
+    surface = vtk.vtkGeometryFilter()
+    surface.SetInputData(frame)
+    surface.Update()
+    grid = surface.GetOutput()
+    values = vtk_to_numpy(grid.GetPointData().GetArray("dCp"))
+    print(f"{len(steps)} time steps, t = {steps[0]:.4f} .. {steps[-1]:.4f} s; frame {k}: "
+          f"{grid.GetNumberOfPoints()} nodes, {grid.GetNumberOfCells()} faces")
+    lut = vtk.vtkLookupTable()
+    lut.SetHueRange(0.667, 0.0)  # blue to red, ParaView's rainbow
+    lut.SetNanColor(0.6, 0.6, 0.6, 1.0)  # nodes no camera saw
+    lut.Build()
+    mapper = vtk.vtkPolyDataMapper()
+    mapper.SetInputData(grid)
+    mapper.SetScalarModeToUsePointFieldData()
+    mapper.SelectColorArray("dCp")
+    mapper.SetLookupTable(lut)
+    mapper.SetScalarRange(low, high)
+    actor = vtk.vtkActor()
+    actor.SetMapper(mapper)
+    bar = vtk.vtkScalarBarActor()
+    bar.SetLookupTable(lut)
+    bar.SetTitle("dCp")
+    bar.SetWidth(0.1)
+    renderer = vtk.vtkRenderer()
+    renderer.AddActor(actor)
+    renderer.AddViewProp(bar)
+    renderer.SetBackground(1.0, 1.0, 1.0)
+    bar.GetTitleTextProperty().SetColor(0, 0, 0)
+    bar.GetLabelTextProperty().SetColor(0, 0, 0)
+    camera = renderer.GetActiveCamera()
+    camera.SetPosition(*pose.center)
+    camera.SetFocalPoint(*(pose.center + pose.R[2]))
+    camera.SetViewUp(*(-pose.R[1]))
+    camera.SetViewAngle(angle)
+    renderer.ResetCameraClippingRange()
+    window = vtk.vtkRenderWindow()
+    window.SetOffScreenRendering(1)
+    window.AddRenderer(renderer)
+    window.SetSize(3 * pose.width, 3 * pose.height)
+    window.Render()
+    shot = vtk.vtkWindowToImageFilter()
+    shot.SetInput(window)
+    png = vtk.vtkPNGWriter()
+    png.SetFileName(str(work / "paraview_frame.png"))
+    png.SetInputConnection(shot.GetOutputPort())
+    png.Write()
+    window.Finalize()
+    title = f"out/run.xdmf through VTK's vtkXdmfReader (no ParaView here): dCp, frame {k}"
+print(f"frame {k}'s dCp as in run.h5: {np.array_equal(values, dcp[k], equal_nan=True)}")
+show(work / "paraview_frame.png", title)
 
 # %%
 # The time history of a plate node near the middle of the seen part, against the truth

@@ -239,8 +239,8 @@ def run_map(args: argparse.Namespace) -> int:
         fields[f"{name}_seen"] = ~res.unseen & ~touched
     if per_node:
         write_surface(args.out, mesh, None, node_fields=fields)  # atomic, with its .nam
-    else:
-        atomic_write(args.out, write_surface, mesh, fields)
+    else:  # atomic itself: an .xdmf's data file named after the final name, not a temporary
+        write_surface(args.out, mesh, fields)
     print(f"map: {int(smap.seen_faces.sum())} of {len(mesh.faces)} faces seen by "
           f"{int(smap.mask.sum())} pixels; written to {args.out}")
     line = report(n_sat, level, n_faces)
@@ -415,7 +415,7 @@ def _run_merge(args: argparse.Namespace, names: list) -> int:
         for c, name in enumerate(names):
             fields[name] = mv.camera_values[c]
             fields[f"{name}_weight"] = mv.camera_weights[c]
-        atomic_write(args.out, write_surface, mesh, fields)
+        write_surface(args.out, mesh, fields)  # atomic itself (see map)
     print(mv.report())
     print(f"map: {int(mv.seen.sum())} of {len(mesh.faces)} faces seen by {len(maps)} "
           f"cameras ({int((mv.n_cameras > 1).sum())} by several); written to {args.out}")

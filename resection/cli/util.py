@@ -75,7 +75,7 @@ def run(parser: argparse.ArgumentParser, argv: list[str] | None) -> int:
         # numba's parallel kernels run on OpenMP (GNU libgomp, which reads this when the
         # first parallel kernel loads it): its threads spin while they wait, and on cores
         # shared with other work each launch then cost several times its work (the thermal
-        # run's sampling, bench/bench_thermal.py); passive waiting, unless the user set it
+        # run's sampling, asv's bench_thermal.py); passive waiting, unless the user set it
         os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
         status = int(args.func(args) or 0)
         if interrupted():  # a Ctrl-C that a library swallowed: still a stop

@@ -184,8 +184,9 @@ def register(sub) -> None:
                    help="faces that emit nothing and never make a node value: a per-face 0/1 "
                    "file or Plot3D block numbers counted from 1")
     p.add_argument("--rays", type=int, default=64, help="rays per face for the view "
-                   "factors (default 64: on the hidden-face scene of bench/"
-                   "bench_unsteady_accuracy.py, dCp next to the block as with 1024)")
+                   "factors (default 64: on the hidden-face scene of the benchmark "
+                   "bench_unsteady.UnsteadyAccuracyVsUpspLike, dCp next to the block as with "
+                   "1024)")
     p.add_argument("--seed", type=int, default=0, help="view-factor seed")
     p.add_argument("--fps", type=float, help="frame rate, when the video does not say it")
     p.add_argument("--tinf", type=float, metavar="DEG_F",

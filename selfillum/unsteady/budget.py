@@ -38,7 +38,7 @@ PHASE1_BYTES_PER_CELL = 4
 PHASE2_BYTES_PER_CELL = 48
 #: The default budget of the blocks, MiB: with the fixed part of a 1280x800 run on a
 #: 600k-node grid with SI and a moving model (about 1.05 GB), the whole run peaks under
-#: 1.5 GB (bench/bench_unsteady.py); larger blocks only batch the writes more.
+#: 1.5 GB (asv's bench_unsteady.py); larger blocks only batch the writes more.
 DEFAULT_MEMORY_MB = 256.0
 
 
