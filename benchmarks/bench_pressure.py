@@ -32,15 +32,21 @@ OPTION_CASES = {
                           "--filter-size", "5"],
     "best_view": ["--overlap", "best_view"],
     "merge": ["--overlap", "merge"],
+    "first-frame": ["--registration", "first-frame"],
+    "2 cameras": [],
+    "4 cameras": [],
 }
 
+#: The cameras of each case's scene (the options scene made with that many cameras).
+OPTION_CAMERAS = {"2 cameras": 2, "4 cameras": 4}
 
-def _options_scene():
+
+def _options_scene(cameras: int = 1):
     from scenes.unsteady_run import make_unsteady_run
 
-    folder = cache_dir("unsteady_options")
+    folder = cache_dir("unsteady_options" + ("" if cameras == 1 else f"_{cameras}cams"))
     if not (folder / "run.inp").exists():
-        make_unsteady_run(folder, truth_rays=256, **OPTIONS_SCENE)
+        make_unsteady_run(folder, truth_rays=256, cameras=cameras, **OPTIONS_SCENE)
     return folder
 
 
@@ -91,8 +97,10 @@ class UnsteadyDeckAgainstFullMaps:
 
 class UnsteadyDeckOptions:
     """Each deck option (``OPTION_CASES``) on the options scene, the whole command in a
-    fresh process, against the deck itself in the same run (target: every option set at
-    least 0.8 of the fastest, so a ratio of at most 1.25)."""
+    fresh process, against the deck itself (one camera) in the same run (target: every
+    option set at least 0.8 of the fastest, so a ratio of at most 1.25). The camera cases
+    run the deck on the scene made with 2 or 4 cameras (``OPTION_CAMERAS``): 2 or 4 times
+    the pixels of the one-camera deck."""
 
     timeout = 1800
     number = 1
@@ -102,11 +110,12 @@ class UnsteadyDeckOptions:
 
     def setup(self, option):
         self.folder = _options_scene()
+        self.folders = {option: _options_scene(OPTION_CAMERAS.get(option, 1))}
         self.out = cache_dir("unsteady_options_out")
 
     def _case(self, option):
-        return run_command(_unsteady(self.folder, self.out / "case.h5",
-                                     OPTION_CASES[option]))
+        folder = self.folders.get(option, self.folder)
+        return run_command(_unsteady(folder, self.out / "case.h5", OPTION_CASES[option]))
 
     def time_command(self, option):
         self._case(option)
