@@ -51,6 +51,16 @@ def _options_scene(cameras: int = 1):
 
 
 def _unsteady(folder, out, flags):
+    """The command on ``folder``'s deck writing ``out``, whose files of an earlier call
+    (the HDF5, its XDMF, pictures, the work folder) are removed first: the command refuses
+    an existing output."""
+    import shutil
+
+    for p in out.parent.glob(out.stem + "*"):
+        if p.is_dir():
+            shutil.rmtree(p)
+        else:
+            p.unlink()
     return [sys.executable, "-m", "selfillum.cli", "unsteady", str(folder / "run.inp"),
             "--paint-calibration", str(folder / "paint.txt"), "--steady",
             str(folder / "steady.f"), "--fps", str(OPTIONS_SCENE["fps"]), "--out", str(out),
