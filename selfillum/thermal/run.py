@@ -77,8 +77,10 @@ def run_thermal(cfg: ThermalConfig) -> ThermalResult:
 #: free cores (this process's included, by the 1-minute load average) from which the
 #: markers are tracked in a child process beside the run's set-up: on a machine whose
 #: cores are busy, the child's own start and imports (about 1.5 s of CPU) cost more than
-#: the overlap gains
-EARLY_TRACKING_CORES = 1.5
+#: the overlap gains, and on two free cores it gained nothing either (the paper's
+#: 500-frame run: 53.1-55.7 frames/s with it, 52.9-55.1 without, about 1 s more CPU), so
+#: it needs more than two
+EARLY_TRACKING_CORES = 2.5
 
 
 def _start_tracking(cfg: ThermalConfig):
