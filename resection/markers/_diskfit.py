@@ -329,7 +329,7 @@ def _solve_damped(JTJ, JTr, lam, step):
     return True
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True)
 def fit_windows(win, w, p0, tab, T, h, rmin, rmax, iterations, tol, sizes, sn, cs, wc):
     """Levenberg-Marquardt fit of every window.
 

@@ -53,7 +53,6 @@ def refine_markers(
     strength=None,
     chunk: int = 1024,
     tol: float = 1e-4,
-    workers: int = 1,
 ) -> dict:
     """Sub-pixel centres of bright blobs by a least-squares disk fit, all at once.
 
@@ -89,10 +88,6 @@ def refine_markers(
         volume) 2 or 3 evaluations a candidate; the default leaves the centres within
         ~5e-5 px (median; 90 % within 3e-4 px) of a fit run to convergence, far under the
         Cramér-Rao bound (about 0.005 px at SNR 100).
-    workers : int
-        Threads the windows are fitted on, in blocks (the kernel releases the GIL): the
-        same fits in any number (each window is fitted alone). One by default: a caller
-        that runs frames in several processes already uses the cores.
 
     Returns
     -------
@@ -103,12 +98,11 @@ def refine_markers(
         raise InputError(f"bad: shape {np.shape(bad)} differs from the signal's {signal.shape}")
     img, mask = _prep.native(signal, bad)
     return fit_frame(img, mask, np.inf, 1.0, 0.0, uv0, diameter, blur=blur,
-                     iterations=iterations, half=half, strength=strength, chunk=chunk, tol=tol,
-                     workers=workers)
+                     iterations=iterations, half=half, strength=strength, chunk=chunk, tol=tol)
 
 
 def fit_frame(img, mask, sat, sign, fill, uv0, diameter, *, blur=0.6, iterations=30,
-              half=None, strength=None, chunk=1024, tol=1e-4, workers=1) -> dict:
+              half=None, strength=None, chunk=1024, tol=1e-4) -> dict:
     """:func:`refine_markers` on the signal ``sign * img - fill`` of a frame ``img`` (any
     integer or float type of :func:`resection.markers._prep.native`), without converting it:
     pixels where ``mask`` (a bool array of the frame's shape, or (0, 0) for none) is True,
@@ -123,7 +117,7 @@ def fit_frame(img, mask, sat, sign, fill, uv0, diameter, *, blur=0.6, iterations
     nbrs = _neighbours(uv0, strength, 2.0 * half + 1.0, 1.5 * R0 + 1.0)
     frame = (img, mask, float(sat), float(sign), float(fill))
     parts = [_refine_chunk(frame, uv0, nbrs, np.arange(k, min(k + chunk, n)), R0, blur,
-                           iterations, half, tol, workers)
+                           iterations, half, tol)
              for k in range(0, n, max(int(chunk), 1))]
     keys = ("u", "v", "radius", "depth", "background", "rms", "ok", "masked_fraction")
     if not parts:
@@ -131,8 +125,7 @@ def fit_frame(img, mask, sat, sign, fill, uv0, diameter, *, blur=0.6, iterations
     return {k: np.concatenate([p[k] for p in parts]) for k in keys}
 
 
-def _refine_chunk(frame, uv_all, nbrs, sel, R0, blur, iterations, half, tol,
-                  workers=1) -> dict:
+def _refine_chunk(frame, uv_all, nbrs, sel, R0, blur, iterations, half, tol) -> dict:
     """Levenberg-Marquardt fit of the windows of the starts ``sel`` (see refine_markers)."""
     uv0 = uv_all[sel]
     n = len(uv0)
@@ -153,8 +146,9 @@ def _refine_chunk(frame, uv_all, nbrs, sel, R0, blur, iterations, half, tol,
     s = max(float(blur), 1e-3)
     if iterations > 0:
         tables = _diskfit.node_table(min(_diskfit.n_nodes(rmax, s), 2048))
-        p, cost = _fit_blocks(win, w, p, (*_diskfit.edge_table(s), rmin, rmax,
-                                          int(iterations), float(tol), *tables), workers)
+        p, cost, _ = _diskfit.fit_windows(win, w, p,
+                                          *_diskfit.edge_table(s), rmin, rmax,
+                                          int(iterations), float(tol), *tables)
     else:  # no fit: the starting values
         p[:, 3] = height
         cost = np.full(n, np.nan)
@@ -173,23 +167,3 @@ def _refine_chunk(frame, uv_all, nbrs, sel, R0, blur, iterations, half, tol,
         "background": p[:, 4], "rms": np.sqrt(cost / npix), "ok": ok,
         "masked_fraction": masked_fraction,
     }
-
-
-def _fit_blocks(win, w, p0, args, workers: int):
-    """:func:`resection.markers._diskfit.fit_windows` over blocks of the windows on up to
-    ``workers`` threads (each window is fitted alone: the same result in any blocks)."""
-    from resection._threads import run_blocks, split_range
-
-    n = len(p0)
-    if workers <= 1 or n < 2:
-        p, cost, _ = _diskfit.fit_windows(win, w, p0, *args)
-        return p, cost
-    p, cost = np.empty_like(p0), np.empty(n)
-
-    def block(b):
-        a, z = b
-        p[a:z], cost[a:z], _ = _diskfit.fit_windows(win[a:z], w[a:z], p0[a:z], *args)
-
-    run_blocks(block, split_range(n, workers), workers)
-    return p, cost
-
