@@ -50,17 +50,23 @@ def _options_scene(cameras: int = 1):
     return folder
 
 
-def _unsteady(folder, out, flags):
-    """The command on ``folder``'s deck writing ``out``, whose files of an earlier call
-    (the HDF5, its XDMF, pictures, the work folder) are removed first: the command refuses
-    an existing output."""
+def _clear_outputs(out) -> None:
+    """Remove what an earlier call wrote at ``out``: the file or folder itself and what is
+    named after it beside it (``OUT.xdmf``, ``OUT_rms.png``, the ``OUT.h5.work`` folder),
+    not a neighbour that merely starts with the same letters (the inputs' folder): the
+    commands refuse an existing output."""
     import shutil
 
-    for p in out.parent.glob(out.stem + "*"):
+    for p in [out, *out.parent.glob(out.stem + ".*"), *out.parent.glob(out.stem + "_*")]:
         if p.is_dir():
             shutil.rmtree(p)
-        else:
+        elif p.exists():
             p.unlink()
+
+
+def _unsteady(folder, out, flags):
+    """The command on ``folder``'s deck writing ``out`` (its earlier outputs removed)."""
+    _clear_outputs(out)
     return [sys.executable, "-m", "selfillum.cli", "unsteady", str(folder / "run.inp"),
             "--paint-calibration", str(folder / "paint.txt"), "--steady",
             str(folder / "steady.f"), "--fps", str(OPTIONS_SCENE["fps"]), "--out", str(out),
@@ -183,13 +189,7 @@ class UncertaintyCost:
             self.out = folder / "u.h5"
 
     def _run(self, extra):
-        import shutil
-
-        if self.out.is_dir():
-            shutil.rmtree(self.out)
-        for p in self.out.parent.glob(self.out.stem + "*"):
-            if p.is_file():
-                p.unlink()
+        _clear_outputs(self.out)
         return run_command([sys.executable, "-m", "selfillum.cli", *self.base, *extra,
                             "--out", str(self.out)])
 
