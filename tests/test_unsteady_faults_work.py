@@ -263,6 +263,44 @@ def test_ctrl_c_during_an_import_that_catches_base_exception(tmp_path):
     assert p.returncode == 130, p.stderr
 
 
+def test_ctrl_c_silences_the_finalizers_of_what_it_tore():
+    """An object that Ctrl-C interrupted in its construction fails in its finalizer when
+    collected (llvmlite's, when numba was compiling at that moment: a clean clone's run
+    printed 10 lines of "Exception ignored in ... __del__" after the command's one line):
+    once Ctrl-C was pressed, such failures print nothing; before it they still do."""
+    code = textwrap.dedent("""
+        import os, signal, sys
+        from resection.cli.interrupts import install
+        install()
+
+        class Torn:
+            def __init__(self):
+                os.kill(os.getpid(), signal.SIGINT)
+                self.handle = 1
+
+            def __del__(self):
+                del self.handle  # never set: AttributeError in the finalizer
+
+        class Broken:
+            def __del__(self):
+                raise ValueError("before any Ctrl-C")
+
+        Broken()  # reported as usual
+        sys.stderr.write("--\\n")
+        try:
+            Torn()
+        except KeyboardInterrupt:
+            pass
+        sys.exit(130)
+    """)
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       timeout=60)
+    assert p.returncode == 130, p.stderr
+    before, _, after = p.stderr.partition("--\n")
+    assert "ValueError: before any Ctrl-C" in before
+    assert after == "", after
+
+
 @pytest.mark.parametrize("delay", [0.6, 1.0, 1.5, 2.0])
 def test_ctrl_c_in_the_first_seconds_ends_in_130(case, delay):
     """Issue 34 item 17: Ctrl-C in the first 2 s of a run ends in exit 130 and one line,

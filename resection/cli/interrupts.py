@@ -37,6 +37,11 @@ class _State:
 
     def handler(self, signum, frame):
         self.asked = True
+        # an object the interrupt tore in its construction may fail in its finalizer when
+        # it is collected (llvmlite's, when numba was compiling at that moment: "Exception
+        # ignored in ... __del__", 9 lines of traceback after the command's one line): the
+        # command is stopping, such failures are not the user's concern
+        sys.unraisablehook = _ignore_unraisable
         if self.depth:
             self.pending = True
             return
@@ -53,6 +58,10 @@ class _State:
 
 
 _STATE: _State | None = None
+
+
+def _ignore_unraisable(unraisable) -> None:
+    """``sys.unraisablehook`` once Ctrl-C was pressed: finalizers' failures are dropped."""
 
 
 class _HoldingLoader(importlib.abc.Loader):
