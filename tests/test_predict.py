@@ -82,8 +82,10 @@ def test_refine_pose_agrees_with_opencv_least_squares():
         X, uv, K, dist, rv_cv, tv_cv,
         criteria=(cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 100, 1e-15))
     ang = (Rotation.from_rotvec(rv) * Rotation.from_rotvec(rv_cv.ravel()).inv()).magnitude()
-    assert np.degrees(ang) < 1e-6
-    np.testing.assert_allclose(tv, tv_cv.ravel(), atol=1e-8)
+    # both stop on their own step rules: 1.1e-6 degrees apart on one machine (1e-3 degrees
+    # is the pose's own scatter from the 0.05 px noise), so 1e-5 degrees and 1e-7 m
+    assert np.degrees(ang) < 1e-5
+    np.testing.assert_allclose(tv, tv_cv.ravel(), atol=1e-7)
     # the residuals are the observed minus the reprojected positions
     np.testing.assert_allclose(res, uv - project_poses(cam, rv, tv, X)[0], atol=1e-12)
     assert 0.02 < np.sqrt(np.mean(np.sum(res**2, axis=1))) < 0.1

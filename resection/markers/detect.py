@@ -294,6 +294,7 @@ def detect_markers(
     diameter_range: tuple[float, float] = (0.5, 2.0),
     refine: bool = True,
     screen_contrast: float | None = 2.5,
+    shape: str = "disk",
 ) -> Candidates:
     """Find circular markers and locate them to sub-pixel accuracy.
 
@@ -352,6 +353,9 @@ def detect_markers(
         moments) is outside 0.5-1.6 times that of a disk of ``diameter``, or whose
         elongation exceeds 3.5 (a disk seen beyond about 73 degrees). Cheap (one compiled
         pass); on speckled paint most local maxima never reach the fit. None: no screen.
+    shape : {"disk", "ellipse"}
+        The fitted model (see :func:`refine_markers`): "ellipse" for markers seen
+        obliquely (the tracker's choice).
 
     Returns
     -------
@@ -443,7 +447,8 @@ def detect_markers(
         return empty
     # the fit reads its windows from the frame itself (sign and fill level applied there)
     fit = fit_frame(part, mpart, sat, sign, fill, np.column_stack([pu, pv]).astype(float), d,
-                    blur=blur, strength=m, iterations=FIT_ITERATIONS if refine else 0)
+                    blur=blur, strength=m, iterations=FIT_ITERATIONS if refine else 0,
+                    shape=shape)
     if not refine:  # the merit is the better contrast estimate of an unfitted marker
         fit["depth"] = m
     fu, fv, fr = fit["u"], fit["v"], fit["radius"]

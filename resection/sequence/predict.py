@@ -63,6 +63,28 @@ GATE_SPACING_FRACTION = 0.3
 #: markers not expected in a frame (never seen, or lost) are looked for in the frames whose
 #: index is a multiple of this
 PROBE_EVERY = 5
+#: markers at least this many pixels across are fitted as ellipses by the tracker (``detect_kw``
+#: ``shape`` overrides it): round markers seen obliquely are ellipses, which the disk model
+#: fits slowly and off centre (a median of 31 evaluations a window and 0.08 px on a 35 px
+#: marker at an aspect of 0.6); on smaller ones its bias is a few 0.01 px, and the two
+#: parameters more let a 5 px marker near the limb, on speckled paint, take a speckle along
+#: (1 px off in tests/test_track_revolution.py)
+ELLIPSE_MIN_DIAMETER = 12.0
+#: the tracker's fits stop once a step leaves under this error in the centre (pixels; the
+#: detector's default is 1e-4). On the obliquely seen, point-sampled 35 px targets of the
+#: 609,000-face uPSP run the iterations contract by about 0.45 a step (a large residual):
+#: 1e-3 left the centres 6e-4 px (median; 7e-3 at most) from the converged ones, for 7
+#: evaluations a window instead of 10. The start (the window's centroid) does not depend on
+#: the frames before, so neither does the result
+TRACK_FIT_TOL = 1e-3
+
+
+def marker_shape(detect_kw: dict, diameter: float) -> str:
+    """The model of the tracker's fits: ``detect_kw``'s ``shape`` if it names one, else
+    "ellipse" for markers of at least ``ELLIPSE_MIN_DIAMETER`` pixels, "disk" below."""
+    if detect_kw.get("shape") is not None:
+        return str(detect_kw["shape"])
+    return "ellipse" if diameter >= ELLIPSE_MIN_DIAMETER else "disk"
 #: a marker never seen is expected when its normal is within this angle of the line of
 #: sight (degrees): beyond it a disk is an ellipse of aspect under 1/2, which the disk model
 #: may not fit; such a marker is probed instead
@@ -302,7 +324,9 @@ def track_predicted(img: np.ndarray, setup, reference: FrameResult,
     if kw.get("mask") is not None:
         bad |= np.asarray(kw["mask"], bool)[c0[1]:c1[1], c0[0]:c1[0]]
     start = pv - c0
-    fit = refine_markers(signal, start, d, bad=bad, blur=blur, half=half)
+    shape = marker_shape(kw, d)
+    fit = refine_markers(signal, start, d, bad=bad, blur=blur, half=half, shape=shape,
+                         tol=TRACK_FIT_TOL)
     # a window is centred on the pixel of its start: fits that moved to another pixel are
     # fitted again in the window centred on theirs, so that the result does not depend on
     # how far off the prediction was (the window is then the one detection would use)
@@ -310,7 +334,8 @@ def track_predicted(img: np.ndarray, setup, reference: FrameResult,
         np.column_stack([fit["u"], fit["v"]])), axis=1))
     if moved.size:
         again = refine_markers(signal, np.column_stack([fit["u"], fit["v"]])[moved], d,
-                               bad=bad, blur=blur, half=half)
+                               bad=bad, blur=blur, half=half, shape=shape,
+                               tol=TRACK_FIT_TOL)
         for k in fit:
             fit[k][moved] = again[k]
     lo_d, hi_d = kw.get("diameter_range", (0.5, 2.0))

@@ -58,10 +58,14 @@ def _search_roi(setup: Setup, reference: FrameResult | None, shape) -> tuple | N
     return (u0, v0, u1, v1)
 
 
-def _detect(img: np.ndarray, setup: Setup, roi=None):
+def _detect(img: np.ndarray, setup: Setup, roi=None, shape: str | None = None):
+    """``detect_markers`` with the setup's options, its model the tracker's (``shape``
+    None) unless the options name one."""
     from resection.markers.detect import detect_markers
+    from resection.sequence.predict import marker_shape
 
-    kw = dict(setup.detect_kw)
+    kw = {**setup.detect_kw,
+          "shape": marker_shape(setup.detect_kw, setup.diameter) if shape is None else shape}
     if roi is not None:
         kw["roi"] = roi
     return detect_markers(img, setup.diameter, polarity=setup.polarity, **kw)
@@ -180,16 +184,41 @@ def _process_linked_unlabelled(frame_data, index: int, setup: Setup,
         if img.shape != (setup.camera.height, setup.camera.width):
             raise InputError(f"image is {img.shape[1]}x{img.shape[0]} px, the camera "
                              f"{setup.camera.width}x{setup.camera.height}")
-        cands = _detect(img, setup)
+        # numbered as ``resection detect`` numbers them (the disk model), then the linked
+        # markers fitted again with the tracker's model, as in the frames it tracks
+        cands = _detect(img, setup, shape="disk")
     except Exception as exc:  # noqa: BLE001 - recorded, the run goes on
         return FrameResult(frame=index, file=name, status="failed",
                            reason=failure_reason(exc, name))
     ids, uv = _apply_link(cands, link, setup)
+    uv = _refit(img, setup, uv)
     try:
         return _solve(ids, uv, setup, index, name, method="linked")
     except Exception as exc:  # noqa: BLE001
         return FrameResult(frame=index, file=name, status="failed",
                            reason=failure_reason(exc, name))
+
+
+def _refit(img: np.ndarray, setup: Setup, uv: np.ndarray) -> np.ndarray:
+    """The markers at ``uv`` fitted with the tracker's model where it is not the disk
+    (see :func:`resection.sequence.predict.marker_shape`); a fit that fails, or moves more
+    than half a diameter, keeps its position."""
+    from resection.markers.refine import refine_markers
+    from resection.sequence.predict import marker_shape
+
+    kw = setup.detect_kw
+    shape = marker_shape(kw, setup.diameter)
+    if shape == "disk" or len(uv) == 0:
+        return uv
+    signal = np.asarray(img, float)
+    signal = -signal if setup.polarity == "dark" else signal
+    bad = None if kw.get("mask") is None else np.asarray(kw["mask"], bool)
+    fit = refine_markers(signal, uv, setup.diameter, bad=bad, blur=float(kw.get("blur", 0.6)),
+                         shape=shape)
+    new = np.column_stack([fit["u"], fit["v"]])
+    with np.errstate(invalid="ignore"):
+        keep = fit["ok"] & (np.hypot(*(new - uv).T) <= 0.5 * setup.diameter)
+    return np.where(keep[:, None], new, uv)
 
 
 def _apply_link(candidates, link: dict, setup: Setup) -> tuple[np.ndarray, np.ndarray]:
