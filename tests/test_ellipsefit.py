@@ -29,7 +29,8 @@ def _model(x0, y0, X, H, k, blur, W, reach=None):
     j = int(np.searchsorted(sizes, q))
     M = np.empty((W, W, 6))
     _ellipsefit._model(x0, y0, X, H, k, *_diskfit.edge_table(blur), sn[j], cs[j], wc[j],
-                       sizes[j], M, np.empty((W + 1, 3)), np.empty((W + 1, 3)))
+                       sizes[j], M, np.empty((W + 1, 3)), np.empty((W + 1, 3)),
+                       np.empty((W + 1, W, 3)))
     return M
 
 

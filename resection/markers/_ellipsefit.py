@@ -44,12 +44,18 @@ KMAX = 8.0  # bound of the shear |k| (a chord's centre moves 8 px a pixel: edge-
 
 
 @njit(cache=True, fastmath=True)
-def _model(x0, y0, X, H, k, tab, T, h, sn, cs, wc, Q, M, sA, sB):
-    """Unit-contrast ellipse image and its derivatives, in place: ``M[j, i] = (image,
-    d/dx0, d/dy0, d/dX, d/dH, d/dk)`` at row ``j``, column ``i`` (``M`` is (W, W, 6)).
-    ``sA`` and ``sB`` are (W + 1, 3) scratch arrays."""
+def _model(x0, y0, X, H, k, tab, T, h, sn, cs, wc, Q, M, sA, sB, D):
+    """Unit-contrast ellipse image and its derivatives, in place: ``(image,
+    d/dx0, d/dy0, d/dX, d/dH, d/dk)`` at row ``j``, column ``i`` in ``M[j, i]`` (``M`` is
+    (W, W, 6)). ``sA`` and ``sB`` (W + 1, 3) and ``D`` (W + 1, W, 3) are scratch arrays.
+
+    The rows wholly inside a node's chord (most of them) all add the same column factors
+    to the image and its derivatives in x0 and X, and nothing to the others: they are
+    added as a difference at the block's two ends (``D``) and summed down the rows once
+    at the end, not row by row."""
     W = M.shape[0]
     M.fill(0.0)
+    D.fill(0.0)
     step = int(round(1.0 / h))  # table steps a pixel (1 / h is a whole number)
     for q in range(Q):
         sq, cq, wq = sn[q], cs[q], wc[q]
@@ -101,9 +107,13 @@ def _model(x0, y0, X, H, k, tab, T, h, sn, cs, wc, Q, M, sA, sB):
             sB[r, 1] = gm - gp
             sB[r, 2] = (gp + gm) * cq
         ks, Xs = k * sq, X * sq  # d yc / dX and d yc / dk
+        ja, jb = W, -1  # the block of rows inside the chord
         for r in range(j1 - j0 + 1):
             j = j0 + r
             B, By, BH = sB[r, 0], sB[r, 1], sB[r, 2]
+            if By == 0.0 and BH == 0.0 and B == 1.0:
+                ja, jb = min(ja, j), max(jb, j)
+                continue
             for c in range(i1 - i0 + 1):
                 i = i0 + c
                 A = sA[c, 0]
@@ -114,6 +124,24 @@ def _model(x0, y0, X, H, k, tab, T, h, sn, cs, wc, Q, M, sA, sB):
                 M[j, i, 3] += B * sA[c, 2] + ks * P
                 M[j, i, 4] += BH * A
                 M[j, i, 5] += Xs * P
+        if jb >= ja:
+            for c in range(i1 - i0 + 1):
+                i = i0 + c
+                D[ja, i, 0] += sA[c, 0]
+                D[ja, i, 1] += sA[c, 1]
+                D[ja, i, 2] += sA[c, 2]
+                D[jb + 1, i, 0] -= sA[c, 0]
+                D[jb + 1, i, 1] -= sA[c, 1]
+                D[jb + 1, i, 2] -= sA[c, 2]
+    for j in range(W):  # the inner blocks, summed down the rows (in place in D)
+        for i in range(W):
+            if j > 0:
+                D[j, i, 0] += D[j - 1, i, 0]
+                D[j, i, 1] += D[j - 1, i, 1]
+                D[j, i, 2] += D[j - 1, i, 2]
+            M[j, i, 0] += D[j, i, 0]
+            M[j, i, 1] += D[j, i, 1]
+            M[j, i, 3] += D[j, i, 2]
 
 
 @njit(cache=True)
@@ -123,9 +151,10 @@ def _reach(X, H, k):
 
 
 @njit(cache=True)
-def _normal(win, w, p, tab, T, h, sizes, sn, cs, wc, M, sA, sB, JTJ, JTr, J):
+def _normal(win, w, p, tab, T, h, sizes, sn, cs, wc, M, sA, sB, D, JTJ, JTr):
     """Weighted cost of parameters ``p`` on one window, with ``J^T J`` (9, 9) and ``J^T r``
-    (9,) (``r = data - model``); ``J`` is a (9,) scratch array."""
+    (9,) (``r = data - model``); the sums in scalars (registers, not memory: twice as fast
+    as a loop over a Jacobian row; generated, one line a term)."""
     W = win.shape[0]
     x0, y0, X, H, k = p[0], p[1], p[2], p[3], p[4]
     a, b, bu, bv = p[5], p[6], p[7], p[8]
@@ -135,14 +164,22 @@ def _normal(win, w, p, tab, T, h, sizes, sn, cs, wc, M, sA, sB, JTJ, JTr, J):
     q = 0
     while q < sizes.size - 1 and sizes[q] < need:
         q += 1
-    _model(x0, y0, X, H, k, tab, T, h, sn[q], cs[q], wc[q], sizes[q], M, sA, sB)
+    _model(x0, y0, X, H, k, tab, T, h, sn[q], cs[q], wc[q], sizes[q], M, sA, sB, D)
     i0 = max(int(math.ceil(x0 - rx - T)), 0)
     i1 = min(int(math.floor(x0 + rx + T)), W - 1)
     j0 = max(int(math.ceil(y0 - ry - T)), 0)
     j1 = min(int(math.floor(y0 + ry + T)), W - 1)
     c = (W - 1) / 2.0
-    JTJ.fill(0.0)
-    JTr.fill(0.0)
+    s00 = 0.0
+    s10 = s11 = 0.0
+    s20 = s21 = s22 = 0.0
+    s30 = s31 = s32 = s33 = 0.0
+    s40 = s41 = s42 = s43 = s44 = 0.0
+    s50 = s51 = s52 = s53 = s54 = s55 = 0.0
+    s60 = s61 = s62 = s63 = s64 = s65 = s66 = 0.0
+    s70 = s71 = s72 = s73 = s74 = s75 = s76 = s77 = 0.0
+    s80 = s81 = s82 = s83 = s84 = s85 = s86 = s87 = s88 = 0.0
+    r0 = r1 = r2 = r3 = r4 = r5 = r6 = r7 = r8 = 0.0
     cost = 0.0
     for j in range(W):
         dv = j - c
@@ -152,28 +189,164 @@ def _normal(win, w, p, tab, T, h, sizes, sn, cs, wc, M, sA, sB, JTJ, JTr, J):
             if wt == 0.0:
                 continue
             du = i - c
-            J[6], J[7], J[8] = wt, du * wt, dv * wt
+            J6, J7, J8 = wt, du * wt, dv * wt
             if inside_row and i0 <= i <= i1:
                 m = M[j, i, 0]
                 r = (win[j, i] - (a * m + b + bu * du + bv * dv)) * wt
                 aw = a * wt
-                for n in range(5):
-                    J[n] = aw * M[j, i, n + 1]
-                J[5] = m * wt
-                for n in range(NP):
-                    JTr[n] += J[n] * r
-                    for l in range(n + 1):
-                        JTJ[n, l] += J[n] * J[l]
+                J0 = aw * M[j, i, 1]
+                J1 = aw * M[j, i, 2]
+                J2 = aw * M[j, i, 3]
+                J3 = aw * M[j, i, 4]
+                J4 = aw * M[j, i, 5]
+                J5 = m * wt
+                r0 += J0 * r
+                r1 += J1 * r
+                r2 += J2 * r
+                r3 += J3 * r
+                r4 += J4 * r
+                r5 += J5 * r
+                s00 += J0 * J0
+                s10 += J1 * J0
+                s11 += J1 * J1
+                s20 += J2 * J0
+                s21 += J2 * J1
+                s22 += J2 * J2
+                s30 += J3 * J0
+                s31 += J3 * J1
+                s32 += J3 * J2
+                s33 += J3 * J3
+                s40 += J4 * J0
+                s41 += J4 * J1
+                s42 += J4 * J2
+                s43 += J4 * J3
+                s44 += J4 * J4
+                s50 += J5 * J0
+                s51 += J5 * J1
+                s52 += J5 * J2
+                s53 += J5 * J3
+                s54 += J5 * J4
+                s55 += J5 * J5
+                s60 += J6 * J0
+                s61 += J6 * J1
+                s62 += J6 * J2
+                s63 += J6 * J3
+                s64 += J6 * J4
+                s65 += J6 * J5
+                s70 += J7 * J0
+                s71 += J7 * J1
+                s72 += J7 * J2
+                s73 += J7 * J3
+                s74 += J7 * J4
+                s75 += J7 * J5
+                s80 += J8 * J0
+                s81 += J8 * J1
+                s82 += J8 * J2
+                s83 += J8 * J3
+                s84 += J8 * J4
+                s85 += J8 * J5
             else:  # background only: the last three columns of J
                 r = (win[j, i] - (b + bu * du + bv * dv)) * wt
-                for n in range(6, NP):
-                    JTr[n] += J[n] * r
-                    for l in range(6, n + 1):
-                        JTJ[n, l] += J[n] * J[l]
+            r6 += J6 * r
+            r7 += J7 * r
+            r8 += J8 * r
+            s66 += J6 * J6
+            s76 += J7 * J6
+            s77 += J7 * J7
+            s86 += J8 * J6
+            s87 += J8 * J7
+            s88 += J8 * J8
             cost += r * r
-    for n in range(NP):
-        for l in range(n):
-            JTJ[l, n] = JTJ[n, l]
+    JTJ[0, 0] = s00
+    JTJ[1, 0] = s10
+    JTJ[0, 1] = s10
+    JTJ[1, 1] = s11
+    JTJ[2, 0] = s20
+    JTJ[0, 2] = s20
+    JTJ[2, 1] = s21
+    JTJ[1, 2] = s21
+    JTJ[2, 2] = s22
+    JTJ[3, 0] = s30
+    JTJ[0, 3] = s30
+    JTJ[3, 1] = s31
+    JTJ[1, 3] = s31
+    JTJ[3, 2] = s32
+    JTJ[2, 3] = s32
+    JTJ[3, 3] = s33
+    JTJ[4, 0] = s40
+    JTJ[0, 4] = s40
+    JTJ[4, 1] = s41
+    JTJ[1, 4] = s41
+    JTJ[4, 2] = s42
+    JTJ[2, 4] = s42
+    JTJ[4, 3] = s43
+    JTJ[3, 4] = s43
+    JTJ[4, 4] = s44
+    JTJ[5, 0] = s50
+    JTJ[0, 5] = s50
+    JTJ[5, 1] = s51
+    JTJ[1, 5] = s51
+    JTJ[5, 2] = s52
+    JTJ[2, 5] = s52
+    JTJ[5, 3] = s53
+    JTJ[3, 5] = s53
+    JTJ[5, 4] = s54
+    JTJ[4, 5] = s54
+    JTJ[5, 5] = s55
+    JTJ[6, 0] = s60
+    JTJ[0, 6] = s60
+    JTJ[6, 1] = s61
+    JTJ[1, 6] = s61
+    JTJ[6, 2] = s62
+    JTJ[2, 6] = s62
+    JTJ[6, 3] = s63
+    JTJ[3, 6] = s63
+    JTJ[6, 4] = s64
+    JTJ[4, 6] = s64
+    JTJ[6, 5] = s65
+    JTJ[5, 6] = s65
+    JTJ[6, 6] = s66
+    JTJ[7, 0] = s70
+    JTJ[0, 7] = s70
+    JTJ[7, 1] = s71
+    JTJ[1, 7] = s71
+    JTJ[7, 2] = s72
+    JTJ[2, 7] = s72
+    JTJ[7, 3] = s73
+    JTJ[3, 7] = s73
+    JTJ[7, 4] = s74
+    JTJ[4, 7] = s74
+    JTJ[7, 5] = s75
+    JTJ[5, 7] = s75
+    JTJ[7, 6] = s76
+    JTJ[6, 7] = s76
+    JTJ[7, 7] = s77
+    JTJ[8, 0] = s80
+    JTJ[0, 8] = s80
+    JTJ[8, 1] = s81
+    JTJ[1, 8] = s81
+    JTJ[8, 2] = s82
+    JTJ[2, 8] = s82
+    JTJ[8, 3] = s83
+    JTJ[3, 8] = s83
+    JTJ[8, 4] = s84
+    JTJ[4, 8] = s84
+    JTJ[8, 5] = s85
+    JTJ[5, 8] = s85
+    JTJ[8, 6] = s86
+    JTJ[6, 8] = s86
+    JTJ[8, 7] = s87
+    JTJ[7, 8] = s87
+    JTJ[8, 8] = s88
+    JTr[0] = r0
+    JTr[1] = r1
+    JTr[2] = r2
+    JTr[3] = r3
+    JTr[4] = r4
+    JTr[5] = r5
+    JTr[6] = r6
+    JTr[7] = r7
+    JTr[8] = r8
     return cost
 
 
@@ -217,18 +390,18 @@ def fit_windows(win, w, p0, tab, T, h, rmin, rmax, iterations, tol, sizes, sn, c
     M = np.empty((W, W, 6))
     sA = np.empty((W + 1, 3))
     sB = np.empty((W + 1, 3))
+    D = np.empty((W + 1, W, 3))
     JTJ = np.empty((NP, NP))
     JTr = np.empty(NP)
     JTJt = np.empty((NP, NP))
     JTrt = np.empty(NP)
-    J = np.empty(NP)
     step = np.empty(NP)
     pt = np.empty(NP)
     for c in range(n):
         pc = p[c]
         ww = w[c]
         wn = win[c]
-        cc = _normal(wn, ww, pc, tab, T, h, sizes, sn, cs, wc, M, sA, sB, JTJ, JTr, J)
+        cc = _normal(wn, ww, pc, tab, T, h, sizes, sn, cs, wc, M, sA, sB, D, JTJ, JTr)
         last = 0.0
         lam = 1e-3
         nev[c] = 1
@@ -240,7 +413,7 @@ def fit_windows(win, w, p0, tab, T, h, rmin, rmax, iterations, tol, sizes, sn, c
                     and not abs(step[5]) <= 0.5 * pc[5]):
                 for q in range(NP):
                     pt[q] = pc[q] + step[q]
-                cc = _normal(wn, ww, pt, tab, T, h, sizes, sn, cs, wc, M, sA, sB, JTJ, JTr, J)
+                cc = _normal(wn, ww, pt, tab, T, h, sizes, sn, cs, wc, M, sA, sB, D, JTJ, JTr)
                 nev[c] += 1
                 for q in range(NP):
                     pc[q] = pt[q]
@@ -260,7 +433,7 @@ def fit_windows(win, w, p0, tab, T, h, rmin, rmax, iterations, tol, sizes, sn, c
                 for q in range(NP):
                     pc[q] = pt[q]
                 break
-            ct = _normal(wn, ww, pt, tab, T, h, sizes, sn, cs, wc, M, sA, sB, JTJt, JTrt, J)
+            ct = _normal(wn, ww, pt, tab, T, h, sizes, sn, cs, wc, M, sA, sB, D, JTJt, JTrt)
             nev[c] += 1
             better = ct < cc
             if better:
