@@ -123,6 +123,39 @@ def _basis(T, h, t):
 
 
 @njit(cache=True, fastmath=True)
+def chord_rows(tab, T, h, step, j0, n, yc, hq, cq, sB):
+    """The row factors of one quadrature node's chord, centred at ``yc`` with the
+    half-length ``hq``, for the ``n`` rows from ``j0``, in place in ``sB`` (n, 3): ``B =
+    C(v - yc + hq) - C(v - yc - hq)``, its derivative in ``yc`` and in ``hq`` times
+    ``cq`` (the chord's half-length over the radius). ``step``: table steps a pixel. Rows
+    wholly inside the chord get exactly ``(1, 0, 0)``. Shared by the disk's and the
+    ellipse's models."""
+    kp, p0, p1, p2, p3 = _basis(T, h, j0 - yc + hq)
+    km, m0, m1, m2, m3 = _basis(T, h, j0 - yc - hq)
+    for k in range(n):
+        t = j0 + k - yc
+        if t + hq >= T and t - hq <= -T:  # a row inside the chord
+            sB[k, 0], sB[k, 1], sB[k, 2] = 1.0, 0.0, 0.0
+            continue
+        Cp = gp = Cm = gm = 0.0
+        if t + hq >= T:
+            Cp = 1.0
+        elif t + hq > -T:
+            a = kp + k * step
+            Cp = p0 * tab[a, 0] + p1 * tab[a + 1, 0] + p2 * tab[a, 1] + p3 * tab[a + 1, 1]
+            gp = p0 * tab[a, 1] + p1 * tab[a + 1, 1] + p2 * tab[a, 2] + p3 * tab[a + 1, 2]
+        if t - hq >= T:
+            Cm = 1.0
+        elif t - hq > -T:
+            a = km + k * step
+            Cm = m0 * tab[a, 0] + m1 * tab[a + 1, 0] + m2 * tab[a, 1] + m3 * tab[a + 1, 1]
+            gm = m0 * tab[a, 1] + m1 * tab[a + 1, 1] + m2 * tab[a, 2] + m3 * tab[a + 1, 2]
+        sB[k, 0] = Cp - Cm
+        sB[k, 1] = gm - gp
+        sB[k, 2] = (gp + gm) * cq
+
+
+@njit(cache=True, fastmath=True)
 def _model(x0, y0, R, tab, T, h, sn, cs, wc, Q, M, sA, sB):
     """Unit-contrast disk image and its derivatives in x0, y0, R, in place:
     ``M[j, i] = (image, d/dx0, d/dy0, d/dR)`` at row ``j``, column ``i`` (``M`` is
@@ -169,29 +202,7 @@ def _model(x0, y0, R, tab, T, h, sn, cs, wc, Q, M, sA, sB):
             sA[k, 1] = -(dgp + dgm) * Rw
             sA[k, 2] = (gp + gm) * wq - (dgp - dgm) * sq * Rw
         # rows: B = C(v - y0 + h) - C(v - y0 - h) and its derivatives in y0 and R
-        kp, p0, p1, p2, p3 = _basis(T, h, j0 - y0 + hq)
-        km, m0, m1, m2, m3 = _basis(T, h, j0 - y0 - hq)
-        for k in range(j1 - j0 + 1):
-            t = j0 + k - y0
-            if t + hq >= T and t - hq <= -T:  # a row inside the chord
-                sB[k, 0], sB[k, 1], sB[k, 2] = 1.0, 0.0, 0.0
-                continue
-            Cp = gp = Cm = gm = 0.0
-            if t + hq >= T:
-                Cp = 1.0
-            elif t + hq > -T:
-                a = kp + k * step
-                Cp = p0 * tab[a, 0] + p1 * tab[a + 1, 0] + p2 * tab[a, 1] + p3 * tab[a + 1, 1]
-                gp = p0 * tab[a, 1] + p1 * tab[a + 1, 1] + p2 * tab[a, 2] + p3 * tab[a + 1, 2]
-            if t - hq >= T:
-                Cm = 1.0
-            elif t - hq > -T:
-                a = km + k * step
-                Cm = m0 * tab[a, 0] + m1 * tab[a + 1, 0] + m2 * tab[a, 1] + m3 * tab[a + 1, 1]
-                gm = m0 * tab[a, 1] + m1 * tab[a + 1, 1] + m2 * tab[a, 2] + m3 * tab[a + 1, 2]
-            sB[k, 0] = Cp - Cm
-            sB[k, 1] = gm - gp
-            sB[k, 2] = (gp + gm) * cq
+        chord_rows(tab, T, h, step, j0, j1 - j0 + 1, y0, hq, cq, sB)
         # the pair's term of the quadrature: products of the row and column factors
         for k in range(j1 - j0 + 1):
             j = j0 + k

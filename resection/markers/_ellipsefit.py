@@ -37,7 +37,7 @@ import math
 import numpy as np
 from numba import njit
 
-from resection.markers._diskfit import _Q_MIN, _Q_PER_R, _ZC, _basis, _solve_damped
+from resection.markers._diskfit import _Q_MIN, _Q_PER_R, _ZC, _basis, _solve_damped, chord_rows
 
 NP = 9  # parameters of a window
 KMAX = 8.0  # bound of the shear |k| (a chord's centre moves 8 px a pixel: edge-on)
@@ -83,29 +83,7 @@ def _model(x0, y0, X, H, k, tab, T, h, sn, cs, wc, Q, M, sA, sB, D):
             sA[c, 1] = -dg * Xw
             sA[c, 2] = g * wq - dg * sq * Xw
         # rows: B = C(v - yc + hq) - C(v - yc - hq), dB/dyc and dB/dhq times cos θ
-        kp, p0, p1, p2, p3 = _basis(T, h, j0 - yc + hq)
-        km, m0, m1, m2, m3 = _basis(T, h, j0 - yc - hq)
-        for r in range(j1 - j0 + 1):
-            t = j0 + r - yc
-            if t + hq >= T and t - hq <= -T:  # a row inside the chord
-                sB[r, 0], sB[r, 1], sB[r, 2] = 1.0, 0.0, 0.0
-                continue
-            Cp = gp = Cm = gm = 0.0
-            if t + hq >= T:
-                Cp = 1.0
-            elif t + hq > -T:
-                a = kp + r * step
-                Cp = p0 * tab[a, 0] + p1 * tab[a + 1, 0] + p2 * tab[a, 1] + p3 * tab[a + 1, 1]
-                gp = p0 * tab[a, 1] + p1 * tab[a + 1, 1] + p2 * tab[a, 2] + p3 * tab[a + 1, 2]
-            if t - hq >= T:
-                Cm = 1.0
-            elif t - hq > -T:
-                a = km + r * step
-                Cm = m0 * tab[a, 0] + m1 * tab[a + 1, 0] + m2 * tab[a, 1] + m3 * tab[a + 1, 1]
-                gm = m0 * tab[a, 1] + m1 * tab[a + 1, 1] + m2 * tab[a, 2] + m3 * tab[a + 1, 2]
-            sB[r, 0] = Cp - Cm
-            sB[r, 1] = gm - gp
-            sB[r, 2] = (gp + gm) * cq
+        chord_rows(tab, T, h, step, j0, j1 - j0 + 1, yc, hq, cq, sB)
         ks, Xs = k * sq, X * sq  # d yc / dX and d yc / dk
         ja, jb = W, -1  # the block of rows inside the chord
         for r in range(j1 - j0 + 1):
