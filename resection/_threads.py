@@ -12,7 +12,6 @@ from __future__ import annotations
 import os
 import threading
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from typing import TypeVar
 
@@ -67,12 +66,42 @@ def run_blocks(fn: Callable[[tuple[int, int]], T], blocks: Sequence[tuple[int, i
                workers: int | None = None) -> list[T]:
     """``[fn(b) for b in blocks]``, on up to ``workers`` threads (default: the available
     cores); in the calling thread when there is one block or one worker. ``fn`` must do its
-    work in GIL-free code to gain anything. The first exception raised is re-raised."""
+    work in GIL-free code to gain anything. The first exception raised is re-raised.
+
+    The calling thread takes blocks too, beside ``workers - 1`` new threads, each taking
+    the next block left: on two cores a frame's kernel split in two took 3.3 ms this way,
+    against 4.4 ms on a kept pool of two and 7.5 ms on a new pool of two (a new thread's
+    first large work arrays are fresh pages; see :mod:`selfillum.unsteady.lowpass`)."""
     w = min(_workers(workers), len(blocks))
     if w <= 1:
         return [fn(b) for b in blocks]
-    with ThreadPoolExecutor(max_workers=w) as pool:
-        return list(pool.map(fn, blocks))
+    out: list = [None] * len(blocks)
+    errors: list[BaseException] = []
+    lock = threading.Lock()
+    nxt = iter(range(len(blocks)))
+
+    def take() -> None:
+        while True:
+            with lock:
+                i = None if errors else next(nxt, None)
+            if i is None:
+                return
+            try:
+                out[i] = fn(blocks[i])
+            except BaseException as exc:  # noqa: BLE001 - re-raised in the caller
+                with lock:
+                    errors.append(exc)
+                return
+
+    helpers = [threading.Thread(target=take, daemon=True) for _ in range(w - 1)]
+    for t in helpers:
+        t.start()
+    take()
+    for t in helpers:
+        t.join()
+    if errors:
+        raise errors[0]
+    return out
 
 
 @contextmanager

@@ -32,6 +32,7 @@ def _lstsq_patch(img, centre, radius, ring_px=3.0, order=3):
     inb = (u >= 0) & (u < W) & (v >= 0) & (v < H)
     d = np.hypot(u - centre[0], v - centre[1])
     ring = inb & (d > radius) & (d <= radius + ring_px)
+    ring[ring] = np.isfinite(img[v[ring], u[ring]])  # a value that is not finite: left out
     inside = inb & (d <= radius)
     x, y = (u - centre[0]) / R, (v - centre[1]) / R
     terms = [x**i * y**j for i in range(order + 1) for j in range(order + 1 - i)]
@@ -62,6 +63,21 @@ def test_patch_operator_is_numpys_least_squares_and_recovers_a_cubic():
     spotted = np.where(P.apply(np.zeros_like(img)) != 0, 0.0, cubic)  # darken nothing
     spotted[np.hypot(np.arange(120)[None] - 30.3, np.arange(90)[:, None] - 40.6) < 6] = 5.0
     np.testing.assert_allclose(patch_spots(spotted, centres, radii), cubic, rtol=1e-7)
+    # values that are not finite: NaN off the spots (inf too), left out of the rings
+    holed = img.copy()
+    holed[5, 7], holed[80, 100] = np.nan, np.inf
+    ring = (np.hypot(np.arange(120)[None] - 30.3, np.arange(90)[:, None] - 40.6) > 7.0) \
+        & (np.hypot(np.arange(120)[None] - 30.3, np.arange(90)[:, None] - 40.6) < 8.0)
+    holed[np.argwhere(ring)[0][0], np.argwhere(ring)[0][1]] = np.nan
+    Pf = patch_operator(img.shape, centres, radii, finite=np.isfinite(holed))
+    want = _lstsq_patch(holed, centres[0], radii[0])
+    got = Pf.apply(holed)
+    assert np.isnan(got[5, 7]) and np.isnan(got[80, 100]) and np.isinf(holed[80, 100])
+    inside = np.hypot(np.arange(120)[None] - 30.3, np.arange(90)[:, None] - 40.6) <= 6.2
+    np.testing.assert_allclose(got[inside], want[inside], rtol=1e-7)
+    same = holed.copy()
+    assert Pf.apply(same, in_place=True) is same  # patched itself, as asked
+    np.testing.assert_array_equal(same, got)
 
 
 @pytest.fixture(scope="module")

@@ -162,6 +162,10 @@ def test_affine_sampling_is_scipys_bilinear_with_nan_neighbours_of_zero_weight_l
              & (at[1] <= img.shape[1] - 1))
     np.testing.assert_array_equal(np.isnan(got), bad)
     np.testing.assert_allclose(got[~bad], want[~bad], rtol=1e-12, atol=1e-9)
+    for workers in (1, 3):  # the whole frame's warp, stepped along rows, in blocks
+        whole = reg.warp_all(img, A, workers).ravel()
+        np.testing.assert_array_equal(np.isnan(whole), bad)
+        np.testing.assert_allclose(whole[~bad], want[~bad], rtol=1e-12, atol=1e-9)
 
 
 @pytest.mark.parametrize("filter_", ["none", "gaussian"])

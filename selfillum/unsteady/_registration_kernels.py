@@ -13,7 +13,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["affine_sample", "gauss_newton", "residual"]
+__all__ = ["affine_sample", "affine_warp_rows", "gauss_newton", "residual"]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -158,3 +158,46 @@ def affine_sample(img, A, pixels, out):  # pragma: no cover - compiled
                 val += w11 * i11
         out[i] = val
 
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def affine_warp_rows(img, A, r0, r1, out):  # pragma: no cover - compiled
+    """Rows ``r0:r1`` of :func:`affine_sample` over every pixel of ``out`` (H, W): the
+    same values, the warped position stepped along each row instead of a pixel list (no
+    index array, no division a pixel)."""
+    H, W = img.shape
+    Wo = out.shape[1]
+    a00, a01, a02 = A[0, 0], A[0, 1], A[0, 2]
+    a10, a11, a12 = A[1, 0], A[1, 1], A[1, 2]
+    for row in range(r0, r1):
+        dst = out[row]
+        for u in range(Wo):
+            uw = a00 * u + a01 * row + a02
+            vw = a10 * u + a11 * row + a12
+            if not (uw >= 0.0 and uw <= W - 1.0 and vw >= 0.0 and vw <= H - 1.0):
+                dst[u] = np.nan
+                continue
+            u0 = min(int(uw), W - 2) if W > 1 else 0
+            v0 = min(int(vw), H - 2) if H > 1 else 0
+            u1 = min(u0 + 1, W - 1)
+            v1 = min(v0 + 1, H - 1)
+            fu = uw - u0
+            fv = vw - v0
+            i00, i01, i10, i11 = img[v0, u0], img[v0, u1], img[v1, u0], img[v1, u1]
+            val = ((1.0 - fv) * (i00 + fu * (i01 - i00))
+                   + fv * (i10 + fu * (i11 - i10)))
+            if val != val:  # a NaN neighbour: left out where its weight is zero
+                val = 0.0
+                w00 = (1.0 - fu) * (1.0 - fv)
+                w01 = fu * (1.0 - fv)
+                w10 = (1.0 - fu) * fv
+                w11 = fu * fv
+                if w00 > 0.0:
+                    val += w00 * i00
+                if w01 > 0.0:
+                    val += w01 * i01
+                if w10 > 0.0:
+                    val += w10 * i10
+                if w11 > 0.0:
+                    val += w11 * i11
+            dst[u] = val

@@ -74,37 +74,67 @@ def _reflect(i: int, n: int) -> int:  # pragma: no cover - compiled inline
 _reflect_jit = numba.njit(cache=True, inline="always")(_reflect)
 
 
-@numba.njit(cache=True, nogil=True)
+#: Rows of the frame filtered at a time within a block: the strip's two horizontal
+#: passes ((STRIP + 2 r) x W float64 each, 0.7 MB at a 1280-pixel width and r = 2) stay
+#: in a core's cache and are reused strip after strip. A whole block's passes at once
+#: (16 MB on a 1280 x 800 frame) took 6-13 ms a frame on one core, where this takes 2-3.
+STRIP = 32
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _lowpass_rows(img, w, r0, r1, out):  # pragma: no cover - compiled
-    """Rows ``r0:r1`` of the low-pass: the horizontal pass of the rows they need (``r``
-    above and below, reflected at the frame's edges), then the vertical pass."""
+    """Rows ``r0:r1`` of the low-pass, a strip of :data:`STRIP` rows at a time: the
+    horizontal pass of the rows a strip needs (``r`` above and below, reflected at the
+    frame's edges) into two small buffers, then the vertical pass. Each pass adds one
+    weighted, shifted row at a time (the innermost loop runs along the row, so the
+    compiler vectorises it); a value that is not finite weighs zero."""
     H, W = img.shape
     r = (w.size - 1) // 2
-    n = r1 - r0 + 2 * r
-    num = np.empty((n, W))
-    den = np.empty((n, W))
-    for j in range(n):
-        src = _reflect_jit(r0 - r + j, H)
-        row = img[src]
-        for u in range(W):
-            s = 0.0
-            d = 0.0
-            for k in range(-r, r + 1):
-                v = row[_reflect_jit(u + k, W)] if (u + k < 0 or u + k >= W) else row[u + k]
-                if np.isfinite(v):
-                    s += w[k + r] * v
-                    d += w[k + r]
-            num[j, u] = s
-            den[j, u] = d
-    for i in range(r0, r1):
-        j0 = i - r0
-        for u in range(W):
-            if not np.isfinite(img[i, u]):
-                out[i, u] = np.nan
-                continue
-            s = 0.0
-            d = 0.0
-            for k in range(2 * r + 1):
-                s += w[k] * num[j0 + k, u]
-                d += w[k] * den[j0 + k, u]
-            out[i, u] = s / d
+    m = min(STRIP, max(r1 - r0, 1)) + 2 * r
+    num = np.empty((m, W))
+    den = np.empty((m, W))
+    val = np.empty(W + 2 * r)  # a source row, its edges reflected, NaN as 0
+    fin = np.empty(W + 2 * r)  # 1 where that value is finite
+    s = np.empty(W)
+    d = np.empty(W)
+    for s0 in range(r0, r1, STRIP):
+        s1 = min(s0 + STRIP, r1)
+        n = s1 - s0 + 2 * r
+        for j in range(n):
+            row = img[_reflect_jit(s0 - r + j, H)]
+            for u in range(W):  # the row, then its reflected edges
+                v = row[u]
+                ok = v - v == 0.0  # finite (NaN and inf give NaN)
+                val[u + r] = v if ok else 0.0
+                fin[u + r] = 1.0 if ok else 0.0
+            for e in range(r):
+                a = _reflect_jit(e - r, W) + r
+                b = _reflect_jit(W + e, W) + r
+                val[e], fin[e] = val[a], fin[a]
+                val[W + r + e], fin[W + r + e] = val[b], fin[b]
+            nj = num[j]
+            dj = den[j]
+            for u in range(W):
+                nj[u] = w[0] * val[u]
+                dj[u] = w[0] * fin[u]
+            for k in range(1, 2 * r + 1):
+                wk = w[k]
+                for u in range(W):
+                    nj[u] += wk * val[u + k]
+                    dj[u] += wk * fin[u + k]
+        for i in range(s0, s1):
+            j0 = i - s0
+            for u in range(W):
+                s[u] = w[0] * num[j0, u]
+                d[u] = w[0] * den[j0, u]
+            for k in range(1, 2 * r + 1):
+                wk = w[k]
+                nk = num[j0 + k]
+                dk = den[j0 + k]
+                for u in range(W):
+                    s[u] += wk * nk[u]
+                    d[u] += wk * dk[u]
+            src = img[i]
+            dst = out[i]
+            for u in range(W):
+                dst[u] = s[u] / d[u] if src[u] - src[u] == 0.0 else np.nan

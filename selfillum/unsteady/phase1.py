@@ -312,9 +312,11 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
         if ops and not moving:  # pixels in this thread (measured on the 609k run's 2
             # cores: a pool of threads a frame, or the next frame made in another thread
             # while this one is mapped, each made a frame slower, 1.1x and 1.6x)
-            # (several cameras: one thread a camera)
+            # (several cameras: one thread a camera); a filtered frame's whole-frame warp,
+            # patch and filter are split over the cores
+            one = len(cameras) == 1 and filter == "none"
             imgs = _fixed_images(cameras, k, regs, spot_px, filter, filter_size, pres,
-                                 ops[0].cols, workers=1 if len(cameras) == 1 else None)
+                                 ops[0].cols, workers=1 if one else None)
         if ops and si is None and not moving:  # a fixed map, no SI: pixels to nodes
             v = ops[0].nodes(imgs, W, grid)
             if v is not None:
@@ -517,17 +519,18 @@ def _fixed_images(cameras, k, regs, spot_px, filter, filter_size, pres=None,
         c = cameras[ci]
         img = _frame(c.frames, k)
         if regs[ci] is not None or filter == "gaussian":
-            img = img.astype(np.float64)
-            if regs[ci] is not None:  # first-frame: warped onto frame 0
+            if regs[ci] is not None:  # first-frame: warped onto frame 0 (read as stored)
                 if read is not None and filter != "gaussian":  # only what is read
                     from selfillum.unsteady.fastmap import PixelValues
 
                     return PixelValues(regs[ci].sample(img, regs[ci].fit(img), read[ci],
                                                        inner))
-                img = regs[ci].warp(img, regs[ci].fit(img))
-            if filter == "gaussian":
+                img = regs[ci].warp_all(img, regs[ci].fit(img), inner)
+            else:
+                img = np.array(img, dtype=np.float64)
+            if filter == "gaussian":  # the spots in place (the array is this call's own)
                 if pres is not None and pres[ci] is not None:
-                    img = pres[ci].apply(img)
+                    img = pres[ci].apply(img, in_place=True)
                 elif spot_px[ci] is not None:
                     img = mask_spots(img, *spot_px[ci])
                 img = _gaussian(img, filter_size, inner)

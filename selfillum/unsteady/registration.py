@@ -97,7 +97,23 @@ class AffineRegistration:
             out = np.full(H * W, np.nan)
             out[np.asarray(pixels, dtype=np.int64)] = self.sample(frame, A, pixels)
             return out.reshape(H, W)
-        return self.sample(frame, A, np.arange(H * W, dtype=np.int64)).reshape(H, W)
+        return self.warp_all(frame, A)
+
+    def warp_all(self, frame, A, workers: int | None = None) -> np.ndarray:
+        """:meth:`warp` of every pixel, (H, W) float64: the compiled kernel over blocks of
+        rows on ``workers`` threads (default: the available cores)."""
+        from resection._threads import run_blocks, split_range
+        from selfillum.unsteady._registration_kernels import affine_warp_rows
+
+        img = np.asarray(frame)
+        if img.dtype.kind not in "fiu":
+            img = img.astype(np.float64)
+        img = np.ascontiguousarray(img)
+        A = np.asarray(A, np.float64)
+        out = np.empty(self.shape)
+        run_blocks(lambda b: affine_warp_rows(img, A, b[0], b[1], out),
+                   split_range(self.shape[0], workers, min_size=32), workers)
+        return out
 
     def sample(self, frame, A, pixels, workers: int | None = None) -> np.ndarray:
         """The values of :meth:`warp` at the reference's ``pixels`` (flat indices) only,

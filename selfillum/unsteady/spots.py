@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from resection.errors import InputError
@@ -151,19 +152,52 @@ class PatchOperator:
                              shape=(self.shape[0] * self.shape[1], self.C.shape[0])) \
             if n else sp.csr_matrix((self.shape[0] * self.shape[1], self.C.shape[0]))
 
-    def apply(self, image) -> np.ndarray:
+    def apply(self, image, *, in_place: bool = False) -> np.ndarray:
         """The image (float64) with its spots patched; NaN where a spot could not be fitted
-        and where a pixel that is not patched is not finite."""
-        x = np.asarray(image, dtype=np.float64)
-        fin = np.isfinite(x)
-        out = np.where(fin, x, 0.0).ravel()
-        coef = (self.C @ out).reshape(-1, self.n_terms)
-        vals = np.einsum("ip,ip->i", self.basis, coef[self.spot])
-        keep = ~fin.ravel()
-        keep[self.inside] = False
-        out[self.inside] = vals
-        out[keep | self.unfit] = np.nan
-        return out.reshape(x.shape)
+        and where a pixel that is not patched is not finite. ``in_place``: ``image`` (a
+        C-contiguous float64 array the caller owns) is patched itself, not a copy.
+
+        One compiled pass: the spots' coefficients from their rings (a value that is not
+        finite weighs zero), then the patched pixels, the unfitted spots and the other
+        values that are not finite; no whole-frame temporaries."""
+        x = np.asarray(image)
+        if not (in_place and x.dtype == np.float64 and x.flags.c_contiguous):
+            x = np.array(x, dtype=np.float64, order="C")
+        C = self.C
+        _patch_into(x.reshape(-1), C.indptr, C.indices, C.data, self.basis, self.spot,
+                    self.inside, self._unfit_pixels, self.n_terms)
+        return x
+
+    @property
+    def _unfit_pixels(self) -> np.ndarray:
+        got = self.__dict__.get("_unfit_idx")
+        if got is None:  # computed once (the dataclass is frozen: kept in its dict)
+            got = self.__dict__["_unfit_idx"] = np.flatnonzero(self.unfit)
+        return got
+
+
+@numba.njit(cache=True, nogil=True)
+def _patch_into(x, indptr, indices, data, basis, spot, inside, unfit, nP):  # pragma: no cover
+    """:meth:`PatchOperator.apply` on the flat image ``x`` in place."""
+    coef = np.zeros(indptr.size - 1)
+    for r in range(indptr.size - 1):
+        s = 0.0
+        for k in range(indptr[r], indptr[r + 1]):
+            v = x[indices[k]]
+            if v - v == 0.0:  # finite
+                s += data[k] * v
+        coef[r] = s
+    for p in range(x.size):  # the unpatched values that are not finite: NaN
+        if not (x[p] - x[p] == 0.0):
+            x[p] = np.nan
+    for i in range(inside.size):
+        s = 0.0
+        c0 = spot[i] * nP
+        for q in range(nP):
+            s += basis[i, q] * coef[c0 + q]
+        x[inside[i]] = s
+    for i in range(unfit.size):
+        x[unfit[i]] = np.nan
 
 
 def patch_operator(shape, centres, radii, *, ring_px: float = 3.0, order: int = 3,
