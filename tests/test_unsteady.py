@@ -560,7 +560,7 @@ def test_spot_size_from_diameter_and_pose():
 
 
 def test_gaussian_filter_ignores_nan():
-    from selfillum.unsteady.phase1 import _gaussian
+    from selfillum.unsteady.frames import gaussian as _gaussian
 
     img = np.full((30, 40), 7.0)
     img[10:13, 20:22] = np.nan

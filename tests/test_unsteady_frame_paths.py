@@ -173,7 +173,8 @@ def test_cameras_prepared_side_by_side_equal_one_by_one(filter_):
     """Several cameras' frames (the affine fit and warp onto frame 0, the filter) made one
     thread a camera give the same images as made one after another: each is its camera's
     own work. Checked against a direct registration of each camera's frame."""
-    from selfillum.unsteady.phase1 import CameraRun, _fixed_images
+    from selfillum.unsteady.frames import fixed_images as _fixed_images
+    from selfillum.unsteady.phase1 import CameraRun
     from selfillum.unsteady.registration import AffineRegistration
 
     rng = np.random.default_rng(3)

@@ -34,6 +34,7 @@ import scipy.sparse as sp
 
 from resection.errors import InputError
 from resection.memory import release_freed_memory
+from selfillum.unsteady.frames import FramesAhead, fixed_images, gaussian, read_frame
 from selfillum.unsteady.options import FILTERS, OVERLAPS, REGISTRATIONS
 from selfillum.unsteady.spots import DarkSpots, mask_spots, patch_operator, project_spots
 
@@ -153,15 +154,6 @@ class SelfIllumination:
             x = np.where(seen[cols], B[cols], self.hidden[cols]).astype(np.float32)
         E[rows] -= rho_r * (Frc @ x)
         return E
-
-
-def _gaussian(img: np.ndarray, size: int, workers: int | None = None) -> np.ndarray:
-    """NaN-aware Gaussian low-pass of a ``size`` x ``size`` kernel (OpenCV's sigma for a
-    kernel size: ``0.3 ((size - 1) / 2 - 1) + 0.8``): :func:`.lowpass.gaussian_lowpass`
-    on ``workers`` threads (default: the cores)."""
-    from selfillum.unsteady.lowpass import gaussian_lowpass
-
-    return gaussian_lowpass(img, size, workers)
 
 
 def _face_to_vertex(mesh) -> sp.csr_matrix:
@@ -307,133 +299,140 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
     counts = {} if counts is None else counts
     for key in ("fast", "full", "references"):
         counts.setdefault(key, 0)
-    for k in frame_numbers:  # frames, one at a time
-        imgs = None  # a fixed map's frame: read, registered, sampled at the operator's
-        if ops and not moving:  # pixels in this thread (measured on the 609k run's 2
-            # cores: a pool of threads a frame, or the next frame made in another thread
-            # while this one is mapped, each made a frame slower, 1.1x and 1.6x)
-            # (several cameras: one thread a camera); a filtered frame's whole-frame warp,
-            # patch and filter are split over the cores
-            one = len(cameras) == 1 and filter == "none"
-            imgs = _fixed_images(cameras, k, regs, spot_px, filter, filter_size, pres,
-                                 ops[0].cols, workers=1 if one else None)
-        if ops and si is None and not moving:  # a fixed map, no SI: pixels to nodes
-            v = ops[0].nodes(imgs, W, grid)
-            if v is not None:
-                counts["fast"] += 1
-                yield FrameNodes(k, v, v, [c.camera for c in cameras], ops[0].gains)
-                continue
-            # else: a pixel that counts is not finite (warped in from beyond the edge):
-            # the faces' way, which leaves it out
-        if ops:
-            fv = _fast_frame(ops, cameras, k, regs, spots, spot_px, filter, filter_size,
-                             moving, refresh_px, op=planned(k) if moving else None,
-                             pres=pres, halo=halo, imgs=imgs)
-            if fv is not None:
-                B, cams, op_seen, _ = fv
-                seen = op_seen & np.isfinite(B)
-                raw_f = np.where(seen, B, np.nan)
-                E = si(B, seen) if si is not None else raw_f
-                vals = _fast_nodes(fv[3], W, grid, E, B, seen)
-                counts["fast"] += 1
-                yield FrameNodes(k, vals[0], vals[1], cams, ops[0].gains)
-                continue
-            # else: no reference near this pose: cast anew from this frame (the full way)
-        counts["full"] += 1
-        maps, imgs, cams, finite = [], [], [], []
-        for ci, c in enumerate(cameras):  # a few cameras
-            img = np.asarray(c.frames[k], dtype=np.float64)
-            shape = (c.camera.height, c.camera.width)
-            if img.shape != shape:
-                raise InputError(f"camera {c.number}: frame {k} is {img.shape}, its "
-                                 f"calibration {shape}")
-            if registration == "track":
-                cam = c.poses[k]
-                smap = SurfaceMap(mesh, cam, max_obliqueness=max_obliqueness, caster=caster)
-            else:
-                if maps0[ci] is None:
-                    maps0[ci] = SurfaceMap(mesh, c.camera, max_obliqueness=max_obliqueness,
-                                           caster=caster)
-                cam, smap = c.camera, maps0[ci]
-                if registration == "first-frame":
-                    if regs[ci] is None:
-                        regs[ci] = AffineRegistration(img, smap.mask)
-                    img = regs[ci].warp(img, regs[ci].fit(img))
-            if spots is not None and len(spots):
-                cen, rad = project_spots(spots, smap, margin_px=spot_margin_px)
-                spot_px[ci] = (cen, rad)
-                if patcher == "polynomial":
-                    pres[ci] = patch_operator(img.shape, cen, rad, finite=np.isfinite(img))
-                    img = pres[ci].apply(img)
+    ahead = None  # a fixed map: FramesAhead, made with the first reference
+    inner = 1 if len(cameras) == 1 else None
+    try:
+        for i, k in enumerate(frame_numbers):  # frames, one at a time
+            imgs = None  # a fixed map's frame: read, registered, patched, filtered
+            if ops and not moving:  # the next one made meanwhile in a helper thread
+                if ahead is None:  # (one camera: on one core; several: a thread each)
+                    ahead = FramesAhead(
+                        lambda q: fixed_images(cameras, q, regs, spot_px, filter,
+                                               filter_size, pres, ops[0].cols, workers=inner),
+                        frame_numbers[i:])
+                imgs = ahead.get(k)
+            if ops and si is None and not moving:  # a fixed map, no SI: pixels to nodes
+                v = ops[0].nodes(imgs, W, grid)
+                if v is not None:
+                    counts["fast"] += 1
+                    yield FrameNodes(k, v, v, [c.camera for c in cameras], ops[0].gains)
+                    continue
+                # else: a pixel that counts is not finite (warped in from beyond the edge):
+                # the faces' way, which leaves it out
+            if ops:
+                fv = _fast_frame(ops, cameras, k, regs, spots, spot_px, filter, filter_size,
+                                 moving, refresh_px, op=planned(k) if moving else None,
+                                 pres=pres, halo=halo, imgs=imgs)
+                if fv is not None:
+                    B, cams, op_seen, _ = fv
+                    seen = op_seen & np.isfinite(B)
+                    raw_f = np.where(seen, B, np.nan)
+                    E = si(B, seen) if si is not None else raw_f
+                    vals = _fast_nodes(fv[3], W, grid, E, B, seen)
+                    counts["fast"] += 1
+                    yield FrameNodes(k, vals[0], vals[1], cams, ops[0].gains)
+                    continue
+                # else: no reference near this pose: cast anew from this frame (the full way)
+            counts["full"] += 1
+            if ahead is not None:  # the registrations and spots change: the frame made
+                ahead.drop()  # ahead is made again when asked for
+            maps, imgs, cams, finite = [], [], [], []
+            for ci, c in enumerate(cameras):  # a few cameras
+                img = np.asarray(c.frames[k], dtype=np.float64)
+                shape = (c.camera.height, c.camera.width)
+                if img.shape != shape:
+                    raise InputError(f"camera {c.number}: frame {k} is {img.shape}, its "
+                                     f"calibration {shape}")
+                if registration == "track":
+                    cam = c.poses[k]
+                    smap = SurfaceMap(mesh, cam, max_obliqueness=max_obliqueness, caster=caster)
                 else:
-                    img = mask_spots(img, cen, rad)
-            finite.append(np.isfinite(img))
-            if filter == "gaussian":
-                img = _gaussian(img, filter_size)
-            maps.append(smap)
-            imgs.append(img)
-            cams.append(cam)
-        if use_fast and ops:  # a new reference of a moving model: its operator gives the
-            # merge (the gains are frame 0's; the same sums as merge_views with them)
-            from selfillum.unsteady.fastmap import FrameOperator
-
-            op = FrameOperator(maps, finite, merge_kw, ops[0].gains, off, sample_points=True,
-                               pre=pres if compose else None, halo_px=halo)
-            op.spots = list(pres) if patcher == "polynomial" else list(spot_px)
-            op.frame = op.last_used = k
-            _keep(ops, op)
-            B = op.faces(imgs)
-            maps = imgs = finite = None  # not held while the frame is out
-            seen = op.seen & np.isfinite(B)
-            raw_f = np.where(seen, B, np.nan)
-            E = si(B, seen) if si is not None else raw_f
-            vals = _fast_nodes(op, W, grid, E, B, seen)
-            _shed_mesh_cache(mesh)
-            release_freed_memory()
-            yield FrameNodes(k, vals[0], vals[1], cams, op.gains)
-            continue
-        B = None
-        known = gains if gains is not None else (
-            np.ones(len(cameras)) if overlap != "merge" else None)
-        if use_fast and known is not None:  # the first reference, its gains known (not
-            # matched on this frame): the operator gives this frame's merge too
-            from selfillum.unsteady.fastmap import FrameOperator
-
-            op = FrameOperator(maps, finite, merge_kw, known, off, sample_points=moving,
-                               pre=pres if compose else None, halo_px=halo)
-            op.spots = list(pres) if patcher == "polynomial" else list(spot_px)
-            B = op.faces(imgs)
-            if B is not None:
-                ops.append(op)
-                op.frame = op.last_used = k
-                op.workers = workers
-                maps0 = [None] * len(cameras)
-                seen, mv_gains = op.seen & np.isfinite(B), op.gains
-        if B is None:
-            mv = merge_views(maps, imgs, gains=gains, **merge_kw)
-            if overlap == "merge" and gains is None:
-                gains = mv.gains  # matched on frame 0, kept: no seam moving over time
-            if use_fast:  # the first reference
+                    if maps0[ci] is None:
+                        maps0[ci] = SurfaceMap(mesh, c.camera, max_obliqueness=max_obliqueness,
+                                               caster=caster)
+                    cam, smap = c.camera, maps0[ci]
+                    if registration == "first-frame":
+                        if regs[ci] is None:
+                            regs[ci] = AffineRegistration(img, smap.mask)
+                        img = regs[ci].warp(img, regs[ci].fit(img))
+                if spots is not None and len(spots):
+                    cen, rad = project_spots(spots, smap, margin_px=spot_margin_px)
+                    spot_px[ci] = (cen, rad)
+                    if patcher == "polynomial":
+                        pres[ci] = patch_operator(img.shape, cen, rad, finite=np.isfinite(img))
+                        img = pres[ci].apply(img)
+                    else:
+                        img = mask_spots(img, cen, rad)
+                finite.append(np.isfinite(img))
+                if filter == "gaussian":
+                    img = gaussian(img, filter_size)
+                maps.append(smap)
+                imgs.append(img)
+                cams.append(cam)
+            if use_fast and ops:  # a new reference of a moving model: its operator gives the
+                # merge (the gains are frame 0's; the same sums as merge_views with them)
                 from selfillum.unsteady.fastmap import FrameOperator
 
-                ops.append(FrameOperator(maps, finite, merge_kw, mv.gains, off,
-                                         sample_points=moving,
-                                         pre=pres if compose else None, halo_px=halo))
-                ops[0].spots = list(pres) if patcher == "polynomial" else list(spot_px)
-                ops[0].frame = ops[0].last_used = k
-                ops[0].workers = workers
-                maps0 = [None] * len(cameras)
-            B, seen, mv_gains = mv.values, mv.seen & np.isfinite(mv.values), mv.gains
-        maps = imgs = finite = mv = None  # not held while the frame is out
-        if off is not None:
-            seen = seen & ~off
-        raw_f = np.where(seen, B, np.nan)
-        E = si(B, seen) if si is not None else raw_f
-        vals = _to_nodes(W, np.vstack([E, raw_f]), grid)
-        if use_fast:
-            _shed_mesh_cache(mesh)
-        release_freed_memory()  # the cast's, the merge's and the SI solve's work arrays
-        yield FrameNodes(k, vals[0], vals[1], cams, mv_gains)
+                op = FrameOperator(maps, finite, merge_kw, ops[0].gains, off, sample_points=True,
+                                   pre=pres if compose else None, halo_px=halo)
+                op.spots = list(pres) if patcher == "polynomial" else list(spot_px)
+                op.frame = op.last_used = k
+                _keep(ops, op)
+                B = op.faces(imgs)
+                maps = imgs = finite = None  # not held while the frame is out
+                seen = op.seen & np.isfinite(B)
+                raw_f = np.where(seen, B, np.nan)
+                E = si(B, seen) if si is not None else raw_f
+                vals = _fast_nodes(op, W, grid, E, B, seen)
+                _shed_mesh_cache(mesh)
+                release_freed_memory()
+                yield FrameNodes(k, vals[0], vals[1], cams, op.gains)
+                continue
+            B = None
+            known = gains if gains is not None else (
+                np.ones(len(cameras)) if overlap != "merge" else None)
+            if use_fast and known is not None:  # the first reference, its gains known (not
+                # matched on this frame): the operator gives this frame's merge too
+                from selfillum.unsteady.fastmap import FrameOperator
+
+                op = FrameOperator(maps, finite, merge_kw, known, off, sample_points=moving,
+                                   pre=pres if compose else None, halo_px=halo)
+                op.spots = list(pres) if patcher == "polynomial" else list(spot_px)
+                B = op.faces(imgs)
+                if B is not None:
+                    ops.append(op)
+                    op.frame = op.last_used = k
+                    op.workers = workers
+                    maps0 = [None] * len(cameras)
+                    seen, mv_gains = op.seen & np.isfinite(B), op.gains
+            if B is None:
+                mv = merge_views(maps, imgs, gains=gains, **merge_kw)
+                if overlap == "merge" and gains is None:
+                    gains = mv.gains  # matched on frame 0, kept: no seam moving over time
+                if use_fast:  # the first reference
+                    from selfillum.unsteady.fastmap import FrameOperator
+
+                    ops.append(FrameOperator(maps, finite, merge_kw, mv.gains, off,
+                                             sample_points=moving,
+                                             pre=pres if compose else None, halo_px=halo))
+                    ops[0].spots = list(pres) if patcher == "polynomial" else list(spot_px)
+                    ops[0].frame = ops[0].last_used = k
+                    ops[0].workers = workers
+                    maps0 = [None] * len(cameras)
+                B, seen, mv_gains = mv.values, mv.seen & np.isfinite(mv.values), mv.gains
+            maps = imgs = finite = mv = None  # not held while the frame is out
+            if off is not None:
+                seen = seen & ~off
+            raw_f = np.where(seen, B, np.nan)
+            E = si(B, seen) if si is not None else raw_f
+            vals = _to_nodes(W, np.vstack([E, raw_f]), grid)
+            if use_fast:
+                _shed_mesh_cache(mesh)
+            release_freed_memory()  # the cast's, the merge's and the SI solve's work arrays
+            yield FrameNodes(k, vals[0], vals[1], cams, mv_gains)
+    finally:
+        if ahead is not None:
+            ahead.close()
 
 
 #: References (full casts) a moving model keeps: a vibrating model returns to earlier poses.
@@ -494,64 +493,12 @@ def _cast_reference(j, cameras, mesh, caster, max_obliqueness, spots, spot_margi
     return op
 
 
-def _frame(frames, k: int) -> np.ndarray:
-    """Frame ``k`` as stored (a video's integer counts, no float copy) where the source
-    can (:meth:`resection.io.video.FrameSource.native`, no saturation mask asked)."""
-    if hasattr(frames, "native") and not getattr(frames, "mask_saturated", False):
-        return frames.native(k)
-    return np.asarray(frames[k])
-
-
-def _fixed_images(cameras, k, regs, spot_px, filter, filter_size, pres=None,
-                  read=None, workers=None) -> list:
-    """Frame ``k`` of every camera for frame 0's map: as stored, or warped onto frame 0
-    (``first-frame``) and filtered (its spots patched by ``pres`` or masked first), in
-    float64. Without a filter, a warp samples only the pixels ``read[c]`` (the operator's),
-    when given, on ``workers`` threads.
-
-    Several cameras are prepared side by side, one thread a camera (the affine fit, the
-    warp and the filter release the GIL), each on one thread of its own: a camera's work
-    is coarse enough to pay a thread, where one camera's pixels split over threads did
-    not (see :func:`map_run`)."""
-    from resection._threads import available_cores, run_blocks
-
-    def one(ci: int, inner: int | None):
-        c = cameras[ci]
-        img = _frame(c.frames, k)
-        if regs[ci] is not None or filter == "gaussian":
-            if regs[ci] is not None:  # first-frame: warped onto frame 0 (read as stored)
-                if read is not None and filter != "gaussian":  # only what is read
-                    from selfillum.unsteady.fastmap import PixelValues
-
-                    return PixelValues(regs[ci].sample(img, regs[ci].fit(img), read[ci],
-                                                       inner))
-                img = regs[ci].warp_all(img, regs[ci].fit(img), inner)
-            else:
-                img = np.array(img, dtype=np.float64)
-            if filter == "gaussian":  # the spots in place (the array is this call's own)
-                if pres is not None and pres[ci] is not None:
-                    img = pres[ci].apply(img, in_place=True)
-                elif spot_px[ci] is not None:
-                    img = mask_spots(img, *spot_px[ci])
-                img = _gaussian(img, filter_size, inner)
-        return img
-
-    n = len(cameras)
-    busy = regs.count(None) < n or filter == "gaussian"  # work beyond reading the frame
-    threads = min(n, available_cores() if workers is None else max(int(workers), 1))
-    if n < 2 or not busy or threads < 2:
-        return [one(ci, workers) for ci in range(n)]
-    return [im for b in run_blocks(lambda b: [one(ci, 1) for ci in range(*b)],
-                                   [(ci, ci + 1) for ci in range(n)], threads)
-            for im in b]
-
-
 def _fast_frame(ops, cameras, k, regs, spots, spot_px, filter, filter_size, moving,
                 refresh_px, op=None, pres=None, halo=0, imgs=None):
     """Face values of frame ``k`` by the operator (None: take the full way); a moving
     model uses ``op`` when given (its planned reference), else the nearest reference."""
     if moving:  # sampled as it is (a video's counts)
-        imgs = [_frame(c.frames, k) for c in cameras]
+        imgs = [read_frame(c.frames, k) for c in cameras]
         cams = [c.poses[k] for c in cameras]
         if op is None:  # the reference nearest this pose (on a sample of its points)
             d = [o.displacement(cams) for o in ops]
@@ -566,13 +513,13 @@ def _fast_frame(ops, cameras, k, regs, spots, spot_px, filter, filter_size, movi
                 s = spots_[c]
                 if s is not None:
                     img = s.apply(img) if hasattr(s, "apply") else mask_spots(img, *s)
-                return _gaussian(img, filter_size)
+                return gaussian(img, filter_size)
 
         B = op.faces_moved(imgs, cams, refresh_px, prepare=prep)
         return None if B is None else (B, cams, op.seen, op)
     else:
         if imgs is None:
-            imgs = _fixed_images(cameras, k, regs, spot_px, filter, filter_size, pres,
+            imgs = fixed_images(cameras, k, regs, spot_px, filter, filter_size, pres,
                                  ops[0].cols)
         cams = [c.camera for c in cameras]
         j, B = 0, ops[0].faces(imgs)
