@@ -466,14 +466,14 @@ def test_fast_phase1_agrees_with_the_full_per_frame_map(monkeypatch):
     np.testing.assert_array_equal(np.isfinite(a), np.isfinite(b))
     np.testing.assert_allclose(b[np.isfinite(a)], a[np.isfinite(a)], rtol=1e-6)
 
-    real, used = fastmap.FrameOperator.faces_moved, []
+    real, used = fastmap.FrameOperator.faces_of_samples, []
 
-    def counted(self, *a, **k):
+    def counted(self, *a, **k):  # a moving frame's fast way: its samples made into faces
         B = real(self, *a, **k)
         used.append(B is not None)
         return B
 
-    monkeypatch.setattr(fastmap.FrameOperator, "faces_moved", counted)
+    monkeypatch.setattr(fastmap.FrameOperator, "faces_of_samples", counted)
     a, b = values("track", False), values("track", True)
     # the frames take the fast way: the references are planned from the known poses
     # (here frame 0's covers every frame: points move up to 2.4 px) and points moving off

@@ -340,7 +340,7 @@ def _solve_damped(JTJ, JTr, lam, step):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def fit_windows(win, w, p0, tab, T, h, rmin, rmax, iterations, tol, sizes, sn, cs, wc):
     """Levenberg-Marquardt fit of every window.
 

@@ -335,7 +335,7 @@ def _clamp(pt, rmin, rmax):
     pt[4] = min(max(pt[4], -KMAX), KMAX)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def fit_windows(win, w, p0, tab, T, h, rmin, rmax, iterations, tol, sizes, sn, cs, wc):
     """Levenberg-Marquardt fit of every window to the elliptical model.
 

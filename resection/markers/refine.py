@@ -54,6 +54,7 @@ def refine_markers(
     chunk: int = 1024,
     tol: float = 1e-4,
     shape: str = "disk",
+    workers: int | None = 1,
 ) -> dict:
     """Sub-pixel centres of bright blobs by a least-squares disk fit, all at once.
 
@@ -96,6 +97,9 @@ def refine_markers(
         marker seen at an aspect of 0.6 the disk's fit needs about 30 evaluations and
         leaves the centre 0.1 px off; the ellipse's needs a few and leaves it at the noise.
         ``radius`` is then the radius of the disk of the same area, ``sqrt(X H)``.
+    workers : int, optional
+        Threads over the windows (None: the available cores). Each window's fit is its
+        own: the result does not depend on it.
 
     Returns
     -------
@@ -107,16 +111,17 @@ def refine_markers(
     img, mask = _prep.native(signal, bad)
     return fit_frame(img, mask, np.inf, 1.0, 0.0, uv0, diameter, blur=blur,
                      iterations=iterations, half=half, strength=strength, chunk=chunk, tol=tol,
-                     shape=shape)
+                     shape=shape, workers=workers)
 
 
 def fit_frame(img, mask, sat, sign, fill, uv0, diameter, *, blur=0.6, iterations=30,
-              half=None, strength=None, chunk=1024, tol=1e-4, shape="disk") -> dict:
+              half=None, strength=None, chunk=1024, tol=1e-4, shape="disk",
+              workers=1) -> dict:
     """:func:`refine_markers` on the signal ``sign * img - fill`` of a frame ``img`` (any
     integer or float type of :func:`resection.markers._prep.native`), without converting it:
     pixels where ``mask`` (a bool array of the frame's shape, or (0, 0) for none) is True,
     NaN, infinite or ``>= sat`` are left out. The result's ``background`` is that of the
-    signal."""
+    signal. ``workers``: threads over the windows (None: the available cores)."""
     if shape not in ("disk", "ellipse"):
         raise InputError(f"shape: {shape!r} is not 'disk' or 'ellipse'")
     uv0 = np.asarray(uv0, float).reshape(-1, 2)
@@ -128,7 +133,7 @@ def fit_frame(img, mask, sat, sign, fill, uv0, diameter, *, blur=0.6, iterations
     nbrs = _neighbours(uv0, strength, 2.0 * half + 1.0, 1.5 * R0 + 1.0)
     frame = (img, mask, float(sat), float(sign), float(fill))
     parts = [_refine_chunk(frame, uv0, nbrs, np.arange(k, min(k + chunk, n)), R0, blur,
-                           iterations, half, tol, shape)
+                           iterations, half, tol, shape, workers)
              for k in range(0, n, max(int(chunk), 1))]
     keys = ("u", "v", "radius", "depth", "background", "rms", "ok", "masked_fraction")
     if not parts:
@@ -163,8 +168,23 @@ def _ellipse_starts(win, w, pe, reach, blur, rmin, rmax) -> None:
     pe[ok, 2], pe[ok, 3], pe[ok, 4] = X[ok], H[ok], k[ok]
 
 
-def _refine_chunk(frame, uv_all, nbrs, sel, R0, blur, iterations, half, tol, shape) -> dict:
-    """Levenberg-Marquardt fit of the windows of the starts ``sel`` (see refine_markers)."""
+def _fit_in_blocks(fit, win, w, p, args, workers):
+    """``fit(win, w, p, *args)`` (a compiled ``fit_windows``, GIL released) over blocks of
+    windows on ``workers`` threads: each window's fit is its own, so the blocks give what
+    one call gives. Returns the parameters and the costs."""
+    from resection._threads import run_blocks, split_range
+
+    out = run_blocks(lambda b: fit(win[b[0]:b[1]], w[b[0]:b[1]], p[b[0]:b[1]], *args),
+                     split_range(len(p), workers, min_size=2, per_worker=4), workers)
+    if len(out) == 1:
+        return out[0][0], out[0][1]
+    return np.concatenate([o[0] for o in out]), np.concatenate([o[1] for o in out])
+
+
+def _refine_chunk(frame, uv_all, nbrs, sel, R0, blur, iterations, half, tol, shape,
+                  workers=1) -> dict:
+    """Levenberg-Marquardt fit of the windows of the starts ``sel`` (see refine_markers),
+    on ``workers`` threads."""
     uv0 = uv_all[sel]
     n = len(uv0)
     iu_all = np.rint(uv_all[:, 0]).astype(np.int64)
@@ -188,15 +208,16 @@ def _refine_chunk(frame, uv_all, nbrs, sel, R0, blur, iterations, half, tol, sha
         tables = _diskfit.node_table(min(_diskfit.n_nodes(2.0 * rmax, s), 2048))
         pe = np.column_stack([p[:, :3], p[:, 2], np.zeros(n), p[:, 3:]])
         _ellipse_starts(win, w, pe, R0 + 1.0, s, rmin, rmax)
-        pe, cost, _ = _ellipsefit.fit_windows(win, w, pe, *_diskfit.edge_table(s), rmin,
-                                              rmax, int(iterations), float(tol), *tables)
+        pe, cost = _fit_in_blocks(_ellipsefit.fit_windows, win, w, pe,
+                                  (*_diskfit.edge_table(s), rmin, rmax, int(iterations),
+                                   float(tol), *tables), workers)
         p = np.column_stack([pe[:, :2], np.sqrt(pe[:, 2] * pe[:, 3]), pe[:, 5:]])
         NP = _ellipsefit.NP
     elif iterations > 0:
         tables = _diskfit.node_table(min(_diskfit.n_nodes(rmax, s), 2048))
-        p, cost, _ = _diskfit.fit_windows(win, w, p,
-                                          *_diskfit.edge_table(s), rmin, rmax,
-                                          int(iterations), float(tol), *tables)
+        p, cost = _fit_in_blocks(_diskfit.fit_windows, win, w, p,
+                                 (*_diskfit.edge_table(s), rmin, rmax, int(iterations),
+                                  float(tol), *tables), workers)
     else:  # no fit: the starting values
         p[:, 3] = height
         cost = np.full(n, np.nan)

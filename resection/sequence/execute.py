@@ -5,6 +5,7 @@ Dask cluster, a deferred chunk started again from the chunk before it
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import time
 from pathlib import Path
@@ -116,8 +117,8 @@ def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
         else:
             last = (seed0, None)
         before = _tail(last)
-        if tasks and scheduler is None and n_local == 1:
-            _execute_local(setup, tasks, record, last)
+        if tasks and scheduler is None and n_local == 1:  # alone: the fits on every core
+            _execute_local(dataclasses.replace(setup, fit_workers=None), tasks, record, last)
         elif tasks:
             on_poll = _on_poll(frames_dir, tasks, done, note) if progress else None
             if scheduler is None:

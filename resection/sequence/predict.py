@@ -326,7 +326,7 @@ def track_predicted(img: np.ndarray, setup, reference: FrameResult,
     start = pv - c0
     shape = marker_shape(kw, d)
     fit = refine_markers(signal, start, d, bad=bad, blur=blur, half=half, shape=shape,
-                         tol=TRACK_FIT_TOL)
+                         tol=TRACK_FIT_TOL, workers=setup.fit_workers)
     # a window is centred on the pixel of its start: fits that moved to another pixel are
     # fitted again in the window centred on theirs, so that the result does not depend on
     # how far off the prediction was (the window is then the one detection would use)
@@ -335,7 +335,7 @@ def track_predicted(img: np.ndarray, setup, reference: FrameResult,
     if moved.size:
         again = refine_markers(signal, np.column_stack([fit["u"], fit["v"]])[moved], d,
                                bad=bad, blur=blur, half=half, shape=shape,
-                               tol=TRACK_FIT_TOL)
+                               tol=TRACK_FIT_TOL, workers=setup.fit_workers)
         for k in fit:
             fit[k][moved] = again[k]
     lo_d, hi_d = kw.get("diameter_range", (0.5, 2.0))

@@ -35,6 +35,10 @@ class Setup:
     roi_margin: float | None = None
     #: (N, 3) outward unit normals at the markers (NaN rows where unknown), or None
     normals: np.ndarray | None = None
+    #: threads of a frame's marker fits: 1 where processes share the cores (the pool, a
+    #: cluster, this process beside them), None (every core) where this process tracks
+    #: alone (:func:`resection.sequence.execute.execute`)
+    fit_workers: int | None = 1
 
 def _search_roi(setup: Setup, reference: FrameResult | None, shape) -> tuple | None:
     """Bounding box ``(u_min, v_min, u_max, v_max)`` of all the markers projected with the

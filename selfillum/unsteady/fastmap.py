@@ -32,10 +32,10 @@ from pixels to nodes in one product a camera, ``nodes = sum_c (Wn A_c) img_c``
 
 from __future__ import annotations
 
-import functools
-
 import numpy as np
 import scipy.sparse as sp
+
+from selfillum.unsteady._fastmap_kernels import project_sample, spmv_kernel
 
 __all__ = ["FrameOperator", "PixelValues", "plan_references"]
 
@@ -78,7 +78,7 @@ class FrameOperator:
         A moving model whose frames are filtered (a Gaussian on the image): the pixels
         within ``halo_px`` of those that count are sampled too (``support``), so that the
         frame carried back onto the reference's pixels can be patched and filtered there
-        (:meth:`faces_moved` with ``prepare``).
+        (:meth:`samples` with ``prepare``).
     """
 
     def __init__(self, maps, finite, merge_kw: dict, gains, unpainted=None, *,
@@ -208,7 +208,7 @@ class FrameOperator:
 
         N = len(self.node_unseen)
         out = np.zeros(N, np.float32)
-        kern = _spmv_kernel()
+        kern = spmv_kernel()
         for c, ((indptr, cols, data), img) in enumerate(zip(self._direct, images,
                                                              strict=True)):
             x = np.asarray(img)
@@ -231,7 +231,7 @@ class FrameOperator:
     def faces(self, images) -> np.ndarray:
         """Face values of a frame whose pose is the reference's. A pixel that counts and
         is not finite in it (warped in from beyond the frame's edge) is left out, as
-        :meth:`faces_moved` leaves out a point off the sensor."""
+        :meth:`samples` leaves out a point off the sensor."""
         B = np.zeros(self.A[0].shape[0])
         for c, (used, img) in enumerate(zip(self.cols, images, strict=True)):
             x = img.values if isinstance(img, PixelValues) else \
@@ -261,46 +261,50 @@ class FrameOperator:
             d = max(d, float(np.max(np.abs(uv - uv0[pr]))))
         return d
 
-    def faces_moved(self, images, cameras, refresh_px: float,
-                    prepare=None) -> np.ndarray | None:
-        """Face values of a frame of pose ``cameras`` (one a camera): the images sampled
-        (bilinear) where the reference's surface points project (the camera's own
-        projection with its distortion, :meth:`resection.Camera.project`); None when a
-        point moved more than twice ``refresh_px`` (the reference was chosen on a sample
-        of its points, :meth:`displacement`: the caller casts anew). Points that fall off
-        the sensor are left out, the face's other pixels of that camera taking their
-        weight; a face that keeps none of them is NaN (not seen in this frame).
+    def samples(self, images, cameras, refresh_px: float, prepare=None,
+                workers: int | None = None) -> list | None:
+        """A moving model's frame of pose ``cameras`` (one a camera) read at the
+        reference's pixels: the images sampled (bilinear) where the reference's surface
+        points project (the camera's own projection with its distortion,
+        :meth:`resection.Camera.project`). Per camera ``(x, bad)``: the values of its
+        operator's pixels and those left out (off the sensor, not finite), for
+        :meth:`faces_of_samples`; None when a point moved more than twice ``refresh_px``
+        (the reference was chosen on a sample of its points, :meth:`displacement`: the
+        caller casts anew). A face that keeps none of a camera's pixels is NaN there.
 
         ``prepare(c, image)``, when given, is applied to camera ``c``'s frame carried back
         onto the reference's pixels (the ``support``, NaN elsewhere) before its pixels are
-        read: the dark spots patched or masked and the filter, in the reference's
-        pixels."""
+        read: the dark spots patched or masked and the filter, in the reference's pixels.
+        Reads only the operator's arrays: the part a helper thread makes for the next
+        frame; ``workers``: threads of the projection (default: the cores)."""
+        out = []
         if prepare is not None:
-            return self._faces_prepared(images, cameras, refresh_px, prepare)
-        B = np.zeros(self.A[0].shape[0])
-        for c, (X, uv0, img, cam) in enumerate(zip(self.X, self.uv0, images,
-                                                      cameras, strict=True)):
-            x, status = _sample_moved(X, uv0, img, cam, refresh_px)
+            for c, (sup, img, cam) in enumerate(zip(self.support, images, cameras,
+                                                    strict=True)):
+                pix, X, uv0 = sup
+                xs, status = _sample_moved(X, uv0, img, cam, refresh_px, workers)
+                if status is None:
+                    return None
+                H, W = np.shape(img)
+                ref = np.full(H * W, np.nan)
+                ok = status == 0
+                ref[pix[ok]] = xs[ok]
+                ref = np.asarray(prepare(c, ref.reshape(H, W)), dtype=np.float64)
+                x = ref.ravel()[self.cols[c]]
+                out.append((x, ~np.isfinite(x)))
+            return out
+        for X, uv0, img, cam in zip(self.X, self.uv0, images, cameras, strict=True):
+            x, status = _sample_moved(X, uv0, img, cam, refresh_px, workers)
             if status is None:
                 return None
-            B += self._camera_faces(c, x, (status != 0) | ~np.isfinite(x))
-        return B
+            out.append((x, (status != 0) | ~np.isfinite(x)))
+        return out
 
-    def _faces_prepared(self, images, cameras, refresh_px, prepare):
+    def faces_of_samples(self, samples) -> np.ndarray:
+        """The face values from :meth:`samples`' values: every camera's part summed."""
         B = np.zeros(self.A[0].shape[0])
-        for c, (sup, img, cam) in enumerate(zip(self.support, images, cameras,
-                                                strict=True)):
-            pix, X, uv0 = sup
-            xs, status = _sample_moved(X, uv0, img, cam, refresh_px)
-            if status is None:
-                return None
-            H, W = np.shape(img)
-            ref = np.full(H * W, np.nan)
-            ok = status == 0
-            ref[pix[ok]] = xs[ok]
-            ref = np.asarray(prepare(c, ref.reshape(H, W)), dtype=np.float64)
-            x = ref.ravel()[self.cols[c]]
-            B += self._camera_faces(c, x, ~np.isfinite(x))
+        for c, (x, bad) in enumerate(samples):
+            B += self._camera_faces(c, x, bad)
         return B
 
     def _columns(self, c, patch: bool = False):
@@ -361,19 +365,22 @@ def _column_entries(M, columns) -> tuple[np.ndarray, np.ndarray]:
     return M.indices[at].astype(np.int64), M.data[at]
 
 
-def _sample_moved(X, uv0, img, cam, refresh_px):
+def _sample_moved(X, uv0, img, cam, refresh_px, workers=None):
     """``(x, status)``: the frame ``img`` sampled where the points ``X`` project with the
-    pose ``cam`` (:func:`_kernel`'s statuses: 0 sampled, 2 off the sensor); ``status`` None
-    when a point moved more than twice ``refresh_px`` from ``uv0`` (cast anew)."""
+    pose ``cam`` (the statuses of :func:`._fastmap_kernels.project_sample_kernel`: 0
+    sampled, 2 off the sensor); ``status`` None when a point moved more than twice
+    ``refresh_px`` from ``uv0`` (cast anew); on ``workers`` threads (default: the
+    cores)."""
     arr = np.asarray(img)
     if arr.dtype.kind not in "fiu":
         arr = arr.astype(np.float64)
     x = np.empty(len(X))
-    status = _project_sample(X, np.asarray(cam.R, np.float64),
+    status = project_sample(X, np.asarray(cam.R, np.float64),
                              np.asarray(cam.t, np.float64).ravel(),
                              np.asarray(cam.K, np.float64),
                              np.asarray(cam.dist, np.float64).ravel(),
-                             float(cam.max_radius), uv0, arr, 2.0 * float(refresh_px), x)
+                             float(cam.max_radius), uv0, arr, 2.0 * float(refresh_px), x,
+                             workers=workers)
     return x, (None if (status == 1).any() else status)
 
 
@@ -530,108 +537,3 @@ def plan_references(poses, probes, frames, refresh_px: float, *, first: int | No
         counts = [int((dist(chk, int(c)) <= refresh_px).sum()) for c in cand]
         add(int(cand[int(np.argmax(counts))]))
     return {int(frames[i]): int(frames[best_c[i]]) for i in range(T)}
-
-
-@functools.cache
-def _kernel():
-    import numba
-
-    # fastmath's algebra (contraction, reciprocals, reassociation), not its no-NaN
-    # assumption: a background pixel's point is NaN and is tested for (measured on 850,000
-    # points of the 609k run's operator: 13.7 -> 10.4 ms a frame on one core, the samples
-    # equal to 2e-9 counts)
-    @numba.njit(cache=True, nogil=True,
-                fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
-    def project_sample(X, R, t, K, dist, max_radius, uv0, img, refresh, out, status, r0,
-                       r1):  # pragma: no cover - compiled
-        """Project the points ``r0:r1`` (as Camera.project), flag a move over ``refresh``
-        pixels (status 1), a point off the sensor or not projectable (status 2), else
-        sample the image bilinearly there (pixel centres at integers, edges clamped). A
-        point of NaN (a background pixel) reads the image at its own pixel ``uv0``. One
-        thread, without the GIL: the caller's threads take blocks of points."""
-        H, W = img.shape
-        k1, k2, p1, p2, k3 = dist[0], dist[1], dist[2], dist[3], dist[4]
-        R00, R01, R02 = R[0, 0], R[0, 1], R[0, 2]
-        R10, R11, R12 = R[1, 0], R[1, 1], R[1, 2]
-        R20, R21, R22 = R[2, 0], R[2, 1], R[2, 2]
-        tx, ty, tz = t[0], t[1], t[2]
-        fx, skew, cx, fy, cy = K[0, 0], K[0, 1], K[0, 2], K[1, 1], K[1, 2]
-        mr2 = max_radius * max_radius
-        umax, vmax = (W - 2 if W > 1 else 0), (H - 2 if H > 1 else 0)
-        Wm, Hm = W - 1.0, H - 1.0
-        for i in range(r0, r1):
-            x0, x1, x2 = X[i, 0], X[i, 1], X[i, 2]
-            status[i] = 0
-            if x0 != x0:  # a pixel on the background: sampled where it is
-                u = min(max(np.float64(uv0[i, 0]), 0.0), Wm)
-                v = min(max(np.float64(uv0[i, 1]), 0.0), Hm)
-                out[i] = img[int(v + 0.5), int(u + 0.5)]
-                continue
-            zc = R20 * x0 + R21 * x1 + R22 * x2 + tz
-            if not zc > 0:
-                status[i] = 2
-                continue
-            iz = 1.0 / zc
-            x = (R00 * x0 + R01 * x1 + R02 * x2 + tx) * iz
-            y = (R10 * x0 + R11 * x1 + R12 * x2 + ty) * iz
-            r2 = x * x + y * y
-            if r2 > mr2:
-                status[i] = 2
-                continue
-            radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-            xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-            yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-            u = fx * xd + skew * yd + cx
-            v = fy * yd + cy
-            if abs(u - uv0[i, 0]) > refresh or abs(v - uv0[i, 1]) > refresh:
-                status[i] = 1
-                continue
-            if u < -0.5 or v < -0.5 or u > W - 0.5 or v > H - 0.5:
-                status[i] = 2
-                continue
-            u = min(max(u, 0.0), Wm)
-            v = min(max(v, 0.0), Hm)
-            u0 = min(int(u), umax)
-            v0 = min(int(v), vmax)
-            fu = u - u0
-            fv = v - v0
-            u1 = min(u0 + 1, W - 1)
-            v1 = min(v0 + 1, H - 1)
-            out[i] = ((1.0 - fv) * ((1.0 - fu) * img[v0, u0] + fu * img[v0, u1])
-                      + fv * ((1.0 - fu) * img[v1, u0] + fu * img[v1, u1]))
-
-    return project_sample
-
-
-@functools.cache
-def _spmv_kernel():
-    import numba
-
-    @numba.njit(cache=True, nogil=True)
-    def spmv_add(indptr, cols, data, x, out, r0, r1, add):  # pragma: no cover - compiled
-        """Rows ``r0 .. r1`` of ``out (+)= M x`` for a CSR ``M`` whose columns index ``x``
-        directly; False if an ``x`` it reads is not finite."""
-        ok = True
-        for r in range(r0, r1):
-            acc = 0.0
-            for k in range(indptr[r], indptr[r + 1]):
-                acc += np.float64(data[k]) * x[cols[k]]
-            if acc - acc != 0.0:  # NaN or inf
-                ok = False
-            out[r] = out[r] + acc if add else acc
-        return ok
-
-    return spmv_add
-
-
-def _project_sample(X, *args):
-    """:func:`_kernel` over all of ``X``'s points, in blocks on the available cores (the
-    threads of :func:`resection._threads.run_blocks`; numba's parallel loops spun on the
-    shared cores, the sampling then cost several times its work); returns the statuses."""
-    from resection._threads import run_blocks, split_range
-
-    status = np.empty(len(X), np.uint8)
-    kern = _kernel()  # compiled on first use (and cached on disk by numba)
-    run_blocks(lambda b: kern(X, *args, status, b[0], b[1]),
-               split_range(len(X), None, min_size=32768))
-    return status

@@ -83,7 +83,7 @@ def gaussian(img: np.ndarray, size: int, workers: int | None = None) -> np.ndarr
 
 
 class FramesAhead:
-    """The images of a run's frames, each next one made in a helper thread.
+    """The images (or samples) of a run's frames, each next one made in a helper thread.
 
     ``get(k)`` returns ``make(k)`` and starts ``make`` of the frame after ``k`` (in
     ``frames``' order) in one helper thread, so that it is ready when asked for. ``make``
@@ -98,10 +98,15 @@ class FramesAhead:
         ``make(k)`` -> the images of frame ``k``.
     frames : sequence of int
         The frames in the order they will be asked for.
+    before : callable, optional
+        ``before(k)``, run in the caller's thread when frame ``k`` is started (made or
+        sent ahead): what ``make`` needs that only the caller may compute (a moving
+        model's reference, cast when missing); then ``make(k, before(k))``.
     """
 
-    def __init__(self, make, frames) -> None:
+    def __init__(self, make, frames, before=None) -> None:
         self._make = make
+        self._before = before
         order = [int(k) for k in frames]
         self._after = dict(zip(order[:-1], order[1:], strict=True))
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="frames-ahead")
@@ -116,11 +121,14 @@ class FramesAhead:
         else:
             if pending is not None:
                 _finish(pending[1])
-            imgs = self._make(k)
+            imgs = self._make(*self._args(k))
         nxt = self._after.get(k)
         if nxt is not None:
-            self._pending = (nxt, self._pool.submit(self._make, nxt))
+            self._pending = (nxt, self._pool.submit(self._make, *self._args(nxt)))
         return imgs
+
+    def _args(self, k: int) -> tuple:
+        return (k,) if self._before is None else (k, self._before(k))
 
     def drop(self) -> None:
         """Wait for the frame in flight and discard it (before the caller changes what

@@ -299,7 +299,7 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
     counts = {} if counts is None else counts
     for key in ("fast", "full", "references"):
         counts.setdefault(key, 0)
-    ahead = None  # a fixed map: FramesAhead, made with the first reference
+    ahead = None  # FramesAhead (the next frame made meanwhile), with the first reference
     inner = 1 if len(cameras) == 1 else None
     try:
         for i, k in enumerate(frame_numbers):  # frames, one at a time
@@ -319,10 +319,18 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
                     continue
                 # else: a pixel that counts is not finite (warped in from beyond the edge):
                 # the faces' way, which leaves it out
+            if ops and moving:  # sampled at its reference's points; the next frame's
+                if ahead is None:  # samples made meanwhile in a helper thread
+                    ahead = FramesAhead(
+                        lambda q, op: _moved_samples(q, op, cameras, refresh_px,
+                                                     filter_size, halo, workers=1),
+                        frame_numbers[i:], before=planned)
+                op, got, cams = ahead.get(k)
+                fv = None if got is None else (op.faces_of_samples(got), cams, op.seen, op)
+            elif ops:
+                fv = _fixed_frame(ops, cameras, k, regs, spot_px, filter, filter_size, pres,
+                                  imgs)
             if ops:
-                fv = _fast_frame(ops, cameras, k, regs, spots, spot_px, filter, filter_size,
-                                 moving, refresh_px, op=planned(k) if moving else None,
-                                 pres=pres, halo=halo, imgs=imgs)
                 if fv is not None:
                     B, cams, op_seen, _ = fv
                     seen = op_seen & np.isfinite(B)
@@ -493,37 +501,35 @@ def _cast_reference(j, cameras, mesh, caster, max_obliqueness, spots, spot_margi
     return op
 
 
-def _fast_frame(ops, cameras, k, regs, spots, spot_px, filter, filter_size, moving,
-                refresh_px, op=None, pres=None, halo=0, imgs=None):
-    """Face values of frame ``k`` by the operator (None: take the full way); a moving
-    model uses ``op`` when given (its planned reference), else the nearest reference."""
-    if moving:  # sampled as it is (a video's counts)
-        imgs = [read_frame(c.frames, k) for c in cameras]
-        cams = [c.poses[k] for c in cameras]
-        if op is None:  # the reference nearest this pose (on a sample of its points)
-            d = [o.displacement(cams) for o in ops]
-            j = int(np.argmin(d))
-            if d[j] > refresh_px:
-                return None
-            op = ops[j]
-        prep = None
-        if halo:  # filtered: the spots and the filter in the reference's pixels
+def _fixed_frame(ops, cameras, k, regs, spot_px, filter, filter_size, pres=None,
+                 imgs=None):
+    """Face values of frame ``k`` of a fixed map by frame 0's operator (``imgs``: its
+    images, made ahead)."""
+    if imgs is None:
+        imgs = fixed_images(cameras, k, regs, spot_px, filter, filter_size, pres,
+                            ops[0].cols)
+    B = ops[0].faces(imgs)
+    return None if B is None else (B, [c.camera for c in cameras], ops[0].seen, ops[0])
 
-            def prep(c, img, spots_=op.spots):
-                s = spots_[c]
-                if s is not None:
-                    img = s.apply(img) if hasattr(s, "apply") else mask_spots(img, *s)
-                return gaussian(img, filter_size)
 
-        B = op.faces_moved(imgs, cams, refresh_px, prepare=prep)
-        return None if B is None else (B, cams, op.seen, op)
-    else:
-        if imgs is None:
-            imgs = fixed_images(cameras, k, regs, spot_px, filter, filter_size, pres,
-                                 ops[0].cols)
-        cams = [c.camera for c in cameras]
-        j, B = 0, ops[0].faces(imgs)
-    return None if B is None else (B, cams, ops[j].seen, ops[j])
+def _moved_samples(k, op, cameras, refresh_px, filter_size, halo, workers=None):
+    """``(op, samples, cameras)`` of frame ``k`` of a moving model by its reference
+    ``op`` (:meth:`.fastmap.FrameOperator.samples`; None: a point moved too far). Reads
+    the frames and the operator only: made ahead in a helper thread (:class:`.FramesAhead`,
+    ``workers`` threads within)."""
+    imgs = [read_frame(c.frames, k) for c in cameras]
+    cams = [c.poses[k] for c in cameras]
+    prep = None
+    if halo:  # filtered: the spots and the filter in the reference's pixels
+
+        def prep(c, img, spots_=op.spots):
+            s = spots_[c]
+            if s is not None:
+                img = s.apply(img, in_place=True) if hasattr(s, "apply") else \
+                    mask_spots(img, *s)
+            return gaussian(img, filter_size, workers)
+
+    return op, op.samples(imgs, cams, refresh_px, prepare=prep, workers=workers), cams
 
 
 def _fast_nodes(op, W, grid, E, B, seen) -> np.ndarray:
