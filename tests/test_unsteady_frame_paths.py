@@ -202,3 +202,50 @@ def test_cameras_prepared_side_by_side_equal_one_by_one(filter_):
         r._M = np.eye(3)
         A = r.fit(cams[c].frames[1])
         np.testing.assert_allclose(A[0, 2], 0.3 * (c + 1), atol=0.05)
+
+
+def test_moving_samples_are_the_cameras_projection_and_scipys_bilinear():
+    """A moving model's frame read at its reference's points (``_sample_moved``, the
+    compiled projection and sampling) against :meth:`resection.Camera.project` with its
+    distortion and SciPy's bilinear ``map_coordinates``: the statuses (off the sensor,
+    behind the camera, moved too far) and the values."""
+    from scipy.ndimage import map_coordinates
+
+    from resection import Camera
+    from selfillum.unsteady.fastmap import _sample_moved
+
+    rng = np.random.default_rng(5)
+    H, W, n = 60, 90, 3000
+    cam = Camera(width=W, height=H, K=np.array([[80.0, 0.3, 44.0], [0, 78.0, 29.0],
+                                                [0, 0, 1]]),
+                 dist=np.array([-0.08, 0.02, 0.001, -0.002, 0.0]),
+                 R=np.eye(3), t=np.array([0.01, -0.02, 0.0]))
+    X = np.column_stack([rng.uniform(-0.8, 0.8, n), rng.uniform(-0.5, 0.5, n),
+                         rng.uniform(0.9, 1.1, n)])
+    X[:20, 2] = -1.0  # behind the camera
+    X[20:40] = np.nan  # background pixels: read where they are
+    uv = np.full((n, 2), np.nan)
+    uv[40:] = cam.project(X[40:])
+    uv0 = np.where(np.isfinite(uv), uv, rng.uniform(0, 50, (n, 2)))
+    uv0[40:80] += 3.0  # moved by 3 px: beyond a refresh of 2 x 1 px
+    img = rng.integers(0, 4096, (H, W)).astype(np.uint16)
+    x, status = _sample_moved(X, uv0, img, cam, 1.0, workers=1)
+    assert status is None  # a point moved more than twice refresh_px
+    keep = np.r_[0:40, 80:n]
+    x, status = _sample_moved(X[keep], uv0[keep], img, cam, 1.0, workers=1)
+    uv, uv0 = uv[keep], uv0[keep]
+    inside = np.isfinite(uv).all(axis=1) & (uv[:, 0] >= -0.5) & (uv[:, 1] >= -0.5) & \
+        (uv[:, 0] <= W - 0.5) & (uv[:, 1] <= H - 0.5)
+    back = np.arange(len(keep)) < 40
+    back_nan = np.arange(len(keep)) >= 20
+    np.testing.assert_array_equal(status[~back], np.where(inside[~back], 0, 2))
+    np.testing.assert_array_equal(status[:20], 2)
+    np.testing.assert_array_equal(status[20:40], 0)
+    ok = (status == 0) & ~back
+    ref = map_coordinates(img.astype(np.float64), [np.clip(uv[ok, 1], 0, H - 1),
+                                                   np.clip(uv[ok, 0], 0, W - 1)],
+                          order=1, mode="nearest")
+    np.testing.assert_allclose(x[ok], ref, rtol=0, atol=1e-6)
+    at = np.rint(uv0[back & back_nan]).astype(int)  # a NaN point: its own pixel
+    np.testing.assert_array_equal(x[back & back_nan], img[at[:, 1], at[:, 0]])
+    assert ok.sum() > 1200 and (status[~back] == 2).sum() > 50

@@ -15,7 +15,9 @@ def project_sample_kernel():
     # fastmath's algebra (contraction, reciprocals, reassociation), not its no-NaN
     # assumption: a background pixel's point is NaN and is tested for (measured on 850,000
     # points of the 609k run's operator: 13.7 -> 10.4 ms a frame on one core, the samples
-    # equal to 2e-9 counts)
+    # equal to 2e-9 counts). By runs of ``RUN`` points, the projection first, without a
+    # branch (the compiler's vector lanes), then the tests and the samples: 11.6 -> 8.6 ms
+    # on 850,000 points of a plane (2026-12-03, one core)
     @numba.njit(cache=True, nogil=True,
                 fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
     def project_sample(X, R, t, K, dist, max_radius, uv0, img, refresh, out, status, r0,
@@ -35,46 +37,52 @@ def project_sample_kernel():
         mr2 = max_radius * max_radius
         umax, vmax = (W - 2 if W > 1 else 0), (H - 2 if H > 1 else 0)
         Wm, Hm = W - 1.0, H - 1.0
-        for i in range(r0, r1):
-            x0, x1, x2 = X[i, 0], X[i, 1], X[i, 2]
-            status[i] = 0
-            if x0 != x0:  # a pixel on the background: sampled where it is
-                u = min(max(np.float64(uv0[i, 0]), 0.0), Wm)
-                v = min(max(np.float64(uv0[i, 1]), 0.0), Hm)
-                out[i] = img[int(v + 0.5), int(u + 0.5)]
-                continue
-            zc = R20 * x0 + R21 * x1 + R22 * x2 + tz
-            if not zc > 0:
-                status[i] = 2
-                continue
-            iz = 1.0 / zc
-            x = (R00 * x0 + R01 * x1 + R02 * x2 + tx) * iz
-            y = (R10 * x0 + R11 * x1 + R12 * x2 + ty) * iz
-            r2 = x * x + y * y
-            if r2 > mr2:
-                status[i] = 2
-                continue
-            radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-            xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-            yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-            u = fx * xd + skew * yd + cx
-            v = fy * yd + cy
-            if abs(u - uv0[i, 0]) > refresh or abs(v - uv0[i, 1]) > refresh:
-                status[i] = 1
-                continue
-            if u < -0.5 or v < -0.5 or u > W - 0.5 or v > H - 0.5:
-                status[i] = 2
-                continue
-            u = min(max(u, 0.0), Wm)
-            v = min(max(v, 0.0), Hm)
-            u0 = min(int(u), umax)
-            v0 = min(int(v), vmax)
-            fu = u - u0
-            fv = v - v0
-            u1 = min(u0 + 1, W - 1)
-            v1 = min(v0 + 1, H - 1)
-            out[i] = ((1.0 - fv) * ((1.0 - fu) * img[v0, u0] + fu * img[v0, u1])
-                      + fv * ((1.0 - fu) * img[v1, u0] + fu * img[v1, u1]))
+        RUN = 256
+        us, vs, zs, rs = np.empty(RUN), np.empty(RUN), np.empty(RUN), np.empty(RUN)
+        for s in range(r0, r1, RUN):
+            n = min(RUN, r1 - s)
+            for j in range(n):  # the projection (NaN through for a background point)
+                x0, x1, x2 = X[s + j, 0], X[s + j, 1], X[s + j, 2]
+                zc = R20 * x0 + R21 * x1 + R22 * x2 + tz
+                iz = 1.0 / zc
+                x = (R00 * x0 + R01 * x1 + R02 * x2 + tx) * iz
+                y = (R10 * x0 + R11 * x1 + R12 * x2 + ty) * iz
+                r2 = x * x + y * y
+                radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+                xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
+                yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
+                us[j] = fx * xd + skew * yd + cx
+                vs[j] = fy * yd + cy
+                zs[j] = zc
+                rs[j] = r2
+            for j in range(n):
+                i = s + j
+                status[i] = 0
+                if X[i, 0] != X[i, 0]:  # a pixel on the background: sampled where it is
+                    u = min(max(np.float64(uv0[i, 0]), 0.0), Wm)
+                    v = min(max(np.float64(uv0[i, 1]), 0.0), Hm)
+                    out[i] = img[int(v + 0.5), int(u + 0.5)]
+                    continue
+                if not zs[j] > 0 or rs[j] > mr2:
+                    status[i] = 2
+                    continue
+                u, v = us[j], vs[j]
+                if abs(u - uv0[i, 0]) > refresh or abs(v - uv0[i, 1]) > refresh:
+                    status[i] = 1
+                    continue
+                if u < -0.5 or v < -0.5 or u > W - 0.5 or v > H - 0.5:
+                    status[i] = 2
+                    continue
+                u = min(max(u, 0.0), Wm)
+                v = min(max(v, 0.0), Hm)
+                u0 = min(int(u), umax)
+                v0 = min(int(v), vmax)
+                fu = u - u0
+                fv = v - v0
+                u1 = min(u0 + 1, W - 1)
+                v1 = min(v0 + 1, H - 1)
+                out[i] = ((1.0 - fv) * ((1.0 - fu) * img[v0, u0] + fu * img[v0, u1])
+                          + fv * ((1.0 - fu) * img[v1, u0] + fu * img[v1, u1]))
 
     return project_sample
 
