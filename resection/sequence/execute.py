@@ -51,13 +51,15 @@ LOCAL_CLUSTER_START_S = 0.5
 
 def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
                chunk_size: int, workers: int, scheduler: str | None, frames_dir: Path,
-               progress: bool, server_since: float | None = None) -> int:
+               progress: bool, server_since: float | None = None,
+               on_reference=None) -> int:
     """Compute every frame not in ``done`` (index -> ``(ok, matched_from)``, completed in
     place), each written to ``frames_dir`` as soon as it is finished. ``server_since``:
     when the workers' server was started (:func:`resection.sequence.pool.start_server`),
     if it was. Returns the number of frames computed (each counted once). Memory does not
     grow with the frames: a finished frame is kept as its file and those two numbers; the
-    frames are read one at a time, where they are processed."""
+    frames are read one at a time, where they are processed. ``on_reference(result)``,
+    when given, is called with frame 0's result as soon as it is known."""
     bar = _progress_bar(len(frames), len(done), progress)
     computed: set[int] = set()
 
@@ -91,6 +93,8 @@ def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
             first = (process_linked(frames[0], 0, setup, link) if link is not None
                      else process_frame(frames[0], 0, setup, None))
             record(first)
+        if on_reference is not None:
+            on_reference(first)
         seed0 = first if first.ok else None
         tasks = _chunks(frames, done, seed0, chunk_size, frames_dir)
         n_local = min(workers, len(tasks))  # no idle local workers: start-up costs

@@ -63,6 +63,7 @@ from selfillum.unsteady.phase2 import DETREND_ORDER, node_gain
 from selfillum.unsteady.plots import write_pictures
 from selfillum.unsteady.results import write_results
 from selfillum.unsteady.spectra import Spectra, default_bands
+from selfillum.unsteady.tracking import TrackingAhead
 from selfillum.unsteady.uncertainty_out import wind_off_noise
 from selfillum.unsteady.work import Phase1Store
 
@@ -176,13 +177,22 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     done = store.frames_done
     prog = Progress(T, N, enabled=cfg.progress, start=done)
     finished = False
+    ahead = None  # a moving model's tracking in a helper thread (TrackingAhead)
     stack0 = contextlib.ExitStack()
     try:
         # ------------------------------------------------------------ registration
         runs, failed = [], 0
-        for c, cam, s in zip(cfg.cameras, cams, srcs, strict=True):
+        if cfg.registration == "track" and local and cfg.track_dirs is None:
+            # tracked in a helper thread beside the view factors and the first frame (which
+            # waits for frame 0's pose only)
+            ahead = TrackingAhead(lambda i, on_first: track_poses(
+                cfg, cfg.cameras[i], cams[i], srcs[i], T, store.folder,
+                resume=store.resumed, on_first=on_first), len(cams), T)
+        for i, (c, cam, s) in enumerate(zip(cfg.cameras, cams, srcs, strict=True)):
             poses = None
-            if cfg.registration == "track":
+            if ahead is not None:
+                poses = ahead.poses(i)
+            elif cfg.registration == "track":
                 poses, nf = track_poses(cfg, c, cam, s, T, store.folder, resume=store.resumed)
                 failed += nf
             runs.append(CameraRun(c.number, cam, s, poses))
@@ -223,6 +233,8 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
                                    done, fb, T, N, prog, caster=caster, counts=counts,
                                    nondata=nondata)
             caster = None
+        if ahead is not None:  # its frames that took a neighbour's pose
+            failed += ahead.result()[1]
         store.close()
         t_p2 = time.perf_counter()
         view = None  # the RMS picture's view of the model, made beside Phase 2 (its own
@@ -312,6 +324,8 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
             with contextlib.suppress(Exception):
                 s.close()
         if finished:
+            if ahead is not None:  # it writes in the folder removed
+                ahead.wait()
             store.remove()
         else:  # interrupted or failed: the committed blocks stay for --resume
             store.close()

@@ -1,0 +1,124 @@
+"""A moving model's poses tracked in a helper thread beside the run's set-up.
+
+Phase 1 of a moving model (``registration = track``) needs frame 0's pose for its first
+frame (the full map: a ray cast, the merge, the first self-illumination solve) and every
+frame's pose only from frame 1 on (the references are planned from all of them). The
+tracker solves frame 0 first (a detection over the whole frame), then the others by
+prediction. :class:`TrackingAhead` runs it in one helper thread and hands frame 0's pose
+over as soon as it is solved, so that the view factors and the first frame are computed
+while the tracker goes on: the tracker's fits and the first frame's cast release the GIL,
+and each leaves a core idle in its serial parts. Measured on the 609k run (256 frames,
+2 cores), the whole command: see ``docs/benchmark_history.md`` (session 16).
+
+The poses are those the tracker gives when run before the set-up (the same calls, the same
+frames): only the order of the work changes. An error of the tracker is raised in the
+caller when it asks for a pose it does not have.
+"""
+
+from __future__ import annotations
+
+import operator
+import threading
+from collections.abc import Callable, Sequence
+
+__all__ = ["TrackingAhead", "TrackedPoses"]
+
+
+class TrackingAhead:
+    """The cameras' tracking, one after the other, in a helper thread.
+
+    Parameters
+    ----------
+    track : callable
+        ``track(i, on_first) -> (poses, failed)``: camera ``i``'s poses (a sequence of
+        :class:`resection.Camera`, one a frame) and the number of frames that took a
+        neighbour's pose; ``on_first(camera)`` is called with frame 0's pose as soon as it
+        is known (:func:`selfillum.unsteady.inputs.track_poses`).
+    n_cameras : int
+    n_frames : int
+        The run's frames (each camera's poses).
+
+    Notes
+    -----
+    The thread is a daemon: a run interrupted in the caller's thread ends without waiting
+    for it (what the tracker has finished is kept in its folder, as when the tracking is
+    interrupted by itself). :meth:`wait` waits for it (before the caller removes the
+    folder it writes in).
+    """
+
+    def __init__(self, track: Callable, n_cameras: int, n_frames: int) -> None:
+        self._track = track
+        self._n = int(n_frames)
+        self._first: list = [None] * n_cameras
+        self._got_first = [threading.Event() for _ in range(n_cameras)]
+        self._done = threading.Event()
+        self._poses: list = []
+        self._failed = 0
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="tracking", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        try:
+            for i in range(len(self._first)):
+                poses, failed = self._track(i, lambda cam, i=i: self._set_first(i, cam))
+                self._poses.append(poses)
+                self._failed += int(failed)
+        except BaseException as exc:  # raised in the caller's thread (result)
+            self._error = exc
+        finally:
+            self._done.set()
+            for e in self._got_first:  # a camera whose frame 0 never came: its waiters
+                e.set()  # go on to the result (or its error)
+
+    def _set_first(self, i: int, camera) -> None:
+        self._first[i] = camera
+        self._got_first[i].set()
+
+    def first(self, i: int):
+        """Camera ``i``'s frame-0 pose: as soon as the tracker has it (else its
+        :meth:`result`'s)."""
+        self._got_first[i].wait()
+        if self._first[i] is not None:
+            return self._first[i]
+        return self.result()[0][i][0]
+
+    def result(self) -> tuple[list, int]:
+        """Every camera's poses and the frames that took a neighbour's, once the
+        tracking is done; the tracker's error if it failed."""
+        self._done.wait()
+        if self._error is not None:
+            raise self._error
+        return self._poses, self._failed
+
+    def poses(self, i: int) -> TrackedPoses:
+        """Camera ``i``'s poses as a sequence that waits only for what it is asked."""
+        return TrackedPoses(self, i, self._n)
+
+    def wait(self) -> None:
+        """Wait for the helper thread to end (its error, if any, left to :meth:`result`)."""
+        self._done.wait()
+        self._thread.join()
+
+
+class TrackedPoses(Sequence):
+    """One camera's poses from a :class:`TrackingAhead`: frame 0's as soon as it is
+    solved, any other once the tracking is done."""
+
+    def __init__(self, ahead: TrackingAhead, camera: int, n: int) -> None:
+        self._ahead, self._camera, self._n = ahead, camera, n
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __getitem__(self, k):
+        if isinstance(k, slice):
+            return [self[i] for i in range(*k.indices(self._n))]
+        k = operator.index(k)
+        if k < 0:
+            k += self._n
+        if not 0 <= k < self._n:
+            raise IndexError(f"frame {k} of a run of {self._n}")
+        if k == 0:
+            return self._ahead.first(self._camera)
+        return self._ahead.result()[0][self._camera][k]
