@@ -282,13 +282,11 @@ class FrameOperator:
             for c, (sup, img, cam) in enumerate(zip(self.support, images, cameras,
                                                     strict=True)):
                 pix, X, uv0 = sup
-                xs, status = _sample_moved(X, uv0, img, cam, refresh_px, workers)
+                H, W = np.shape(img)
+                ref, status = _sample_moved(X, uv0, img, cam, refresh_px, workers, pix,
+                                            self._carried(c, H * W))
                 if status is None:
                     return None
-                H, W = np.shape(img)
-                ref = np.full(H * W, np.nan)
-                ok = status == 0
-                ref[pix[ok]] = xs[ok]
                 ref = np.asarray(prepare(c, ref.reshape(H, W)), dtype=np.float64)
                 x = ref.ravel()[self.cols[c]]
                 out.append((x, ~np.isfinite(x)))
@@ -299,6 +297,16 @@ class FrameOperator:
                 return None
             out.append((x, (status != 0) | ~np.isfinite(x)))
         return out
+
+    def _carried(self, c: int, size: int) -> np.ndarray:
+        """Camera ``c``'s frame carried back onto the reference's pixels: one flat image
+        kept from frame to frame, NaN off the support (a frame writes every pixel of the
+        support, and ``prepare`` the same pixels every frame: the dark spots'), so that a
+        frame neither allocates nor fills it. :meth:`samples` runs one frame at a time."""
+        bufs = self.__dict__.setdefault("_carried_images", {})
+        if c not in bufs or bufs[c].size != size:
+            bufs[c] = np.full(size, np.nan)
+        return bufs[c]
 
     def faces_of_samples(self, samples) -> np.ndarray:
         """The face values from :meth:`samples`' values: every camera's part summed."""
@@ -365,22 +373,26 @@ def _column_entries(M, columns) -> tuple[np.ndarray, np.ndarray]:
     return M.indices[at].astype(np.int64), M.data[at]
 
 
-def _sample_moved(X, uv0, img, cam, refresh_px, workers=None):
+_NO_PIX = np.empty(0, np.int64)
+
+
+def _sample_moved(X, uv0, img, cam, refresh_px, workers=None, pix=None, into=None):
     """``(x, status)``: the frame ``img`` sampled where the points ``X`` project with the
     pose ``cam`` (the statuses of :func:`._fastmap_kernels.project_sample_kernel`: 0
     sampled, 2 off the sensor); ``status`` None when a point moved more than twice
     ``refresh_px`` from ``uv0`` (cast anew); on ``workers`` threads (default: the
-    cores)."""
+    cores). With ``pix`` and ``into`` (a flat image), the samples are written into
+    ``into[pix]`` (NaN where the status is not 0), and ``x`` is ``into``."""
     arr = np.asarray(img)
     if arr.dtype.kind not in "fiu":
         arr = arr.astype(np.float64)
-    x = np.empty(len(X))
+    x = np.empty(len(X)) if into is None else into
     status = project_sample(X, np.asarray(cam.R, np.float64),
                              np.asarray(cam.t, np.float64).ravel(),
                              np.asarray(cam.K, np.float64),
                              np.asarray(cam.dist, np.float64).ravel(),
                              float(cam.max_radius), uv0, arr, 2.0 * float(refresh_px), x,
-                             workers=workers)
+                             _NO_PIX if pix is None else pix, workers=workers)
     return x, (None if (status == 1).any() else status)
 
 

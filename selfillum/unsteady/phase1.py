@@ -320,10 +320,12 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
                 # else: a pixel that counts is not finite (warped in from beyond the edge):
                 # the faces' way, which leaves it out
             if ops and moving:  # sampled at its reference's points; the next frame's
-                if ahead is None:  # samples made meanwhile in a helper thread
+                if ahead is None:  # samples made meanwhile in a helper thread (filtered:
+                    # its projection and filter on every core, else on one)
                     ahead = FramesAhead(
                         lambda q, op: _moved_samples(q, op, cameras, refresh_px,
-                                                     filter_size, halo, workers=1),
+                                                     filter_size, halo,
+                                                     workers=None if halo else 1),
                         frame_numbers[i:], before=planned)
                 op, got, cams = ahead.get(k)
                 fv = None if got is None else (op.faces_of_samples(got), cams, op.seen, op)
