@@ -5,22 +5,25 @@ that tracking in turn gives, and its errors reach the caller when it asks for a 
 from __future__ import annotations
 
 import threading
+import time
 
 import numpy as np
 import pytest
 
 from resection.errors import InputError
-from selfillum.unsteady.tracking import TrackingAhead
+from selfillum.unsteady.tracking import TrackingAhead, TrackingStopped
 
 
 def test_frame_zero_before_the_rest_and_the_poses_in_order():
     go = threading.Event()
     asked = []
 
-    def track(i, on_first):
+    def track(i, on_frame):
         asked.append((i, threading.current_thread().name))
-        on_first(f"cam{i}-frame0")
+        on_frame(0, f"cam{i}-frame0")
         go.wait(10)  # the other frames: tracked once the test lets them
+        for k in range(1, 5):
+            on_frame(k, f"cam{i}-frame{k}")
         return [f"cam{i}-frame{k}" for k in range(5)], i
 
     ahead = TrackingAhead(track, 2, 5)
@@ -36,16 +39,21 @@ def test_frame_zero_before_the_rest_and_the_poses_in_order():
         p1[5]
     assert ahead.result()[1] == 1  # the frames that took a neighbour's pose, summed
     assert [a[1] for a in asked] == ["tracking", "tracking"]  # one helper thread
-    ahead.wait()
+    ahead.stop()  # done already: nothing to stop
 
 
 def test_frame_zero_failed_takes_the_result():
-    ahead = TrackingAhead(lambda i, on_first: (["later", "b"], 1), 1, 2)
+    def track(i, on_frame):
+        on_frame(0, None)  # frame 0 failed: its pose is a later frame's
+        on_frame(1, "later")
+        return ["later", "later"], 1
+
+    ahead = TrackingAhead(track, 1, 2)
     assert ahead.poses(0)[0] == "later"
 
 
 def test_an_error_of_the_tracker_reaches_the_caller():
-    def track(i, on_first):
+    def track(i, on_frame):
         raise InputError("cam.mraw: tracking found the pose in no frame")
 
     ahead = TrackingAhead(track, 1, 3)
@@ -53,12 +61,33 @@ def test_an_error_of_the_tracker_reaches_the_caller():
         ahead.poses(0)[0]
     with pytest.raises(InputError, match="no frame"):
         ahead.poses(0)[2]
-    ahead.wait()
+    ahead.stop()
+
+
+def test_stop_ends_the_tracking_at_its_next_frame():
+    """A run that ends before its tracking (an error, Ctrl-C) stops it at its next frame
+    and waits for the thread."""
+    done = []
+
+    def track(i, on_frame):
+        for k in range(10_000):
+            on_frame(k, f"frame{k}")
+            done.append(k)
+            time.sleep(0.001)
+        return [], 0
+
+    ahead = TrackingAhead(track, 1, 10_000)
+    assert ahead.poses(0)[0] == "frame0"
+    ahead.stop()
+    assert not ahead._thread.is_alive()
+    assert 0 < len(done) < 10_000
+    with pytest.raises(TrackingStopped):
+        ahead.result()
 
 
 def test_an_error_after_frame_zero_at_the_next_frame():
-    def track(i, on_first):
-        on_first("first")
+    def track(i, on_frame):
+        on_frame(0, "first")
         raise ValueError("frame 7 unreadable")
 
     ahead = TrackingAhead(track, 1, 9)
@@ -91,9 +120,15 @@ def test_the_tracker_gives_frame_zero_early_and_the_same_poses(run, tmp_path):
         T = len(src)
         alone, failed = track_poses(cfg, c, cam, src, T, tmp_path / "alone")
         early = []
-        ahead = TrackingAhead(lambda i, on_first: track_poses(
-            cfg, c, cam, src, T, tmp_path / "ahead",
-            on_first=lambda p: (early.append(p), on_first(p))), 1, T)
+
+        def spied(i, on_frame):
+            def seen(k, p):
+                if k == 0:
+                    early.append(p)
+                on_frame(k, p)
+            return track_poses(cfg, c, cam, src, T, tmp_path / "ahead", on_frame=seen)
+
+        ahead = TrackingAhead(spied, 1, T)
         poses = ahead.poses(0)
         first = poses[0]
         got = list(poses)
@@ -108,3 +143,44 @@ def test_the_tracker_gives_frame_zero_early_and_the_same_poses(run, tmp_path):
     np.testing.assert_array_equal(first.t, alone[0].t)
     # the poses follow the run's vibration: not all the same
     assert np.ptp([p.t[0] for p in got]) > 0
+
+
+def test_a_stopped_tracking_keeps_its_frames_for_a_resume(run, tmp_path):
+    """The real tracker stopped after its first frames: the frames it finished are in its
+    folder, and a resumed tracking gives the poses of a tracking run whole."""
+    from resection.io.cameras import read_camera_file
+    from resection.io.upsp_inputs import read_deck
+    from resection.io.video import open_frames
+    from selfillum.unsteady import config_from_deck
+    from selfillum.unsteady.inputs import track_poses
+
+    cfg = config_from_deck(read_deck(run.deck), out=tmp_path / "o.h5", progress=False)
+    c = cfg.cameras[0]
+    src = open_frames(c.video)
+    try:
+        cam = read_camera_file(c.calibration, image_size=src.shape[::-1]).camera
+        T = len(src)
+        gate = threading.Event()
+
+        def slow(i, on_frame):
+            def seen(k, p):
+                on_frame(k, p)
+                if k == 5:
+                    gate.set()
+                    time.sleep(0.5)  # the caller stops the run here
+            return track_poses(cfg, c, cam, src, T, tmp_path / "w", on_frame=seen)
+
+        ahead = TrackingAhead(slow, 1, T)
+        assert gate.wait(60)
+        ahead.stop()
+        with pytest.raises(TrackingStopped):
+            ahead.result()
+        kept = sorted((tmp_path / "w" / "track1" / "frames").glob("frame_*.json"))
+        assert 6 <= len(kept) < T
+        resumed, _ = track_poses(cfg, c, cam, src, T, tmp_path / "w", resume=True)
+        whole, _ = track_poses(cfg, c, cam, src, T, tmp_path / "whole")
+    finally:
+        src.close()
+    for a, b in zip(whole, resumed, strict=True):
+        np.testing.assert_allclose(a.R, b.R, atol=1e-9)
+        np.testing.assert_allclose(a.t, b.t, atol=1e-9)

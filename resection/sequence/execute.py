@@ -52,14 +52,15 @@ LOCAL_CLUSTER_START_S = 0.5
 def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
                chunk_size: int, workers: int, scheduler: str | None, frames_dir: Path,
                progress: bool, server_since: float | None = None,
-               on_reference=None) -> int:
+               on_frame=None) -> int:
     """Compute every frame not in ``done`` (index -> ``(ok, matched_from)``, completed in
     place), each written to ``frames_dir`` as soon as it is finished. ``server_since``:
     when the workers' server was started (:func:`resection.sequence.pool.start_server`),
     if it was. Returns the number of frames computed (each counted once). Memory does not
     grow with the frames: a finished frame is kept as its file and those two numbers; the
-    frames are read one at a time, where they are processed. ``on_reference(result)``,
-    when given, is called with frame 0's result as soon as it is known."""
+    frames are read one at a time, where they are processed. ``on_frame(result)``, when
+    given, is called with each frame finished in this process (frame 0 first, also when
+    read back), after its file is written (see :func:`resection.sequence.track`)."""
     bar = _progress_bar(len(frames), len(done), progress)
     computed: set[int] = set()
 
@@ -76,6 +77,8 @@ def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
         d = res.to_dict()
         writer.write(d)
         note(d)
+        if on_frame is not None:
+            on_frame(res)
 
     try:
         window = LoadWindow.start()  # the machine's other work, over this run's first work
@@ -93,8 +96,8 @@ def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
             first = (process_linked(frames[0], 0, setup, link) if link is not None
                      else process_frame(frames[0], 0, setup, None))
             record(first)
-        if on_reference is not None:
-            on_reference(first)
+        if d0 is not None and on_frame is not None:
+            on_frame(first)
         seed0 = first if first.ok else None
         tasks = _chunks(frames, done, seed0, chunk_size, frames_dir)
         n_local = min(workers, len(tasks))  # no idle local workers: start-up costs
@@ -139,6 +142,8 @@ def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
         def rerecord(res: FrameResult) -> None:
             write_frame(frames_dir, res)
             note(res.to_dict())
+            if on_frame is not None:
+                on_frame(res)
 
         repair(frames, setup, done, rerecord, frames_dir)
     finally:

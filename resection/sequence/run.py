@@ -42,7 +42,7 @@ def track(
     match_kw: dict | None = None,
     pose_kw: dict | None = None,
     mesh=None,
-    on_reference=None,
+    on_frame=None,
 ) -> TrackResult:
     """Track markers and solve the Point of View in every frame of a sequence.
 
@@ -103,10 +103,13 @@ def track(
         the previous frames and those whose normal faces the camera, never one facing
         away (:func:`resection.sequence.predict.expected_markers`); without normals, a
         marker never seen is looked for every few frames.
-    on_reference : callable, optional
-        ``on_reference(result)`` with the first frame's :class:`FrameResult` as soon as it
-        is known (computed, or read back by a resumed run), before the other frames: a
-        caller that needs only the first frame's pose goes on with it meanwhile.
+    on_frame : callable, optional
+        ``on_frame(result)`` with each frame's :class:`FrameResult` as soon as it is
+        finished in this process, frame 0 first (also when a resumed run reads it back):
+        a caller that needs the first frame's pose goes on with it meanwhile. Frames
+        finished by worker processes or a cluster are not reported. An exception it raises
+        stops the run, the frames finished being kept (a caller's way to stop a tracking
+        it runs in a thread).
     detect_kw, match_kw, pose_kw : dict, optional
         Extra keyword arguments of ``detect_markers``, ``match_markers`` and
         ``solve_pose`` (``pose_kw`` also goes to the matcher's verifying pose solves; the
@@ -152,7 +155,7 @@ def track(
             computed = run_frames(frames, setup, link_d, done, chunk_size=chunk_size,
                                   workers=workers, scheduler=scheduler,
                                   frames_dir=frames_dir, progress=progress,
-                                  server_since=server_since, on_reference=on_reference)
+                                  server_since=server_since, on_frame=on_frame)
             result = assemble(frames_from_files(frames_dir, len(frames)), fixed_camera,
                                computed, str(out))
             write_csvs(result, out)

@@ -100,11 +100,12 @@ def min_frames(order: int) -> int:
 
 
 def track_poses(cfg, cam_in, camera, src, T, tmp: Path, *, resume: bool = False,
-                on_first=None):
+                on_frame=None):
     """Each frame's camera from the project's tracking (or a given track folder), and the
-    number of frames that took a neighbour's pose (their tracking failed). ``on_first``:
-    called with frame 0's camera as soon as the tracker has solved it (the rest still to
-    track); not called when frame 0 failed (its pose is then a later frame's)."""
+    number of frames that took a neighbour's pose (their tracking failed). ``on_frame(k,
+    pose)``: called as the tracker finishes frame ``k`` (frame 0 first) with its camera
+    (None where the frame failed: it then takes a neighbour's); an exception it raises
+    stops the tracking (:func:`resection.sequence.track`'s ``on_frame``)."""
     from resection.io.markers import read_markers
     from resection.sequence import read_track, track
 
@@ -118,13 +119,13 @@ def track_poses(cfg, cam_in, camera, src, T, tmp: Path, *, resume: bool = False,
         f = 0.5 * (camera.K[0, 0] + camera.K[1, 1])
         dpx = float(np.median(ms.diameter * f / z[z > 0])) if ms.diameter is not None \
             else 5.0
-        def first(res) -> None:
-            if on_first is not None and res.ok:
-                on_first(camera.with_pose(rvec=res.rvec, t=res.tvec))
+        def finished(res) -> None:
+            on_frame(res.frame, camera.with_pose(rvec=res.rvec, t=res.tvec) if res.ok
+                     else None)
 
         tr = track(str(cam_in.video), camera, ms, diameter=dpx,
                    out_dir=tmp / f"track{cam_in.number}", workers=1, progress=cfg.progress,
-                   resume=resume, on_reference=first)
+                   resume=resume, on_frame=None if on_frame is None else finished)
     ok = np.flatnonzero(tr.status == "ok")
     frame_ok = tr.frame[ok]
     if frame_ok.size == 0:

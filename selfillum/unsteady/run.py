@@ -185,9 +185,9 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
         if cfg.registration == "track" and local and cfg.track_dirs is None:
             # tracked in a helper thread beside the view factors and the first frame (which
             # waits for frame 0's pose only)
-            ahead = TrackingAhead(lambda i, on_first: track_poses(
+            ahead = TrackingAhead(lambda i, on_frame: track_poses(
                 cfg, cfg.cameras[i], cams[i], srcs[i], T, store.folder,
-                resume=store.resumed, on_first=on_first), len(cams), T)
+                resume=store.resumed, on_frame=on_frame), len(cams), T)
         for i, (c, cam, s) in enumerate(zip(cfg.cameras, cams, srcs, strict=True)):
             poses = None
             if ahead is not None:
@@ -318,14 +318,14 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
         finished = True  # bad input: nothing to resume, nothing left
         raise
     finally:
+        if ahead is not None:  # ended before the tracking (an error, Ctrl-C): stopped at
+            ahead.stop()  # its next frame, before its folder is removed or kept
         with contextlib.suppress(Exception):
             stack0.close()  # the Dask client and its cluster
         for s in srcs:
             with contextlib.suppress(Exception):
                 s.close()
         if finished:
-            if ahead is not None:  # it writes in the folder removed
-                ahead.wait()
             store.remove()
         else:  # interrupted or failed: the committed blocks stay for --resume
             store.close()

@@ -21,7 +21,12 @@ import operator
 import threading
 from collections.abc import Callable, Sequence
 
-__all__ = ["TrackingAhead", "TrackedPoses"]
+__all__ = ["TrackingAhead", "TrackedPoses", "TrackingStopped"]
+
+
+class TrackingStopped(Exception):
+    """Raised in the helper thread at the tracker's next frame once
+    :meth:`TrackingAhead.stop` is called."""
 
 
 class TrackingAhead:
@@ -30,20 +35,21 @@ class TrackingAhead:
     Parameters
     ----------
     track : callable
-        ``track(i, on_first) -> (poses, failed)``: camera ``i``'s poses (a sequence of
+        ``track(i, on_frame) -> (poses, failed)``: camera ``i``'s poses (a sequence of
         :class:`resection.Camera`, one a frame) and the number of frames that took a
-        neighbour's pose; ``on_first(camera)`` is called with frame 0's pose as soon as it
-        is known (:func:`selfillum.unsteady.inputs.track_poses`).
+        neighbour's pose; ``on_frame(k, pose)`` is called as each frame is tracked, frame
+        0 first (``pose`` None where it failed), and raises :class:`TrackingStopped` once
+        :meth:`stop` is called (:func:`selfillum.unsteady.inputs.track_poses`).
     n_cameras : int
     n_frames : int
         The run's frames (each camera's poses).
 
     Notes
     -----
-    The thread is a daemon: a run interrupted in the caller's thread ends without waiting
-    for it (what the tracker has finished is kept in its folder, as when the tracking is
-    interrupted by itself). :meth:`wait` waits for it (before the caller removes the
-    folder it writes in).
+    A run that ends in the caller's thread before the tracking (an error, Ctrl-C) calls
+    :meth:`stop`: the tracker stops at its next frame, what it finished kept in its folder
+    for a resume. The thread is a daemon: an interpreter that exits does not wait for
+    it.
     """
 
     def __init__(self, track: Callable, n_cameras: int, n_frames: int) -> None:
@@ -52,6 +58,7 @@ class TrackingAhead:
         self._first: list = [None] * n_cameras
         self._got_first = [threading.Event() for _ in range(n_cameras)]
         self._done = threading.Event()
+        self._stop = threading.Event()
         self._poses: list = []
         self._failed = 0
         self._error: BaseException | None = None
@@ -61,7 +68,7 @@ class TrackingAhead:
     def _run(self) -> None:
         try:
             for i in range(len(self._first)):
-                poses, failed = self._track(i, lambda cam, i=i: self._set_first(i, cam))
+                poses, failed = self._track(i, lambda k, cam, i=i: self._frame(i, k, cam))
                 self._poses.append(poses)
                 self._failed += int(failed)
         except BaseException as exc:  # raised in the caller's thread (result)
@@ -71,9 +78,12 @@ class TrackingAhead:
             for e in self._got_first:  # a camera whose frame 0 never came: its waiters
                 e.set()  # go on to the result (or its error)
 
-    def _set_first(self, i: int, camera) -> None:
-        self._first[i] = camera
-        self._got_first[i].set()
+    def _frame(self, i: int, k: int, camera) -> None:
+        if self._stop.is_set():
+            raise TrackingStopped("the run ended before the tracking")
+        if k == 0 and camera is not None:
+            self._first[i] = camera
+            self._got_first[i].set()
 
     def first(self, i: int):
         """Camera ``i``'s frame-0 pose: as soon as the tracker has it (else its
@@ -95,8 +105,10 @@ class TrackingAhead:
         """Camera ``i``'s poses as a sequence that waits only for what it is asked."""
         return TrackedPoses(self, i, self._n)
 
-    def wait(self) -> None:
-        """Wait for the helper thread to end (its error, if any, left to :meth:`result`)."""
+    def stop(self) -> None:
+        """Stop the tracking at its next frame (nothing if it is done) and wait for the
+        helper thread to end; its error, if any, is left to :meth:`result`."""
+        self._stop.set()
         self._done.wait()
         self._thread.join()
 
