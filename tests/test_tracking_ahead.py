@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from resection.errors import InputError
+from selfillum.unsteady.inputs import track_poses
 from selfillum.unsteady.tracking import TrackingAhead, TrackingStopped
 
 
@@ -103,21 +104,26 @@ def run(tmp_path_factory):
     return make_unsteady_run(tmp_path_factory.mktemp("tracking_ahead"), frames=24)
 
 
-def test_the_tracker_gives_frame_zero_early_and_the_same_poses(run, tmp_path):
-    """The real tracker (``track_poses``): the pose handed over early is the run's frame-0
-    pose, and the poses tracked in the helper thread equal those tracked in turn."""
+def _inputs(run, tmp_path):
+    """The run's config, its camera's input, calibrated camera and opened video."""
     from resection.io.cameras import read_camera_file
     from resection.io.upsp_inputs import read_deck
     from resection.io.video import open_frames
     from selfillum.unsteady import config_from_deck
-    from selfillum.unsteady.inputs import track_poses
 
     cfg = config_from_deck(read_deck(run.deck), out=tmp_path / "o.h5", progress=False)
     c = cfg.cameras[0]
     src = open_frames(c.video)
+    cam = read_camera_file(c.calibration, image_size=src.shape[::-1]).camera
+    return cfg, c, cam, src
+
+
+def test_the_tracker_gives_frame_zero_early_and_the_same_poses(run, tmp_path):
+    """The real tracker (``track_poses``): the pose handed over early is the run's frame-0
+    pose, and the poses tracked in the helper thread equal those tracked in turn."""
+    cfg, c, cam, src = _inputs(run, tmp_path)
+    T = len(src)
     try:
-        cam = read_camera_file(c.calibration, image_size=src.shape[::-1]).camera
-        T = len(src)
         alone, failed = track_poses(cfg, c, cam, src, T, tmp_path / "alone")
         early = []
 
@@ -148,18 +154,9 @@ def test_the_tracker_gives_frame_zero_early_and_the_same_poses(run, tmp_path):
 def test_a_stopped_tracking_keeps_its_frames_for_a_resume(run, tmp_path):
     """The real tracker stopped after its first frames: the frames it finished are in its
     folder, and a resumed tracking gives the poses of a tracking run whole."""
-    from resection.io.cameras import read_camera_file
-    from resection.io.upsp_inputs import read_deck
-    from resection.io.video import open_frames
-    from selfillum.unsteady import config_from_deck
-    from selfillum.unsteady.inputs import track_poses
-
-    cfg = config_from_deck(read_deck(run.deck), out=tmp_path / "o.h5", progress=False)
-    c = cfg.cameras[0]
-    src = open_frames(c.video)
+    cfg, c, cam, src = _inputs(run, tmp_path)
+    T = len(src)
     try:
-        cam = read_camera_file(c.calibration, image_size=src.shape[::-1]).camera
-        T = len(src)
         gate = threading.Event()
 
         def slow(i, on_frame):

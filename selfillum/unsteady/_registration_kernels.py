@@ -110,6 +110,39 @@ def gauss_newton(img, M, x, y, s, c, ref, sd, Hinv, iterations, tol):  # pragma:
     return iterations
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _bilinear(img, uw, vw, H, W):  # pragma: no cover - compiled
+    """``img`` (H, W) at ``(uw, vw)``, bilinear: NaN outside ``[0, W-1] x [0, H-1]`` or
+    where a neighbour of non-zero weight is NaN. Without branches, checked again by
+    weights only where it gave NaN."""
+    if not (uw >= 0.0 and uw <= W - 1.0 and vw >= 0.0 and vw <= H - 1.0):
+        return np.nan
+    u0 = min(int(uw), W - 2) if W > 1 else 0
+    v0 = min(int(vw), H - 2) if H > 1 else 0
+    u1 = min(u0 + 1, W - 1)
+    v1 = min(v0 + 1, H - 1)
+    fu = uw - u0
+    fv = vw - v0
+    i00, i01, i10, i11 = img[v0, u0], img[v0, u1], img[v1, u0], img[v1, u1]
+    val = ((1.0 - fv) * (i00 + fu * (i01 - i00))
+           + fv * (i10 + fu * (i11 - i10)))
+    if val != val:  # a NaN neighbour: left out where its weight is zero
+        val = 0.0
+        w00 = (1.0 - fu) * (1.0 - fv)
+        w01 = fu * (1.0 - fv)
+        w10 = (1.0 - fu) * fv
+        w11 = fu * fv
+        if w00 > 0.0:
+            val += w00 * i00
+        if w01 > 0.0:
+            val += w01 * i01
+        if w10 > 0.0:
+            val += w10 * i10
+        if w11 > 0.0:
+            val += w11 * i11
+    return val
+
+
 @numba.njit(cache=True, nogil=True)
 def affine_sample(img, A, pixels, out):  # pragma: no cover - compiled
     """Bilinear sample of ``img`` at ``A [u, v, 1]`` of each pixel ``p = v W + u``:
@@ -130,33 +163,7 @@ def affine_sample(img, A, pixels, out):  # pragma: no cover - compiled
         u = p - start
         uw = a00 * u + a01 * row + a02
         vw = a10 * u + a11 * row + a12
-        if not (uw >= 0.0 and uw <= W - 1.0 and vw >= 0.0 and vw <= H - 1.0):
-            out[i] = np.nan
-            continue
-        u0 = min(int(uw), W - 2) if W > 1 else 0
-        v0 = min(int(vw), H - 2) if H > 1 else 0
-        u1 = min(u0 + 1, W - 1)
-        v1 = min(v0 + 1, H - 1)
-        fu = uw - u0
-        fv = vw - v0
-        i00, i01, i10, i11 = img[v0, u0], img[v0, u1], img[v1, u0], img[v1, u1]
-        val = ((1.0 - fv) * (i00 + fu * (i01 - i00))
-               + fv * (i10 + fu * (i11 - i10)))
-        if val != val:  # a NaN neighbour: left out where its weight is zero
-            val = 0.0
-            w00 = (1.0 - fu) * (1.0 - fv)
-            w01 = fu * (1.0 - fv)
-            w10 = (1.0 - fu) * fv
-            w11 = fu * fv
-            if w00 > 0.0:
-                val += w00 * i00
-            if w01 > 0.0:
-                val += w01 * i01
-            if w10 > 0.0:
-                val += w10 * i10
-            if w11 > 0.0:
-                val += w11 * i11
-        out[i] = val
+        out[i] = _bilinear(img, uw, vw, H, W)
 
 
 
@@ -174,30 +181,4 @@ def affine_warp_rows(img, A, r0, r1, out):  # pragma: no cover - compiled
         for u in range(Wo):
             uw = a00 * u + a01 * row + a02
             vw = a10 * u + a11 * row + a12
-            if not (uw >= 0.0 and uw <= W - 1.0 and vw >= 0.0 and vw <= H - 1.0):
-                dst[u] = np.nan
-                continue
-            u0 = min(int(uw), W - 2) if W > 1 else 0
-            v0 = min(int(vw), H - 2) if H > 1 else 0
-            u1 = min(u0 + 1, W - 1)
-            v1 = min(v0 + 1, H - 1)
-            fu = uw - u0
-            fv = vw - v0
-            i00, i01, i10, i11 = img[v0, u0], img[v0, u1], img[v1, u0], img[v1, u1]
-            val = ((1.0 - fv) * (i00 + fu * (i01 - i00))
-                   + fv * (i10 + fu * (i11 - i10)))
-            if val != val:  # a NaN neighbour: left out where its weight is zero
-                val = 0.0
-                w00 = (1.0 - fu) * (1.0 - fv)
-                w01 = fu * (1.0 - fv)
-                w10 = (1.0 - fu) * fv
-                w11 = fu * fv
-                if w00 > 0.0:
-                    val += w00 * i00
-                if w01 > 0.0:
-                    val += w01 * i01
-                if w10 > 0.0:
-                    val += w10 * i10
-                if w11 > 0.0:
-                    val += w11 * i11
-            dst[u] = val
+            dst[u] = _bilinear(img, uw, vw, H, W)
