@@ -181,3 +181,43 @@ def test_a_stopped_tracking_keeps_its_frames_for_a_resume(run, tmp_path):
     for a, b in zip(whole, resumed, strict=True):
         np.testing.assert_allclose(a.R, b.R, atol=1e-9)
         np.testing.assert_allclose(a.t, b.t, atol=1e-9)
+
+
+def test_ctrl_c_while_the_tracking_runs_beside_the_set_up(run, tmp_path, monkeypatch, capsys):
+    """``selfillum unsteady --registration track``: Ctrl-C in the set-up while the
+    tracking runs in its helper thread ends in exit 130 and one line, the helper stopped
+    (no thread left), the frames it finished kept; ``--resume`` then finishes the run."""
+    import selfillum.unsteady.candidates as candidates
+    from resection.sequence import predict
+    from selfillum.cli import main
+
+    out = tmp_path / "o.h5"
+    frames_dir = tmp_path / "o.h5.work" / "track1" / "frames"
+    real_track, real_faces = predict.track_predicted, candidates.faces_in_view
+
+    def slow_track(*a, **k):  # a frame of a long run
+        time.sleep(0.05)
+        return real_track(*a, **k)
+
+    def interrupted(*a, **k):  # the set-up, while the tracking is under way
+        for _ in range(400):
+            if len(list(frames_dir.glob("frame_*.json"))) >= 4:
+                break
+            time.sleep(0.025)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(predict, "track_predicted", slow_track)
+    monkeypatch.setattr(candidates, "faces_in_view", interrupted)
+    argv = ["unsteady", str(run.deck), "--paint-calibration", str(run.paint), "--steady",
+            str(run.steady), "--fps", str(run.fps), "--out", str(out), "--quiet",
+            "--no-plots", "--registration", "track"]
+    capsys.readouterr()
+    assert main(argv) == 130
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "interrupted" in err, err
+    assert not any(t.name == "tracking" for t in threading.enumerate())
+    kept = len(list(frames_dir.glob("frame_*.json")))
+    assert 4 <= kept < 24  # stopped at its next frame, what it finished kept
+    monkeypatch.setattr(candidates, "faces_in_view", real_faces)
+    assert main([*argv, "--resume"]) == 0
+    assert out.exists() and not (tmp_path / "o.h5.work").exists()
