@@ -138,7 +138,7 @@ class FrameOperator:
                     self.uv0.append(uv0.astype(np.float32))
                     if halo_px > 0:
                         self.support.append(_support(maps[c], used, int(halo_px)))
-        # a sample of each camera's surface points, to find the reference nearest a pose
+        # a sample of each camera's surface points: the probes that plan the references
         self.probe = []
         for X in self.X:
             on = np.flatnonzero(np.isfinite(X[:, 0]))
@@ -149,6 +149,7 @@ class FrameOperator:
         self.frame = None  # the reference's frame number, and the last frame that used it
         self.last_used = -1
         self._shares: dict = {}
+        self._carried_images: dict = {}  # per camera, :meth:`_carried`
         self._direct = None
         self.workers = None  # threads of the products (default: the available cores)
 
@@ -248,19 +249,6 @@ class FrameOperator:
             self._shares[c] = sh
         return self._shares[c]
 
-    def displacement(self, cameras) -> float:
-        """Largest move (pixels) of a sample of the reference's surface points under the
-        poses ``cameras`` (inf if one falls behind a camera)."""
-        d = 0.0
-        for X, uv0, pr, cam in zip(self.X, self.uv0, self.probe, cameras, strict=True):
-            if pr.size == 0:
-                continue
-            uv = cam.project(X[pr])
-            if not np.all(np.isfinite(uv)):
-                return float("inf")
-            d = max(d, float(np.max(np.abs(uv - uv0[pr]))))
-        return d
-
     def samples(self, images, cameras, refresh_px: float, prepare=None,
                 workers: int | None = None) -> list | None:
         """A moving model's frame of pose ``cameras`` (one a camera) read at the
@@ -269,8 +257,8 @@ class FrameOperator:
         :meth:`resection.Camera.project`). Per camera ``(x, bad)``: the values of its
         operator's pixels and those left out (off the sensor, not finite), for
         :meth:`faces_of_samples`; None when a point moved more than twice ``refresh_px``
-        (the reference was chosen on a sample of its points, :meth:`displacement`: the
-        caller casts anew). A face that keeps none of a camera's pixels is NaN there.
+        (the reference was chosen on a sample of its points, :func:`plan_references`:
+        the caller casts anew). A face that keeps none of a camera's pixels is NaN there.
 
         ``prepare(c, image)``, when given, is applied to camera ``c``'s frame carried back
         onto the reference's pixels (the ``support``, NaN elsewhere) before its pixels are
@@ -303,7 +291,7 @@ class FrameOperator:
         kept from frame to frame, NaN off the support (a frame writes every pixel of the
         support, and ``prepare`` the same pixels every frame: the dark spots'), so that a
         frame neither allocates nor fills it. :meth:`samples` runs one frame at a time."""
-        bufs = self.__dict__.setdefault("_carried_images", {})
+        bufs = self._carried_images
         if c not in bufs or bufs[c].size != size:
             bufs[c] = np.full(size, np.nan)
         return bufs[c]
@@ -477,8 +465,9 @@ def plan_references(poses, probes, frames, refresh_px: float, *, first: int | No
     """The reference frames of a moving model, chosen before Phase 1 from the known poses,
     so that every frame is within ``refresh_px`` of one and the references are few.
 
-    The distance between two frames is that of :meth:`FrameOperator.displacement`: the
-    largest move (pixels, either axis, any camera) of the probe points. Greedy cover: the
+    The distance between two frames is the largest move (pixels, either axis, any
+    camera) of the probe points (a sample of a reference's surface points, projected with
+    each frame's pose; inf where one cannot be projected). Greedy cover: the
     first frame not yet covered (in time order) picks, among the frames within
     ``refresh_px`` of it (which all cover it), the one covering most of the uncovered
     frames (counted on a sample of ``n_check`` of them, over a sample of

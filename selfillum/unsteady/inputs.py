@@ -119,6 +119,7 @@ def track_poses(cfg, cam_in, camera, src, T, tmp: Path, *, resume: bool = False,
         f = 0.5 * (camera.K[0, 0] + camera.K[1, 1])
         dpx = float(np.median(ms.diameter * f / z[z > 0])) if ms.diameter is not None \
             else 5.0
+
         def finished(res) -> None:
             on_frame(res.frame, camera.with_pose(rvec=res.rvec, t=res.tvec) if res.ok
                      else None)
