@@ -87,7 +87,7 @@ def test_references_planned_cover_every_frame_with_few():
     from scipy.spatial.transform import Rotation
 
     from scenes.slab_block import slab_camera
-    from selfillum.unsteady.fastmap import plan_references
+    from selfillum.unsteady.references import plan_references
 
     cam = slab_camera(640, 480)
     rng = np.random.default_rng(2)

@@ -562,22 +562,23 @@ def test_dask_tracked_fast_run_plans_the_one_process_references(tmp_path, capsys
     frames, as one process does. The scene is checked to tell: the references planned over
     a task's own block (frame 0 and its frames, as before) differ from the whole run's."""
     from scenes.unsteady_run import make_unsteady_run
-    from selfillum.unsteady import cluster, fastmap
+    from selfillum.unsteady import cluster, references
 
     run = make_unsteady_run(tmp_path / "scene", frames=100, vibration_deg=3.0)
     track = _true_track(run, run.folder / "true_track")
     plans, blocks = [], []
-    real_plan, real_blocks = fastmap.plan_references, cluster.phase1_blocks
+    real_plan, real_blocks = references.plan_references, cluster.phase1_blocks
 
-    def plan(*a, **k):
-        plans.append((a, k, real_plan(*a, **k)))
-        return plans[-1][2]
+    class Plan(references.ReferencePlan):
+        def __init__(self, *a, **k):
+            super().__init__(*a, **k)
+            plans.append((a, k, self))
 
     def phase1(client, job, F, bl, poses=None):
         blocks.extend(bl)
         yield from real_blocks(client, job, F, bl, poses)
 
-    monkeypatch.setattr(fastmap, "plan_references", plan)
+    monkeypatch.setattr(references, "ReferencePlan", Plan)
     monkeypatch.setattr(cluster, "phase1_blocks", phase1)
     common = ("--registration", "track", "--track", str(track), "--no-si", "--memory",
               "0.5", "--no-plots", "--quiet", "--psd-bands", "0")
@@ -586,8 +587,9 @@ def test_dask_tracked_fast_run_plans_the_one_process_references(tmp_path, capsys
         outs[name] = run.folder / f"dask_fast_{name}.h5"
         assert _cli(run, outs[name], *common, *extra) == 0, capsys.readouterr().err
     assert len(plans) == 1  # the local run's (the workers plan in their processes)
-    (poses, probes, frames, refresh), kw, whole = plans[0]
+    (poses, probes, frames, refresh), kw, planned = plans[0]
     assert list(frames) == list(range(100))
+    whole = {k: planned(k) for k in frames}
     assert len(set(whole.values())) >= 2  # several references
     assert len(blocks) >= 2
     own = [real_plan(poses, probes, [0, *range(a, b)], refresh, **kw) for a, b in blocks
@@ -617,7 +619,7 @@ def test_pose_arrays_give_the_cameras_back():
         np.testing.assert_array_equal(got[k].t, c.t)
         np.testing.assert_array_equal(got[k].K, c.K)
     # the plan from the arrays is the plan from the cameras (a 2 px move a frame)
-    from selfillum.unsteady.fastmap import plan_references
+    from selfillum.unsteady.references import plan_references
 
     X = np.random.default_rng(1).uniform(-0.3, 0.3, (40, 3))
     a = plan_references([poses], [X], range(5), 3.0, first=0)

@@ -52,7 +52,7 @@ LOCAL_CLUSTER_START_S = 0.5
 def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
                chunk_size: int, workers: int, scheduler: str | None, frames_dir: Path,
                progress: bool, server_since: float | None = None,
-               on_frame=None) -> int:
+               on_frame=None, fit_threads: int | None = None) -> int:
     """Compute every frame not in ``done`` (index -> ``(ok, matched_from)``, completed in
     place), each written to ``frames_dir`` as soon as it is finished. ``server_since``:
     when the workers' server was started (:func:`resection.sequence.pool.start_server`),
@@ -60,7 +60,9 @@ def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
     grow with the frames: a finished frame is kept as its file and those two numbers; the
     frames are read one at a time, where they are processed. ``on_frame(result)``, when
     given, is called with each frame finished in this process (frame 0 first, also when
-    read back), after its file is written (see :func:`resection.sequence.track`)."""
+    read back), after its file is written (see :func:`resection.sequence.track`);
+    ``fit_threads``: the marker fits' threads when the frames run in this process alone
+    (default every core)."""
     bar = _progress_bar(len(frames), len(done), progress)
     computed: set[int] = set()
 
@@ -125,7 +127,8 @@ def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
             last = (seed0, None)
         before = _tail(last)
         if tasks and scheduler is None and n_local == 1:  # alone: the fits on every core
-            _execute_local(dataclasses.replace(setup, fit_workers=None), tasks, record, last)
+            _execute_local(dataclasses.replace(setup, fit_workers=fit_threads), tasks,  # (or
+                           record, last)  # the caller's count)
         elif tasks:
             on_poll = _on_poll(frames_dir, tasks, done, note) if progress else None
             if scheduler is None:

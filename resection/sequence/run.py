@@ -43,6 +43,7 @@ def track(
     pose_kw: dict | None = None,
     mesh=None,
     on_frame=None,
+    fit_threads: int | None = None,
 ) -> TrackResult:
     """Track markers and solve the Point of View in every frame of a sequence.
 
@@ -110,6 +111,11 @@ def track(
         finished by worker processes or a cluster are not reported. An exception it raises
         stops the run, the frames finished being kept (a caller's way to stop a tracking
         it runs in a thread).
+    fit_threads : int, optional
+        Threads of a frame's marker fits when the frames run in this process (``workers``
+        1, or a single chunk): default every core; 1 where this process does other work
+        beside the tracking (a caller tracking in a helper thread), so that the tracking
+        takes one core and leaves the other work its own.
     detect_kw, match_kw, pose_kw : dict, optional
         Extra keyword arguments of ``detect_markers``, ``match_markers`` and
         ``solve_pose`` (``pose_kw`` also goes to the matcher's verifying pose solves; the
@@ -155,7 +161,8 @@ def track(
             computed = run_frames(frames, setup, link_d, done, chunk_size=chunk_size,
                                   workers=workers, scheduler=scheduler,
                                   frames_dir=frames_dir, progress=progress,
-                                  server_since=server_since, on_frame=on_frame)
+                                  server_since=server_since, on_frame=on_frame,
+                                  fit_threads=fit_threads)
             result = assemble(frames_from_files(frames_dir, len(frames)), fixed_camera,
                                computed, str(out))
             write_csvs(result, out)

@@ -12,8 +12,8 @@ does, so the blocks do not depend on how the frames were split). The form factor
 job's settings are sent to every worker once; with ``registration = track`` so are the
 poses of every frame, in a compact form (:class:`PoseArrays`: a camera's rotations and
 translations as two arrays), and each task plans a moving model's references over all the
-run's frames (:func:`selfillum.unsteady.fastmap.plan_references`, deterministic given the
-poses, frame 0's probe points and the frames), so it samples each of its frames through
+run's frames (:class:`selfillum.unsteady.references.ReferencePlan`, deterministic given
+the poses, frame 0's probe points and the frames), so it samples each of its frames through
 the same reference as one process (a reference outside its block is cast from its pose
 alone: no image).
 A Phase 2 task reads its block of nodes from the work file,

@@ -37,7 +37,7 @@ import scipy.sparse as sp
 
 from selfillum.unsteady._fastmap_kernels import project_sample, spmv_kernel
 
-__all__ = ["FrameOperator", "PixelValues", "plan_references"]
+__all__ = ["FrameOperator", "PixelValues"]
 
 
 class PixelValues:
@@ -257,8 +257,9 @@ class FrameOperator:
         :meth:`resection.Camera.project`). Per camera ``(x, bad)``: the values of its
         operator's pixels and those left out (off the sensor, not finite), for
         :meth:`faces_of_samples`; None when a point moved more than twice ``refresh_px``
-        (the reference was chosen on a sample of its points, :func:`plan_references`:
-        the caller casts anew). A face that keeps none of a camera's pixels is NaN there.
+        (the reference was chosen on a sample of its points,
+        :func:`selfillum.unsteady.references.plan_references`: the caller casts anew). A
+        face that keeps none of a camera's pixels is NaN there.
 
         ``prepare(c, image)``, when given, is applied to camera ``c``'s frame carried back
         onto the reference's pixels (the ``support``, NaN elsewhere) before its pixels are
@@ -427,114 +428,3 @@ def _split_patch(A, pat):
     A = sp.csc_matrix(A @ sp.diags(keep))
     A.eliminate_zeros()
     return A, A2, Aw
-
-
-def _frame_poses(poses, frames):
-    """``(camera, R (T, 3, 3), t (T, 3))`` of ``frames`` from one camera's poses: a
-    sequence of :class:`resection.Camera` (same intrinsics), or arrays of them (an object
-    with ``camera``, ``R`` and ``t``, as :class:`selfillum.unsteady.cluster.PoseArrays`:
-    no Camera built a frame)."""
-    if all(hasattr(poses, a) for a in ("camera", "R", "t")):
-        return (poses.camera, np.asarray(poses.R, np.float64)[frames],
-                np.asarray(poses.t, np.float64).reshape(-1, 3)[frames])
-    cams = [poses[int(k)] for k in frames]
-    return (cams[0], np.stack([np.asarray(c.R, np.float64) for c in cams]),
-            np.stack([np.asarray(c.t, np.float64).ravel() for c in cams]))
-
-
-def _probe_pixels(X, cam, R, t) -> np.ndarray:
-    """(T, m, 2) float32: the points ``X`` (m, 3) projected with the intrinsics of
-    ``cam`` (a :class:`resection.Camera`) and the poses ``R`` (T, 3, 3), ``t`` (T, 3),
-    NaN where a point cannot be projected (as :meth:`resection.Camera.project`)."""
-    from resection.camera.distortion import distort_normalized
-
-    Xc = np.einsum("tij,mj->tmi", R, np.asarray(X, np.float64)) + t[:, None, :]
-    z = Xc[..., 2]
-    ok = z > 0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        xy = (Xc[..., :2] / np.where(ok, z, np.nan)[..., None]).reshape(-1, 2)
-    ok = ok.ravel() & (np.hypot(xy[:, 0], xy[:, 1]) <= cam.max_radius)
-    uv = cam.normalized_to_pixels(distort_normalized(xy, cam.dist))
-    uv[~ok] = np.nan
-    return uv.reshape(len(R), len(X), 2).astype(np.float32)
-
-
-def plan_references(poses, probes, frames, refresh_px: float, *, first: int | None = None,
-                    block: int = 4096, n_candidates: int = 256, n_check: int = 2048,
-                    seed: int = 0) -> dict:
-    """The reference frames of a moving model, chosen before Phase 1 from the known poses,
-    so that every frame is within ``refresh_px`` of one and the references are few.
-
-    The distance between two frames is the largest move (pixels, either axis, any
-    camera) of the probe points (a sample of a reference's surface points, projected with
-    each frame's pose; inf where one cannot be projected). Greedy cover: the
-    first frame not yet covered (in time order) picks, among the frames within
-    ``refresh_px`` of it (which all cover it), the one covering most of the uncovered
-    frames (counted on a sample of ``n_check`` of them, over a sample of
-    ``n_candidates`` candidates); repeated until every frame is covered. A periodic
-    vibration needs a handful (5 for a pitch oscillation of 15 px with ``refresh_px`` 3
-    in tests/test_si_reference.py, where a reference cast at each frame that moved past
-    the others gives 7).
-
-    Parameters
-    ----------
-    poses : sequence of sequences of Camera
-        Per camera, the camera of every frame (indexed by frame number), or its poses as
-        arrays (:class:`selfillum.unsteady.cluster.PoseArrays`).
-    probes : sequence of (m, 3) arrays
-        Per camera, surface points seen in the first reference (model units).
-    frames : sequence of int
-        The frames to cover.
-    refresh_px : float
-        Pixels.
-    first : int, optional
-        A frame that is a reference already (the first frame's).
-
-    Returns
-    -------
-    dict
-        Frame number -> its reference's frame number (the nearest reference).
-    """
-    frames = np.asarray(list(frames), dtype=np.int64)
-    T = len(frames)
-    if T == 0:
-        return {}
-    parts = [_probe_pixels(X, *_frame_poses(p, frames)) for X, p in
-             zip(probes, poses, strict=True) if len(X)]
-    if not parts:
-        return {int(k): int(frames[0] if first is None else first) for k in frames}
-    U = np.concatenate(parts, axis=1)  # (T, m, 2)
-
-    def dist(rows, c):  # (len(rows),): frames' distance to frame position c
-        d = np.abs(U[rows] - U[c][None])
-        d = np.where(np.isnan(d), np.inf, d)
-        return d.reshape(len(d), -1).max(axis=1)
-
-    def dist_all(c):
-        return np.concatenate([dist(np.arange(a, min(a + block, T)), c)
-                               for a in range(0, T, block)])
-
-    rng = np.random.default_rng(seed)
-    best_d = np.full(T, np.inf)
-    best_c = np.zeros(T, dtype=np.int64)
-
-    def add(c):
-        d = dist_all(c)
-        closer = d < best_d
-        best_d[closer] = d[closer]
-        best_c[closer] = c
-
-    if first is not None and first in set(frames.tolist()):
-        add(int(np.flatnonzero(frames == first)[0]))
-    while True:
-        open_ = np.flatnonzero(best_d > refresh_px)
-        if open_.size == 0:
-            break
-        f = int(open_[0])
-        cand = np.flatnonzero(dist_all(f) <= refresh_px)  # f itself at least
-        if cand.size > n_candidates:
-            cand = rng.choice(cand, n_candidates, replace=False)
-        chk = open_ if open_.size <= n_check else rng.choice(open_, n_check, replace=False)
-        counts = [int((dist(chk, int(c)) <= refresh_px).sum()) for c in cand]
-        add(int(cand[int(np.argmax(counts))]))
-    return {int(frames[i]): int(frames[best_c[i]]) for i in range(T)}

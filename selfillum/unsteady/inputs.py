@@ -100,12 +100,13 @@ def min_frames(order: int) -> int:
 
 
 def track_poses(cfg, cam_in, camera, src, T, tmp: Path, *, resume: bool = False,
-                on_frame=None):
+                on_frame=None, fit_threads: int | None = None):
     """Each frame's camera from the project's tracking (or a given track folder), and the
     number of frames that took a neighbour's pose (their tracking failed). ``on_frame(k,
     pose)``: called as the tracker finishes frame ``k`` (frame 0 first) with its camera
     (None where the frame failed: it then takes a neighbour's); an exception it raises
-    stops the tracking (:func:`resection.sequence.track`'s ``on_frame``)."""
+    stops the tracking (:func:`resection.sequence.track`'s ``on_frame``); ``fit_threads``:
+    its marker fits' threads (default every core; 1 beside other work)."""
     from resection.io.markers import read_markers
     from resection.sequence import read_track, track
 
@@ -126,7 +127,8 @@ def track_poses(cfg, cam_in, camera, src, T, tmp: Path, *, resume: bool = False,
 
         tr = track(str(cam_in.video), camera, ms, diameter=dpx,
                    out_dir=tmp / f"track{cam_in.number}", workers=1, progress=cfg.progress,
-                   resume=resume, on_frame=None if on_frame is None else finished)
+                   resume=resume, on_frame=None if on_frame is None else finished,
+                   fit_threads=fit_threads)
     ok = np.flatnonzero(tr.status == "ok")
     frame_ok = tr.frame[ok]
     if frame_ok.size == 0:

@@ -276,14 +276,14 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
 
     def planned(k):  # the operator of frame k's planned reference (cast when missing)
         nonlocal plan
-        if plan is None:
-            from selfillum.unsteady.fastmap import plan_references
+        if plan is None:  # planned piece by piece: a piece waits for its own poses only
+            from selfillum.unsteady.references import ReferencePlan
 
-            plan = plan_references([c.poses for c in cameras],
-                                   [X[pr[::4]] for X, pr in zip(ops[0].X, ops[0].probe,
-                                                                strict=True)],
-                                   plan_frames, refresh_px, first=ops[0].frame)
-        j = plan.get(k, k)
+            plan = ReferencePlan([c.poses for c in cameras],
+                                 [X[pr[::4]] for X, pr in zip(ops[0].X, ops[0].probe,
+                                                              strict=True)],
+                                 plan_frames, refresh_px, first=ops[0].frame)
+        j = plan(k)
         op = next((o for o in ops if o.frame == j), None)
         if op is None:
             op = _cast_reference(j, cameras, mesh, caster, max_obliqueness, spots,

@@ -187,7 +187,7 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
             # waits for frame 0's pose only)
             ahead = TrackingAhead(lambda i, on_frame: track_poses(
                 cfg, cfg.cameras[i], cams[i], srcs[i], T, store.folder,
-                resume=store.resumed, on_frame=on_frame), len(cams), T)
+                resume=store.resumed, on_frame=on_frame, fit_threads=1), len(cams), T)
         for i, (c, cam, s) in enumerate(zip(cfg.cameras, cams, srcs, strict=True)):
             poses = None
             if ahead is not None:

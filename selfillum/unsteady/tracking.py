@@ -1,18 +1,23 @@
 """A moving model's poses tracked in a helper thread beside the run's set-up.
 
 Phase 1 of a moving model (``registration = track``) needs frame 0's pose for its first
-frame (the full map: a ray cast, the merge, the first self-illumination solve) and every
-frame's pose only from frame 1 on (the references are planned from all of them). The
-tracker solves frame 0 first (a detection over the whole frame), then the others by
-prediction. :class:`TrackingAhead` runs it in one helper thread and hands frame 0's pose
-over as soon as it is solved, so that the view factors and the first frame are computed
-while the tracker goes on: the tracker's fits and the first frame's cast release the GIL,
-and each leaves a core idle in its serial parts. Measured on the 609k run (256 frames,
-2 cores), the whole command: see ``docs/benchmark_history.md`` (session 16).
+frame (the full map: a ray cast, the merge, the first self-illumination solve), then each
+frame's pose as it comes to that frame (the references are planned piece by piece,
+:class:`selfillum.unsteady.fastmap.ReferencePlan`, each piece needing the poses up to its
+last frame). The tracker solves frame 0 first (a detection over the whole frame), then the
+others by prediction, in order. :class:`TrackingAhead` runs it in one helper thread and
+hands each frame's pose over as soon as it is solved, so that the view factors, the first
+frame and the frames after it are computed while the tracker goes on: the tracker's fits
+and the first frame's cast release the GIL, and each leaves a core idle in its serial
+parts. Measured on the 609k run (256 frames, 2 cores), the whole command: see
+``docs/benchmark_history.md`` (sessions 16-17).
 
 The poses are those the tracker gives when run before the set-up (the same calls, the same
-frames): only the order of the work changes. An error of the tracker is raised in the
-caller when it asks for a pose it does not have.
+frames): only the order of the work changes. A frame the tracker solved is handed over as
+solved (its final pose: the repair pass redoes only the frames that failed); a frame that
+failed, or that a resumed run read back, is given once the tracking is done (a failed
+frame then takes its nearest tracked neighbour's pose). An error of the tracker is raised
+in the caller when it asks for a pose it does not have.
 """
 
 from __future__ import annotations
@@ -55,8 +60,8 @@ class TrackingAhead:
     def __init__(self, track: Callable, n_cameras: int, n_frames: int) -> None:
         self._track = track
         self._n = int(n_frames)
-        self._first: list = [None] * n_cameras
-        self._got_first = [threading.Event() for _ in range(n_cameras)]
+        self._solved: list[dict] = [{} for _ in range(n_cameras)]  # frame -> pose
+        self._changed = threading.Condition()
         self._done = threading.Event()
         self._stop = threading.Event()
         self._poses: list = []
@@ -67,31 +72,33 @@ class TrackingAhead:
 
     def _run(self) -> None:
         try:
-            for i in range(len(self._first)):
+            for i in range(len(self._solved)):
                 poses, failed = self._track(i, lambda k, cam, i=i: self._frame(i, k, cam))
                 self._poses.append(poses)
                 self._failed += int(failed)
         except BaseException as exc:  # raised in the caller's thread (result)
             self._error = exc
         finally:
-            self._done.set()
-            for e in self._got_first:  # a camera whose frame 0 never came: its waiters
-                e.set()  # go on to the result (or its error)
+            with self._changed:  # the waiters for a frame never solved go on to the
+                self._done.set()  # result (or its error)
+                self._changed.notify_all()
 
     def _frame(self, i: int, k: int, camera) -> None:
         if self._stop.is_set():
             raise TrackingStopped("the run ended before the tracking")
-        if k == 0 and camera is not None:
-            self._first[i] = camera
-            self._got_first[i].set()
+        if camera is not None:
+            with self._changed:
+                self._solved[i][int(k)] = camera
+                self._changed.notify_all()
 
-    def first(self, i: int):
-        """Camera ``i``'s frame-0 pose: as soon as the tracker has it (else its
-        :meth:`result`'s)."""
-        self._got_first[i].wait()
-        if self._first[i] is not None:
-            return self._first[i]
-        return self.result()[0][i][0]
+    def pose(self, i: int, k: int):
+        """Camera ``i``'s pose in frame ``k``: as soon as the tracker has solved it (else
+        its :meth:`result`'s, which waits for the whole tracking)."""
+        solved = self._solved[i]
+        with self._changed:
+            self._changed.wait_for(lambda: k in solved or self._done.is_set())
+        got = solved.get(k)
+        return got if got is not None else self.result()[0][i][k]
 
     def result(self) -> tuple[list, int]:
         """Every camera's poses and the frames that took a neighbour's, once the
@@ -114,8 +121,8 @@ class TrackingAhead:
 
 
 class TrackedPoses(Sequence):
-    """One camera's poses from a :class:`TrackingAhead`: frame 0's as soon as it is
-    solved, any other once the tracking is done."""
+    """One camera's poses from a :class:`TrackingAhead`: each frame's as soon as the
+    tracker has solved it (:meth:`TrackingAhead.pose`)."""
 
     def __init__(self, ahead: TrackingAhead, camera: int, n: int) -> None:
         self._ahead, self._camera, self._n = ahead, camera, n
@@ -131,6 +138,4 @@ class TrackedPoses(Sequence):
             k += self._n
         if not 0 <= k < self._n:
             raise IndexError(f"frame {k} of a run of {self._n}")
-        if k == 0:
-            return self._ahead.first(self._camera)
-        return self._ahead.result()[0][self._camera][k]
+        return self._ahead.pose(self._camera, k)
