@@ -118,21 +118,37 @@ def _inputs(run, tmp_path):
     return cfg, c, cam, src
 
 
-def test_the_tracker_gives_frame_zero_early_and_the_same_poses(run, tmp_path):
+def test_the_tracker_gives_frame_zero_early_and_the_same_poses(run, tmp_path, monkeypatch):
     """The real tracker (``track_poses``): the pose handed over early is the run's frame-0
-    pose, and the poses tracked in the helper thread equal those tracked in turn."""
+    pose, each pose handed over as solved is the final one, and the poses tracked in the
+    helper thread (its fits on one thread, ``fit_threads=1``) equal those tracked in turn
+    (the fits on every core)."""
+    import resection.markers.refine as refine
+
+    threads = []
+    real_blocks = refine._fit_in_blocks
+
+    def blocks(fit, win, w, p, args, workers):
+        threads.append(workers)
+        return real_blocks(fit, win, w, p, args, workers)
+
+    monkeypatch.setattr(refine, "_fit_in_blocks", blocks)
     cfg, c, cam, src = _inputs(run, tmp_path)
     T = len(src)
     try:
         alone, failed = track_poses(cfg, c, cam, src, T, tmp_path / "alone")
-        early = []
+        assert set(threads[1:]) == {None}  # alone: every core after frame 0's
+        threads.clear()
+        early, handed = [], {}
 
         def spied(i, on_frame):
             def seen(k, p):
                 if k == 0:
                     early.append(p)
+                handed[k] = p
                 on_frame(k, p)
-            return track_poses(cfg, c, cam, src, T, tmp_path / "ahead", on_frame=seen)
+            return track_poses(cfg, c, cam, src, T, tmp_path / "ahead", on_frame=seen,
+                               fit_threads=1)
 
         ahead = TrackingAhead(spied, 1, T)
         poses = ahead.poses(0)
@@ -147,6 +163,11 @@ def test_the_tracker_gives_frame_zero_early_and_the_same_poses(run, tmp_path):
         np.testing.assert_array_equal(a.t, b.t)
     np.testing.assert_array_equal(first.R, alone[0].R)
     np.testing.assert_array_equal(first.t, alone[0].t)
+    assert set(threads) == {1}  # beside the run: one thread
+    assert sorted(handed) == list(range(T))
+    for k, p in handed.items():  # each handed over as solved: the final pose
+        np.testing.assert_array_equal(p.R, alone[k].R)
+        np.testing.assert_array_equal(p.t, alone[k].t)
     # the poses follow the run's vibration: not all the same
     assert np.ptp([p.t[0] for p in got]) > 0
 
@@ -221,3 +242,32 @@ def test_ctrl_c_while_the_tracking_runs_beside_the_set_up(run, tmp_path, monkeyp
     monkeypatch.setattr(candidates, "faces_in_view", real_faces)
     assert main([*argv, "--resume"]) == 0
     assert out.exists() and not (tmp_path / "o.h5.work").exists()
+
+
+def test_each_solved_frame_handed_over_before_the_tracking_ends():
+    """A frame's pose is handed over as soon as it is solved (the plan's pieces wait for
+    their own frames only); a failed frame waits for the result, which gives it a
+    neighbour's pose."""
+    go = threading.Event()
+
+    def track(i, on_frame):
+        for k in range(3):
+            on_frame(k, f"frame{k}")
+        on_frame(3, None)  # failed: takes a neighbour's pose in the result
+        go.wait(10)
+        on_frame(4, "frame4")
+        return ["frame0", "frame1", "frame2", "frame2", "frame4"], 1
+
+    ahead = TrackingAhead(track, 1, 5)
+    poses = ahead.poses(0)
+    assert poses[2] == "frame2"  # before the tracking goes on
+    assert not ahead._done.is_set()
+    got = []
+    waiter = threading.Thread(target=lambda: got.append(poses[3]))
+    waiter.start()
+    waiter.join(0.2)
+    assert waiter.is_alive() and not got  # the failed frame waits for the result
+    go.set()
+    waiter.join(10)
+    assert got == ["frame2"] and poses[4] == "frame4"
+    ahead.stop()
