@@ -127,8 +127,9 @@ def run_frames(frames: list, setup: Setup, link: dict | None, done: dict, *,
             last = (seed0, None)
         before = _tail(last)
         if tasks and scheduler is None and n_local == 1:  # alone: the fits on every core
-            _execute_local(dataclasses.replace(setup, fit_workers=fit_threads), tasks,  # (or
-                           record, last)  # the caller's count)
+            # (or on the caller's fit_threads)
+            _execute_local(dataclasses.replace(setup, fit_workers=fit_threads), tasks,
+                           record, last)
         elif tasks:
             on_poll = _on_poll(frames_dir, tasks, done, note) if progress else None
             if scheduler is None:

@@ -150,14 +150,11 @@ def plan_references(poses, probes, frames, refresh_px: float, *, first: int | No
     asked = [int(k) for k in frames]
     if not asked:
         return {}
-    refs = list(dict.fromkeys(int(k) for k in existing))
-    if first is not None:
-        refs = [int(first), *refs] if int(first) not in refs else refs
-    extra = [r for r in refs if r not in set(asked)]
-    if first is not None and int(first) not in set(asked):  # as before: a first frame
-        refs.remove(int(first))  # outside the frames is not a reference of theirs
-        extra.remove(int(first))
-    frames = np.asarray(asked + extra, dtype=np.int64)
+    among = set(asked)
+    # a first frame outside the frames is not a reference of theirs; existing ones are
+    head = [int(first)] if first is not None and int(first) in among else []
+    refs = list(dict.fromkeys([*head, *(int(k) for k in existing)]))
+    frames = np.asarray(asked + [r for r in refs if r not in among], dtype=np.int64)
     T = len(frames)
     parts = [_probe_pixels(X, *_frame_poses(p, frames)) for X, p in
              zip(probes, poses, strict=True) if len(X)]

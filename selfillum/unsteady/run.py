@@ -183,8 +183,8 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
         # ------------------------------------------------------------ registration
         runs, failed = [], 0
         if cfg.registration == "track" and local and cfg.track_dirs is None:
-            # tracked in a helper thread beside the view factors and the first frame (which
-            # waits for frame 0's pose only)
+            # tracked in a helper thread (its fits on one thread) beside the view factors
+            # and Phase 1, whose frames wait only for the poses they need
             ahead = TrackingAhead(lambda i, on_frame: track_poses(
                 cfg, cfg.cameras[i], cams[i], srcs[i], T, store.folder,
                 resume=store.resumed, on_frame=on_frame, fit_threads=1), len(cams), T)

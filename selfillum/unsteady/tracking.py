@@ -3,7 +3,7 @@
 Phase 1 of a moving model (``registration = track``) needs frame 0's pose for its first
 frame (the full map: a ray cast, the merge, the first self-illumination solve), then each
 frame's pose as it comes to that frame (the references are planned piece by piece,
-:class:`selfillum.unsteady.fastmap.ReferencePlan`, each piece needing the poses up to its
+:class:`selfillum.unsteady.references.ReferencePlan`, each piece needing the poses up to its
 last frame). The tracker solves frame 0 first (a detection over the whole frame), then the
 others by prediction, in order. :class:`TrackingAhead` runs it in one helper thread and
 hands each frame's pose over as soon as it is solved, so that the view factors, the first
