@@ -37,7 +37,7 @@ from functools import lru_cache
 
 import numpy as np
 from numba import njit
-from scipy.special import erfc
+from scipy.special import erfc, roots_legendre
 
 NP = 7  # parameters of a window
 _ZC = 5.0  # support of the PSF edge, in standard deviations (Phi(-5) = 3e-7)
@@ -62,7 +62,10 @@ def node_table(q_max: int):
     L, q = sizes.size, int(sizes[-1])
     sn, cs, wc = np.zeros((L, q)), np.zeros((L, q)), np.zeros((L, q))
     for k, m in enumerate(sizes):
-        x, w = np.polynomial.legendre.leggauss(int(m))
+        # SciPy's roots (Newton's iterations from asymptotic starts) agree with NumPy's
+        # leggauss (a companion matrix's eigenvalues) to 1e-16 in the nodes and 5e-14 in
+        # the weights, in 0.1 s instead of 0.25 s for the tracker's 36 sizes up to 733
+        x, w = roots_legendre(int(m))
         th, w = x * (np.pi / 2), w * (np.pi / 2)
         sn[k, :m], cs[k, :m], wc[k, :m] = np.sin(th), np.cos(th), w * np.cos(th)
     for a in (sizes, sn, cs, wc):
