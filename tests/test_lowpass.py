@@ -49,3 +49,21 @@ def test_opencv_sigma_and_a_flat_frame_unchanged():
 def test_even_or_small_size_refused(size):
     with pytest.raises(ValueError, match="odd number"):
         gaussian_lowpass(np.zeros((8, 8)), size)
+
+
+@pytest.mark.parametrize("size,workers", [(5, 1), (3, 2), (9, None)])
+def test_frames_without_nan_and_strips_far_from_one_match_scipy(size, workers):
+    # strips of rows whose every value is finite take the shorter way (no mask to filter,
+    # no division): a finite frame, and one NaN whose strip alone takes the general way
+    rng = np.random.default_rng(size)
+    img = rng.uniform(0.0, 4095.0, (150, 71))
+    np.testing.assert_allclose(gaussian_lowpass(img, size, workers=workers),
+                               _scipy(img, size), rtol=1e-12, atol=1e-9)
+    img[100, 7] = np.nan
+    ours = gaussian_lowpass(img, size, workers=workers)
+    ref = _scipy(img, size)
+    assert np.array_equal(np.isnan(ours), np.isnan(ref))
+    np.testing.assert_allclose(ours, ref, rtol=1e-12, atol=1e-9, equal_nan=True)
+    # the rows near the NaN renormalise their weights: they differ from the plain filter
+    plain = _scipy(np.where(np.isnan(img), 0.0, img), size)
+    assert np.abs(ours[99, 7:9] - plain[99, 7:9]).min() > 1.0
