@@ -321,14 +321,18 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
                 # the faces' way, which leaves it out
             if ops and moving:  # sampled at its reference's points; the next frame's
                 if ahead is None:  # samples made meanwhile in a helper thread (filtered:
-                    # its projection and filter on every core, else on one)
+                    # its projection and filter on every core, else on one, and its faces
+                    # there too: see _moved_samples)
                     ahead = FramesAhead(
                         lambda q, op: _moved_samples(q, op, cameras, refresh_px,
                                                      filter_size, halo,
-                                                     workers=None if halo else 1),
+                                                     workers=None if halo else 1,
+                                                     faces=not halo),
                         frame_numbers[i:], before=planned)
                 op, got, cams = ahead.get(k)
-                fv = None if got is None else (op.faces_of_samples(got), cams, op.seen, op)
+                if got is not None and halo:  # filtered: its faces made here
+                    got = op.faces_of_samples(got)
+                fv = None if got is None else (got, cams, op.seen, op)
             elif ops:
                 fv = _fixed_frame(ops, cameras, k, regs, spot_px, filter, filter_size, pres,
                                   imgs)
@@ -514,11 +518,19 @@ def _fixed_frame(ops, cameras, k, regs, spot_px, filter, filter_size, pres=None,
     return None if B is None else (B, [c.camera for c in cameras], ops[0].seen, ops[0])
 
 
-def _moved_samples(k, op, cameras, refresh_px, filter_size, halo, workers=None):
+def _moved_samples(k, op, cameras, refresh_px, filter_size, halo, workers=None,
+                   faces: bool = False):
     """``(op, samples, cameras)`` of frame ``k`` of a moving model by its reference
-    ``op`` (:meth:`.fastmap.FrameOperator.samples`; None: a point moved too far). Reads
-    the frames and the operator only: made ahead in a helper thread (:class:`.FramesAhead`,
-    ``workers`` threads within)."""
+    ``op`` (:meth:`.fastmap.FrameOperator.samples`; None: a point moved too far), or with
+    ``faces`` ``(op, face values, cameras)`` (:meth:`.fastmap.FrameOperator.faces_of_samples`).
+    Reads the frames and the operator only: made ahead in a helper thread
+    (:class:`.FramesAhead`, ``workers`` threads within).
+
+    Unfiltered, the faces are made in the helper too: its sampling took 10-11 ms a frame
+    on the 609k run against 20 ms in the caller's thread (the faces 5 ms, the
+    self-illumination 9-10, the nodes 2.5), so the two threads' shares are even, and the
+    sparse products release the GIL. Filtered, the helper's sampling and filter are the
+    longer part (its faces stay in the caller's thread)."""
     imgs = [read_frame(c.frames, k) for c in cameras]
     cams = [c.poses[k] for c in cameras]
     prep = None
@@ -531,7 +543,10 @@ def _moved_samples(k, op, cameras, refresh_px, filter_size, halo, workers=None):
                     mask_spots(img, *s)
             return gaussian(img, filter_size, workers)
 
-    return op, op.samples(imgs, cams, refresh_px, prepare=prep, workers=workers), cams
+    got = op.samples(imgs, cams, refresh_px, prepare=prep, workers=workers)
+    if faces and got is not None:
+        got = op.faces_of_samples(got)
+    return op, got, cams
 
 
 def _fast_nodes(op, W, grid, E, B, seen) -> np.ndarray:
