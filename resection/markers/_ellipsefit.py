@@ -40,7 +40,8 @@ Two things differ from the disk's fit, both for markers the model cannot match e
   rank-one term makes the next step's matrix agree with it along ``s`` (a secant
   correction, as NL2SOL's for large-residual least squares, Dennis, Gay and Welsch 1981;
   kept for one step only). On model-like data the two curvatures agree and nothing
-  changes; on those targets 5.4 evaluations a window.
+  changes; on those targets 5.4 evaluations a window (5.0 with the start's contrast
+  from the ellipse's moments, :func:`resection.markers.refine._ellipse_starts`).
 * **The shape's step in the stopping rule.** The centre can stop moving while the shape is
   still far from its optimum (a start whose moments were cut short by the window: a
   step of 1.4 px in the half-width with 3e-3 px in the centre), and it moves again as

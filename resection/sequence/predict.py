@@ -73,9 +73,9 @@ ELLIPSE_MIN_DIAMETER = 12.0
 #: the tracker's fits stop once a step leaves under this error in the centre (pixels; the
 #: detector's default is 1e-4). On the obliquely seen, point-sampled 35 px targets of the
 #: 609,000-face uPSP run (a large residual: :mod:`resection.markers._ellipsefit`) 1e-3 left
-#: the centres 4e-4 px (median; 3e-3 at most) from the converged ones, for 5.4
-#: evaluations a window. The start (the window's centroid) does not depend on the frames
-#: before, so neither does the result
+#: the centres 4e-4 px (median; 3e-3 at most) from the converged ones, for 5.0
+#: evaluations a window (7.2 before session 18). The start (the window's centroid) does not
+#: depend on the frames before, so neither does the result
 TRACK_FIT_TOL = 1e-3
 
 
