@@ -81,8 +81,9 @@ def test_model_derivatives_match_finite_differences():
         assert np.abs(M[..., n + 1] - fd).max() < 1e-5 * max(1.0, np.abs(fd).max()), n
 
 
-def _frame(rng, a, b, phi, blur, snr, n=12, S=16):
-    """A frame of ``n`` rotated ellipses (brute-force rendering), contrast 100 on 1000."""
+def _ellipses(rng, a, b, phi, blur, n, S):
+    """``n`` rotated ellipses of unit contrast side by side in 64 px squares (brute-force
+    rendering, ``S`` x ``S`` samples a pixel), and their centres."""
     W = 64
     truth = np.column_stack([32 + 64 * np.arange(n) + rng.uniform(-0.5, 0.5, n),
                              32 + rng.uniform(-0.5, 0.5, n)])
@@ -90,15 +91,18 @@ def _frame(rng, a, b, phi, blur, snr, n=12, S=16):
     img = np.zeros((W, W * n))
     for i, (u, v) in enumerate(truth):
         img[:, 64 * i:64 * (i + 1)] = _render(u - 64 * i, v, Q, blur, W, S)
+    return img, truth
+
+
+def _frame(rng, a, b, phi, blur, snr, n=12, S=16):
+    """A frame of ``n`` rotated ellipses (brute-force rendering), contrast 100 on 1000."""
+    img, truth = _ellipses(rng, a, b, phi, blur, n, S)
     return 1000 + 100 * img + rng.normal(0, 100 / snr, img.shape), truth
 
 
-def test_fit_finds_the_centre_of_an_oblique_marker_where_the_disk_cannot(monkeypatch):
-    # a 30 px marker seen at an aspect of 0.55, rotated: the ellipse's fit is at the noise
-    # (SNR 100: a few 0.001 px) in a few evaluations; the disk's is off by tenths
-    rng = np.random.default_rng(7)
-    img, truth = _frame(rng, 15.0, 8.25, 0.5, 0.6, 100.0)
-    start = truth + rng.normal(0, 0.5, truth.shape)
+def _count_evaluations(monkeypatch) -> list:
+    """The model evaluations of each window of every ``fit_windows`` call from now on,
+    appended to the list returned."""
     evaluations = []
     fit = _ellipsefit.fit_windows
 
@@ -108,6 +112,16 @@ def test_fit_finds_the_centre_of_an_oblique_marker_where_the_disk_cannot(monkeyp
         return out
 
     monkeypatch.setattr(_ellipsefit, "fit_windows", counted)
+    return evaluations
+
+
+def test_fit_finds_the_centre_of_an_oblique_marker_where_the_disk_cannot(monkeypatch):
+    # a 30 px marker seen at an aspect of 0.55, rotated: the ellipse's fit is at the noise
+    # (SNR 100: a few 0.001 px) in a few evaluations; the disk's is off by tenths
+    rng = np.random.default_rng(7)
+    img, truth = _frame(rng, 15.0, 8.25, 0.5, 0.6, 100.0)
+    start = truth + rng.normal(0, 0.5, truth.shape)
+    evaluations = _count_evaluations(monkeypatch)
     e = refine_markers(img, start, 30.0, shape="ellipse")
     d = refine_markers(img, start, 30.0, shape="disk")
     err_e = np.hypot(e["u"] - truth[:, 0], e["v"] - truth[:, 1])
@@ -145,13 +159,7 @@ def _speckled_frame(rng, a, b, phi, n=24, speckle=0.08):
     """Dark rotated ellipses point-sampled (one sample a pixel, no blur: edges the model,
     blurred and pixel-integrated, cannot match) on paint whose reflectance varies by
     ``speckle`` from pixel to pixel: a residual that stays large at the optimum."""
-    W = 64
-    truth = np.column_stack([32 + 64 * np.arange(n) + rng.uniform(-0.5, 0.5, n),
-                             32 + rng.uniform(-0.5, 0.5, n)])
-    _, _, _, Q = _shape(a, b, phi)
-    img = np.zeros((W, W * n))
-    for i, (u, v) in enumerate(truth):
-        img[:, 64 * i:64 * (i + 1)] = _render(u - 64 * i, v, Q, 1e-6, W, 1)
+    img, truth = _ellipses(rng, a, b, phi, 1e-6, n, 1)
     paint = 1.0 + speckle * rng.standard_normal(img.shape)
     return (1000.0 - 880.0 * img) * paint + rng.normal(0, 5, img.shape), truth
 
@@ -166,15 +174,7 @@ def test_fit_with_a_large_residual_stops_near_its_optimum_in_few_evaluations(mon
     rng = np.random.default_rng(3)
     img, truth = _speckled_frame(rng, 22.0, 13.0, 0.3)
     start = truth + rng.normal(0, 0.3, truth.shape)
-    evaluations = []
-    fit = _ellipsefit.fit_windows
-
-    def counted(*args):
-        out = fit(*args)
-        evaluations.append(out[2])
-        return out
-
-    monkeypatch.setattr(_ellipsefit, "fit_windows", counted)
+    evaluations = _count_evaluations(monkeypatch)
     got = refine_markers(-img, start, 35.0, shape="ellipse", tol=1e-3)
     used = np.concatenate(evaluations)
     converged = refine_markers(-img, start, 35.0, shape="ellipse", tol=1e-10, iterations=300)
