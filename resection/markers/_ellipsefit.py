@@ -62,8 +62,8 @@ from resection.markers._diskfit import _Q_MIN, _Q_PER_R, _ZC, _basis, _solve_dam
 NP = 9  # parameters of a window
 KMAX = 8.0  # bound of the shear |k| (a chord's centre moves 8 px a pixel: edge-on)
 #: a fit stops only once its step of the shape (``X``, ``H``, and ``k X``, pixels) is under
-#: this many times the centre's ``tol`` too (the shape converges about 3 times more slowly
-#: in pixels than the centre, so this rarely holds a fit longer once the centre stops)
+#: this many times the centre's ``tol`` too (near the optimum the shape's steps run about 3
+#: times the centre's in pixels, so this holds back only a fit whose shape is still far off)
 SHAPE_TOL = 30.0
 #: bounds of the curvature ratio taken along the last step (its correction never lowers the
 #: Gauss-Newton matrix, and at most quadruples it along the step)
