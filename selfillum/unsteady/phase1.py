@@ -527,10 +527,11 @@ def _moved_samples(k, op, cameras, refresh_px, filter_size, halo, workers=None,
     (:class:`.FramesAhead`, ``workers`` threads within).
 
     Unfiltered, the faces are made in the helper too: its sampling took 10-11 ms a frame
-    on the 609k run against 20 ms in the caller's thread (the faces 5 ms, the
-    self-illumination 9-10, the nodes 2.5), so the two threads' shares are even, and the
-    sparse products release the GIL. Filtered, the helper's sampling and filter are the
-    longer part (its faces stay in the caller's thread)."""
+    on the 609k run against 16-18 ms in the caller's thread (the faces 5 ms, the
+    self-illumination 9-10, the nodes 2.5), so the two threads' shares come closer (the
+    sparse products release the GIL; Phase 1's frames 16.6 -> 16.1 ms each in one timeline
+    of each). Filtered, the helper's sampling and filter are the longer part (its faces
+    stay in the caller's thread)."""
     imgs = [read_frame(c.frames, k) for c in cameras]
     cams = [c.poses[k] for c in cameras]
     prep = None
