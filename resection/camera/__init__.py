@@ -5,7 +5,8 @@ or from :mod:`resection.pose`); gives out :class:`Camera` (pinhole + Brown-Conra
 distortion in OpenCV order + out-of-focus refocus) with ``project`` / ``distort`` /
 ``undistort`` / ``rays``, undistortion maps and unit checks (m vs mm vs inch).
 
-- :mod:`~resection.camera.model`: :class:`Camera`, :func:`effective_focal_length`;
+- :mod:`~resection.camera.model`: :class:`Camera`, :func:`effective_focal_length`,
+  :func:`project_with_poses` (many poses at once);
 - :mod:`~resection.camera.undistortion`: tabulated undistortion maps for fast ``rays``;
 - :mod:`~resection.camera.units`: model units guessed from a camera and a scene.
 """
@@ -23,6 +24,7 @@ _EXPORTS: dict[str, str] = {
     "effective_focal_length": ".model",
     "max_monotonic_radius": ".model",
     "nothing_seen_causes": ".units",
+    "project_with_poses": ".model",
     "require_seen": ".units",
     "spread_hint": ".units",
     "undistort_normalized": ".model",

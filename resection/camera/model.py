@@ -30,6 +30,7 @@ from resection.errors import InputError
 
 __all__ = [
     "Camera",
+    "project_with_poses",
     "distort_normalized",
     "undistort_normalized",
     "max_monotonic_radius",
@@ -515,3 +516,28 @@ class Camera:
         return self.to_dict() == other.to_dict()
 
     __hash__ = None  # type: ignore[assignment]
+
+
+def project_with_poses(camera: Camera, R, t, points3d, *,
+                       max_radius: float | None = None) -> np.ndarray:
+    """Pixel positions ``(P, N, 2)`` of ``N`` model points under ``P`` poses at once (the
+    rotations ``R`` (P, 3, 3) and translations ``t`` (P, 3)), with ``camera``'s intrinsics
+    and distortion, as :meth:`Camera.project`: NaN behind the camera or beyond the
+    distortion's monotonic radius (``camera.max_radius`` unless given: it costs a
+    polynomial root finding, worth passing when projecting often)."""
+    R = np.asarray(R, float).reshape(-1, 3, 3)
+    t = np.asarray(t, float).reshape(-1, 3)
+    X = np.asarray(points3d, float).reshape(-1, 3)
+    Xc = np.einsum("pij,nj->pni", R, X) + t[:, None, :]
+    z = Xc[..., 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xy = Xc[..., :2] / np.where(z > 0, z, np.nan)[..., None]
+    rmax = camera.max_radius if max_radius is None else max_radius
+    bad = np.hypot(xy[..., 0], xy[..., 1]) > rmax
+    xy = distort_normalized(xy.reshape(-1, 2), camera.dist).reshape(xy.shape)
+    K = camera.K
+    u = K[0, 0] * xy[..., 0] + K[0, 1] * xy[..., 1] + K[0, 2]
+    v = K[1, 1] * xy[..., 1] + K[1, 2]
+    uv = np.stack([u, v], axis=-1)
+    uv[bad] = np.nan
+    return uv

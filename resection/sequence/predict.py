@@ -48,7 +48,7 @@ import math
 
 import numpy as np
 
-from resection.camera.model import Camera, distort_normalized
+from resection.camera.model import Camera, project_with_poses
 from resection.camera.rotation import matrix_to_rotvec, rotvec_to_matrix, rotvecs_to_matrices
 from resection.pose.acceptance import judge
 from resection.sequence.results import FrameResult
@@ -122,27 +122,10 @@ def predict_pose(reference: FrameResult, previous: FrameResult | None,
 
 def project_poses(camera: Camera, rvecs, tvecs, points3d, *,
                   max_radius: float | None = None) -> np.ndarray:
-    """Pixel positions ``(P, N, 2)`` of ``N`` model points under ``P`` poses at once, with
-    the camera's intrinsics and distortion (as :meth:`Camera.project`; NaN behind the
-    camera or beyond the distortion's monotonic radius, ``camera.max_radius`` unless
-    given: it costs a polynomial root finding, worth passing when projecting often)."""
-    rv = np.asarray(rvecs, float).reshape(-1, 3)
-    tv = np.asarray(tvecs, float).reshape(-1, 3)
-    X = np.asarray(points3d, float).reshape(-1, 3)
-    R = rotvecs_to_matrices(rv)
-    Xc = np.einsum("pij,nj->pni", R, X) + tv[:, None, :]
-    z = Xc[..., 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        xy = Xc[..., :2] / np.where(z > 0, z, np.nan)[..., None]
-    rmax = camera.max_radius if max_radius is None else max_radius
-    bad = np.hypot(xy[..., 0], xy[..., 1]) > rmax
-    xy = distort_normalized(xy.reshape(-1, 2), camera.dist).reshape(xy.shape)
-    K = camera.K
-    u = K[0, 0] * xy[..., 0] + K[0, 1] * xy[..., 1] + K[0, 2]
-    v = K[1, 1] * xy[..., 1] + K[1, 2]
-    uv = np.stack([u, v], axis=-1)
-    uv[bad] = np.nan
-    return uv
+    """Pixel positions ``(P, N, 2)`` of ``N`` model points under ``P`` poses given as
+    rotation vectors and translations (:func:`resection.camera.model.project_with_poses`)."""
+    R = rotvecs_to_matrices(np.asarray(rvecs, float).reshape(-1, 3))
+    return project_with_poses(camera, R, tvecs, points3d, max_radius=max_radius)
 
 
 def refine_pose(camera: Camera, rvec, tvec, points3d, points2d, *, iterations: int = 10,

@@ -93,18 +93,10 @@ def _frame_poses(poses, frames):
 def _probe_pixels(X, cam, R, t) -> np.ndarray:
     """(T, m, 2) float32: the points ``X`` (m, 3) projected with the intrinsics of
     ``cam`` (a :class:`resection.Camera`) and the poses ``R`` (T, 3, 3), ``t`` (T, 3),
-    NaN where a point cannot be projected (as :meth:`resection.Camera.project`)."""
-    from resection.camera.distortion import distort_normalized
+    NaN where a point cannot be projected (:func:`resection.camera.model.project_with_poses`)."""
+    from resection.camera.model import project_with_poses
 
-    Xc = np.einsum("tij,mj->tmi", R, np.asarray(X, np.float64)) + t[:, None, :]
-    z = Xc[..., 2]
-    ok = z > 0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        xy = (Xc[..., :2] / np.where(ok, z, np.nan)[..., None]).reshape(-1, 2)
-    ok = ok.ravel() & (np.hypot(xy[:, 0], xy[:, 1]) <= cam.max_radius)
-    uv = cam.normalized_to_pixels(distort_normalized(xy, cam.dist))
-    uv[~ok] = np.nan
-    return uv.reshape(len(R), len(X), 2).astype(np.float32)
+    return project_with_poses(cam, R, t, X).astype(np.float32)
 
 
 def plan_references(poses, probes, frames, refresh_px: float, *, first: int | None = None,
