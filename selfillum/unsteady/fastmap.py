@@ -332,16 +332,15 @@ class FrameOperator:
                 out += pt[0] @ (pt[1] @ x)
             return out
         share = self._share(c)
-        xs = x
-        xs[bi] = 0.0
+        x[bi] = 0.0
         rows, lost_w = _column_entries(self._columns(c), bi)
-        num = A @ xs
+        num = A @ x
         if pt is not None:
             A2, Cu, _, Aw = pt
             nP = Cu.shape[0] // Aw.shape[1]
             lost = np.zeros(Aw.shape[1], bool)
             lost[_column_entries(self._columns(c, patch=True), bi)[0] // nP] = True
-            coef = (Cu @ xs).reshape(-1, nP)
+            coef = (Cu @ x).reshape(-1, nP)
             coef[lost] = 0.0
             num += A2 @ coef.ravel()
             if lost.any():  # the spots' weights, by their columns
