@@ -67,3 +67,21 @@ def test_frames_without_nan_and_strips_far_from_one_match_scipy(size, workers):
     # the rows near the NaN renormalise their weights: they differ from the plain filter
     plain = _scipy(np.where(np.isnan(img), 0.0, img), size)
     assert np.abs(ours[99, 7:9] - plain[99, 7:9]).min() > 1.0
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.int32])
+def test_integer_counts_read_as_they_are_into_a_given_buffer(dtype):
+    """A video's counts (8, 12 or 16 bits) are filtered without a float copy of the frame,
+    into the buffer given: the same as SciPy on the counts as floats; the buffer may not
+    be the image, nor of another shape."""
+    rng = np.random.default_rng(7)
+    img = rng.integers(0, 255 if dtype == np.uint8 else 4096, (70, 130)).astype(dtype)
+    buf = np.full(img.shape, np.nan)
+    got = gaussian_lowpass(img, 5, workers=2, out=buf)
+    assert got is buf
+    np.testing.assert_allclose(got, _scipy(img.astype(np.float64), 5), rtol=1e-12)
+    f = img.astype(np.float64)
+    with pytest.raises(ValueError, match="out must be"):
+        gaussian_lowpass(f, 5, out=f)
+    with pytest.raises(ValueError, match="out must be"):
+        gaussian_lowpass(f, 5, out=np.empty((70, 129)))

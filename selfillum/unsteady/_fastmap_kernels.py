@@ -20,13 +20,12 @@ def project_sample_kernel():
     # on 850,000 points of a plane (2026-12-03, one core)
     @numba.njit(cache=True, nogil=True,
                 fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
-    def project_sample(X, R, t, K, dist, max_radius, uv0, img, refresh, out, pix, status,
+    def project_sample(X, R, t, K, dist, max_radius, uv0, img, refresh, out, status,
                        r0, r1):  # pragma: no cover - compiled
         """Project the points ``r0:r1`` (as Camera.project), flag a move over ``refresh``
         pixels (status 1), a point off the sensor or not projectable (status 2), else
         sample the image bilinearly there (pixel centres at integers, edges clamped) into
-        ``out[i]``, or, when ``pix`` is not empty, into ``out[pix[i]]`` (an image carried
-        back onto the reference's pixels: NaN where the status is not 0). A point of NaN
+        ``out[i]`` (left as it was where the status is not 0). A point of NaN
         (a background pixel) reads the image at its own pixel ``uv0``. One thread, without
         the GIL: the caller's threads take blocks of points."""
         H, W = img.shape
@@ -40,7 +39,6 @@ def project_sample_kernel():
         umax, vmax = (W - 2 if W > 1 else 0), (H - 2 if H > 1 else 0)
         Wm, Hm = W - 1.0, H - 1.0
         RUN = 256
-        scatter = pix.size > 0
         us, vs, zs, rs = np.empty(RUN), np.empty(RUN), np.empty(RUN), np.empty(RUN)
         for s in range(r0, r1, RUN):
             n = min(RUN, r1 - s)
@@ -60,12 +58,11 @@ def project_sample_kernel():
                 rs[j] = r2
             for j in range(n):
                 i = s + j
-                o = pix[i] if scatter else i
                 status[i] = 0
                 if X[i, 0] != X[i, 0]:  # a pixel on the background: sampled where it is
                     u = min(max(np.float64(uv0[i, 0]), 0.0), Wm)
                     v = min(max(np.float64(uv0[i, 1]), 0.0), Hm)
-                    out[o] = img[int(v + 0.5), int(u + 0.5)]
+                    out[i] = img[int(v + 0.5), int(u + 0.5)]
                     continue
                 u, v = us[j], vs[j]
                 if not zs[j] > 0 or rs[j] > mr2:
@@ -75,8 +72,6 @@ def project_sample_kernel():
                 elif u < -0.5 or v < -0.5 or u > W - 0.5 or v > H - 0.5:
                     status[i] = 2
                 if status[i] != 0:
-                    if scatter:
-                        out[o] = np.nan
                     continue
                 u = min(max(u, 0.0), Wm)
                 v = min(max(v, 0.0), Hm)
@@ -86,7 +81,7 @@ def project_sample_kernel():
                 fv = v - v0
                 u1 = min(u0 + 1, W - 1)
                 v1 = min(v0 + 1, H - 1)
-                out[o] = ((1.0 - fv) * ((1.0 - fu) * img[v0, u0] + fu * img[v0, u1])
+                out[i] = ((1.0 - fv) * ((1.0 - fu) * img[v0, u0] + fu * img[v0, u1])
                           + fv * ((1.0 - fu) * img[v1, u0] + fu * img[v1, u1]))
 
     return project_sample

@@ -74,16 +74,21 @@ class FrameOperator:
         pixels times their polynomial terms. A ring pixel that sees no surface (a spot on
         the silhouette) is sampled where it is: the background does not move with the
         model.
-    halo_px : int
-        A moving model whose frames are filtered (a Gaussian on the image): the pixels
-        within ``halo_px`` of those that count are sampled too (``support``), so that the
-        frame carried back onto the reference's pixels can be patched and filtered there
-        (:meth:`samples` with ``prepare``).
+    filter_size : int
+        A moving model whose frames are filtered (uPSP's Gaussian of this size, pixels; 0:
+        none): each frame is filtered in its own pixels and read at the points, and the
+        pixels its dark spots reach are corrected (:mod:`selfillum.unsteady.spot_filter`).
+    spots : sequence, optional
+        With ``filter_size``, per camera its dark spots in the reference: a
+        :class:`~selfillum.unsteady.spots.PatchOperator`, ``(centres, radii)`` left out, or
+        None.
     """
 
     def __init__(self, maps, finite, merge_kw: dict, gains, unpainted=None, *,
-                 sample_points: bool = False, pre=None, halo_px: int = 0):
+                 sample_points: bool = False, pre=None, filter_size: int = 0,
+                 spots=None):
         from resection.surface.merge import angle_weights, pixel_weights
+        from selfillum.unsteady.spot_filter import spot_filter
 
         nf = maps[0].n_faces
         C = len(maps)
@@ -108,7 +113,8 @@ class FrameOperator:
         seen = total > 0
         best = np.argmax(wts, axis=0)
         self.A, self.cols, self.X, self.uv0 = [], [], [], []
-        self.support = []  # per camera (pixels, X, uv0) sampled for a filtered frame
+        self.filter_size = int(filter_size) if sample_points else 0
+        self.spot_filters = []  # per camera, a filtered moving frame's spots (or None)
         self.patch = []  # per camera None, or (A2, C over used, C over pixels, Aw)
         with np.errstate(invalid="ignore", divide="ignore"):
             for c in range(C):
@@ -136,8 +142,10 @@ class FrameOperator:
                     uv0 = _reference_pixels(maps[c], used, X)
                     self.X.append(X)
                     self.uv0.append(uv0.astype(np.float32))
-                    if halo_px > 0:
-                        self.support.append(_support(maps[c], used, int(halo_px)))
+                    if self.filter_size:
+                        self.spot_filters.append(spot_filter(
+                            maps[c], used, None if spots is None else spots[c],
+                            self.filter_size))
         # a sample of each camera's surface points: the probes that plan the references
         self.probe = []
         for X in self.X:
@@ -149,7 +157,7 @@ class FrameOperator:
         self.frame = None  # the reference's frame number, and the last frame that used it
         self.last_used = -1
         self._shares: dict = {}
-        self._carried_images: dict = {}  # per camera, :meth:`_carried`
+        self._filtered_images: dict = {}  # per camera, :meth:`_filtered`
         self._direct = None
         self.workers = None  # threads of the products (default: the available cores)
 
@@ -249,7 +257,7 @@ class FrameOperator:
             self._shares[c] = sh
         return self._shares[c]
 
-    def samples(self, images, cameras, refresh_px: float, prepare=None,
+    def samples(self, images, cameras, refresh_px: float,
                 workers: int | None = None) -> list | None:
         """A moving model's frame of pose ``cameras`` (one a camera) read at the
         reference's pixels: the images sampled (bilinear) where the reference's surface
@@ -261,43 +269,46 @@ class FrameOperator:
         :func:`selfillum.unsteady.references.plan_references`: the caller casts anew). A
         face that keeps none of a camera's pixels is NaN there.
 
-        ``prepare(c, image)``, when given, is applied to camera ``c``'s frame carried back
-        onto the reference's pixels (the ``support``, NaN elsewhere) before its pixels are
-        read: the dark spots patched or masked and the filter, in the reference's pixels.
-        Reads only the operator's arrays: the part a helper thread makes for the next
-        frame; ``workers``: threads of the projection (default: the cores)."""
+        With ``filter_size``, the frame is filtered in its own pixels before it is read,
+        and the pixels its dark spots reach are corrected for the patch (or the spots left
+        out) before the filter, as uPSP orders them (:mod:`.spot_filter`). Reads only the
+        operator's arrays (and a buffer a camera for the filtered frame): the part a helper
+        thread makes for the next frame, one frame at a time; ``workers``: threads of the
+        projection and the filter (default: the cores)."""
+        from selfillum.unsteady.lowpass import gaussian_lowpass
+
         out = []
-        if prepare is not None:
-            for c, (sup, img, cam) in enumerate(zip(self.support, images, cameras,
-                                                    strict=True)):
-                pix, X, uv0 = sup
-                H, W = np.shape(img)
-                ref, status = _sample_moved(X, uv0, img, cam, refresh_px, workers, pix,
-                                            self._carried(c, H * W))
-                if status is None:
-                    return None
-                ref = np.asarray(prepare(c, ref.reshape(H, W)), dtype=np.float64)
-                x = ref.ravel()[self.cols[c]]
-                out.append((x, ~np.isfinite(x)))
-            return out
-        for X, uv0, img, cam in zip(self.X, self.uv0, images, cameras, strict=True):
-            x, status = _sample_moved(X, uv0, img, cam, refresh_px, workers)
+        for c, (X, uv0, img, cam) in enumerate(zip(self.X, self.uv0, images, cameras,
+                                                   strict=True)):
+            src = np.asarray(img)
+            if self.filter_size:
+                src = gaussian_lowpass(src, self.filter_size, workers,
+                                       out=self._filtered(c, src.shape))
+            x, status = _sample_moved(X, uv0, src, cam, refresh_px, workers)
             if status is None:
                 return None
             bad = status != 0
-            if np.asarray(img).dtype.kind == "f":  # a video's counts are always finite
+            if src.dtype.kind == "f":  # a video's counts are always finite
                 bad |= ~np.isfinite(x)
+            sf = self.spot_filters[c] if self.filter_size else None
+            if sf is not None:
+                g, st = _sample_moved(sf.X, sf.uv0, img, cam, refresh_px, workers)
+                if st is None:
+                    return None
+                g_bad = st != 0
+                if np.asarray(img).dtype.kind == "f":
+                    g_bad |= ~np.isfinite(g)
+                sf.correct(x, bad, g, g_bad)
             out.append((x, bad))
         return out
 
-    def _carried(self, c: int, size: int) -> np.ndarray:
-        """Camera ``c``'s frame carried back onto the reference's pixels: one flat image
-        kept from frame to frame, NaN off the support (a frame writes every pixel of the
-        support, and ``prepare`` the same pixels every frame: the dark spots'), so that a
-        frame neither allocates nor fills it. :meth:`samples` runs one frame at a time."""
-        bufs = self._carried_images
-        if c not in bufs or bufs[c].size != size:
-            bufs[c] = np.full(size, np.nan)
+    def _filtered(self, c: int, shape) -> np.ndarray:
+        """Camera ``c``'s filtered frame: one float64 image kept from frame to frame (a
+        frame neither allocates nor first touches it). :meth:`samples` runs one frame at a
+        time."""
+        bufs = self._filtered_images
+        if c not in bufs or bufs[c].shape != tuple(shape):
+            bufs[c] = np.empty(shape)
         return bufs[c]
 
     def faces_of_samples(self, samples) -> np.ndarray:
@@ -367,41 +378,23 @@ def _column_entries(M, columns) -> tuple[np.ndarray, np.ndarray]:
     return M.indices[at].astype(np.int64), M.data[at]
 
 
-_NO_PIX = np.empty(0, np.int64)
-
-
-def _sample_moved(X, uv0, img, cam, refresh_px, workers=None, pix=None, into=None):
+def _sample_moved(X, uv0, img, cam, refresh_px, workers=None):
     """``(x, status)``: the frame ``img`` sampled where the points ``X`` project with the
     pose ``cam`` (the statuses of :func:`._fastmap_kernels.project_sample_kernel`: 0
     sampled, 2 off the sensor); ``status`` None when a point moved more than twice
     ``refresh_px`` from ``uv0`` (cast anew); on ``workers`` threads (default: the
-    cores). With ``pix`` and ``into`` (a flat image), the samples are written into
-    ``into[pix]`` (NaN where the status is not 0), and ``x`` is ``into``."""
+    cores)."""
     arr = np.asarray(img)
     if arr.dtype.kind not in "fiu":
         arr = arr.astype(np.float64)
-    x = np.empty(len(X)) if into is None else into
+    x = np.empty(len(X))
     status = project_sample(X, np.asarray(cam.R, np.float64),
                              np.asarray(cam.t, np.float64).ravel(),
                              np.asarray(cam.K, np.float64),
                              np.asarray(cam.dist, np.float64).ravel(),
                              float(cam.max_radius), uv0, arr, 2.0 * float(refresh_px), x,
-                             _NO_PIX if pix is None else pix, workers=workers)
+                             workers=workers)
     return x, (None if (status == 1).any() else status)
-
-
-def _support(smap, used, halo: int) -> tuple:
-    """The pixels within ``halo`` of ``used`` (flat indices), their surface points (NaN on
-    the background) and their reference pixels ``uv0``."""
-    from scipy import ndimage
-
-    H, W = smap.shape
-    m = np.zeros(H * W, bool)
-    m[used] = True
-    m = ndimage.binary_dilation(m.reshape(H, W), np.ones((3, 3), bool), iterations=halo)
-    pix = np.flatnonzero(m)
-    X = smap.points.reshape(-1, 3)[pix]
-    return pix, X, _reference_pixels(smap, pix, X).astype(np.float32)
 
 
 def _reference_pixels(smap, pix, X) -> np.ndarray:

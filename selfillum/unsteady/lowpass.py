@@ -21,7 +21,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["gaussian_sigma", "gaussian_lowpass"]
+__all__ = ["gaussian_sigma", "gaussian_weights", "gaussian_lowpass"]
 
 
 def gaussian_sigma(size: int) -> float:
@@ -29,17 +29,34 @@ def gaussian_sigma(size: int) -> float:
     return 0.3 * ((int(size) - 1) * 0.5 - 1) + 0.8
 
 
-def gaussian_lowpass(image, size: int, workers: int | None = None) -> np.ndarray:
+def gaussian_weights(size: int) -> np.ndarray:
+    """(size,) the separable kernel's weights, summing to 1 (the 2-D kernel is their outer
+    product)."""
+    size = int(size)
+    if size < 3 or size % 2 == 0:
+        raise ValueError(f"size must be an odd number >= 3, got {size}")
+    r = (size - 1) // 2
+    x = np.arange(-r, r + 1, dtype=np.float64)
+    w = np.exp(-0.5 * (x / gaussian_sigma(size)) ** 2)
+    return w / w.sum()
+
+
+def gaussian_lowpass(image, size: int, workers: int | None = None,
+                     out: np.ndarray | None = None) -> np.ndarray:
     """The NaN-aware Gaussian low-pass of ``image`` (see the module notes).
 
     Parameters
     ----------
     image : (H, W) array_like
-        A frame, counts; NaN (or inf) where a pixel has no value.
+        A frame, counts; NaN (or inf) where a pixel has no value. A video's integer
+        counts are read as they are (no float copy of the frame).
     size : int
         Odd kernel size, pixels (uPSP's ``filter_size``), at least 3.
     workers : int, optional
         Threads over blocks of rows (default: the cores this process may use).
+    out : (H, W) float64 ndarray, optional
+        Written into (C-contiguous, not ``image``): a run filtering frame after frame
+        reuses one buffer.
 
     Returns
     -------
@@ -48,18 +65,19 @@ def gaussian_lowpass(image, size: int, workers: int | None = None) -> np.ndarray
     """
     from resection._threads import run_blocks, split_range
 
-    size = int(size)
-    if size < 3 or size % 2 == 0:
-        raise ValueError(f"size must be an odd number >= 3, got {size}")
-    img = np.ascontiguousarray(image, dtype=np.float64)
+    w = gaussian_weights(size)
+    img = np.asarray(image)
+    if img.dtype.kind not in "iu" or img.dtype.itemsize > 4:
+        img = img.astype(np.float64, copy=False)
+    img = np.ascontiguousarray(img)
     if img.ndim != 2:
         raise ValueError(f"image must be 2-D, got shape {img.shape}")
-    r = (size - 1) // 2
-    sigma = gaussian_sigma(size)
-    x = np.arange(-r, r + 1, dtype=np.float64)
-    w = np.exp(-0.5 * (x / sigma) ** 2)
-    w /= w.sum()
-    out = np.empty_like(img)
+    if out is None:
+        out = np.empty(img.shape)
+    elif (out.shape != img.shape or out.dtype != np.float64 or not out.flags.c_contiguous
+          or np.shares_memory(out, img)):
+        raise ValueError("out must be a C-contiguous float64 array of the image's shape, "
+                         "not the image")
     H = img.shape[0]
     run_blocks(lambda b: _lowpass_rows(img, w, b[0], b[1], out),
                split_range(H, workers, min_size=64), workers)

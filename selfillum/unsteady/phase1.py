@@ -259,11 +259,10 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
     off = None if unpainted is None else np.asarray(unpainted, bool)
     moving = registration == "track"
     use_fast = fast
-    # a moving model's filtered frames: sampled over the pixels that count and a halo of
-    # the filter's radius (and the patch's ring), then patched and filtered in the
-    # reference's pixels
-    halo = 0 if not (moving and filter != "none") else \
-        (filter_size - 1) // 2 + (4 if patcher == "polynomial" else 0)
+    # a moving model's filtered frames: filtered in their own pixels, read at the
+    # reference's points, and corrected near the spots (patched or left out before the
+    # filter, as uPSP orders them: selfillum.unsteady.spot_filter)
+    moving_filter = filter_size if (moving and filter != "none") else 0
     # uPSP's polynomial patch is linear in the ring's pixels: without a filter it joins
     # the operator (A_c P_c); with one it is applied to the image before the filter
     pres = [None] * len(cameras)  # per camera (P, unfit) of the reference's spots
@@ -288,7 +287,7 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
         if op is None:
             op = _cast_reference(j, cameras, mesh, caster, max_obliqueness, spots,
                                  spot_margin_px, merge_kw, ops[0].gains, off, patcher,
-                                 halo)
+                                 moving_filter)
             _keep(ops, op)
             counts["references"] += 1
             _shed_mesh_cache(mesh)
@@ -320,18 +319,12 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
                 # else: a pixel that counts is not finite (warped in from beyond the edge):
                 # the faces' way, which leaves it out
             if ops and moving:  # sampled at its reference's points; the next frame's
-                if ahead is None:  # samples made meanwhile in a helper thread (filtered:
-                    # its projection and filter on every core, else on one, and its faces
-                    # there too: see _moved_samples)
+                if ahead is None:  # samples and faces made meanwhile in a helper thread
+                    # (on one core: see _moved_samples)
                     ahead = FramesAhead(
-                        lambda q, op: _moved_samples(q, op, cameras, refresh_px,
-                                                     filter_size, halo,
-                                                     workers=None if halo else 1,
-                                                     faces=not halo),
+                        lambda q, op: _moved_samples(q, op, cameras, refresh_px, workers=1),
                         frame_numbers[i:], before=planned)
                 op, got, cams = ahead.get(k)
-                if got is not None and halo:  # filtered: its faces made here
-                    got = op.faces_of_samples(got)
                 fv = None if got is None else (got, cams, op.seen, op)
             elif ops:
                 fv = _fixed_frame(ops, cameras, k, regs, spot_px, filter, filter_size, pres,
@@ -388,8 +381,8 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
                 from selfillum.unsteady.fastmap import FrameOperator
 
                 op = FrameOperator(maps, finite, merge_kw, ops[0].gains, off, sample_points=True,
-                                   pre=pres if compose else None, halo_px=halo)
-                op.spots = list(pres) if patcher == "polynomial" else list(spot_px)
+                                   pre=pres if compose else None, filter_size=moving_filter,
+                                   spots=_spots_of(patcher, pres, spot_px))
                 op.frame = op.last_used = k
                 _keep(ops, op)
                 B = op.faces(imgs)
@@ -410,8 +403,8 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
                 from selfillum.unsteady.fastmap import FrameOperator
 
                 op = FrameOperator(maps, finite, merge_kw, known, off, sample_points=moving,
-                                   pre=pres if compose else None, halo_px=halo)
-                op.spots = list(pres) if patcher == "polynomial" else list(spot_px)
+                                   pre=pres if compose else None, filter_size=moving_filter,
+                                   spots=_spots_of(patcher, pres, spot_px))
                 B = op.faces(imgs)
                 if B is not None:
                     ops.append(op)
@@ -428,8 +421,9 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
 
                     ops.append(FrameOperator(maps, finite, merge_kw, mv.gains, off,
                                              sample_points=moving,
-                                             pre=pres if compose else None, halo_px=halo))
-                    ops[0].spots = list(pres) if patcher == "polynomial" else list(spot_px)
+                                             pre=pres if compose else None,
+                                             filter_size=moving_filter,
+                                             spots=_spots_of(patcher, pres, spot_px)))
                     ops[0].frame = ops[0].last_used = k
                     ops[0].workers = workers
                     maps0 = [None] * len(cameras)
@@ -476,7 +470,7 @@ def _keep(ops, op) -> None:
 
 
 def _cast_reference(j, cameras, mesh, caster, max_obliqueness, spots, spot_margin_px,
-                    merge_kw, gains, unpainted, patcher="none", halo=0):
+                    merge_kw, gains, unpainted, patcher="none", filter_size=0):
     """The operator of a moving model's reference at frame ``j``'s poses: a
     :class:`resection.SurfaceMap` a camera (a ray cast), its dark spots left out or
     patched (the patch joins the operator); no image is needed (a video's pixels are
@@ -501,8 +495,8 @@ def _cast_reference(j, cameras, mesh, caster, max_obliqueness, spots, spot_margi
         pre.append(P)
         prep.append(spot)
     op = FrameOperator(maps, finite, merge_kw, gains, unpainted, sample_points=True,
-                       pre=None if halo else pre, halo_px=halo)
-    op.spots = prep
+                       pre=None if filter_size else pre, filter_size=filter_size,
+                       spots=prep)
     op.frame = op.last_used = j
     return op
 
@@ -518,36 +512,29 @@ def _fixed_frame(ops, cameras, k, regs, spot_px, filter, filter_size, pres=None,
     return None if B is None else (B, [c.camera for c in cameras], ops[0].seen, ops[0])
 
 
-def _moved_samples(k, op, cameras, refresh_px, filter_size, halo, workers=None,
-                   faces: bool = False):
-    """``(op, samples, cameras)`` of frame ``k`` of a moving model by its reference
-    ``op`` (:meth:`.fastmap.FrameOperator.samples`; None: a point moved too far), or with
-    ``faces`` ``(op, face values, cameras)`` (:meth:`.fastmap.FrameOperator.faces_of_samples`).
-    Reads the frames and the operator only: made ahead in a helper thread
+def _moved_samples(k, op, cameras, refresh_px, workers=None):
+    """``(op, face values, cameras)`` of frame ``k`` of a moving model by its reference
+    ``op`` (:meth:`.fastmap.FrameOperator.samples`, filtered when the operator filters,
+    then :meth:`.fastmap.FrameOperator.faces_of_samples`; face values None: a point moved
+    too far). Reads the frames and the operator only: made ahead in a helper thread
     (:class:`.FramesAhead`, ``workers`` threads within).
 
-    Unfiltered, the faces are made in the helper too: its sampling took 10-11 ms a frame
-    on the 609k run against 16-18 ms in the caller's thread (the faces 5 ms, the
-    self-illumination 9-10, the nodes 2.5), so the two threads' shares come closer (the
-    sparse products release the GIL; Phase 1's frames 16.6 -> 16.1 ms each in one timeline
-    of each). Filtered, the helper's sampling and filter are the longer part (its faces
-    stay in the caller's thread)."""
+    The faces are made in the helper too: its sampling took 10-11 ms a frame on the 609k
+    run against 16-18 ms in the caller's thread (the faces 5 ms, the self-illumination
+    9-10, the nodes 2.5), so the two threads' shares come closer (the sparse products
+    release the GIL; Phase 1's frames 16.6 -> 16.1 ms each in one timeline of each)."""
     imgs = [read_frame(c.frames, k) for c in cameras]
     cams = [c.poses[k] for c in cameras]
-    prep = None
-    if halo:  # filtered: the spots and the filter in the reference's pixels
-
-        def prep(c, img, spots_=op.spots):
-            s = spots_[c]
-            if s is not None:
-                img = s.apply(img, in_place=True) if hasattr(s, "apply") else \
-                    mask_spots(img, *s)
-            return gaussian(img, filter_size, workers)
-
-    got = op.samples(imgs, cams, refresh_px, prepare=prep, workers=workers)
-    if faces and got is not None:
+    got = op.samples(imgs, cams, refresh_px, workers=workers)
+    if got is not None:
         got = op.faces_of_samples(got)
     return op, got, cams
+
+
+def _spots_of(patcher, pres, spot_px) -> list:
+    """Per camera the reference's dark spots as the operator takes them: the patch's
+    operators (``polynomial``), else the spots' centres and radii (left out)."""
+    return list(pres) if patcher == "polynomial" else list(spot_px)
 
 
 def _fast_nodes(op, W, grid, E, B, seen) -> np.ndarray:
