@@ -235,8 +235,8 @@ def test_moving_filtered_frame_is_the_patch_then_scipys_filter(scene, patcher):
     assert (off > 1e-3).sum() > 100 and off.max() > 0.05
     # a spot's pixel not read (off the sensor): the pixels its value reaches are left out,
     # exactly those whose corrected value changes with it
-    sf = op.spot_filters[0]
-    g = np.array([img[int(round(v)), int(round(u))] for u, v in sf.uv0], np.float64)
+    sf = op.spot_filters[0][0]
+    g = img.ravel()[sf.pixels]  # the frame at its reference's pose
     for j in (0, len(g) // 2, len(g) - 1):
         x0, x1, b = plain.copy(), plain.copy(), np.zeros(plain.size, bool)
         sf.correct(x0, b.copy(), g, np.zeros(g.size, bool))

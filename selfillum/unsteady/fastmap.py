@@ -142,10 +142,14 @@ class FrameOperator:
                     uv0 = _reference_pixels(maps[c], used, X)
                     self.X.append(X)
                     self.uv0.append(uv0.astype(np.float32))
-                    if self.filter_size:
-                        self.spot_filters.append(spot_filter(
-                            maps[c], used, None if spots is None else spots[c],
-                            self.filter_size))
+                    if self.filter_size:  # (SpotFilter, its pixels' X and uv0) or None
+                        sf = spot_filter(maps[c], used, None if spots is None else spots[c],
+                                         self.filter_size)
+                        if sf is not None:
+                            Xs = maps[c].points.reshape(-1, 3)[sf.pixels]
+                            sf = (sf, Xs, _reference_pixels(maps[c], sf.pixels, Xs)
+                                  .astype(np.float32))
+                        self.spot_filters.append(sf)
         # a sample of each camera's surface points: the probes that plan the references
         self.probe = []
         for X in self.X:
@@ -292,7 +296,8 @@ class FrameOperator:
                 bad |= ~np.isfinite(x)
             sf = self.spot_filters[c] if self.filter_size else None
             if sf is not None:
-                g, st = _sample_moved(sf.X, sf.uv0, img, cam, refresh_px, workers)
+                sf, Xs, uvs = sf
+                g, st = _sample_moved(Xs, uvs, img, cam, refresh_px, workers)
                 if st is None:
                     return None
                 g_bad = st != 0

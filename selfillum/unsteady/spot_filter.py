@@ -48,11 +48,9 @@ class SpotFilter:
 
     Attributes
     ----------
-    X : (n, 3) float
-        Surface points of the spots' and their rings' pixels in the reference (NaN: a
-        pixel on the background, read where it is).
-    uv0 : (n, 2) float32
-        Where the reference saw them, pixels.
+    pixels : (n,) int
+        The spots' and their rings' pixels (flat, ascending): the frame is read at their
+        surface points.
     rows : (q,) int
         Positions in the operator's pixels (``cols``) that the spots change.
     coef : scipy.sparse.csr_matrix or None
@@ -70,8 +68,7 @@ class SpotFilter:
         reaches are left out).
     """
 
-    X: np.ndarray
-    uv0: np.ndarray
+    pixels: np.ndarray
     rows: np.ndarray
     coef: object
     gain: object
@@ -83,8 +80,8 @@ class SpotFilter:
     def correct(self, x: np.ndarray, bad: np.ndarray, g: np.ndarray,
                 g_bad: np.ndarray) -> None:
         """Correct in place the filtered frame's values ``x`` (over ``cols``) by the frame's
-        values ``g`` at :attr:`X` (``g_bad``: not read, off the sensor); the pixels left
-        out are set in ``bad``."""
+        values ``g`` at :attr:`pixels`' points (``g_bad``: not read, off the sensor); the
+        pixels left out are set in ``bad``."""
         gb = np.flatnonzero(g_bad)
         if gb.size:
             g = np.where(g_bad, 0.0, g)
@@ -104,7 +101,6 @@ def spot_filter(smap, cols: np.ndarray, spots, size: int) -> SpotFilter | None:
     the pixels ``cols`` (flat, ascending), its spots ``spots`` (a
     :class:`~selfillum.unsteady.spots.PatchOperator`, or ``(centres, radii)`` left out, or
     None) and a Gaussian of ``size`` pixels. None when the spots change no pixel read."""
-    from selfillum.unsteady.fastmap import _reference_pixels
     from selfillum.unsteady.lowpass import gaussian_weights
     from selfillum.unsteady.spots import mask_spots
 
@@ -165,8 +161,6 @@ def spot_filter(smap, cols: np.ndarray, spots, size: int) -> SpotFilter | None:
         gain = sp.csr_matrix((terms.ravel(), (np.repeat(ri[on], P), tcol.ravel())),
                              shape=(q, coef.shape[0]))
         needs = needs + abs(gain) @ abs(coef)
-    X = smap.points.reshape(-1, 3)[pts]
-    uv0 = _reference_pixels(smap, pts, X).astype(np.float32)
     needs = sp.csc_matrix(needs)
     needs.eliminate_zeros()
-    return SpotFilter(X, uv0, rows, coef, gain, drop, scale, blank, needs)
+    return SpotFilter(pts, rows, coef, gain, drop, scale, blank, needs)
