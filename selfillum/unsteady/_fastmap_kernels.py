@@ -1,5 +1,6 @@
 """Compiled kernels of :mod:`selfillum.unsteady.fastmap`: a moving model's points projected
-with a frame's pose and the frame sampled there, and the rows of a sparse product."""
+with a frame's pose and the frame sampled there, and the rows of a sparse product; and the
+entries of a few columns of a sparse matrix (the faces a few left-out pixels reach)."""
 
 from __future__ import annotations
 
@@ -120,3 +121,15 @@ def project_sample(X, *args, workers=None):
     run_blocks(lambda b: kern(X, *args, status, b[0], b[1]),
                split_range(len(X), workers, min_size=32768), workers)
     return status
+
+
+def column_entries(M, columns) -> tuple[np.ndarray, np.ndarray]:
+    """Row numbers and values of the entries of the CSC matrix ``M``'s ``columns`` (a
+    few), gathered from its index arrays."""
+    columns = np.asarray(columns, dtype=np.int64)
+    starts, ends = M.indptr[columns], M.indptr[columns + 1]
+    n = ends - starts
+    if n.sum() == 0:
+        return np.zeros(0, np.int64), np.zeros(0)
+    at = np.repeat(starts - np.cumsum(n) + n, n) + np.arange(n.sum())
+    return M.indices[at].astype(np.int64), M.data[at]

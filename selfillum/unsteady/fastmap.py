@@ -35,7 +35,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from selfillum.unsteady._fastmap_kernels import project_sample, spmv_kernel
+from selfillum.unsteady._fastmap_kernels import column_entries, project_sample, spmv_kernel
 
 __all__ = ["FrameOperator", "PixelValues"]
 
@@ -138,7 +138,8 @@ class FrameOperator:
                 self.cols.append(used)
                 self.A.append(sp.csr_matrix(A[:, used]))
                 if sample_points:
-                    X = maps[c].points.reshape(-1, 3)[used]
+                    X_all = maps[c].points.reshape(-1, 3)  # computed a call: once
+                    X = X_all[used]
                     uv0 = _reference_pixels(maps[c], used, X)
                     self.X.append(X)
                     self.uv0.append(uv0.astype(np.float32))
@@ -146,7 +147,7 @@ class FrameOperator:
                         sf = spot_filter(maps[c], used, None if spots is None else spots[c],
                                          self.filter_size)
                         if sf is not None:
-                            Xs = maps[c].points.reshape(-1, 3)[sf.pixels]
+                            Xs = X_all[sf.pixels]
                             sf = (sf, Xs, _reference_pixels(maps[c], sf.pixels, Xs)
                                   .astype(np.float32))
                         self.spot_filters.append(sf)
@@ -349,18 +350,18 @@ class FrameOperator:
             return out
         share = self._share(c)
         x[bi] = 0.0
-        rows, lost_w = _column_entries(self._columns(c), bi)
+        rows, lost_w = column_entries(self._columns(c), bi)
         num = A @ x
         if pt is not None:
             A2, Cu, _, Aw = pt
             nP = Cu.shape[0] // Aw.shape[1]
             lost = np.zeros(Aw.shape[1], bool)
-            lost[_column_entries(self._columns(c, patch=True), bi)[0] // nP] = True
+            lost[column_entries(self._columns(c, patch=True), bi)[0] // nP] = True
             coef = (Cu @ x).reshape(-1, nP)
             coef[lost] = 0.0
             num += A2 @ coef.ravel()
             if lost.any():  # the spots' weights, by their columns
-                r2, w2 = _column_entries(sp.csc_matrix(Aw), np.flatnonzero(lost))
+                r2, w2 = column_entries(sp.csc_matrix(Aw), np.flatnonzero(lost))
                 rows, lost_w = np.concatenate([rows, r2]), np.concatenate([lost_w, w2])
         # only the faces that lost a pixel change: their sum scaled to their whole share
         # (NaN when none is left), not passes over every face
@@ -369,18 +370,6 @@ class FrameOperator:
         with np.errstate(invalid="ignore", divide="ignore"):
             num[r] = np.where(kept > 1e-12 * share[r], num[r] * (share[r] / kept), np.nan)
         return num
-
-
-def _column_entries(M, columns) -> tuple[np.ndarray, np.ndarray]:
-    """Row numbers and values of the entries of the CSC matrix ``M``'s ``columns`` (a
-    few), gathered from its index arrays."""
-    columns = np.asarray(columns, dtype=np.int64)
-    starts, ends = M.indptr[columns], M.indptr[columns + 1]
-    n = ends - starts
-    if n.sum() == 0:
-        return np.zeros(0, np.int64), np.zeros(0)
-    at = np.repeat(starts - np.cumsum(n) + n, n) + np.arange(n.sum())
-    return M.indices[at].astype(np.int64), M.data[at]
 
 
 def _sample_moved(X, uv0, img, cam, refresh_px, workers=None):
