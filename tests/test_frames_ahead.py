@@ -72,3 +72,31 @@ def test_a_frame_out_of_order_is_made_in_the_caller():
         assert ahead.get(2) == 12  # frame 1 in flight: finished, discarded; 2 made here
     assert [k for k, _ in make.calls] == [0, 1, 2]
     assert make.calls[2][1] == threading.current_thread().name
+
+
+def test_make_sees_whether_the_caller_waits():
+    """``waiting`` is set exactly while the caller waits for the frame in flight: a frame
+    made while the caller is busy sees it clear, one the caller already waits for sees
+    it set (a moving model's faces are then left to the caller, which is idle)."""
+    waits = threading.Event()
+    made = {k: threading.Event() for k in range(3)}
+    seen = {}
+
+    def make(k):
+        if k == 1:  # the caller asks for frame 1 at once: it waits while this is made
+            seen[k] = waits.wait(timeout=30)
+        else:
+            seen[k] = waits.is_set()
+        made[k].set()
+        return k
+
+    ahead = FramesAhead(make, range(3), waiting=waits)
+    try:
+        assert ahead.get(0) == 0  # made in the caller's thread, frame 1 sent ahead
+        assert ahead.get(1) == 1  # waited for: frame 2 sent ahead
+        assert not waits.is_set()
+        assert made[2].wait(timeout=30)  # the caller busy meanwhile
+        assert ahead.get(2) == 2
+    finally:
+        ahead.close()
+    assert seen == {0: False, 1: True, 2: False}

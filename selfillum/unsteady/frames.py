@@ -12,6 +12,7 @@ made ahead; with ``filter = gaussian`` 8.1-8.5 s and 6.0-6.8 s.
 
 from __future__ import annotations
 
+import threading
 from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
@@ -102,22 +103,32 @@ class FramesAhead:
         ``before(k)``, run in the caller's thread when frame ``k`` is started (made or
         sent ahead): what ``make`` needs that only the caller may compute (a moving
         model's reference, cast when missing); then ``make(k, before(k))``.
+    waiting : threading.Event, optional
+        Set while the caller waits for the frame in flight: ``make`` may read it and leave
+        a last part of the frame's work to the caller then (the work of a frame balanced
+        between the two threads, whichever is the longer on this machine).
     """
 
-    def __init__(self, make, frames, before=None) -> None:
+    def __init__(self, make, frames, before=None,
+                 waiting: threading.Event | None = None) -> None:
         self._make = make
         self._before = before
         order = [int(k) for k in frames]
         self._after = dict(zip(order[:-1], order[1:], strict=True))
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="frames-ahead")
         self._pending: tuple[int, Future] | None = None
+        self._waiting = threading.Event() if waiting is None else waiting
 
     def get(self, k: int):
         """The images of frame ``k`` (made ahead when ``k`` was the frame expected)."""
         k = int(k)
         pending, self._pending = self._pending, None
         if pending is not None and pending[0] == k:
-            imgs = pending[1].result()  # its error, if any, raised here
+            self._waiting.set()
+            try:
+                imgs = pending[1].result()  # its error, if any, raised here
+            finally:
+                self._waiting.clear()
         else:
             if pending is not None:
                 _finish(pending[1])

@@ -26,6 +26,7 @@ in blocks of frames and memory does not grow with the run.
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
@@ -319,12 +320,18 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
                 # else: a pixel that counts is not finite (warped in from beyond the edge):
                 # the faces' way, which leaves it out
             if ops and moving:  # sampled at its reference's points; the next frame's
-                if ahead is None:  # samples and faces made meanwhile in a helper thread
-                    # (on one core: see _moved_samples)
+                if ahead is None:  # samples made meanwhile in a helper thread (on one
+                    # core), and their faces there too unless this thread already waits
+                    # (see _moved_samples)
+                    waits = threading.Event()
                     ahead = FramesAhead(
-                        lambda q, op: _moved_samples(q, op, cameras, refresh_px, workers=1),
-                        frame_numbers[i:], before=planned)
+                        lambda q, op, w=waits: _moved_samples(
+                            q, op, cameras, refresh_px, workers=1,
+                            faces=lambda: not w.is_set()),
+                        frame_numbers[i:], before=planned, waiting=waits)
                 op, got, cams = ahead.get(k)
+                if isinstance(got, list):  # samples: their faces made here
+                    got = op.faces_of_samples(got)
                 fv = None if got is None else (got, cams, op.seen, op)
             elif ops:
                 fv = _fixed_frame(ops, cameras, k, regs, spot_px, filter, filter_size, pres,
@@ -512,21 +519,24 @@ def _fixed_frame(ops, cameras, k, regs, spot_px, filter, filter_size, pres=None,
     return None if B is None else (B, [c.camera for c in cameras], ops[0].seen, ops[0])
 
 
-def _moved_samples(k, op, cameras, refresh_px, workers=None):
-    """``(op, face values, cameras)`` of frame ``k`` of a moving model by its reference
-    ``op`` (:meth:`.fastmap.FrameOperator.samples`, filtered when the operator filters,
-    then :meth:`.fastmap.FrameOperator.faces_of_samples`; face values None: a point moved
-    too far). Reads the frames and the operator only: made ahead in a helper thread
-    (:class:`.FramesAhead`, ``workers`` threads within).
+def _moved_samples(k, op, cameras, refresh_px, workers=None, faces=True):
+    """``(op, values, cameras)`` of frame ``k`` of a moving model by its reference ``op``:
+    the samples (:meth:`.fastmap.FrameOperator.samples`, filtered when the operator
+    filters), or with ``faces`` (a bool, or a callable asked once the samples are made)
+    the face values from them (:meth:`.fastmap.FrameOperator.faces_of_samples`); values
+    None: a point moved too far. Reads the frames and the operator only: made ahead in a
+    helper thread (:class:`.FramesAhead`, ``workers`` threads within).
 
-    The faces are made in the helper too: its sampling took 10-11 ms a frame on the 609k
-    run against 16-18 ms in the caller's thread (the faces 5 ms, the self-illumination
-    9-10, the nodes 2.5), so the two threads' shares come closer (the sparse products
-    release the GIL; Phase 1's frames 16.6 -> 16.1 ms each in one timeline of each)."""
+    The helper makes the faces too unless the caller already waits for the frame: the
+    frame's work is then balanced between the two threads on any machine. The samples
+    (850,000 points on the 609k run) took 10-11 ms a frame on session 18's machine and
+    22 ms on session 19's, the faces 5-8 ms, the caller's self-illumination and nodes
+    12-16 ms: with the faces always in the helper, the caller waited 4.1 s of Phase 1's
+    8.3 s on the slower machine."""
     imgs = [read_frame(c.frames, k) for c in cameras]
     cams = [c.poses[k] for c in cameras]
     got = op.samples(imgs, cams, refresh_px, workers=workers)
-    if got is not None:
+    if got is not None and (faces() if callable(faces) else faces):
         got = op.faces_of_samples(got)
     return op, got, cams
 
