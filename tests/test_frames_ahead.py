@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from selfillum.unsteady.frames import FramesAhead
+from selfillum.unsteady.frames import FramesAhead, Helping
 
 
 class _Stateful:
@@ -74,29 +74,51 @@ def test_a_frame_out_of_order_is_made_in_the_caller():
     assert make.calls[2][1] == threading.current_thread().name
 
 
-def test_make_sees_whether_the_caller_waits():
-    """``waiting`` is set exactly while the caller waits for the frame in flight: a frame
-    made while the caller is busy sees it clear, one the caller already waits for sees
-    it set (a moving model's faces are then left to the caller, which is idle)."""
-    waits = threading.Event()
-    made = {k: threading.Event() for k in range(3)}
-    seen = {}
+def test_make_sees_whether_the_caller_waits_and_shares_its_blocks():
+    """While the caller waits for the frame in flight, ``Helping.waiting`` is true and the
+    caller takes blocks of the kernel the helper runs (``Helping.run``): every block once,
+    some in each thread; a frame made while the caller is busy sees it not waiting. An
+    error in a block (whichever thread ran it) reaches the caller at that frame."""
+    helping = Helping()
+    made = {k: threading.Event() for k in range(4)}
+    seen, ran = {}, {}
+    caller_took = threading.Event()
+    me = threading.current_thread().name
+
+    def block(b):
+        ran[b] = threading.current_thread().name
+        if ran[b] == me:
+            caller_took.set()
+        else:  # the helper holds on until the caller has taken a block
+            assert caller_took.wait(timeout=30)
+        if b == 13:
+            raise ValueError("block 13 is bad")
 
     def make(k):
-        if k == 1:  # the caller asks for frame 1 at once: it waits while this is made
-            seen[k] = waits.wait(timeout=30)
+        if k in (1, 3):  # asked for at once: the caller waits while this is made
+            deadline = time.monotonic() + 30
+            while not helping.waiting() and time.monotonic() < deadline:
+                time.sleep(0.001)
+            seen[k] = helping.waiting()
+            caller_took.clear()
+            helping.run(block, range(10) if k == 1 else range(10, 20))
         else:
-            seen[k] = waits.is_set()
+            seen[k] = helping.waiting()
         made[k].set()
         return k
 
-    ahead = FramesAhead(make, range(3), waiting=waits)
+    ahead = FramesAhead(make, range(4), helping=helping)
     try:
         assert ahead.get(0) == 0  # made in the caller's thread, frame 1 sent ahead
-        assert ahead.get(1) == 1  # waited for: frame 2 sent ahead
-        assert not waits.is_set()
+        assert ahead.get(1) == 1  # waited for (its blocks shared): frame 2 sent ahead
+        assert not helping.waiting()
         assert made[2].wait(timeout=30)  # the caller busy meanwhile
         assert ahead.get(2) == 2
+        with pytest.raises(ValueError, match="block 13 is bad"):
+            ahead.get(3)
     finally:
         ahead.close()
-    assert seen == {0: False, 1: True, 2: False}
+    assert seen == {0: False, 1: True, 2: False, 3: True}
+    first = {b: ran[b] for b in range(10)}
+    assert set(first) == set(range(10))
+    assert me in first.values() and any(t != me for t in first.values())

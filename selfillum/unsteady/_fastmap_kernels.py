@@ -109,17 +109,28 @@ def spmv_kernel():
     return spmv_add
 
 
-def project_sample(X, *args, workers=None):
+#: Points a block of :func:`project_sample` shared with a waiting caller.
+SHARED_BLOCK = 65536
+
+
+def project_sample(X, *args, workers=None, share=None):
     """:func:`project_sample_kernel` over all of ``X``'s points, in blocks on the available
     cores (the threads of :func:`resection._threads.run_blocks`; numba's parallel loops
     spun on the shared cores, the sampling then cost several times its work); returns the
-    statuses."""
+    statuses. With ``share`` (a :class:`selfillum.unsteady.frames.Helping`), in blocks
+    of :data:`SHARED_BLOCK` points taken by this thread and by a caller that waits for
+    it."""
     from resection._threads import run_blocks, split_range
 
-    status = np.empty(len(X), np.uint8)
+    n = len(X)
+    status = np.empty(n, np.uint8)
     kern = project_sample_kernel()  # compiled on first use (and cached on disk by numba)
+    if share is not None:
+        share.run(lambda b: kern(X, *args, status, b[0], b[1]),
+                  [(a, min(a + SHARED_BLOCK, n)) for a in range(0, n, SHARED_BLOCK)])
+        return status
     run_blocks(lambda b: kern(X, *args, status, b[0], b[1]),
-               split_range(len(X), workers, min_size=32768), workers)
+               split_range(n, workers, min_size=32768), workers)
     return status
 
 

@@ -263,7 +263,7 @@ class FrameOperator:
         return self._shares[c]
 
     def samples(self, images, cameras, refresh_px: float,
-                workers: int | None = None) -> list | None:
+                workers: int | None = None, share=None) -> list | None:
         """A moving model's frame of pose ``cameras`` (one a camera) read at the
         reference's pixels: the images sampled (bilinear) where the reference's surface
         points project (the camera's own projection with its distortion,
@@ -279,7 +279,9 @@ class FrameOperator:
         out) before the filter, as uPSP orders them (:mod:`.spot_filter`). Reads only the
         operator's arrays (and a buffer a camera for the filtered frame): the part a helper
         thread makes for the next frame, one frame at a time; ``workers``: threads of the
-        projection and the filter (default: the cores)."""
+        projection and the filter (default: the cores); ``share``: a
+        :class:`~selfillum.unsteady.frames.Helping` whose caller takes blocks of the
+        projection while it waits (instead of ``workers``)."""
         from selfillum.unsteady.lowpass import gaussian_lowpass
 
         out = []
@@ -288,8 +290,8 @@ class FrameOperator:
             src = np.asarray(img)
             if self.filter_size:
                 src = gaussian_lowpass(src, self.filter_size, workers,
-                                       out=self._filtered(c, src.shape))
-            x, status = _sample_moved(X, uv0, src, cam, refresh_px, workers)
+                                       out=self._filtered(c, src.shape), share=share)
+            x, status = _sample_moved(X, uv0, src, cam, refresh_px, workers, share)
             if status is None:
                 return None
             bad = status != 0
@@ -372,12 +374,13 @@ class FrameOperator:
         return num
 
 
-def _sample_moved(X, uv0, img, cam, refresh_px, workers=None):
+def _sample_moved(X, uv0, img, cam, refresh_px, workers=None, share=None):
     """``(x, status)``: the frame ``img`` sampled where the points ``X`` project with the
     pose ``cam`` (the statuses of :func:`._fastmap_kernels.project_sample_kernel`: 0
     sampled, 2 off the sensor); ``status`` None when a point moved more than twice
     ``refresh_px`` from ``uv0`` (cast anew); on ``workers`` threads (default: the
-    cores)."""
+    cores), or shared with a waiting caller (``share``,
+    :class:`selfillum.unsteady.frames.Helping`)."""
     arr = np.asarray(img)
     if arr.dtype.kind not in "fiu":
         arr = arr.astype(np.float64)
@@ -387,7 +390,7 @@ def _sample_moved(X, uv0, img, cam, refresh_px, workers=None):
                              np.asarray(cam.K, np.float64),
                              np.asarray(cam.dist, np.float64).ravel(),
                              float(cam.max_radius), uv0, arr, 2.0 * float(refresh_px), x,
-                             workers=workers)
+                             workers=workers, share=share)
     return x, (None if (status == 1).any() else status)
 
 

@@ -83,6 +83,96 @@ def gaussian(img: np.ndarray, size: int, workers: int | None = None) -> np.ndarr
     return gaussian_lowpass(img, size, workers)
 
 
+class Helping:
+    """Work a helper thread shares with the caller while the caller waits for it.
+
+    The helper runs :meth:`run` on blocks of a compiled kernel (the GIL released); the
+    caller, once it waits for the helper's frame (:meth:`assist`, from
+    :meth:`FramesAhead.get`), takes the blocks not yet started. Each block is its own
+    work, so the result does not depend on who ran it. :meth:`waiting` tells the helper
+    whether the caller waits (it may then leave a last part of the frame to the
+    caller)."""
+
+    def __init__(self) -> None:
+        self._cv = threading.Condition()
+        self._job: _Job | None = None
+        self._waits = False
+
+    def waiting(self) -> bool:
+        """Whether the caller waits for the frame in flight."""
+        return self._waits
+
+    def run(self, fn, blocks) -> None:
+        """``fn(block)`` for every block: in this thread, and in the caller's while it
+        waits; returns once every block is done (an error of one raised here)."""
+        job = _Job(fn, list(blocks))
+        with self._cv:
+            self._job = job
+            self._cv.notify_all()
+        try:
+            job.work()
+        finally:
+            with self._cv:
+                self._job = None
+        job.finished.wait()
+        if job.error is not None:
+            raise job.error
+
+    def assist(self, fut: Future) -> None:
+        """Until ``fut`` is done: take the blocks the helper offers (the caller's wait)."""
+        fut.add_done_callback(self._wake)
+        with self._cv:
+            self._waits = True
+        try:
+            while True:
+                with self._cv:
+                    self._cv.wait_for(lambda: fut.done() or (
+                        self._job is not None and self._job.has_blocks()))
+                    if fut.done():
+                        return
+                    job = self._job
+                job.work()
+        finally:
+            self._waits = False
+
+    def _wake(self, _fut) -> None:
+        with self._cv:
+            self._cv.notify_all()
+
+
+class _Job:
+    """Blocks of one kernel call, taken one at a time by either thread."""
+
+    def __init__(self, fn, blocks) -> None:
+        self.fn, self.blocks = fn, blocks
+        self._next = 0
+        self._left = len(blocks)
+        self._lock = threading.Lock()
+        self.finished = threading.Event()
+        self.error: BaseException | None = None
+        if not blocks:
+            self.finished.set()
+
+    def has_blocks(self) -> bool:
+        return self._next < len(self.blocks)
+
+    def work(self) -> None:
+        while True:
+            with self._lock:
+                if self._next >= len(self.blocks):
+                    return
+                b = self.blocks[self._next]
+                self._next += 1
+            try:
+                self.fn(b)
+            except BaseException as exc:  # noqa: BLE001 - raised in the helper's run
+                self.error = self.error or exc
+            with self._lock:
+                self._left -= 1
+                if self._left == 0:
+                    self.finished.set()
+
+
 class FramesAhead:
     """The images (or samples) of a run's frames, each next one made in a helper thread.
 
@@ -103,32 +193,30 @@ class FramesAhead:
         ``before(k)``, run in the caller's thread when frame ``k`` is started (made or
         sent ahead): what ``make`` needs that only the caller may compute (a moving
         model's reference, cast when missing); then ``make(k, before(k))``.
-    waiting : threading.Event, optional
-        Set while the caller waits for the frame in flight: ``make`` may read it and leave
-        a last part of the frame's work to the caller then (the work of a frame balanced
-        between the two threads, whichever is the longer on this machine).
+    helping : Helping, optional
+        While the caller waits for the frame in flight, it takes the blocks of work
+        ``make`` offers there, and ``make`` may leave a last part of the frame's work to
+        the caller (the work of a frame balanced between the two threads on any
+        machine).
     """
 
-    def __init__(self, make, frames, before=None,
-                 waiting: threading.Event | None = None) -> None:
+    def __init__(self, make, frames, before=None, helping: Helping | None = None) -> None:
         self._make = make
         self._before = before
         order = [int(k) for k in frames]
         self._after = dict(zip(order[:-1], order[1:], strict=True))
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="frames-ahead")
         self._pending: tuple[int, Future] | None = None
-        self._waiting = threading.Event() if waiting is None else waiting
+        self._helping = helping
 
     def get(self, k: int):
         """The images of frame ``k`` (made ahead when ``k`` was the frame expected)."""
         k = int(k)
         pending, self._pending = self._pending, None
         if pending is not None and pending[0] == k:
-            self._waiting.set()
-            try:
-                imgs = pending[1].result()  # its error, if any, raised here
-            finally:
-                self._waiting.clear()
+            if self._helping is not None:
+                self._helping.assist(pending[1])
+            imgs = pending[1].result()  # its error, if any, raised here
         else:
             if pending is not None:
                 _finish(pending[1])

@@ -42,7 +42,7 @@ def gaussian_weights(size: int) -> np.ndarray:
 
 
 def gaussian_lowpass(image, size: int, workers: int | None = None,
-                     out: np.ndarray | None = None) -> np.ndarray:
+                     out: np.ndarray | None = None, share=None) -> np.ndarray:
     """The NaN-aware Gaussian low-pass of ``image`` (see the module notes).
 
     Parameters
@@ -57,6 +57,9 @@ def gaussian_lowpass(image, size: int, workers: int | None = None,
     out : (H, W) float64 ndarray, optional
         Written into (C-contiguous, not ``image``): a run filtering frame after frame
         reuses one buffer.
+    share : selfillum.unsteady.frames.Helping, optional
+        Blocks of rows shared with a caller that waits for this thread (instead of
+        ``workers``).
 
     Returns
     -------
@@ -79,6 +82,10 @@ def gaussian_lowpass(image, size: int, workers: int | None = None,
         raise ValueError("out must be a C-contiguous float64 array of the image's shape, "
                          "not the image")
     H = img.shape[0]
+    if share is not None:
+        share.run(lambda b: _lowpass_rows(img, w, b[0], b[1], out),
+                  [(a, min(a + SHARED_ROWS, H)) for a in range(0, H, SHARED_ROWS)])
+        return out
     run_blocks(lambda b: _lowpass_rows(img, w, b[0], b[1], out),
                split_range(H, workers, min_size=64), workers)
     return out
@@ -92,6 +99,10 @@ def _reflect(i: int, n: int) -> int:  # pragma: no cover - compiled inline
 
 
 _reflect_jit = numba.njit(cache=True, inline="always")(_reflect)
+
+
+#: Rows of a block shared with a waiting caller (:func:`gaussian_lowpass`'s ``share``).
+SHARED_ROWS = 128
 
 
 #: Rows of the frame filtered at a time within a block: the strip's two horizontal

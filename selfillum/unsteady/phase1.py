@@ -26,7 +26,6 @@ in blocks of frames and memory does not grow with the run.
 
 from __future__ import annotations
 
-import threading
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
@@ -35,7 +34,7 @@ import scipy.sparse as sp
 
 from resection.errors import InputError
 from resection.memory import release_freed_memory
-from selfillum.unsteady.frames import FramesAhead, fixed_images, gaussian, read_frame
+from selfillum.unsteady.frames import FramesAhead, Helping, fixed_images, gaussian, read_frame
 from selfillum.unsteady.options import FILTERS, OVERLAPS, REGISTRATIONS
 from selfillum.unsteady.spots import DarkSpots, mask_spots, patch_operator, project_spots
 
@@ -323,12 +322,12 @@ def map_run(grid, cameras: Sequence[CameraRun], frame_numbers, *, spots: DarkSpo
                 if ahead is None:  # samples made meanwhile in a helper thread (on one
                     # core), and their faces there too unless this thread already waits
                     # (see _moved_samples)
-                    waits = threading.Event()
+                    helping = Helping()
                     ahead = FramesAhead(
-                        lambda q, op, w=waits: _moved_samples(
-                            q, op, cameras, refresh_px, workers=1,
-                            faces=lambda: not w.is_set()),
-                        frame_numbers[i:], before=planned, waiting=waits)
+                        lambda q, op, h=helping: _moved_samples(
+                            q, op, cameras, refresh_px, workers=1, share=h,
+                            faces=lambda: not h.waiting()),
+                        frame_numbers[i:], before=planned, helping=helping)
                 op, got, cams = ahead.get(k)
                 if isinstance(got, list):  # samples: their faces made here
                     got = op.faces_of_samples(got)
@@ -519,13 +518,14 @@ def _fixed_frame(ops, cameras, k, regs, spot_px, filter, filter_size, pres=None,
     return None if B is None else (B, [c.camera for c in cameras], ops[0].seen, ops[0])
 
 
-def _moved_samples(k, op, cameras, refresh_px, workers=None, faces=True):
+def _moved_samples(k, op, cameras, refresh_px, workers=None, faces=True, share=None):
     """``(op, values, cameras)`` of frame ``k`` of a moving model by its reference ``op``:
     the samples (:meth:`.fastmap.FrameOperator.samples`, filtered when the operator
     filters), or with ``faces`` (a bool, or a callable asked once the samples are made)
     the face values from them (:meth:`.fastmap.FrameOperator.faces_of_samples`); values
     None: a point moved too far. Reads the frames and the operator only: made ahead in a
-    helper thread (:class:`.FramesAhead`, ``workers`` threads within).
+    helper thread (:class:`.FramesAhead`, ``workers`` threads within; or with ``share``,
+    a :class:`.frames.Helping`, its sampling shared with the caller while it waits).
 
     The helper makes the faces too unless the caller already waits for the frame: the
     frame's work is then balanced between the two threads on any machine. The samples
@@ -535,7 +535,7 @@ def _moved_samples(k, op, cameras, refresh_px, workers=None, faces=True):
     8.3 s on the slower machine."""
     imgs = [read_frame(c.frames, k) for c in cameras]
     cams = [c.poses[k] for c in cameras]
-    got = op.samples(imgs, cams, refresh_px, workers=workers)
+    got = op.samples(imgs, cams, refresh_px, workers=workers, share=share)
     if got is not None and (faces() if callable(faces) else faces):
         got = op.faces_of_samples(got)
     return op, got, cams
