@@ -126,8 +126,7 @@ def project_sample(X, *args, workers=None, share=None):
     status = np.empty(n, np.uint8)
     kern = project_sample_kernel()  # compiled on first use (and cached on disk by numba)
     if share is not None:
-        share.run(lambda b: kern(X, *args, status, b[0], b[1]),
-                  [(a, min(a + SHARED_BLOCK, n)) for a in range(0, n, SHARED_BLOCK)])
+        share.run(lambda b: kern(X, *args, status, b[0], b[1]), n, SHARED_BLOCK)
         return status
     run_blocks(lambda b: kern(X, *args, status, b[0], b[1]),
                split_range(n, workers, min_size=32768), workers)

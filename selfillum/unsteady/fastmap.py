@@ -294,19 +294,14 @@ class FrameOperator:
             x, status = _sample_moved(X, uv0, src, cam, refresh_px, workers, share)
             if status is None:
                 return None
-            bad = status != 0
-            if src.dtype.kind == "f":  # a video's counts are always finite
-                bad |= ~np.isfinite(x)
+            bad = _left_out(status, x, src)
             sf = self.spot_filters[c] if self.filter_size else None
             if sf is not None:
                 sf, Xs, uvs = sf
                 g, st = _sample_moved(Xs, uvs, img, cam, refresh_px, workers)
                 if st is None:
                     return None
-                g_bad = st != 0
-                if np.asarray(img).dtype.kind == "f":
-                    g_bad |= ~np.isfinite(g)
-                sf.correct(x, bad, g, g_bad)
+                sf.correct(x, bad, g, _left_out(st, g, img))
             out.append((x, bad))
         return out
 
@@ -392,6 +387,15 @@ def _sample_moved(X, uv0, img, cam, refresh_px, workers=None, share=None):
                              float(cam.max_radius), uv0, arr, 2.0 * float(refresh_px), x,
                              workers=workers, share=share)
     return x, (None if (status == 1).any() else status)
+
+
+def _left_out(status, x, img) -> np.ndarray:
+    """The samples ``x`` of ``img`` (statuses ``status`` of :func:`_sample_moved`) left
+    out: not sampled, or not finite (a video's counts always are)."""
+    bad = status != 0
+    if np.asarray(img).dtype.kind == "f":
+        bad |= ~np.isfinite(x)
+    return bad
 
 
 def _reference_pixels(smap, pix, X) -> np.ndarray:

@@ -102,10 +102,11 @@ class Helping:
         """Whether the caller waits for the frame in flight."""
         return self._waits
 
-    def run(self, fn, blocks) -> None:
-        """``fn(block)`` for every block: in this thread, and in the caller's while it
-        waits; returns once every block is done (an error of one raised here)."""
-        job = _Job(fn, list(blocks))
+    def run(self, fn, n: int, block: int) -> None:
+        """``fn((start, stop))`` for the blocks of ``block`` items of ``range(n)``: in this
+        thread, and in the caller's while it waits; returns once every block is done (an
+        error of one raised here)."""
+        job = _Job(fn, [(a, min(a + block, n)) for a in range(0, n, block)])
         with self._cv:
             self._job = job
             self._cv.notify_all()

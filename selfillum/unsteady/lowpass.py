@@ -12,9 +12,9 @@ at the kernel's radius), in one separable pass over blocks of rows on the packag
 threads instead of two whole-frame filters and four whole-frame temporaries: the
 unsteady run filters every frame (a moving model's in its own pixels, before it is read
 at the reference's points: :mod:`selfillum.unsteady.spot_filter`), so this cost is per
-frame. A strip of rows whose every value is
-finite (a fixed map's frame, its spots patched) skips the mask's sums and the division:
-2.5-2.9 ms instead of 3.8-4.5 ms on a 1280 x 800 frame, one core.
+frame. A strip of rows whose every value is finite (a fixed map's frame, its spots
+patched) skips the mask's sums and the division: 2.5-2.9 ms instead of 3.8-4.5 ms on a
+1280 x 800 frame, one core.
 """
 
 from __future__ import annotations
@@ -84,8 +84,7 @@ def gaussian_lowpass(image, size: int, workers: int | None = None,
                          "not the image")
     H = img.shape[0]
     if share is not None:
-        share.run(lambda b: _lowpass_rows(img, w, b[0], b[1], out),
-                  [(a, min(a + SHARED_ROWS, H)) for a in range(0, H, SHARED_ROWS)])
+        share.run(lambda b: _lowpass_rows(img, w, b[0], b[1], out), H, SHARED_ROWS)
         return out
     run_blocks(lambda b: _lowpass_rows(img, w, b[0], b[1], out),
                split_range(H, workers, min_size=64), workers)

@@ -125,7 +125,8 @@ def spot_filter(smap, cols: np.ndarray, spots, size: int) -> SpotFilter | None:
     if patch is not None:
         patched = np.asarray(patch.inside, np.int64)
         left = np.flatnonzero(patch.unfit)
-        ring = np.unique(sp.csr_matrix(patch.C).indices) if patch.inside.size else \
+        C = sp.csc_matrix(patch.C)  # by pixels: the rings' pixels are its columns in use
+        ring = np.flatnonzero(np.diff(C.indptr) > 0) if patch.inside.size else \
             np.zeros(0, np.int64)
     else:
         patched, ring = np.zeros(0, np.int64), np.zeros(0, np.int64)
@@ -163,7 +164,7 @@ def spot_filter(smap, cols: np.ndarray, spots, size: int) -> SpotFilter | None:
     coef = gain = None
     if patch is not None and patched.size:
         P = patch.n_terms
-        coef = sp.csr_matrix(sp.csc_matrix(patch.C)[:, pts])
+        coef = sp.csr_matrix(C[:, pts])
         on = ~kind[si]  # the filter's weights of the patched pixels, times their terms
         order = np.argsort(patched, kind="stable")
         k_of = order[np.searchsorted(patched[order], src[si][on])]
