@@ -1,6 +1,9 @@
 """``selfillum.unsteady.tracking.TrackingAhead``: a moving model's tracking in a helper
 thread hands frame 0's pose over before the other frames are tracked, gives the poses
-that tracking in turn gives, and its errors reach the caller when it asks for a pose."""
+that tracking in turn gives, and its errors reach the caller when it asks for a pose;
+``selfillum.unsteady.tracking_process.TrackingProcess``: the tracking in a child process,
+relayed by it, gives the same poses, stops when told, and keeps its files only where the
+run keeps its work."""
 
 from __future__ import annotations
 
@@ -206,23 +209,30 @@ def test_a_stopped_tracking_keeps_its_frames_for_a_resume(run, tmp_path):
 
 def test_ctrl_c_while_the_tracking_runs_beside_the_set_up(run, tmp_path, monkeypatch, capsys):
     """``selfillum unsteady --registration track``: Ctrl-C in the set-up while the
-    tracking runs in its helper thread ends in exit 130 and one line, the helper stopped
-    (no thread left), the frames it finished kept; ``--resume`` then finishes the run."""
+    tracking runs in its child process ends in exit 130 and one line, the child stopped
+    (no process, no relaying thread left), the frames it finished moved from its
+    temporary folder into the work folder; ``--resume`` then finishes the run."""
+    import multiprocessing
+    import tempfile
+
     import selfillum.unsteady.candidates as candidates
     from resection.sequence import predict
     from selfillum.cli import main
 
     out = tmp_path / "o.h5"
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))  # the child's own folder
     frames_dir = tmp_path / "o.h5.work" / "track1" / "frames"
     real_track, real_faces = predict.track_predicted, candidates.faces_in_view
 
-    def slow_track(*a, **k):  # a frame of a long run
+    def slow_track(*a, **k):  # a frame of a long run (the child is forked: it has this)
         time.sleep(0.05)
         return real_track(*a, **k)
 
     def interrupted(*a, **k):  # the set-up, while the tracking is under way
         for _ in range(400):
-            if len(list(frames_dir.glob("frame_*.json"))) >= 4:
+            if len(list(scratch.glob("selfillum-track-*/track1/frames/frame_*.json"))) >= 4:
                 break
             time.sleep(0.025)
         raise KeyboardInterrupt
@@ -237,11 +247,154 @@ def test_ctrl_c_while_the_tracking_runs_beside_the_set_up(run, tmp_path, monkeyp
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and "interrupted" in err, err
     assert not any(t.name == "tracking" for t in threading.enumerate())
+    assert not multiprocessing.active_children()
+    assert not list(scratch.iterdir())  # the temporary folder moved, then removed
     kept = len(list(frames_dir.glob("frame_*.json")))
     assert 4 <= kept < 24  # stopped at its next frame, what it finished kept
     monkeypatch.setattr(candidates, "faces_in_view", real_faces)
     assert main([*argv, "--resume"]) == 0
     assert out.exists() and not (tmp_path / "o.h5.work").exists()
+    assert not list(scratch.iterdir())
+
+
+def _motion_camera(cam):
+    return lambda m: cam.with_pose(rvec=m[0], t=m[1])
+
+
+def test_the_child_process_gives_the_poses_of_the_tracking_run_here(run, tmp_path):
+    """:class:`TrackingProcess`: the poses its child tracks, relayed by a
+    :class:`TrackingAhead`, are those :func:`track_poses` gives in this process, to the
+    bit; its files go to the folder it is given, every frame finished."""
+    from selfillum.unsteady.tracking_process import TrackingProcess
+
+    cfg, c, cam, src = _inputs(run, tmp_path)
+    T = len(src)
+    try:
+        alone, failed = track_poses(cfg, c, cam, src, T, tmp_path / "alone")
+    finally:
+        src.close()
+    proc = TrackingProcess(cfg, tmp_path / "w")
+    ahead = TrackingAhead(proc.track, 1, on_stop=proc.stop)
+    try:
+        poses = ahead.poses(0, T, _motion_camera(cam))
+        got = list(poses)
+        assert poses[3] is got[3]  # each frame's camera made once
+        assert ahead.result()[1] == failed == 0
+    finally:
+        ahead.stop()
+        proc.close()
+    for a, b in zip(alone, got, strict=True):
+        np.testing.assert_array_equal(a.R, b.R)
+        np.testing.assert_array_equal(a.t, b.t)
+    assert len(list((tmp_path / "w" / "track1" / "frames").glob("frame_*.json"))) == T
+
+
+def test_a_fresh_tracking_is_kept_only_where_the_run_keeps_its_work(run, tmp_path,
+                                                                    monkeypatch):
+    """Without a folder the child tracks into a temporary one: moved into the folder
+    :meth:`TrackingProcess.close` is given (a run that stops before its end keeps it for
+    ``--resume``), removed otherwise."""
+    import tempfile
+
+    from selfillum.unsteady.tracking_process import TrackingProcess
+
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
+    cfg, c, cam, src = _inputs(run, tmp_path)
+    T = len(src)
+    src.close()
+    work = tmp_path / "work"
+    work.mkdir()
+    for keep in (work, None):
+        proc = TrackingProcess(cfg)
+        assert proc.folder.parent == scratch
+        ahead = TrackingAhead(proc.track, 1, T, on_stop=proc.stop)
+        ahead.result()
+        proc.close(keep=keep)
+        assert not list(scratch.iterdir())
+    assert len(list((work / "track1" / "frames").glob("frame_*.json"))) == T
+    assert sorted(p.name for p in work.iterdir()) == ["track1"]
+
+
+def test_the_child_stops_at_its_next_frame(run, tmp_path, monkeypatch):
+    """A stop while the child tracks: it ends at its next frame (not every frame
+    tracked), the relay raises :class:`TrackingStopped`, what it finished stays."""
+    from resection.sequence import predict
+    from selfillum.unsteady.tracking_process import TrackingProcess
+
+    real_track = predict.track_predicted
+
+    def slow_track(*a, **k):
+        time.sleep(0.1)
+        return real_track(*a, **k)
+
+    monkeypatch.setattr(predict, "track_predicted", slow_track)  # forked: the child's
+    cfg, c, cam, src = _inputs(run, tmp_path)
+    T = len(src)
+    src.close()
+    proc = TrackingProcess(cfg, tmp_path / "w")
+    ahead = TrackingAhead(proc.track, 1, T, on_stop=proc.stop)
+    ahead.poses(0)[2]
+    ahead.stop()
+    with pytest.raises(TrackingStopped):
+        ahead.result()
+    proc.close()
+    kept = len(list((tmp_path / "w" / "track1" / "frames").glob("frame_*.json")))
+    assert 3 <= kept < T
+
+
+def test_an_input_error_of_the_child_reaches_the_caller(run, tmp_path):
+    """A targets file the child cannot read: its one-line error, naming the file, is
+    raised where the run asks for a pose."""
+    import dataclasses
+
+    from selfillum.unsteady.tracking_process import TrackingProcess
+
+    cfg, c, cam, src = _inputs(run, tmp_path)
+    src.close()
+    bad = tmp_path / "bad.tgts"
+    bad.write_text("not a targets file\n")
+    proc = TrackingProcess(dataclasses.replace(cfg, targets=bad), tmp_path / "w")
+    ahead = TrackingAhead(proc.track, 1, 24, on_stop=proc.stop)
+    try:
+        with pytest.raises(InputError, match="bad.tgts"):
+            ahead.poses(0)[0]
+    finally:
+        ahead.stop()
+        proc.close()
+
+
+def test_spawned_where_another_thread_runs(run, tmp_path):
+    """A caller with a thread of its own running is never forked: the child is spawned
+    (a fresh interpreter) and gives the same poses."""
+    from selfillum.unsteady import tracking_process
+    from selfillum.unsteady.tracking_process import TrackingProcess
+
+    cfg, c, cam, src = _inputs(run, tmp_path)
+    T = len(src)
+    try:
+        alone, _ = track_poses(cfg, c, cam, src, T, tmp_path / "alone")
+    finally:
+        src.close()
+    hold = threading.Event()
+    other = threading.Thread(target=hold.wait, args=(60,))
+    other.start()
+    try:
+        assert tracking_process._context().get_start_method() == "spawn"
+        proc = TrackingProcess(cfg, tmp_path / "w")
+    finally:
+        hold.set()
+        other.join()
+    ahead = TrackingAhead(proc.track, 1, T, on_stop=proc.stop)
+    try:
+        got = list(ahead.poses(0, make=_motion_camera(cam)))
+    finally:
+        ahead.stop()
+        proc.close()
+    for a, b in zip(alone, got, strict=True):
+        np.testing.assert_array_equal(a.R, b.R)
+        np.testing.assert_array_equal(a.t, b.t)
 
 
 def test_each_solved_frame_handed_over_before_the_tracking_ends():

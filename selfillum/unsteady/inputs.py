@@ -14,8 +14,9 @@ from resection.errors import InputError
 from selfillum.unsteady.config import UnsteadyConfig
 from selfillum.unsteady.output import provenance
 
-__all__ = ["open_videos", "track_poses", "work_inputs", "min_frames", "content_key",
-           "file_digest", "check_cameras", "check_spot_sizes", "read_form_factors"]
+__all__ = ["open_videos", "run_length", "track_poses", "tracked_motion", "work_inputs",
+           "min_frames", "content_key", "file_digest", "check_cameras", "check_spot_sizes",
+           "read_form_factors"]
 
 
 def open_videos(cfg: UnsteadyConfig, need: int | None = None):
@@ -35,10 +36,9 @@ def open_videos(cfg: UnsteadyConfig, need: int | None = None):
         raise
 
 
-def _check_videos(cfg: UnsteadyConfig, srcs, need: int | None):
-    from selfillum.unsteady.phase2 import DETREND_ORDER
-
-    n = [len(s) for s in srcs]
+def run_length(cfg: UnsteadyConfig, n: list[int]) -> int:
+    """The run's frames from its videos' lengths ``n`` (one a camera) and the deck's
+    ``number_frames`` (-1: every frame, the videos of one length)."""
     where = cfg.source
     for c, k in zip(cfg.cameras, n, strict=True):
         if k == 0:
@@ -49,13 +49,20 @@ def _check_videos(cfg: UnsteadyConfig, srcs, need: int | None):
                              zip(cfg.cameras, n, strict=True))
             raise InputError(f"{where}: number_frames = -1 but the videos differ in length "
                              f"({lens} frames)")
-        T = n[0]
-    else:
-        T = cfg.number_frames
-        short = [(c, k) for c, k in zip(cfg.cameras, n, strict=True) if k < T]
-        if short:
-            c, k = short[0]
-            raise InputError(f"{where}: number_frames = {T} but {c.video} has {k} frames")
+        return int(n[0])
+    T = int(cfg.number_frames)
+    short = [(c, k) for c, k in zip(cfg.cameras, n, strict=True) if k < T]
+    if short:
+        c, k = short[0]
+        raise InputError(f"{where}: number_frames = {T} but {c.video} has {k} frames")
+    return T
+
+
+def _check_videos(cfg: UnsteadyConfig, srcs, need: int | None):
+    from selfillum.unsteady.phase2 import DETREND_ORDER
+
+    T = run_length(cfg, [len(s) for s in srcs])
+    where = cfg.source
     rates = [s.frame_rate for s in srcs]
     lo, hi = FRAME_RATE_RANGE
     if cfg.fps is None:  # the videos' own rates: a bad one is the video's, not --fps's
@@ -106,7 +113,26 @@ def track_poses(cfg, cam_in, camera, src, T, tmp: Path, *, resume: bool = False,
     pose)``: called as the tracker finishes frame ``k`` (frame 0 first) with its camera
     (None where the frame failed: it then takes a neighbour's); an exception it raises
     stops the tracking (:func:`resection.sequence.track`'s ``on_frame``); ``fit_threads``:
-    its marker fits' threads (default every core; 1 beside other work)."""
+    its marker fits' threads (default every core; 1 beside other work). The poses are
+    :func:`tracked_motion`'s, made cameras."""
+
+    def posed(motion):
+        return None if motion is None else camera.with_pose(rvec=motion[0], t=motion[1])
+
+    motion, failed = tracked_motion(
+        cfg, cam_in, camera, T, tmp, resume=resume, fit_threads=fit_threads,
+        on_frame=None if on_frame is None else (lambda k, m: on_frame(k, posed(m))))
+    return [posed(m) for m in motion], failed
+
+
+def tracked_motion(cfg, cam_in, camera, T: int, tmp: Path, *, resume: bool = False,
+                   on_frame=None, fit_threads: int | None = None):
+    """:func:`track_poses` as plain arrays: each of the ``T`` frames' ``(rvec, tvec)``
+    (the pose of the nearest frame tracked where its own failed: ``(3,)`` rad, ``(3,)``
+    model units), and the number of frames that took a neighbour's. ``on_frame(k,
+    motion)`` with ``(rvec, tvec)``, or None where frame ``k`` failed. ``camera``: the
+    calibrated camera (its pose the first frame's start); the tracking's files go to
+    ``tmp / "track<number>"``."""
     from resection.io.markers import read_markers
     from resection.sequence import read_track, track
 
@@ -122,23 +148,23 @@ def track_poses(cfg, cam_in, camera, src, T, tmp: Path, *, resume: bool = False,
             else 5.0
 
         def finished(res) -> None:
-            on_frame(res.frame, camera.with_pose(rvec=res.rvec, t=res.tvec) if res.ok
-                     else None)
+            on_frame(res.frame, (np.asarray(res.rvec, float), np.asarray(res.tvec, float))
+                     if res.ok else None)
 
         tr = track(str(cam_in.video), camera, ms, diameter=dpx,
-                   out_dir=tmp / f"track{cam_in.number}", workers=1, progress=cfg.progress,
-                   resume=resume, on_frame=None if on_frame is None else finished,
-                   fit_threads=fit_threads)
+                   out_dir=Path(tmp) / f"track{cam_in.number}", workers=1,
+                   progress=cfg.progress, resume=resume,
+                   on_frame=None if on_frame is None else finished, fit_threads=fit_threads)
     ok = np.flatnonzero(tr.status == "ok")
     frame_ok = tr.frame[ok]
     if frame_ok.size == 0:
         raise InputError(f"{cam_in.video}: tracking found the pose in no frame")
-    poses, failed = [], 0
-    for k in range(T):  # per frame: pick the pose of the nearest tracked frame
+    motion, failed = [], 0
+    for k in range(T):  # per frame: the pose of the nearest tracked frame
         j = int(np.argmin(np.abs(frame_ok - k)))
         failed += int(frame_ok[j] != k)
-        poses.append(camera.with_pose(rvec=tr.rvec[ok[j]], t=tr.tvec[ok[j]]))
-    return poses, failed
+        motion.append((np.asarray(tr.rvec[ok[j]], float), np.asarray(tr.tvec[ok[j]], float)))
+    return motion, failed
 
 
 def file_digest(path: str | os.PathLike, block: int = 1 << 23) -> str:

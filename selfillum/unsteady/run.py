@@ -64,15 +64,52 @@ from selfillum.unsteady.plots import write_pictures
 from selfillum.unsteady.results import write_results
 from selfillum.unsteady.spectra import Spectra, default_bands
 from selfillum.unsteady.tracking import TrackingAhead
+from selfillum.unsteady.tracking_process import TrackingProcess
 from selfillum.unsteady.uncertainty_out import wind_off_noise
-from selfillum.unsteady.work import Phase1Store
+from selfillum.unsteady.work import Phase1Store, work_folder
 
 __all__ = ["CameraInput", "UnsteadyConfig", "UnsteadyResult", "run_unsteady",
            "config_from_deck"]
 
 
 def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
-    """Run Phase 1 and Phase 2 and write the output (see the module notes)."""
+    """Run Phase 1 and Phase 2 and write the output (see the module notes).
+
+    A moving model tracked here (``registration = track``, no ``--track`` folders, no
+    cluster) is tracked in a child process started first, beside the reading of the
+    inputs (:mod:`selfillum.unsteady.tracking_process`)."""
+    check_options(cfg)
+    out = Path(cfg.out)
+    if not out.parent.is_dir():
+        raise InputError(f"{out}: output folder {out.parent} does not exist")
+    tracking = None
+    if _tracked_here(cfg) and not (cfg.resume and work_folder(out).exists()):
+        tracking = _start_tracking(cfg)  # a fresh run: into a temporary folder
+    try:
+        return _run(cfg, out, tracking)
+    finally:
+        if tracking is not None:  # ended before its work folder was open: nothing kept
+            tracking[1].stop()
+            tracking[0].close()
+
+
+def _tracked_here(cfg: UnsteadyConfig) -> bool:
+    """Whether the run tracks its moving model itself, in this machine."""
+    return (cfg.registration == "track" and cfg.track_dirs is None
+            and not (cfg.workers or cfg.scheduler))
+
+
+def _start_tracking(cfg: UnsteadyConfig, folder=None, resume: bool = False):
+    """The tracking's child process and the helper thread relaying its poses."""
+    proc = TrackingProcess(cfg, folder, resume=resume)
+    try:
+        return proc, TrackingAhead(proc.track, len(cfg.cameras), on_stop=proc.stop)
+    except BaseException:
+        proc.close()
+        raise
+
+
+def _run(cfg: UnsteadyConfig, out: Path, tracking) -> UnsteadyResult:
     import h5py
 
     from resection.io.cameras import read_camera_file
@@ -88,10 +125,6 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     from selfillum.unsteady.grid import load_run_grid, nondata_nodes, read_steady_cp
     from selfillum.unsteady.spots import DarkSpots
 
-    check_options(cfg)
-    out = Path(cfg.out)
-    if not out.parent.is_dir():
-        raise InputError(f"{out}: output folder {out.parent} does not exist")
     # ---------------------------------------------------------------- inputs, all checked
     grid = load_run_grid(cfg.grid)
     nondata = nondata_nodes(grid, cfg.cutoff_x_max, f"{cfg.source}: cutoff_x_max")
@@ -177,21 +210,18 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     done = store.frames_done
     prog = Progress(T, N, enabled=cfg.progress, start=done)
     finished = False
-    ahead = None  # a moving model's tracking in a helper thread (TrackingAhead)
+    proc, ahead = tracking if tracking is not None else (None, None)
     stack0 = contextlib.ExitStack()
     try:
         # ------------------------------------------------------------ registration
         runs, failed = [], 0
-        if cfg.registration == "track" and local and cfg.track_dirs is None:
-            # tracked in a helper thread (its fits on one thread) beside the view factors
-            # and Phase 1, whose frames wait only for the poses they need
-            ahead = TrackingAhead(lambda i, on_frame: track_poses(
-                cfg, cfg.cameras[i], cams[i], srcs[i], T, store.folder,
-                resume=store.resumed, on_frame=on_frame, fit_threads=1), len(cams), T)
+        if ahead is None and _tracked_here(cfg):  # a resumed run: into its work folder
+            proc, ahead = _start_tracking(cfg, store.folder, resume=store.resumed)
         for i, (c, cam, s) in enumerate(zip(cfg.cameras, cams, srcs, strict=True)):
             poses = None
-            if ahead is not None:
-                poses = ahead.poses(i)
+            if ahead is not None:  # each frame's as the child process solves it
+                poses = ahead.poses(i, T, lambda m, cam=cam: cam.with_pose(rvec=m[0],
+                                                                            t=m[1]))
             elif cfg.registration == "track":
                 poses, nf = track_poses(cfg, c, cam, s, T, store.folder, resume=store.resumed)
                 failed += nf
@@ -320,6 +350,8 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     finally:
         if ahead is not None:  # ended before the tracking (an error, Ctrl-C): stopped at
             ahead.stop()  # its next frame, before its folder is removed or kept
+            # a fresh run's tracking folders kept in the work folder where it is kept
+            proc.close(keep=None if finished else store.folder)
         with contextlib.suppress(Exception):
             stack0.close()  # the Dask client and its cluster
         for s in srcs:

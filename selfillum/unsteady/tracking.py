@@ -7,10 +7,13 @@ frame's pose as it comes to that frame (the references are planned piece by piec
 last frame). The tracker solves frame 0 first (a detection over the whole frame), then the
 others by prediction, in order. :class:`TrackingAhead` runs it in one helper thread and
 hands each frame's pose over as soon as it is solved, so that the view factors, the first
-frame and the frames after it are computed while the tracker goes on: the tracker's fits
-and the first frame's cast release the GIL, and each leaves a core idle in its serial
-parts. Measured on the 609k run (256 frames, 2 cores), the whole command: see
-``docs/benchmark_history.md`` (sessions 16-17).
+frame and the frames after it are computed while the tracker goes on. The run gives it a
+tracker in a child process
+(:class:`selfillum.unsteady.tracking_process.TrackingProcess`, started with the run):
+the helper thread then only relays the child's poses, and the tracker's Python no longer
+takes turns with the run's on the interpreter's lock. Measured on the 609k run (256
+frames, 2 cores) and the options scene, the whole command: see
+``docs/benchmark_history.md`` (sessions 16-17, 20).
 
 The poses are those the tracker gives when run before the set-up (the same calls, the same
 frames): only the order of the work changes. A frame the tracker solved is handed over as
@@ -46,8 +49,13 @@ class TrackingAhead:
         0 first (``pose`` None where it failed), and raises :class:`TrackingStopped` once
         :meth:`stop` is called (:func:`selfillum.unsteady.inputs.track_poses`).
     n_cameras : int
-    n_frames : int
-        The run's frames (each camera's poses).
+    n_frames : int, optional
+        The run's frames (each camera's poses), where known when the tracking starts
+        (else given to :meth:`poses`).
+    on_stop : callable, optional
+        Called first by :meth:`stop`: a tracker in another process
+        (:class:`TrackingProcess`) is told to stop without waiting for its next frame's
+        hand-over.
 
     Notes
     -----
@@ -57,9 +65,11 @@ class TrackingAhead:
     it.
     """
 
-    def __init__(self, track: Callable, n_cameras: int, n_frames: int) -> None:
+    def __init__(self, track: Callable, n_cameras: int, n_frames: int | None = None, *,
+                 on_stop: Callable[[], None] | None = None) -> None:
         self._track = track
-        self._n = int(n_frames)
+        self._n = None if n_frames is None else int(n_frames)
+        self._on_stop = on_stop
         self._solved: list[dict] = [{} for _ in range(n_cameras)]  # frame -> pose
         self._changed = threading.Condition()
         self._done = threading.Event()
@@ -108,14 +118,19 @@ class TrackingAhead:
             raise self._error
         return self._poses, self._failed
 
-    def poses(self, i: int) -> TrackedPoses:
-        """Camera ``i``'s poses as a sequence that waits only for what it is asked."""
-        return TrackedPoses(self, i, self._n)
+    def poses(self, i: int, n: int | None = None, make: Callable | None = None
+              ) -> TrackedPoses:
+        """Camera ``i``'s poses as a sequence of ``n`` frames (default the ``n_frames``
+        given) that waits only for what it is asked; each ``make(pose)`` where given (a
+        camera made of a :func:`selfillum.unsteady.inputs.tracked_motion` pose)."""
+        return TrackedPoses(self, i, self._n if n is None else int(n), make)
 
     def stop(self) -> None:
         """Stop the tracking at its next frame (nothing if it is done) and wait for the
         helper thread to end; its error, if any, is left to :meth:`result`."""
         self._stop.set()
+        if self._on_stop is not None:  # a tracker in another process: told at once
+            self._on_stop()
         self._done.wait()
         self._thread.join()
 
@@ -124,8 +139,10 @@ class TrackedPoses(Sequence):
     """One camera's poses from a :class:`TrackingAhead`: each frame's as soon as the
     tracker has solved it (:meth:`TrackingAhead.pose`)."""
 
-    def __init__(self, ahead: TrackingAhead, camera: int, n: int) -> None:
-        self._ahead, self._camera, self._n = ahead, camera, n
+    def __init__(self, ahead: TrackingAhead, camera: int, n: int,
+                 make: Callable | None = None) -> None:
+        self._ahead, self._camera, self._n, self._make = ahead, camera, n, make
+        self._made: dict = {}
 
     def __len__(self) -> int:
         return self._n
@@ -138,4 +155,10 @@ class TrackedPoses(Sequence):
             k += self._n
         if not 0 <= k < self._n:
             raise IndexError(f"frame {k} of a run of {self._n}")
-        return self._ahead.pose(self._camera, k)
+        pose = self._ahead.pose(self._camera, k)
+        if self._make is None:
+            return pose
+        made = self._made.get(k)
+        if made is None or made[0] is not pose:  # one camera a frame, made once
+            made = self._made[k] = (pose, self._make(pose))
+        return made[1]
