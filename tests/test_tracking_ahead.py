@@ -7,6 +7,7 @@ run keeps its work."""
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 
@@ -216,7 +217,7 @@ def test_ctrl_c_while_the_tracking_runs_beside_the_set_up(run, tmp_path, monkeyp
     import tempfile
 
     import selfillum.unsteady.candidates as candidates
-    from resection.sequence import predict
+    from resection.sequence import process
     from selfillum.cli import main
 
     out = tmp_path / "o.h5"
@@ -224,10 +225,10 @@ def test_ctrl_c_while_the_tracking_runs_beside_the_set_up(run, tmp_path, monkeyp
     scratch.mkdir()
     monkeypatch.setattr(tempfile, "tempdir", str(scratch))  # the child's own folder
     frames_dir = tmp_path / "o.h5.work" / "track1" / "frames"
-    real_track, real_faces = predict.track_predicted, candidates.faces_in_view
+    real_track, real_faces = process.track_predicted, candidates.faces_in_view
 
-    def slow_track(*a, **k):  # a frame of a long run (the child is forked: it has this)
-        time.sleep(0.05)
+    def slow_track(*a, **k):  # a frame of a long run (the child is forked: it has this),
+        time.sleep(0.25)  # slow enough that the run's set-up comes before the last frame
         return real_track(*a, **k)
 
     def interrupted(*a, **k):  # the set-up, while the tracking is under way
@@ -237,8 +238,9 @@ def test_ctrl_c_while_the_tracking_runs_beside_the_set_up(run, tmp_path, monkeyp
             time.sleep(0.025)
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(predict, "track_predicted", slow_track)
+    monkeypatch.setattr(process, "track_predicted", slow_track)
     monkeypatch.setattr(candidates, "faces_in_view", interrupted)
+    _forked(monkeypatch)
     argv = ["unsteady", str(run.deck), "--paint-calibration", str(run.paint), "--steady",
             str(run.steady), "--fps", str(run.fps), "--out", str(out), "--quiet",
             "--no-plots", "--registration", "track"]
@@ -252,9 +254,21 @@ def test_ctrl_c_while_the_tracking_runs_beside_the_set_up(run, tmp_path, monkeyp
     kept = len(list(frames_dir.glob("frame_*.json")))
     assert 4 <= kept < 24  # stopped at its next frame, what it finished kept
     monkeypatch.setattr(candidates, "faces_in_view", real_faces)
+    monkeypatch.setattr(process, "track_predicted", real_track)
     assert main([*argv, "--resume"]) == 0
     assert out.exists() and not (tmp_path / "o.h5.work").exists()
     assert not list(scratch.iterdir())
+
+
+def _forked(monkeypatch):
+    """The child forked whatever threads this test process holds (another test's): it
+    then has this test's slowed tracker."""
+    import multiprocessing
+
+    from selfillum.unsteady import tracking_process
+
+    monkeypatch.setattr(tracking_process, "_context",
+                        lambda: multiprocessing.get_context("fork"))
 
 
 def _motion_camera(cam):
@@ -319,23 +333,28 @@ def test_a_fresh_tracking_is_kept_only_where_the_run_keeps_its_work(run, tmp_pat
 
 def test_the_child_stops_at_its_next_frame(run, tmp_path, monkeypatch):
     """A stop while the child tracks: it ends at its next frame (not every frame
-    tracked), the relay raises :class:`TrackingStopped`, what it finished stays."""
-    from resection.sequence import predict
-    from selfillum.unsteady.tracking_process import TrackingProcess
+    tracked), the relay raises :class:`TrackingStopped`, what it finished stays. The
+    child runs at a lower priority than the run."""
+    from resection.sequence import process
+    from selfillum.unsteady.tracking_process import CHILD_NICENESS, TrackingProcess
 
-    real_track = predict.track_predicted
+    real_track = process.track_predicted
 
     def slow_track(*a, **k):
         time.sleep(0.1)
         return real_track(*a, **k)
 
-    monkeypatch.setattr(predict, "track_predicted", slow_track)  # forked: the child's
+    monkeypatch.setattr(process, "track_predicted", slow_track)  # forked: the child's
+    _forked(monkeypatch)
     cfg, c, cam, src = _inputs(run, tmp_path)
     T = len(src)
     src.close()
     proc = TrackingProcess(cfg, tmp_path / "w")
     ahead = TrackingAhead(proc.track, 1, T, on_stop=proc.stop)
     ahead.poses(0)[2]
+    if hasattr(os, "getpriority"):  # the run's work first: the child at a lower priority
+        own = os.getpriority(os.PRIO_PROCESS, 0)
+        assert os.getpriority(os.PRIO_PROCESS, proc.pid) == min(own + CHILD_NICENESS, 19)
     ahead.stop()
     with pytest.raises(TrackingStopped):
         ahead.result()
