@@ -443,3 +443,36 @@ def test_each_solved_frame_handed_over_before_the_tracking_ends():
     waiter.join(10)
     assert got == ["frame2"] and poses[4] == "frame4"
     ahead.stop()
+
+
+def _run_in_daemon(argv):
+    import sys
+
+    from selfillum.cli import main
+
+    sys.exit(main(argv))
+
+
+def test_a_daemonic_process_tracks_in_a_thread(run, tmp_path):
+    """A Dask worker's process is daemonic and may start no child (``selfillum entry`` on
+    a cluster): the run tracks in its relaying thread there, and writes the dCp of the
+    run tracked in a child process, to the bit."""
+    import multiprocessing
+
+    import h5py
+
+    from selfillum.cli import main
+
+    def argv(out):
+        return ["unsteady", str(run.deck), "--paint-calibration", str(run.paint),
+                "--steady", str(run.steady), "--fps", str(run.fps), "--out", str(out),
+                "--quiet", "--no-plots", "--registration", "track"]
+
+    p = multiprocessing.get_context("spawn").Process(
+        target=_run_in_daemon, args=(argv(tmp_path / "d.h5"),), daemon=True)
+    p.start()
+    p.join(600)
+    assert p.exitcode == 0  # (a child started there fails the run: no children allowed)
+    assert main(argv(tmp_path / "c.h5")) == 0
+    with h5py.File(tmp_path / "d.h5") as d, h5py.File(tmp_path / "c.h5") as c:
+        np.testing.assert_array_equal(d["dcp"][()], c["dcp"][()])

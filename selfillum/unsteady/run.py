@@ -43,6 +43,7 @@ from selfillum.unsteady.inputs import (
     open_videos,
     read_form_factors,
     track_poses,
+    tracked_motion,
     work_inputs,
 )
 from selfillum.unsteady.insitu import insitu_fit, insitu_gain, insitu_inputs
@@ -64,7 +65,7 @@ from selfillum.unsteady.plots import write_pictures
 from selfillum.unsteady.results import write_results
 from selfillum.unsteady.spectra import Spectra, default_bands
 from selfillum.unsteady.tracking import TrackingAhead
-from selfillum.unsteady.tracking_process import TrackingProcess
+from selfillum.unsteady.tracking_process import TrackingProcess, can_start
 from selfillum.unsteady.uncertainty_out import wind_off_noise
 from selfillum.unsteady.work import Phase1Store, work_folder
 
@@ -83,7 +84,7 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     if not out.parent.is_dir():
         raise InputError(f"{out}: output folder {out.parent} does not exist")
     tracking = None
-    if _tracked_here(cfg) and not (cfg.resume and work_folder(out).exists()):
+    if _tracked_here(cfg) and can_start() and not (cfg.resume and work_folder(out).exists()):
         tracking = _start_tracking(cfg)  # a fresh run: into a temporary folder
     try:
         return _run(cfg, out, tracking)
@@ -215,8 +216,13 @@ def _run(cfg: UnsteadyConfig, out: Path, tracking) -> UnsteadyResult:
     try:
         # ------------------------------------------------------------ registration
         runs, failed = [], 0
-        if ahead is None and _tracked_here(cfg):  # a resumed run: into its work folder
-            proc, ahead = _start_tracking(cfg, store.folder, resume=store.resumed)
+        if ahead is None and _tracked_here(cfg):
+            if can_start():  # a resumed run: into its work folder
+                proc, ahead = _start_tracking(cfg, store.folder, resume=store.resumed)
+            else:  # a daemonic process (a Dask worker's): in a thread, its fits on one
+                ahead = TrackingAhead(lambda i, on_frame: tracked_motion(
+                    cfg, cfg.cameras[i], cams[i], T, store.folder, resume=store.resumed,
+                    on_frame=on_frame, fit_threads=1), len(cams))
         for i, (c, cam, s) in enumerate(zip(cfg.cameras, cams, srcs, strict=True)):
             poses = None
             if ahead is not None:  # each frame's as the child process solves it
@@ -350,8 +356,8 @@ def _run(cfg: UnsteadyConfig, out: Path, tracking) -> UnsteadyResult:
     finally:
         if ahead is not None:  # ended before the tracking (an error, Ctrl-C): stopped at
             ahead.stop()  # its next frame, before its folder is removed or kept
-            # a fresh run's tracking folders kept in the work folder where it is kept
-            proc.close(keep=None if finished else store.folder)
+            if proc is not None:  # a fresh run's tracking folders: kept in the work
+                proc.close(keep=None if finished else store.folder)  # folder if it is
         with contextlib.suppress(Exception):
             stack0.close()  # the Dask client and its cluster
         for s in srcs:

@@ -30,7 +30,9 @@ A run started fresh (no work folder to resume) starts the child before its input
 read: the tracking's files then go to a private temporary folder (the system's), moved
 into the run's work folder (``OUT.h5.work/track<number>``) if the run stops before the
 end (an interrupt, a failure) so that ``--resume`` keeps them, and removed otherwise. A
-resumed run starts it once its work folder is open, and tracks into it.
+resumed run starts it once its work folder is open, and tracks into it. A daemonic
+process (a Dask worker's: ``selfillum entry`` on a cluster) may not start one
+(:func:`can_start`): the run there tracks in its relaying thread, as before.
 """
 
 from __future__ import annotations
@@ -47,7 +49,7 @@ from pathlib import Path
 
 from resection.errors import InputError
 
-__all__ = ["TrackingProcess"]
+__all__ = ["TrackingProcess", "can_start"]
 
 #: the child's niceness over the run's (POSIX): where both want a core, the run's own work
 #: (its first frame's cast and merge, its frames' sampling) goes first, and the tracker
@@ -58,6 +60,12 @@ CHILD_NICENESS = 10
 #: seconds :meth:`TrackingProcess.close` waits for a child told to stop (its next frame)
 #: before it ends it
 STOP_WAIT_S = 60.0
+
+
+def can_start() -> bool:
+    """Whether this process may start a child: not a daemonic process (a Dask worker's,
+    which the run then tracks in a thread of its own)."""
+    return not multiprocessing.current_process().daemon
 
 
 def _context():
