@@ -22,8 +22,9 @@ def residual(img, A, x, y, s, c, ref, sd, out):  # pragma: no cover - compiled
     clamped, as ``map_coordinates(mode="nearest")``) where the warp ``A`` (normalised
     coordinates, scale ``s`` about ``c``) sends each of the fit's pixels."""
     H, W = img.shape
-    for j in range(6):
-        out[j] = 0.0
+    # six scalar sums (kept in registers; an accumulation into ``out`` stored each of them
+    # at every pixel: 1.2-1.5 times slower), added in the same order: the same numbers
+    g0 = g1 = g2 = g3 = g4 = g5 = 0.0
     for i in range(x.size):
         uw = (A[0, 0] * x[i] + A[0, 1] * y[i] + A[0, 2]) * s + c[0]
         vw = (A[1, 0] * x[i] + A[1, 1] * y[i] + A[1, 2]) * s + c[1]
@@ -38,8 +39,18 @@ def residual(img, A, x, y, s, c, ref, sd, out):  # pragma: no cover - compiled
         val = ((1.0 - fv) * ((1.0 - fu) * img[v0, u0] + fu * img[v0, u1])
                + fv * ((1.0 - fu) * img[v1, u0] + fu * img[v1, u1]))
         e = val - ref[i]
-        for j in range(6):
-            out[j] += sd[i, j] * e
+        g0 += sd[i, 0] * e
+        g1 += sd[i, 1] * e
+        g2 += sd[i, 2] * e
+        g3 += sd[i, 3] * e
+        g4 += sd[i, 4] * e
+        g5 += sd[i, 5] * e
+    out[0] = g0
+    out[1] = g1
+    out[2] = g2
+    out[3] = g3
+    out[4] = g4
+    out[5] = g5
 
 
 @numba.njit(cache=True, nogil=True)

@@ -225,7 +225,7 @@ def _run(cfg: UnsteadyConfig, out: Path, tracking) -> UnsteadyResult:
                     on_frame=on_frame, fit_threads=1), len(cams))
         for i, (c, cam, s) in enumerate(zip(cfg.cameras, cams, srcs, strict=True)):
             poses = None
-            if ahead is not None:  # each frame's as the child process solves it
+            if ahead is not None:  # each frame's pose as the tracker solves it
                 poses = ahead.poses(i, T, lambda m, cam=cam: cam.with_pose(rvec=m[0],
                                                                             t=m[1]))
             elif cfg.registration == "track":
