@@ -271,6 +271,18 @@ def _forked(monkeypatch):
                         lambda: multiprocessing.get_context("fork"))
 
 
+def _tracked_alone(run, tmp_path):
+    """The run's config, camera, frames, and its poses tracked in this process (with
+    the frames that took a neighbour's)."""
+    cfg, c, cam, src = _inputs(run, tmp_path)
+    T = len(src)
+    try:
+        alone, failed = track_poses(cfg, c, cam, src, T, tmp_path / "alone")
+    finally:
+        src.close()
+    return cfg, cam, T, alone, failed
+
+
 def _motion_camera(cam):
     return lambda m: cam.with_pose(rvec=m[0], t=m[1])
 
@@ -281,12 +293,7 @@ def test_the_child_process_gives_the_poses_of_the_tracking_run_here(run, tmp_pat
     bit; its files go to the folder it is given, every frame finished."""
     from selfillum.unsteady.tracking_process import TrackingProcess
 
-    cfg, c, cam, src = _inputs(run, tmp_path)
-    T = len(src)
-    try:
-        alone, failed = track_poses(cfg, c, cam, src, T, tmp_path / "alone")
-    finally:
-        src.close()
+    cfg, cam, T, alone, failed = _tracked_alone(run, tmp_path)
     proc = TrackingProcess(cfg, tmp_path / "w")
     ahead = TrackingAhead(proc.track, 1, on_stop=proc.stop)
     try:
@@ -390,12 +397,7 @@ def test_spawned_where_another_thread_runs(run, tmp_path):
     from selfillum.unsteady import tracking_process
     from selfillum.unsteady.tracking_process import TrackingProcess
 
-    cfg, c, cam, src = _inputs(run, tmp_path)
-    T = len(src)
-    try:
-        alone, _ = track_poses(cfg, c, cam, src, T, tmp_path / "alone")
-    finally:
-        src.close()
+    cfg, cam, T, alone, _ = _tracked_alone(run, tmp_path)
     hold = threading.Event()
     other = threading.Thread(target=hold.wait, args=(60,))
     other.start()
