@@ -162,9 +162,7 @@ def test_the_tracker_gives_frame_zero_early_and_the_same_poses(run, tmp_path, mo
         src.close()
     assert failed == 0 and ahead.result()[1] == 0
     assert len(early) == 1 and first is early[0]
-    for a, b in zip(alone, got, strict=True):
-        np.testing.assert_array_equal(a.R, b.R)
-        np.testing.assert_array_equal(a.t, b.t)
+    _assert_same_poses(alone, got)
     np.testing.assert_array_equal(first.R, alone[0].R)
     np.testing.assert_array_equal(first.t, alone[0].t)
     assert set(threads) == {1}  # beside the run: one thread
@@ -271,6 +269,13 @@ def _forked(monkeypatch):
                         lambda: multiprocessing.get_context("fork"))
 
 
+def _assert_same_poses(a, b):
+    """Two sequences of cameras with the same poses, to the bit."""
+    for p, q in zip(a, b, strict=True):
+        np.testing.assert_array_equal(p.R, q.R)
+        np.testing.assert_array_equal(p.t, q.t)
+
+
 def _tracked_alone(run, tmp_path):
     """The run's config, camera, frames, and its poses tracked in this process (with
     the frames that took a neighbour's)."""
@@ -295,18 +300,15 @@ def test_the_child_process_gives_the_poses_of_the_tracking_run_here(run, tmp_pat
 
     cfg, cam, T, alone, failed = _tracked_alone(run, tmp_path)
     proc = TrackingProcess(cfg, tmp_path / "w")
-    ahead = TrackingAhead(proc.track, 1, on_stop=proc.stop)
+    ahead = proc.ahead
     try:
         poses = ahead.poses(0, T, _motion_camera(cam))
         got = list(poses)
         assert poses[3] is got[3]  # each frame's camera made once
         assert ahead.result()[1] == failed == 0
     finally:
-        ahead.stop()
         proc.close()
-    for a, b in zip(alone, got, strict=True):
-        np.testing.assert_array_equal(a.R, b.R)
-        np.testing.assert_array_equal(a.t, b.t)
+    _assert_same_poses(alone, got)
     assert len(list((tmp_path / "w" / "track1" / "frames").glob("frame_*.json"))) == T
 
 
@@ -330,7 +332,7 @@ def test_a_fresh_tracking_is_kept_only_where_the_run_keeps_its_work(run, tmp_pat
     for keep in (work, None):
         proc = TrackingProcess(cfg)
         assert proc.folder.parent == scratch
-        ahead = TrackingAhead(proc.track, 1, T, on_stop=proc.stop)
+        ahead = proc.ahead
         ahead.result()
         proc.close(keep=keep)
         assert not list(scratch.iterdir())
@@ -357,8 +359,8 @@ def test_the_child_stops_at_its_next_frame(run, tmp_path, monkeypatch):
     T = len(src)
     src.close()
     proc = TrackingProcess(cfg, tmp_path / "w")
-    ahead = TrackingAhead(proc.track, 1, T, on_stop=proc.stop)
-    ahead.poses(0)[2]
+    ahead = proc.ahead
+    ahead.poses(0, T)[2]
     if hasattr(os, "getpriority"):  # the run's work first: the child at a lower priority
         own = os.getpriority(os.PRIO_PROCESS, 0)
         assert os.getpriority(os.PRIO_PROCESS, proc.pid) == min(own + CHILD_NICENESS, 19)
@@ -382,12 +384,11 @@ def test_an_input_error_of_the_child_reaches_the_caller(run, tmp_path):
     bad = tmp_path / "bad.tgts"
     bad.write_text("not a targets file\n")
     proc = TrackingProcess(dataclasses.replace(cfg, targets=bad), tmp_path / "w")
-    ahead = TrackingAhead(proc.track, 1, 24, on_stop=proc.stop)
+    ahead = proc.ahead
     try:
         with pytest.raises(InputError, match="bad.tgts"):
-            ahead.poses(0)[0]
+            ahead.poses(0, 24)[0]
     finally:
-        ahead.stop()
         proc.close()
 
 
@@ -407,15 +408,12 @@ def test_spawned_where_another_thread_runs(run, tmp_path):
     finally:
         hold.set()
         other.join()
-    ahead = TrackingAhead(proc.track, 1, T, on_stop=proc.stop)
+    ahead = proc.ahead
     try:
-        got = list(ahead.poses(0, make=_motion_camera(cam)))
+        got = list(ahead.poses(0, T, _motion_camera(cam)))
     finally:
-        ahead.stop()
         proc.close()
-    for a, b in zip(alone, got, strict=True):
-        np.testing.assert_array_equal(a.R, b.R)
-        np.testing.assert_array_equal(a.t, b.t)
+    _assert_same_poses(alone, got)
 
 
 def test_each_solved_frame_handed_over_before_the_tracking_ends():

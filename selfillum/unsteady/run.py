@@ -83,15 +83,14 @@ def run_unsteady(cfg: UnsteadyConfig) -> UnsteadyResult:
     out = Path(cfg.out)
     if not out.parent.is_dir():
         raise InputError(f"{out}: output folder {out.parent} does not exist")
-    tracking = None
+    proc = None
     if _tracked_here(cfg) and can_start() and not (cfg.resume and work_folder(out).exists()):
-        tracking = _start_tracking(cfg)  # a fresh run: into a temporary folder
+        proc = TrackingProcess(cfg)  # a fresh run: into a temporary folder
     try:
-        return _run(cfg, out, tracking)
+        return _run(cfg, out, proc)
     finally:
-        if tracking is not None:  # ended before its work folder was open: nothing kept
-            tracking[1].stop()
-            tracking[0].close()
+        if proc is not None:  # ended before its work folder was open: nothing kept
+            proc.close()
 
 
 def _tracked_here(cfg: UnsteadyConfig) -> bool:
@@ -100,17 +99,7 @@ def _tracked_here(cfg: UnsteadyConfig) -> bool:
             and not (cfg.workers or cfg.scheduler))
 
 
-def _start_tracking(cfg: UnsteadyConfig, folder=None, resume: bool = False):
-    """The tracking's child process and the helper thread relaying its poses."""
-    proc = TrackingProcess(cfg, folder, resume=resume)
-    try:
-        return proc, TrackingAhead(proc.track, len(cfg.cameras), on_stop=proc.stop)
-    except BaseException:
-        proc.close()
-        raise
-
-
-def _run(cfg: UnsteadyConfig, out: Path, tracking) -> UnsteadyResult:
+def _run(cfg: UnsteadyConfig, out: Path, proc) -> UnsteadyResult:
     import h5py
 
     from resection.io.cameras import read_camera_file
@@ -211,14 +200,15 @@ def _run(cfg: UnsteadyConfig, out: Path, tracking) -> UnsteadyResult:
     done = store.frames_done
     prog = Progress(T, N, enabled=cfg.progress, start=done)
     finished = False
-    proc, ahead = tracking if tracking is not None else (None, None)
+    ahead = proc.ahead if proc is not None else None
     stack0 = contextlib.ExitStack()
     try:
         # ------------------------------------------------------------ registration
         runs, failed = [], 0
         if ahead is None and _tracked_here(cfg):
             if can_start():  # a resumed run: into its work folder
-                proc, ahead = _start_tracking(cfg, store.folder, resume=store.resumed)
+                proc = TrackingProcess(cfg, store.folder, resume=store.resumed)
+                ahead = proc.ahead
             else:  # a daemonic process (a Dask worker's): in a thread, its fits on one
                 ahead = TrackingAhead(lambda i, on_frame: tracked_motion(
                     cfg, cfg.cameras[i], cams[i], T, store.folder, resume=store.resumed,
@@ -354,10 +344,12 @@ def _run(cfg: UnsteadyConfig, out: Path, tracking) -> UnsteadyResult:
         finished = True  # bad input: nothing to resume, nothing left
         raise
     finally:
-        if ahead is not None:  # ended before the tracking (an error, Ctrl-C): stopped at
-            ahead.stop()  # its next frame, before its folder is removed or kept
-            if proc is not None:  # a fresh run's tracking folders: kept in the work
-                proc.close(keep=None if finished else store.folder)  # folder if it is
+        # ended before the tracking (an error, Ctrl-C): stopped at its next frame, before
+        # its folder is removed or kept (a fresh run's: kept in the work folder if it is)
+        if proc is not None:
+            proc.close(keep=None if finished else store.folder)
+        elif ahead is not None:
+            ahead.stop()
         with contextlib.suppress(Exception):
             stack0.close()  # the Dask client and its cluster
         for s in srcs:

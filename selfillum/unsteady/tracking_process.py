@@ -48,6 +48,7 @@ import traceback
 from pathlib import Path
 
 from resection.errors import InputError
+from selfillum.unsteady.tracking import TrackingAhead
 
 __all__ = ["TrackingProcess", "can_start"]
 
@@ -91,10 +92,12 @@ class TrackingProcess:
     resume : bool
         Keep the frames an interrupted tracking finished in ``folder``.
 
-    Notes
-    -----
-    Use :meth:`track` as a :class:`~selfillum.unsteady.tracking.TrackingAhead`'s
-    callable and :meth:`stop` as its ``on_stop``; :meth:`close` once the run ends.
+    Attributes
+    ----------
+    ahead : TrackingAhead
+        The helper thread relaying the child's poses (:meth:`track` its callable,
+        :meth:`stop` its ``on_stop``): ask it for the poses. :meth:`close` once the run
+        ends.
     """
 
     def __init__(self, cfg, folder: str | Path | None = None, *, resume: bool = False
@@ -118,6 +121,11 @@ class TrackingProcess:
         finally:
             send.close()  # the child's end: this process sees its end as the pipe's
         self._ended = False
+        try:  # its poses read as they come (the pipe never fills)
+            self.ahead = TrackingAhead(self.track, len(cfg.cameras), on_stop=self.stop)
+        except BaseException:
+            self.close()
+            raise
 
     @property
     def pid(self) -> int | None:
@@ -158,12 +166,15 @@ class TrackingProcess:
         self._stop.set()
 
     def close(self, keep: str | Path | None = None) -> None:
-        """Stop the child if it still tracks, wait for it to end, and for a run started
+        """Stop the child if it still tracks (and :attr:`ahead`), wait for it to end, and
+        for a run started
         fresh: move its tracking's folders into ``keep`` (the run's work folder, where
         the run stopped before its end) or remove them (``keep`` None). Once."""
         if self._ended:
             return
         self._ended = True
+        if hasattr(self, "ahead"):  # its relaying thread first: stopped, joined
+            self.ahead.stop()
         self._stop.set()
         with contextlib.suppress(EOFError, OSError):
             while self._conn.poll(STOP_WAIT_S):  # what it still sends, until its end
